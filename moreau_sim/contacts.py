@@ -1,0 +1,160 @@
+"""Contact detection with coal: the closed contacts H(q) with signed gaps g_i, witness points,
+normals, and their rows w_i (impact-law.md, notation).
+
+Method (general, no special case per shape pair): for every collision pair whose gap is
+<= the contact tolerance (coal's narrow phase with a security margin gates this),
+  1. coal's own closest-point contact (edge-edge, smooth shapes);
+  2. every polytope vertex of either shape (boxes, convex meshes, cylinder rims) whose
+     signed distance to the other shape is <= tolerance, measured by coal (point vs shape);
+     a vertex is only queried when the separating plane of step 1 puts it within tolerance
+     (a lower bound on its distance, so no contact is missed).
+A box lying on a face therefore has its 4 corners as contacts with their exact gaps, and
+the witness point of step 1 is dropped when it coincides with one of those vertices.
+
+Sign convention: the normal n points from the second shape B to the first shape A, the gap
+g grows when A moves along n, and the row is w = J_A(p_A)' n - J_B(p_B)' n (size nv), so
+gamma = w' u is the normal relative velocity (> 0 separating).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from .model import Data, Model
+
+WITNESS = -1  # feature id of coal's closest-point contact; >= 0: vertex index (B's offset by len(A's))
+_SAME_POINT = 1e-9  # [m] a witness this close to a vertex contact duplicates it
+
+
+@dataclass(frozen=True, slots=True)
+class Contacts:
+    """The closed contacts at one configuration (m of them).
+
+    g (m,) signed gaps [m]; point_a / point_b (m, 3) witness points on A and B [m, world];
+    normal (m, 3) unit normals from B to A; pair (m,) collision-pair index; feature (m,)
+    WITNESS or a vertex index; joint_a / joint_b (m,) Pinocchio joints of A and B.
+    """
+
+    g: np.ndarray
+    point_a: np.ndarray
+    point_b: np.ndarray
+    normal: np.ndarray
+    pair: np.ndarray
+    feature: np.ndarray
+    joint_a: np.ndarray
+    joint_b: np.ndarray
+
+    @property
+    def m(self) -> int:
+        return len(self.g)
+
+
+def _empty() -> Contacts:
+    z3, z = np.zeros((0, 3)), np.zeros(0)
+    zi = np.zeros(0, dtype=np.int64)
+    return Contacts(z, z3, z3, z3, zi, zi, zi, zi)
+
+
+NO_CONTACTS = _empty()
+
+
+def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_other: int, n_va: np.ndarray,
+                     p_other: np.ndarray, tol: float, out: list, pair: int, offset: int, v_is_a: bool) -> None:
+    """Vertices of geometry g_vert that lie within tol of geometry g_other.
+
+    n_va: the pair's normal oriented from the other shape towards the vertex shape;
+    p_other: the witness point on the other shape (its support point along n_va)."""
+    V = model.vertices[g_vert]
+    if not len(V):
+        return
+    oMi = data.pin.oMi[joint_v]
+    Vw = V @ oMi.rotation.T + oMi.translation
+    est = (Vw - p_other) @ n_va  # <= true distance of each vertex to the other (convex) shape
+    cand = np.flatnonzero(est <= tol)
+    if not len(cand):
+        return
+    query = data.point_query(g_other)
+    tf_other = data.geom.oMg[g_other]
+    tf, req, res = data.point_tf, data.distance_request, data.distance_result
+    for i in cand:
+        tf.setTranslation(Vw[i])
+        d = query(tf, tf_other, req, res)
+        if d <= tol:
+            nrm = res.normal  # from the vertex towards the other shape
+            p_on_other = res.getNearestPoint2()
+            if v_is_a:
+                out.append((d, Vw[i], p_on_other, -nrm, pair, offset + i))
+            else:
+                out.append((d, p_on_other, Vw[i], nrm, pair, offset + i))
+
+
+def detect(model: Model, data: Data, q: np.ndarray) -> Contacts:
+    """Closed contacts H(q) = {i : g_i(q) <= contact_tolerance} at configuration q.
+
+    Updates data.pin kinematics (oMi) and the geometry placements at q."""
+    pm, pd, gm, gd = model.pin, data.pin, model.geom, data.geom
+    pin.updateGeometryPlacements(pm, pd, gm, gd, q)
+    if not model.pairs or not pin.computeCollisions(gm, gd, False):
+        return NO_CONTACTS
+    tol = model.scene.options.contact_tolerance
+    found: list = []
+    for pair in model.pairs:
+        res = gd.collisionResults[pair.index]
+        if not res.isCollision():
+            continue
+        c = res.getContact(0)
+        n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
+        p1, p2 = np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2())
+        start = len(found)
+        na = len(model.vertices[pair.first])
+        _vertex_contacts(model, data, pair.first, pair.joint_first, pair.second, n, p2, tol, found,
+                         pair.index, 0, True)
+        _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, -n, p1, tol, found,
+                         pair.index, na, False)
+        dup = any(np.linalg.norm(f[1] - p1) < _SAME_POINT or np.linalg.norm(f[2] - p2) < _SAME_POINT
+                  for f in found[start:])
+        if not dup:
+            found.append((c.penetration_depth, p1, p2, n, pair.index, WITNESS))
+    if not found:
+        return NO_CONTACTS
+    g, pa, pb, nn, pair_ids, feat = zip(*found)
+    pair_ids = np.array(pair_ids, dtype=np.int64)
+    ja = np.array([model.pairs[k].joint_first for k in pair_ids], dtype=np.int64)
+    jb = np.array([model.pairs[k].joint_second for k in pair_ids], dtype=np.int64)
+    return Contacts(np.array(g, float), np.array(pa), np.array(pb), np.array(nn), pair_ids,
+                    np.array(feat, dtype=np.int64), ja, jb)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    # row-wise a x b (np.cross costs ~15 us per call on small arrays)
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+                     a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+
+
+def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
+    """W = [w_1 ... w_m] (nv, m), the gradients of the gaps mapped to velocity space.
+
+    Needs data.pin.J = the WORLD joint Jacobians at the same q as `contacts`
+    (pin.crba(..., Convention.WORLD) or pin.computeJointJacobians fill it).
+    w_i = n_i' (J_A(p_A) - J_B(p_B)): the unit wrench [n; p x n] at the world origin applied to
+    the WORLD Jacobian, masked to the joints that move each body."""
+    if contacts.m == 0:
+        return np.zeros((model.nv, 0))
+    J = data.pin.J  # (6, nv), twists of each joint's body at the world origin
+    n = contacts.normal
+    wa = np.concatenate([n, _cross(contacts.point_a, n)], axis=1) @ J
+    wb = np.concatenate([n, _cross(contacts.point_b, n)], axis=1) @ J
+    mask = model.support_mask
+    return (wa * mask[contacts.joint_a] - wb * mask[contacts.joint_b]).T
+
+
+def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
+    """Signed distance [m] of every collision pair at q (for records and plots, not the step)."""
+    if not model.pairs:
+        return np.zeros(0)
+    pin.computeDistances(model.pin, data.pin, model.geom, data.geom, q)
+    return np.array([r.min_distance for r in data.geom.distanceResults])

@@ -1,0 +1,356 @@
+"""Scene -> immutable :class:`Model` (Pinocchio model, coal geometry, collision pairs) and
+reusable scratch :class:`Data`.
+
+Each body's URDF is loaded by Pinocchio with the scene's root joint, its names prefixed
+``"<body>/"`` so several instances of one URDF coexist, and appended to one model at its
+placement. Statics are coal shapes on the universe joint.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import coal
+import numpy as np
+import pinocchio as pin
+
+from .errors import SceneError
+from .scene import Body, RootJoint, Scene, Static, StaticShape
+from .state import State
+
+_AXES = {(1.0, 0.0, 0.0): "X", (0.0, 1.0, 0.0): "Y", (0.0, 0.0, 1.0): "Z"}
+CYLINDER_RIM_POINTS = 16  # vertices sampled on each rim of a cylinder (contacts.py)
+
+
+@dataclass(frozen=True)
+class Pair:
+    """A collision pair: geometry ids (first = coal's shape 1), their joints and bodies."""
+
+    index: int
+    first: int
+    second: int
+    joint_first: int
+    joint_second: int
+    name: str
+
+
+@dataclass(frozen=True)
+class BodyInfo:
+    name: str
+    root_joint: RootJoint
+    joints: tuple[int, ...]  # Pinocchio joint ids of this body
+    q_slice: slice
+    v_slice: slice
+    urdf: Path
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """What the scene is. Never modified after :func:`build_model`.
+
+    pin: Pinocchio model (gravity set from the scene); geom: coal geometry + pairs;
+    pairs: the collision pairs; vertices[g]: (k, 3) polytope vertices of geometry g in its
+    joint frame (empty for smooth shapes); support_mask[j]: 1 on the velocity indices that move
+    joint j; q0/u0: the initial state.
+    """
+
+    scene: Scene
+    pin: pin.Model
+    geom: pin.GeometryModel
+    pairs: tuple[Pair, ...]
+    vertices: tuple[np.ndarray, ...]
+    support_mask: np.ndarray
+    bodies: tuple[BodyInfo, ...]
+    geometry_body: tuple[str, ...]
+    q0: np.ndarray
+    u0: np.ndarray
+
+    @property
+    def nq(self) -> int:
+        return self.pin.nq
+
+    @property
+    def nv(self) -> int:
+        return self.pin.nv
+
+    @property
+    def pair_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.pairs)
+
+    def describe(self) -> dict:
+        """A JSON-able summary (for `moreau-sim info` and output metadata)."""
+        o = self.scene.options
+        return {
+            "scene": self.scene.name,
+            "nq": self.nq,
+            "nv": self.nv,
+            "bodies": [{"name": b.name, "root_joint": b.root_joint.value, "nq": b.q_slice.stop - b.q_slice.start,
+                        "nv": b.v_slice.stop - b.v_slice.start, "urdf": str(b.urdf),
+                        "joints": [self.pin.names[j] for j in b.joints]} for b in self.bodies],
+            "geometries": [g.name for g in self.geom.geometryObjects],
+            "collision_pairs": list(self.pair_names),
+            "restitution": o.restitution,
+            "dt": o.dt,
+            "duration": o.duration,
+            "gravity": list(o.gravity),
+        }
+
+
+class Data:
+    """Scratch reused by every step: Pinocchio data, coal results, cached queries.
+
+    Create one per thread with :func:`make_data`; it holds no state of the simulation."""
+
+    def __init__(self, model: Model):
+        self.pin = model.pin.createData()
+        # GeometryData must be created after every geometry and pair exists (segfault otherwise).
+        self.geom = pin.GeometryData(model.geom)
+        tol = model.scene.options.contact_tolerance
+        for req in self.geom.collisionRequests:
+            req.security_margin = tol  # a pair "collides" when its gap <= tol: gate of the active set
+            req.num_max_contacts = 1
+        self.point = coal.Sphere(0.0)  # a vertex, for point-vs-shape signed distances
+        self.point_tf = coal.Transform3s()
+        self.distance_request = coal.DistanceRequest()
+        self.distance_result = coal.DistanceResult()
+        self._point_queries: dict[int, coal.ComputeDistance] = {}
+        geoms = model.geom.geometryObjects
+        self.shapes = [g.geometry for g in geoms]
+
+    def point_query(self, g: int) -> coal.ComputeDistance:
+        """Cached coal functor: signed distance from a point to geometry g."""
+        f = self._point_queries.get(g)
+        if f is None:
+            f = self._point_queries[g] = coal.ComputeDistance(self.point, self.shapes[g])
+        return f
+
+
+def make_data(model: Model) -> Data:
+    return Data(model)
+
+
+def _unit(v, where: str) -> np.ndarray:
+    a = np.asarray(v, float)
+    n = np.linalg.norm(a)
+    if n < 1e-12:
+        raise SceneError(f"{where}: axis must not be zero")
+    return a / n
+
+
+def _root_joint(body: Body, where: str):
+    rj = body.root_joint
+    if rj is RootJoint.FIXED:
+        return None
+    if rj is RootJoint.FREE:
+        return pin.JointModelFreeFlyer()
+    if rj in (RootJoint.PRISMATIC, RootJoint.REVOLUTE):
+        a = _unit(body.axis, f"{where} axis")
+        kind = "P" if rj is RootJoint.PRISMATIC else "R"
+        aligned = _AXES.get(tuple(float(x) for x in a))
+        if aligned:
+            return getattr(pin, f"JointModel{kind}{aligned}")()
+        return pin.JointModelPrismaticUnaligned(a) if kind == "P" else pin.JointModelRevoluteUnaligned(a)
+    # planar: translations along the two in-plane axes (world rates), then rotation about a x b.
+    a, b = (_unit(x, f"{where} axes") for x in body.axes)
+    n = np.cross(a, b)
+    j = pin.JointModelComposite()
+    j.addJoint(pin.JointModelPrismaticUnaligned(a))
+    j.addJoint(pin.JointModelPrismaticUnaligned(b))
+    j.addJoint(pin.JointModelRevoluteUnaligned(n / np.linalg.norm(n)))
+    return j
+
+
+def _check_urdf(path: Path, where: str) -> dict[str, int]:
+    """Parse the URDF as XML first (clear errors), return {link: number of <collision>}."""
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise SceneError(f"{path}: malformed URDF (XML error: {exc}) [{where} urdf]") from None
+    if root.tag != "robot":
+        raise SceneError(f"{path}: not a URDF: root element is <{root.tag}>, expected <robot> [{where} urdf]")
+    counts = {}
+    for link in root.findall("link"):
+        name = link.get("name")
+        if not name:
+            raise SceneError(f"{path}: a <link> has no name [{where} urdf]")
+        counts[name] = len(link.findall("collision"))
+        for col in link.findall("collision"):
+            geo = col.find("geometry")
+            kinds = [c.tag for c in geo] if geo is not None else []
+            if len(kinds) != 1 or kinds[0] not in ("box", "sphere", "cylinder", "mesh"):
+                raise SceneError(f"{path}: link '{name}': collision geometry {kinds or 'missing'} cannot be parsed "
+                                 f"by Pinocchio's URDF reader (supported: box, sphere, cylinder, mesh) [{where} urdf]")
+    return counts
+
+
+def _load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str]:
+    path = body.urdf
+    counts = _check_urdf(path, where)
+    root = _root_joint(body, where)
+    try:
+        if root is None:
+            m = pin.buildModelFromUrdf(str(path))
+        else:
+            m = pin.buildModelFromUrdf(str(path), root, "root")
+        g = pin.buildGeomFromUrdf(m, str(path), pin.GeometryType.COLLISION, package_dirs=[str(path.parent)])
+    except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with C++ text
+        raise SceneError(f"{path}: Pinocchio cannot load this URDF: {exc} [{where} urdf]") from None
+    loaded: dict[str, int] = {}
+    for go in g.geometryObjects:
+        link = m.frames[go.parentFrame].name
+        loaded[link] = loaded.get(link, 0) + 1
+    for link, n in counts.items():
+        if loaded.get(link, 0) != n:
+            raise SceneError(f"{path}: link '{link}' has {n} <collision> element(s) but Pinocchio loaded "
+                             f"{loaded.get(link, 0)} [{where} urdf]")
+    # prefix every name with the body name so several instances of one URDF can coexist
+    p = f"{body.name}/"
+    for i in range(1, m.njoints):
+        m.names[i] = p + m.names[i]
+    for i in range(1, m.nframes):
+        m.frames[i].name = p + m.frames[i].name
+    for go in g.geometryObjects:
+        go.name = p + go.name
+    return m, g, (path.read_text(encoding="utf-8"))
+
+
+def _static_shape(s: Static):
+    if s.shape is StaticShape.HALFSPACE:
+        n = _unit(s.normal, f"[[statics]] ({s.name}) normal")
+        return coal.Halfspace(n, float(s.offset)), pin.SE3.Identity()
+    placement = pin.SE3(pin.rpy.rpyToMatrix(*s.rpy), np.array(s.position, float))
+    if s.shape is StaticShape.BOX:
+        return coal.Box(*s.size), placement
+    if s.shape is StaticShape.SPHERE:
+        return coal.Sphere(s.radius), placement
+    return coal.Cylinder(s.radius, s.length), placement
+
+
+def _vertices(geometry, placement: pin.SE3) -> np.ndarray:
+    """Polytope vertices of a shape, in its joint frame (contacts.py: one contact per vertex)."""
+    if isinstance(geometry, coal.Box):
+        hx, hy, hz = geometry.halfSide
+        local = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    elif isinstance(geometry, coal.Cylinder):
+        k = CYLINDER_RIM_POINTS
+        ang = 2 * np.pi * np.arange(k) / k
+        r, hz = geometry.radius, geometry.halfLength
+        rim = np.stack([r * np.cos(ang), r * np.sin(ang)], axis=1)
+        local = np.concatenate([np.c_[rim, np.full(k, -hz)], np.c_[rim, np.full(k, hz)]])
+    elif isinstance(geometry, coal.ConvexBase):
+        local = np.array(geometry.points(), float).reshape(-1, 3)
+    else:
+        return np.zeros((0, 3))
+    out = local @ placement.rotation.T + placement.translation
+    out.setflags(write=False)
+    return out
+
+
+def _matches(name: str, gname: str, body: str, link: str) -> bool:
+    return name in (gname, body, link)
+
+
+def build_model(scene: Scene) -> Model:
+    """Build the immutable :class:`Model` of `scene`. Raises :class:`SceneError`."""
+    where = str(scene.path) if scene.path else "<scene>"
+    model, geom = pin.Model(), pin.GeometryModel()
+    model.name = scene.name
+    body_of_joint: dict[int, str] = {}
+    geometry_body: list[str] = []
+    infos = []
+    for i, body in enumerate(scene.bodies):
+        w = f"{where} [[bodies]][{i}] ({body.name})"
+        m, g, _ = _load_body(body, w)
+        placement = pin.SE3(pin.rpy.rpyToMatrix(*body.rpy), np.array(body.position, float))
+        nj0 = model.njoints
+        model, geom = pin.appendModel(model, m, geom, g, 0, placement)
+        joints = tuple(range(nj0, model.njoints))
+        for j in joints:
+            body_of_joint[j] = body.name
+        geometry_body += [body.name] * (geom.ngeoms - len(geometry_body))
+        if joints:
+            q_sl = slice(model.joints[joints[0]].idx_q, model.joints[joints[-1]].idx_q + model.joints[joints[-1]].nq)
+            v_sl = slice(model.joints[joints[0]].idx_v, model.joints[joints[-1]].idx_v + model.joints[joints[-1]].nv)
+        else:
+            q_sl = v_sl = slice(model.nq, model.nq)
+        infos.append(BodyInfo(body.name, body.root_joint, joints, q_sl, v_sl, body.urdf))
+    for s in scene.statics:
+        shape, placement = _static_shape(s)
+        geom.addGeometryObject(pin.GeometryObject(s.name, 0, 0, placement, shape))
+        geometry_body.append(s.name)
+    model.gravity.linear = np.array(scene.options.gravity, float)
+
+    # --- collision pairs: different joints, not both static, not a link and its parent
+    gobs = list(geom.geometryObjects)
+    links = [model.frames[go.parentFrame].name if go.parentFrame < model.nframes else go.name for go in gobs]
+    def pairs_matching(a: str, b: str, key: str) -> list[tuple[int, int]]:
+        ia = [k for k, go in enumerate(gobs) if _matches(a, go.name, geometry_body[k], links[k])]
+        ib = [k for k, go in enumerate(gobs) if _matches(b, go.name, geometry_body[k], links[k])]
+        for name, found in ((a, ia), (b, ib)):
+            if not found:
+                raise SceneError(f"{where} [collisions] {key}: '{name}' names no body, static, link or geometry")
+        return [(min(x, y), max(x, y)) for x in ia for y in ib if x != y]
+
+    chosen = set()
+    for i in range(len(gobs)):
+        for j in range(i + 1, len(gobs)):
+            ji, jj = gobs[i].parentJoint, gobs[j].parentJoint
+            if ji == jj:
+                continue  # one rigid body (or both static)
+            if geometry_body[i] == geometry_body[j] and (model.parents[ji] == jj or model.parents[jj] == ji):
+                continue  # a link and its parent in one body
+            chosen.add((i, j))
+    for a, b in scene.collisions.include:
+        for i, j in pairs_matching(a, b, "include"):
+            if gobs[i].parentJoint == gobs[j].parentJoint:
+                raise SceneError(f"{where} [collisions] include: {gobs[i].name} and {gobs[j].name} "
+                                 "are on one rigid body (or both static) and can never touch")
+            chosen.add((i, j))
+    for a, b in scene.collisions.exclude:
+        chosen -= set(pairs_matching(a, b, "exclude"))
+    pairs = []
+    for k, (i, j) in enumerate(sorted(chosen)):
+        # shape 1 = the moving one with the larger joint id: normals then point from it to the other
+        if gobs[i].parentJoint < gobs[j].parentJoint:
+            i, j = j, i
+        geom.addCollisionPair(pin.CollisionPair(i, j))
+        pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, f"{gobs[i].name}|{gobs[j].name}"))
+
+    vertices = tuple(_vertices(go.geometry, go.placement) for go in gobs)
+    mask = np.zeros((model.njoints, model.nv))
+    for j in range(1, model.njoints):
+        for s in model.supports[j][1:]:
+            jm = model.joints[s]
+            mask[j, jm.idx_v:jm.idx_v + jm.nv] = 1.0
+    mask.setflags(write=False)
+
+    q0, u0 = _initial(scene, model, infos, where)
+    return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, support_mask=mask,
+                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0)
+
+
+def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndarray, np.ndarray]:
+    q, u = pin.neutral(model), np.zeros(model.nv)
+    for i, (body, info) in enumerate(zip(scene.bodies, infos)):
+        w = f"{where} [[bodies]][{i}] ({body.name})"
+        nq, nv = info.q_slice.stop - info.q_slice.start, info.v_slice.stop - info.v_slice.start
+        if body.q0 is not None:
+            if len(body.q0) != nq:
+                raise SceneError(f"{w} q0: has {len(body.q0)} values, the body has nq = {nq}")
+            q[info.q_slice] = body.q0
+        if body.u0 is not None:
+            if len(body.u0) != nv:
+                raise SceneError(f"{w} u0: has {len(body.u0)} values, the body has nv = {nv}")
+            u[info.v_slice] = body.u0
+        if body.root_joint is RootJoint.FREE and body.q0 is not None:
+            quat = q[info.q_slice.start + 3:info.q_slice.start + 7]
+            if not math.isclose(np.linalg.norm(quat), 1.0, abs_tol=1e-6):
+                raise SceneError(f"{w} q0: the quaternion [qx qy qz qw] = {quat.tolist()} must have norm 1")
+    return q, u
+
+
+def initial_state(model: Model) -> State:
+    return State(0.0, model.q0.copy(), model.u0.copy())

@@ -1,0 +1,343 @@
+"""Scene files (TOML) -> a frozen, validated :class:`Scene`.
+
+Every key, unit and default is documented in ``docs/scenes.md``; this module is the
+single place that reads them. Errors name the file and the field
+(``scenes/x.toml: [simulation] restitution = 1.5: must lie in [0, 1]``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import SceneError
+
+
+class RootJoint(enum.Enum):
+    """How a body's root link is attached to the world."""
+
+    FIXED = "fixed"  # 0 dof: the body is part of the static environment
+    FREE = "free"  # 6 dof: q = [x y z qx qy qz qw], u = [v, w] in the body frame
+    PLANAR = "planar"  # 3 dof: q = [s_a, s_b, theta] along `axes`, rotation about a x b
+    PRISMATIC = "prismatic"  # 1 dof along `axis` [m]
+    REVOLUTE = "revolute"  # 1 dof about `axis` [rad]
+
+
+class QPForm(enum.Enum):
+    """Which form of the impact QP piqp solves (impact-law.md §1)."""
+
+    PRIMAL = "primal"  # velocity space: min 1/2 (v - v_free)' M (v - v_free), W' v >= 0
+    DUAL = "dual"  # contact space: Delassus G = W' M^-1 W, lambda >= 0
+
+
+class StaticShape(enum.Enum):
+    HALFSPACE = "halfspace"
+    BOX = "box"
+    SPHERE = "sphere"
+    CYLINDER = "cylinder"
+
+
+def _check(cond: bool, where: str, msg: str) -> None:
+    if not cond:
+        raise SceneError(f"{where}: {msg}")
+
+
+def _finite_vec(value, n: int, where: str) -> tuple[float, ...]:
+    _check(isinstance(value, (list, tuple)) and len(value) == n, where, f"must be a list of {n} numbers, got {value!r}")
+    out = []
+    for x in value:
+        _check(isinstance(x, (int, float)) and not isinstance(x, bool), where, f"must hold numbers, got {x!r}")
+        _check(math.isfinite(x), where, f"must be finite, got {x!r}")
+        out.append(float(x))
+    return tuple(out)
+
+
+def _number(value, where: str) -> float:
+    _check(isinstance(value, (int, float)) and not isinstance(value, bool), where, f"must be a number, got {value!r}")
+    _check(math.isfinite(value), where, f"must be finite, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Options:
+    """Integration options. All SI units.
+
+    restitution: global Newton restitution e in [0, 1] (impact-law.md §1).
+    dt: time step h [s], > 0.
+    duration: simulated time [s], > 0.
+    gravity: gravity vector [m/s^2].
+    contact_tolerance: a contact is closed (in H) when its gap at the midpoint q_m is <= this [m].
+        The default 1e-9 m is ~1e7 times the rounding of positions of order 1 m, so bodies
+        placed exactly touching count as closed, and far below any physical gap.
+    qp_form: which form of the impact QP to solve (see :class:`QPForm`).
+    qp_tolerance: piqp's eps_abs and eps_rel; the solution is then polished on its active set.
+    save_every: record the state every N steps (the last step is always recorded).
+    """
+
+    restitution: float = 0.5
+    dt: float = 1e-3
+    duration: float = 1.0
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    contact_tolerance: float = 1e-9
+    qp_form: QPForm = QPForm.PRIMAL
+    qp_tolerance: float = 1e-10
+    save_every: int = 1
+
+    def __post_init__(self):
+        self.validate("options")
+
+    def validate(self, where: str) -> None:
+        e, h = self.restitution, self.dt
+        _check(isinstance(e, (int, float)) and 0.0 <= e <= 1.0, f"{where}: restitution", f"must lie in [0, 1], got {e!r}")
+        _check(isinstance(h, (int, float)) and math.isfinite(h) and h > 0, f"{where}: dt", f"must be a finite step > 0 s, got {h!r}")
+        _check(isinstance(self.duration, (int, float)) and math.isfinite(self.duration) and self.duration > 0,
+               f"{where}: duration", f"must be > 0 s, got {self.duration!r}")
+        _check(self.duration / h <= 1e9, f"{where}: dt", f"duration/dt = {self.duration / h:.3g} steps is too many")
+        _finite_vec(list(self.gravity), 3, f"{where}: gravity")
+        _check(isinstance(self.contact_tolerance, (int, float)) and 0 <= self.contact_tolerance < 1e-3,
+               f"{where}: contact_tolerance", f"must lie in [0, 1e-3) m, got {self.contact_tolerance!r}")
+        _check(isinstance(self.qp_form, QPForm), f"{where}: qp_form", f"must be a QPForm, got {self.qp_form!r}")
+        _check(isinstance(self.qp_tolerance, (int, float)) and 0 < self.qp_tolerance < 1e-3,
+               f"{where}: qp_tolerance", f"must lie in (0, 1e-3), got {self.qp_tolerance!r}")
+        _check(isinstance(self.save_every, int) and not isinstance(self.save_every, bool) and self.save_every >= 1,
+               f"{where}: save_every", f"must be an integer >= 1, got {self.save_every!r}")
+
+    @property
+    def n_steps(self) -> int:
+        """Number of steps: duration / dt rounded to the nearest integer (at least 1)."""
+        return max(1, int(round(self.duration / self.dt)))
+
+    def replace(self, **changes) -> "Options":
+        """A copy with `changes` applied and validated (None values are ignored)."""
+        changes = {k: v for k, v in changes.items() if v is not None}
+        if isinstance(changes.get("qp_form"), str):
+            changes["qp_form"] = QPForm(changes["qp_form"])
+        if "gravity" in changes:
+            changes["gravity"] = tuple(float(x) for x in changes["gravity"])
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["qp_form"] = self.qp_form.value
+        d["gravity"] = list(self.gravity)
+        return d
+
+
+@dataclass(frozen=True, kw_only=True)
+class Body:
+    """A URDF model attached to the world by a root joint (docs/scenes.md, [[bodies]])."""
+
+    name: str
+    urdf: Path
+    root_joint: RootJoint
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    axes: tuple[tuple[float, float, float], tuple[float, float, float]] = ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    q0: tuple[float, ...] | None = None
+    u0: tuple[float, ...] | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class Static:
+    """A fixed obstacle of the environment (docs/scenes.md, [[statics]])."""
+
+    name: str
+    shape: StaticShape
+    normal: tuple[float, float, float] = (0.0, 0.0, 1.0)  # halfspace: outward normal
+    offset: float = 0.0  # halfspace: the surface is {x : normal . x = offset} [m]
+    size: tuple[float, float, float] = (1.0, 1.0, 1.0)  # box: full side lengths [m]
+    radius: float = 0.1  # sphere, cylinder [m]
+    length: float = 0.1  # cylinder: full length [m]
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Collisions:
+    """Which collision pairs exist beyond the automatic rule (docs/scenes.md, [collisions])."""
+
+    include: tuple[tuple[str, str], ...] = ()
+    exclude: tuple[tuple[str, str], ...] = ()
+
+
+@dataclass(frozen=True, kw_only=True)
+class Scene:
+    name: str
+    description: str = ""
+    options: Options = field(default_factory=Options)
+    bodies: tuple[Body, ...] = ()
+    statics: tuple[Static, ...] = ()
+    collisions: Collisions = field(default_factory=Collisions)
+    output: str | None = None  # default output file (relative to the working directory)
+    path: Path | None = None  # the file it was read from
+    source: str = ""  # the TOML text, kept so outputs describe themselves
+
+    def with_options(self, **changes) -> "Scene":
+        """A copy with options changed (e.g. ``dt=1e-4, restitution=1.0``), validated."""
+        return dataclasses.replace(self, options=self.options.replace(**changes))
+
+
+_TOP = {"scene", "simulation", "output", "bodies", "statics", "collisions"}
+_SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravity": "gravity",
+        "contact_tolerance": "contact_tolerance", "qp_form": "qp_form", "qp_tolerance": "qp_tolerance"}
+_BODY = {"name", "urdf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0"}
+_STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy"}
+
+
+def _unknown(table: dict, allowed: set, where: str) -> None:
+    extra = sorted(set(table) - allowed)
+    _check(not extra, where, f"unknown key(s) {extra}; allowed: {sorted(allowed)}")
+
+
+def _table(doc: dict, key: str, where: str) -> dict:
+    t = doc.get(key, {})
+    _check(isinstance(t, dict), f"{where} [{key}]", "must be a table")
+    return t
+
+
+def _name(value, where: str) -> str:
+    _check(isinstance(value, str) and value.strip() != "" and "/" not in value, where,
+           f"must be a non-empty string without '/', got {value!r}")
+    return value
+
+
+def _enum(cls, value, where: str):
+    try:
+        return cls(value)
+    except ValueError:
+        raise SceneError(f"{where}: must be one of {[m.value for m in cls]}, got {value!r}") from None
+
+
+def _parse_options(sim: dict, out: dict, where: str) -> Options:
+    _unknown(sim, set(_SIM), f"{where} [simulation]")
+    kw: dict[str, Any] = {}
+    for key in ("restitution", "dt", "duration", "contact_tolerance", "qp_tolerance"):
+        if key in sim:
+            kw[key] = _number(sim[key], f"{where} [simulation] {key}")
+    if "gravity" in sim:
+        kw["gravity"] = _finite_vec(sim["gravity"], 3, f"{where} [simulation] gravity")
+    if "qp_form" in sim:
+        kw["qp_form"] = _enum(QPForm, sim["qp_form"], f"{where} [simulation] qp_form")
+    if "save_every" in out:
+        kw["save_every"] = out["save_every"]
+    try:
+        return Options(**kw)
+    except SceneError as exc:  # re-label "options: x" as the file's section
+        raise SceneError(str(exc).replace("options:", f"{where} [simulation]", 1)) from None
+
+
+def _parse_body(t: dict, where: str, base: Path) -> Body:
+    _check(isinstance(t, dict), where, "must be a table")
+    _unknown(t, _BODY, where)
+    for req in ("name", "urdf", "root_joint"):
+        _check(req in t, where, f"missing required key '{req}'")
+    name = _name(t["name"], f"{where} name")
+    w = f"{where} ({name})"
+    _check(isinstance(t["urdf"], str), f"{w} urdf", "must be a path string")
+    urdf = (base / t["urdf"]).resolve()
+    _check(urdf.is_file(), f"{w} urdf", f"file not found: {urdf}")
+    kw: dict[str, Any] = dict(name=name, urdf=urdf, root_joint=_enum(RootJoint, t["root_joint"], f"{w} root_joint"))
+    for key in ("axis", "position", "rpy"):
+        if key in t:
+            kw[key] = _finite_vec(t[key], 3, f"{w} {key}")
+    if "axis" in kw:
+        _check(math.hypot(*kw["axis"]) > 1e-12, f"{w} axis", "must not be zero")
+    if "axes" in t:
+        _check(isinstance(t["axes"], list) and len(t["axes"]) == 2, f"{w} axes", "must be two 3-vectors")
+        a, b = (_finite_vec(x, 3, f"{w} axes") for x in t["axes"])
+        na, nb = math.hypot(*a), math.hypot(*b)
+        _check(na > 1e-12 and nb > 1e-12 and abs(sum(x * y for x, y in zip(a, b))) < 1e-9 * na * nb,
+               f"{w} axes", "must be two non-zero orthogonal vectors")
+        kw["axes"] = (a, b)
+    for key in ("q0", "u0"):
+        if key in t:
+            _check(isinstance(t[key], list), f"{w} {key}", "must be a list of numbers")
+            kw[key] = _finite_vec(t[key], len(t[key]), f"{w} {key}")
+    return Body(**kw)
+
+
+def _parse_static(t: dict, where: str) -> Static:
+    _check(isinstance(t, dict), where, "must be a table")
+    _unknown(t, _STATIC, where)
+    for req in ("name", "shape"):
+        _check(req in t, where, f"missing required key '{req}'")
+    name = _name(t["name"], f"{where} name")
+    w = f"{where} ({name})"
+    kw: dict[str, Any] = dict(name=name, shape=_enum(StaticShape, t["shape"], f"{w} shape"))
+    for key in ("normal", "size", "position", "rpy"):
+        if key in t:
+            kw[key] = _finite_vec(t[key], 3, f"{w} {key}")
+    for key in ("offset", "radius", "length"):
+        if key in t:
+            kw[key] = _number(t[key], f"{w} {key}")
+    s = Static(**kw)
+    _check(math.hypot(*s.normal) > 1e-12, f"{w} normal", "must not be zero")
+    _check(min(s.size) > 0 and s.radius > 0 and s.length > 0, w, "sizes, radius and length must be > 0 m")
+    return s
+
+
+def _parse_pairs(value, where: str) -> tuple[tuple[str, str], ...]:
+    _check(isinstance(value, list), where, "must be a list of [name, name] pairs")
+    out = []
+    for p in value:
+        _check(isinstance(p, list) and len(p) == 2 and all(isinstance(x, str) for x in p), where,
+               f"each entry must be [name, name], got {p!r}")
+        out.append((p[0], p[1]))
+    return tuple(out)
+
+
+def parse_scene(text: str, *, path: Path | str | None = None) -> Scene:
+    """Parse scene TOML `text`; relative URDF paths resolve against `path`'s folder."""
+    where = str(path) if path is not None else "<scene>"
+    base = Path(path).resolve().parent if path is not None else Path.cwd()
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{where}: malformed TOML: {exc}") from None
+    _unknown(doc, _TOP, where)
+    head = _table(doc, "scene", where)
+    _unknown(head, {"name", "description"}, f"{where} [scene]")
+    name = _name(head.get("name", Path(where).stem if path else "scene"), f"{where} [scene] name")
+    description = head.get("description", "")
+    _check(isinstance(description, str), f"{where} [scene] description", "must be a string")
+    out = _table(doc, "output", where)
+    _unknown(out, {"file", "save_every"}, f"{where} [output]")
+    output = out.get("file")
+    _check(output is None or isinstance(output, str), f"{where} [output] file", "must be a path string")
+    options = _parse_options(_table(doc, "simulation", where), out, where)
+
+    bodies_t, statics_t = doc.get("bodies", []), doc.get("statics", [])
+    _check(isinstance(bodies_t, list), f"{where} [[bodies]]", "must be an array of tables")
+    _check(isinstance(statics_t, list), f"{where} [[statics]]", "must be an array of tables")
+    bodies = tuple(_parse_body(t, f"{where} [[bodies]][{i}]", base) for i, t in enumerate(bodies_t))
+    statics = tuple(_parse_static(t, f"{where} [[statics]][{i}]") for i, t in enumerate(statics_t))
+    names = [b.name for b in bodies] + [s.name for s in statics]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    _check(not dup, where, f"duplicate body/static names {dup}")
+    _check(any(b.root_joint is not RootJoint.FIXED for b in bodies), f"{where} [[bodies]]",
+           "needs at least one body with a moving root joint")
+
+    col = _table(doc, "collisions", where)
+    _unknown(col, {"include", "exclude"}, f"{where} [collisions]")
+    collisions = Collisions(include=_parse_pairs(col.get("include", []), f"{where} [collisions] include"),
+                            exclude=_parse_pairs(col.get("exclude", []), f"{where} [collisions] exclude"))
+    return Scene(name=name, description=description, options=options, bodies=bodies, statics=statics,
+                 collisions=collisions, output=output, path=Path(path).resolve() if path else None, source=text)
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene file. Raises :class:`SceneError` naming the file and field."""
+    p = Path(path)
+    if not p.is_file():
+        raise SceneError(f"{p}: scene file not found")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"{p}: cannot read scene file: {exc}") from None
+    return parse_scene(text, path=p)

@@ -1,0 +1,83 @@
+"""Recorded arrays + metadata, and the self-describing NPZ file format (docs/output.md).
+
+Arrays (n = saved samples, k = logged contact percussions):
+  t (n,) [s]; q (n, nq); u (n, nv); kinetic_energy, potential_energy (n,) [J];
+  contact_work (n,) [J]: sum of the step ledger W_c over the steps since the previous sample;
+  gap (n, pairs) [m]: signed distance of each collision pair at the sample;
+  n_contacts (n,): closed contacts in the step that produced the sample;
+  log_step, log_t [s] (step midpoint time), log_pair, log_feature, log_gap [m], log_P [N s],
+  log_gamma_minus, log_gamma_plus [m/s], log_point (k, 3) [m], log_normal (k, 3),
+  log_impact (bool: the contact did not push in the previous step, i.e. a new impact).
+  meta: one JSON string: scene (name, path, TOML source, URDF texts), options, model summary,
+  package versions, status ("complete" or "failed: ..."), run statistics.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ARRAYS = ("t", "q", "u", "kinetic_energy", "potential_energy", "contact_work", "gap", "n_contacts",
+          "log_step", "log_t", "log_pair", "log_feature", "log_gap", "log_P", "log_gamma_minus",
+          "log_gamma_plus", "log_point", "log_normal", "log_impact")
+
+
+@dataclass(eq=False)
+class Trajectory:
+    """A simulation's record. ``arrays`` holds the names of ARRAYS; ``meta`` a JSON-able dict."""
+
+    arrays: dict[str, np.ndarray]
+    meta: dict = field(default_factory=dict)
+
+    def __getattr__(self, name):
+        arrays = self.__dict__.get("arrays", {})
+        if name in arrays:
+            return arrays[name]
+        raise AttributeError(name)
+
+    @property
+    def complete(self) -> bool:
+        return self.meta.get("status") == "complete"
+
+    @property
+    def total_energy(self) -> np.ndarray:
+        return self.arrays["kinetic_energy"] + self.arrays["potential_energy"]
+
+    @property
+    def impacts(self) -> int:
+        """Number of new impacts (a contact starting to push)."""
+        return int(np.count_nonzero(self.arrays["log_impact"]))
+
+    def save(self, path: str | Path) -> Path:
+        """Write an NPZ atomically (a temporary file renamed into place: never half-written)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez_compressed(fh, meta=np.array(json.dumps(self.meta)), **self.arrays)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return path
+
+
+def load_trajectory(path: str | Path) -> Trajectory:
+    """Read an NPZ written by :meth:`Trajectory.save`. Raises ValueError naming the file."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in ARRAYS + ("meta",) if k not in z.files]
+            if missing:
+                raise ValueError(f"{path}: not a moreau-sim trajectory (missing {missing})")
+            meta = json.loads(str(z["meta"]))
+            arrays = {k: z[k] for k in ARRAYS}
+    except (OSError, json.JSONDecodeError, EOFError) as exc:
+        raise ValueError(f"{path}: cannot read trajectory: {exc}") from None
+    return Trajectory(arrays, meta)
