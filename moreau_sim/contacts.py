@@ -3,13 +3,20 @@ normals, and their rows w_i (impact-law.md, notation).
 
 Method (general, no special case per shape pair): for every collision pair whose gap is
 <= the contact tolerance (coal's narrow phase with a security margin gates this),
-  1. coal's own closest-point contact (edge-edge, smooth shapes);
-  2. every polytope vertex of either shape (boxes, convex meshes, cylinder rims) whose
+  1. every polytope vertex of either shape (boxes, convex meshes, cylinder rims) whose
      signed distance to the other shape is <= tolerance, measured by coal (point vs shape);
-     a vertex is only queried when the separating plane of step 1 puts it within tolerance
-     (a lower bound on its distance, so no contact is missed).
-A box lying on a face therefore has its 4 corners as contacts with their exact gaps, and
-the witness point of step 1 is dropped when it coincides with one of those vertices.
+     a vertex is only queried when a cheap lower bound of that distance (the other shape's
+     bounding sphere, or its plane for a half-space) is within tolerance, so none is missed.
+     (coal's own contact normal is not used for this: for exactly touching boxes its EPA
+     normal can be tilted by ~5 deg at its default GJK/EPA tolerance; model.GJK_TOLERANCE.)
+  2. where two faces are parallel (to within the tolerance), the corners of coal's contact
+     patch, the polygon where the faces overlap (two equal boxes stacked with a yaw touch only
+     along the octagon of their overlap: no vertex of either lies on the other), except those
+     that are already vertex contacts; they carry the pair's depth, exact for parallel faces;
+  3. otherwise, when steps 1-2 found nothing, coal's closest-point contact (edge on edge,
+     smooth shapes: spheres, capsules, cylinders, curved meshes).
+A box lying on a face therefore has its 4 corners as contacts with their exact gaps; a
+tilted box its lowest corner(s) with their own gaps, never one depth shared by a polygon.
 
 Sign convention: the normal n points from the second shape B to the first shape A, the gap
 g grows when A moves along n, and the row is w = J_A(p_A)' n - J_B(p_B)' n (size nv), so
@@ -26,7 +33,8 @@ import pinocchio as pin
 from .model import Data, Model
 
 WITNESS = -1  # feature id of coal's closest-point contact; >= 0: vertex index (B's offset by len(A's))
-_SAME_POINT = 1e-9  # [m] a witness this close to a vertex contact duplicates it
+PATCH = 10_000  # feature id PATCH + k: corner k of coal's contact patch (overlap polygon of two faces)
+_SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,18 +69,19 @@ def _empty() -> Contacts:
 NO_CONTACTS = _empty()
 
 
-def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_other: int, n_va: np.ndarray,
-                     p_other: np.ndarray, tol: float, out: list, pair: int, offset: int, v_is_a: bool) -> None:
-    """Vertices of geometry g_vert that lie within tol of geometry g_other.
-
-    n_va: the pair's normal oriented from the other shape towards the vertex shape;
-    p_other: the witness point on the other shape (its support point along n_va)."""
+def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_other: int, joint_other: int,
+                     tol: float, out: list, pair: int, offset: int, v_is_a: bool) -> None:
+    """Contacts of the vertices of geometry g_vert that lie within tol of geometry g_other."""
     V = model.vertices[g_vert]
     if not len(V):
         return
-    oMi = data.pin.oMi[joint_v]
+    oMi, oMo = data.pin.oMi[joint_v], data.pin.oMi[joint_other]
     Vw = V @ oMi.rotation.T + oMi.translation
-    est = (Vw - p_other) @ n_va  # <= true distance of each vertex to the other (convex) shape
+    kind, a, b = model.bounds[g_other]  # a lower bound of each vertex's distance (model._bound)
+    if kind == "plane":
+        est = Vw @ (oMo.rotation @ a) - (b + (oMo.rotation @ a) @ oMo.translation)
+    else:
+        est = np.sqrt(((Vw - (oMo.rotation @ a + oMo.translation)) ** 2).sum(axis=1)) - b
     cand = np.flatnonzero(est <= tol)
     if not len(cand):
         return
@@ -105,19 +114,27 @@ def detect(model: Model, data: Data, q: np.ndarray) -> Contacts:
         res = gd.collisionResults[pair.index]
         if not res.isCollision():
             continue
-        c = res.getContact(0)
-        n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
-        p1, p2 = np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2())
         start = len(found)
         na = len(model.vertices[pair.first])
-        _vertex_contacts(model, data, pair.first, pair.joint_first, pair.second, n, p2, tol, found,
+        nb = len(model.vertices[pair.second])
+        _vertex_contacts(model, data, pair.first, pair.joint_first, pair.second, pair.joint_second, tol, found,
                          pair.index, 0, True)
-        _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, -n, p1, tol, found,
+        _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, pair.joint_first, tol, found,
                          pair.index, na, False)
-        dup = any(np.linalg.norm(f[1] - p1) < _SAME_POINT or np.linalg.norm(f[2] - p2) < _SAME_POINT
-                  for f in found[start:])
-        if not dup:
-            found.append((c.penetration_depth, p1, p2, n, pair.index, WITNESS))
+        c = res.getContact(0)
+        n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
+        pin.computeContactPatch(gm, gd, pair.index)
+        patch = gd.contactPatchResults[pair.index].getContactPatch(0)
+        if patch.size() > 1:  # parallel faces: the overlap polygon (its corners need not be vertices)
+            known = [f[1] for f in found[start:]]
+            for k in range(patch.size()):
+                p1 = np.array(patch.getPointShape1(k))
+                if all(np.abs(p1 - x).max() > _SAME_POINT for x in known):
+                    found.append((c.penetration_depth, p1, np.array(patch.getPointShape2(k)), n, pair.index,
+                                  PATCH + k))
+        elif len(found) == start:  # no vertex within tolerance: edge-edge, smooth shapes
+            found.append((c.penetration_depth, np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2()),
+                          n, pair.index, WITNESS))
     if not found:
         return NO_CONTACTS
     g, pa, pb, nn, pair_ids, feat = zip(*found)
@@ -150,6 +167,21 @@ def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
     wb = np.concatenate([n, _cross(contacts.point_b, n)], axis=1) @ J
     mask = model.support_mask
     return (wa * mask[contacts.joint_a] - wb * mask[contacts.joint_b]).T
+
+
+def distinct(contacts: Contacts, W: np.ndarray) -> tuple[Contacts, np.ndarray]:
+    """Drop contacts whose row w_i repeats an earlier one (to 1e-12 relative): the same
+    constraint twice, e.g. the front and back corners of a planar block, or coal's witness
+    at a vertex. Keeps the first (vertex contacts come before the witness)."""
+    m = W.shape[1]
+    if m < 2:
+        return contacts, W
+    scale = 1e-12 * (1.0 + np.abs(W).max())
+    same = np.abs(W[:, :, None] - W[:, None, :]).max(axis=0) <= scale
+    keep = ~np.triu(same, 1).any(axis=0)
+    if keep.all():
+        return contacts, W
+    return Contacts(*(getattr(contacts, f)[keep] for f in Contacts.__slots__)), W[:, keep]
 
 
 def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:

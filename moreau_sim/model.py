@@ -22,7 +22,7 @@ from .scene import Body, RootJoint, Scene, Static, StaticShape
 from .state import State
 
 _AXES = {(1.0, 0.0, 0.0): "X", (0.0, 1.0, 0.0): "Y", (0.0, 0.0, 1.0): "Z"}
-CYLINDER_RIM_POINTS = 16  # vertices sampled on each rim of a cylinder (contacts.py)
+GJK_TOLERANCE = 1e-12  # coal's GJK/EPA tolerances for the contact normal (default 1e-6 is too coarse)
 
 
 @dataclass(frozen=True)
@@ -53,8 +53,10 @@ class Model:
 
     pin: Pinocchio model (gravity set from the scene); geom: coal geometry + pairs;
     pairs: the collision pairs; vertices[g]: (k, 3) polytope vertices of geometry g in its
-    joint frame (empty for smooth shapes); support_mask[j]: 1 on the velocity indices that move
-    joint j; q0/u0: the initial state.
+    joint frame (empty for smooth shapes); bounds[g]: a cheap lower bound of the distance from a
+    point to geometry g, ("sphere", centre, radius) in its joint frame or ("plane", n, d) for a
+    half-space {n.x <= d} (contacts.py uses it to skip far vertices); support_mask[j]: 1 on the
+    velocity indices that move joint j; q0/u0: the initial state.
     """
 
     scene: Scene
@@ -62,6 +64,7 @@ class Model:
     geom: pin.GeometryModel
     pairs: tuple[Pair, ...]
     vertices: tuple[np.ndarray, ...]
+    bounds: tuple[tuple, ...]
     support_mask: np.ndarray
     bodies: tuple[BodyInfo, ...]
     geometry_body: tuple[str, ...]
@@ -112,6 +115,11 @@ class Data:
         for req in self.geom.collisionRequests:
             req.security_margin = tol  # a pair "collides" when its gap <= tol: gate of the active set
             req.num_max_contacts = 1
+            req.enable_contact = True  # normal, depth and witness points (EPA when penetrating)
+            # GJK/EPA default tolerances (1e-6) tilt the normal of exactly touching boxes by ~5 deg
+            req.gjk_tolerance = req.epa_tolerance = GJK_TOLERANCE
+        for preq in self.geom.contactPatchRequests:
+            preq.setPatchTolerance(max(tol, 1e-12))  # only faces parallel to within tol form a patch
         self.point = coal.Sphere(0.0)  # a vertex, for point-vs-shape signed distances
         self.point_tf = coal.Transform3s()
         self.distance_request = coal.DistanceRequest()
@@ -145,7 +153,13 @@ def _root_joint(body: Body, where: str):
     if rj is RootJoint.FIXED:
         return None
     if rj is RootJoint.FREE:
-        return pin.JointModelFreeFlyer()
+        # translation (world-frame rates) then spherical (body-frame angular velocity): unlike
+        # the FreeFlyer's body-frame twist, the explicit bias term then leaves the linear momentum
+        # of free flight exact and drifts less in energy (pinocchio-coal-piqp.md C4).
+        j = pin.JointModelComposite()
+        j.addJoint(pin.JointModelTranslation())
+        j.addJoint(pin.JointModelSpherical())
+        return j
     if rj in (RootJoint.PRISMATIC, RootJoint.REVOLUTE):
         a = _unit(body.axis, f"{where} axis")
         kind = "P" if rj is RootJoint.PRISMATIC else "R"
@@ -234,12 +248,6 @@ def _vertices(geometry, placement: pin.SE3) -> np.ndarray:
     if isinstance(geometry, coal.Box):
         hx, hy, hz = geometry.halfSide
         local = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
-    elif isinstance(geometry, coal.Cylinder):
-        k = CYLINDER_RIM_POINTS
-        ang = 2 * np.pi * np.arange(k) / k
-        r, hz = geometry.radius, geometry.halfLength
-        rim = np.stack([r * np.cos(ang), r * np.sin(ang)], axis=1)
-        local = np.concatenate([np.c_[rim, np.full(k, -hz)], np.c_[rim, np.full(k, hz)]])
     elif isinstance(geometry, coal.ConvexBase):
         local = np.array(geometry.points(), float).reshape(-1, 3)
     else:
@@ -247,6 +255,15 @@ def _vertices(geometry, placement: pin.SE3) -> np.ndarray:
     out = local @ placement.rotation.T + placement.translation
     out.setflags(write=False)
     return out
+
+
+def _bound(geometry, placement: pin.SE3) -> tuple:
+    """("plane", n, d) of a half-space, else ("sphere", centre, radius) from coal's local AABB."""
+    if isinstance(geometry, coal.Halfspace):
+        n = placement.rotation @ geometry.n
+        return ("plane", n, float(geometry.d + n @ placement.translation))
+    geometry.computeLocalAABB()
+    return ("sphere", placement.act(np.array(geometry.aabb_center)), float(geometry.aabb_radius))
 
 
 def _matches(name: str, gname: str, body: str, link: str) -> bool:
@@ -265,6 +282,8 @@ def build_model(scene: Scene) -> Model:
         w = f"{where} [[bodies]][{i}] ({body.name})"
         m, g, _ = _load_body(body, w)
         placement = pin.SE3(pin.rpy.rpyToMatrix(*body.rpy), np.array(body.position, float))
+        if body.root_joint is RootJoint.FREE:
+            placement = pin.SE3.Identity()  # a free body's pose is its q (world frame): see _initial
         nj0 = model.njoints
         model, geom = pin.appendModel(model, m, geom, g, 0, placement)
         joints = tuple(range(nj0, model.njoints))
@@ -312,14 +331,17 @@ def build_model(scene: Scene) -> Model:
     for a, b in scene.collisions.exclude:
         chosen -= set(pairs_matching(a, b, "exclude"))
     pairs = []
+    geom.removeAllCollisionPairs()  # appendModel pairs the bodies' geometries itself: start clean
     for k, (i, j) in enumerate(sorted(chosen)):
         # shape 1 = the moving one with the larger joint id: normals then point from it to the other
         if gobs[i].parentJoint < gobs[j].parentJoint:
             i, j = j, i
         geom.addCollisionPair(pin.CollisionPair(i, j))
+        assert geom.collisionPairs[k].first == i and geom.collisionPairs[k].second == j
         pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, f"{gobs[i].name}|{gobs[j].name}"))
 
     vertices = tuple(_vertices(go.geometry, go.placement) for go in gobs)
+    bounds = tuple(_bound(go.geometry, go.placement) for go in gobs)
     mask = np.zeros((model.njoints, model.nv))
     for j in range(1, model.njoints):
         for s in model.supports[j][1:]:
@@ -327,8 +349,10 @@ def build_model(scene: Scene) -> Model:
             mask[j, jm.idx_v:jm.idx_v + jm.nv] = 1.0
     mask.setflags(write=False)
 
+    if model.nv == 0:
+        raise SceneError(f"{where} [[bodies]]: nothing moves (every body has a fixed root and no joints)")
     q0, u0 = _initial(scene, model, infos, where)
-    return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, support_mask=mask,
+    return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, support_mask=mask,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0)
 
 
@@ -337,7 +361,13 @@ def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndar
     for i, (body, info) in enumerate(zip(scene.bodies, infos)):
         w = f"{where} [[bodies]][{i}] ({body.name})"
         nq, nv = info.q_slice.stop - info.q_slice.start, info.v_slice.stop - info.v_slice.start
+        if body.root_joint is RootJoint.FREE:
+            # q = [x y z qx qy qz qw]: the world pose, from position and rpy unless q0 is given
+            R = pin.rpy.rpyToMatrix(*body.rpy)
+            q[info.q_slice] = np.concatenate([body.position, pin.Quaternion(R).coeffs()])
         if body.q0 is not None:
+            if body.root_joint is RootJoint.FREE and (any(body.position) or any(body.rpy)):
+                raise SceneError(f"{w} q0: give either q0 or position/rpy for a free body, not both")
             if len(body.q0) != nq:
                 raise SceneError(f"{w} q0: has {len(body.q0)} values, the body has nq = {nq}")
             q[info.q_slice] = body.q0

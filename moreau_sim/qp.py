@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import piqp
-import scipy.linalg
+import scipy.optimize
 
 from .scene import QPForm
 
@@ -54,36 +54,52 @@ def _status(st) -> str:
     return str(st).rsplit(".", 1)[-1]
 
 
-def _polish(M, W, v0, cho, v, lam, residual):
-    """Re-solve exactly on the active set of (v, lam); keep it if feasible and better."""
+def _polish(W, v0, Minv, lam):
+    """Re-solve exactly on the active set A = {lam_i > 0} of piqp's answer.
+
+    On A: G_AA lam_A = -W_A' v0, lam_A >= 0 (a direct solve, or NNLS when the rows are
+    redundant, e.g. 4 corners of a face on a plane: rank 3); v = v0 + M^-1 W_A lam_A. The result
+    is kept only if it satisfies the KKT conditions of the QP to round-off (W_A' v = 0 up to
+    the solve's residual, W' v >= 0 for every row), i.e. it is the exact solution."""
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)))
     act = np.flatnonzero(lam > 1e-7 * scale)
-    if not len(act):
-        return None
-    WA = W[:, act]
-    MiWA = scipy.linalg.cho_solve(cho, WA)
-    G = WA.T @ MiWA
-    try:
-        lamA = np.linalg.solve(G, -(WA.T @ v0))
-    except np.linalg.LinAlgError:
-        return None  # redundant active rows: the interior-point answer stands
-    if not np.all(np.isfinite(lamA)) or lamA.min() < 0:
-        return None
-    vp = v0 + MiWA @ lamA
     lp = np.zeros_like(lam)
-    lp[act] = lamA
-    tol = 1e-12 * (1.0 + float(np.abs(W.T @ v0).max(initial=0.0)))
-    if (W.T @ vp).min() < -tol:
+    vp = np.array(v0, float)
+    if len(act):
+        WA = W[:, act]
+        MiWA = Minv @ WA
+        G, b = WA.T @ MiWA, -(WA.T @ v0)
+        tol_b = 1e-12 * (1.0 + float(np.abs(b).max()))
+        lamA = None
+        try:
+            lamA = np.linalg.solve(G, b)
+            if not (np.all(np.isfinite(lamA)) and lamA.min() >= 0 and np.abs(G @ lamA - b).max() <= tol_b):
+                lamA = None
+        except np.linalg.LinAlgError:
+            pass
+        if lamA is None:
+            lamA, rnorm = scipy.optimize.nnls(G, b)
+            if not rnorm <= tol_b:
+                return None
+        vp += MiWA @ lamA
+        lp[act] = lamA
+    if (W.T @ vp).min() < -1e-12 * (1.0 + float(np.abs(v0).max())):
         return None
-    rp = kkt_residual(M, W, v0, vp, lp)
-    return (vp, lp, rp) if rp <= residual else None
+    return vp, lp
 
 
-def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, form: QPForm = QPForm.PRIMAL, eps: float = 1e-10,
-          max_iter: int = 250, polish: bool = True) -> QPResult:
-    """Project v0 onto {v : W' v >= 0} in the metric M with piqp (see module doc)."""
+def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, Minv: np.ndarray | None = None,
+          form: QPForm = QPForm.PRIMAL, eps: float = 1e-10, max_iter: int = 250, polish: bool = True) -> QPResult:
+    """Project v0 onto {v : W' v >= 0} in the metric M with piqp (see module doc).
+
+    Minv: M^-1 if the caller has it (Pinocchio's computeMinverse), else it is computed."""
     nv, m = W.shape
-    cho = scipy.linalg.cho_factor(M, lower=True, check_finite=False)
+    if Minv is None:
+        Minv = np.linalg.inv(M)
+    gamma0 = W.T @ v0
+    if gamma0.min() >= -1e-13 * (1.0 + float(np.abs(v0).max())):
+        # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
+        return QPResult("ADMISSIBLE", True, 0, 0.0, False, np.array(v0, float), np.zeros(m))
     s = piqp.DenseSolver()
     _settings(s, eps)
     s.settings.max_iter = max_iter
@@ -92,7 +108,7 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, form: QPForm = QPForm
         st = s.solve()
         v, lam = s.result.x.copy(), s.result.z_l.copy()
     else:
-        MiW = scipy.linalg.cho_solve(cho, W)
+        MiW = Minv @ W
         G = W.T @ MiW
         s.setup(G, W.T @ v0, None, None, None, None, None, np.zeros(m), None)
         st = s.solve()
@@ -104,11 +120,7 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, form: QPForm = QPForm
     if not ok:
         return QPResult(status, False, iters, float("inf"), False, v, lam)
     lam = np.maximum(lam, 0.0)
-    residual = kkt_residual(M, W, v0, v, lam)
-    polished = False
-    if polish:
-        p = _polish(M, W, v0, cho, v, lam, residual)
-        if p is not None:
-            v, lam, residual = p
-            polished = True
-    return QPResult(status, True, iters, residual, polished, v, lam)
+    p = _polish(W, v0, Minv, lam) if polish else None
+    if p is not None:
+        v, lam = p
+    return QPResult(status, True, iters, kkt_residual(M, W, v0, v, lam), p is not None, v, lam)

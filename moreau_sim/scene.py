@@ -22,7 +22,7 @@ class RootJoint(enum.Enum):
     """How a body's root link is attached to the world."""
 
     FIXED = "fixed"  # 0 dof: the body is part of the static environment
-    FREE = "free"  # 6 dof: q = [x y z qx qy qz qw], u = [v, w] in the body frame
+    FREE = "free"  # 6 dof: q = [x y z qx qy qz qw], u = [v (world), w (body frame)]
     PLANAR = "planar"  # 3 dof: q = [s_a, s_b, theta] along `axes`, rotation about a x b
     PRISMATIC = "prismatic"  # 1 dof along `axis` [m]
     REVOLUTE = "revolute"  # 1 dof about `axis` [rad]
@@ -320,8 +320,6 @@ def parse_scene(text: str, *, path: Path | str | None = None) -> Scene:
     names = [b.name for b in bodies] + [s.name for s in statics]
     dup = sorted({n for n in names if names.count(n) > 1})
     _check(not dup, where, f"duplicate body/static names {dup}")
-    _check(any(b.root_joint is not RootJoint.FIXED for b in bodies), f"{where} [[bodies]]",
-           "needs at least one body with a moving root joint")
 
     col = _table(doc, "collisions", where)
     _unknown(col, {"include", "exclude"}, f"{where} [collisions]")

@@ -21,6 +21,7 @@ from .stepper import step
 from .trajectory import Trajectory
 
 LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) of its step (and > 0)
+# An impact ("log_impact") is a logged percussion of a contact that was not closed in the previous step.
 _PROGRESS_DELAY = 2.0  # [s] the progress bar appears on runs longer than this
 
 
@@ -108,7 +109,7 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     rec = _Recorder(model, data, 1 + n // every + 1)
     rec.sample(state, 0.0, 0)
     t0 = state.t
-    prev_pushing: set = set()
+    prev_closed: set = set()
     work = 0.0
     wall0 = time.perf_counter()
     bar = tqdm(total=n, delay=_PROGRESS_DELAY, disable=not progress, unit="step", mininterval=0.5, leave=False)
@@ -124,18 +125,18 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
                 raise SimulationError(f"step {k + 1} (t = {state.t:.6g} s -> {r.state.t:.6g} s): the state became "
                                       "non-finite (NaN or inf)", step=k + 1, t=state.t)
             work += r.contact_work
-            pushing = set()
+            closed = set()
             if r.contacts.m:
                 c = r.contacts
+                closed = set(zip(c.pair.tolist(), c.feature.tolist()))
                 cut = LOG_RELATIVE * float(r.P.max())
                 tm = state.t + 0.5 * h
                 for i in np.flatnonzero((r.P > cut) & (r.P > 0)):
                     key = (int(c.pair[i]), int(c.feature[i]))
-                    pushing.add(key)
                     rec.log.append((k + 1, tm, key[0], key[1], float(c.g[i]), float(r.P[i]),
                                     float(r.gamma_minus[i]), float(r.gamma_plus[i]), c.point_a[i], c.normal[i],
-                                    key not in prev_pushing))
-            prev_pushing = pushing
+                                    key not in prev_closed))
+            prev_closed = closed
             state = r.state
             if (k + 1) % every == 0 or k == n - 1:
                 rec.sample(state, work, r.contacts.m)

@@ -16,9 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg
 
-from .contacts import NO_CONTACTS, Contacts, contact_rows, detect
+from .contacts import NO_CONTACTS, Contacts, contact_rows, detect, distinct
 from .law import outcome, project
 from .model import Data, Model
 from .qp import QPResult
@@ -62,11 +61,11 @@ def step(model: Model, data: Data, state: State, h: float, e: float, *, t_next: 
         return StepResult(State(t1, q_next, u_next), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None)
     opts = model.scene.options
     M = pin.crba(pm, pd, q_m, pin.Convention.WORLD)  # also fills data.J (WORLD) for the rows
-    f = -pin.nonLinearEffects(pm, pd, q_m, u)
-    u_free = u + h * scipy.linalg.cho_solve(scipy.linalg.cho_factor(M, check_finite=False), f, check_finite=False)
-    W = contact_rows(model, data, contacts)
+    contacts, W = distinct(contacts, contact_rows(model, data, contacts))
+    Minv = pin.computeMinverse(pm, pd, q_m)
+    u_free = u - h * (Minv @ pin.nonLinearEffects(pm, pd, q_m, u))
     v_free = (u_free + e * u) / (1.0 + e)
-    res = project(M, W, v_free, form=form or opts.qp_form, eps=eps or opts.qp_tolerance)
+    res = project(M, W, v_free, Minv=Minv, form=form or opts.qp_form, eps=eps or opts.qp_tolerance)
     u_next = outcome(res.v, u, e)
     P = (1.0 + e) * res.lam
     gamma_minus, gamma_plus = W.T @ u, W.T @ u_next

@@ -1,0 +1,110 @@
+"""`moreau-sim`: thin command line over the public API (run, info, plot)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from .errors import MoreauSimError, SimulationError
+from .model import build_model
+from .scene import load_scene
+from .simulate import simulate, summary
+
+
+def _fail(msg: str) -> None:
+    click.echo(f"moreau-sim: error: {msg}", err=True)
+    sys.exit(2)
+
+
+def _load(scene: str, **overrides):
+    try:
+        sc = load_scene(scene).with_options(**overrides)
+        return sc, build_model(sc)
+    except MoreauSimError as exc:
+        _fail(str(exc))
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="moreau-sim")
+def main():
+    """Rigid multibody impacts: Glocker's impact law in a midpoint Moreau time-stepper."""
+
+
+@main.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--dt", type=float, help="Time step h [s] (overrides the scene).")
+@click.option("--duration", type=float, help="Simulated time [s].")
+@click.option("--restitution", "-e", type=float, help="Global restitution e in [0, 1].")
+@click.option("--save-every", type=int, help="Record every N steps.")
+@click.option("--qp-form", type=click.Choice(["primal", "dual"]), help="Form of the impact QP.")
+@click.option("--out", "-o", type=click.Path(dir_okay=False), help="Output NPZ (default: the scene's [output] file).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.option("--progress/--no-progress", default=True, help="Progress bar on runs longer than 2 s.")
+def run(scene, dt, duration, restitution, save_every, qp_form, out, as_json, progress):
+    """Simulate SCENE and write a self-describing NPZ."""
+    sc, model = _load(scene, dt=dt, duration=duration, restitution=restitution, save_every=save_every,
+                      qp_form=qp_form)
+    out = Path(out or sc.output or f"{sc.name}.npz")
+    try:
+        traj = simulate(model, progress=progress and not as_json)
+    except SimulationError as exc:
+        partial = out.with_name(out.stem + ".partial.npz")
+        if exc.trajectory is not None:
+            exc.trajectory.save(partial)
+            _fail(f"{exc}\n  nothing written to {out}; the samples up to the failure are in {partial} "
+                  "(meta status 'failed')")
+        _fail(str(exc))
+    traj.save(out)
+    s = summary(traj)
+    s["output"] = str(out)
+    if as_json:
+        click.echo(json.dumps(s, indent=2))
+        return
+    click.echo(f"{s['scene']}: {s['steps']} steps of h = {sc.options.dt:g} s to t = {s['t_end']:g} s, "
+               f"e = {sc.options.restitution:g}")
+    click.echo(f"  impacts {s['impacts']}, percussions logged {s['percussions_logged']}")
+    click.echo(f"  energy {s['energy_start']:.6g} J -> {s['energy_end']:.6g} J "
+               f"(contact work {s['contact_work_total']:.6g} J, max rise {s['energy_max_increase']:.3g} J)")
+    if s["min_gap"] is not None:
+        click.echo(f"  min gap {s['min_gap']:.3g} m")
+    click.echo(f"  wall {s['wall_seconds']:.3f} s, {s['us_per_step']:.1f} us/step  -> {out}")
+
+
+@main.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print as JSON.")
+def info(scene, as_json):
+    """Dofs, bodies, collision pairs, e and h of SCENE."""
+    sc, model = _load(scene)
+    d = model.describe()
+    if as_json:
+        click.echo(json.dumps(d, indent=2))
+        return
+    click.echo(f"{d['scene']}: nq = {d['nq']}, nv = {d['nv']}, e = {d['restitution']:g}, h = {d['dt']:g} s, "
+               f"duration = {d['duration']:g} s, gravity = {d['gravity']}")
+    for b in d["bodies"]:
+        click.echo(f"  body {b['name']}: root {b['root_joint']}, nq = {b['nq']}, nv = {b['nv']} ({b['urdf']})")
+    click.echo(f"  collision pairs ({len(d['collision_pairs'])}):")
+    for p in d["collision_pairs"]:
+        click.echo(f"    {p}")
+
+
+@main.command()
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--save", "png", type=click.Path(dir_okay=False), help="PNG to write (default: FILE with .png).")
+def plot(file, png):
+    """Energy, gaps and percussions against time from a trajectory FILE."""
+    from .plot import save
+
+    try:
+        path = save(file, png or Path(file).with_suffix(".png"))
+    except ValueError as exc:
+        _fail(str(exc))
+    click.echo(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
