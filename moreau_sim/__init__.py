@@ -10,7 +10,7 @@ from .errors import MoreauSimError, SceneError, SimulationError
 from .law import Impact, impact, outcome, project
 from .model import Data, Model, build_model, initial_state, make_data
 from .qp import QPResult
-from .scene import Options, QPForm, RootJoint, Scene, load_scene, parse_scene
+from .scene import Options, QPForm, RootJoint, Scene, Separating, load_scene, parse_scene
 from .simulate import run, simulate, summary
 from .state import State
 from .stepper import StepResult, step
@@ -20,7 +20,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Contacts", "Data", "Impact", "Model", "MoreauSimError", "Options", "QPForm", "QPResult", "RootJoint",
-    "Scene", "SceneError", "SimulationError", "State", "StepResult", "Trajectory", "build_model",
+    "Scene", "SceneError", "Separating", "SimulationError", "State", "StepResult", "Trajectory", "build_model",
     "contact_rows", "detect", "impact", "initial_state", "load_scene", "load_trajectory", "make_data",
     "outcome", "pair_distances", "parse_scene", "project", "run", "simulate", "step", "summary",
 ]

@@ -21,14 +21,15 @@ def _check_e(e: float) -> None:
         raise ValueError(f"restitution e must lie in [0, 1], got {e!r}")
 
 
-def project(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, Minv: np.ndarray | None = None,
-            form: QPForm = QPForm.PRIMAL, eps: float = 1e-10) -> qp.QPResult:
-    """The proximal point of v0 on the tangent cone {v : W' v >= 0} in the kinetic metric M.
+def project(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None = None,
+            Minv: np.ndarray | None = None, form: QPForm = QPForm.PRIMAL, eps: float = 1e-10) -> qp.QPResult:
+    """The proximal point of v0 on the tangent cone {v : W' v >= 0} in the kinetic metric M
+    (with b: on {W' v >= b}, the stepper's rule for closed contacts that separate).
 
     Returns the QP result: v, the multipliers lam with M (v - v0) = W lam, status and residual."""
     if W.shape[1] == 0:
         return qp.QPResult("NO_CONTACT", True, 0, 0.0, False, np.array(v0, float), np.zeros(0))
-    return qp.solve(M, W, v0, Minv=Minv, form=form, eps=eps)
+    return qp.solve(M, W, v0, b=b, Minv=Minv, form=form, eps=eps)
 
 
 def outcome(v: np.ndarray, u_minus: np.ndarray, e: float) -> np.ndarray:

@@ -1,13 +1,13 @@
 """Thin piqp wrappers for the impact QP, one result type for both forms.
 
-primal (velocity space):  v = argmin 1/2 (v - v0)' M (v - v0)  s.t.  W' v >= 0
-dual   (contact space):   lam = argmin 1/2 lam' G lam + lam' W' v0,  lam >= 0,  G = W' M^-1 W,
-                          v = v0 + M^-1 W lam
-Both return (v, lam) with M (v - v0) = W lam (impact-law.md §1). After piqp, the solution is
-polished on its active set A = {lam_i > 0}: the equality-constrained projection
-G_AA lam_A = -W_A' v0 is solved directly and kept when it is feasible (lam_A >= 0,
-W' v >= 0) and its KKT residual is smaller, which makes single impacts and the cradle exact
-to round-off instead of to piqp's tolerance.
+primal (velocity space):  v = argmin 1/2 (v - v0)' M (v - v0)  s.t.  W' v >= b
+dual   (contact space):   lam = argmin 1/2 lam' G lam + lam' (W' v0 - b),  lam >= 0,
+                          G = W' M^-1 W (Delassus),  v = v0 + M^-1 W lam
+Both return (v, lam) with M (v - v0) = W lam (impact-law.md §1; b = 0 there, the stepper
+shifts b only for closed contacts that separate, see stepper.py). After piqp the solution is
+polished on its active set A = {lam_i > 0}: G_AA lam_A = b_A - W_A' v0 is solved directly and
+kept when it satisfies the KKT conditions to round-off, which makes single impacts and the
+cradle exact to round-off instead of to piqp's tolerance.
 """
 
 from __future__ import annotations
@@ -23,10 +23,11 @@ from .scene import QPForm
 
 @dataclass(frozen=True, slots=True)
 class QPResult:
-    """status: piqp's status name ("PIQP_SOLVED", ...); ok: solved (and usable);
-    iterations: piqp's interior-point iterations; residual: the KKT residual of (v, lam)
-    (max of stationarity, primal and dual infeasibility, complementarity, in the units of
-    velocity x metric); polished: the active-set polish was accepted; v (nv,), lam (m,)."""
+    """status: piqp's status name ("PIQP_SOLVED", ...), or "ADMISSIBLE" when v0 already satisfies
+    every constraint (no QP to solve); ok: solved and usable; iterations: piqp's interior-point
+    iterations; residual: KKT residual of (v, lam) (max of stationarity, primal and dual
+    infeasibility, complementarity); polished: the active-set polish was accepted;
+    v (nv,), lam (m,)."""
 
     status: str
     ok: bool
@@ -37,30 +38,19 @@ class QPResult:
     lam: np.ndarray
 
 
-def kkt_residual(M: np.ndarray, W: np.ndarray, v0: np.ndarray, v: np.ndarray, lam: np.ndarray) -> float:
-    """max(|M(v - v0) - W lam|, max(0, -W'v), max(0, -lam), |lam . W'v|) (inf-norms)."""
-    gamma = W.T @ v
+def kkt_residual(M, W, v0, v, lam, b=None) -> float:
+    """max(|M(v - v0) - W lam|, max(0, b - W'v), max(0, -lam), |lam . (W'v - b)|) (inf-norms)."""
+    slack = W.T @ v if b is None else W.T @ v - b
     r = np.abs(M @ (v - v0) - W @ lam).max(initial=0.0)
-    return float(max(r, (-gamma).max(initial=0.0), (-lam).max(initial=0.0), abs(float(lam @ gamma))))
+    return float(max(r, (-slack).max(initial=0.0), (-lam).max(initial=0.0), abs(float(lam @ slack))))
 
 
-def _settings(s, eps: float) -> None:
-    s.settings.verbose = False
-    s.settings.eps_abs = eps
-    s.settings.eps_rel = eps
-
-
-def _status(st) -> str:
-    return str(st).rsplit(".", 1)[-1]
-
-
-def _polish(W, v0, Minv, lam):
+def _polish(W, v0, b, Minv, lam):
     """Re-solve exactly on the active set A = {lam_i > 0} of piqp's answer.
 
-    On A: G_AA lam_A = -W_A' v0, lam_A >= 0 (a direct solve, or NNLS when the rows are
-    redundant, e.g. 4 corners of a face on a plane: rank 3); v = v0 + M^-1 W_A lam_A. The result
-    is kept only if it satisfies the KKT conditions of the QP to round-off (W_A' v = 0 up to
-    the solve's residual, W' v >= 0 for every row), i.e. it is the exact solution."""
+    On A: G_AA lam_A = b_A - W_A' v0, lam_A >= 0 (a direct solve, or NNLS when the rows are
+    redundant, e.g. 4 corners of a face on a plane: rank 3); v = v0 + M^-1 W_A lam_A. Kept only if
+    it satisfies the KKT conditions to round-off (W' v >= b for every row): the exact solution."""
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)))
     act = np.flatnonzero(lam > 1e-7 * scale)
     lp = np.zeros_like(lam)
@@ -68,59 +58,59 @@ def _polish(W, v0, Minv, lam):
     if len(act):
         WA = W[:, act]
         MiWA = Minv @ WA
-        G, b = WA.T @ MiWA, -(WA.T @ v0)
-        tol_b = 1e-12 * (1.0 + float(np.abs(b).max()))
+        G, rhs = WA.T @ MiWA, b[act] - WA.T @ v0
+        tol = 1e-12 * (1.0 + float(np.abs(rhs).max()))
         lamA = None
         try:
-            lamA = np.linalg.solve(G, b)
-            if not (np.all(np.isfinite(lamA)) and lamA.min() >= 0 and np.abs(G @ lamA - b).max() <= tol_b):
+            lamA = np.linalg.solve(G, rhs)
+            if not (np.all(np.isfinite(lamA)) and lamA.min() >= 0 and np.abs(G @ lamA - rhs).max() <= tol):
                 lamA = None
         except np.linalg.LinAlgError:
             pass
         if lamA is None:
-            lamA, rnorm = scipy.optimize.nnls(G, b)
-            if not rnorm <= tol_b:
+            lamA, rnorm = scipy.optimize.nnls(G, rhs)
+            if not rnorm <= tol:
                 return None
         vp += MiWA @ lamA
         lp[act] = lamA
-    if (W.T @ vp).min() < -1e-12 * (1.0 + float(np.abs(v0).max())):
+    if (W.T @ vp - b).min() < -1e-12 * (1.0 + float(np.abs(v0).max())):
         return None
     return vp, lp
 
 
-def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, Minv: np.ndarray | None = None,
-          form: QPForm = QPForm.PRIMAL, eps: float = 1e-10, max_iter: int = 250, polish: bool = True) -> QPResult:
-    """Project v0 onto {v : W' v >= 0} in the metric M with piqp (see module doc).
+def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None = None,
+          Minv: np.ndarray | None = None, form: QPForm = QPForm.PRIMAL, eps: float = 1e-10,
+          max_iter: int = 250, polish: bool = True) -> QPResult:
+    """Project v0 onto {v : W' v >= b} (b = 0 by default) in the metric M with piqp.
 
     Minv: M^-1 if the caller has it (Pinocchio's computeMinverse), else it is computed."""
     nv, m = W.shape
+    b = np.zeros(m) if b is None else np.asarray(b, float)
     if Minv is None:
         Minv = np.linalg.inv(M)
-    gamma0 = W.T @ v0
-    if gamma0.min() >= -1e-13 * (1.0 + float(np.abs(v0).max())):
+    if (W.T @ v0 - b).min() >= -1e-13 * (1.0 + float(np.abs(v0).max())):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
         return QPResult("ADMISSIBLE", True, 0, 0.0, False, np.array(v0, float), np.zeros(m))
     s = piqp.DenseSolver()
-    _settings(s, eps)
+    s.settings.verbose = False
+    s.settings.eps_abs = s.settings.eps_rel = eps
     s.settings.max_iter = max_iter
     if form is QPForm.PRIMAL:
-        s.setup(M, -(M @ v0), None, None, W.T, np.zeros(m), None)
+        s.setup(M, -(M @ v0), None, None, W.T, b, None)
         st = s.solve()
         v, lam = s.result.x.copy(), s.result.z_l.copy()
     else:
         MiW = Minv @ W
-        G = W.T @ MiW
-        s.setup(G, W.T @ v0, None, None, None, None, None, np.zeros(m), None)
+        s.setup(W.T @ MiW, W.T @ v0 - b, None, None, None, None, None, np.zeros(m), None)
         st = s.solve()
         lam = s.result.x.copy()
         v = v0 + MiW @ lam
-    status = _status(st)
-    ok = st == piqp.PIQP_SOLVED and np.all(np.isfinite(v)) and np.all(np.isfinite(lam))
+    status = str(st).rsplit(".", 1)[-1]
     iters = int(s.result.info.iter)
-    if not ok:
+    if st != piqp.PIQP_SOLVED or not (np.all(np.isfinite(v)) and np.all(np.isfinite(lam))):
         return QPResult(status, False, iters, float("inf"), False, v, lam)
     lam = np.maximum(lam, 0.0)
-    p = _polish(W, v0, Minv, lam) if polish else None
+    p = _polish(W, v0, b, Minv, lam) if polish else None
     if p is not None:
         v, lam = p
-    return QPResult(status, True, iters, kkt_residual(M, W, v0, v, lam), p is not None, v, lam)
+    return QPResult(status, True, iters, kkt_residual(M, W, v0, v, lam, b), p is not None, v, lam)

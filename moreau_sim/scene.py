@@ -35,6 +35,21 @@ class QPForm(enum.Enum):
     DUAL = "dual"  # contact space: Delassus G = W' M^-1 W, lambda >= 0
 
 
+class Separating(enum.Enum):
+    """The restitution used for a contact that is closed (g_i(q_m) <= tol) but separating at the
+    start of the step (gamma_i^k > 0) - a time-discretization case, not an impact.
+
+    NEWTON: e as for every contact (the plain discrete law of impact-law.md §2); its contact
+        work P_i (1 - e) gamma_i^k / 2 is then > 0: a small energy gain, O(h^2) per event.
+    ELASTIC: e_i = 1 for such a contact, so gamma_i^{k+1} = -gamma_i^k where it pushes: its work
+        P_i (gamma^{k+1} + gamma^k)/2 is 0, the contact work of a step is never positive, and the
+        returning contact meets the global e at its next (approaching) step.
+    """
+
+    NEWTON = "newton"
+    ELASTIC = "elastic"
+
+
 class StaticShape(enum.Enum):
     HALFSPACE = "halfspace"
     BOX = "box"
@@ -75,6 +90,7 @@ class Options:
         The default 1e-9 m is ~1e7 times the rounding of positions of order 1 m, so bodies
         placed exactly touching count as closed, and far below any physical gap.
     qp_form: which form of the impact QP to solve (see :class:`QPForm`).
+    separating: the restitution of closed contacts that separate (see :class:`Separating`).
     qp_tolerance: piqp's eps_abs and eps_rel; the solution is then polished on its active set.
     save_every: record the state every N steps (the last step is always recorded).
     """
@@ -85,6 +101,7 @@ class Options:
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
     contact_tolerance: float = 1e-9
     qp_form: QPForm = QPForm.PRIMAL
+    separating: Separating = Separating.ELASTIC
     qp_tolerance: float = 1e-10
     save_every: int = 1
 
@@ -102,6 +119,8 @@ class Options:
         _check(isinstance(self.contact_tolerance, (int, float)) and 0 <= self.contact_tolerance < 1e-3,
                f"{where}: contact_tolerance", f"must lie in [0, 1e-3) m, got {self.contact_tolerance!r}")
         _check(isinstance(self.qp_form, QPForm), f"{where}: qp_form", f"must be a QPForm, got {self.qp_form!r}")
+        _check(isinstance(self.separating, Separating), f"{where}: separating",
+               f"must be a Separating rule, got {self.separating!r}")
         _check(isinstance(self.qp_tolerance, (int, float)) and 0 < self.qp_tolerance < 1e-3,
                f"{where}: qp_tolerance", f"must lie in (0, 1e-3), got {self.qp_tolerance!r}")
         _check(isinstance(self.save_every, int) and not isinstance(self.save_every, bool) and self.save_every >= 1,
@@ -115,8 +134,9 @@ class Options:
     def replace(self, **changes) -> "Options":
         """A copy with `changes` applied and validated (None values are ignored)."""
         changes = {k: v for k, v in changes.items() if v is not None}
-        if isinstance(changes.get("qp_form"), str):
-            changes["qp_form"] = QPForm(changes["qp_form"])
+        for key, cls in (("qp_form", QPForm), ("separating", Separating)):
+            if isinstance(changes.get(key), str):
+                changes[key] = _enum(cls, changes[key], f"options: {key}")
         if "gravity" in changes:
             changes["gravity"] = tuple(float(x) for x in changes["gravity"])
         return dataclasses.replace(self, **changes)
@@ -124,6 +144,7 @@ class Options:
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["qp_form"] = self.qp_form.value
+        d["separating"] = self.separating.value
         d["gravity"] = list(self.gravity)
         return d
 
@@ -185,7 +206,8 @@ class Scene:
 
 _TOP = {"scene", "simulation", "output", "bodies", "statics", "collisions"}
 _SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravity": "gravity",
-        "contact_tolerance": "contact_tolerance", "qp_form": "qp_form", "qp_tolerance": "qp_tolerance"}
+        "contact_tolerance": "contact_tolerance", "qp_form": "qp_form", "qp_tolerance": "qp_tolerance",
+        "separating": "separating"}
 _BODY = {"name", "urdf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0"}
 _STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy"}
 
@@ -224,6 +246,8 @@ def _parse_options(sim: dict, out: dict, where: str) -> Options:
         kw["gravity"] = _finite_vec(sim["gravity"], 3, f"{where} [simulation] gravity")
     if "qp_form" in sim:
         kw["qp_form"] = _enum(QPForm, sim["qp_form"], f"{where} [simulation] qp_form")
+    if "separating" in sim:
+        kw["separating"] = _enum(Separating, sim["separating"], f"{where} [simulation] separating")
     if "save_every" in out:
         kw["save_every"] = out["save_every"]
     try:

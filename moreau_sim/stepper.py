@@ -7,6 +7,9 @@
     v       = argmin_{W' v >= 0} 1/2 (v - v_free)' M (v - v_free)     (law.project, piqp)
     u_{k+1} = (1 + e) v - e u_k,    P = (1 + e) lam
     q_{k+1} = q_m (+) h/2 u_{k+1}
+A closed contact that separates at the start of the step (gamma_i^k > 0) takes e_i = 1 under
+the default rule Separating.ELASTIC (scene.py): the QP bound becomes
+w_i' v >= (e - 1) gamma_i^k / (1 + e), and the step's contact work is never positive.
 With no closed contact u_{k+1} = u_free exactly (computed by ABA, no QP).
 """
 
@@ -21,7 +24,7 @@ from .contacts import NO_CONTACTS, Contacts, contact_rows, detect, distinct
 from .law import outcome, project
 from .model import Data, Model
 from .qp import QPResult
-from .scene import QPForm
+from .scene import QPForm, Separating
 from .state import State
 
 _EMPTY = np.zeros(0)
@@ -65,10 +68,15 @@ def step(model: Model, data: Data, state: State, h: float, e: float, *, t_next: 
     Minv = pin.computeMinverse(pm, pd, q_m)
     u_free = u - h * (Minv @ pin.nonLinearEffects(pm, pd, q_m, u))
     v_free = (u_free + e * u) / (1.0 + e)
-    res = project(M, W, v_free, Minv=Minv, form=form or opts.qp_form, eps=eps or opts.qp_tolerance)
+    gamma_minus = W.T @ u
+    b = None
+    if opts.separating is Separating.ELASTIC and e < 1.0 and gamma_minus.max() > 0.0:
+        # e_i = 1 where gamma_i^k > 0: w_i'(u_{k+1} + e_i u_k) >= 0 <=> w_i'v >= (e - e_i) gamma_i^k / (1+e)
+        b = np.where(gamma_minus > 0.0, (e - 1.0) * gamma_minus / (1.0 + e), 0.0)
+    res = project(M, W, v_free, b=b, Minv=Minv, form=form or opts.qp_form, eps=eps or opts.qp_tolerance)
     u_next = outcome(res.v, u, e)
     P = (1.0 + e) * res.lam
-    gamma_minus, gamma_plus = W.T @ u, W.T @ u_next
+    gamma_plus = W.T @ u_next
     work = float(P @ (gamma_plus + gamma_minus)) * 0.5
     q_next = pin.integrate(pm, q_m, 0.5 * h * u_next)
     return StepResult(State(t1, q_next, u_next), contacts, P, gamma_minus, gamma_plus, work, res)

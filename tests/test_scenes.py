@@ -1,0 +1,195 @@
+"""Scene-level physics against exact references (impact-law.md §4), energy, determinism."""
+
+import numpy as np
+import pytest
+
+import moreau_sim as ms
+from conftest import BUNDLED, run, scene
+
+G, R, D0 = 9.81, 0.1, 0.9  # bouncing_ball: gravity, radius, initial gap of the centre at 1 m
+
+
+def flights(traj):
+    """Samples grouped by flight: between consecutive new impacts (the ball's own log)."""
+    t_imp = traj.log_t[traj.log_impact]
+    edges = np.concatenate([[-np.inf], t_imp, [np.inf]])
+    return [np.flatnonzero((traj.t > a) & (traj.t < b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def apex_bound(n, e, h):
+    """|apex_n - e^(2n) d0| <= sum_j e^(2(n-j)) (h/2) v_j (1-e)(2+e): the impact falls somewhere in
+    its step. Derivation: with gap g_k and speed |u_k| at the start of the impact step,
+    g_k in (-(h/2)|u_k|, (h/2)|u_k|] and the flight after it has the invariant
+    g + u^2/(2G) = g_k - (h/2)|u_k|(1-e) + e^2 (g_k + u_k^2/(2G)) - (1-e^2) g_k ... i.e. an error
+    (1-e)((1+e) g_k - (h/2)|u_k|) in (-(h/2)|u_k|(1-e)(2+e), (h/2)|u_k| e (1-e)] per bounce, carried
+    to later bounces times e^2. v_j <= sqrt(2 G e^(2(j-1)) d0) + hG + (bound so far)."""
+    total = 0.0
+    for j in range(1, n + 1):
+        v = np.sqrt(2 * G * (e ** (2 * (j - 1)) * D0 + total)) + h * G
+        total = e * e * total + 0.5 * h * v * (1 - e) * (2 + e)
+    return total
+
+
+@pytest.mark.parametrize("h", [1e-3, 1e-4])
+@pytest.mark.parametrize("e", [0.0, 0.5, 0.8, 1.0])
+def test_bouncing_ball_apex_ratios(e, h):
+    """Apex gap after bounce n is e^(2n) d0 within the O(h) bound of apex_bound (e = 1: exact)."""
+    traj = run("bouncing_ball", restitution=e, dt=h, duration=1.0 if e == 0 else 3.0)
+    g, u = traj.q[:, 0] - R, traj.u[:, 0]
+    if e == 0.0:  # no bounce: at rest after the first impact, inside by less than h |u-|
+        after = traj.t > np.sqrt(2 * D0 / G) + 2 * h
+        assert np.all(u[after] == 0.0)
+        assert -h * np.sqrt(2 * G * D0) - h * h * G <= g[after].min() <= 0.0
+        return
+    first = flights(traj)[0]
+    assert np.allclose(g[first] + u[first] ** 2 / (2 * G), D0, rtol=0, atol=1e-12)  # flight exact
+    checked = 0
+    for n, idx in enumerate(flights(traj)[1:4], start=1):
+        idx = idx[1:-1]  # samples strictly inside the flight
+        if len(idx) < 3:
+            break
+        apex = g[idx] + u[idx] ** 2 / (2 * G)  # invariant of the discrete flight
+        assert np.ptp(apex) <= 1e-12
+        exact = e ** (2 * n) * D0
+        bound = 1e-11 if e == 1.0 else apex_bound(n, e, h)
+        assert abs(apex[0] - exact) <= bound, (n, apex[0], exact, bound)
+        checked += 1
+    assert checked == 3
+
+
+@pytest.mark.parametrize("e,h", [(0.5, 1e-3), (0.5, 1e-4), (0.8, 1e-3), (0.95, 1e-3)])
+def test_zeno_ball_comes_to_rest_and_stays(e, h):
+    """After t_inf = t0 (1 + 2e/(1-e)) plus O(h) the ball rests: |u| <= 1e-12 m/s, no creep.
+
+    Once the bounces are shorter than a step the contact stays closed; a residual u_k > 0
+    (|u_k| <= hG) is reflected elastically (Separating.ELASTIC) and the next, approaching step
+    scales it by e: it dies out by e every 2 steps, in 2 ln(1e-12/(hG))/ln(e) steps."""
+    t0 = np.sqrt(2 * D0 / G)
+    t_inf = t0 * (1 + 2 * e / (1 - e))
+    t_rest = t_inf + (10 + 2 * np.log(1e-12 / (h * G)) / np.log(e)) * h
+    traj = run("bouncing_ball", restitution=e, dt=h, duration=t_rest + 0.6)
+    rest = traj.t >= t_rest
+    assert rest.sum() > 0.5 / h
+    assert np.abs(traj.u[rest, 0]).max() <= 1e-12
+    z = traj.q[rest, 0]
+    assert np.ptp(z) <= 1e-12  # no creep, no jitter
+    assert -h * h * G <= z[-1] - R <= 0.0  # resting penetration below h^2 G
+    assert not np.any(traj.log_impact & (traj.log_t > t_rest))
+
+
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+def test_touching_cradle_gives_the_simultaneous_result(e):
+    """u+_1 = (1+e)/N - e, u+_(i>1) = (1+e)/N (the M-projection onto non-decreasing velocities)."""
+    traj = run("newton_cradle_5", restitution=e, duration=0.05)
+    expected = np.full(5, (1 + e) / 5)
+    expected[0] -= e
+    np.testing.assert_allclose(traj.u[-1], expected, rtol=0, atol=1e-14)
+    assert abs(traj.u[-1].sum() - 1.0) <= 1e-14  # momentum (equal masses of 1 kg)
+    E = traj.total_energy
+    loss = 0.5 * (1 - e * e) * np.sum((np.eye(5)[0] - np.full(5, 0.2)) ** 2)  # (1-e^2)/2 |v_perp|^2
+    assert abs((E[0] - E[-1]) - loss) <= 1e-14
+    assert abs(traj.contact_work.sum() + loss) <= 1e-14  # the ledger accounts for it
+
+
+def test_gapped_cradle_is_sequential():
+    traj = run("newton_cradle_5_gapped", restitution=1.0)
+    np.testing.assert_allclose(traj.u[-1], [0, 0, 0, 0, 1], rtol=0, atol=1e-14)
+    assert traj.impacts == 4
+    assert abs(traj.total_energy[-1] - 0.5) <= 1e-14
+
+
+def test_cradle_momentum_for_any_e():
+    for e in (0.3, 0.9):
+        for name in ("newton_cradle_5", "newton_cradle_5_gapped"):
+            traj = run(name, restitution=e, duration=0.3)
+            assert np.abs(traj.u.sum(axis=1) - 1.0).max() <= 1e-13
+
+
+@pytest.mark.parametrize("h", [1e-3, 1e-4])
+@pytest.mark.parametrize("name", ["bouncing_ball", "newton_cradle_5", "newton_cradle_5_gapped", "box_drop",
+                                  "rocking_block"])
+def test_energy_never_increases(name, h):
+    """Passive scenes: T + V never rises above its start by more than round-off (1e-12 relative),
+    and the contact work of every step is <= round-off (the Separating.ELASTIC rule). Where the
+    smooth motion is integrated exactly (translations, planar rocking) T + V does not rise in any
+    step either; box_drop's free rotation (explicit gyroscopic term) may, by O(h) in flight."""
+    traj = run(name, dt=h, duration=1.5)
+    E = traj.total_energy
+    roundoff = 1e-12 * max(1.0, abs(E[0]))
+    assert np.max(E - E[0]) <= roundoff
+    assert traj.contact_work.max() <= roundoff
+    if name != "box_drop":
+        assert np.diff(E).max() <= roundoff
+
+
+def test_newton_rule_for_separating_contacts_gains_energy():
+    """Pins the choice of Separating.ELASTIC: with the plain law (e for a closed contact that
+    separates) the rocking block's contact work is positive in some steps and T + V rises above
+    its start; with ELASTIC neither happens (test above)."""
+    traj = run("rocking_block", duration=1.0, separating="newton")
+    assert traj.contact_work.max() > 1e-7
+    assert np.max(traj.total_energy - traj.total_energy[0]) > 1e-10
+
+
+def test_pendulum_energy_error_is_first_order():
+    """The double pendulum's swing is integrated by the midpoint step with explicit Coriolis terms:
+    its energy error is O(h), not round-off. Stated bound: max rise <= 40 h (J/s) here; h/10 -> /10."""
+    rises = []
+    for h in (1e-3, 1e-4):
+        traj = run("pendulum_wall", dt=h, duration=1.0)
+        rises.append(np.max(traj.total_energy - traj.total_energy[0]))
+        assert rises[-1] <= 40 * h
+    assert rises[1] <= rises[0] / 5
+
+
+@pytest.mark.parametrize("name,v_max", [("bouncing_ball", np.sqrt(2 * G * D0)), ("box_drop", 3.5),
+                                        ("newton_cradle_5_gapped", 1.0), ("rocking_block", 1.0),
+                                        ("pendulum_wall", 6.0)])
+@pytest.mark.parametrize("h", [1e-3, 1e-4])
+def test_penetration_is_bounded_by_h_v(name, v_max, h):
+    """The midpoint active set closes a contact within one step: depth <= h v (v: max approach speed)."""
+    traj = run(name, dt=h, duration=1.0)
+    assert traj.gap.min() >= -h * v_max
+    if len(traj.log_gap):
+        assert traj.log_gap.min() >= -h * v_max
+
+
+def test_contact_work_ledger_balances_energy():
+    """Over a run with no smooth-phase error (1 dof ball): E_end - E_0 = sum W_c to round-off."""
+    traj = run("bouncing_ball", restitution=0.7)
+    E = traj.total_energy
+    assert abs((E[-1] - E[0]) - traj.contact_work.sum()) <= 1e-12
+    assert traj.contact_work.max() <= 1e-15  # every impact of an approaching contact dissipates
+
+
+def test_rerun_is_bitwise_identical():
+    a = run("box_drop", duration=0.6)
+    b = run("box_drop", duration=0.6)
+    for k in a.arrays:
+        assert np.array_equal(a.arrays[k], b.arrays[k]), k
+
+
+def test_one_step_without_forces_is_the_impact_law():
+    """f = 0 (no gravity, straight-line motion): one midpoint step reproduces §1 exactly."""
+    model = ms.build_model(scene("newton_cradle_5"))
+    data = ms.make_data(model)
+    st = ms.initial_state(model)
+    r = ms.step(model, data, st, 1e-3, 0.5)
+    import pinocchio as pin
+
+    qm = pin.integrate(model.pin, st.q, 0.5e-3 * st.u)
+    c = ms.detect(model, data, qm)
+    pin.computeJointJacobians(model.pin, data.pin, qm)
+    W = ms.contact_rows(model, data, c)
+    M = pin.crba(model.pin, data.pin, qm)
+    imp = ms.impact(M, W, st.u, 0.5)
+    np.testing.assert_array_equal(r.state.u, imp.u_plus)
+    np.testing.assert_allclose(r.P, imp.P, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", BUNDLED)
+def test_every_bundled_scene_runs(name):
+    traj = run(name)
+    assert traj.complete
+    assert np.all(np.isfinite(traj.q)) and np.all(np.isfinite(traj.u))
+    assert len(traj.t) == scene(name).options.n_steps + 1
