@@ -21,7 +21,14 @@ def _fail(msg: str) -> None:
 
 def _load(scene: str, **overrides):
     try:
-        sc = load_scene(scene).with_options(**overrides)
+        sc = load_scene(scene)
+    except MoreauSimError as exc:
+        _fail(str(exc))
+    try:
+        sc = sc.with_options(**overrides)
+    except MoreauSimError as exc:  # "options: restitution: ..." -> "--restitution: ..."
+        _fail(f"command line: {str(exc).replace('options: ', '--', 1).replace('_', '-')}")
+    try:
         return sc, build_model(sc)
     except MoreauSimError as exc:
         _fail(str(exc))

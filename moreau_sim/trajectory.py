@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -78,6 +79,10 @@ def load_trajectory(path: str | Path) -> Trajectory:
                 raise ValueError(f"{path}: not a moreau-sim trajectory (missing {missing})")
             meta = json.loads(str(z["meta"]))
             arrays = {k: z[k] for k in ARRAYS}
-    except (OSError, json.JSONDecodeError, EOFError) as exc:
+    except ValueError as exc:
+        if str(path) in str(exc):
+            raise
+        raise ValueError(f"{path}: not a moreau-sim trajectory NPZ ({exc})") from None
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path}: cannot read trajectory: {exc}") from None
     return Trajectory(arrays, meta)
