@@ -38,11 +38,14 @@ class QPResult:
     lam: np.ndarray
 
 
+_STATUS = {getattr(piqp, n): n for n in dir(piqp) if n.startswith("PIQP_")}
+
+
 def kkt_residual(M, W, v0, v, lam, b=None) -> float:
     """max(|M(v - v0) - W lam|, max(0, b - W'v), max(0, -lam), |lam . (W'v - b)|) (inf-norms)."""
     slack = W.T @ v if b is None else W.T @ v - b
     r = np.abs(M @ (v - v0) - W @ lam).max(initial=0.0)
-    return float(max(r, (-slack).max(initial=0.0), (-lam).max(initial=0.0), abs(float(lam @ slack))))
+    return float(max(r, -slack.min(initial=0.0), -lam.min(initial=0.0), abs(lam @ slack)))
 
 
 def _polish(W, v0, b, Minv, lam):
@@ -51,29 +54,31 @@ def _polish(W, v0, b, Minv, lam):
     On A: G_AA lam_A = b_A - W_A' v0, lam_A >= 0 (a direct solve, or NNLS when the rows are
     redundant, e.g. 4 corners of a face on a plane: rank 3); v = v0 + M^-1 W_A lam_A. Kept only if
     it satisfies the KKT conditions to round-off (W' v >= b for every row): the exact solution."""
-    scale = max(1.0, float(np.abs(lam).max(initial=0.0)))
-    act = np.flatnonzero(lam > 1e-7 * scale)
-    lp = np.zeros_like(lam)
-    vp = np.array(v0, float)
-    if len(act):
-        WA = W[:, act]
+    act = lam > 1e-7 * max(1.0, lam.max())
+    if not act.any():
+        vp, lp = v0.copy(), np.zeros_like(lam)
+    else:
+        full = act.all()
+        WA = W if full else W[:, act]
         MiWA = Minv @ WA
-        G, rhs = WA.T @ MiWA, b[act] - WA.T @ v0
-        tol = 1e-12 * (1.0 + float(np.abs(rhs).max()))
-        lamA = None
+        G, rhs = WA.T @ MiWA, (b if full else b[act]) - WA.T @ v0
+        tol = 1e-12 * (1.0 + np.abs(rhs).max())
         try:
             lamA = np.linalg.solve(G, rhs)
-            if not (np.all(np.isfinite(lamA)) and lamA.min() >= 0 and np.abs(G @ lamA - rhs).max() <= tol):
-                lamA = None
+            ok = lamA.min() >= 0 and np.abs(G @ lamA - rhs).max() <= tol  # False for NaN too
         except np.linalg.LinAlgError:
-            pass
-        if lamA is None:
+            ok = False
+        if not ok:
             lamA, rnorm = scipy.optimize.nnls(G, rhs)
             if not rnorm <= tol:
                 return None
-        vp += MiWA @ lamA
-        lp[act] = lamA
-    if (W.T @ vp - b).min() < -1e-12 * (1.0 + float(np.abs(v0).max())):
+        vp = v0 + MiWA @ lamA
+        if full:
+            lp = lamA
+        else:
+            lp = np.zeros_like(lam)
+            lp[act] = lamA
+    if (W.T @ vp - b).min() < -1e-12 * (1.0 + np.abs(v0).max()):
         return None
     return vp, lp
 
@@ -84,33 +89,33 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     """Project v0 onto {v : W' v >= b} (b = 0 by default) in the metric M with piqp.
 
     Minv: M^-1 if the caller has it (Pinocchio's computeMinverse), else it is computed."""
-    nv, m = W.shape
+    m = W.shape[1]
     b = np.zeros(m) if b is None else np.asarray(b, float)
     if Minv is None:
         Minv = np.linalg.inv(M)
-    if (W.T @ v0 - b).min() >= -1e-13 * (1.0 + float(np.abs(v0).max())):
+    if (W.T @ v0 - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
-        return QPResult("ADMISSIBLE", True, 0, 0.0, False, np.array(v0, float), np.zeros(m))
+        return QPResult("ADMISSIBLE", True, 0, 0.0, False, v0.copy(), np.zeros(m))
     s = piqp.DenseSolver()
-    s.settings.verbose = False
-    s.settings.eps_abs = s.settings.eps_rel = eps
-    s.settings.max_iter = max_iter
+    st = s.settings
+    st.verbose = False
+    st.eps_abs = st.eps_rel = eps
+    st.max_iter = max_iter
     if form is QPForm.PRIMAL:
         s.setup(M, -(M @ v0), None, None, W.T, b, None)
-        st = s.solve()
+        status = s.solve()
         v, lam = s.result.x.copy(), s.result.z_l.copy()
     else:
         MiW = Minv @ W
         s.setup(W.T @ MiW, W.T @ v0 - b, None, None, None, None, None, np.zeros(m), None)
-        st = s.solve()
+        status = s.solve()
         lam = s.result.x.copy()
         v = v0 + MiW @ lam
-    status = str(st).rsplit(".", 1)[-1]
-    iters = int(s.result.info.iter)
-    if st != piqp.PIQP_SOLVED or not (np.all(np.isfinite(v)) and np.all(np.isfinite(lam))):
-        return QPResult(status, False, iters, float("inf"), False, v, lam)
-    lam = np.maximum(lam, 0.0)
+    iters = s.result.info.iter
+    if status != piqp.PIQP_SOLVED or not np.isfinite(v @ v + lam @ lam):
+        return QPResult(_STATUS.get(status, str(status)), False, iters, float("inf"), False, v, lam)
+    np.maximum(lam, 0.0, out=lam)
     p = _polish(W, v0, b, Minv, lam) if polish else None
     if p is not None:
         v, lam = p
-    return QPResult(status, True, iters, kkt_residual(M, W, v0, v, lam, b), p is not None, v, lam)
+    return QPResult("PIQP_SOLVED", True, iters, kkt_residual(M, W, v0, v, lam, b), p is not None, v, lam)
