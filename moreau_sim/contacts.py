@@ -100,6 +100,25 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
                 out.append((d, p_on_other, Vw[i], nrm, pair, offset + i))
 
 
+_SNAP = 1e-4  # [rad] a patch normal this close to a face normal is that face normal
+
+
+def _snap(model: Model, data: Data, pair, n: np.ndarray) -> np.ndarray:
+    """The face normal of A or B (oriented B -> A) nearest to coal's patch normal n, if within
+    _SNAP: for parallel faces the contact normal is a face normal, and coal's EPA normal of
+    exactly touching faces is ~1e-6 rad off it, enough to make a resting box slide."""
+    best, cos_best = n, np.cos(_SNAP)
+    for g, j, sign in ((pair.first, pair.joint_first, -1.0), (pair.second, pair.joint_second, 1.0)):
+        F = model.face_normals[g]
+        if len(F):
+            Fw = sign * (F @ data.pin.oMi[j].rotation.T)  # A's outward normals point A -> B: flip
+            c = Fw @ n
+            i = int(np.argmax(c))
+            if c[i] > cos_best:
+                best, cos_best = Fw[i], c[i]
+    return best
+
+
 def detect(model: Model, data: Data, q: np.ndarray) -> Contacts:
     """Closed contacts H(q) = {i : g_i(q) <= contact_tolerance} at configuration q.
 
@@ -125,11 +144,12 @@ def detect(model: Model, data: Data, q: np.ndarray) -> Contacts:
         c = res.getContact(0)
         n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
         k_patch = 0
-        if na or nb:  # a face can only be flat on a polytope
+        if pair.patch:
             pin.computeContactPatch(gm, gd, pair.index)
             patch = gd.contactPatchResults[pair.index].getContactPatch(0)
             k_patch = patch.size()
         if k_patch > 1:  # parallel faces: the overlap polygon (its corners need not be vertices)
+            n = _snap(model, data, pair, n)
             P1 = np.array([patch.getPointShape1(k) for k in range(k_patch)])
             new = np.ones(k_patch, bool)
             if len(found) > start:

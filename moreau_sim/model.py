@@ -23,11 +23,18 @@ from .state import State
 
 _AXES = {(1.0, 0.0, 0.0): "X", (0.0, 1.0, 0.0): "Y", (0.0, 0.0, 1.0): "Z"}
 GJK_TOLERANCE = 1e-12  # coal's GJK/EPA tolerances for the contact normal (default 1e-6 is too coarse)
+# Faces parallel to within this [m] over their extent form a contact patch. Coal's EPA normal of
+# exactly touching boxes is still ~1e-6 rad off at GJK_TOLERANCE, i.e. ~1e-7 m over 0.1 m: a
+# tighter value makes the patch flicker between 1 and 8 points from one step to the next.
+PATCH_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
 class Pair:
-    """A collision pair: geometry ids (first = coal's shape 1), their joints and bodies."""
+    """A collision pair: geometry ids (first = coal's shape 1), their joints, its name, and
+    whether contacts.py asks coal for the contact patch (not when one shape is a half-space and
+    the other a polytope: the overlap of a face with a half-space is that face, whose corners
+    are already vertex contacts)."""
 
     index: int
     first: int
@@ -35,6 +42,7 @@ class Pair:
     joint_first: int
     joint_second: int
     name: str
+    patch: bool = True
 
 
 @dataclass(frozen=True)
@@ -55,7 +63,8 @@ class Model:
     pairs: the collision pairs; vertices[g]: (k, 3) polytope vertices of geometry g in its
     joint frame (empty for smooth shapes); bounds[g]: a cheap lower bound of the distance from a
     point to geometry g, ("sphere", centre, radius) in its joint frame or ("plane", n, d) for a
-    half-space {n.x <= d} (contacts.py uses it to skip far vertices); support_mask[j]: 1 on the
+    half-space {n.x <= d} (contacts.py uses it to skip far vertices); face_normals[g]: outward
+    face normals of a polytope in its joint frame (empty otherwise); support_mask[j]: 1 on the
     velocity indices that move joint j; q0/u0: the initial state.
     """
 
@@ -65,6 +74,7 @@ class Model:
     pairs: tuple[Pair, ...]
     vertices: tuple[np.ndarray, ...]
     bounds: tuple[tuple, ...]
+    face_normals: tuple[np.ndarray, ...]
     support_mask: np.ndarray
     bodies: tuple[BodyInfo, ...]
     geometry_body: tuple[str, ...]
@@ -119,7 +129,7 @@ class Data:
             # GJK/EPA default tolerances (1e-6) tilt the normal of exactly touching boxes by ~5 deg
             req.gjk_tolerance = req.epa_tolerance = GJK_TOLERANCE
         for preq in self.geom.contactPatchRequests:
-            preq.setPatchTolerance(max(tol, 1e-12))  # only faces parallel to within tol form a patch
+            preq.setPatchTolerance(PATCH_TOLERANCE)
         self.point = coal.Sphere(0.0)  # a vertex, for point-vs-shape signed distances
         self.point_tf = coal.Transform3s()
         self.distance_request = coal.DistanceRequest()
@@ -257,6 +267,19 @@ def _vertices(geometry, placement: pin.SE3) -> np.ndarray:
     return out
 
 
+def _face_normals(geometry, placement: pin.SE3) -> np.ndarray:
+    """Outward face normals of a polytope in its joint frame (contacts.py snaps patch normals)."""
+    if isinstance(geometry, coal.Box):
+        local = np.concatenate([np.eye(3), -np.eye(3)])
+    elif isinstance(geometry, coal.ConvexBase):
+        local = np.array(geometry.normals(), float).reshape(-1, 3)
+    else:
+        return np.zeros((0, 3))
+    out = local @ placement.rotation.T
+    out.setflags(write=False)
+    return out
+
+
 def _bound(geometry, placement: pin.SE3) -> tuple:
     """("plane", n, d) of a half-space, else ("sphere", centre, radius) from coal's local AABB."""
     if isinstance(geometry, coal.Halfspace):
@@ -338,10 +361,15 @@ def build_model(scene: Scene) -> Model:
             i, j = j, i
         geom.addCollisionPair(pin.CollisionPair(i, j))
         assert geom.collisionPairs[k].first == i and geom.collisionPairs[k].second == j
-        pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, f"{gobs[i].name}|{gobs[j].name}"))
+        half = [isinstance(gobs[x].geometry, (coal.Halfspace, coal.Plane)) for x in (i, j)]
+        poly = [len(_vertices(gobs[x].geometry, gobs[x].placement)) > 0 for x in (i, j)]
+        patch = not ((half[0] and poly[1]) or (half[1] and poly[0]))
+        pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, f"{gobs[i].name}|{gobs[j].name}",
+                          patch))
 
     vertices = tuple(_vertices(go.geometry, go.placement) for go in gobs)
     bounds = tuple(_bound(go.geometry, go.placement) for go in gobs)
+    face_normals = tuple(_face_normals(go.geometry, go.placement) for go in gobs)
     mask = np.zeros((model.njoints, model.nv))
     for j in range(1, model.njoints):
         for s in model.supports[j][1:]:
@@ -352,7 +380,7 @@ def build_model(scene: Scene) -> Model:
     if model.nv == 0:
         raise SceneError(f"{where} [[bodies]]: nothing moves (every body has a fixed root and no joints)")
     q0, u0 = _initial(scene, model, infos, where)
-    return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, support_mask=mask,
+    return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, support_mask=mask,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0)
 
 
