@@ -62,6 +62,9 @@ class Trajectory:
         try:
             with os.fdopen(fd, "wb") as fh:
                 np.savez_compressed(fh, meta=np.array(json.dumps(self.meta)), **self.arrays)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual mode
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
