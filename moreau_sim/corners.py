@@ -198,7 +198,9 @@ def _project(Mn, v0n, G, tol):
     """argmin 1/2 (v - v0)' M (v - v0) s.t. G v >= 0 (impact-law.md §1), and its multipliers."""
     solver = piqp.DenseSolver()
     solver.settings.verbose = False
-    solver.settings.eps_abs = solver.settings.eps_rel = max(tol / 10.0, 1e-14)
+    eps = max(tol / 10.0, 1e-14)   # the duality-gap test defaults to 1e-8: set it too (else ~1e-7 in v)
+    solver.settings.eps_abs = solver.settings.eps_rel = eps
+    solver.settings.eps_duality_gap_abs = solver.settings.eps_duality_gap_rel = eps
     solver.setup(Mn, -Mn @ v0n, None, None, G, np.zeros(G.shape[0]), None)
     status = solver.solve()
     if status != piqp.PIQP_SOLVED:

@@ -28,7 +28,7 @@ def project(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | Non
 
     Returns the QP result: v, the multipliers lam with M (v - v0) = W lam, status and residual."""
     if W.shape[1] == 0:
-        return qp.QPResult("NO_CONTACT", True, 0, 0.0, False, np.array(v0, float), np.zeros(0))
+        return qp.QPResult("NO_CONTACT", True, 0, False, np.array(v0, float), np.zeros(0))
     return qp.solve(M, W, v0, b=b, Minv=Minv, form=form, eps=eps)
 
 

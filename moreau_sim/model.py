@@ -81,6 +81,11 @@ class Model:
     q0: np.ndarray
     u0: np.ndarray
 
+    def __post_init__(self):
+        pj = np.array([(p.joint_first, p.joint_second) for p in self.pairs], dtype=np.int64).reshape(-1, 2)
+        pj.setflags(write=False)
+        object.__setattr__(self, "_pair_joints", pj)
+
     @property
     def nq(self) -> int:
         return self.pin.nq
@@ -88,6 +93,11 @@ class Model:
     @property
     def nv(self) -> int:
         return self.pin.nv
+
+    @property
+    def pair_joints(self) -> np.ndarray:
+        """(pairs, 2) int array: the joints of each pair's first and second geometry."""
+        return self._pair_joints
 
     @property
     def pair_names(self) -> tuple[str, ...]:
