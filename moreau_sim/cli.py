@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import click
+import numpy as np
 
 from .errors import MoreauSimError, SimulationError
 from .model import build_model
@@ -72,7 +73,8 @@ def run(scene, dt, duration, restitution, save_every, qp_form, out, as_json, pro
         return
     click.echo(f"{s['scene']}: {s['steps']} steps of h = {sc.options.dt:g} s to t = {s['t_end']:g} s, "
                f"e = {sc.options.restitution:g}")
-    click.echo(f"  impacts {s['impacts']}, percussions logged {s['percussions_logged']}")
+    click.echo(f"  impacts {s['impacts']}, percussions logged {s['percussions_logged']}"
+               + (f", corner impacts with several outcomes {s['branching_steps']}" if s["branching_steps"] else ""))
     click.echo(f"  energy {s['energy_start']:.6g} J -> {s['energy_end']:.6g} J "
                f"(contact work {s['contact_work_total']:.6g} J, max rise {s['energy_max_increase']:.3g} J)")
     if s["min_gap"] is not None:
@@ -97,6 +99,53 @@ def info(scene, as_json):
     click.echo(f"  collision pairs ({len(d['collision_pairs'])}):")
     for p in d["collision_pairs"]:
         click.echo(f"    {p}")
+
+
+@main.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--trajectory", "npz", type=click.Path(dir_okay=False),
+              help="Take the state from this trajectory NPZ (the sample nearest --time).")
+@click.option("--time", "t", type=float, default=0.0, show_default=True, help="Sample time [s] in --trajectory.")
+@click.option("--restitution", "-e", type=float, help="Restitution e (default: the scene's).")
+@click.option("--json", "as_json", is_flag=True, help="Print as JSON.")
+def outcomes(scene, npz, t, restitution, as_json):
+    """Every admissible outcome of the impact at a state of SCENE (its initial state by default).
+
+    At a corner (a vertex at an edge or vertex of a box) the law has several stationary points:
+    all are listed with their distance 1/2 |v - u-|_M^2, the global minimizers marked, and the one
+    the scene's corner_selection policy picks."""
+    from .outcomes import impact_outcomes
+    from .state import State
+    from .trajectory import load_trajectory
+
+    sc, model = _load(scene, restitution=restitution)
+    state = None
+    if npz:
+        try:
+            traj = load_trajectory(npz)
+        except ValueError as exc:
+            _fail(str(exc))
+        i = int(abs(traj.t - t).argmin())
+        if traj.q.shape[1] != model.nq:
+            _fail(f"{npz}: its q has {traj.q.shape[1]} coordinates, scene {scene} has nq = {model.nq}")
+        state = State(float(traj.t[i]), traj.q[i], traj.u[i])
+    else:
+        from .model import initial_state
+        state = initial_state(model)
+    res = impact_outcomes(model, state)
+    if as_json:
+        click.echo(json.dumps({"scene": sc.name, "t": state.t, "u_minus": state.u.tolist(),
+                               "restitution": sc.options.restitution,
+                               "outcomes": [{"u_plus": o.u_plus.tolist(), "v": o.v.tolist(), "distance": o.distance,
+                                             "energy_loss": o.energy_loss, "global_min": o.global_min,
+                                             "selected": o.selected, "pieces": o.pieces} for o in res]}, indent=2))
+        return
+    click.echo(f"{sc.name} at t = {state.t:g} s, e = {sc.options.restitution:g}, u- = {np.round(state.u, 6).tolist()}:"
+               f" {len(res)} admissible outcome(s)")
+    for k, o in enumerate(res):
+        flags = ("global min" if o.global_min else "stationary") + (", selected" if o.selected else "")
+        click.echo(f"  [{k}] u+ = {np.round(o.u_plus, 6).tolist()}  distance {o.distance:.6g} J  "
+                   f"energy loss {o.energy_loss:.6g} J  ({flags})  {o.pieces}")
 
 
 @main.command()

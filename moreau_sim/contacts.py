@@ -25,6 +25,7 @@ gamma = w' u is the normal relative velocity (> 0 separating).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,17 +34,39 @@ import pinocchio as pin
 from .model import Data, Model
 
 WITNESS = -1  # feature id of coal's closest-point contact; >= 0: vertex index (B's offset by len(A's))
+CORNER = 20_000  # feature id CORNER + f: face f of a corner (the way of staying apart that pushed)
 PATCH = 10_000  # feature id PATCH + k: corner k of coal's contact patch (overlap polygon of two faces)
 _SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact
 
 
 @dataclass(frozen=True, slots=True)
+class Corner:
+    """A closed contact where the gap is not smooth (impact-law.md §3): a vertex at an edge or a
+    vertex of a box, within the contact tolerance of k >= 2 face planes. Each face is one way of
+    staying apart: normals (k, 3) from B to A (unit), at the point; the admissible set there is
+    the union of the k half-spaces {n_f'(v_A(p) - v_B(p)) >= 0}, not their intersection.
+
+    g: signed gap [m]; point_a, point_b (3,) [m]; pair, joint_a, joint_b; features: the vertex
+    features that meet there (one of A's, and one of B's for vertex on vertex)."""
+
+    g: float
+    point_a: np.ndarray
+    point_b: np.ndarray
+    normals: np.ndarray
+    pair: int
+    joint_a: int
+    joint_b: int
+    features: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True)
 class Contacts:
-    """The closed contacts at one configuration (m of them).
+    """The closed contacts at one configuration: m smooth ones in arrays, and the corners.
 
     g (m,) signed gaps [m]; point_a / point_b (m, 3) witness points on A and B [m, world];
     normal (m, 3) unit normals from B to A; pair (m,) collision-pair index; feature (m,)
-    WITNESS or a vertex index; joint_a / joint_b (m,) Pinocchio joints of A and B.
+    WITNESS, a vertex index or PATCH + k; joint_a / joint_b (m,) Pinocchio joints of A and B;
+    corners: the non-smooth contacts (:class:`Corner`), handled by the set-valued law.
     """
 
     g: np.ndarray
@@ -54,10 +77,16 @@ class Contacts:
     feature: np.ndarray
     joint_a: np.ndarray
     joint_b: np.ndarray
+    corners: tuple = ()
 
     @property
     def m(self) -> int:
         return len(self.g)
+
+    def select(self, keep: np.ndarray) -> "Contacts":
+        """The smooth contacts where `keep` is true (corners unchanged)."""
+        return Contacts(self.g[keep], self.point_a[keep], self.point_b[keep], self.normal[keep], self.pair[keep],
+                        self.feature[keep], self.joint_a[keep], self.joint_b[keep], self.corners)
 
 
 def _empty() -> Contacts:
@@ -67,11 +96,36 @@ def _empty() -> Contacts:
 
 
 NO_CONTACTS = _empty()
+NO_CONTACTS_FIELDS = tuple(getattr(NO_CONTACTS, f) for f in Contacts.__slots__[:-1])
+
+
+def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p: np.ndarray,
+                    margin: float) -> np.ndarray | None:
+    """The ways of staying apart of vertex i of g_vert touching box g_other at p (impact-law.md
+    §3): the outward normals (world) of g_other's faces whose signed distance from p is within
+    `margin` of the largest one (the faces p is nearest to, or crossed within the step) and whose
+    planes leave the vertex's own local cone (its edges) on their outer side - a face plane the
+    vertex's body would cross does not separate them. Two or more: a corner; one: a smooth contact
+    with that face normal; None: g_other is no box or the vertex's cone is unknown (coal's)."""
+    planes, edges = model.face_planes[g_other], model.vertex_edges[g_vert]
+    if planes is None or edges is None:
+        return None
+    n, d = planes
+    s = n @ (oMo.rotation.T @ (p - oMo.translation)) - d  # signed distance to each face plane
+    on = np.flatnonzero(s >= s.max() - margin)
+    if len(on) < 2:
+        return None
+    nw = n[on] @ oMo.rotation.T
+    r = edges[i] @ oMi.rotation.T  # (k, 3) edges leaving the vertex, world
+    ok = (nw @ r.T).min(axis=1, initial=0.0) >= -1e-9 if len(r) else np.ones(len(nw), bool)
+    return nw[ok] if ok.any() else None
 
 
 def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_other: int, joint_other: int,
-                     tol: float, out: list, pair: int, offset: int, v_is_a: bool) -> None:
-    """Contacts of the vertices of geometry g_vert that lie within tol of geometry g_other."""
+                     tol: float, out: list, pair: int, offset: int, v_is_a: bool, corners: list,
+                     margin: float) -> None:
+    """Contacts of the vertices of geometry g_vert that lie within tol of geometry g_other
+    (appended to `out`, or to `corners` where the vertex is at an edge or vertex of g_other)."""
     V = model.vertices[g_vert]
     if not len(V):
         return
@@ -94,6 +148,13 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
         if d <= tol:
             nrm = res.normal  # from the vertex towards the other shape
             p_on_other = res.getNearestPoint2()
+            faces = _corner_normals(model, g_vert, i, oMi, g_other, oMo, Vw[i], margin)
+            if faces is not None and len(faces) >= 2:  # outward normals of the other: B -> A if the vertex is A's
+                corners.append((d, Vw[i] if v_is_a else p_on_other, p_on_other if v_is_a else Vw[i],
+                                faces if v_is_a else -faces, pair, offset + i))
+                continue
+            if faces is not None:  # one face separates: a smooth contact with its exact normal
+                nrm = -faces[0]
             if v_is_a:
                 out.append((d, Vw[i], p_on_other, -nrm, pair, offset + i))
             else:
@@ -119,28 +180,38 @@ def _snap(model: Model, data: Data, pair, n: np.ndarray) -> np.ndarray:
     return best
 
 
-def detect(model: Model, data: Data, q: np.ndarray) -> Contacts:
+def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | None = None) -> Contacts:
     """Closed contacts H(q) = {i : g_i(q) <= contact_tolerance} at configuration q.
 
+    corner_margin [m]: a vertex inside or at a box is at a corner when its signed distances to two
+    or more face planes differ by at most this (default: the contact tolerance; the stepper adds
+    how far the vertex can move in a step, so a corner struck within the step is seen as one).
     Updates data.pin kinematics (oMi) and the geometry placements at q."""
     pm, pd, gm, gd = model.pin, data.pin, model.geom, data.geom
     pin.updateGeometryPlacements(pm, pd, gm, gd, q)
     if not model.pairs or not pin.computeCollisions(gm, gd, False):
         return NO_CONTACTS
     tol = model.scene.options.contact_tolerance
+    margin = tol if corner_margin is None else max(tol, corner_margin)
     found: list = []
+    corner_list: list = []
     for pair in model.pairs:
         res = gd.collisionResults[pair.index]
         if not res.isCollision():
             continue
         start = len(found)
         na, nb = len(model.vertices[pair.first]), len(model.vertices[pair.second])
+        start_c = len(corner_list)
         if na:
             _vertex_contacts(model, data, pair.first, pair.joint_first, pair.second, pair.joint_second, tol,
-                             found, pair.index, 0, True)
+                             found, pair.index, 0, True, corner_list, margin)
         if nb:
             _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, pair.joint_first, tol,
-                             found, pair.index, na, False)
+                             found, pair.index, na, False, corner_list, margin)
+        if len(corner_list) > start_c:
+            if len(found) == start:
+                continue  # the corner is the contact of this pair: no patch, no witness
+            # a corner beside smooth contacts of the same pair (a face resting on an edge): keep both
         c = res.getContact(0)
         n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
         k_patch = 0
@@ -161,13 +232,35 @@ def detect(model: Model, data: Data, q: np.ndarray) -> Contacts:
         elif len(found) == start:  # no vertex within tolerance: edge-edge, smooth shapes
             found.append((c.penetration_depth, np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2()),
                           n, pair.index, WITNESS))
+    corners = _merge_corners(model, corner_list, margin) if corner_list else ()
     if not found:
-        return NO_CONTACTS
+        return Contacts(*NO_CONTACTS_FIELDS, corners) if corners else NO_CONTACTS
     g, pa, pb, nn, pair_ids, feat = zip(*found)
     pair_ids = np.array(pair_ids, dtype=np.int64)
     joints = model.pair_joints[pair_ids]
     return Contacts(np.array(g, float), np.array(pa), np.array(pb), np.array(nn), pair_ids,
-                    np.array(feat, dtype=np.int64), joints[:, 0], joints[:, 1])
+                    np.array(feat, dtype=np.int64), joints[:, 0], joints[:, 1], corners)
+
+
+def _merge_corners(model: Model, items: list, margin: float) -> tuple:
+    """One :class:`Corner` per touching point of a pair: a vertex of A at a vertex of B is found
+    from both sides (points within `margin`: they may have crossed within the step); its ways of
+    staying apart are the faces of both (duplicates dropped), at the first point found (A's
+    vertex, as A's vertices are queried first)."""
+    out: list = []
+    for d, pa, pb, normals, pair, feat in items:
+        for k, c in enumerate(out):
+            if c.pair == pair and np.abs(c.point_a - pa).max() <= margin:
+                allnormals = np.concatenate([c.normals, normals])
+                keep = [i for i in range(len(allnormals))
+                        if not any(np.abs(allnormals[i] - allnormals[j]).max() <= 1e-12 for j in range(i))]
+                out[k] = Corner(min(c.g, d), c.point_a, c.point_b, allnormals[keep], pair, c.joint_a, c.joint_b,
+                                c.features + (feat,))
+                break
+        else:
+            ja, jb = model.pair_joints[pair]
+            out.append(Corner(float(d), np.array(pa), np.array(pb), normals, int(pair), int(ja), int(jb), (feat,)))
+    return tuple(out)
 
 
 # Levi-Civita as a (9, 3) matrix: (p x n) = outer(p, n).reshape(9) @ _EPS9 (np.cross costs ~20 us)
@@ -213,7 +306,7 @@ def distinct(contacts: Contacts, W: np.ndarray) -> tuple[Contacts, np.ndarray]:
     if not dup.any():
         return contacts, W
     keep = ~dup
-    return Contacts(*(getattr(contacts, f)[keep] for f in Contacts.__slots__)), W[:, keep]
+    return contacts.select(keep), W[:, keep]
 
 
 def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
@@ -222,3 +315,52 @@ def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
         return np.zeros(0)
     pin.computeDistances(model.pin, data.pin, model.geom, data.geom, q)
     return np.array([r.min_distance for r in data.geom.distanceResults])
+
+
+@dataclass(frozen=True, slots=True)
+class CornerPieces:
+    """The pieces of the admissible cone of one step (impact-law.md §3).
+
+    rows[c]: (k_c, nv) rows of corner c's faces (distinct, non-zero), corners[c] its Corner;
+    pieces: one (n_corners, nv) array per choice of one face per corner (itertools.product
+    order); choice[j]: the face index per corner of piece j."""
+
+    corners: tuple
+    rows: tuple
+    pieces: tuple
+    choice: tuple
+
+
+def corner_pieces(model: Model, data: Data, contacts: Contacts, W: np.ndarray):
+    """Rows of every corner's faces; a corner left with one distinct non-zero row becomes a
+    smooth contact (appended to contacts and W); corners whose rows repeat another's (the front
+    and back of a planar block) are dropped. Returns (contacts, W, CornerPieces or None)."""
+    keep_c, keep_r = [], []
+    extra = []
+    for c in contacts.corners:
+        k = len(c.normals)
+        one = Contacts(np.full(k, c.g), np.tile(c.point_a, (k, 1)), np.tile(c.point_b, (k, 1)), c.normals,
+                       np.full(k, c.pair), np.arange(k) + CORNER, np.full(k, c.joint_a), np.full(k, c.joint_b))
+        R = contact_rows(model, data, one).T  # (k, nv)
+        scale = 1e-12 * (1.0 + np.abs(R).max())
+        idx = [i for i in range(k) if np.abs(R[i]).max() > scale
+               and not any(np.abs(R[i] - R[j]).max() <= scale for j in range(i))]
+        if not idx:
+            continue
+        if len(idx) == 1:
+            extra.append((one.select(np.isin(np.arange(k), idx)), R[idx].T))
+            continue
+        Rk = R[idx]
+        if any(len(r) == len(Rk) and all(np.abs(r - x).max(axis=1).min() <= scale for x in Rk) for r in keep_r):
+            continue
+        keep_c.append(Corner(c.g, c.point_a, c.point_b, c.normals[idx], c.pair, c.joint_a, c.joint_b, c.features))
+        keep_r.append(Rk)
+    for one, col in extra:
+        contacts = Contacts(*(np.concatenate((getattr(contacts, f), getattr(one, f)))
+                              for f in Contacts.__slots__[:-1]), contacts.corners)
+        W = np.concatenate((W, col), axis=1)
+    if not keep_c:
+        return Contacts(*(getattr(contacts, f) for f in Contacts.__slots__[:-1])), W, None
+    choice = tuple(itertools.product(*(range(len(r)) for r in keep_r)))
+    pieces = tuple(np.array([keep_r[c][f] for c, f in enumerate(ch)]) for ch in choice)
+    return contacts, W, CornerPieces(tuple(keep_c), tuple(keep_r), pieces, choice)

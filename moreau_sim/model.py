@@ -64,7 +64,9 @@ class Model:
     joint frame (empty for smooth shapes); bounds[g]: a cheap lower bound of the distance from a
     point to geometry g, ("sphere", centre, radius) in its joint frame or ("plane", n, d) for a
     half-space {n.x <= d} (contacts.py uses it to skip far vertices); face_normals[g]: outward
-    face normals of a polytope in its joint frame (empty otherwise); support_mask[j]: 1 on the
+    face normals of a polytope in its joint frame (empty otherwise); face_planes[g]: a box's
+    (normals, offsets) in its joint frame, else None; vertex_edges[g]: the edge directions leaving
+    each vertex (corner detection in contacts.py); support_mask[j]: 1 on the
     velocity indices that move joint j; q0/u0: the initial state.
     """
 
@@ -75,6 +77,8 @@ class Model:
     vertices: tuple[np.ndarray, ...]
     bounds: tuple[tuple, ...]
     face_normals: tuple[np.ndarray, ...]
+    face_planes: tuple
+    vertex_edges: tuple
     support_mask: np.ndarray
     bodies: tuple[BodyInfo, ...]
     geometry_body: tuple[str, ...]
@@ -85,6 +89,8 @@ class Model:
         pj = np.array([(p.joint_first, p.joint_second) for p in self.pairs], dtype=np.int64).reshape(-1, 2)
         pj.setflags(write=False)
         object.__setattr__(self, "_pair_joints", pj)
+        reach = max([float(np.linalg.norm(V, axis=1).max()) for V in self.vertices if len(V)] + [1.0])
+        object.__setattr__(self, "_reach", reach)
 
     @property
     def nq(self) -> int:
@@ -93,6 +99,12 @@ class Model:
     @property
     def nv(self) -> int:
         return self.pin.nv
+
+    @property
+    def reach(self) -> float:
+        """max(1, largest distance of a vertex from its joint origin) [m]: bounds a vertex's speed
+        by reach * |u|_inf for unit-scale joints (contacts.detect, corner margin)."""
+        return self._reach
 
     @property
     def pair_joints(self) -> np.ndarray:
@@ -187,6 +199,11 @@ def _root_joint(body: Body, where: str):
         if aligned:
             return getattr(pin, f"JointModel{kind}{aligned}")()
         return pin.JointModelPrismaticUnaligned(a) if kind == "P" else pin.JointModelRevoluteUnaligned(a)
+    if rj is RootJoint.TRANSLATION:  # prismatic joints along each axis (world rates)
+        j = pin.JointModelComposite()
+        for x in body.axes:
+            j.addJoint(pin.JointModelPrismaticUnaligned(_unit(x, f"{where} axes")))
+        return j
     # planar: translations along the two in-plane axes (world rates), then rotation about a x b.
     a, b = (_unit(x, f"{where} axes") for x in body.axes)
     n = np.cross(a, b)
@@ -270,6 +287,8 @@ def _vertices(geometry, placement: pin.SE3) -> np.ndarray:
         local = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
     elif isinstance(geometry, coal.ConvexBase):
         local = np.array(geometry.points(), float).reshape(-1, 3)
+    elif isinstance(geometry, coal.Sphere) and geometry.radius == 0.0:
+        local = np.zeros((1, 3))  # a point particle: its centre is its one vertex
     else:
         return np.zeros((0, 3))
     out = local @ placement.rotation.T + placement.translation
@@ -288,6 +307,34 @@ def _face_normals(geometry, placement: pin.SE3) -> np.ndarray:
     out = local @ placement.rotation.T
     out.setflags(write=False)
     return out
+
+
+def _vertex_edges(geometry, placement: pin.SE3) -> np.ndarray | None:
+    """(vertices, k, 3) unit directions of the edges leaving each vertex, joint frame: the
+    generators of the shape's local cone at its vertices (a point particle: none). None when
+    unknown (convex meshes)."""
+    if isinstance(geometry, coal.Box):
+        signs = [(sx, sy, sz) for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]  # as _vertices
+        E = np.array([[[-sx, 0, 0], [0, -sy, 0], [0, 0, -sz]] for sx, sy, sz in signs], float)
+        out = E @ placement.rotation.T
+    elif isinstance(geometry, coal.Sphere) and geometry.radius == 0.0:
+        out = np.zeros((1, 0, 3))
+    else:
+        return None
+    out.setflags(write=False)
+    return out
+
+
+def _face_planes(geometry, placement: pin.SE3):
+    """(normals (k, 3), offsets (k,)) of a box's faces in its joint frame, the solid being
+    {x : normals x <= offsets}; None for other shapes (contacts.py: corner detection)."""
+    if not isinstance(geometry, coal.Box):
+        return None
+    n = np.concatenate([np.eye(3), -np.eye(3)]) @ placement.rotation.T
+    d = np.tile(np.asarray(geometry.halfSide, float), 2) + n @ placement.translation
+    n.setflags(write=False)
+    d.setflags(write=False)
+    return n, d
 
 
 def _bound(geometry, placement: pin.SE3) -> tuple:
@@ -380,6 +427,8 @@ def build_model(scene: Scene) -> Model:
     vertices = tuple(_vertices(go.geometry, go.placement) for go in gobs)
     bounds = tuple(_bound(go.geometry, go.placement) for go in gobs)
     face_normals = tuple(_face_normals(go.geometry, go.placement) for go in gobs)
+    face_planes = tuple(_face_planes(go.geometry, go.placement) for go in gobs)
+    vertex_edges = tuple(_vertex_edges(go.geometry, go.placement) for go in gobs)
     mask = np.zeros((model.njoints, model.nv))
     for j in range(1, model.njoints):
         for s in model.supports[j][1:]:
@@ -390,7 +439,7 @@ def build_model(scene: Scene) -> Model:
     if model.nv == 0:
         raise SceneError(f"{where} [[bodies]]: nothing moves (every body has a fixed root and no joints)")
     q0, u0 = _initial(scene, model, infos, where)
-    return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, support_mask=mask,
+    return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0)
 
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .corners import Selection
 from .errors import SceneError
 
 
@@ -24,6 +25,7 @@ class RootJoint(enum.Enum):
     FIXED = "fixed"  # 0 dof: the body is part of the static environment
     FREE = "free"  # 6 dof: q = [x y z qx qy qz qw], u = [v (world), w (body frame)]
     PLANAR = "planar"  # 3 dof: q = [s_a, s_b, theta] along `axes`, rotation about a x b
+    TRANSLATION = "translation"  # 1-3 dof: displacements along `axes` (default x, y, z), no rotation
     PRISMATIC = "prismatic"  # 1 dof along `axis` [m]
     REVOLUTE = "revolute"  # 1 dof about `axis` [rad]
 
@@ -91,6 +93,8 @@ class Options:
         placed exactly touching count as closed, and far below any physical gap.
     qp_form: which form of the impact QP to solve (see :class:`QPForm`).
     separating: the restitution of closed contacts that separate (see :class:`Separating`).
+    corner_selection: which admissible outcome of a corner impact the run continues with
+        (:class:`moreau_sim.corners.Selection`; every branching step is logged).
     qp_tolerance: piqp's eps_abs and eps_rel; the solution is then polished on its active set.
     save_every: record the state every N steps (the last step is always recorded).
     """
@@ -102,6 +106,7 @@ class Options:
     contact_tolerance: float = 1e-9
     qp_form: QPForm = QPForm.PRIMAL
     separating: Separating = Separating.ELASTIC
+    corner_selection: Selection = Selection.GLOBAL_MIN
     qp_tolerance: float = 1e-10
     save_every: int = 1
 
@@ -121,6 +126,8 @@ class Options:
         _check(isinstance(self.qp_form, QPForm), f"{where}: qp_form", f"must be a QPForm, got {self.qp_form!r}")
         _check(isinstance(self.separating, Separating), f"{where}: separating",
                f"must be a Separating rule, got {self.separating!r}")
+        _check(isinstance(self.corner_selection, Selection), f"{where}: corner_selection",
+               f"must be a corners.Selection, got {self.corner_selection!r}")
         _check(isinstance(self.qp_tolerance, (int, float)) and 0 < self.qp_tolerance < 1e-3,
                f"{where}: qp_tolerance", f"must lie in (0, 1e-3), got {self.qp_tolerance!r}")
         _check(isinstance(self.save_every, int) and not isinstance(self.save_every, bool) and self.save_every >= 1,
@@ -134,7 +141,7 @@ class Options:
     def replace(self, **changes) -> "Options":
         """A copy with `changes` applied and validated (None values are ignored)."""
         changes = {k: v for k, v in changes.items() if v is not None}
-        for key, cls in (("qp_form", QPForm), ("separating", Separating)):
+        for key, cls in (("qp_form", QPForm), ("separating", Separating), ("corner_selection", Selection)):
             if isinstance(changes.get(key), str):
                 changes[key] = _enum(cls, changes[key], f"options: {key}")
         if "gravity" in changes:
@@ -145,6 +152,7 @@ class Options:
         d = dataclasses.asdict(self)
         d["qp_form"] = self.qp_form.value
         d["separating"] = self.separating.value
+        d["corner_selection"] = self.corner_selection.value
         d["gravity"] = list(self.gravity)
         return d
 
@@ -157,7 +165,7 @@ class Body:
     urdf: Path
     root_joint: RootJoint
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    axes: tuple[tuple[float, float, float], tuple[float, float, float]] = ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    axes: tuple[tuple[float, float, float], ...] | None = None  # planar: default x, z; translation: x, y, z
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     q0: tuple[float, ...] | None = None
@@ -207,7 +215,7 @@ class Scene:
 _TOP = {"scene", "simulation", "output", "bodies", "statics", "collisions"}
 _SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravity": "gravity",
         "contact_tolerance": "contact_tolerance", "qp_form": "qp_form", "qp_tolerance": "qp_tolerance",
-        "separating": "separating"}
+        "separating": "separating", "corner_selection": "corner_selection"}
 _BODY = {"name", "urdf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0"}
 _STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy"}
 
@@ -248,6 +256,8 @@ def _parse_options(sim: dict, out: dict, where: str) -> Options:
         kw["qp_form"] = _enum(QPForm, sim["qp_form"], f"{where} [simulation] qp_form")
     if "separating" in sim:
         kw["separating"] = _enum(Separating, sim["separating"], f"{where} [simulation] separating")
+    if "corner_selection" in sim:
+        kw["corner_selection"] = _enum(Selection, sim["corner_selection"], f"{where} [simulation] corner_selection")
     if "save_every" in out:
         kw["save_every"] = out["save_every"]
     try:
@@ -273,12 +283,22 @@ def _parse_body(t: dict, where: str, base: Path) -> Body:
     if "axis" in kw:
         _check(math.hypot(*kw["axis"]) > 1e-12, f"{w} axis", "must not be zero")
     if "axes" in t:
-        _check(isinstance(t["axes"], list) and len(t["axes"]) == 2, f"{w} axes", "must be two 3-vectors")
-        a, b = (_finite_vec(x, 3, f"{w} axes") for x in t["axes"])
-        na, nb = math.hypot(*a), math.hypot(*b)
-        _check(na > 1e-12 and nb > 1e-12 and abs(sum(x * y for x, y in zip(a, b))) < 1e-9 * na * nb,
-               f"{w} axes", "must be two non-zero orthogonal vectors")
-        kw["axes"] = (a, b)
+        _check(isinstance(t["axes"], list) and 1 <= len(t["axes"]) <= 3, f"{w} axes", "must be 1 to 3 3-vectors")
+        axes = tuple(_finite_vec(x, 3, f"{w} axes") for x in t["axes"])
+        norms = [math.hypot(*a) for a in axes]
+        _check(min(norms) > 1e-12 and all(abs(sum(x * y for x, y in zip(a, b))) < 1e-9 * na * nb
+                                          for i, (a, na) in enumerate(zip(axes, norms))
+                                          for b, nb in zip(axes[i + 1:], norms[i + 1:])),
+               f"{w} axes", "must be non-zero and mutually orthogonal")
+        kw["axes"] = axes
+    rj = kw["root_joint"]
+    if rj is RootJoint.PLANAR:
+        kw.setdefault("axes", ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)))
+        _check(len(kw["axes"]) == 2, f"{w} axes", "a planar joint takes exactly two axes")
+    elif rj is RootJoint.TRANSLATION:
+        kw.setdefault("axes", ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)))
+    else:
+        _check("axes" not in kw, f"{w} axes", "only planar and translation root joints take axes")
     for key in ("q0", "u0"):
         if key in t:
             _check(isinstance(t[key], list), f"{w} {key}", "must be a list of numbers")

@@ -49,6 +49,7 @@ class _Recorder:
         self.nc = np.empty(n_save, dtype=np.int64)
         self.n = 0
         self.log: list[tuple] = []
+        self.branches: list[tuple] = []  # (step, t, chosen, [(u_plus, distance, global_min)])
 
     def sample(self, s: State, work: float, n_contacts: int) -> None:
         i, m, d = self.n, self.model, self.data
@@ -77,6 +78,21 @@ class _Recorder:
             "log_point": np.array(cols[8], float).reshape(-1, 3),
             "log_normal": np.array(cols[9], float).reshape(-1, 3),
             "log_impact": np.array(cols[10], dtype=bool),
+            **self._branch_arrays(),
+        }
+
+    def _branch_arrays(self) -> dict[str, np.ndarray]:
+        b, nv = self.branches, self.model.nv
+        cands = [c for *_, cs in b for c in cs]
+        counts = [len(cs) for *_, cs in b]
+        return {
+            "branch_step": np.array([x[0] for x in b], dtype=np.int64), "branch_t": np.array([x[1] for x in b], float),
+            "branch_chosen": np.array([x[2] for x in b], dtype=np.int64),
+            "branch_start": np.cumsum([0] + counts[:-1], dtype=np.int64) if b else np.zeros(0, np.int64),
+            "branch_count": np.array(counts, dtype=np.int64),
+            "candidate_u_plus": np.array([c[0] for c in cands], float).reshape(-1, nv),
+            "candidate_distance": np.array([c[1] for c in cands], float),
+            "candidate_global_min": np.array([c[2] for c in cands], dtype=bool),
         }
 
 
@@ -137,6 +153,10 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
                                     float(r.gamma_minus[i]), float(r.gamma_plus[i]), c.point_a[i], c.normal[i],
                                     key not in prev_closed))
             prev_closed = closed
+            if r.branch is not None:
+                sol, chosen, u_plus = r.branch
+                rec.branches.append((k + 1, state.t + 0.5 * h, chosen,
+                                     [(up, c.distance, c.global_min) for up, c in zip(u_plus, sol.candidates)]))
             state = r.state
             if (k + 1) % every == 0 or k == n - 1:
                 rec.sample(state, work, r.contacts.m)
@@ -174,6 +194,7 @@ def summary(traj: Trajectory) -> dict:
         "samples": int(len(a["t"])),
         "t_end": float(a["t"][-1]) if len(a["t"]) else None,
         "impacts": traj.impacts,
+        "branching_steps": int(len(a["branch_step"])),
         "percussions_logged": int(len(a["log_P"])),
         "energy_start": float(E[0]) if len(E) else None,
         "energy_end": float(E[-1]) if len(E) else None,

@@ -7,7 +7,11 @@ Arrays (n = saved samples, k = logged contact percussions):
   n_contacts (n,): closed contacts in the step that produced the sample;
   log_step, log_t [s] (step midpoint time), log_pair, log_feature, log_gap [m], log_P [N s],
   log_gamma_minus, log_gamma_plus [m/s], log_point (k, 3) [m], log_normal (k, 3),
-  log_impact (bool: the contact did not push in the previous step, i.e. a new impact).
+  log_impact (bool: the contact did not push in the previous step, i.e. a new impact);
+  branching steps (a corner impact with several admissible outcomes, impact-law.md §3), b of them:
+  branch_step, branch_t [s] (step midpoint), branch_chosen (index among the step's candidates),
+  branch_start, branch_count (its candidates' rows in candidate_*); candidate_u_plus (c, nv),
+  candidate_distance (c,) [J] (1/2 |v - v_free|_M^2), candidate_global_min (c,) bool.
   meta: one JSON string: scene (name, path, TOML source, URDF texts), options, model summary,
   package versions, status ("complete" or "failed: ..."), run statistics.
 """
@@ -25,7 +29,9 @@ import numpy as np
 
 ARRAYS = ("t", "q", "u", "kinetic_energy", "potential_energy", "contact_work", "gap", "n_contacts",
           "log_step", "log_t", "log_pair", "log_feature", "log_gap", "log_P", "log_gamma_minus",
-          "log_gamma_plus", "log_point", "log_normal", "log_impact")
+          "log_gamma_plus", "log_point", "log_normal", "log_impact",
+          "branch_step", "branch_t", "branch_chosen", "branch_start", "branch_count",
+          "candidate_u_plus", "candidate_distance", "candidate_global_min")
 
 
 @dataclass(eq=False)
