@@ -162,5 +162,11 @@ def plot(file, png):
     click.echo(f"wrote {path}")
 
 
+from .sweep_cli import sweep  # noqa: E402  (thin commands in their own modules)
+from .viewer_cli import view  # noqa: E402
+
+main.add_command(sweep)
+main.add_command(view)
+
 if __name__ == "__main__":
     main()

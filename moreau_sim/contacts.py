@@ -28,6 +28,7 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 
+import coal
 import numpy as np
 import pinocchio as pin
 
@@ -148,6 +149,16 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
         if d <= tol:
             nrm = res.normal  # from the vertex towards the other shape
             p_on_other = res.getNearestPoint2()
+            if not (np.isfinite(nrm).all() and abs(d) < 1e100):
+                # coal leaves the normal undefined for a point exactly on the surface: take the
+                # nearest face's (a box), else drop the vertex (coal's pair contact stands in)
+                planes = model.face_planes[g_other]
+                if planes is None or abs(d) >= 1e100:
+                    continue
+                sd = planes[0] @ (oMo.rotation.T @ (Vw[i] - oMo.translation)) - planes[1]
+                f = int(np.argmax(sd))
+                d, nrm = float(sd[f]), -(oMo.rotation @ planes[0][f])
+                p_on_other = Vw[i] + d * nrm
             faces = _corner_normals(model, g_vert, i, oMi, g_other, oMo, Vw[i], margin)
             if faces is not None and len(faces) >= 2:  # outward normals of the other: B -> A if the vertex is A's
                 corners.append((d, Vw[i] if v_is_a else p_on_other, p_on_other if v_is_a else Vw[i],
@@ -178,6 +189,18 @@ def _snap(model: Model, data: Data, pair, n: np.ndarray) -> np.ndarray:
             if c[i] > cos_best:
                 best, cos_best = Fw[i], c[i]
     return best
+
+
+def _fallback_contact(data: Data, pair):
+    """coal's contact of a pair at its default GJK/EPA tolerances, or None if it finds none."""
+    res = data.fallback_result
+    res.clear()
+    g1, g2 = data.shapes[pair.first], data.shapes[pair.second]
+    if coal.collide(g1, coal.Transform3s(data.geom.oMg[pair.first]), g2, coal.Transform3s(data.geom.oMg[pair.second]),
+                    data.fallback_request, res) == 0:
+        return None
+    c = res.getContact(0)
+    return c if abs(c.penetration_depth) < 1e100 and np.isfinite(np.asarray(c.normal)).all() else None
 
 
 def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | None = None) -> Contacts:
@@ -214,8 +237,14 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             # a corner beside smooth contacts of the same pair (a face resting on an edge): keep both
         c = res.getContact(0)
         n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
+        fallback = not (abs(c.penetration_depth) < 1e100 and np.isfinite(n).all())
+        if fallback:  # EPA at model.GJK_TOLERANCE can fail on deep box-box overlaps: redo at coal's defaults
+            c = _fallback_contact(data, pair)
+            if c is None:
+                continue
+            n = -np.asarray(c.normal)
         k_patch = 0
-        if pair.patch:
+        if pair.patch and not fallback:
             pin.computeContactPatch(gm, gd, pair.index)
             patch = gd.contactPatchResults[pair.index].getContactPatch(0)
             k_patch = patch.size()

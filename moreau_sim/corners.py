@@ -9,7 +9,8 @@ stationary point of Phi(v) = 1/2 |v - v0|_M^2 + I_K(v) in Clarke's sense,
 
     0 ∈ M (v - v0) + N^C_K(v),        u+ = (1 + e) v - e u-      (v0 = u-, or v_free in a step).
 
-Clarke normal cone used (exact for pieces with a common linear span, see docs/corner-law.md):
+Clarke normal cone used (exact when the pieces active at v share one linear span - always for
+full-dimensional pieces; otherwise the outer bound below is used. Derivation: docs/corner-law.md):
 
     N^C_K(v) = cone{ -b : b an *exposed facet* row of the local cone L = ∪_{j∈J(v)} L_j } + V⊥,
 
@@ -30,10 +31,12 @@ intersection's normal cone), so projecting onto the intersection of each non-emp
 stationary by definition and are not re-checked.
 
 Tolerances (tol, default 1e-9; the problem is first scaled to |v0|_2 = 1, max diag M = 1 and unit
-rows): QPs to eps = tol/10; every decision (row active, v in a piece, duplicate v, cone membership
+rows): QPs to eps = tol/10 (duality gap included), then polished on their strictly active rows
+by one direct KKT solve; every decision (row active, v in a piece, duplicate v, cone membership
 residual, facet interior, distance tie relative to 1/2 |v0|_M^2) uses tau = sqrt(tol).
-Units: velocities in generalized units (m/s, rad/s), M in kg / kg m^2, distance in J, multipliers
-lam in N s (per unit row gradient as given: M (v - v0) = [A_j...; W']' lam).
+Units: velocities in generalized units (m/s, rad/s), M in kg and kg m^2, distance in J; the
+multipliers lam satisfy M (v - v0) = [A_j; ...; W']' lam (N s for gap rows in m); the percussion
+of an impact or step is P = (1 + e) lam (impact-law.md §2).
 """
 
 from __future__ import annotations
@@ -94,7 +97,7 @@ def stationary_points(M, v0, pieces, W=None, *, tol: float = 1e-9) -> CornerSolu
     M: (n, n) SPD kinetic metric; v0: (n,); pieces: 1..MAX_PIECES arrays (k_j, n), one row per
     face (constraint gradient); W: (n, m) smooth contacts common to all pieces, or None."""
     M, v0, pieces, W, tol = _validate(M, v0, pieces, W, tol, "v0")
-    n, p, tau = v0.size, len(pieces), float(np.sqrt(tol))
+    p, tau = len(pieces), float(np.sqrt(tol))
     m_s = float(np.max(np.diag(M)))
     s = float(np.linalg.norm(v0)) or 1.0
     Mn, v0n = M / m_s, v0 / s
@@ -139,7 +142,8 @@ def stationary_points(M, v0, pieces, W=None, *, tol: float = 1e-9) -> CornerSolu
     lp = [0]
     kept = []
     for g in groups:
-        if g["distance"] <= d_min + tie or _clarke_stationary(g["vn"], Mn @ (v0n - g["vn"]), rows, tau, lp):
+        if g["distance"] <= d_min + tie or _clarke_stationary(g["vn"], Mn @ (v0n - g["vn"]), rows, tau,
+                                                               lp):
             kept.append(g)
 
     # 3. order: tie classes of distance, then pieces tuple (deterministic)
@@ -158,7 +162,8 @@ def stationary_points(M, v0, pieces, W=None, *, tol: float = 1e-9) -> CornerSolu
     return CornerSolution(candidates=cands, unique=len(cands) == 1, qp_solves=qp_solves, lp_solves=lp[0])
 
 
-def impact_outcomes(M, u_minus, e, pieces, W=None, *, tol: float = 1e-9) -> list[tuple[Candidate, np.ndarray]]:
+def impact_outcomes(M, u_minus, e, pieces, W=None, *,
+                    tol: float = 1e-9) -> list[tuple[Candidate, np.ndarray]]:
     """Every post-impact velocity u+ = (1 + e) v - e u- [velocity], one per stationary point v,
     in the order of stationary_points(M, u_minus, ...). e: the global restitution in [0, 1]."""
     e = _check_e(e)

@@ -91,6 +91,14 @@ class Model:
         object.__setattr__(self, "_pair_joints", pj)
         reach = max([float(np.linalg.norm(V, axis=1).max()) for V in self.vertices if len(V)] + [1.0])
         object.__setattr__(self, "_reach", reach)
+        # does h(q, u) depend on u (Coriolis, gyroscopic)? A random state tells (structurally zero
+        # for translations and prismatic chains); stepper.free_velocity skips the midpoint iteration.
+        rng = np.random.default_rng(0)
+        d = self.pin.createData()
+        qr = pin.randomConfiguration(self.pin, -np.ones(self.nq), np.ones(self.nq))
+        ur = rng.standard_normal(self.nv)
+        c = pin.nonLinearEffects(self.pin, d, qr, ur) - pin.nonLinearEffects(self.pin, d, qr, np.zeros(self.nv))
+        object.__setattr__(self, "_velocity_bias", bool(np.abs(c).max(initial=0.0) > 1e-12))
 
     @property
     def nq(self) -> int:
@@ -105,6 +113,11 @@ class Model:
         """max(1, largest distance of a vertex from its joint origin) [m]: bounds a vertex's speed
         by reach * |u|_inf for unit-scale joints (contacts.detect, corner margin)."""
         return self._reach
+
+    @property
+    def velocity_bias(self) -> bool:
+        """Whether the bias forces h(q, u) depend on u (Coriolis / gyroscopic terms)."""
+        return self._velocity_bias
 
     @property
     def pair_joints(self) -> np.ndarray:
@@ -152,6 +165,10 @@ class Data:
             req.gjk_tolerance = req.epa_tolerance = GJK_TOLERANCE
         for preq in self.geom.contactPatchRequests:
             preq.setPatchTolerance(PATCH_TOLERANCE)
+        self.fallback_request = coal.CollisionRequest()  # coal's default GJK/EPA tolerances
+        self.fallback_request.security_margin = tol
+        self.fallback_request.enable_contact = True
+        self.fallback_result = coal.CollisionResult()
         self.point = coal.Sphere(0.0)  # a vertex, for point-vs-shape signed distances
         self.point_tf = coal.Transform3s()
         self.distance_request = coal.DistanceRequest()

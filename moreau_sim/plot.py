@@ -26,8 +26,8 @@ def figure(traj: Trajectory | str | Path):
     ax_e.plot(t, a["kinetic_energy"], lw=1, label="kinetic T")
     ax_e.plot(t, a["potential_energy"], lw=1, label="potential V")
     ax_e.plot(t, E, lw=2, color="k", label="total T + V")
-    ax_e.plot(t, E[0] + np.cumsum(a["contact_work"]), lw=1, ls="--", color="tab:red",
-              label="E0 + contact work (ledger)")
+    ledger = np.cumsum(a["contact_work"] + a.get("correction_energy", 0.0 * t))
+    ax_e.plot(t, E[0] + ledger, lw=1, ls="--", color="tab:red", label="E0 + contact work + correction (ledger)")
     ax_e.set_ylabel("energy [J]")
     ax_e.legend(loc="best", fontsize=8)
     pairs = meta.get("model", {}).get("collision_pairs", [])

@@ -112,6 +112,7 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     st = s.settings
     st.verbose = False
     st.eps_abs = st.eps_rel = eps
+    st.eps_duality_gap_abs = st.eps_duality_gap_rel = eps  # default 1e-8 would bound the accuracy
     st.max_iter = max_iter
     if form is QPForm.PRIMAL:
         s.setup(M, -(M @ v0), None, None, W.T, b, None)

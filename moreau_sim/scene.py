@@ -52,6 +52,46 @@ class Separating(enum.Enum):
     ELASTIC = "elastic"
 
 
+class SlowImpacts(enum.Enum):
+    """The restitution of an impact slower than what the smooth forces add in one step
+    (0 < -gamma_i^k <= -w_i'(u_free - u_k)): the bounces below the step's resolution at the end of
+    an accumulation of impacts (Zeno), heights below ~h^2 |a|.
+
+    RESTITUTION: e, as any impact: the tail of bounces of speed ~ h|a| dies out over many steps.
+    PLASTIC: e_i = 0: the contact closes at once, the accumulation ends within a step of where
+        the sequence of bounces shrinks below the step size.
+    """
+
+    RESTITUTION = "restitution"
+    PLASTIC = "plastic"
+
+
+class Bias(enum.Enum):
+    """Where the velocity-dependent bias forces (Coriolis, gyroscopic) of the free step are taken.
+
+    EXPLICIT: h(q_m, u_k), as in impact-law.md §2.
+    MIDPOINT: h(q_m, (u_k + u_free)/2) by fixed-point iteration (the implicit midpoint rule for
+        the velocity): for a free rigid body it conserves the kinetic energy of the rotation
+        exactly (the gyroscopic term does no work), where the explicit term gains O(h) energy.
+    """
+
+    EXPLICIT = "explicit"
+    MIDPOINT = "midpoint"
+
+
+class PositionCorrection(enum.Enum):
+    """What is done with the penetration a contact step leaves (the contact closes at q_m).
+
+    NONE: nothing (penetration stays bounded by h |gamma|, but stays).
+    PROJECTION: after a contact step, q_{k+1} is moved onto the closed contacts' linearized
+        g >= 0 by the smallest displacement in the kinetic metric (a QP), limited so that the
+        step's total energy T + V does not rise above its value at the start of the step.
+    """
+
+    NONE = "none"
+    PROJECTION = "projection"
+
+
 class StaticShape(enum.Enum):
     HALFSPACE = "halfspace"
     BOX = "box"
@@ -93,6 +133,9 @@ class Options:
         placed exactly touching count as closed, and far below any physical gap.
     qp_form: which form of the impact QP to solve (see :class:`QPForm`).
     separating: the restitution of closed contacts that separate (see :class:`Separating`).
+    slow_impacts: the restitution of impacts below the step's resolution (see :class:`SlowImpacts`).
+    bias: where the Coriolis / gyroscopic forces are evaluated (see :class:`Bias`).
+    position_correction: what is done with penetration after a contact step (:class:`PositionCorrection`).
     corner_selection: which admissible outcome of a corner impact the run continues with
         (:class:`moreau_sim.corners.Selection`; every branching step is logged).
     qp_tolerance: piqp's eps_abs and eps_rel; the solution is then polished on its active set.
@@ -107,6 +150,9 @@ class Options:
     qp_form: QPForm = QPForm.PRIMAL
     separating: Separating = Separating.ELASTIC
     corner_selection: Selection = Selection.GLOBAL_MIN
+    slow_impacts: SlowImpacts = SlowImpacts.PLASTIC
+    bias: Bias = Bias.MIDPOINT
+    position_correction: PositionCorrection = PositionCorrection.PROJECTION
     qp_tolerance: float = 1e-10
     save_every: int = 1
 
@@ -126,6 +172,11 @@ class Options:
         _check(isinstance(self.qp_form, QPForm), f"{where}: qp_form", f"must be a QPForm, got {self.qp_form!r}")
         _check(isinstance(self.separating, Separating), f"{where}: separating",
                f"must be a Separating rule, got {self.separating!r}")
+        _check(isinstance(self.bias, Bias), f"{where}: bias", f"must be a Bias, got {self.bias!r}")
+        _check(isinstance(self.slow_impacts, SlowImpacts), f"{where}: slow_impacts",
+               f"must be a SlowImpacts rule, got {self.slow_impacts!r}")
+        _check(isinstance(self.position_correction, PositionCorrection), f"{where}: position_correction",
+               f"must be a PositionCorrection, got {self.position_correction!r}")
         _check(isinstance(self.corner_selection, Selection), f"{where}: corner_selection",
                f"must be a corners.Selection, got {self.corner_selection!r}")
         _check(isinstance(self.qp_tolerance, (int, float)) and 0 < self.qp_tolerance < 1e-3,
@@ -141,7 +192,7 @@ class Options:
     def replace(self, **changes) -> "Options":
         """A copy with `changes` applied and validated (None values are ignored)."""
         changes = {k: v for k, v in changes.items() if v is not None}
-        for key, cls in (("qp_form", QPForm), ("separating", Separating), ("corner_selection", Selection)):
+        for key, cls in _ENUMS.items():
             if isinstance(changes.get(key), str):
                 changes[key] = _enum(cls, changes[key], f"options: {key}")
         if "gravity" in changes:
@@ -150,9 +201,8 @@ class Options:
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
-        d["qp_form"] = self.qp_form.value
-        d["separating"] = self.separating.value
-        d["corner_selection"] = self.corner_selection.value
+        for key in _ENUMS:
+            d[key] = getattr(self, key).value
         d["gravity"] = list(self.gravity)
         return d
 
@@ -215,7 +265,10 @@ class Scene:
 _TOP = {"scene", "simulation", "output", "bodies", "statics", "collisions"}
 _SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravity": "gravity",
         "contact_tolerance": "contact_tolerance", "qp_form": "qp_form", "qp_tolerance": "qp_tolerance",
-        "separating": "separating", "corner_selection": "corner_selection"}
+        "separating": "separating", "corner_selection": "corner_selection", "bias": "bias",
+        "position_correction": "position_correction", "slow_impacts": "slow_impacts"}
+_ENUMS = {"qp_form": QPForm, "separating": Separating, "corner_selection": Selection, "bias": Bias,
+          "position_correction": PositionCorrection, "slow_impacts": SlowImpacts}
 _BODY = {"name", "urdf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0"}
 _STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy"}
 
@@ -252,12 +305,9 @@ def _parse_options(sim: dict, out: dict, where: str) -> Options:
             kw[key] = _number(sim[key], f"{where} [simulation] {key}")
     if "gravity" in sim:
         kw["gravity"] = _finite_vec(sim["gravity"], 3, f"{where} [simulation] gravity")
-    if "qp_form" in sim:
-        kw["qp_form"] = _enum(QPForm, sim["qp_form"], f"{where} [simulation] qp_form")
-    if "separating" in sim:
-        kw["separating"] = _enum(Separating, sim["separating"], f"{where} [simulation] separating")
-    if "corner_selection" in sim:
-        kw["corner_selection"] = _enum(Selection, sim["corner_selection"], f"{where} [simulation] corner_selection")
+    for key, cls in _ENUMS.items():
+        if key in sim:
+            kw[key] = _enum(cls, sim[key], f"{where} [simulation] {key}")
     if "save_every" in out:
         kw["save_every"] = out["save_every"]
     try:

@@ -45,13 +45,14 @@ class _Recorder:
         self.ke = np.empty(n_save)
         self.pe = np.empty(n_save)
         self.work = np.empty(n_save)
+        self.corr = np.empty(n_save)
         self.gap = np.empty((n_save, npairs))
         self.nc = np.empty(n_save, dtype=np.int64)
         self.n = 0
         self.log: list[tuple] = []
         self.branches: list[tuple] = []  # (step, t, chosen, [(u_plus, distance, global_min)])
 
-    def sample(self, s: State, work: float, n_contacts: int) -> None:
+    def sample(self, s: State, work: float, corr: float, n_contacts: int) -> None:
         i, m, d = self.n, self.model, self.data
         self.t[i] = s.t
         self.q[i] = s.q
@@ -59,6 +60,7 @@ class _Recorder:
         self.ke[i] = kinetic(m, d, s.q, s.u)
         self.pe[i] = potential(m, d, s.q)
         self.work[i] = work
+        self.corr[i] = corr
         self.gap[i] = pair_distances(m, d, s.q)
         self.nc[i] = n_contacts
         self.n += 1
@@ -69,7 +71,7 @@ class _Recorder:
         cols = list(zip(*log)) if log else [()] * 11
         return {
             "t": self.t[:n], "q": self.q[:n], "u": self.u[:n], "kinetic_energy": self.ke[:n],
-            "potential_energy": self.pe[:n], "contact_work": self.work[:n], "gap": self.gap[:n],
+            "potential_energy": self.pe[:n], "contact_work": self.work[:n], "correction_energy": self.corr[:n], "gap": self.gap[:n],
             "n_contacts": self.nc[:n],
             "log_step": np.array(cols[0], dtype=np.int64), "log_t": np.array(cols[1], float),
             "log_pair": np.array(cols[2], dtype=np.int64), "log_feature": np.array(cols[3], dtype=np.int64),
@@ -123,10 +125,10 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     opts = model.scene.options
     h, e, n, every = opts.dt, opts.restitution, opts.n_steps, opts.save_every
     rec = _Recorder(model, data, 1 + n // every + 1)
-    rec.sample(state, 0.0, 0)
+    rec.sample(state, 0.0, 0.0, 0)
     t0 = state.t
     prev_closed: set = set()
-    work = 0.0
+    work = corr = 0.0
     wall0 = time.perf_counter()
     bar = tqdm(total=n, delay=_PROGRESS_DELAY, disable=not progress, unit="step", mininterval=0.5, leave=False)
     k = 0
@@ -141,6 +143,7 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
                 raise SimulationError(f"step {k + 1} (t = {state.t:.6g} s -> {r.state.t:.6g} s): the state became "
                                       "non-finite (NaN or inf)", step=k + 1, t=state.t)
             work += r.contact_work
+            corr += r.correction_energy
             closed = set()
             if r.contacts.m:
                 c = r.contacts
@@ -159,8 +162,8 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
                                      [(up, c.distance, c.global_min) for up, c in zip(u_plus, sol.candidates)]))
             state = r.state
             if (k + 1) % every == 0 or k == n - 1:
-                rec.sample(state, work, r.contacts.m)
-                work = 0.0
+                rec.sample(state, work, corr, r.contacts.m)
+                work = corr = 0.0
             if (k & 1023) == 1023:
                 bar.update(1024)
     except SimulationError as exc:
@@ -200,6 +203,7 @@ def summary(traj: Trajectory) -> dict:
         "energy_end": float(E[-1]) if len(E) else None,
         "energy_max_increase": float(np.max(E - E[0])) if len(E) else None,
         "contact_work_total": float(a["contact_work"].sum()),
+        "correction_energy_total": float(a["correction_energy"].sum()),
         "min_gap": float(gaps.min()) if gaps.size else None,
         "wall_seconds": run_.get("wall_seconds"),
         "us_per_step": run_.get("us_per_step"),

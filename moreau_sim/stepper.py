@@ -25,7 +25,9 @@ from .corners import MAX_PIECES, select, stationary_points
 from .law import outcome, project
 from .model import Data, Model
 from .qp import QPResult
-from .scene import QPForm, Separating
+from . import qp
+from .energy import kinetic, potential
+from .scene import Bias, PositionCorrection, QPForm, Separating, SlowImpacts
 from .state import State
 
 _EMPTY = np.zeros(0)
@@ -39,7 +41,9 @@ class StepResult:
     qp: the QP result (None when no contact was closed); branch: at a corner impact with
     several admissible outcomes (impact-law.md §3), (solution, chosen index, u_plus of each
     candidate), else None. At a corner, `contacts` lists the smooth contacts and then one entry
-    per face of the chosen piece(s) (feature CORNER + face), aligned with P."""
+    per face of the chosen piece(s) (feature CORNER + face), aligned with P. correction_energy:
+    the change of T + V made by the position correction [J] (0 without; never more than the
+    step dissipated), so that E_{k+1} - E_k = W_c + correction_energy where the smooth motion is exact."""
 
     state: State
     contacts: Contacts
@@ -49,6 +53,7 @@ class StepResult:
     contact_work: float
     qp: QPResult | None
     branch: tuple | None = None
+    correction_energy: float = 0.0
 
 
 def step(model: Model, data: Data, state: State, h: float, e: float, *, t_next: float | None = None,
@@ -67,18 +72,18 @@ def step(model: Model, data: Data, state: State, h: float, e: float, *, t_next: 
     # a corner struck within the step: the vertex may have crossed one face plane by up to the
     # distance it travels in the step (|u| times the largest lever arm, model.reach)
     contacts = detect(model, data, q_m, corner_margin=h * float(np.abs(u).max(initial=0.0)) * model.reach)
+    opts = model.scene.options
     if contacts.m == 0 and not contacts.corners:
-        u_next = u + h * pin.aba(pm, pd, q_m, u, np.zeros(pm.nv))
+        u_next = free_velocity(model, data, q_m, u, h, opts.bias)
         q_next = pin.integrate(pm, q_m, 0.5 * h * u_next)
         return StepResult(State(t1, q_next, u_next), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None)
-    opts = model.scene.options
     M = pin.crba(pm, pd, q_m, pin.Convention.WORLD)  # also fills data.J (WORLD) for the rows
     contacts, W = distinct(contacts, contact_rows(model, data, contacts))
     pieces = None
     if contacts.corners:
         contacts, W, pieces = corner_pieces(model, data, contacts, W)
     Minv = pin.computeMinverse(pm, pd, q_m)
-    u_free = u - h * (Minv @ pin.nonLinearEffects(pm, pd, q_m, u))
+    u_free = free_velocity(model, data, q_m, u, h, opts.bias)
     v_free = (u_free + e * u) / (1.0 + e)
     branch = None
     if pieces is not None:  # the set-valued law at a corner (impact-law.md §3)
@@ -86,17 +91,83 @@ def step(model: Model, data: Data, state: State, h: float, e: float, *, t_next: 
         gamma_minus = W.T @ u
     else:
         gamma_minus = W.T @ u
-        b = None
-        if opts.separating is Separating.ELASTIC and e < 1.0 and gamma_minus.max(initial=0.0) > 0.0:
-            # e_i = 1 where gamma_i^k > 0: w_i'(u_{k+1} + e_i u_k) >= 0 <=> w_i'v >= (e - e_i) gamma_i^k / (1+e)
-            b = np.where(gamma_minus > 0.0, (e - 1.0) * gamma_minus / (1.0 + e), 0.0)
+        b = _bound_shift(W, u, u_free, gamma_minus, e, opts)
         res = project(M, W, v_free, b=b, Minv=Minv, form=form or opts.qp_form, eps=eps or opts.qp_tolerance)
     u_next = outcome(res.v, u, e)
     P = (1.0 + e) * res.lam
     gamma_plus = W.T @ u_next
     work = float(P @ (gamma_plus + gamma_minus)) * 0.5
     q_next = pin.integrate(pm, q_m, 0.5 * h * u_next)
-    return StepResult(State(t1, q_next, u_next), contacts, P, gamma_minus, gamma_plus, work, res, branch)
+    corr = 0.0
+    if opts.position_correction is PositionCorrection.PROJECTION:
+        q_next, corr = _project_positions(model, data, q, u, q_next, u_next, contacts.g + 0.5 * h * gamma_plus,
+                                          M, W, Minv)
+    return StepResult(State(t1, q_next, u_next), contacts, P, gamma_minus, gamma_plus, work, res, branch, corr)
+
+
+def _bound_shift(W, u, u_free, gamma_minus, e, opts):
+    """Per-contact restitution e_i where the rules of the scene depart from e, as the QP's bound:
+    w_i'(u_{k+1} + e_i u_k) >= 0  <=>  w_i'v >= (e - e_i) gamma_i^k / (1 + e). None if e_i = e for all.
+    Separating.ELASTIC: e_i = 1 where gamma_i^k > 0 (closed but separating: no positive work).
+    SlowImpacts.PLASTIC: e_i = 0 where 0 < -gamma_i^k <= -w_i'(u_free - u_k) (slower than a step
+    of the smooth forces: the bounce is below the step's resolution)."""
+    e_i = None
+    if opts.separating is Separating.ELASTIC and e < 1.0 and gamma_minus.max(initial=0.0) > 0.0:
+        e_i = np.where(gamma_minus > 0.0, 1.0, e)
+    if opts.slow_impacts is SlowImpacts.PLASTIC and e > 0.0 and gamma_minus.min(initial=0.0) < 0.0:
+        slow = (gamma_minus < 0.0) & (gamma_minus >= W.T @ (u_free - u))
+        if slow.any():
+            e_i = np.where(slow, 0.0, e if e_i is None else e_i)
+    return None if e_i is None else (e - e_i) * gamma_minus / (1.0 + e)
+
+
+def free_velocity(model: Model, data: Data, q_m: np.ndarray, u: np.ndarray, h: float, bias: Bias) -> np.ndarray:
+    """u_free = u_k + h M(q_m)^-1 (-h(q_m, u_bar)) [velocity]: u_bar = u_k (EXPLICIT) or the fixed
+    point u_bar = (u_k + u_free)/2 (MIDPOINT; a few ABA calls; exact for models whose bias does not
+    depend on u, where it stops after one)."""
+    pm, pd = model.pin, data.pin
+    zero = np.zeros(pm.nv)
+    u_free = u + h * pin.aba(pm, pd, q_m, u, zero)
+    if bias is Bias.EXPLICIT or not model.velocity_bias:
+        return u_free
+    scale = 1e-15 * (1.0 + float(np.abs(u).max()))
+    for _ in range(MIDPOINT_ITERATIONS):
+        nxt = u + h * pin.aba(pm, pd, q_m, 0.5 * (u + u_free), zero)
+        done = float(np.abs(nxt - u_free).max()) <= scale
+        u_free = nxt
+        if done:
+            break
+    return u_free
+
+
+MIDPOINT_ITERATIONS = 8  # fixed-point sweeps of Bias.MIDPOINT (contraction factor ~ h |omega|)
+
+
+def _project_positions(model, data, q, u, q_next, u_next, g_next, M, W, Minv) -> tuple[np.ndarray, float]:
+    """PositionCorrection.PROJECTION: dq = argmin 1/2 dq'M dq s.t. g_i + w_i'dq >= 0 on the closed
+    contacts (g_i: gaps at q_{k+1} linearized from q_m), applied as q_{k+1} (+) alpha dq with
+    alpha <= 1 the largest step for which T + V at the end does not exceed T + V at the start
+    of the step: the correction may give back energy the step dissipated, never more.
+    Returns (q, the change of T + V it made [J])."""
+    tol = model.scene.options.contact_tolerance
+    if not len(g_next) or g_next.min() >= -tol:
+        return q_next, 0.0
+    E0 = kinetic(model, data, q, u) + potential(model, data, q)
+    E1 = kinetic(model, data, q_next, u_next) + potential(model, data, q_next)
+    budget = E0 - E1
+    if budget <= 0.0:
+        return q_next, 0.0
+    res = qp.solve(M, W, np.zeros(model.nv), b=-g_next, Minv=Minv)
+    if not res.ok:
+        return q_next, 0.0
+    q_c = pin.integrate(model.pin, q_next, res.v)
+    dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
+    if dE > budget:
+        q_c = pin.integrate(model.pin, q_next, (budget / dE) * res.v)  # E is ~linear in dq here
+        dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
+        if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
+            return q_next, 0.0
+    return q_c, dE
 
 
 def _corner_law(M, W, v_free, u, e, contacts: Contacts, cp: CornerPieces, opts, choice=None):

@@ -3,6 +3,7 @@
 Arrays (n = saved samples, k = logged contact percussions):
   t (n,) [s]; q (n, nq); u (n, nv); kinetic_energy, potential_energy (n,) [J];
   contact_work (n,) [J]: sum of the step ledger W_c over the steps since the previous sample;
+  correction_energy (n,) [J]: the change of T + V made by the position correction over those steps;
   gap (n, pairs) [m]: signed distance of each collision pair at the sample;
   n_contacts (n,): closed contacts in the step that produced the sample;
   log_step, log_t [s] (step midpoint time), log_pair, log_feature, log_gap [m], log_P [N s],
@@ -27,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-ARRAYS = ("t", "q", "u", "kinetic_energy", "potential_energy", "contact_work", "gap", "n_contacts",
+ARRAYS = ("t", "q", "u", "kinetic_energy", "potential_energy", "contact_work", "correction_energy", "gap", "n_contacts",
           "log_step", "log_t", "log_pair", "log_feature", "log_gap", "log_P", "log_gamma_minus",
           "log_gamma_plus", "log_point", "log_normal", "log_impact",
           "branch_step", "branch_t", "branch_chosen", "branch_start", "branch_count",

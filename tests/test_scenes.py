@@ -16,30 +16,39 @@ def flights(traj):
     return [np.flatnonzero((traj.t > a) & (traj.t < b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
-def apex_bound(n, e, h):
-    """|apex_n - e^(2n) d0| <= sum_j e^(2(n-j)) (h/2) v_j (1-e)(2+e): the impact falls somewhere in
-    its step. Derivation: with gap g_k and speed |u_k| at the start of the impact step,
-    g_k in (-(h/2)|u_k|, (h/2)|u_k|] and the flight after it has the invariant
-    g + u^2/(2G) = g_k - (h/2)|u_k|(1-e) + e^2 (g_k + u_k^2/(2G)) - (1-e^2) g_k ... i.e. an error
-    (1-e)((1+e) g_k - (h/2)|u_k|) in (-(h/2)|u_k|(1-e)(2+e), (h/2)|u_k| e (1-e)] per bounce, carried
-    to later bounces times e^2. v_j <= sqrt(2 G e^(2(j-1)) d0) + hG + (bound so far)."""
+def apex_bound(n, e, h, correction="projection"):
+    """|apex_n - e^(2n) d0| <= sum_j e^(2(n-j)) (h/2) v_j c(e): the impact falls somewhere in its step.
+
+    Derivation (1 dof, exact flight): with gap g_k and speed |u| at the start of the impact step,
+    g_k in (-(h/2)|u|, (h/2)|u|], the step gives u+ = e|u| and g_{k+1} = g_k - (h/2)|u|(1-e); the
+    flight after it keeps g + u^2/(2G), so the apex error is
+      none:       (1-e)((1+e) g_k - (h/2)|u|)              in (-(h/2)|u|(1-e)(2+e), (h/2)|u| e(1-e)]
+      projection: the same where g_{k+1} >= 0, else g_{k+1} is lifted to 0 (the impact's
+                  dissipation pays for it) and the error is -e^2 g_k: in all
+                  (-(h/2)|u| e^2 (1-e), (h/2)|u| max(e^2, e(1-e))]
+    so c(e) = (1-e)(2+e) or max(e^2, e(1-e)); a bounce carries the earlier error times e^2.
+    v_j <= sqrt(2 G (e^(2(j-1)) d0 + bound so far)) + hG."""
+    c = (1 - e) * (2 + e) if correction == "none" else max(e * e, e * (1 - e))
     total = 0.0
     for j in range(1, n + 1):
         v = np.sqrt(2 * G * (e ** (2 * (j - 1)) * D0 + total)) + h * G
-        total = e * e * total + 0.5 * h * v * (1 - e) * (2 + e)
+        total = e * e * total + 0.5 * h * v * c
     return total
 
 
+@pytest.mark.parametrize("correction", ["projection", "none"])
 @pytest.mark.parametrize("h", [1e-3, 1e-4])
 @pytest.mark.parametrize("e", [0.0, 0.5, 0.8, 1.0])
-def test_bouncing_ball_apex_ratios(e, h):
+def test_bouncing_ball_apex_ratios(e, h, correction):
     """Apex gap after bounce n is e^(2n) d0 within the O(h) bound of apex_bound (e = 1: exact)."""
-    traj = run("bouncing_ball", restitution=e, dt=h, duration=1.0 if e == 0 else 3.0)
+    traj = run("bouncing_ball", restitution=e, dt=h, duration=1.0 if e == 0 else 3.0, position_correction=correction)
     g, u = traj.q[:, 0] - R, traj.u[:, 0]
     if e == 0.0:  # no bounce: at rest after the first impact, inside by less than h |u-|
         after = traj.t > np.sqrt(2 * D0 / G) + 2 * h
         assert np.all(u[after] == 0.0)
         assert -h * np.sqrt(2 * G * D0) - h * h * G <= g[after].min() <= 0.0
+        if correction == "projection":  # the plastic impact dissipated enough to lift it out
+            assert np.all(g[after] == 0.0)
         return
     first = flights(traj)[0]
     assert np.allclose(g[first] + u[first] ** 2 / (2 * G), D0, rtol=0, atol=1e-12)  # flight exact
@@ -51,30 +60,49 @@ def test_bouncing_ball_apex_ratios(e, h):
         apex = g[idx] + u[idx] ** 2 / (2 * G)  # invariant of the discrete flight
         assert np.ptp(apex) <= 1e-12
         exact = e ** (2 * n) * D0
-        bound = 1e-11 if e == 1.0 else apex_bound(n, e, h)
+        bound = 1e-11 if e == 1.0 else apex_bound(n, e, h, correction)
         assert abs(apex[0] - exact) <= bound, (n, apex[0], exact, bound)
         checked += 1
     assert checked == 3
 
 
+@pytest.mark.parametrize("correction", ["projection", "none"])
 @pytest.mark.parametrize("e,h", [(0.5, 1e-3), (0.5, 1e-4), (0.8, 1e-3), (0.95, 1e-3)])
-def test_zeno_ball_comes_to_rest_and_stays(e, h):
+def test_zeno_ball_comes_to_rest_and_stays(e, h, correction):
     """After t_inf = t0 (1 + 2e/(1-e)) plus O(h) the ball rests: |u| <= 1e-12 m/s, no creep.
 
-    Once the bounces are shorter than a step the contact stays closed; a residual u_k > 0
-    (|u_k| <= hG) is reflected elastically (Separating.ELASTIC) and the next, approaching step
-    scales it by e: it dies out by e every 2 steps, in 2 ln(1e-12/(hG))/ln(e) steps."""
+    The bounces the step resolves are those faster than h G; there are N = ln(hG/v0)/ln(e) of them.
+    Each bounce's duration is off by O(h) (apex_bound), carried to the next ones times e, so the
+    last one ends within 2 N h/(1-e) of t_inf; slower impacts are plastic (SlowImpacts.PLASTIC)
+    and the ball then rests at once."""
     t0 = np.sqrt(2 * D0 / G)
     t_inf = t0 * (1 + 2 * e / (1 - e))
-    t_rest = t_inf + (10 + 2 * np.log(1e-12 / (h * G)) / np.log(e)) * h
-    traj = run("bouncing_ball", restitution=e, dt=h, duration=t_rest + 0.6)
+    n_bounces = np.log(h * G / np.sqrt(2 * G * D0)) / np.log(e)
+    t_rest = t_inf + 2 * n_bounces * h / (1 - e)
+    traj = run("bouncing_ball", restitution=e, dt=h, duration=t_rest + 0.6, position_correction=correction)
     rest = traj.t >= t_rest
-    assert rest.sum() > 0.5 / h
     assert np.abs(traj.u[rest, 0]).max() <= 1e-12
     z = traj.q[rest, 0]
     assert np.ptp(z) <= 1e-12  # no creep, no jitter
     assert -h * h * G <= z[-1] - R <= 0.0  # resting penetration below h^2 G
+    if correction == "projection":
+        assert z[-1] == R  # lifted out by the correction: resting exactly on the ground
     assert not np.any(traj.log_impact & (traj.log_t > t_rest))
+
+
+def test_slow_impact_rule_ends_the_accumulation():
+    """Pins SlowImpacts.PLASTIC: with e for every impact the tail of bounces of speed ~hG lasts
+    many steps after t_inf; with the rule the ball rests within a few steps of t_inf."""
+    e, h = 0.8, 1e-3
+    t_inf = np.sqrt(2 * D0 / G) * (1 + 2 * e / (1 - e))
+    last = {}
+    for rule in ("plastic", "restitution"):
+        traj = run("bouncing_ball", restitution=e, dt=h, duration=t_inf + 1.0, slow_impacts=rule,
+                   position_correction="none")
+        moving = np.flatnonzero(np.abs(traj.u[:, 0]) > 1e-12)
+        last[rule] = traj.t[moving[-1]] - t_inf
+    assert last["plastic"] <= 5 * h
+    assert last["restitution"] >= 50 * h
 
 
 @pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
@@ -155,10 +183,15 @@ def test_penetration_is_bounded_by_h_v(name, v_max, h):
 
 
 def test_contact_work_ledger_balances_energy():
-    """Over a run with no smooth-phase error (1 dof ball): E_end - E_0 = sum W_c to round-off."""
+    """Over a run with no smooth-phase error (1 dof ball): E_end - E_0 = sum (W_c + position
+    correction) to round-off, and every step's change is accounted for."""
     traj = run("bouncing_ball", restitution=0.7)
     E = traj.total_energy
-    assert abs((E[-1] - E[0]) - traj.contact_work.sum()) <= 1e-12
+    ledger = traj.contact_work + traj.correction_energy
+    assert abs((E[-1] - E[0]) - ledger.sum()) <= 1e-12
+    assert np.abs(np.diff(E) - ledger[1:]).max() <= 1e-12
+    assert traj.correction_energy.max() > 0.0  # the correction gave back some of what impacts dissipated
+    assert np.all(traj.correction_energy <= -traj.contact_work + 1e-15)  # never more than that
     assert traj.contact_work.max() <= 1e-15  # every impact of an approaching contact dissipates
 
 
@@ -189,7 +222,12 @@ def test_one_step_without_forces_is_the_impact_law():
 
 @pytest.mark.parametrize("name", BUNDLED)
 def test_every_bundled_scene_runs(name):
-    traj = run(name)
+    """Each bundled scene, at its own options, for its duration or 20000 steps (the stress
+    scenes' long runs and their bounds are in test_stress.py)."""
+    o = scene(name).options
+    traj = run(name, duration=min(o.duration, 20000 * o.dt))
     assert traj.complete
     assert np.all(np.isfinite(traj.q)) and np.all(np.isfinite(traj.u))
-    assert len(traj.t) == scene(name).options.n_steps + 1
+    o = scene(name, duration=min(o.duration, 20000 * o.dt)).options
+    assert len(traj.t) == 1 + -(-o.n_steps // o.save_every)  # the start, every save_every steps, the last
+    assert traj.t[-1] == pytest.approx(o.n_steps * o.dt, abs=1e-12)

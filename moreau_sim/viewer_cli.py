@@ -1,0 +1,40 @@
+"""`moreau-sim view`: browser replay of a trajectory NPZ (moreau_sim.viewer, docs/viewer.md)."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from .errors import MoreauSimError
+
+
+@click.command()
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--port", type=int, default=8765, show_default=True, help="Port to serve on (0: any free port).")
+@click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on.")
+@click.option("--export", "html", type=click.Path(dir_okay=False),
+              help="Write a self-contained replay page (opens from file://, no server) and exit.")
+@click.option("--fps", type=float, default=100.0, show_default=True,
+              help="Frames kept per simulated second (0: every sample).")
+@click.option("--no-browser", is_flag=True, help="Do not open a browser.")
+def view(file, port, host, html, fps, no_browser):
+    """3D replay of a trajectory FILE in the browser: play/pause, time slider, contacts and
+    percussions on demand. Serves until Ctrl-C, or writes one HTML file with --export."""
+    from . import viewer
+    from .trajectory import load_trajectory
+
+    try:
+        traj = load_trajectory(file)
+        if html:
+            click.echo(f"wrote {viewer.export_html(traj, html, fps=fps)}")
+            return
+        viewer.serve(traj, port, host, open_browser=not no_browser, fps=fps,
+                     ready=lambda url: click.echo(f"serving {file} at {url}  (Ctrl-C to stop)"))
+    except (ValueError, MoreauSimError, OSError) as exc:
+        click.echo(f"moreau-sim: error: {exc}", err=True)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    view()
