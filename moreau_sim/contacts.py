@@ -133,10 +133,17 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
     oMi, oMo = data.pin.oMi[joint_v], data.pin.oMi[joint_other]
     Vw = V @ oMi.rotation.T + oMi.translation
     kind, a, b = model.bounds[g_other]  # a lower bound of each vertex's distance (model._bound)
-    if kind == "plane":
-        est = Vw @ (oMo.rotation @ a) - (b + (oMo.rotation @ a) @ oMo.translation)
-    else:
-        est = np.sqrt(((Vw - (oMo.rotation @ a + oMo.translation)) ** 2).sum(axis=1)) - b
+    if kind == "plane":  # a half-space: the bound is the exact signed distance, no coal query needed
+        n = oMo.rotation @ a
+        est = Vw @ n - (b + n @ oMo.translation)
+        for i in np.flatnonzero(est <= tol):
+            d = float(est[i])
+            if v_is_a:
+                out.append((d, Vw[i], Vw[i] - d * n, n, pair, offset + i))
+            else:
+                out.append((d, Vw[i] - d * n, Vw[i], -n, pair, offset + i))
+        return
+    est = np.sqrt(((Vw - (oMo.rotation @ a + oMo.translation)) ** 2).sum(axis=1)) - b
     cand = np.flatnonzero(est <= tol)
     if not len(cand):
         return
