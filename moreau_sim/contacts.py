@@ -26,6 +26,7 @@ gamma = w' u is the normal relative velocity (> 0 separating).
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import coal
@@ -244,7 +245,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             # a corner beside smooth contacts of the same pair (a face resting on an edge): keep both
         c = res.getContact(0)
         n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
-        fallback = not (abs(c.penetration_depth) < 1e100 and np.isfinite(n).all())
+        fallback = not (abs(c.penetration_depth) < 1e100 and math.isfinite(n @ n))
         if fallback:  # EPA at model.GJK_TOLERANCE can fail on deep box-box overlaps: redo at coal's defaults
             c = _fallback_contact(data, pair)
             if c is None:

@@ -17,6 +17,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from . import robots
 from .errors import SceneError
 from .scene import Body, RootJoint, Scene, Static, StaticShape
 from .state import State
@@ -32,9 +33,9 @@ PATCH_TOLERANCE = 1e-6
 @dataclass(frozen=True)
 class Pair:
     """A collision pair: geometry ids (first = coal's shape 1), their joints, its name, and
-    whether contacts.py asks coal for the contact patch (not when one shape is a half-space and
-    the other a polytope: the overlap of a face with a half-space is that face, whose corners
-    are already vertex contacts)."""
+    whether contacts.py asks coal for the contact patch: only when both shapes have flat faces,
+    and not when one is a half-space and the other a polytope (the overlap of a face with a
+    half-space is that face, whose corners are already vertex contacts)."""
 
     index: int
     first: int
@@ -255,25 +256,34 @@ def _check_urdf(path: Path, where: str) -> dict[str, int]:
 
 
 def _load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str]:
+    """A body's Pinocchio model and collision geometry, names prefixed "<body>/". URDF meshes
+    and MJCF files go through robots.py (package:// resolution, MJCF root joint); meshes become
+    convex hulls or stay BVHs per the body's `meshes` key."""
     path = body.urdf
-    counts = _check_urdf(path, where)
     root = _root_joint(body, where)
-    try:
-        if root is None:
-            m = pin.buildModelFromUrdf(str(path))
-        else:
-            m = pin.buildModelFromUrdf(str(path), root, "root")
-        g = pin.buildGeomFromUrdf(m, str(path), pin.GeometryType.COLLISION, package_dirs=[str(path.parent)])
-    except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with C++ text
-        raise SceneError(f"{path}: Pinocchio cannot load this URDF: {exc} [{where} urdf]") from None
-    loaded: dict[str, int] = {}
-    for go in g.geometryObjects:
-        link = m.frames[go.parentFrame].name
-        loaded[link] = loaded.get(link, 0) + 1
-    for link, n in counts.items():
-        if loaded.get(link, 0) != n:
-            raise SceneError(f"{path}: link '{link}' has {n} <collision> element(s) but Pinocchio loaded "
-                             f"{loaded.get(link, 0)} [{where} urdf]")
+    if body.mjcf:
+        m, g = robots.load_mjcf(path, root, where)
+    else:
+        counts = _check_urdf(path, where)
+        xml = robots.urdf_with_resolved_meshes(path, body.package_dirs, where)
+        try:
+            if root is None:
+                m = pin.buildModelFromUrdf(str(path))
+            else:
+                m = pin.buildModelFromUrdf(str(path), root, "root")
+            g = pin.buildGeomFromUrdfString(m, xml, pin.GeometryType.COLLISION, package_dirs=[str(path.parent)],
+                                            mesh_loader=_MESH_LOADER)
+        except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with C++ text
+            raise SceneError(f"{path}: Pinocchio cannot load this URDF: {exc} [{where} urdf]") from None
+        loaded: dict[str, int] = {}
+        for go in g.geometryObjects:
+            link = m.frames[go.parentFrame].name
+            loaded[link] = loaded.get(link, 0) + 1
+        for link, n in counts.items():
+            if loaded.get(link, 0) != n:
+                raise SceneError(f"{path}: link '{link}' has {n} <collision> element(s) but Pinocchio loaded "
+                                 f"{loaded.get(link, 0)} [{where} urdf]")
+    robots.apply_mesh_mode(g, body.meshes)
     # prefix every name with the body name so several instances of one URDF can coexist
     p = f"{body.name}/"
     for i in range(1, m.njoints):
@@ -283,6 +293,11 @@ def _load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, st
     for go in g.geometryObjects:
         go.name = p + go.name
     return m, g, (path.read_text(encoding="utf-8"))
+
+
+# One mesh loader for every body: coal caches each mesh file (by name, scale and modification
+# time), so a model built again (tests, sweeps) does not re-read and re-split its meshes.
+_MESH_LOADER = coal.CachedMeshLoader()
 
 
 def _static_shape(s: Static):
@@ -352,6 +367,9 @@ def _face_planes(geometry, placement: pin.SE3):
     n.setflags(write=False)
     d.setflags(write=False)
     return n, d
+
+
+_FLAT = (coal.Box, coal.ConvexBase, coal.Cylinder, coal.Cone, coal.Halfspace, coal.Plane)
 
 
 def _bound(geometry, placement: pin.SE3) -> tuple:
@@ -437,7 +455,8 @@ def build_model(scene: Scene) -> Model:
         assert geom.collisionPairs[k].first == i and geom.collisionPairs[k].second == j
         half = [isinstance(gobs[x].geometry, (coal.Halfspace, coal.Plane)) for x in (i, j)]
         poly = [len(_vertices(gobs[x].geometry, gobs[x].placement)) > 0 for x in (i, j)]
-        patch = not ((half[0] and poly[1]) or (half[1] and poly[0]))
+        flat = [isinstance(gobs[x].geometry, _FLAT) for x in (i, j)]  # a patch needs two flat faces
+        patch = all(flat) and not ((half[0] and poly[1]) or (half[1] and poly[0]))
         pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, f"{gobs[i].name}|{gobs[j].name}",
                           patch))
 
@@ -468,7 +487,7 @@ def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndar
         if body.root_joint is RootJoint.FREE:
             # q = [x y z qx qy qz qw]: the world pose, from position and rpy unless q0 is given
             R = pin.rpy.rpyToMatrix(*body.rpy)
-            q[info.q_slice] = np.concatenate([body.position, pin.Quaternion(R).coeffs()])
+            q[info.q_slice.start:info.q_slice.start + 7] = np.concatenate([body.position, pin.Quaternion(R).coeffs()])
         if body.q0 is not None:
             if body.root_joint is RootJoint.FREE and (any(body.position) or any(body.rpy)):
                 raise SceneError(f"{w} q0: give either q0 or position/rpy for a free body, not both")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime
+import os
 import platform
 import time
 from importlib import metadata
@@ -22,7 +23,8 @@ from .trajectory import Trajectory
 
 LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) of its step (and > 0)
 # An impact ("log_impact") is a logged percussion of a contact that was not closed in the previous step.
-_PROGRESS_DELAY = 2.0  # [s] the progress bar appears on runs longer than this
+# [s] the progress bar appears on runs longer than this (MOREAU_SIM_PROGRESS_DELAY overrides it)
+_PROGRESS_DELAY = float(os.environ.get("MOREAU_SIM_PROGRESS_DELAY", "2.0"))
 
 
 def versions() -> dict[str, str]:
