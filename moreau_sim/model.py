@@ -283,7 +283,8 @@ def _load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, st
             if loaded.get(link, 0) != n:
                 raise SceneError(f"{path}: link '{link}' has {n} <collision> element(s) but Pinocchio loaded "
                                  f"{loaded.get(link, 0)} [{where} urdf]")
-    robots.apply_mesh_mode(g, body.meshes)
+    robots.apply_mesh_mode(g, body.meshes, f"{path} [{where}]")
+    robots.unique_frame_names(m)  # a link and a joint of one name: appendModel would refuse the model
     # prefix every name with the body name so several instances of one URDF can coexist
     p = f"{body.name}/"
     for i in range(1, m.njoints):

@@ -17,6 +17,7 @@ from typing import Any
 
 from .corners import Selection
 from .errors import SceneError
+from .robots import MeshMode, resolve_model_file
 
 
 class RootJoint(enum.Enum):
@@ -50,6 +51,21 @@ class Separating(enum.Enum):
 
     NEWTON = "newton"
     ELASTIC = "elastic"
+
+
+class Integrator(enum.Enum):
+    """How a scene is integrated.
+
+    TIME_STEPPING: the midpoint Moreau stepper (stepper.py): any scene, fixed step h.
+    EVENT_DRIVEN: reference.simulate_event_driven: smooth phases by scipy's solve_ivp at tight
+        tolerances, impacts at their located instants with the same law. For small systems of
+        the supported pairs (box vertices or spheres vs half-spaces, spheres vs spheres and static
+        boxes) where exactness matters more than speed; dt x save_every is then the sampling
+        interval only.
+    """
+
+    TIME_STEPPING = "time-stepping"
+    EVENT_DRIVEN = "event-driven"
 
 
 class SlowImpacts(enum.Enum):
@@ -133,6 +149,7 @@ class Options:
         placed exactly touching count as closed, and far below any physical gap.
     qp_form: which form of the impact QP to solve (see :class:`QPForm`).
     separating: the restitution of closed contacts that separate (see :class:`Separating`).
+    integrator: time-stepping (default) or event-driven (see :class:`Integrator`).
     slow_impacts: the restitution of impacts below the step's resolution (see :class:`SlowImpacts`).
     bias: where the Coriolis / gyroscopic forces are evaluated (see :class:`Bias`).
     position_correction: what is done with penetration after a contact step (:class:`PositionCorrection`).
@@ -150,6 +167,7 @@ class Options:
     qp_form: QPForm = QPForm.PRIMAL
     separating: Separating = Separating.ELASTIC
     corner_selection: Selection = Selection.GLOBAL_MIN
+    integrator: Integrator = Integrator.TIME_STEPPING
     slow_impacts: SlowImpacts = SlowImpacts.PLASTIC
     bias: Bias = Bias.MIDPOINT
     position_correction: PositionCorrection = PositionCorrection.PROJECTION
@@ -173,6 +191,8 @@ class Options:
         _check(isinstance(self.separating, Separating), f"{where}: separating",
                f"must be a Separating rule, got {self.separating!r}")
         _check(isinstance(self.bias, Bias), f"{where}: bias", f"must be a Bias, got {self.bias!r}")
+        _check(isinstance(self.integrator, Integrator), f"{where}: integrator",
+               f"must be an Integrator, got {self.integrator!r}")
         _check(isinstance(self.slow_impacts, SlowImpacts), f"{where}: slow_impacts",
                f"must be a SlowImpacts rule, got {self.slow_impacts!r}")
         _check(isinstance(self.position_correction, PositionCorrection), f"{where}: position_correction",
@@ -209,11 +229,19 @@ class Options:
 
 @dataclass(frozen=True, kw_only=True)
 class Body:
-    """A URDF model attached to the world by a root joint (docs/scenes.md, [[bodies]])."""
+    """A URDF (or MJCF) model attached to the world by a root joint (docs/scenes.md, [[bodies]]).
+
+    urdf: the model file, resolved (a path or a package:// URI in the scene); an MJCF file when
+    `mjcf` is true (its text is what outputs record as the body's description).
+    package_dirs: folders searched first for package:// URIs (docs/robots.md).
+    meshes: how collision meshes enter coal (robots.MeshMode: convex hull or BVH)."""
 
     name: str
     urdf: Path
     root_joint: RootJoint
+    mjcf: bool = False
+    package_dirs: tuple[Path, ...] = ()
+    meshes: MeshMode = MeshMode.CONVEX
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
     axes: tuple[tuple[float, float, float], ...] | None = None  # planar: default x, z; translation: x, y, z
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -266,10 +294,10 @@ _TOP = {"scene", "simulation", "output", "bodies", "statics", "collisions"}
 _SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravity": "gravity",
         "contact_tolerance": "contact_tolerance", "qp_form": "qp_form", "qp_tolerance": "qp_tolerance",
         "separating": "separating", "corner_selection": "corner_selection", "bias": "bias",
-        "position_correction": "position_correction", "slow_impacts": "slow_impacts"}
+        "position_correction": "position_correction", "slow_impacts": "slow_impacts", "integrator": "integrator"}
 _ENUMS = {"qp_form": QPForm, "separating": Separating, "corner_selection": Selection, "bias": Bias,
-          "position_correction": PositionCorrection, "slow_impacts": SlowImpacts}
-_BODY = {"name", "urdf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0"}
+          "position_correction": PositionCorrection, "slow_impacts": SlowImpacts, "integrator": Integrator}
+_BODY = {"name", "urdf", "mjcf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0", "package_dirs", "meshes"}
 _STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy"}
 
 
@@ -319,14 +347,25 @@ def _parse_options(sim: dict, out: dict, where: str) -> Options:
 def _parse_body(t: dict, where: str, base: Path) -> Body:
     _check(isinstance(t, dict), where, "must be a table")
     _unknown(t, _BODY, where)
-    for req in ("name", "urdf", "root_joint"):
+    _check("mjcf" not in t or "urdf" not in t, where, "give either 'urdf' or 'mjcf', not both")
+    for req in ("name", "mjcf" if "mjcf" in t else "urdf", "root_joint"):
         _check(req in t, where, f"missing required key '{req}'")
     name = _name(t["name"], f"{where} name")
     w = f"{where} ({name})"
-    _check(isinstance(t["urdf"], str), f"{w} urdf", "must be a path string")
-    urdf = (base / t["urdf"]).resolve()
-    _check(urdf.is_file(), f"{w} urdf", f"file not found: {urdf}")
-    kw: dict[str, Any] = dict(name=name, urdf=urdf, root_joint=_enum(RootJoint, t["root_joint"], f"{w} root_joint"))
+    dirs: list[Path] = []
+    if "package_dirs" in t:
+        _check(isinstance(t["package_dirs"], list) and all(isinstance(d, str) for d in t["package_dirs"]),
+               f"{w} package_dirs", f"must be a list of folder paths, got {t['package_dirs']!r}")
+        # a folder that does not exist is kept (and listed when a URI resolves nowhere), as in
+        # $MOREAU_SIM_PACKAGE_PATH: a scene rebuilt elsewhere (viewer) may find its files otherwise
+        dirs = [(base / d).resolve() for d in t["package_dirs"]]
+    key = "mjcf" if "mjcf" in t else "urdf"
+    _check(isinstance(t[key], str) and t[key] != "", f"{w} {key}", "must be a path string or a package:// URI")
+    urdf = resolve_model_file(t[key], base, dirs, f"{w} {key}")
+    kw: dict[str, Any] = dict(name=name, urdf=urdf, root_joint=_enum(RootJoint, t["root_joint"], f"{w} root_joint"),
+                              mjcf=key == "mjcf", package_dirs=tuple(dirs))
+    if "meshes" in t:
+        kw["meshes"] = _enum(MeshMode, t["meshes"], f"{w} meshes")
     for key in ("axis", "position", "rpy"):
         if key in t:
             kw[key] = _finite_vec(t[key], 3, f"{w} {key}")

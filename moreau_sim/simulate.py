@@ -16,7 +16,7 @@ from .contacts import pair_distances
 from .energy import kinetic, potential
 from .errors import SimulationError
 from .model import Data, Model, build_model, initial_state, make_data
-from .scene import Scene, load_scene
+from .scene import Integrator, Scene, load_scene
 from .state import State
 from .stepper import step
 from .trajectory import Trajectory
@@ -125,6 +125,10 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     data = data or make_data(model)
     state = state or initial_state(model)
     opts = model.scene.options
+    if opts.integrator is Integrator.EVENT_DRIVEN:
+        from .reference import simulate_event_driven  # late: reference imports this module
+
+        return simulate_event_driven(model, data=data, state=state)
     h, e, n, every = opts.dt, opts.restitution, opts.n_steps, opts.save_every
     rec = _Recorder(model, data, 1 + n // every + 1)
     rec.sample(state, 0.0, 0.0, 0)

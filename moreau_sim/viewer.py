@@ -92,9 +92,10 @@ def model_from_trajectory(traj: Trajectory | str | Path) -> Model:
             bname = body.get("name")
             if bname not in urdfs:
                 raise ValueError(f"trajectory metadata has no URDF text for body {bname!r}")
-            path = Path(tmp) / f"{i}_{re.sub(r'[^A-Za-z0-9_.-]', '_', str(bname))}.urdf"
+            key = "mjcf" if "mjcf" in body else "urdf"  # an MJCF body keeps its key and its .xml
+            path = Path(tmp) / f"{i}_{re.sub(r'[^A-Za-z0-9_.-]', '_', str(bname))}.{'xml' if key == 'mjcf' else 'urdf'}"
             path.write_text(urdfs[bname], encoding="utf-8")
-            body["urdf"] = str(path)
+            body[key] = str(path)
         scene_path = Path(tmp) / name
         scene_text = _toml_dumps(doc)
         scene_path.write_text(scene_text, encoding="utf-8")

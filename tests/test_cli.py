@@ -30,7 +30,7 @@ def test_run_writes_a_self_describing_npz(name, tmp_path):
         meta = json.loads(str(z["meta"]))
     assert meta["status"] == "complete"
     assert meta["scene"]["name"] == name and "[[bodies]]" in meta["scene"]["toml"]
-    assert all("<robot" in text for text in meta["scene"]["urdf"].values())
+    assert all("<robot" in text or "<mujoco" in text for text in meta["scene"]["urdf"].values())
     assert meta["options"]["duration"] == 0.3
     assert {"pin", "coal", "piqp", "numpy", "moreau-sim"} <= set(meta["versions"])
     traj = ms.load_trajectory(out)

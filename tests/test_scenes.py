@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from conftest import BUNDLED, run, scene
+from conftest import BUNDLED, SCENES as ROOT_SCENES, run, scene
 
 G, R, D0 = 9.81, 0.1, 0.9  # bouncing_ball: gravity, radius, initial gap of the centre at 1 m
 
@@ -231,3 +231,15 @@ def test_every_bundled_scene_runs(name):
     o = scene(name, duration=min(o.duration, 20000 * o.dt)).options
     assert len(traj.t) == 1 + -(-o.n_steps // o.save_every)  # the start, every save_every steps, the last
     assert traj.t[-1] == pytest.approx(o.n_steps * o.dt, abs=1e-12)
+
+
+def test_event_driven_integrator_from_the_scene_file(tmp_path):
+    """integrator = "event-driven" in a scene: impacts at t0 (2n+1 e...) exactly, apexes e^(2n) d0."""
+    text = (ROOT_SCENES / "bouncing_ball.toml").read_text().replace("[simulation]", '[simulation]\nintegrator = "event-driven"')
+    p = tmp_path / "ball.toml"
+    p.write_text(text.replace("../models/", str(ROOT_SCENES.parent / "models") + "/"))
+    traj = ms.simulate(ms.build_model(ms.load_scene(p)), progress=False)
+    e, t0 = 0.8, np.sqrt(2 * D0 / G)
+    expected = t0 + np.cumsum([0.0] + [2 * t0 * e ** n for n in range(1, 5)])
+    np.testing.assert_allclose(traj.log_t[traj.log_impact][:5], expected, rtol=0, atol=1e-9)
+    assert traj.meta["integrator"] == "event-driven"

@@ -1,0 +1,266 @@
+"""Robot descriptions: ``package://`` resolution, URDF meshes, MJCF, mesh collision modes.
+
+Search order for a ``package://PKG/rel/path`` URI (docs/robots.md):
+
+1. the body's ``package_dirs`` (scene key, relative to the scene file), in order;
+2. the folders in the environment variable ``MOREAU_SIM_PACKAGE_PATH`` (``os.pathsep``-separated);
+3. the ``share`` folder of an installed ``example-robot-data`` distribution (found through
+   ``importlib.metadata``: its files ``.../share/example-robot-data/robots/...``), whose URDFs name
+   their meshes ``package://example-robot-data/robots/...``;
+4. the folders above the file that names the URI (the URDF for a mesh, the scene file for a
+   body's ``urdf``/``mjcf``), nearest first.
+
+A folder D resolves the URI when ``D/PKG/rel/path`` is a file (Pinocchio's rule), so a folder that
+*is* the package is found through its parent (step 4 covers a package the URDF lives in).
+
+Meshes of a URDF are resolved here, not by Pinocchio: the URDF text handed to Pinocchio has every
+collision ``<mesh filename>`` replaced by the absolute file, so a URI that resolves nowhere is a
+:class:`SceneError` naming the scene, the body, the link, the URI and the folders searched (not a
+C++ error or a silently empty geometry), and Pinocchio's own ``ROS_PACKAGE_PATH`` lookup never
+picks a different file.
+
+Mesh collision geometry (``meshes`` body key, :class:`MeshMode`): ``convex`` (default) replaces
+each mesh by its convex hull (``coal.ConvexBase``: points and face normals, which contacts.py uses
+as vertices and to snap patch normals); ``bvh`` keeps the triangle soup Pinocchio loads
+(``coal.BVHModelOBBRSS``: one closest-point contact per pair). docs/robots.md has the measurement.
+"""
+
+from __future__ import annotations
+
+import enum
+import functools
+import importlib.metadata
+import os
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from xml.sax.saxutils import escape, unescape
+
+import coal
+import numpy as np
+import pinocchio as pin
+
+from .errors import SceneError
+
+ENV_PACKAGE_PATH = "MOREAU_SIM_PACKAGE_PATH"
+ERD = "example-robot-data"
+
+
+class MeshMode(enum.Enum):
+    """How a body's collision meshes enter coal (docs/robots.md, "Mesh collision geometry")."""
+
+    CONVEX = "convex"  # convex hull (coal.ConvexBase): vertices + faces, rests flat on its hull
+    BVH = "bvh"  # the triangle mesh as loaded (coal.BVHModelOBBRSS): one contact per pair
+
+
+@functools.lru_cache(maxsize=None)
+def example_robot_data_share() -> Path | None:
+    """The ``share`` folder holding ``example-robot-data/robots`` of the installed
+    ``example-robot-data`` distribution (cmeel wheels install it under ``cmeel.prefix/share``),
+    or None if it is not installed."""
+    try:
+        dist = importlib.metadata.distribution(ERD)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+    for f in dist.files or ():
+        parts = f.parts
+        for k in range(len(parts) - 1):
+            if parts[k] == "share" and parts[k + 1] == ERD:
+                share = Path(dist.locate_file(Path(*parts[:k + 1]))).resolve()
+                if (share / ERD).is_dir():
+                    return share
+                return None  # listed but not on disk (a broken install)
+    return None
+
+
+def env_package_dirs() -> list[Path]:
+    """The folders of ``MOREAU_SIM_PACKAGE_PATH`` (read at each call, so tests may set it)."""
+    value = os.environ.get(ENV_PACKAGE_PATH, "")
+    return [Path(p).expanduser().resolve() for p in value.split(os.pathsep) if p.strip()]
+
+
+def search_dirs(package_dirs, folder: Path) -> list[Path]:
+    """Folders searched for ``package://`` URIs, in order (module docstring): the body's
+    `package_dirs`, the environment variable, example-robot-data's share folder, then `folder`
+    (that of the file naming the URI) and the folders above it. Duplicates are dropped."""
+    out: list[Path] = []
+    share = example_robot_data_share()
+    folder = Path(folder).resolve()
+    for d in [*map(Path, package_dirs), *env_package_dirs(), *([share] if share else []), folder, *folder.parents]:
+        if d not in out:
+            out.append(d)
+    return out
+
+
+def is_uri(value: str) -> bool:
+    return "://" in value
+
+
+def resolve(uri: str, dirs: list[Path], base: Path) -> Path | None:
+    """The file `uri` names, or None. ``package://PKG/rel`` and ``model://PKG/rel``: the first
+    ``D/PKG/rel`` that is a file, D in `dirs`; ``file:///abs``: that file; a plain path:
+    relative to the folder `base`, else (as Pinocchio does) to each D in `dirs`.
+    Raises SceneError for any other scheme."""
+    if is_uri(uri):
+        scheme, rest = uri.split("://", 1)
+        if scheme in ("package", "model"):
+            rel = rest.lstrip("/")
+            for d in dirs:
+                p = d / rel
+                if p.is_file():
+                    return p.resolve()
+            return None
+        if scheme == "file":
+            p = Path(rest)
+            p = p if p.is_absolute() else base / p
+            return p.resolve() if p.is_file() else None
+        raise SceneError(f"URI scheme '{scheme}://' is not supported (package://, model://, file:// or a path)")
+    p = Path(uri).expanduser()
+    if p.is_absolute():
+        return p if p.is_file() else None
+    for d in (base, *dirs):
+        if (d / p).is_file():
+            return (d / p).resolve()
+    return None
+
+
+def _searched(dirs: list[Path], uri: str) -> str:
+    """The folders searched, and what to do when the URI names example-robot-data but it is absent."""
+    out = "[" + ", ".join(str(d) for d in dirs) + "]"
+    if uri.split("://", 1)[-1].lstrip("/").startswith(ERD + "/") and example_robot_data_share() is None:
+        out += f"; {ERD} is not installed (pip install {ERD})"
+    return out
+
+
+def resolve_model_file(value: str, base: Path, package_dirs, where: str) -> Path:
+    """A body's ``urdf``/``mjcf`` value -> the file. A plain path is relative to the scene
+    folder `base` (nothing else is searched); a URI goes through :func:`search_dirs` with the
+    scene file's folders last. `where` names the scene, the body and the key."""
+    if not is_uri(value):
+        p = (base / value).resolve()
+        if not p.is_file():
+            raise SceneError(f"{where}: file not found: {p}")
+        return p
+    dirs = search_dirs(package_dirs, base)
+    try:
+        p = resolve(value, dirs, base)
+    except SceneError as exc:
+        raise SceneError(f"{where}: '{value}': {exc}") from None
+    if p is None:
+        raise SceneError(f"{where}: '{value}' resolves to no file; searched {_searched(dirs, value)} "
+                         f"(add the folder holding '{value.split('://', 1)[1].split('/')[0]}' to the body's "
+                         f"package_dirs or to ${ENV_PACKAGE_PATH})")
+    return p
+
+
+_MESH_ATTR = re.compile(r"""(<mesh\b[^>]*?\bfilename\s*=\s*)(["'])(.*?)\2""", re.S)
+
+
+def urdf_with_resolved_meshes(path: Path, package_dirs, where: str) -> str:
+    """The URDF text of `path` with every collision mesh's filename replaced by the absolute
+    file it resolves to (module docstring). Raises SceneError (scene, body, link, URI, folders
+    searched) for a collision mesh that resolves nowhere. Visual meshes are left as they are
+    (only collision geometry is loaded) unless they name a collision mesh's URI."""
+    text = path.read_text(encoding="utf-8")
+    root = ET.fromstring(text)
+    dirs = search_dirs(package_dirs, path.parent)
+    found: dict[str, Path] = {}
+    for link in root.findall("link"):
+        for col in link.findall("collision"):
+            mesh = col.find("geometry/mesh")
+            if mesh is None:
+                continue
+            uri = mesh.get("filename", "")
+            if uri in found:
+                continue
+            try:
+                p = resolve(uri, dirs, path.parent) if uri else None
+            except SceneError as exc:
+                raise SceneError(f"{path}: link '{link.get('name')}': collision mesh '{uri}': {exc} "
+                                 f"[{where} urdf]") from None
+            if p is None:
+                raise SceneError(f"{path}: link '{link.get('name')}': collision mesh '{uri}' resolves to no file; "
+                                 f"searched {_searched(dirs, uri)} [{where} urdf]")
+            found[uri] = p
+
+    def sub(m: re.Match) -> str:
+        p = found.get(unescape(m.group(3), {"&quot;": '"', "&apos;": "'"}))
+        return m.group(0) if p is None else f"{m.group(1)}{m.group(2)}{escape(str(p), {chr(34): '&quot;'})}{m.group(2)}"
+
+    return _MESH_ATTR.sub(sub, text) if found else text
+
+
+def apply_mesh_mode(geom: pin.GeometryModel, mode: MeshMode, where: str = "") -> None:
+    """Replace every mesh (coal BVH model) of `geom` by its convex hull for ``convex``
+    (``buildConvexHull(True, "Qt")``: the hull's triangles are kept, so the ConvexBase has
+    points, triangle normals and neighbours); leave it for ``bvh``. Primitive shapes stay.
+
+    A convex mesh without face normals (Pinocchio's ``<collision_checking><convex/>`` URDF
+    extension builds one) gets its hull rebuilt with normals in either mode: coal 3.0.3's
+    ``normals()`` of such a shape is a null pointer (segfault), and contacts.py reads it.
+    A mesh whose hull coal cannot build (qhull output with a vertex of more than 255 neighbours:
+    "Too many neighbors") is a SceneError that suggests ``meshes = "bvh"``."""
+    for go in geom.geometryObjects:
+        g = go.geometry
+        if isinstance(g, coal.BVHModelBase):
+            if mode is MeshMode.BVH:
+                continue
+            if g.convex is None:  # meshes come from a cache (model._MESH_LOADER): build each hull once
+                try:
+                    g.buildConvexHull(True, "Qt")
+                except Exception as exc:  # coal raises RuntimeError with its C++ location first
+                    reason = str(exc).strip().splitlines()[-1]
+                    raise SceneError(f"{where}: collision mesh {go.meshPath or go.name}: coal cannot build its convex "
+                                     f"hull ({reason}); give this body meshes = \"bvh\"") from None
+            go.geometry = g.convex
+        elif isinstance(g, coal.ConvexBase) and g.num_normals_and_offsets == 0:
+            points = coal.StdVec_Vec3s()
+            for x in np.asarray(g.points(), float).reshape(-1, 3):
+                points.append(x)
+            go.geometry = coal.ConvexBase.convexHull(points, True, "Qt")
+
+
+def unique_frame_names(model: pin.Model) -> None:
+    """Rename frames whose name another frame of a different type also has (a URDF link and a
+    joint of the same name: anymal_c, z1, so100 in example-robot-data): Pinocchio's appendModel
+    refuses such a model ("Several frames match the filter"). The link (BODY) frame keeps the
+    name, which [collisions] and the geometry names use; the other gets "<name>:<type>", e.g.
+    "gripperStator:FIXED_JOINT"."""
+    names = [f.name for f in model.frames]
+    taken = set(names)
+    for i, f in enumerate(model.frames):
+        if names.count(f.name) > 1 and f.type != pin.FrameType.BODY:
+            new = f"{f.name}:{str(f.type).rsplit('.', 1)[-1]}"
+            k = 1
+            while new in taken:
+                k += 1
+                new = f"{f.name}:{str(f.type).rsplit('.', 1)[-1]}{k}"
+            model.frames[i].name = new
+            taken.add(new)
+
+
+def load_mjcf(path: Path, root, where: str) -> tuple[pin.Model, pin.GeometryModel]:
+    """Model and collision geometry of an MJCF file. `root` (a JointModel or None) attaches the
+    MJCF's world body to the world: Pinocchio 4.1's MJCF reader silently ignores a root joint when
+    the top body has a joint of its own, so the root is built here (a one-joint model) and the
+    MJCF model appended to it, which treats both cases alike (inertias of bodies welded to the
+    world body move onto the root)."""
+    try:
+        root_el = ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise SceneError(f"{path}: malformed MJCF (XML error: {exc}) [{where} mjcf]") from None
+    if root_el.tag != "mujoco":
+        raise SceneError(f"{path}: not an MJCF file: root element is <{root_el.tag}>, expected <mujoco> "
+                         f"[{where} mjcf]")
+    try:
+        m = pin.buildModelFromMJCF(str(path))
+        g = pin.buildGeomFromMJCF(m, str(path), pin.GeometryType.COLLISION)
+    except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with C++ text
+        raise SceneError(f"{path}: Pinocchio cannot load this MJCF: {exc} [{where} mjcf]") from None
+    if root is None:
+        return m, g
+    rm = pin.Model()
+    rm.name = m.name
+    j = rm.addJoint(0, root, pin.SE3.Identity(), "root")
+    frame = rm.addJointFrame(j)
+    return pin.appendModel(rm, m, pin.GeometryModel(), g, frame, pin.SE3.Identity())

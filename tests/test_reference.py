@@ -1,0 +1,182 @@
+"""The event-driven reference against the closed forms of impact-law.md §4, then its own
+invariants (energy ledger, rest, Lie-group chart) on the scenes without a closed form."""
+
+import math
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import moreau_sim as ms
+from moreau_sim.reference import UnsupportedModel, simulate_event_driven
+from moreau_sim.trajectory import ARRAYS
+
+from conftest import scene
+
+G, D0 = 9.81, 0.9  # gravity [m/s^2]; the ball's initial gap [m] (centre at 1 m, r = 0.1 m)
+T0 = math.sqrt(2 * D0 / G)  # first impact time [s]
+
+
+def impact_times(e: float, n: int) -> np.ndarray:
+    """t_k = t0 (1 + 2 e + ... + 2 e^k), k = 0..n-1 (impact-law.md §4)."""
+    return np.array([T0 * (1 + 2 * sum(e ** j for j in range(1, k + 1))) for k in range(n)])
+
+
+def ref(name: str, **kw) -> ms.Trajectory:
+    opts = {k: kw.pop(k) for k in ("restitution", "duration") if k in kw}
+    return simulate_event_driven(ms.build_model(scene(name, **opts)), **kw)
+
+
+@pytest.mark.parametrize("e", [0.5, 0.8, 1.0])
+def test_ball_impact_times_and_apex_heights(e):
+    n = 6
+    tn = impact_times(e, n + 1)
+    apex_t = tn[:n] + e ** np.arange(1, n + 1) * T0  # apex after bounce k: t_{k-1} + e^k t0
+    tr = ref("bouncing_ball", restitution=e, duration=float(tn[n]) + 0.01, t_eval=np.r_[0.0, apex_t])
+    assert tr.complete and tr.meta["integrator"] == "event-driven"
+    assert np.abs(tr.log_t[:n + 1] - tn).max() < 1e-8
+    assert np.abs(tr.gap[1:, 0] - D0 * e ** (2 * np.arange(1, n + 1))).max() < 1e-8
+    assert np.abs(tr.u[1:, 0]).max() < 1e-8  # at the apex the ball is at rest
+    assert np.allclose(tr.log_gamma_plus[:n], -e * tr.log_gamma_minus[:n], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("e", [0.5, 0.8])
+def test_ball_zeno_time_and_rest(e):
+    t_inf = T0 * (1 + 2 * e / (1 - e))
+    tr = ref("bouncing_ball", restitution=e, duration=t_inf + 0.5)
+    assert tr.complete
+    (z,) = tr.meta["zeno"]  # one accumulation point, declared just before it
+    assert abs(z["t_accumulation"] - t_inf) < 1e-8 and t_inf - 1e-5 < z["t"] < t_inf
+    after = tr.t > t_inf + 1e-6
+    assert np.abs(tr.u[after]).max() < 1e-12 and np.abs(tr.gap[after]).max() < 1e-12  # resting
+    assert np.all(tr.n_contacts[after] == 1)  # the persistent contact
+    E = tr.kinetic_energy + tr.potential_energy
+    assert abs(E[-1] - 1.0 * G * 0.1) < 1e-12  # all kinetic energy gone, centre at r
+    assert abs(E[-1] - E[0] - tr.contact_work.sum()) < 1e-10  # the ledger: energy lost = impact losses
+
+
+@pytest.mark.parametrize("e, expected", [(1.0, [-0.6, 0.4, 0.4, 0.4, 0.4]), (0.5, [-0.2, 0.3, 0.3, 0.3, 0.3])])
+def test_touching_cradle_simultaneous(e, expected):
+    tr = ref("newton_cradle_5", restitution=e, duration=0.5)
+    assert tr.complete and tr.meta["run"]["impacts"] == 1
+    assert np.abs(tr.u[-1] - expected).max() < 1e-12
+    assert np.abs(tr.log_t).max() == 0.0  # the impact is at t = 0
+    assert np.all(tr.n_contacts[1:] == 3)  # balls 1-4 keep touching: neutral persistent contacts
+    assert abs(tr.u[-1].sum() - 1.0) < 1e-12  # momentum
+
+
+def test_gapped_cradle_sequential():
+    tr = ref("newton_cradle_5_gapped", restitution=1.0, duration=0.5)
+    assert tr.complete
+    assert np.abs(tr.u[-1] - [0, 0, 0, 0, 1]).max() < 1e-12
+    assert np.allclose(tr.log_t, [0.001, 0.002, 0.003, 0.004], rtol=0, atol=1e-12)  # 1 mm gaps at 1 m/s
+    assert list(tr.log_pair) == [0, 1, 2, 3]
+
+
+def test_gapped_cradle_e_half_matches_binary_impacts():
+    """e = 0.5: repeated binary impacts; the order is fixed by the geometry, so the result is the
+    reference's sweep of left-to-right binary Newton impacts (scripts/peers/_common.py)."""
+    v = [1.0, 0, 0, 0, 0]
+    for _ in range(100):
+        for i in range(4):
+            if v[i] > v[i + 1] + 1e-15:
+                a, b = v[i], v[i + 1]
+                v[i], v[i + 1] = 0.25 * a + 0.75 * b, 0.75 * a + 0.25 * b
+    tr = ref("newton_cradle_5_gapped", restitution=0.5, duration=0.5)
+    assert np.abs(tr.u[-1] - v).max() < 2e-2  # ordering differences only (peers/README.md)
+    assert abs(tr.u[-1].sum() - 1.0) < 1e-12
+    assert np.all(np.diff(tr.u[-1]) >= -1e-12)  # nobody approaches any more
+
+
+def test_rocking_block_ledger_and_rest():
+    tr = ref("rocking_block", duration=0.4)
+    assert tr.complete and tr.meta["run"]["impacts"] > 10 and len(tr.meta["zeno"]) >= 2
+    E = tr.kinetic_energy + tr.potential_energy
+    ledger = E - E[0] - np.cumsum(tr.contact_work)
+    assert np.abs(ledger).max() < 1e-9  # smooth phases (pivoting, flight) conserve energy exactly
+    assert np.all(np.diff(E) <= 1e-9)
+    assert tr.n_contacts[1] == 1  # it starts pivoting on one corner (a persistent contact)
+    x, z, th = tr.q[-1]
+    assert abs(z - 0.2) < 1e-9 and abs(th) < 1e-8 and np.abs(tr.u[-1]).max() < 1e-9  # flat at rest
+    assert np.abs(tr.q[:, 0]).max() < 1e-12  # frictionless: the centre of mass stays on its vertical
+    assert tr.gap.min() > -1e-9
+
+
+def test_rocking_block_agrees_with_stepper_at_small_step():
+    te = np.array([0.05, 0.1])
+    tr = ref("rocking_block", duration=0.1, t_eval=te)
+    ts = ms.simulate(ms.build_model(scene("rocking_block", dt=1e-4, duration=0.1)), progress=False)
+    qs = ts.q[np.searchsorted(ts.t, te - 1e-12)]
+    assert np.abs(qs - tr.q).max() < 1e-3  # first order: ~1e-4 m at h = 1e-4
+    hits = ts.log_t[ts.log_impact & (ts.log_feature == tr.log_feature[0])]  # the other corner's first hit
+    assert abs(tr.log_t[0] - hits[0]) < 2e-4
+
+
+def test_pendulum_tolerance_convergence():
+    te = np.linspace(0, 2.0, 9)
+    a = ref("pendulum_wall", duration=2.0, t_eval=te)
+    b = ref("pendulum_wall", duration=2.0, t_eval=te, rtol=1e-10, atol=1e-10)
+    assert a.complete and len(a.log_t) == 2
+    assert np.abs(a.q - b.q).max() < 1e-9 and np.abs(a.log_t - b.log_t).max() < 1e-10
+    E = a.kinetic_energy + a.potential_energy
+    assert np.abs(E - E[0] - np.cumsum(a.contact_work)).max() < 1e-9
+
+
+def test_free_body_in_a_lie_group_chart():
+    """box_drop (free root: translation + quaternion) through the chart q = q_b (+) delta."""
+    te = np.linspace(0, 0.6, 7)
+    tr = ref("box_drop", duration=0.6, t_eval=te)
+    assert tr.complete and tr.meta["reference"]["lie_group_chart"] and tr.meta["run"]["impacts"] >= 3
+    quat = tr.q[:, 3:]
+    assert np.abs(np.linalg.norm(quat, axis=1) - 1).max() < 1e-12
+    E = tr.kinetic_energy + tr.potential_energy
+    assert np.abs(E - E[0] - np.cumsum(tr.contact_work)).max() < 1e-9
+    assert tr.gap.min() > -1e-9
+    # free fall before the first impact: the exact parabola
+    t1 = tr.log_t[0]
+    k = np.flatnonzero(te < t1)
+    assert np.abs(tr.q[k, 2] - (0.6 - 0.5 * G * te[k] ** 2)).max() < 1e-12
+    model = ms.build_model(scene("box_drop"))
+    assert np.abs(pin.difference(model.pin, model.q0, tr.q[0])).max() == 0.0
+
+
+def test_trajectory_schema_and_round_trip(tmp_path):
+    tr = ref("bouncing_ball", restitution=0.8, duration=1.0)
+    assert set(tr.arrays) == set(ARRAYS)
+    n = len(tr.t)
+    assert tr.q.shape == (n, 1) and tr.u.shape == (n, 1) and tr.gap.shape == (n, 1)
+    assert np.allclose(np.diff(tr.t), 1e-3)  # default samples: every scene dt
+    k = len(tr.log_t)
+    assert tr.log_point.shape == (k, 3) and tr.log_impact.all() and tr.candidate_u_plus.shape == (0, 1)
+    assert np.all(tr.t[np.minimum(tr.log_step, n - 1)] >= tr.log_t)  # log_step: the next sample
+    back = ms.load_trajectory(tr.save(tmp_path / "ref.npz"))
+    assert back.meta["integrator"] == "event-driven" and np.array_equal(back.q, tr.q)
+    assert ms.summary(back)["impacts"] == k
+
+
+def test_unsupported_pair_is_named():
+    with pytest.raises(UnsupportedModel, match="square"):
+        ref("blocks_corner")
+
+
+def test_bad_sample_times():
+    with pytest.raises(ValueError, match="t_eval"):
+        ref("bouncing_ball", duration=1.0, t_eval=[0.5, 0.2])
+
+
+@pytest.mark.parametrize("name", ["rocking_block", "newton_cradle_5", "pendulum_wall", "box_drop"])
+def test_feature_gaps_rows_and_drift_against_finite_differences(name):
+    """The analytic gaps' first and second time derivatives along a motion (q, u, a):
+    g' = w' u and g'' = w' a + drift, by central differences of q(t) = q (+) (t u + t^2/2 a)."""
+    from moreau_sim.reference import _Integrator
+
+    model = ms.build_model(scene(name))
+    integ = _Integrator(model, ms.make_data(model), 0.5, 1e-12, 1e-12, "DOP853", 1e-2, 10)
+    rng = np.random.default_rng(1)
+    q = pin.integrate(model.pin, model.q0, 0.05 * rng.standard_normal(model.nv))
+    u, a = rng.standard_normal(model.nv), rng.standard_normal(model.nv)
+    fs = integ.features(q, u)
+    eps = 1e-4
+    g = [integ.features(pin.integrate(model.pin, q, s * u + 0.5 * s * s * a), u, rows=False).g for s in (-eps, eps)]
+    assert np.allclose((g[1] - g[0]) / (2 * eps), fs.gamma, rtol=0, atol=1e-7)
+    assert np.allclose((g[1] - 2 * fs.g + g[0]) / eps ** 2, fs.W.T @ a + fs.drift, rtol=0, atol=1e-5)
