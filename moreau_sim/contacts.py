@@ -180,7 +180,9 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
                 out.append((d, p_on_other, Vw[i], nrm, pair, offset + i))
 
 
-_SNAP = 1e-4  # [rad] a patch normal this close to a face normal is that face normal
+_SNAP = 2e-2  # [rad] a patch normal this close to a face normal is that face normal (coal's EPA
+# normal of resting faces drifts by up to 4e-3 rad after round-off motion; a patch only forms for
+# faces parallel to within PATCH_TOLERANCE, so the nearest face normal is the right one)
 
 
 def _snap(model: Model, data: Data, pair, n: np.ndarray) -> np.ndarray:
@@ -197,6 +199,33 @@ def _snap(model: Model, data: Data, pair, n: np.ndarray) -> np.ndarray:
             if c[i] > cos_best:
                 best, cos_best = Fw[i], c[i]
     return best
+
+
+def _near_polytopes(model: Model, data: Data, tol: float) -> set:
+    """Pairs of two polytopes whose bounding spheres are within tol: examined for vertex contacts
+    whatever coal's narrow phase says (for exactly touching coplanar boxes it now and then reports
+    a gap of -5e-12 m as no collision, and a resting box would drop through its support)."""
+    out = set()
+    for k, g1, g2, j1, j2 in model.polytope_pairs:
+        (_, c1, r1), (_, c2, r2) = model.bounds[g1], model.bounds[g2]
+        o1, o2 = data.pin.oMi[j1], data.pin.oMi[j2]
+        d = (o1.rotation @ c1 + o1.translation) - (o2.rotation @ c2 + o2.translation)
+        if math.sqrt(d @ d) - r1 - r2 <= tol:
+            out.add(k)
+    return out
+
+
+def _patch(data: Data, pair, c, n: np.ndarray):
+    """coal's contact patch of a pair computed about normal n (ours, B -> A) instead of coal's own."""
+    res = data.patch_collision
+    res.clear()
+    g1, g2 = data.shapes[pair.first], data.shapes[pair.second]
+    res.addContact(coal.Contact(g1, g2, -1, -1, np.asarray(c.pos), -n, c.penetration_depth))
+    out = data.patch_result
+    out.clear()
+    coal.computeContactPatch(g1, coal.Transform3s(data.geom.oMg[pair.first]), g2,
+                             coal.Transform3s(data.geom.oMg[pair.second]), res, data.patch_request, out)
+    return out.getContactPatch(0)
 
 
 def _fallback_contact(data: Data, pair):
@@ -220,15 +249,20 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     Updates data.pin kinematics (oMi) and the geometry placements at q."""
     pm, pd, gm, gd = model.pin, data.pin, model.geom, data.geom
     pin.updateGeometryPlacements(pm, pd, gm, gd, q)
-    if not model.pairs or not pin.computeCollisions(gm, gd, False):
+    if not model.pairs:
         return NO_CONTACTS
     tol = model.scene.options.contact_tolerance
+    coll = pin.computeCollisions(gm, gd, False)
+    near = _near_polytopes(model, data, tol)
+    if not coll and not near:
+        return NO_CONTACTS
     margin = tol if corner_margin is None else max(tol, corner_margin)
     found: list = []
     corner_list: list = []
     for pair in model.pairs:
         res = gd.collisionResults[pair.index]
-        if not res.isCollision():
+        hit = res.isCollision()
+        if not hit and pair.index not in near:
             continue
         start = len(found)
         na, nb = len(model.vertices[pair.first]), len(model.vertices[pair.second])
@@ -243,6 +277,8 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             if len(found) == start:
                 continue  # the corner is the contact of this pair: no patch, no witness
             # a corner beside smooth contacts of the same pair (a face resting on an edge): keep both
+        if not hit:
+            continue  # examined for its vertices only (coal saw no collision): no patch, no witness
         c = res.getContact(0)
         n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
         fallback = not (abs(c.penetration_depth) < 1e100 and math.isfinite(n @ n))
@@ -252,12 +288,16 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
                 continue
             n = -np.asarray(c.normal)
         k_patch = 0
-        if pair.patch and not fallback:
-            pin.computeContactPatch(gm, gd, pair.index)
-            patch = gd.contactPatchResults[pair.index].getContactPatch(0)
-            k_patch = patch.size()
-        if k_patch > 1:  # parallel faces: the overlap polygon (its corners need not be vertices)
+        if pair.patch and not fallback and c.penetration_depth <= tol:
+            # the patch (overlap polygon of parallel faces) about the face normal nearest to coal's
+            # (whose EPA normal of resting faces drifts by up to 4e-3 rad: the polygon collapses)
             n = _snap(model, data, pair, n)
+            # with vertex contacts, a patch must lie in their plane: coal's normal of coplanar
+            # aligned boxes can point along a side face, which is no contact at all
+            if len(found) == start or float(n @ found[start][3]) >= math.cos(_SNAP):
+                patch = _patch(data, pair, c, n)
+                k_patch = patch.size()
+        if k_patch > 1:
             P1 = np.array([patch.getPointShape1(k) for k in range(k_patch)])
             new = np.ones(k_patch, bool)
             if len(found) > start:
@@ -266,7 +306,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             for k in np.flatnonzero(new):
                 found.append((c.penetration_depth, P1[k], np.array(patch.getPointShape2(int(k))), n, pair.index,
                               PATCH + int(k)))
-        elif len(found) == start:  # no vertex within tolerance: edge-edge, smooth shapes
+        elif len(found) == start and c.penetration_depth <= tol:  # no vertex: edge-edge, smooth shapes
             found.append((c.penetration_depth, np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2()),
                           n, pair.index, WITNESS))
     corners = _merge_corners(model, corner_list, margin) if corner_list else ()

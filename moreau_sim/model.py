@@ -28,6 +28,7 @@ GJK_TOLERANCE = 1e-12  # coal's GJK/EPA tolerances for the contact normal (defau
 # exactly touching boxes is still ~1e-6 rad off at GJK_TOLERANCE, i.e. ~1e-7 m over 0.1 m: a
 # tighter value makes the patch flicker between 1 and 8 points from one step to the next.
 PATCH_TOLERANCE = 1e-6
+GATE_MARGIN = 1e-6  # [m] see Data: pairs this close are examined (contacts still need g <= tol)
 
 
 @dataclass(frozen=True)
@@ -92,6 +93,19 @@ class Model:
         object.__setattr__(self, "_pair_joints", pj)
         reach = max([float(np.linalg.norm(V, axis=1).max()) for V in self.vertices if len(V)] + [1.0])
         object.__setattr__(self, "_reach", reach)
+        def extent(g):
+            geo = self.geom.geometryObjects[g].geometry
+            if isinstance(geo, (coal.Halfspace, coal.Plane)):
+                return np.inf
+            geo.computeLocalAABB()
+            b = geo.aabb_local
+            return float(min(b.width(), b.height(), b.depth()))
+        object.__setattr__(self, "_thinnest_pair", min([extent(p.first) + extent(p.second) for p in self.pairs]
+                                                       + [np.inf]))
+        object.__setattr__(self, "_polytope_pairs", tuple(
+            (p.index, p.first, p.second, p.joint_first, p.joint_second) for p in self.pairs
+            if len(self.vertices[p.first]) and len(self.vertices[p.second])
+            and self.bounds[p.first][0] == "sphere" and self.bounds[p.second][0] == "sphere"))
         # does h(q, u) depend on u (Coriolis, gyroscopic)? A random state tells (structurally zero
         # for translations and prismatic chains); stepper.free_velocity skips the midpoint iteration.
         rng = np.random.default_rng(0)
@@ -114,6 +128,18 @@ class Model:
         """max(1, largest distance of a vertex from its joint origin) [m]: bounds a vertex's speed
         by reach * |u|_inf for unit-scale joints (contacts.detect, corner margin)."""
         return self._reach
+
+    @property
+    def thinnest_pair(self) -> float:
+        """min over pairs of the sum of the two shapes' smallest extents [m] (inf for half-spaces):
+        a body moving less than this in a step cannot pass through the other (stepper: tunnelling)."""
+        return self._thinnest_pair
+
+    @property
+    def polytope_pairs(self) -> tuple:
+        """(pair index, geometry 1, geometry 2, joint 1, joint 2) of the pairs of two polytopes
+        with bounding spheres (contacts._near_polytopes)."""
+        return self._polytope_pairs
 
     @property
     def velocity_bias(self) -> bool:
@@ -159,13 +185,20 @@ class Data:
         self.geom = pin.GeometryData(model.geom)
         tol = model.scene.options.contact_tolerance
         for req in self.geom.collisionRequests:
-            req.security_margin = tol  # a pair "collides" when its gap <= tol: gate of the active set
+            # gate of the active set: a pair is examined when coal puts it within GATE_MARGIN (its
+            # contacts are then kept where g <= tol); coal's narrow phase misses exactly touching
+            # coplanar boxes now and then at a margin of 1e-9 m (gap -5e-12 reported as apart)
+            req.security_margin = max(tol, GATE_MARGIN)
             req.num_max_contacts = 1
             req.enable_contact = True  # normal, depth and witness points (EPA when penetrating)
             # GJK/EPA default tolerances (1e-6) tilt the normal of exactly touching boxes by ~5 deg
             req.gjk_tolerance = req.epa_tolerance = GJK_TOLERANCE
         for preq in self.geom.contactPatchRequests:
             preq.setPatchTolerance(PATCH_TOLERANCE)
+        self.patch_request = coal.ContactPatchRequest()
+        self.patch_request.setPatchTolerance(PATCH_TOLERANCE)
+        self.patch_collision = coal.CollisionResult()
+        self.patch_result = coal.ContactPatchResult(self.patch_request)
         self.fallback_request = coal.CollisionRequest()  # coal's default GJK/EPA tolerances
         self.fallback_request.security_margin = tol
         self.fallback_request.enable_contact = True

@@ -53,6 +53,22 @@ class Separating(enum.Enum):
     ELASTIC = "elastic"
 
 
+class Tunnelling(enum.Enum):
+    """Whether a step looks for contacts crossed between two midpoints (a fast body, a thin obstacle).
+
+    SWEPT: when a body may move further in a step than the thinnest pair of shapes is thick
+        (h |u|_inf reach > Model.thinnest_pair), contacts are also looked for along the step's
+        motion by conservative advancement with coal's signed distance (tunnelling.swept_detect);
+        a pair touched on the way is taken with the normal of its first contact. Costs nothing
+        when no body is that fast.
+    NONE: the midpoint test alone (g(q_m) <= tol): a body faster than (thickness / h) can pass
+        through a thin obstacle.
+    """
+
+    SWEPT = "swept"
+    NONE = "none"
+
+
 class Integrator(enum.Enum):
     """How a scene is integrated.
 
@@ -150,6 +166,7 @@ class Options:
     qp_form: which form of the impact QP to solve (see :class:`QPForm`).
     separating: the restitution of closed contacts that separate (see :class:`Separating`).
     integrator: time-stepping (default) or event-driven (see :class:`Integrator`).
+    tunnelling: look for contacts along fast motions (see :class:`Tunnelling`).
     slow_impacts: the restitution of impacts below the step's resolution (see :class:`SlowImpacts`).
     bias: where the Coriolis / gyroscopic forces are evaluated (see :class:`Bias`).
     position_correction: what is done with penetration after a contact step (:class:`PositionCorrection`).
@@ -168,6 +185,7 @@ class Options:
     separating: Separating = Separating.ELASTIC
     corner_selection: Selection = Selection.GLOBAL_MIN
     integrator: Integrator = Integrator.TIME_STEPPING
+    tunnelling: Tunnelling = Tunnelling.SWEPT
     slow_impacts: SlowImpacts = SlowImpacts.PLASTIC
     bias: Bias = Bias.MIDPOINT
     position_correction: PositionCorrection = PositionCorrection.PROJECTION
@@ -191,6 +209,8 @@ class Options:
         _check(isinstance(self.separating, Separating), f"{where}: separating",
                f"must be a Separating rule, got {self.separating!r}")
         _check(isinstance(self.bias, Bias), f"{where}: bias", f"must be a Bias, got {self.bias!r}")
+        _check(isinstance(self.tunnelling, Tunnelling), f"{where}: tunnelling",
+               f"must be a Tunnelling choice, got {self.tunnelling!r}")
         _check(isinstance(self.integrator, Integrator), f"{where}: integrator",
                f"must be an Integrator, got {self.integrator!r}")
         _check(isinstance(self.slow_impacts, SlowImpacts), f"{where}: slow_impacts",
@@ -294,9 +314,11 @@ _TOP = {"scene", "simulation", "output", "bodies", "statics", "collisions"}
 _SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravity": "gravity",
         "contact_tolerance": "contact_tolerance", "qp_form": "qp_form", "qp_tolerance": "qp_tolerance",
         "separating": "separating", "corner_selection": "corner_selection", "bias": "bias",
-        "position_correction": "position_correction", "slow_impacts": "slow_impacts", "integrator": "integrator"}
+        "position_correction": "position_correction", "slow_impacts": "slow_impacts", "integrator": "integrator",
+        "tunnelling": "tunnelling"}
 _ENUMS = {"qp_form": QPForm, "separating": Separating, "corner_selection": Selection, "bias": Bias,
-          "position_correction": PositionCorrection, "slow_impacts": SlowImpacts, "integrator": Integrator}
+          "position_correction": PositionCorrection, "slow_impacts": SlowImpacts, "integrator": Integrator,
+          "tunnelling": Tunnelling}
 _BODY = {"name", "urdf", "mjcf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0", "package_dirs", "meshes"}
 _STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy"}
 

@@ -20,14 +20,16 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .contacts import CORNER, NO_CONTACTS, Contacts, CornerPieces, contact_rows, corner_pieces, detect, distinct
+from .contacts import (CORNER, NO_CONTACTS, Contacts, CornerPieces, contact_rows, corner_pieces, detect, distinct,
+                       pair_distances)
 from .corners import MAX_PIECES, select, stationary_points
 from .law import outcome, project
 from .model import Data, Model
 from .qp import QPResult
 from . import qp
 from .energy import kinetic, potential
-from .scene import Bias, PositionCorrection, QPForm, Separating, SlowImpacts
+from .scene import Bias, PositionCorrection, QPForm, Separating, SlowImpacts, Tunnelling
+from .tunnelling import swept_detect
 from .state import State
 
 _EMPTY = np.zeros(0)
@@ -71,8 +73,11 @@ def step(model: Model, data: Data, state: State, h: float, e: float, *, t_next: 
     q_m = pin.integrate(pm, q, 0.5 * h * u)
     # a corner struck within the step: the vertex may have crossed one face plane by up to the
     # distance it travels in the step (|u| times the largest lever arm, model.reach)
-    contacts = detect(model, data, q_m, corner_margin=h * float(np.abs(u).max(initial=0.0)) * model.reach)
+    travel = h * float(np.abs(u).max(initial=0.0)) * model.reach  # how far a vertex can move in the step
+    contacts = detect(model, data, q_m, corner_margin=travel)
     opts = model.scene.options
+    if opts.tunnelling is Tunnelling.SWEPT and travel > model.thinnest_pair:
+        contacts = swept_detect(model, data, q, u, h, q_m, contacts)  # a thin obstacle crossed in the step
     if contacts.m == 0 and not contacts.corners:
         u_next = free_velocity(model, data, q_m, u, h, opts.bias)
         q_next = pin.integrate(pm, q_m, 0.5 * h * u_next)
@@ -167,6 +172,11 @@ def _project_positions(model, data, q, u, q_next, u_next, g_next, M, W, Minv) ->
         dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
         if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
             return q_next, 0.0
+    # the displacement only knows the closed contacts: it must not push another pair into contact
+    # (a column of beads: pushing 2 off 1 pushes 1 into 0). Otherwise the step stays uncorrected.
+    before, after = pair_distances(model, data, q_next), pair_distances(model, data, q_c)
+    if (after < np.minimum(before, 0.0) - tol).any():
+        return q_next, 0.0
     return q_c, dE
 
 
