@@ -202,11 +202,16 @@ def _snap(model: Model, data: Data, pair, n: np.ndarray) -> np.ndarray:
 
 
 def _near_polytopes(model: Model, data: Data, tol: float) -> set:
-    """Pairs of two polytopes whose bounding spheres are within tol: examined for vertex contacts
-    whatever coal's narrow phase says (for exactly touching coplanar boxes it now and then reports
-    a gap of -5e-12 m as no collision, and a resting box would drop through its support)."""
+    """Pairs of two polytopes in contact at the previous detection whose bounding spheres are still
+    within tol: examined for vertex contacts whatever coal's narrow phase says (for exactly touching
+    coplanar boxes it now and then reports a gap of -5e-12 m as no collision, and a resting box
+    would drop through its support for a step)."""
     out = set()
+    if not data.closed_pairs:
+        return out
     for k, g1, g2, j1, j2 in model.polytope_pairs:
+        if k not in data.closed_pairs:
+            continue
         (_, c1, r1), (_, c2, r2) = model.bounds[g1], model.bounds[g2]
         o1, o2 = data.pin.oMi[j1], data.pin.oMi[j2]
         d = (o1.rotation @ c1 + o1.translation) - (o2.rotation @ c2 + o2.translation)
@@ -255,6 +260,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     coll = pin.computeCollisions(gm, gd, False)
     near = _near_polytopes(model, data, tol)
     if not coll and not near:
+        data.closed_pairs = set()
         return NO_CONTACTS
     margin = tol if corner_margin is None else max(tol, corner_margin)
     found: list = []
@@ -310,6 +316,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             found.append((c.penetration_depth, np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2()),
                           n, pair.index, WITNESS))
     corners = _merge_corners(model, corner_list, margin) if corner_list else ()
+    data.closed_pairs = {f[4] for f in found} | {c[4] for c in corner_list}
     if not found:
         return Contacts(*NO_CONTACTS_FIELDS, corners) if corners else NO_CONTACTS
     g, pa, pb, nn, pair_ids, feat = zip(*found)

@@ -175,9 +175,11 @@ class Model:
 
 
 class Data:
-    """Scratch reused by every step: Pinocchio data, coal results, cached queries.
+    """Scratch reused by every step: Pinocchio data, coal results, cached queries, and the pairs
+    that had contacts at the last detection (a hint that keeps a resting pair examined when coal's
+    narrow phase misses it for a step, contacts._near_polytopes).
 
-    Create one per thread with :func:`make_data`; it holds no state of the simulation."""
+    Create one per thread and per run with :func:`make_data`; the state itself is in State."""
 
     def __init__(self, model: Model):
         self.pin = model.pin.createData()
@@ -195,6 +197,7 @@ class Data:
             req.gjk_tolerance = req.epa_tolerance = GJK_TOLERANCE
         for preq in self.geom.contactPatchRequests:
             preq.setPatchTolerance(PATCH_TOLERANCE)
+        self.closed_pairs: set = set()  # pairs with contacts at the last detection (contacts.py)
         self.patch_request = coal.ContactPatchRequest()
         self.patch_request.setPatchTolerance(PATCH_TOLERANCE)
         self.patch_collision = coal.CollisionResult()

@@ -7,10 +7,15 @@
     v       = argmin_{W' v >= 0} 1/2 (v - v_free)' M (v - v_free)     (law.project, piqp)
     u_{k+1} = (1 + e) v - e u_k,    P = (1 + e) lam
     q_{k+1} = q_m (+) h/2 u_{k+1}
-A closed contact that separates at the start of the step (gamma_i^k > 0) takes e_i = 1 under
-the default rule Separating.ELASTIC (scene.py): the QP bound becomes
-w_i' v >= (e - 1) gamma_i^k / (1 + e), and the step's contact work is never positive.
-With no closed contact u_{k+1} = u_free exactly (computed by ABA, no QP).
+With no closed contact u_{k+1} = u_free exactly (ABA, no QP). The scene's rules (scene.py,
+each an option with its measured reason in README/docs) refine the plain step:
+  Separating.ELASTIC   e_i = 1 for a closed contact separating at the start of the step;
+  SlowImpacts.PLASTIC  e_i = 0 for an impact slower than one step of the smooth forces
+                       (both enter the QP as the bound w_i'v >= (e - e_i) gamma_i^k / (1 + e));
+  Bias.MIDPOINT        h(q_m, u) at the midpoint velocity (u_k + u_free)/2 (free_velocity);
+  PositionCorrection   q_{k+1} projected onto g >= 0 within the step's dissipated energy;
+  Tunnelling.SWEPT     contacts also looked for along the motion of a fast body;
+and a corner contact (impact-law.md §3) takes the set-valued law (_corner_law).
 """
 
 from __future__ import annotations
@@ -20,17 +25,17 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from . import qp
 from .contacts import (CORNER, NO_CONTACTS, Contacts, CornerPieces, contact_rows, corner_pieces, detect, distinct,
                        pair_distances)
 from .corners import MAX_PIECES, select, stationary_points
+from .energy import kinetic, potential
 from .law import outcome, project
 from .model import Data, Model
 from .qp import QPResult
-from . import qp
-from .energy import kinetic, potential
 from .scene import Bias, PositionCorrection, QPForm, Separating, SlowImpacts, Tunnelling
-from .tunnelling import swept_detect
 from .state import State
+from .tunnelling import swept_detect
 
 _EMPTY = np.zeros(0)
 
@@ -71,9 +76,9 @@ def step(model: Model, data: Data, state: State, h: float, e: float, *, t_next: 
     q, u = state.q, state.u
     t1 = state.t + h if t_next is None else t_next
     q_m = pin.integrate(pm, q, 0.5 * h * u)
-    # a corner struck within the step: the vertex may have crossed one face plane by up to the
-    # distance it travels in the step (|u| times the largest lever arm, model.reach)
-    travel = h * float(np.abs(u).max(initial=0.0)) * model.reach  # how far a vertex can move in the step
+    # how far a vertex can move in the step (|u| times the largest lever arm): a corner struck within
+    # the step may have crossed one face plane by up to this; a thinner pair may be passed through
+    travel = h * float(np.abs(u).max(initial=0.0)) * model.reach
     contacts = detect(model, data, q_m, corner_margin=travel)
     opts = model.scene.options
     if opts.tunnelling is Tunnelling.SWEPT and travel > model.thinnest_pair:
