@@ -2,7 +2,8 @@
 """Work-precision benchmark (issue 4): error against exact references vs CPU time per simulated
 second, for moreau-sim and the peers (MuJoCo, PyBullet default/tuned, Siconos), over step sizes.
 
-    PEERS_PYTHON=/work/peersenv/bin/python python scripts/work_precision.py --out docs/bench
+    pip install -e '.[peers]'; apt-get install -y python3-siconos   # the peers (optional)
+    python scripts/work_precision.py --out docs/bench
     python scripts/work_precision.py --quick --out /tmp/wp        # tiny sweep (smoke test)
 
 Errors (docs/benchmarks.md): bouncing ball - the first three rebound heights against e^(2n) d0;
