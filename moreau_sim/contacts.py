@@ -180,9 +180,23 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
                 out.append((d, p_on_other, Vw[i], nrm, pair, offset + i))
 
 
-_SNAP = 2e-2  # [rad] a patch normal this close to a face normal is that face normal (coal's EPA
-# normal of resting faces drifts by up to 4e-3 rad after round-off motion; a patch only forms for
-# faces parallel to within PATCH_TOLERANCE, so the nearest face normal is the right one)
+_SNAP = 0.5  # [rad] the patch is computed about the face normal nearest to coal's normal, if within
+# this: coal's EPA normal of exactly touching faces drifts (4e-3 rad seen, and now and then far
+# more); a patch only forms where faces are parallel (to PATCH_TOLERANCE), and face normals of a
+# box are 90 deg apart, so the nearest one is the contact normal there
+
+
+def _face_axis(model: Model, data: Data, pair) -> np.ndarray:
+    """For two polytopes: the face normal (of A or B, oriented B -> A) along which they are least
+    interpenetrating, s(n) = min_A n.x - max_B n.x largest: the normal of a face-on-face contact.
+    Used instead of coal's GJK/EPA normal, which for exactly touching boxes can point anywhere
+    (along a side face, 90 deg off, seen in a 10-box stack)."""
+    oa, ob = data.pin.oMi[pair.joint_first], data.pin.oMi[pair.joint_second]
+    Va = model.vertices[pair.first] @ oa.rotation.T + oa.translation
+    Vb = model.vertices[pair.second] @ ob.rotation.T + ob.translation
+    N = np.concatenate((-(model.face_normals[pair.first] @ oa.rotation.T), model.face_normals[pair.second] @ ob.rotation.T))
+    sep = (Va @ N.T).min(axis=0) - (Vb @ N.T).max(axis=0)
+    return N[int(np.argmax(sep))]
 
 
 def _snap(model: Model, data: Data, pair, n: np.ndarray) -> np.ndarray:
@@ -297,11 +311,11 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
         if pair.patch and not fallback and c.penetration_depth <= tol:
             # the patch (overlap polygon of parallel faces) about the face normal nearest to coal's
             # (whose EPA normal of resting faces drifts by up to 4e-3 rad: the polygon collapses)
-            n = _snap(model, data, pair, n)
+            n_face = _face_axis(model, data, pair) if pair.index in model.polytope_pair_set else _snap(model, data, pair, n)
             # with vertex contacts, a patch must lie in their plane: coal's normal of coplanar
             # aligned boxes can point along a side face, which is no contact at all
-            if len(found) == start or float(n @ found[start][3]) >= math.cos(_SNAP):
-                patch = _patch(data, pair, c, n)
+            if len(found) == start or float(n_face @ found[start][3]) >= 1.0 - 1e-9:
+                patch = _patch(data, pair, c, n_face)
                 k_patch = patch.size()
         if k_patch > 1:
             P1 = np.array([patch.getPointShape1(k) for k in range(k_patch)])
@@ -310,7 +324,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
                 known = np.array([f[1] for f in found[start:]])
                 new = np.abs(P1[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > _SAME_POINT
             for k in np.flatnonzero(new):
-                found.append((c.penetration_depth, P1[k], np.array(patch.getPointShape2(int(k))), n, pair.index,
+                found.append((c.penetration_depth, P1[k], np.array(patch.getPointShape2(int(k))), n_face, pair.index,
                               PATCH + int(k)))
         elif len(found) == start and c.penetration_depth <= tol:  # no vertex: edge-edge, smooth shapes
             found.append((c.penetration_depth, np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2()),

@@ -106,6 +106,9 @@ class Model:
             (p.index, p.first, p.second, p.joint_first, p.joint_second) for p in self.pairs
             if len(self.vertices[p.first]) and len(self.vertices[p.second])
             and self.bounds[p.first][0] == "sphere" and self.bounds[p.second][0] == "sphere"))
+        object.__setattr__(self, "_polytope_pair_set", frozenset(
+            p.index for p in self.pairs if len(self.face_normals[p.first]) and len(self.face_normals[p.second])
+            and len(self.vertices[p.first]) and len(self.vertices[p.second])))
         # does h(q, u) depend on u (Coriolis, gyroscopic)? A random state tells (structurally zero
         # for translations and prismatic chains); stepper.free_velocity skips the midpoint iteration.
         rng = np.random.default_rng(0)
@@ -140,6 +143,11 @@ class Model:
         """(pair index, geometry 1, geometry 2, joint 1, joint 2) of the pairs of two polytopes
         with bounding spheres (contacts._near_polytopes)."""
         return self._polytope_pairs
+
+    @property
+    def polytope_pair_set(self) -> frozenset:
+        """Indices of the pairs of two polytopes (contacts._face_axis)."""
+        return self._polytope_pair_set
 
     @property
     def velocity_bias(self) -> bool:
