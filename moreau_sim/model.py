@@ -263,11 +263,11 @@ def _root_joint(body: Body, where: str):
         return pin.JointModelPrismaticUnaligned(a) if kind == "P" else pin.JointModelRevoluteUnaligned(a)
     if rj is RootJoint.TRANSLATION:  # prismatic joints along each axis (world rates)
         j = pin.JointModelComposite()
-        for x in body.axes:
+        for x in body.axes or np.eye(3):
             j.addJoint(pin.JointModelPrismaticUnaligned(_unit(x, f"{where} axes")))
         return j
     # planar: translations along the two in-plane axes (world rates), then rotation about a x b.
-    a, b = (_unit(x, f"{where} axes") for x in body.axes)
+    a, b = (_unit(x, f"{where} axes") for x in (body.axes or ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0))))
     n = np.cross(a, b)
     j = pin.JointModelComposite()
     j.addJoint(pin.JointModelPrismaticUnaligned(a))
