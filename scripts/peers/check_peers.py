@@ -117,14 +117,18 @@ def box_row(label, peer, kw, e=0.5, h=1e-3, T=1.5):
     }
 
 
+def _error_line(r):
+    """A table row for a run that raised: label, e, h and the message, the other cells empty."""
+    return [r["label"], f"{r['e']:g}", f"{r['h']:g}", "ERROR: " + r["error"][:60], "", "", "", "", ""]
+
+
 def box_table(rows, md=False):
     head = ["peer/config", "e", "h", "max pen [mm]", "final centre z (rest height)",
             "axis up", "final min corner [mm]", "final speed", "CPU s/sim-s"]
     lines = []
     for r in rows:
         if "error" in r:
-            lines.append([r["label"], f"{r['e']:g}", f"{r['h']:g}", "ERROR: " + r["error"][:60],
-                          "", "", "", "", ""])
+            lines.append(_error_line(r))
             continue
         lines.append([r["label"], f"{r['e']:g}", f"{r['h']:g}",
                       f"{1000 * r['max_penetration']:.2f}",
@@ -161,8 +165,7 @@ def ball_table(rows, md=False):
     lines = []
     for r in rows:
         if "error" in r:
-            lines.append([r["label"], f"{r['e']:g}", f"{r['h']:g}", "ERROR: " + r["error"][:60],
-                          "", "", "", "", ""])
+            lines.append(_error_line(r))
             continue
         lines.append([
             r["label"], f"{r['e']:g}", f"{r['h']:g}",

@@ -70,17 +70,21 @@ def _z_to(n):
     return np.array([s / 2, a[0] / s, a[1] / s, a[2] / s])
 
 
+def _params(defaults, params, peer):
+    """The peer's default settings updated with `params`; unknown names are an error."""
+    unknown = sorted(set(params) - set(defaults))
+    if unknown:
+        raise ValueError(f"unknown {peer} parameter(s) {unknown}")
+    return {**defaults, **params}
+
+
 # ------------------------------------------------------------------------------------------ MuJoCo
 def run_mujoco(spec, **params):
     import mujoco
 
     import mujoco_runner as MR
 
-    P = dict(MR.PEER_DEFAULTS)
-    unknown = sorted(set(params) - set(P))
-    if unknown:
-        raise ValueError(f"unknown MuJoCo parameter(s) {unknown}")
-    P.update(params)
+    P = _params(MR.PEER_DEFAULTS, params, "MuJoCo")
     e, h, T = float(spec["e"]), float(spec["h"]), float(spec["T"])
     cs = MR._contact_settings(e, h, P)
     f = lambda v: " ".join(f"{float(x):.17g}" for x in v)  # noqa: E731
@@ -160,11 +164,7 @@ def run_pybullet(spec, **params):
 
     import pybullet_runner as PR
 
-    P = dict(PR.PEER_DEFAULTS)
-    unknown = sorted(set(params) - set(P))
-    if unknown:
-        raise ValueError(f"unknown PyBullet parameter(s) {unknown}")
-    P.update(params)
+    P = _params(PR.PEER_DEFAULTS, params, "PyBullet")
     if P["config"] not in PR.CONFIGS:
         raise ValueError(f"config must be one of {sorted(PR.CONFIGS)}")
     eng = dict(PR.CONFIGS[P["config"]])
