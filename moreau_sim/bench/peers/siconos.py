@@ -8,9 +8,12 @@ Method: the same class as moreau-sim - Moreau-Jean time stepping, MoreauJeanOSI(
 Newton impact law NewtonImpactNSL(e) per contact, one LCP per step (Lemke by default). Two spec
 shapes are expressible:
 - spheres on slide joints along one common line, with half-space statics: one 1-dof
-  LagrangianLinearTIDS per sphere in its absolute coordinate, contacts LagrangianLinearTIR(H, b)
-  with the gaps exactly as the spec's floating-point positions give them (Siconos switches a
-  contact on from the predicted gap with no tolerance: a gap of 5.6e-17 m from 0.2 * 3 is a gap);
+  LagrangianLinearTIDS per sphere, contacts LagrangianLinearTIR(H, b). Siconos switches a contact
+  on from the predicted gap with no tolerance (a gap of 1.1e-16 m from 0.2 * 3 is a gap), so by
+  default each sphere keeps its absolute coordinate and the gaps are exactly what the spec's
+  floating-point positions give (moreau-sim's input too: the cradle_rounding point);
+  exact_gaps=True writes the spheres in displacement coordinates with every initial gap rounded
+  to 1e-12 m (the work-precision cradle: Siconos given exact touching);
 - one free box over the half-space z >= 0: Siconos' mechanics toolbox, a RigidBodyDS (Newton-Euler,
   quaternion) with Bullet contact detection (SiconosBulletCollisionManager, all margins 0),
   Newton loop SICONOS_TS_NONLINEAR. With this manager NewtonImpactNSL + LCP throws in Siconos 4.4
@@ -33,6 +36,10 @@ DEFAULTS = {
     "lcp_solver": "lemke",  # lemke | pgs | enum | pivot
     "lcp_tolerance": 1e-12,
     "lcp_max_iterations": 100000,  # NSGS needs > 1000 on the resting box (mu = 0)
+    # spheres: False = absolute coordinates, each gap exactly as the spec's floating-point positions
+    # give it (what moreau-sim sees); True = displacement coordinates with every initial gap rounded
+    # to 1e-12 m (a touching cradle exactly touching, a 1 mm gap exactly 1e-3)
+    "exact_gaps": False,
     # free box only (Siconos' Bullet contact detection)
     "contact_breaking_threshold": 0.02,
     "perturbation_iterations": 3,
@@ -117,7 +124,8 @@ def _spheres(spec, P):
     dss = []
     for b in bodies:
         ax = np.asarray(b["axis"], float)
-        ds = sk.LagrangianLinearTIDS(np.array([float(b["q0"])]), np.array([float(b["u0"])]), np.array([[b["mass"]]]))
+        s0 = 0.0 if P["exact_gaps"] else float(b["q0"])
+        ds = sk.LagrangianLinearTIDS(np.array([s0]), np.array([float(b["u0"])]), np.array([[b["mass"]]]))
         ds.setFExtPtr(np.array([b["mass"] * float(g @ ax)]))
         nsds.insertDynamicalSystem(ds)
         dss.append(ds)
@@ -130,8 +138,10 @@ def _spheres(spec, P):
             if s["shape"] != "halfspace":
                 raise NotExpressible("the Siconos runner takes half-space statics only for spheres")
             n = np.asarray(s["normal"], float) / np.linalg.norm(s["normal"])
-            rel = sk.LagrangianLinearTIR(np.array([[float(n @ axa)]]),
-                                         np.array([float(n @ oa) - float(s["offset"]) - A["radius"]]))
+            b0 = float(n @ oa) - float(s["offset"]) - A["radius"]
+            if P["exact_gaps"]:
+                b0 = round(b0 + float(n @ axa) * float(A["q0"]), 12)
+            rel = sk.LagrangianLinearTIR(np.array([[float(n @ axa)]]), np.array([b0]))
             nsds.link(sk.Interaction(sk.NewtonImpactNSL(e), rel), dss[a])
             relations.append(f"body {a} - static {o[1:]}")
             continue
@@ -143,8 +153,10 @@ def _spheres(spec, P):
         cb = ob + float(B["q0"]) * axb
         sig = 1.0 if float((cb - ca) @ axa) > 0 else -1.0
         # gap = sig ((ob - oa).axis + s_b - s_a) - r_a - r_b, in the spec's absolute coordinates
-        rel = sk.LagrangianLinearTIR(np.array([[-sig, sig]]),
-                                     np.array([sig * float((ob - oa) @ axa) - A["radius"] - B["radius"]]))
+        b0 = sig * float((ob - oa) @ axa) - A["radius"] - B["radius"]
+        if P["exact_gaps"]:
+            b0 = round(b0 + sig * (float(B["q0"]) - float(A["q0"])), 12)
+        rel = sk.LagrangianLinearTIR(np.array([[-sig, sig]]), np.array([b0]))
         nsds.link(sk.Interaction(sk.NewtonImpactNSL(e), rel), dss[a], dss[o])
         relations.append(f"body {a} - body {o}")
     sim = sk.TimeStepping(nsds, sk.TimeDiscretisation(0.0, h), sk.MoreauJeanOSI(float(P["theta"])), _lcp(P))
@@ -157,10 +169,13 @@ def _spheres(spec, P):
 
     record(0)
     cpu = _simulate(sim, record, N)
+    if P["exact_gaps"]:
+        q += np.array([float(b["q0"]) for b in bodies])
     sl = slice(None, None, max(1, int(spec.get("stride", 1))))
-    settings = _settings(P, e, h) | {
-        "model": "1-dof LagrangianLinearTIDS per sphere (absolute coordinates), LagrangianLinearTIR gaps from "
-                 "the spec's floating-point positions", "relations": len(relations)}
+    coords = ("displacement coordinates, initial gaps rounded to 1e-12 m" if P["exact_gaps"] else
+              "absolute coordinates, gaps from the spec's floating-point positions")
+    settings = _settings(P, e, h) | {"model": f"1-dof LagrangianLinearTIDS per sphere ({coords}), LagrangianLinearTIR",
+                                     "exact_gaps": bool(P["exact_gaps"]), "relations": len(relations)}
     return {"peer": "siconos", "scene": spec["name"], "t": (np.arange(N + 1) * h)[sl],
             "bodies": [{"q": q[sl, j], "u": v[sl, j]} for j in range(len(dss))], "cpu_seconds": cpu,
             "settings": settings, "version": version()}
