@@ -1,0 +1,7 @@
+#!/usr/bin/env python
+"""Every available peer against the exact references: moreau_sim.bench.check_peers (python scripts/check_peers.py --help)."""
+
+from moreau_sim.bench.check_peers import main
+
+if __name__ == "__main__":
+    raise SystemExit(main())
