@@ -96,3 +96,14 @@ def corner_point_outcomes(e: float) -> set[tuple[float, float]]:
     """corner_point: the admissible post-impact velocities of a unit point mass at u- = (1, 1)
     into the corner of the walls x = 0 and z = 0 (corner-law.md): one wall, the other, or both."""
     return {(-e, 1.0), (1.0, -e), (-e, -e)}
+
+
+def ball_energy_lost(e: float, t_end: float, m: float = 1.0, d0: float = BALL_GAP, g: float = G) -> float:
+    """T + V the ball has lost by t_end [J]: (1 - e^(2n)) m g d0 after the n impacts at t_k <= t_end,
+    all of m g d0 once at rest (t_end >= t_inf)."""
+    if t_end >= zeno_time(e, d0, g):
+        return m * g * d0
+    n = 0
+    while ball_impact_times(e, n + 1, d0, g)[n] <= t_end:
+        n += 1
+    return m * g * d0 * (1 - e ** (2 * n))
