@@ -5,6 +5,8 @@ import pytest
 
 import moreau_sim as ms
 from conftest import BUNDLED, SCENES as ROOT_SCENES, run, scene
+from moreau_sim.bench.references import (ball_apex_gaps, ball_first_impact, ball_impact_times, cradle_simultaneous,
+                                         zeno_bounces, zeno_time)
 
 G, R, D0 = 9.81, 0.1, 0.9  # bouncing_ball: gravity, radius, initial gap of the centre at 1 m
 
@@ -44,7 +46,7 @@ def test_bouncing_ball_apex_ratios(e, h, correction):
     traj = run("bouncing_ball", restitution=e, dt=h, duration=1.0 if e == 0 else 3.0, position_correction=correction)
     g, u = traj.q[:, 0] - R, traj.u[:, 0]
     if e == 0.0:  # no bounce: at rest after the first impact, inside by less than h |u-|
-        after = traj.t > np.sqrt(2 * D0 / G) + 2 * h
+        after = traj.t > ball_first_impact(D0, G) + 2 * h
         assert np.all(u[after] == 0.0)
         assert -h * np.sqrt(2 * G * D0) - h * h * G <= g[after].min() <= 0.0
         if correction == "projection":  # the plastic impact dissipated enough to lift it out
@@ -59,7 +61,7 @@ def test_bouncing_ball_apex_ratios(e, h, correction):
             break
         apex = g[idx] + u[idx] ** 2 / (2 * G)  # invariant of the discrete flight
         assert np.ptp(apex) <= 1e-12
-        exact = e ** (2 * n) * D0
+        exact = ball_apex_gaps(e, n, D0)[-1]
         bound = 1e-11 if e == 1.0 else apex_bound(n, e, h, correction)
         assert abs(apex[0] - exact) <= bound, (n, apex[0], exact, bound)
         checked += 1
@@ -75,9 +77,8 @@ def test_zeno_ball_comes_to_rest_and_stays(e, h, correction):
     Each bounce's duration is off by O(h) (apex_bound), carried to the next ones times e, so the
     last one ends within 2 N h/(1-e) of t_inf; slower impacts are plastic (SlowImpacts.PLASTIC)
     and the ball then rests at once."""
-    t0 = np.sqrt(2 * D0 / G)
-    t_inf = t0 * (1 + 2 * e / (1 - e))
-    n_bounces = np.log(h * G / np.sqrt(2 * G * D0)) / np.log(e)
+    t_inf = zeno_time(e, D0, G)
+    n_bounces = zeno_bounces(e, h, D0, G)
     t_rest = t_inf + 2 * n_bounces * h / (1 - e)
     traj = run("bouncing_ball", restitution=e, dt=h, duration=t_rest + 0.6, position_correction=correction)
     rest = traj.t >= t_rest
@@ -94,7 +95,7 @@ def test_slow_impact_rule_ends_the_accumulation():
     """Pins SlowImpacts.PLASTIC: with e for every impact the tail of bounces of speed ~hG lasts
     many steps after t_inf; with the rule the ball rests within a few steps of t_inf."""
     e, h = 0.8, 1e-3
-    t_inf = np.sqrt(2 * D0 / G) * (1 + 2 * e / (1 - e))
+    t_inf = zeno_time(e, D0, G)
     last = {}
     for rule in ("plastic", "restitution"):
         traj = run("bouncing_ball", restitution=e, dt=h, duration=t_inf + 1.0, slow_impacts=rule,
@@ -109,8 +110,7 @@ def test_slow_impact_rule_ends_the_accumulation():
 def test_touching_cradle_gives_the_simultaneous_result(e):
     """u+_1 = (1+e)/N - e, u+_(i>1) = (1+e)/N (the M-projection onto non-decreasing velocities)."""
     traj = run("newton_cradle_5", restitution=e, duration=0.05)
-    expected = np.full(5, (1 + e) / 5)
-    expected[0] -= e
+    expected = cradle_simultaneous(e)
     np.testing.assert_allclose(traj.u[-1], expected, rtol=0, atol=1e-14)
     assert abs(traj.u[-1].sum() - 1.0) <= 1e-14  # momentum (equal masses of 1 kg)
     E = traj.total_energy
@@ -239,7 +239,6 @@ def test_event_driven_integrator_from_the_scene_file(tmp_path):
     p = tmp_path / "ball.toml"
     p.write_text(text.replace("../models/", str(ROOT_SCENES.parent / "models") + "/"))
     traj = ms.simulate(ms.build_model(ms.load_scene(p)), progress=False)
-    e, t0 = 0.8, np.sqrt(2 * D0 / G)
-    expected = t0 + np.cumsum([0.0] + [2 * t0 * e ** n for n in range(1, 5)])
+    expected = ball_impact_times(0.8, 5, D0, G)
     np.testing.assert_allclose(traj.log_t[traj.log_impact][:5], expected, rtol=0, atol=1e-9)
     assert traj.meta["integrator"] == "event-driven"

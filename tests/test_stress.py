@@ -14,6 +14,7 @@ import pytest
 
 import moreau_sim as ms
 from conftest import SCENES, run, scene
+from moreau_sim.bench.references import cradle_simultaneous, zeno_rest_bound, zeno_time
 from moreau_sim.tunnelling import motion_bounds, pair_distance, swept_contacts, swept_stepping
 
 G = 9.81
@@ -49,22 +50,13 @@ def free_drift(model, traj):
 D0_ZENO = 0.5  # zeno_ball: initial gap [m] (centre at 0.6 m, r = 0.1 m)
 
 
-def zeno_rest_bound(e, h):
-    """|t_rest - t_inf| <= 2 N h/(1-e) + 2 ln(1e-12/(hG))/ln(e) h: the N = ln(hG/v0)/ln(e) bounces
-    faster than hG each end O(h) off (carried to the next times e), and a residual speed <= hG
-    then dies out by e every two steps (Separating.ELASTIC), or at once where slow impacts are
-    plastic. The scene's stated bound (zeno_ball.toml)."""
-    n = np.log(h * G / np.sqrt(2 * G * D0_ZENO)) / np.log(e)
-    return 2 * n * h / (1 - e) + 2 * np.log(1e-12 / (h * G)) / np.log(e) * h
-
-
 @pytest.mark.parametrize("e,h,correction", [(0.5, 1e-3, "none"), (0.5, 1e-3, "projection"),
                                             (0.8, 1e-3, "none"), (0.8, 1e-3, "projection"),
                                             (0.95, 1e-3, "none"), (0.95, 1e-3, "projection"),
                                             (0.8, 1e-2, "none"), (0.8, 1e-2, "projection")])
 def test_zeno_ball_rests_near_t_inf_and_stays_still(e, h, correction):
-    t_inf = np.sqrt(2 * D0_ZENO / G) * (1 + 2 * e / (1 - e))
-    bound = zeno_rest_bound(e, h)
+    t_inf = zeno_time(e, D0_ZENO)
+    bound = zeno_rest_bound(e, h, D0_ZENO)  # the scene's stated bound (zeno_ball.toml)
     traj = run("zeno_ball", restitution=e, dt=h, duration=t_inf + bound + 10.0 + 10 * h,
                position_correction=correction)
     speed = np.abs(traj.u[:, 0])
@@ -319,17 +311,11 @@ def test_column_of_beads(name, duration, correction):
 
 
 # ----------------------------------------------------------------------------- 8. cradle_rounding
-def cradle_reference(e):
-    ref = np.full(5, (1 + e) / 5)
-    ref[0] -= e
-    return ref
-
-
 @pytest.mark.parametrize("name", ["cradle_rounding", "cradle_rounding_perturbed", "newton_cradle_5"])
 @pytest.mark.parametrize("e", [1.0, 0.5, 0.0])
 def test_cradle_rounding_gives_the_exact_touching_result(name, e):
     traj = run(name, restitution=e, duration=0.05)
-    np.testing.assert_allclose(traj.u[-1], cradle_reference(e), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(traj.u[-1], cradle_simultaneous(e), rtol=0, atol=1e-14)
 
 
 def test_cradle_random_1e16_perturbations(tmp_path):
@@ -344,7 +330,7 @@ def test_cradle_random_1e16_perturbations(tmp_path):
         p = tmp_path / f"cradle_{v}.toml"
         p.write_text(t)
         traj = ms.run(p, duration=0.05)
-        np.testing.assert_allclose(traj.u[-1], cradle_reference(1.0), rtol=0, atol=1e-14)
+        np.testing.assert_allclose(traj.u[-1], cradle_simultaneous(1.0), rtol=0, atol=1e-14)
 
 
 # ---------------------------------------------------------------------- 9. slider_crank_clearance
