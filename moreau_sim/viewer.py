@@ -30,7 +30,8 @@ import pinocchio as pin
 
 from .errors import MoreauSimError
 from .model import Model, build_model
-from .scene import Options, parse_scene
+from .options import Options
+from .scene import parse_scene
 from .trajectory import Trajectory, load_trajectory
 
 DEFAULT_FPS = 100.0  # frames kept per simulated second (0: every sample)
@@ -228,9 +229,9 @@ def scene_data(traj: Trajectory | str | Path, model: Model | None = None, fps: f
         "scene": (meta.get("scene") or {}).get("name") or model.scene.name,
         "description": (meta.get("scene") or {}).get("description") or "",
         "status": meta.get("status"),
-        "restitution": model.scene.options.restitution,
-        "dt": model.scene.options.dt,
-        "gravity": list(model.scene.options.gravity),
+        "restitution": model.options.restitution,
+        "dt": model.options.dt,
+        "gravity": list(model.options.gravity),
         "geometries": geoms,
         "moving": moving,
         "t": np.round(ft, 9).tolist(),
