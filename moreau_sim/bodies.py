@@ -27,7 +27,7 @@ def root_joint(body: Body, where: str):
     if rj is RootJoint.FREE:
         # translation (world-frame rates) then spherical (body-frame angular velocity): unlike
         # the FreeFlyer's body-frame twist, the explicit bias term then leaves the linear momentum
-        # of free flight exact and drifts less in energy (pinocchio-coal-piqp.md C4).
+        # of free flight exact and drifts less in energy (docs/theory.md §2.4).
         j = pin.JointModelComposite()
         j.addJoint(pin.JointModelTranslation())
         j.addJoint(pin.JointModelSpherical())

@@ -184,7 +184,7 @@ def _shape(geometry) -> dict:
 
 
 def _contacts(traj: Trajectory, ft: np.ndarray) -> list[list[list[float]]]:
-    """Per frame i: the percussions logged in (ft[i-1], ft[i]], summed per (pair, feature):
+    """Per frame i: the percussions logged in (ft[i-1], ft[i]], summed per contact (pair, kind, feature):
     [px, py, pz, nx, ny, nz, P, impact] with the point and normal of the latest step."""
     a = traj.arrays
     lt = a["log_t"]
@@ -194,7 +194,7 @@ def _contacts(traj: Trajectory, ft: np.ndarray) -> list[list[list[float]]]:
     for j, b in zip(order, bins):
         if b >= len(ft):
             continue
-        key = (int(a["log_pair"][j]), int(a["log_feature"][j]))
+        key = (int(a["log_pair"][j]), int(a["log_kind"][j]), int(a["log_feature"][j]))
         prev = out[b].get(key)
         P = float(a["log_P"][j]) + (prev[6] if prev else 0.0)
         imp = bool(a["log_impact"][j]) or bool(prev and prev[7])
