@@ -3,26 +3,37 @@ restitution e) in a midpoint Moreau time-stepper, on Pinocchio + coal + piqp.
 
     import moreau_sim as ms
     traj = ms.run("scenes/bouncing_ball.toml", dt=1e-3, restitution=0.8)
+
+Each name below has one home (its module); this namespace re-exports the public ones.
 """
 
-from .contacts import Contacts, contact_rows, detect, pair_distances
+from .constraints import Constraints, assemble_constraints, contact_rows
+from .contacts import Contacts, FeatureKind, detect, pair_distances
+from .data import Data, make_data
 from .errors import MoreauSimError, SceneError, SimulationError
-from .law import Impact, impact, outcome, project
-from .model import Data, Model, build_model, initial_state, make_data
+from .event_driven import UnsupportedModel, simulate_event_driven
+from .law import Impact, impact, outcome, percussion, project
+from .model import Model, build_model, initial_state
+from .options import (Bias, Integrator, MeshMode, Options, PositionCorrection, QPForm, RootJoint, Selection,
+                      Separating, SlowImpacts, StaticShape, Tunnelling)
+from .outcomes import Outcome, impact_outcomes
 from .qp import QPResult
-from .scene import (Bias, Integrator, Options, PositionCorrection, QPForm, RootJoint, Scene, Separating,
-                    SlowImpacts, load_scene, parse_scene)
+from .recording import Recorder
+from .scene import Scene, load_scene, parse_scene
 from .simulate import run, simulate, summary
 from .state import State
-from .stepper import StepResult, step
+from .stepper import ContactProblem, ImpactSolution, StepResult, assemble, correct_positions, solve_impact, step
 from .trajectory import Trajectory, load_trajectory
-from .outcomes import Outcome, impact_outcomes
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "Bias", "Contacts", "Data", "Impact", "Integrator", "Model", "Outcome", "PositionCorrection", "SlowImpacts", "MoreauSimError", "Options", "QPForm", "QPResult", "RootJoint",
-    "Scene", "SceneError", "Separating", "SimulationError", "State", "StepResult", "Trajectory", "build_model",
-    "contact_rows", "detect", "impact", "impact_outcomes", "initial_state", "load_scene", "load_trajectory", "make_data",
-    "outcome", "pair_distances", "parse_scene", "project", "run", "simulate", "step", "summary",
+    "Bias", "ContactProblem", "Constraints", "Contacts", "Data", "FeatureKind", "Impact", "ImpactSolution",
+    "Integrator", "MeshMode", "Model", "MoreauSimError", "Options", "Outcome", "PositionCorrection", "QPForm",
+    "QPResult", "Recorder", "RootJoint", "Scene", "SceneError", "Selection", "Separating", "SimulationError",
+    "SlowImpacts", "State", "StaticShape", "StepResult", "Trajectory", "Tunnelling", "UnsupportedModel",
+    "assemble", "assemble_constraints", "build_model", "contact_rows", "correct_positions", "detect", "impact",
+    "impact_outcomes", "initial_state", "load_scene", "load_trajectory", "make_data", "outcome", "pair_distances",
+    "parse_scene", "percussion", "project", "run", "simulate", "simulate_event_driven", "solve_impact", "step",
+    "summary",
 ]

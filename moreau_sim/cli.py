@@ -1,4 +1,4 @@
-"""`moreau-sim`: thin command line over the public API (run, info, plot)."""
+"""`moreau-sim`: thin command line over the public API (run, info, outcomes, plot, sweep, view)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""Contact detection with coal: the closed contacts H(q) with signed gaps g_i, witness points,
-normals, and their rows w_i (impact-law.md, notation).
+"""Contact detection with coal: the closed contacts H(q) with signed gaps g_i, witness points
+and normals (docs/theory.md §6). Their rows w_i are built in constraints.py.
 
 Method (general, no special case per shape pair): for every collision pair whose gap is
 <= the contact tolerance (coal's narrow phase with a security margin gates this),
@@ -8,7 +8,7 @@ Method (general, no special case per shape pair): for every collision pair whose
      a vertex is only queried when a cheap lower bound of that distance (the other shape's
      bounding sphere, or its plane for a half-space) is within tolerance, so none is missed.
      (coal's own contact normal is not used for this: for exactly touching boxes its EPA
-     normal can be tilted by ~5 deg at its default GJK/EPA tolerance; model.GJK_TOLERANCE.)
+     normal can be tilted by ~5 deg at its default GJK/EPA tolerance; data.GJK_TOLERANCE.)
   2. where two faces are parallel (to within the tolerance), the corners of coal's contact
      patch, the polygon where the faces overlap (two equal boxes stacked with a yaw touch only
      along the octagon of their overlap: no vertex of either lies on the other), except those
@@ -25,7 +25,7 @@ gamma = w' u is the normal relative velocity (> 0 separating).
 
 from __future__ import annotations
 
-import itertools
+import enum
 import math
 from dataclasses import dataclass
 
@@ -33,17 +33,27 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from .model import Data, Model
+from .data import Data
+from .model import Model
 
-WITNESS = -1  # feature id of coal's closest-point contact; >= 0: vertex index (B's offset by len(A's))
-CORNER = 20_000  # feature id CORNER + f: face f of a corner (the way of staying apart that pushed)
-PATCH = 10_000  # feature id PATCH + k: corner k of coal's contact patch (overlap polygon of two faces)
+
+
+class FeatureKind(enum.IntEnum):
+    """What a contact is, with its index `feature` within the kind (docs/theory.md §6)."""
+
+    VERTEX = 0  # polytope vertex `feature` of the pair (B's vertices numbered after A's)
+    WITNESS = 1  # coal's closest-point contact of the pair (feature 0)
+    PATCH = 2  # corner `feature` of coal's contact patch (the overlap polygon of two parallel faces)
+    CORNER = 3  # face `feature` of a corner: the way of staying apart that pushed (docs/theory.md §3)
+    SWEPT = 4  # found by the swept test along a fast motion (tunnelling.py; feature 0)
+
+
 _SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact
 
 
 @dataclass(frozen=True, slots=True)
 class Corner:
-    """A closed contact where the gap is not smooth (impact-law.md §3): a vertex at an edge or a
+    """A closed contact where the gap is not smooth (docs/theory.md §3): a vertex at an edge or a
     vertex of a box, within the contact tolerance of k >= 2 face planes. Each face is one way of
     staying apart: normals (k, 3) from B to A (unit), at the point; the admissible set there is
     the union of the k half-spaces {n_f'(v_A(p) - v_B(p)) >= 0}, not their intersection.
@@ -66,9 +76,10 @@ class Contacts:
     """The closed contacts at one configuration: m smooth ones in arrays, and the corners.
 
     g (m,) signed gaps [m]; point_a / point_b (m, 3) witness points on A and B [m, world];
-    normal (m, 3) unit normals from B to A; pair (m,) collision-pair index; feature (m,)
-    WITNESS, a vertex index or PATCH + k; joint_a / joint_b (m,) Pinocchio joints of A and B;
-    corners: the non-smooth contacts (:class:`Corner`), handled by the set-valued law.
+    normal (m, 3) unit normals from B to A; pair (m,) collision-pair index; kind (m,)
+    :class:`FeatureKind` values; feature (m,) the index within the kind; joint_a / joint_b (m,)
+    Pinocchio joints of A and B; corners: the non-smooth contacts (:class:`Corner`), handled by
+    the set-valued law.
     """
 
     g: np.ndarray
@@ -76,34 +87,45 @@ class Contacts:
     point_b: np.ndarray
     normal: np.ndarray
     pair: np.ndarray
+    kind: np.ndarray
     feature: np.ndarray
     joint_a: np.ndarray
     joint_b: np.ndarray
     corners: tuple = ()
 
+    ARRAYS = ("g", "point_a", "point_b", "normal", "pair", "kind", "feature", "joint_a", "joint_b")
+
     @property
     def m(self) -> int:
         return len(self.g)
 
+    @staticmethod
+    def empty(corners: tuple = ()) -> "Contacts":
+        """No smooth contact (and these corners)."""
+        z3, z = np.zeros((0, 3)), np.zeros(0)
+        zi = np.zeros(0, dtype=np.int64)
+        return Contacts(z, z3, z3, z3, zi, zi, zi, zi, zi, corners)
+
     def select(self, keep: np.ndarray) -> "Contacts":
         """The smooth contacts where `keep` is true (corners unchanged)."""
-        return Contacts(self.g[keep], self.point_a[keep], self.point_b[keep], self.normal[keep], self.pair[keep],
-                        self.feature[keep], self.joint_a[keep], self.joint_b[keep], self.corners)
+        return Contacts(*(getattr(self, f)[keep] for f in Contacts.ARRAYS), self.corners)
+
+    def concat(self, *others: "Contacts", corners: tuple | None = None) -> "Contacts":
+        """These contacts followed by `others`' smooth contacts; corners: self's unless given."""
+        return Contacts(*(np.concatenate([getattr(self, f)] + [getattr(o, f) for o in others]) for f in Contacts.ARRAYS),
+                        self.corners if corners is None else corners)
+
+    def keys(self) -> set:
+        """{(pair, kind, feature)} of the smooth contacts: which contacts these are, across steps."""
+        return set(zip(self.pair.tolist(), self.kind.tolist(), self.feature.tolist()))
 
 
-def _empty() -> Contacts:
-    z3, z = np.zeros((0, 3)), np.zeros(0)
-    zi = np.zeros(0, dtype=np.int64)
-    return Contacts(z, z3, z3, z3, zi, zi, zi, zi)
-
-
-NO_CONTACTS = _empty()
-NO_CONTACTS_FIELDS = tuple(getattr(NO_CONTACTS, f) for f in Contacts.__slots__[:-1])
+NO_CONTACTS = Contacts.empty()
 
 
 def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p: np.ndarray,
                     margin: float) -> np.ndarray | None:
-    """The ways of staying apart of vertex i of g_vert touching box g_other at p (impact-law.md
+    """The ways of staying apart of vertex i of g_vert touching box g_other at p (docs/theory.md
     §3): the outward normals (world) of g_other's faces whose signed distance from p is within
     `margin` of the largest one (the faces p is nearest to, or crossed within the step) and whose
     planes leave the vertex's own local cone (its edges) on their outer side - a face plane the
@@ -133,16 +155,16 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
         return
     oMi, oMo = data.pin.oMi[joint_v], data.pin.oMi[joint_other]
     Vw = V @ oMi.rotation.T + oMi.translation
-    kind, a, b = model.bounds[g_other]  # a lower bound of each vertex's distance (model._bound)
+    kind, a, b = model.bounds[g_other]  # a lower bound of each vertex's distance (shapes.distance_bound)
     if kind == "plane":  # a half-space: the bound is the exact signed distance, no coal query needed
         n = oMo.rotation @ a
         est = Vw @ n - (b + n @ oMo.translation)
         for i in np.flatnonzero(est <= tol):
             d = float(est[i])
             if v_is_a:
-                out.append((d, Vw[i], Vw[i] - d * n, n, pair, offset + i))
+                out.append((d, Vw[i], Vw[i] - d * n, n, pair, FeatureKind.VERTEX, offset + i))
             else:
-                out.append((d, Vw[i] - d * n, Vw[i], -n, pair, offset + i))
+                out.append((d, Vw[i] - d * n, Vw[i], -n, pair, FeatureKind.VERTEX, offset + i))
         return
     est = np.sqrt(((Vw - (oMo.rotation @ a + oMo.translation)) ** 2).sum(axis=1)) - b
     cand = np.flatnonzero(est <= tol)
@@ -175,9 +197,9 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
             if faces is not None:  # one face separates: a smooth contact with its exact normal
                 nrm = -faces[0]
             if v_is_a:
-                out.append((d, Vw[i], p_on_other, -nrm, pair, offset + i))
+                out.append((d, Vw[i], p_on_other, -nrm, pair, FeatureKind.VERTEX, offset + i))
             else:
-                out.append((d, p_on_other, Vw[i], nrm, pair, offset + i))
+                out.append((d, p_on_other, Vw[i], nrm, pair, FeatureKind.VERTEX, offset + i))
 
 
 _SNAP = 0.5  # [rad] the patch is computed about the face normal nearest to coal's normal, if within
@@ -221,10 +243,10 @@ def _near_polytopes(model: Model, data: Data, tol: float) -> set:
     coplanar boxes it now and then reports a gap of -5e-12 m as no collision, and a resting box
     would drop through its support for a step)."""
     out = set()
-    if not data.closed_pairs:
+    if not data.warm_start_pairs:
         return out
     for k, g1, g2, j1, j2 in model.polytope_pairs:
-        if k not in data.closed_pairs:
+        if k not in data.warm_start_pairs:
             continue
         (_, c1, r1), (_, c2, r2) = model.bounds[g1], model.bounds[g2]
         o1, o2 = data.pin.oMi[j1], data.pin.oMi[j2]
@@ -270,11 +292,11 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     pin.updateGeometryPlacements(pm, pd, gm, gd, q)
     if not model.pairs:
         return NO_CONTACTS
-    tol = model.scene.options.contact_tolerance
+    tol = model.options.contact_tolerance
     coll = pin.computeCollisions(gm, gd, False)
     near = _near_polytopes(model, data, tol)
     if not coll and not near:
-        data.closed_pairs = set()
+        data.warm_start_pairs = set()
         return NO_CONTACTS
     margin = tol if corner_margin is None else max(tol, corner_margin)
     found: list = []
@@ -302,7 +324,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
         c = res.getContact(0)
         n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
         fallback = not (abs(c.penetration_depth) < 1e100 and math.isfinite(n @ n))
-        if fallback:  # EPA at model.GJK_TOLERANCE can fail on deep box-box overlaps: redo at coal's defaults
+        if fallback:  # EPA at data.GJK_TOLERANCE can fail on deep box-box overlaps: redo at coal's defaults
             c = _fallback_contact(data, pair)
             if c is None:
                 continue
@@ -325,19 +347,25 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
                 new = np.abs(P1[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > _SAME_POINT
             for k in np.flatnonzero(new):
                 found.append((c.penetration_depth, P1[k], np.array(patch.getPointShape2(int(k))), n_face, pair.index,
-                              PATCH + int(k)))
+                              FeatureKind.PATCH, int(k)))
         elif len(found) == start and c.penetration_depth <= tol:  # no vertex: edge-edge, smooth shapes
             found.append((c.penetration_depth, np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2()),
-                          n, pair.index, WITNESS))
+                          n, pair.index, FeatureKind.WITNESS, 0))
     corners = _merge_corners(model, corner_list, margin) if corner_list else ()
-    data.closed_pairs = {f[4] for f in found} | {c[4] for c in corner_list}
+    data.warm_start_pairs = {f[4] for f in found} | {c[4] for c in corner_list}
     if not found:
-        return Contacts(*NO_CONTACTS_FIELDS, corners) if corners else NO_CONTACTS
-    g, pa, pb, nn, pair_ids, feat = zip(*found)
+        return Contacts.empty(corners) if corners else NO_CONTACTS
+    return from_rows(model, found, corners)
+
+
+def from_rows(model: Model, rows: list, corners: tuple = ()) -> Contacts:
+    """Contacts from rows (g, point_a, point_b, normal, pair, kind, feature)."""
+    g, pa, pb, nn, pair_ids, kind, feat = zip(*rows)
     pair_ids = np.array(pair_ids, dtype=np.int64)
     joints = model.pair_joints[pair_ids]
     return Contacts(np.array(g, float), np.array(pa), np.array(pb), np.array(nn), pair_ids,
-                    np.array(feat, dtype=np.int64), joints[:, 0], joints[:, 1], corners)
+                    np.array(kind, dtype=np.int64), np.array(feat, dtype=np.int64), joints[:, 0], joints[:, 1],
+                    corners)
 
 
 def _merge_corners(model: Model, items: list, margin: float) -> tuple:
@@ -361,104 +389,9 @@ def _merge_corners(model: Model, items: list, margin: float) -> tuple:
     return tuple(out)
 
 
-# Levi-Civita as a (9, 3) matrix: (p x n) = outer(p, n).reshape(9) @ _EPS9 (np.cross costs ~20 us)
-_EPS9 = np.zeros((3, 3, 3))
-_EPS9[0, 1, 2] = _EPS9[1, 2, 0] = _EPS9[2, 0, 1] = 1.0
-_EPS9[0, 2, 1] = _EPS9[2, 1, 0] = _EPS9[1, 0, 2] = -1.0
-_EPS9 = _EPS9.reshape(3, 9).T.copy()
-
-
-def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
-    """W = [w_1 ... w_m] (nv, m), the gradients of the gaps mapped to velocity space.
-
-    Needs data.pin.J = the WORLD joint Jacobians at the same q as `contacts`
-    (pin.crba(..., Convention.WORLD) or pin.computeJointJacobians fill it).
-    w_i = n_i' (J_A(p_A) - J_B(p_B)) = n' J_lin + (p x n)' J_ang: the unit wrench [n; p x n] at the
-    world origin applied to the WORLD Jacobian, masked to the joints that move each body."""
-    m = contacts.m
-    if m == 0:
-        return np.zeros((model.nv, 0))
-    J = data.pin.J.reshape(6, -1)  # (Pinocchio hands a 1-dof model's J over as shape (6,))
-    n = contacts.normal
-    nn = np.concatenate((n, n))
-    p = np.concatenate((contacts.point_a, contacts.point_b))
-    R = nn @ J[:3] + (p[:, :, None] * nn[:, None, :]).reshape(-1, 9) @ (_EPS9 @ J[3:])  # (2m, nv): A, then B
-    mask = model.support_mask
-    return (R[:m] * mask[contacts.joint_a] - R[m:] * mask[contacts.joint_b]).T
-
-
-_UPPER: dict[int, np.ndarray] = {}
-
-
-def distinct(contacts: Contacts, W: np.ndarray) -> tuple[Contacts, np.ndarray]:
-    """Drop contacts whose row w_i repeats an earlier one (to 1e-12 relative): the same
-    constraint twice, e.g. the front and back corners of a planar block. Keeps the first."""
-    m = W.shape[1]
-    if m < 2:
-        return contacts, W
-    upper = _UPPER.get(m)
-    if upper is None:
-        upper = _UPPER[m] = np.triu(np.ones((m, m), bool), 1)
-    same = np.abs(W[:, :, None] - W[:, None, :]).max(axis=0) <= 1e-12 * (1.0 + np.abs(W).max())
-    dup = (same & upper).any(axis=0)
-    if not dup.any():
-        return contacts, W
-    keep = ~dup
-    return contacts.select(keep), W[:, keep]
-
-
 def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
     """Signed distance [m] of every collision pair at q (for records and plots, not the step)."""
     if not model.pairs:
         return np.zeros(0)
     pin.computeDistances(model.pin, data.pin, model.geom, data.geom, q)
     return np.array([r.min_distance for r in data.geom.distanceResults])
-
-
-@dataclass(frozen=True, slots=True)
-class CornerPieces:
-    """The pieces of the admissible cone of one step (impact-law.md §3).
-
-    rows[c]: (k_c, nv) rows of corner c's faces (distinct, non-zero), corners[c] its Corner;
-    pieces: one (n_corners, nv) array per choice of one face per corner (itertools.product
-    order); choice[j]: the face index per corner of piece j."""
-
-    corners: tuple
-    rows: tuple
-    pieces: tuple
-    choice: tuple
-
-
-def corner_pieces(model: Model, data: Data, contacts: Contacts, W: np.ndarray):
-    """Rows of every corner's faces; a corner left with one distinct non-zero row becomes a
-    smooth contact (appended to contacts and W); corners whose rows repeat another's (the front
-    and back of a planar block) are dropped. Returns (contacts, W, CornerPieces or None)."""
-    keep_c, keep_r = [], []
-    extra = []
-    for c in contacts.corners:
-        k = len(c.normals)
-        one = Contacts(np.full(k, c.g), np.tile(c.point_a, (k, 1)), np.tile(c.point_b, (k, 1)), c.normals,
-                       np.full(k, c.pair), np.arange(k) + CORNER, np.full(k, c.joint_a), np.full(k, c.joint_b))
-        R = contact_rows(model, data, one).T  # (k, nv)
-        scale = 1e-12 * (1.0 + np.abs(R).max())
-        idx = [i for i in range(k) if np.abs(R[i]).max() > scale
-               and not any(np.abs(R[i] - R[j]).max() <= scale for j in range(i))]
-        if not idx:
-            continue
-        if len(idx) == 1:
-            extra.append((one.select(np.isin(np.arange(k), idx)), R[idx].T))
-            continue
-        Rk = R[idx]
-        if any(len(r) == len(Rk) and all(np.abs(r - x).max(axis=1).min() <= scale for x in Rk) for r in keep_r):
-            continue
-        keep_c.append(Corner(c.g, c.point_a, c.point_b, c.normals[idx], c.pair, c.joint_a, c.joint_b, c.features))
-        keep_r.append(Rk)
-    for one, col in extra:
-        contacts = Contacts(*(np.concatenate((getattr(contacts, f), getattr(one, f)))
-                              for f in Contacts.__slots__[:-1]), contacts.corners)
-        W = np.concatenate((W, col), axis=1)
-    if not keep_c:
-        return Contacts(*(getattr(contacts, f) for f in Contacts.__slots__[:-1])), W, None
-    choice = tuple(itertools.product(*(range(len(r)) for r in keep_r)))
-    pieces = tuple(np.array([keep_r[c][f] for c, f in enumerate(ch)]) for ch in choice)
-    return contacts, W, CornerPieces(tuple(keep_c), tuple(keep_r), pieces, choice)

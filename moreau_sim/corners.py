@@ -1,4 +1,4 @@
-"""The set-valued Newton impact law at re-entrant corners (impact-law.md §3; Glocker 2000, §3.4).
+"""The set-valued Newton impact law at re-entrant corners (docs/theory.md §3; Glocker 2000, §3.4).
 
 The admissible velocities form a finite union of polyhedral convex cones (the contingent cone)
 
@@ -36,23 +36,24 @@ by one direct KKT solve; every decision (row active, v in a piece, duplicate v, 
 residual, facet interior, distance tie relative to 1/2 |v0|_M^2) uses tau = sqrt(tol).
 Units: velocities in generalized units (m/s, rad/s), M in kg and kg m^2, distance in J; the
 multipliers lam satisfy M (v - v0) = [A_j; ...; W']' lam (N s for gap rows in m); the percussion
-of an impact or step is P = (1 + e) lam (impact-law.md §2).
+of an impact or step is P = (1 + e) lam (docs/theory.md §2).
 """
 
 from __future__ import annotations
 
-import enum
 import itertools
 from dataclasses import dataclass
 
 import numpy as np
-import piqp
 from scipy.optimize import linprog, nnls
+
+from . import qp
+from .law import outcome
+from .options import Selection, check_restitution
 
 MAX_PIECES = 6  # 2^6 - 1 = 63 QPs; more pieces means the contact model is wrong, not big.
 
-__all__ = ["MAX_PIECES", "Candidate", "CornerSolution", "Selection", "impact_outcomes", "select",
-           "stationary_points"]
+__all__ = ["MAX_PIECES", "Candidate", "CornerSolution", "impact_outcomes", "select", "stationary_points"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,14 +82,6 @@ class CornerSolution:
     unique: bool
     qp_solves: int  # projections actually solved (<= 2^p - 1; subsets containing v0 are free)
     lp_solves: int  # small LPs of the stationarity checks
-
-
-class Selection(enum.Enum):
-    """Which stationary point the stepper continues with (all deterministic)."""
-
-    GLOBAL_MIN = "global-min"  # least distance; ties -> lowest `pieces` tuple (lexicographic)
-    SYMMETRIC = "symmetric"    # unique minimizer, else the corner point of the tied pieces
-    FIRST = "first"            # lowest `pieces` tuple whatever the distance (caller's priority)
 
 
 def stationary_points(M, v0, pieces, W=None, *, tol: float = 1e-9) -> CornerSolution:
@@ -166,11 +159,10 @@ def impact_outcomes(M, u_minus, e, pieces, W=None, *,
                     tol: float = 1e-9) -> list[tuple[Candidate, np.ndarray]]:
     """Every post-impact velocity u+ = (1 + e) v - e u- [velocity], one per stationary point v,
     in the order of stationary_points(M, u_minus, ...). e: the global restitution in [0, 1]."""
-    e = _check_e(e)
+    e = check_restitution(e)
     M, u_minus, pieces, W, tol = _validate(M, u_minus, pieces, W, tol, "u_minus")
     sol = stationary_points(M, u_minus, pieces, W, tol=tol)
-    return [(c, u_minus.copy() if np.array_equal(c.v, u_minus) else (1.0 + e) * c.v - e * u_minus)
-            for c in sol.candidates]
+    return [(c, outcome(np.asarray(c.v), u_minus, e)) for c in sol.candidates]
 
 
 def select(solution: CornerSolution, policy: Selection | str = Selection.GLOBAL_MIN) -> int:
@@ -200,28 +192,13 @@ def select(solution: CornerSolution, policy: Selection | str = Selection.GLOBAL_
 # --- internals ---------------------------------------------------------------------------------
 
 def _project(Mn, v0n, G, tol):
-    """argmin 1/2 (v - v0)' M (v - v0) s.t. G v >= 0 (impact-law.md §1), and its multipliers."""
-    solver = piqp.DenseSolver()
-    solver.settings.verbose = False
+    """argmin 1/2 (v - v0)' M (v - v0) s.t. G v >= 0 (docs/theory.md §1), and its multipliers:
+    the package's one projection (qp.solve), to eps = tol/10, polished by least squares."""
     eps = max(tol / 10.0, 1e-14)   # the duality-gap test defaults to 1e-8: set it too (else ~1e-7 in v)
-    solver.settings.eps_abs = solver.settings.eps_rel = eps
-    solver.settings.eps_duality_gap_abs = solver.settings.eps_duality_gap_rel = eps
-    solver.setup(Mn, -Mn @ v0n, None, None, G, np.zeros(G.shape[0]), None)
-    status = solver.solve()
-    if status != piqp.PIQP_SOLVED:
-        raise RuntimeError(f"corner projection QP failed: {status}")
-    v, z = solver.result.x.copy(), solver.result.z_l.copy()
-    # polish on the strictly active rows: M (v - v0) = G_a' z_a, G_a v = 0, solved directly
-    act = z > np.sqrt(tol) * max(1.0, float(np.max(z)))
-    if np.any(act):
-        Ga = G[act]
-        MiG = np.linalg.solve(Mn, Ga.T)
-        za = np.linalg.lstsq(Ga @ MiG, -Ga @ v0n, rcond=None)[0]
-        vp = v0n + MiG @ za
-        if np.all(za >= 0.0) and np.all(G @ vp >= -tol):
-            v, z = vp, np.zeros_like(z)
-            z[act] = za
-    return v, z
+    res = qp.solve(Mn, G.T, v0n, eps=eps, polish=qp.Polish.LEAST_SQUARES, screen=False, polish_tol=tol)
+    if not res.ok:
+        raise RuntimeError(f"corner projection QP failed: {res.status}")
+    return res.v, res.lam
 
 
 def _clarke_stationary(vn, g, rows, tau, lp) -> bool:
@@ -311,16 +288,6 @@ def _frozen(a) -> np.ndarray:
     a = np.array(a, dtype=float)
     a.setflags(write=False)
     return a
-
-
-def _check_e(e) -> float:
-    try:
-        e = float(e)
-    except (TypeError, ValueError):
-        raise ValueError(f"e (restitution) must be a number in [0, 1], got {e!r}") from None
-    if not 0.0 <= e <= 1.0:
-        raise ValueError(f"e (restitution) must lie in [0, 1], got {e!r}")
-    return e
 
 
 def _validate(M, v0, pieces, W, tol, v_name):

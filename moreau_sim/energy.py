@@ -1,11 +1,12 @@
-"""Energies of a state (the ledger of impact-law.md §1-2). Units: J."""
+"""Energies of a state (the ledger, docs/theory.md §5). Units: J."""
 
 from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
 
-from .model import Data, Model
+from .data import Data
+from .model import Model
 
 
 def kinetic(model: Model, data: Data, q: np.ndarray, u: np.ndarray) -> float:

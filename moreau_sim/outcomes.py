@@ -1,4 +1,4 @@
-"""Every admissible outcome of an impact at a given state (impact-law.md §1 and §3).
+"""Every admissible outcome of an impact at a given state (docs/theory.md §1 and §3).
 
 At a smooth contact configuration the law has one outcome (the proximal point); at a corner
 (a vertex at an edge or vertex of a box) the admissible set is a union of cones and every
@@ -11,12 +11,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
-from .contacts import contact_rows, corner_pieces, detect, distinct
+from .constraints import assemble_constraints
+from .contacts import detect
 from .corners import select, stationary_points
-from .law import impact
-from .model import Data, Model, make_data
+from .data import Data, make_data
+from .law import impact, outcome
+from .model import Model
 from .state import State
 
 
@@ -40,25 +41,21 @@ def impact_outcomes(model: Model, state: State, *, e: float | None = None, data:
     """All admissible outcomes of the impact at `state` (q, u- = u), with no forces, restitution
     e (default: the scene's). The contacts are those closed at q (gap <= contact_tolerance)."""
     data = data or make_data(model)
-    e = model.scene.options.restitution if e is None else e
+    e = model.options.restitution if e is None else e
     q, u = state.q, state.u
-    c = detect(model, data, q)
-    M = pin.crba(model.pin, data.pin, q, pin.Convention.WORLD)
-    c, W = distinct(c, contact_rows(model, data, c))
-    cp = None
-    if c.corners:
-        c, W, cp = corner_pieces(model, data, c, W)
+    cs = assemble_constraints(model, data, q, detect(model, data, q))
+    M, W, cp = cs.M, cs.W, cs.pieces
     T_minus = 0.5 * float(u @ M @ u)
     if cp is None:
         imp = impact(M, W, u, e)
         return [Outcome(imp.u_plus, imp.qp.v, 0.5 * float((u - imp.qp.v) @ M @ (u - imp.qp.v)),
                         T_minus - 0.5 * float(imp.u_plus @ M @ imp.u_plus), True, "smooth", True)]
     sol = stationary_points(M, u, list(cp.pieces), W if W.shape[1] else None)
-    chosen = select(sol, model.scene.options.corner_selection)
+    chosen = select(sol, model.options.corner_selection)
     out = []
     for k, cand in enumerate(sol.candidates):
         v = np.asarray(cand.v)
-        u_plus = u.copy() if np.array_equal(v, u) else v - e * (u - v)
+        u_plus = outcome(v, u, e)
         faces = " + ".join(
             ", ".join(f"corner {i}: n = {np.round(cp.corners[i].normals[cp.choice[j][i]], 3).tolist()}"
                       for i in range(len(cp.corners))) for j in cand.pieces)

@@ -1,10 +1,10 @@
-"""Thin piqp wrappers for the impact QP, one result type for both forms.
+"""The one QP projection of the package (piqp), serving the impact law and the corner law.
 
 primal (velocity space):  v = argmin 1/2 (v - v0)' M (v - v0)  s.t.  W' v >= b
 dual   (contact space):   lam = argmin 1/2 lam' G lam + lam' (W' v0 - b),  lam >= 0,
                           G = W' M^-1 W (Delassus),  v = v0 + M^-1 W lam
-Both return (v, lam) with M (v - v0) = W lam (impact-law.md §1; b = 0 there, the stepper
-shifts b only for closed contacts that separate, see stepper.py). After piqp the solution is
+Both return (v, lam) with M (v - v0) = W lam (docs/theory.md §1; b = 0 there, the per-contact
+restitution rules shift b, docs/theory.md §2.7). After piqp the solution is
 polished on its active set A = {lam_i > 0}: G_AA lam_A = b_A - W_A' v0 is solved directly and
 kept when it satisfies the KKT conditions to round-off, which makes single impacts and the
 cradle exact to round-off instead of to piqp's tolerance.
@@ -12,6 +12,7 @@ cradle exact to round-off instead of to piqp's tolerance.
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,7 +20,7 @@ import piqp
 import scipy.linalg.lapack
 import scipy.optimize
 
-from .scene import QPForm
+from .options import QPForm
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,17 +96,29 @@ def _polish(W, v0, b, Minv, lam):
     return vp, lp
 
 
+class Polish(enum.Enum):
+    """How piqp's answer is refined on its active set (docs/theory.md §1)."""
+
+    ACTIVE_SET = "active-set"  # the law: exact KKT solve on A = {lam_i > 0} (LAPACK; NNLS if redundant)
+    LEAST_SQUARES = "least-squares"  # the corner law: least squares on the strictly active rows
+    NONE = "none"  # piqp's answer as it is
+
+
 def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None = None,
           Minv: np.ndarray | None = None, form: QPForm = QPForm.PRIMAL, eps: float = 1e-10,
-          max_iter: int = 250, polish: bool = True) -> QPResult:
+          max_iter: int = 250, polish: Polish = Polish.ACTIVE_SET, screen: bool = True,
+          polish_tol: float = 1e-9) -> QPResult:
     """Project v0 onto {v : W' v >= b} (b = 0 by default) in the metric M with piqp.
 
-    Minv: M^-1 if the caller has it (Pinocchio's computeMinverse), else it is computed."""
+    Minv: M^-1 if the caller has it (Pinocchio's computeMinverse), else it is computed.
+    screen: return v0 itself when it is already admissible to round-off (no QP).
+    polish_tol: the acceptance tolerance of Polish.LEAST_SQUARES (rows with multipliers above
+    sqrt(polish_tol) are active; the polished v must satisfy W'v >= -polish_tol)."""
     m = W.shape[1]
     b = np.zeros(m) if b is None else np.asarray(b, float)
-    if Minv is None:
+    if polish is Polish.ACTIVE_SET and Minv is None:
         Minv = np.linalg.inv(M)
-    if (W.T @ v0 - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
+    if screen and (W.T @ v0 - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
         return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), (M, W, v0, b))
     s = piqp.DenseSolver()
@@ -119,6 +132,8 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
         status = s.solve()
         v, lam = s.result.x.copy(), s.result.z_l.copy()
     else:
+        if Minv is None:
+            Minv = np.linalg.inv(M)
         MiW = Minv @ W
         s.setup(W.T @ MiW, W.T @ v0 - b, None, None, None, None, None, np.zeros(m), None)
         status = s.solve()
@@ -127,8 +142,29 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     iters = s.result.info.iter
     if status != piqp.PIQP_SOLVED:
         return QPResult(_STATUS.get(status, str(status)), False, iters, False, v, lam)
-    np.maximum(lam, 0.0, out=lam)
-    p = _polish(W, v0, b, Minv, lam) if polish else None
+    p = None
+    if polish is Polish.ACTIVE_SET:
+        np.maximum(lam, 0.0, out=lam)
+        p = _polish(W, v0, b, Minv, lam)
+    elif polish is Polish.LEAST_SQUARES:
+        p = _polish_least_squares(M, W, v0, lam, polish_tol)
     if p is not None:
         v, lam = p
     return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, (M, W, v0, b))
+
+
+def _polish_least_squares(M, W, v0, lam, tol):
+    """Re-solve on the strictly active rows (lam_i > sqrt(tol) max(1, lam)): M (v - v0) = W_a lam_a,
+    W_a' v = 0, by least squares; kept when lam_a >= 0 and W' v >= -tol (b = 0)."""
+    act = lam > np.sqrt(tol) * max(1.0, float(np.max(lam)))
+    if not np.any(act):
+        return None
+    Ga = W.T[act]
+    MiG = np.linalg.solve(M, Ga.T)
+    za = np.linalg.lstsq(Ga @ MiG, -Ga @ v0, rcond=None)[0]
+    vp = v0 + MiG @ za
+    if not (np.all(za >= 0.0) and np.all(W.T @ vp >= -tol)):
+        return None
+    z = np.zeros_like(lam)
+    z[act] = za
+    return vp, z

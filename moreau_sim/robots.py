@@ -27,7 +27,6 @@ as vertices and to snap patch normals); ``bvh`` keeps the triangle soup Pinocchi
 
 from __future__ import annotations
 
-import enum
 import functools
 import importlib.metadata
 import os
@@ -41,16 +40,10 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import SceneError
+from .options import MeshMode
 
 ENV_PACKAGE_PATH = "MOREAU_SIM_PACKAGE_PATH"
 ERD = "example-robot-data"
-
-
-class MeshMode(enum.Enum):
-    """How a body's collision meshes enter coal (docs/robots.md, "Mesh collision geometry")."""
-
-    CONVEX = "convex"  # convex hull (coal.ConvexBase): vertices + faces, rests flat on its hull
-    BVH = "bvh"  # the triangle mesh as loaded (coal.BVHModelOBBRSS): one contact per pair
 
 
 @functools.lru_cache(maxsize=None)

@@ -51,7 +51,8 @@ except ImportError:  # not POSIX: no lock
 
 from .errors import MoreauSimError, SceneError, SimulationError
 from .model import build_model
-from .scene import Options, Scene, load_scene
+from .options import Options
+from .scene import Scene, load_scene
 from .simulate import simulate, summary
 from .trajectory import Trajectory, load_trajectory
 

@@ -1,4 +1,5 @@
 """Recorded arrays + metadata, and the self-describing NPZ file format (docs/output.md).
+The schema below is the one list of arrays; recording.Recorder fills it for every integrator.
 
 Arrays (n = saved samples, k = logged contact percussions):
   t (n,) [s]; q (n, nq); u (n, nv); kinetic_energy, potential_energy (n,) [J];
@@ -6,10 +7,11 @@ Arrays (n = saved samples, k = logged contact percussions):
   correction_energy (n,) [J]: the change of T + V made by the position correction over those steps;
   gap (n, pairs) [m]: signed distance of each collision pair at the sample;
   n_contacts (n,): closed contacts in the step that produced the sample;
-  log_step, log_t [s] (step midpoint time), log_pair, log_feature, log_gap [m], log_P [N s],
+  log_step, log_t [s] (step midpoint time), log_pair, log_kind (contacts.FeatureKind value),
+  log_feature (index within the kind), log_gap [m], log_P [N s],
   log_gamma_minus, log_gamma_plus [m/s], log_point (k, 3) [m], log_normal (k, 3),
   log_impact (bool: the contact did not push in the previous step, i.e. a new impact);
-  branching steps (a corner impact with several admissible outcomes, impact-law.md §3), b of them:
+  branching steps (a corner impact with several admissible outcomes, docs/theory.md §3), b of them:
   branch_step, branch_t [s] (step midpoint), branch_chosen (index among the step's candidates),
   branch_start, branch_count (its candidates' rows in candidate_*); candidate_u_plus (c, nv),
   candidate_distance (c,) [J] (1/2 |v - v_free|_M^2), candidate_global_min (c,) bool.
@@ -28,11 +30,34 @@ from pathlib import Path
 
 import numpy as np
 
-ARRAYS = ("t", "q", "u", "kinetic_energy", "potential_energy", "contact_work", "correction_energy", "gap", "n_contacts",
-          "log_step", "log_t", "log_pair", "log_feature", "log_gap", "log_P", "log_gamma_minus",
-          "log_gamma_plus", "log_point", "log_normal", "log_impact",
-          "branch_step", "branch_t", "branch_chosen", "branch_start", "branch_count",
-          "candidate_u_plus", "candidate_distance", "candidate_global_min")
+FORMAT = "moreau-sim trajectory 2"  # 2: log_kind + log_feature (1: one feature id with kind offsets)
+
+# name -> (dtype, trailing shape); "nq", "nv", "pairs" are the model's sizes
+SAMPLES = {"t": (float, ()), "q": (float, ("nq",)), "u": (float, ("nv",)), "kinetic_energy": (float, ()),
+           "potential_energy": (float, ()), "contact_work": (float, ()), "correction_energy": (float, ()),
+           "gap": (float, ("pairs",)), "n_contacts": (np.int64, ())}
+LOG = {"log_step": (np.int64, ()), "log_t": (float, ()), "log_pair": (np.int64, ()), "log_kind": (np.int64, ()),
+       "log_feature": (np.int64, ()), "log_gap": (float, ()), "log_P": (float, ()), "log_gamma_minus": (float, ()),
+       "log_gamma_plus": (float, ()), "log_point": (float, (3,)), "log_normal": (float, (3,)), "log_impact": (bool, ())}
+BRANCHES = {"branch_step": (np.int64, ()), "branch_t": (float, ()), "branch_chosen": (np.int64, ()),
+            "branch_start": (np.int64, ()), "branch_count": (np.int64, ())}
+CANDIDATES = {"candidate_u_plus": (float, ("nv",)), "candidate_distance": (float, ()),
+              "candidate_global_min": (bool, ())}
+ARRAYS = tuple(SAMPLES) + tuple(LOG) + tuple(BRANCHES) + tuple(CANDIDATES)
+_FORMAT1_OFFSETS = ((30_000, 4), (20_000, 3), (10_000, 2))  # format 1 feature ids: SWEPT, CORNER, PATCH
+
+
+def _from_format1(arrays: dict) -> None:
+    """Split a format-1 log_feature (WITNESS = -1, PATCH + k, CORNER + f, SWEPT) into log_kind and
+    log_feature (FeatureKind values, as contacts.FeatureKind)."""
+    f = arrays["log_feature"].astype(np.int64)
+    kind = np.zeros_like(f)
+    feature = f.copy()
+    kind[f == -1], feature[f == -1] = 1, 0
+    for offset, k in _FORMAT1_OFFSETS:
+        sel = (f >= offset) & (kind == 0)
+        kind[sel], feature[sel] = k, f[sel] - offset
+    arrays["log_kind"], arrays["log_feature"] = kind, feature
 
 
 @dataclass(eq=False)
@@ -84,11 +109,14 @@ def load_trajectory(path: str | Path) -> Trajectory:
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
-            missing = [k for k in ARRAYS + ("meta",) if k not in z.files]
+            old = "log_kind" not in z.files
+            missing = [k for k in ARRAYS + ("meta",) if k not in z.files and not (old and k == "log_kind")]
             if missing:
                 raise ValueError(f"{path}: not a moreau-sim trajectory (missing {missing})")
             meta = json.loads(str(z["meta"]))
-            arrays = {k: z[k] for k in ARRAYS}
+            arrays = {k: z[k] for k in ARRAYS if k in z.files}
+            if old:
+                _from_format1(arrays)
     except ValueError as exc:
         if str(path) in str(exc):
             raise

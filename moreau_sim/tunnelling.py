@@ -1,15 +1,12 @@
-"""Swept contact detection: a standalone prototype against tunnelling (issue 5, ``fast_impact``).
+"""Swept contact detection against tunnelling (docs/theory.md §2.6, stress scene ``fast_impact``).
 
 The stepper closes a contact when its gap at the midpoint configuration is within the tolerance,
-g_i(q_m) <= tol (impact-law.md §2). A body that moves more than its overlap window in a step
-is then missed: a marble (r = 1 cm) at 50 m/s moves 5 cm per step at h = 1e-3, while it overlaps a
-1 cm plate over only 3 cm of travel. Worse, a midpoint that lands in the plate's far half gets
-coal's contact normal pointing *through* the plate, and the contact, seen as separating, pushes
-nothing. Both are measured in docs/stability.md (row ``fast_impact``).
-
-A contact activation margin (g_i(q_m) <= tol + h |gamma_i|) does not fix this: at a midpoint that
-is already past a thin obstacle the nearest feature, and so the normal, is on the wrong side. The
-fix is a swept test over the step's motion:
+g_i(q_m) <= tol. A body that moves more than its overlap window in a step is then missed: a
+marble (r = 1 cm) at 50 m/s moves 5 cm per step at h = 1e-3, while it overlaps a 1 cm plate over
+only 3 cm of travel. Worse, a midpoint that lands in the plate's far half gets coal's contact
+normal pointing *through* the plate, and the contact, seen as separating, pushes nothing. A
+contact activation margin (g_i(q_m) <= tol + h |gamma_i|) does not fix this: at a midpoint already
+past a thin obstacle the nearest feature, and so the normal, is on the wrong side.
 
     swept_contacts(model, data, q0, q1)
 
@@ -17,36 +14,26 @@ finds every collision pair whose shapes are apart at q0 and touch somewhere on t
 q(s) = q0 (+) s (q1 (-) q0), s in [0, 1] (Pinocchio's Lie-group interpolation), by conservative
 advancement with coal's signed distance: at s the pair is d(s) apart and no point of either shape
 moves faster than mu per unit s (:func:`motion_bounds`), so nothing can touch before
-s + d(s) / mu. It reports the first time of contact s*, the configuration there, the contact
-normal and witness points there, and whether the pair is apart again at q1 (``tunnels``: the
-endpoint tests see nothing at all). Coal's own continuous collision (``coal::continuousCollide``)
-is not exposed by coal's Python bindings (coal 3.0.3), hence conservative advancement here.
+s + d(s) / mu. (Coal's own continuous collision is not exposed by its Python bindings, 3.0.3.)
 
-Proposed wiring into ``contacts.detect`` / ``stepper.step`` (:func:`swept_detect`; and
-:func:`swept_stepping`, which patches it into a run for measurement only): sweep every pair that
-is apart at q_k over q_k -> q_k (+) 1.5 h u_k (to the next step's predicted midpoint); where it
-touches and the midpoint test misses it or sees it from the far side (and the next midpoint
-would too), take the contact with the first contact's normal and body-fixed witness points,
-carried rigidly to q_m, its gap being the signed distance of those points along that normal at
-q_m. The discrete Newton law gamma_{k+1} >= -e gamma_k then acts on the right side, and position
-correction (if any) pushes back the right way. Runs without tunnelling are unchanged. Cost: one
-coal distance per pair the motion can bring into contact (a broad phase with AABBs inflated by
-the motion bound would skip the rest), a few more for pairs that approach.
+:func:`swept_detect` corrects one step's midpoint contacts with it; the stepper calls it when the
+option ``tunnelling`` is ``swept`` and a body may move further in a step than the thinnest pair is
+thick, or on every step with ``tunnelling = "always"``.
 """
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass
 
 import coal
 import numpy as np
 import pinocchio as pin
 
-from .contacts import Contacts, NO_CONTACTS_FIELDS
-from .model import Data, Model
+from .contacts import Contacts, FeatureKind, from_rows
+from .data import Data
+from .model import Model
 
-__all__ = ["SweptContact", "motion_bounds", "pair_distance", "swept_contacts", "swept_detect", "swept_stepping"]
+__all__ = ["SweptContact", "motion_bounds", "pair_distance", "swept_contacts", "swept_detect"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,7 +135,7 @@ def swept_contacts(model: Model, data: Data, q0: np.ndarray, q1: np.ndarray, *, 
     (default all); max_iter: conservative-advancement iterations per pair; include_touching:
     also report pairs already within tol at q0 (with s = 0).
     Updates data's kinematics and geometry placements (to the last configuration examined)."""
-    tol = model.scene.options.contact_tolerance if tol is None else float(tol)
+    tol = model.options.contact_tolerance if tol is None else float(tol)
     pm = model.pin
     dq = pin.difference(pm, q0, q1)
     mu_g = motion_bounds(model, data, q0, q1)
@@ -207,7 +194,7 @@ def _carry(model: Model, data: Data, joint: int, q_from: np.ndarray, p: np.ndarr
 
 def swept_detect(model: Model, data: Data, q: np.ndarray, u: np.ndarray, h: float, q_m: np.ndarray,
                  contacts: Contacts) -> Contacts:
-    """The proposed active set of one step: `contacts` (detected at the midpoint q_m) corrected by a
+    """The active set of one step: `contacts` (detected at the midpoint q_m) corrected by a
     swept test over q_k = q -> q_k (+) 1.5 h u_k (up to the next step's midpoint if u stays).
 
     For every pair that is apart at q_k and touches on that path at time s* (in steps), with the
@@ -223,13 +210,13 @@ def swept_detect(model: Model, data: Data, q: np.ndarray, u: np.ndarray, h: floa
       rule's penetration). Otherwise the next step takes it as usual.
     A graze (a corner dipping below the plane and back within the path) changes nothing.
     A swept contact carries the first contact's normal and body-fixed witness points moved to q_m,
-    and as gap their signed distance along that normal at q_m (feature SWEPT). Non-tunnelling runs
+    and as gap their signed distance along that normal at q_m (kind FeatureKind.SWEPT). Non-tunnelling runs
     are unchanged. Limit: after a replaced contact q_{k+1} lies h|gamma|(1-e)/2 beyond q_k at most;
     an obstacle thinner than twice that can still be left on the wrong side (then a normal kept
     from the previous step would be needed).
 
     Leaves data's kinematics and geometry placements at q_m (as contacts.detect does)."""
-    tol = model.scene.options.contact_tolerance
+    tol = model.options.contact_tolerance
     q_far = pin.integrate(model.pin, q, 1.5 * h * u)
     drop: set = set()
     extra = []
@@ -253,65 +240,11 @@ def swept_detect(model: Model, data: Data, q: np.ndarray, u: np.ndarray, h: floa
             if r.min_distance <= tol and -np.array(r.normal) @ c.normal > 0.0:
                 continue  # the next step's midpoint takes it, as now
         drop.add(c.pair)
-        extra.append((g_m, pa, pb, c.normal, c.pair, SWEPT))
+        extra.append((g_m, pa, pb, c.normal, c.pair, FeatureKind.SWEPT, 0))
     pin.forwardKinematics(model.pin, data.pin, q_m)
     pin.updateGeometryPlacements(model.pin, data.pin, model.geom, data.geom, q_m)
     if not extra:
         return contacts
     keep = ~np.isin(contacts.pair, list(drop))
     base = contacts.select(keep) if contacts.m else contacts
-    g, pa, pb, nn, pair_ids, feat = (np.array(x) for x in zip(*extra))
-    joints = model.pair_joints[pair_ids.astype(np.int64)]
-    add = Contacts(g.astype(float), pa, pb, nn, pair_ids.astype(np.int64), feat.astype(np.int64),
-                   joints[:, 0], joints[:, 1])
-    fields = Contacts.__slots__[:-1]
-    return Contacts(*(np.concatenate((getattr(base, f), getattr(add, f))) for f in fields), contacts.corners)
-
-
-SWEPT = 30_000  # feature id of a contact added by the swept test
-
-
-@contextlib.contextmanager
-def swept_stepping():
-    """For measurement only (scripts/stability.py, tests): within this context every step of
-    ``moreau_sim.simulate`` / ``moreau_sim.step`` detects contacts with :func:`swept_detect`
-    (the midpoint contacts plus the swept ones), by temporarily wrapping the ``detect`` that
-    stepper.py calls. Not thread-safe; the lead wires the real thing into contacts.detect."""
-    import importlib
-
-    # (the package's attribute `simulate` is the function: fetch the modules themselves)
-    _simulate = importlib.import_module(f"{__package__}.simulate")
-    _stepper = importlib.import_module(f"{__package__}.stepper")
-
-    if not hasattr(_stepper, "detect") or not hasattr(_stepper, "step"):
-        raise RuntimeError("moreau_sim.stepper no longer has detect/step: update tunnelling.swept_stepping")
-    orig_detect, orig_step = _stepper.detect, _stepper.step
-    orig_sim_step = getattr(_simulate, "step", None)
-    current: dict = {}
-
-    def step(model, data, state, h, e, **kw):
-        current["args"] = (state.q, state.u, h)
-        try:
-            return orig_step(model, data, state, h, e, **kw)
-        finally:
-            current.pop("args", None)
-
-    def detect(model, data, q_m, **kw):
-        c = orig_detect(model, data, q_m, **kw)
-        if "args" not in current:
-            return c
-        q, u, h = current["args"]
-        if c.m == 0:
-            c = Contacts(*NO_CONTACTS_FIELDS, c.corners)
-        return swept_detect(model, data, q, u, h, q_m, c)
-
-    _stepper.detect = detect
-    _stepper.step = step
-    if orig_sim_step is not None:
-        _simulate.step = step
-    try:
-        yield
-    finally:
-        _stepper.detect, _stepper.step = orig_detect, orig_step
-        if orig_sim_step is not None:
-            _simulate.step = orig_sim_step
+    return base.concat(from_rows(model, extra))

@@ -30,7 +30,8 @@ import pinocchio as pin
 
 from .errors import MoreauSimError
 from .model import Model, build_model
-from .scene import Options, parse_scene
+from .options import Options
+from .scene import parse_scene
 from .trajectory import Trajectory, load_trajectory
 
 DEFAULT_FPS = 100.0  # frames kept per simulated second (0: every sample)
@@ -183,7 +184,7 @@ def _shape(geometry) -> dict:
 
 
 def _contacts(traj: Trajectory, ft: np.ndarray) -> list[list[list[float]]]:
-    """Per frame i: the percussions logged in (ft[i-1], ft[i]], summed per (pair, feature):
+    """Per frame i: the percussions logged in (ft[i-1], ft[i]], summed per contact (pair, kind, feature):
     [px, py, pz, nx, ny, nz, P, impact] with the point and normal of the latest step."""
     a = traj.arrays
     lt = a["log_t"]
@@ -193,7 +194,7 @@ def _contacts(traj: Trajectory, ft: np.ndarray) -> list[list[list[float]]]:
     for j, b in zip(order, bins):
         if b >= len(ft):
             continue
-        key = (int(a["log_pair"][j]), int(a["log_feature"][j]))
+        key = (int(a["log_pair"][j]), int(a["log_kind"][j]), int(a["log_feature"][j]))
         prev = out[b].get(key)
         P = float(a["log_P"][j]) + (prev[6] if prev else 0.0)
         imp = bool(a["log_impact"][j]) or bool(prev and prev[7])
@@ -228,9 +229,9 @@ def scene_data(traj: Trajectory | str | Path, model: Model | None = None, fps: f
         "scene": (meta.get("scene") or {}).get("name") or model.scene.name,
         "description": (meta.get("scene") or {}).get("description") or "",
         "status": meta.get("status"),
-        "restitution": model.scene.options.restitution,
-        "dt": model.scene.options.dt,
-        "gravity": list(model.scene.options.gravity),
+        "restitution": model.options.restitution,
+        "dt": model.options.dt,
+        "gravity": list(model.options.gravity),
         "geometries": geoms,
         "moving": moving,
         "t": np.round(ft, 9).tolist(),

@@ -98,7 +98,7 @@ def test_rows_box_on_box_vertex_and_edge(tmp_scene):
     q[:7] = np.r_[[0, 0, 0], pin.Quaternion(pin.rpy.rpyToMatrix(0, np.pi / 4, 0)).coeffs()]
     q[7:14] = np.r_[[0, -r, 6 * r - 1e-3], pin.Quaternion(pin.rpy.rpyToMatrix(np.pi / 4, 0, 0)).coeffs()]
     c = check_rows_by_finite_differences(model, q)
-    assert ms.contacts.WITNESS in c.feature.tolist()
+    assert ms.FeatureKind.WITNESS in c.kind.tolist()
 
 
 def test_active_set_counts_touching_bodies_despite_rounding():

@@ -17,7 +17,7 @@ def first_step(name, **options):
     model = ms.build_model(scene(name, **options))
     data = ms.make_data(model)
     o = model.scene.options
-    return ms.step(model, data, ms.initial_state(model), o.dt, o.restitution)
+    return ms.step(model, data, ms.initial_state(model), h=o.dt, e=o.restitution)
 
 
 @pytest.mark.parametrize("e,expected", [(1.0, {(-1, 1), (1, -1), (-1, -1)}), (0.0, {(0, 1), (1, 0), (0, 0)})])

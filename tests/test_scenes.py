@@ -207,7 +207,7 @@ def test_one_step_without_forces_is_the_impact_law():
     model = ms.build_model(scene("newton_cradle_5"))
     data = ms.make_data(model)
     st = ms.initial_state(model)
-    r = ms.step(model, data, st, 1e-3, 0.5)
+    r = ms.step(model, data, st, h=1e-3, e=0.5)
     import pinocchio as pin
 
     qm = pin.integrate(model.pin, st.q, 0.5e-3 * st.u)

@@ -1,4 +1,5 @@
-"""Event-driven reference integrator: smooth phases to tolerance, impacts at located instants.
+"""The event-driven integrator (docs/theory.md §7): smooth phases to tolerance, impacts at
+located instants.
 
     traj = simulate_event_driven(model)            # same Trajectory arrays as ms.simulate
 
@@ -23,9 +24,9 @@ within G_RES = 1e-13 m of contact (it just bounced or separated) is watched inst
 to G_RES and by its normal velocity returning below -2 V_TOL: the sign of so small a gap is
 rounding noise, and the root finder would take a noise crossing for an impact (while it rises,
 ODE steps stay below half its time to apex, so that no rise-and-fall hides inside one step).
-At every event (and at the start) :func:`_Integrator.resolve` applies, in order:
+At every event (and at the start) :func:`EventDrivenRun.resolve` applies, in order:
   1. Impact: if a closed feature (g <= the scene's contact_tolerance, 1e-9 m by default)
-     approaches (gamma < -V_TOL), the SAME law as the stepper, ``law.impact`` (impact-law.md §1)
+     approaches (gamma < -V_TOL), the SAME law as the stepper, ``law.impact`` (docs/theory.md §1)
      on the contacts ``contacts.detect`` closes at q (coal, tolerance 1e-9 m), with the scene's e.
   2. Zeno rule (accumulation points): the impact is plastic (e = 0) if, for every approaching
      contact, its rebound would rise less than G_ZENO = 1e-12 m, (e gamma-)^2 < 2 |a_n| G_ZENO
@@ -46,7 +47,6 @@ At every event (and at the start) :func:`_Integrator.resolve` applies, in order:
 
 from __future__ import annotations
 
-import datetime
 import time
 from dataclasses import dataclass, field
 
@@ -55,13 +55,15 @@ import numpy as np
 import pinocchio as pin
 from scipy.integrate import solve_ivp
 
-from .contacts import contact_rows, detect, distinct, pair_distances
-from .energy import kinetic, potential
+from .constraints import assemble_constraints
+from .contacts import detect
+from .data import Data, make_data
 from .errors import MoreauSimError, SimulationError
 from .law import impact, project
-from .model import Data, Model, initial_state, make_data
+from .model import Model, initial_state
+from .recording import LOG_RELATIVE, PercussionRow, Recorder, run_metadata
 from .state import State
-from .trajectory import ARRAYS, Trajectory
+from .trajectory import Trajectory
 
 V_TOL = 1e-9  # [m/s] |gamma| <= this on a closed feature: touching, not impacting
 G_RES = 1e-13  # [m] smallest gap whose sign is trusted (~3000x the rounding of positions ~ 1 m)
@@ -71,7 +73,6 @@ DT_ZENO = 1e-12  # [s] nor an impact this soon after the previous one
 LAM_EPS = 1e-9  # [N] a persistent contact is released when its multiplier falls below -LAM_EPS
 ACC_TOL = 1e-8  # [m/s^2] relative acceleration below this (scaled): a touching contact persists
 CHART_MAX = 1.0  # [rad or m] re-centre the Lie-group chart when |delta|_inf exceeds this
-_LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > this * max(P) (as simulate.py)
 
 
 class UnsupportedModel(MoreauSimError, ValueError):
@@ -146,21 +147,21 @@ class _FeatureState:
     gamma: np.ndarray
 
 
-class _Integrator:
+class EventDrivenRun:
     """One event-driven run (mutable bookkeeping; the public API is simulate_event_driven)."""
 
     def __init__(self, model: Model, data: Data, e: float, rtol: float, atol: float, method: str,
                  max_step: float, max_events: int):
         self.model, self.data, self.e = model, data, e
         # a feature is closed when its gap is <= this [m]: the tolerance contacts.detect uses
-        self.gap_tol = max(model.scene.options.contact_tolerance, G_RES)
+        self.gap_tol = max(model.options.contact_tolerance, G_RES)
         self.pm, self.pd = model.pin, data.pin
         self.nv = model.nv
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         self.feats = _features(model)
         self.rtol, self.atol, self.method, self.max_step, self.max_events = rtol, atol, method, max_step, max_events
         self.zero = np.zeros(self.nv)
-        self.log: list[tuple] = []
+        self.rec: Recorder | None = None  # set by simulate_event_driven
         self.zeno: list[dict] = []
         self.work = 0.0  # contact work since the last sample [J] (= -energy lost in impacts)
         self.last_impact = -np.inf
@@ -293,14 +294,14 @@ class _Integrator:
         return u, C, shadow
 
     def _impact(self, t, q, u, fs: _FeatureState) -> np.ndarray:
-        """The impact law (law.impact, impact-law.md §1) on the contacts detect() closes at q."""
+        """The impact law (law.impact, docs/theory.md §1) on the contacts detect() closes at q."""
         pm, pd, model = self.pm, self.pd, self.model
         c = detect(model, self.data, q)
         if c.corners:
-            raise SimulationError(f"t = {t:.12g} s: a corner impact (impact-law.md §3); the event-driven "
+            raise SimulationError(f"t = {t:.12g} s: a corner impact (docs/theory.md §3); the event-driven "
                                   "reference handles smooth contacts only", t=t)
-        M = pin.crba(pm, pd, q, pin.Convention.WORLD)  # also fills data.J (WORLD) for the rows
-        c, W = distinct(c, contact_rows(model, self.data, c))
+        cs = assemble_constraints(model, self.data, q, c)
+        c, M, W = cs.contacts, cs.M, cs.W
         if c.m == 0:
             raise SimulationError(f"t = {t:.12g} s: a gap event but coal finds no closed contact", t=t)
         gm = W.T @ u
@@ -320,10 +321,10 @@ class _Integrator:
             self.zeno.append({"t": t, "t_accumulation": float(t + dt), "speed": float(speed[k]),
                               "pairs": sorted(set(c.pair.tolist()))})
         gp = W.T @ imp.u_plus
-        cut = _LOG_RELATIVE * float(imp.P.max(initial=0.0))
-        for i in np.flatnonzero((imp.P > cut) & (imp.P > 0)):
-            self.log.append((t, int(c.pair[i]), int(c.feature[i]), float(c.g[i]), float(imp.P[i]), float(gm[i]),
-                             float(gp[i]), c.point_a[i].copy(), c.normal[i].copy()))
+        cut = LOG_RELATIVE * float(imp.P.max(initial=0.0))
+        for i in np.flatnonzero((imp.P > cut) & (imp.P > 0)):  # step: the index of the next sample
+            self.rec.log(PercussionRow(self.rec.n, t, int(c.pair[i]), int(c.kind[i]), int(c.feature[i]), float(c.g[i]),
+                                       float(imp.P[i]), float(gm[i]), float(gp[i]), c.point_a[i], c.normal[i], True))
         self.work -= imp.energy_loss
         self.last_impact = t
         self.impacts += 1
@@ -392,12 +393,17 @@ class _Integrator:
         up = (fs.gamma > V_TOL) & (a_n < 0)
         return float(min(self.max_step, *(0.5 * fs.gamma[up] / -a_n[up]))) if up.any() else self.max_step
 
-    def run(self, state: State, t_end: float, t_grid: np.ndarray, rec: "_Recorder") -> None:
+    def sample(self, t: float, q: np.ndarray, u: np.ndarray, n_contacts: int) -> None:
+        """Record a sample with the contact work since the previous one."""
+        self.rec.sample(State(t, q, u), self.work, 0.0, n_contacts)
+        self.work = 0.0
+
+    def run(self, state: State, t_end: float, t_grid: np.ndarray) -> None:
         nv, nf = self.nv, len(self.feats)
         t, q, u = float(state.t), np.array(state.q, float), np.array(state.u, float)
         gi = 0
         while gi < len(t_grid) and t_grid[gi] <= t:  # the initial state, before any impact (as simulate)
-            rec.sample(t, q, u, 0, self)
+            self.sample(t, q, u, 0)
             gi += 1
         released: frozenset = frozenset()
         stuck = 0
@@ -416,7 +422,7 @@ class _Integrator:
             t_stop, end = float(sol.t[-1]), sol.status == 0
             while gi < len(t_grid) and (t_grid[gi] < t_stop or (end and t_grid[gi] <= t_stop)):
                 y = sol.sol(t_grid[gi])
-                rec.sample(float(t_grid[gi]), self.q_of(qb, y[:nv]), y[nv:], len(C), self)
+                self.sample(float(t_grid[gi]), self.q_of(qb, y[:nv]), y[nv:], len(C))
                 gi += 1
             if end:
                 return
@@ -430,50 +436,6 @@ class _Integrator:
             q, u, t = self.q_of(qb, y[:nv]), y[nv:].copy(), t_stop
             released = frozenset(i for (kind, i), te in zip(tags, sol.t_events)
                                  if kind == "release" and len(te) and abs(te[-1] - t_stop) <= 1e-12)
-
-
-class _Recorder:
-    """Samples (t, q, u, energies, pair gaps) and, per log row, the index of the next sample."""
-
-    def __init__(self, model: Model, data: Data):
-        self.model, self.data = model, data
-        self.rows: list[tuple] = []
-        self.log_steps: list[int] = []
-
-    def sample(self, t, q, u, n_contacts, integ: _Integrator) -> None:
-        m, d = self.model, self.data
-        self.flush(integ)
-        q, u = np.array(q, float), np.array(u, float)
-        self.rows.append((t, q, u, kinetic(m, d, q, u), potential(m, d, q), integ.work,
-                          pair_distances(m, d, q), n_contacts))
-        integ.work = 0.0
-
-    def flush(self, integ: _Integrator) -> None:
-        self.log_steps.extend([len(self.rows)] * (len(integ.log) - len(self.log_steps)))
-
-    def arrays(self, log: list) -> dict[str, np.ndarray]:
-        nq, nv, npairs = self.model.nq, self.model.nv, len(self.model.pairs)
-        cols = list(zip(*self.rows)) if self.rows else [()] * 8
-        lc = list(zip(*log)) if log else [()] * 9
-        known = {
-            "t": np.array(cols[0], float), "q": np.array(cols[1], float).reshape(-1, nq),
-            "u": np.array(cols[2], float).reshape(-1, nv), "kinetic_energy": np.array(cols[3], float),
-            "potential_energy": np.array(cols[4], float), "contact_work": np.array(cols[5], float),
-            "gap": np.array(cols[6], float).reshape(-1, npairs), "n_contacts": np.array(cols[7], dtype=np.int64),
-            "log_step": np.array(self.log_steps, dtype=np.int64), "log_t": np.array(lc[0], float),
-            "log_pair": np.array(lc[1], dtype=np.int64), "log_feature": np.array(lc[2], dtype=np.int64),
-            "log_gap": np.array(lc[3], float), "log_P": np.array(lc[4], float),
-            "log_gamma_minus": np.array(lc[5], float), "log_gamma_plus": np.array(lc[6], float),
-            "log_point": np.array(lc[7], float).reshape(-1, 3), "log_normal": np.array(lc[8], float).reshape(-1, 3),
-            "log_impact": np.ones(len(log), dtype=bool),
-            "branch_step": np.zeros(0, np.int64), "branch_t": np.zeros(0), "branch_chosen": np.zeros(0, np.int64),
-            "branch_start": np.zeros(0, np.int64), "branch_count": np.zeros(0, np.int64),
-            "candidate_u_plus": np.zeros((0, nv)), "candidate_distance": np.zeros(0),
-            "candidate_global_min": np.zeros(0, dtype=bool),
-        }
-        # per-sample arrays of the time-stepper with no counterpart here (e.g. correction_energy:
-        # no position correction) are zeros
-        return {k: known[k] if k in known else np.zeros(len(self.rows)) for k in ARRAYS}
 
 
 def simulate_event_driven(model: Model, *, state: State | None = None, t_end: float | None = None,
@@ -499,7 +461,7 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     without an analytic gap, SimulationError (with .trajectory up to the failure) otherwise."""
     data = data or make_data(model)
     state = state or initial_state(model)
-    opts = model.scene.options
+    opts = model.options
     t_end = state.t + opts.duration if t_end is None else float(t_end)
     if not t_end > state.t:
         raise ValueError(f"t_end = {t_end} s must be after the initial time {state.t} s")
@@ -510,37 +472,21 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
         t_grid = np.asarray(t_eval, float)
         if t_grid.ndim != 1 or np.any(np.diff(t_grid) <= 0) or t_grid[0] < state.t or t_grid[-1] > t_end:
             raise ValueError(f"t_eval must increase strictly within [{state.t}, {t_end}] s")
-    integ = _Integrator(model, data, opts.restitution, rtol, atol, method, max_step, max_events)
-    rec = _Recorder(model, data)
+    integ = EventDrivenRun(model, data, opts.restitution, rtol, atol, method, max_step, max_events)
+    integ.rec = Recorder(model, data, len(t_grid))
     wall0 = time.perf_counter()
     try:
-        integ.run(state, t_end, t_grid, rec)
+        integ.run(state, t_end, t_grid)
     except SimulationError as exc:
-        rec.flush(integ)
-        exc.trajectory = Trajectory(rec.arrays(integ.log), _meta(model, integ, f"failed: {exc}", wall0))
+        exc.trajectory = integ.rec.trajectory(_meta(model, integ, f"failed: {exc}", wall0))
         raise
-    rec.flush(integ)
-    return Trajectory(rec.arrays(integ.log), _meta(model, integ, "complete", wall0))
+    return integ.rec.trajectory(_meta(model, integ, "complete", wall0))
 
 
-def _meta(model: Model, integ: _Integrator, status: str, wall0: float) -> dict:
-    from .simulate import versions  # late: simulate may dispatch to this module
-
-    sc = model.scene
-    return {
-        "format": "moreau-sim trajectory 1",
-        "status": status,
-        "integrator": "event-driven",
-        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "scene": {"name": sc.name, "description": sc.description, "path": str(sc.path) if sc.path else None,
-                  "toml": sc.source, "urdf": {b.name: b.urdf.read_text(encoding="utf-8") for b in sc.bodies}},
-        "options": sc.options.to_dict(),
-        "model": model.describe(),
-        "versions": versions(),
-        "reference": {"method": integ.method, "rtol": integ.rtol, "atol": integ.atol, "max_step": integ.max_step,
-                      "gap_tol": integ.gap_tol, "v_tol": V_TOL, "g_res": G_RES, "g_zeno": G_ZENO,
-                      "v_zeno": V_ZENO, "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "lie_group_chart": integ.lie},
-        "zeno": integ.zeno,
-        "run": {"steps": None, "events": integ.events, "impacts": integ.impacts, "nfev": integ.nfev,
-                "wall_seconds": time.perf_counter() - wall0},
-    }
+def _meta(model: Model, integ: EventDrivenRun, status: str, wall0: float) -> dict:
+    reference = {"method": integ.method, "rtol": integ.rtol, "atol": integ.atol, "max_step": integ.max_step,
+                 "gap_tol": integ.gap_tol, "v_tol": V_TOL, "g_res": G_RES, "g_zeno": G_ZENO, "v_zeno": V_ZENO,
+                 "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "lie_group_chart": integ.lie}
+    run = {"steps": None, "events": integ.events, "impacts": integ.impacts, "nfev": integ.nfev,
+           "wall_seconds": time.perf_counter() - wall0}
+    return run_metadata(model, status, run, integrator="event-driven", reference=reference, zeno=integ.zeno)

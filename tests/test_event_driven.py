@@ -6,7 +6,7 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.reference import UnsupportedModel, simulate_event_driven
+from moreau_sim.event_driven import EventDrivenRun, UnsupportedModel, simulate_event_driven
 from moreau_sim.trajectory import ARRAYS
 from moreau_sim.bench.references import (ball_apex_gaps, ball_apex_times, ball_first_impact, ball_impact_times,
                                          cradle_sequential, zeno_time)
@@ -158,10 +158,8 @@ def test_bad_sample_times():
 def test_feature_gaps_rows_and_drift_against_finite_differences(name):
     """The analytic gaps' first and second time derivatives along a motion (q, u, a):
     g' = w' u and g'' = w' a + drift, by central differences of q(t) = q (+) (t u + t^2/2 a)."""
-    from moreau_sim.reference import _Integrator
-
     model = ms.build_model(scene(name))
-    integ = _Integrator(model, ms.make_data(model), 0.5, 1e-12, 1e-12, "DOP853", 1e-2, 10)
+    integ = EventDrivenRun(model, ms.make_data(model), 0.5, 1e-12, 1e-12, "DOP853", 1e-2, 10)
     rng = np.random.default_rng(1)
     q = pin.integrate(model.pin, model.q0, 0.05 * rng.standard_normal(model.nv))
     u, a = rng.standard_normal(model.nv), rng.standard_normal(model.nv)

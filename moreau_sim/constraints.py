@@ -1,0 +1,146 @@
+"""The constraints of the closed contacts: their rows w_i (the gradients of the gaps mapped to
+velocity space, W = [w_1 ... w_m]), duplicate rows merged, and the pieces of the admissible cone
+at corners (docs/theory.md §1, §3, §6).
+
+    assemble_constraints(model, data, q, contacts) -> Constraints(contacts, M, W, pieces)
+
+is the one assembly every caller uses (the stepper, the outcome analysis, the event-driven
+integrator, the benchmarks): M(q) by CRBA (which also fills the WORLD joint Jacobians the rows
+need), the rows, distinct rows, then the corner pieces.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from .contacts import Contacts, Corner, FeatureKind
+from .data import Data
+from .model import Model
+
+
+# Levi-Civita as a (9, 3) matrix: (p x n) = outer(p, n).reshape(9) @ _EPS9 (np.cross costs ~20 us)
+_EPS9 = np.zeros((3, 3, 3))
+_EPS9[0, 1, 2] = _EPS9[1, 2, 0] = _EPS9[2, 0, 1] = 1.0
+_EPS9[0, 2, 1] = _EPS9[2, 1, 0] = _EPS9[1, 0, 2] = -1.0
+_EPS9 = _EPS9.reshape(3, 9).T.copy()
+
+
+def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
+    """W = [w_1 ... w_m] (nv, m), the gradients of the gaps mapped to velocity space.
+
+    Needs data.pin.J = the WORLD joint Jacobians at the same q as `contacts`
+    (pin.crba(..., Convention.WORLD) or pin.computeJointJacobians fill it).
+    w_i = n_i' (J_A(p_A) - J_B(p_B)) = n' J_lin + (p x n)' J_ang: the unit wrench [n; p x n] at the
+    world origin applied to the WORLD Jacobian, masked to the joints that move each body."""
+    m = contacts.m
+    if m == 0:
+        return np.zeros((model.nv, 0))
+    J = data.pin.J.reshape(6, -1)  # (Pinocchio hands a 1-dof model's J over as shape (6,))
+    n = contacts.normal
+    nn = np.concatenate((n, n))
+    p = np.concatenate((contacts.point_a, contacts.point_b))
+    R = nn @ J[:3] + (p[:, :, None] * nn[:, None, :]).reshape(-1, 9) @ (_EPS9 @ J[3:])  # (2m, nv): A, then B
+    mask = model.support_mask
+    return (R[:m] * mask[contacts.joint_a] - R[m:] * mask[contacts.joint_b]).T
+
+
+_UPPER: dict[int, np.ndarray] = {}
+
+
+def distinct(contacts: Contacts, W: np.ndarray) -> tuple[Contacts, np.ndarray]:
+    """Drop contacts whose row w_i repeats an earlier one (to 1e-12 relative): the same
+    constraint twice, e.g. the front and back corners of a planar block. Keeps the first."""
+    m = W.shape[1]
+    if m < 2:
+        return contacts, W
+    upper = _UPPER.get(m)
+    if upper is None:
+        upper = _UPPER[m] = np.triu(np.ones((m, m), bool), 1)
+    same = np.abs(W[:, :, None] - W[:, None, :]).max(axis=0) <= 1e-12 * (1.0 + np.abs(W).max())
+    dup = (same & upper).any(axis=0)
+    if not dup.any():
+        return contacts, W
+    keep = ~dup
+    return contacts.select(keep), W[:, keep]
+
+
+@dataclass(frozen=True, slots=True)
+class CornerPieces:
+    """The pieces of the admissible cone of one step (docs/theory.md §3).
+
+    rows[c]: (k_c, nv) rows of corner c's faces (distinct, non-zero), corners[c] its Corner;
+    pieces: one (n_corners, nv) array per choice of one face per corner (itertools.product
+    order); choice[j]: the face index per corner of piece j."""
+
+    corners: tuple
+    rows: tuple
+    pieces: tuple
+    choice: tuple
+
+
+def corner_pieces(model: Model, data: Data, contacts: Contacts, W: np.ndarray):
+    """Rows of every corner's faces; a corner left with one distinct non-zero row becomes a
+    smooth contact (appended to contacts and W); corners whose rows repeat another's (the front
+    and back of a planar block) are dropped. Returns (contacts, W, CornerPieces or None)."""
+    keep_c, keep_r = [], []
+    extra = []
+    for c in contacts.corners:
+        k = len(c.normals)
+        one = corner_faces(c, np.arange(k))
+        R = contact_rows(model, data, one).T  # (k, nv)
+        scale = 1e-12 * (1.0 + np.abs(R).max())
+        idx = [i for i in range(k) if np.abs(R[i]).max() > scale
+               and not any(np.abs(R[i] - R[j]).max() <= scale for j in range(i))]
+        if not idx:
+            continue
+        if len(idx) == 1:
+            extra.append((one.select(np.isin(np.arange(k), idx)), R[idx].T))
+            continue
+        Rk = R[idx]
+        if any(len(r) == len(Rk) and all(np.abs(r - x).max(axis=1).min() <= scale for x in Rk) for r in keep_r):
+            continue
+        keep_c.append(Corner(c.g, c.point_a, c.point_b, c.normals[idx], c.pair, c.joint_a, c.joint_b, c.features))
+        keep_r.append(Rk)
+    for one, col in extra:
+        contacts = contacts.concat(one)
+        W = np.concatenate((W, col), axis=1)
+    if not keep_c:
+        return contacts.concat(corners=()), W, None
+    choice = tuple(itertools.product(*(range(len(r)) for r in keep_r)))
+    pieces = tuple(np.array([keep_r[c][f] for c, f in enumerate(ch)]) for ch in choice)
+    return contacts, W, CornerPieces(tuple(keep_c), tuple(keep_r), pieces, choice)
+
+
+def corner_faces(c: Corner, faces: np.ndarray) -> Contacts:
+    """Contacts for faces `faces` of corner c: one per face, at the corner's point, with the face's
+    normal (kind CORNER, feature = the face index)."""
+    k = len(faces)
+    return Contacts(np.full(k, c.g), np.tile(c.point_a, (k, 1)), np.tile(c.point_b, (k, 1)), c.normals[faces],
+                    np.full(k, c.pair), np.full(k, int(FeatureKind.CORNER)), np.asarray(faces), np.full(k, c.joint_a),
+                    np.full(k, c.joint_b))
+
+
+@dataclass(frozen=True, slots=True)
+class Constraints:
+    """The closed contacts at q as constraints: contacts (smooth, distinct rows; single-face
+    corners appended as smooth contacts), M = M(q) (nv, nv) [kg, kg m^2], W (nv, m) their rows,
+    pieces the corners' admissible pieces (None without a corner)."""
+
+    contacts: Contacts
+    M: np.ndarray
+    W: np.ndarray
+    pieces: CornerPieces | None
+
+
+def assemble_constraints(model: Model, data: Data, q: np.ndarray, contacts: Contacts) -> Constraints:
+    """M(q), the rows of `contacts` (detected at q), distinct rows, corner pieces."""
+    M = pin.crba(model.pin, data.pin, q, pin.Convention.WORLD)  # also fills data.J (WORLD) for the rows
+    contacts, W = distinct(contacts, contact_rows(model, data, contacts))
+    pieces = None
+    if contacts.corners:
+        contacts, W, pieces = corner_pieces(model, data, contacts, W)
+    return Constraints(contacts, M, W, pieces)

@@ -1,0 +1,70 @@
+"""Data: the scratch every step reuses (Pinocchio data, coal requests and results, cached
+queries, the detection's warm start). One per thread and per run; the state itself is State."""
+
+from __future__ import annotations
+
+import coal
+import pinocchio as pin
+
+from .model import Model
+
+GJK_TOLERANCE = 1e-12  # coal's GJK/EPA tolerances for the contact normal (default 1e-6 is too coarse)
+# Faces parallel to within this [m] over their extent form a contact patch. Coal's EPA normal of
+# exactly touching boxes is still ~1e-6 rad off at GJK_TOLERANCE, i.e. ~1e-7 m over 0.1 m: a
+# tighter value makes the patch flicker between 1 and 8 points from one step to the next.
+PATCH_TOLERANCE = 1e-6
+GATE_MARGIN = 1e-6  # [m] see Data: pairs this close are examined (contacts still need g <= tol)
+
+
+class Data:
+    """Scratch reused by every step: Pinocchio data, coal results, cached queries, and the
+    detection's warm start `warm_start_pairs`, the pairs that had contacts at the last detection
+    (it keeps a resting pair examined when coal's narrow phase misses it for a step,
+    contacts._near_polytopes).
+
+    Create one per thread and per run with :func:`make_data`; the state itself is in State."""
+
+    def __init__(self, model: Model):
+        self.pin = model.pin.createData()
+        # GeometryData must be created after every geometry and pair exists (segfault otherwise).
+        self.geom = pin.GeometryData(model.geom)
+        tol = model.options.contact_tolerance
+        for req in self.geom.collisionRequests:
+            # gate of the active set: a pair is examined when coal puts it within GATE_MARGIN (its
+            # contacts are then kept where g <= tol); coal's narrow phase misses exactly touching
+            # coplanar boxes now and then at a margin of 1e-9 m (gap -5e-12 reported as apart)
+            req.security_margin = max(tol, GATE_MARGIN)
+            req.num_max_contacts = 1
+            req.enable_contact = True  # normal, depth and witness points (EPA when penetrating)
+            # GJK/EPA default tolerances (1e-6) tilt the normal of exactly touching boxes by ~5 deg
+            req.gjk_tolerance = req.epa_tolerance = GJK_TOLERANCE
+        for preq in self.geom.contactPatchRequests:
+            preq.setPatchTolerance(PATCH_TOLERANCE)
+        # the detection's warm start: the pairs with contacts at the last detection (contacts._near_polytopes)
+        self.warm_start_pairs: set = set()
+        self.patch_request = coal.ContactPatchRequest()
+        self.patch_request.setPatchTolerance(PATCH_TOLERANCE)
+        self.patch_collision = coal.CollisionResult()
+        self.patch_result = coal.ContactPatchResult(self.patch_request)
+        self.fallback_request = coal.CollisionRequest()  # coal's default GJK/EPA tolerances
+        self.fallback_request.security_margin = tol
+        self.fallback_request.enable_contact = True
+        self.fallback_result = coal.CollisionResult()
+        self.point = coal.Sphere(0.0)  # a vertex, for point-vs-shape signed distances
+        self.point_tf = coal.Transform3s()
+        self.distance_request = coal.DistanceRequest()
+        self.distance_result = coal.DistanceResult()
+        self._point_queries: dict[int, coal.ComputeDistance] = {}
+        geoms = model.geom.geometryObjects
+        self.shapes = [g.geometry for g in geoms]
+
+    def point_query(self, g: int) -> coal.ComputeDistance:
+        """Cached coal functor: signed distance from a point to geometry g."""
+        f = self._point_queries.get(g)
+        if f is None:
+            f = self._point_queries[g] = coal.ComputeDistance(self.point, self.shapes[g])
+        return f
+
+
+def make_data(model: Model) -> Data:
+    return Data(model)
