@@ -130,17 +130,10 @@ def _error_line(r):
 def box_table(rows, md=False):
     head = ["peer/config", "e", "h", "max pen [mm]", "final centre z (rest height)",
             "axis up", "final min corner [mm]", "final speed", "CPU s/sim-s"]
-    lines = []
-    for r in rows:
-        if "error" in r:
-            lines.append(_error_line(r))
-            continue
-        lines.append([r["label"], f"{r['e']:g}", f"{r['h']:g}",
-                      f"{1000 * r['max_penetration']:.2f}",
-                      f"{r['final_z']:.4f} ({r['rest_height']:.1f})", r["rest_axis"],
-                      f"{1000 * r['final_min_corner_z']:+.2f}", f"{r['final_speed']:.3f}",
-                      f"{r['cpu_per_sim_second']:.4f}"])
-    return _table(head, lines, md)
+    return _table(head, [_error_line(r) if "error" in r else [
+        r["label"], f"{r['e']:g}", f"{r['h']:g}", f"{1000 * r['max_penetration']:.2f}",
+        f"{r['final_z']:.4f} ({r['rest_height']:.1f})", r["rest_axis"], f"{1000 * r['final_min_corner_z']:+.2f}",
+        f"{r['final_speed']:.3f}", f"{r['cpu_per_sim_second']:.4f}"] for r in rows], md)
 
 
 def mujoco_scan():
@@ -167,20 +160,12 @@ def _list(xs, fmt, n=3):
 def ball_table(rows, md=False):
     head = ["peer/config", "e", "h", "apex gaps [m] (exact e^2n d0)", "rel err %",
             "e_eff 1..3", "max pen [mm]", "z(T)-r [mm]", "CPU s/sim-s"]
-    lines = []
-    for r in rows:
-        if "error" in r:
-            lines.append(_error_line(r))
-            continue
-        lines.append([
-            r["label"], f"{r['e']:g}", f"{r['h']:g}",
-            _list(r["apex_gap"], ".4f") + " (" + _list(r["apex_gap_ref"], ".4f") + ")",
-            _list([100 * x for x in r["apex_rel_err"]], "+.2f"),
-            _list(r["e_eff"], ".4f"),
-            f"{1000 * r['max_penetration']:.2f}", f"{1000 * r['final_gap']:+.2f}",
-            f"{r['cpu_per_sim_second']:.4f}",
-        ])
-    return _table(head, lines, md)
+    return _table(head, [_error_line(r) if "error" in r else [
+        r["label"], f"{r['e']:g}", f"{r['h']:g}",
+        _list(r["apex_gap"], ".4f") + " (" + _list(r["apex_gap_ref"], ".4f") + ")",
+        _list([100 * x for x in r["apex_rel_err"]], "+.2f"), _list(r["e_eff"], ".4f"),
+        f"{1000 * r['max_penetration']:.2f}", f"{1000 * r['final_gap']:+.2f}", f"{r['cpu_per_sim_second']:.4f}"]
+        for r in rows], md)
 
 
 def cradle_table(rows, md=False):
