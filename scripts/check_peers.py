@@ -1,4 +1,3 @@
-#!/usr/bin/env python
 """Every available peer against the exact references: moreau_sim.bench.check_peers (python scripts/check_peers.py --help)."""
 
 from moreau_sim.bench.check_peers import main

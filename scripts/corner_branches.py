@@ -1,4 +1,3 @@
-#!/usr/bin/env python
 """Figure of one branched simulation: moreau_sim.bench.corner_branches (python scripts/corner_branches.py --help)."""
 
 from moreau_sim.bench.corner_branches import main

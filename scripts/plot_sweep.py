@@ -1,4 +1,3 @@
-#!/usr/bin/env python
 """Figure from a restitution sweep of the bouncing ball: moreau_sim.bench.plot_sweep (python scripts/plot_sweep.py --help)."""
 
 from moreau_sim.bench.plot_sweep import main

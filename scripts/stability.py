@@ -1,4 +1,3 @@
-#!/usr/bin/env python
 """The stress suite side by side: moreau_sim.bench.stability (python scripts/stability.py --help)."""
 
 from moreau_sim.bench.stability import main

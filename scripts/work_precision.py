@@ -1,4 +1,3 @@
-#!/usr/bin/env python
 """Work-precision benchmark: moreau_sim.bench.work_precision (python scripts/work_precision.py --help)."""
 
 from moreau_sim.bench.work_precision import main
