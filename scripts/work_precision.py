@@ -1,4 +1,4 @@
-"""Work-precision benchmark: moreau_sim.bench.work_precision (python scripts/work_precision.py --help)."""
+"""Work-precision benchmark: moreau_sim.bench.work_precision (see --help)."""
 
 from moreau_sim.bench.work_precision import main
 
