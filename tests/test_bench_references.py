@@ -1,4 +1,4 @@
-"""moreau_sim.bench.references against closed-form values written out here (impact-law.md §4)."""
+"""moreau_sim.bench.references against closed-form values written out here (docs/theory.md §4)."""
 
 import math
 

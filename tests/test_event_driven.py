@@ -25,7 +25,7 @@ def ref(name: str, **kw) -> ms.Trajectory:
 @pytest.mark.parametrize("e", [0.5, 0.8, 1.0])
 def test_ball_impact_times_and_apex_heights(e):
     n = 6
-    tn = np.array(ball_impact_times(e, n + 1, D0, G))  # t_k = t0 (1 + 2 e + ... + 2 e^k) (impact-law.md §4)
+    tn = np.array(ball_impact_times(e, n + 1, D0, G))  # t_k = t0 (1 + 2 e + ... + 2 e^k) (docs/theory.md §4)
     apex_t = np.array(ball_apex_times(e, n, D0, G))  # apex after bounce k: t_{k-1} + e^k t0
     tr = ref("bouncing_ball", restitution=e, duration=float(tn[n]) + 0.01, t_eval=np.r_[0.0, apex_t])
     assert tr.complete and tr.meta["integrator"] == "event-driven"

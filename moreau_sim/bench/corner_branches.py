@@ -2,7 +2,7 @@
 where the motion goes from each of them.
 
 Runs a corner scene, finds its first branching step (a corner impact whose set-valued law has
-several stationary points, impact-law.md §3), re-takes that step once per candidate
+several stationary points, docs/theory.md §3), re-takes that step once per candidate
 (`step(..., corner_choice=i)`), continues every branch with the scene's policy to the end, and
 draws the paths of the body's centre in the x-z plane, the obstacles, and the chosen branch.
 

@@ -1,4 +1,4 @@
-"""Exact references of the bundled benchmark scenes (impact-law.md §4), the one home of each formula.
+"""Exact references of the bundled benchmark scenes (docs/theory.md §4), the one home of each formula.
 
 Pure Python (math only): imported by the benchmarks, the peer runners and the tests. Units SI.
 

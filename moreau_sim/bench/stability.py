@@ -552,7 +552,7 @@ def write_md(R: list[Row], methods, figs, path: Path, elapsed: float, quick: boo
          "- **moreau-sim**: the scene's options, i.e. the defaults (" + ", ".join(
              f"{k} = \"{v}\"" for k, v in o.to_dict().items() if isinstance(v, str)) + ").",
          "- **moreau-sim plain**: the same with position_correction = \"none\", bias = \"explicit\" (the "
-         "midpoint step of impact-law.md §2 without the two additions).",
+         "midpoint step of docs/theory.md §2 without the two additions).",
          "- **moreau-sim + swept**: the default with the swept detection forced at every step "
          "(`tunnelling = \"always\"`, whatever the speed), fast_impact only.",
          "- **MuJoCo / PyBullet / Siconos**: the neutral spec of `moreau_sim.bench.spec` run by "

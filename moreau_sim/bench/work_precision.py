@@ -7,7 +7,7 @@ second, for moreau-sim and the peers (MuJoCo, PyBullet default/tuned, Siconos), 
     python scripts/work_precision.py --quick --out /tmp/wp        # tiny sweep (smoke test)
 
 Errors (docs/benchmarks.md): bouncing ball - the first three rebound heights against e^(2n) d0;
-touching cradle - the final velocities against Moreau's simultaneous result (impact-law.md §4);
+touching cradle - the final velocities against Moreau's simultaneous result (docs/theory.md §4);
 rocking block, pendulum into a wall, box drop - the configuration at fixed instants against the
 event-driven reference (moreau_sim.event_driven). CPU time: time.process_time() around the stepping
 loop only (moreau-sim: ms.step in a loop storing q, u; peers: their runners' own loops), median
@@ -80,13 +80,13 @@ class Case:
 
 CASES = (
     Case("bouncing_ball_e0.5", "bouncing_ball", 0.5, 1.2, 1.2, "max |apex - e^(2n) d0|, n = 1..3", 0.9, "m",
-         "closed form (impact-law.md §4)", "bouncing_ball"),
+         "closed form (docs/theory.md §4)", "bouncing_ball"),
     Case("bouncing_ball_e0.8", "bouncing_ball", 0.8, 2.0, 2.0, "max |apex - e^(2n) d0|, n = 1..3", 0.9, "m",
-         "closed form (impact-law.md §4)", "bouncing_ball"),
+         "closed form (docs/theory.md §4)", "bouncing_ball"),
     Case("bouncing_ball_e1", "bouncing_ball", 1.0, 2.7, 2.7, "max |apex - e^(2n) d0|, n = 1..3", 0.9, "m",
-         "closed form (impact-law.md §4)", "bouncing_ball"),
+         "closed form (docs/theory.md §4)", "bouncing_ball"),
     Case("newton_cradle_5", "newton_cradle_5", 1.0, 0.5, 0.1, "max |u(T) - (-0.6, 0.4, 0.4, 0.4, 0.4)|", 1.0,
-         "m/s", "closed form (impact-law.md §4)", "newton_cradle_5", peer_params={"siconos": {"exact_gaps": True}}),
+         "m/s", "closed form (docs/theory.md §4)", "newton_cradle_5", peer_params={"siconos": {"exact_gaps": True}}),
     Case("rocking_block", "rocking_block", 0.5, 0.25, 0.1, "max |q(t_k) - q_ref(t_k)|, t_k every 0.01 s", 0.1,
          "m, rad", "event-driven reference (rtol = atol = 1e-12)", None, 0.01),
     Case("pendulum_wall", "pendulum_wall", 0.9, 2.0, 0.8, "max |q(t_k) - q_ref(t_k)|, t_k every 0.02 s", 1.0,
@@ -366,7 +366,6 @@ def plot(case: Case, points: list, path: Path) -> None:
 # ---------------------------------------------------------------- main
 def _git() -> dict:
     """The commit measured and whether the working tree differed from it (read-only git calls)."""
-    import subprocess
 
     try:
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
