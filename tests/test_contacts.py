@@ -5,7 +5,8 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from conftest import scene
+
+from helpers import scene
 
 FREE_BOX = """
 [scene]

@@ -6,8 +6,7 @@ import numpy as np
 import piqp
 import pytest
 
-from moreau_sim.corners import (MAX_PIECES, CornerSolution, Selection, impact_outcomes, select,
-                                stationary_points)
+from moreau_sim.corners import MAX_PIECES, CornerSolution, Selection, impact_outcomes, select, stationary_points
 
 # note §3: point mass, M = I, obstacle x > 0, y > 0 near the corner: K = {v_x <= 0} ∪ {v_y <= 0}
 I2 = np.eye(2)
@@ -202,7 +201,8 @@ def test_squeezed_smooth_contacts_lower_dimensional_pieces():
 def test_deterministic_and_selection_policies():
     rng = np.random.default_rng(2)
     B = rng.normal(size=(3, 3))
-    args = (B @ B.T + np.eye(3), rng.normal(size=3), [rng.normal(size=(2, 3)) for _ in range(3)], rng.normal(size=(3, 1)))
+    args = (B @ B.T + np.eye(3), rng.normal(size=3), [rng.normal(size=(2, 3)) for _ in range(3)],
+            rng.normal(size=(3, 1)))
     a, b = stationary_points(*args), stationary_points(*args)
     assert len(a.candidates) == len(b.candidates)
     for x, y in zip(a.candidates, b.candidates):

@@ -11,7 +11,7 @@ import moreau_sim as ms
 from moreau_sim.event_driven import EventDrivenRun, UnsupportedModel, simulate_event_driven
 from moreau_sim.trajectory import ARRAYS
 
-from conftest import scene
+from helpers import scene
 
 G, D0 = 9.81, 0.9  # gravity [m/s^2]; the ball's initial gap [m] (centre at 1 m, r = 0.1 m)
 T0 = math.sqrt(2 * D0 / G)  # first impact time [s]

@@ -8,7 +8,7 @@ import moreau_sim as ms
 from moreau_sim import metrics
 from moreau_sim.trajectory import ARRAYS
 
-from conftest import scene
+from helpers import scene
 
 
 def traj(t, q, u=None, gap=None, E=None, log=()) -> ms.Trajectory:
@@ -119,7 +119,7 @@ def test_energy_error_and_penetration():
 
 def test_metrics_on_two_real_runs():
     """The stepper against the event-driven reference on the bouncing ball: first-order errors."""
-    from moreau_sim.reference import simulate_event_driven
+    from moreau_sim.event_driven import simulate_event_driven
 
     model = ms.build_model(scene("bouncing_ball", restitution=0.8, duration=2.0))
     ref = simulate_event_driven(model)

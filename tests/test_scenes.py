@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from conftest import BUNDLED, SCENES as ROOT_SCENES, run, scene
+
+from helpers import BUNDLED, SCENES as ROOT_SCENES, run, scene
 
 G, R, D0 = 9.81, 0.1, 0.9  # bouncing_ball: gravity, radius, initial gap of the centre at 1 m
 
@@ -235,7 +236,8 @@ def test_every_bundled_scene_runs(name):
 
 def test_event_driven_integrator_from_the_scene_file(tmp_path):
     """integrator = "event-driven" in a scene: impacts at t0 (2n+1 e...) exactly, apexes e^(2n) d0."""
-    text = (ROOT_SCENES / "bouncing_ball.toml").read_text().replace("[simulation]", '[simulation]\nintegrator = "event-driven"')
+    text = (ROOT_SCENES / "bouncing_ball.toml").read_text().replace("[simulation]",
+                                                                    '[simulation]\nintegrator = "event-driven"')
     p = tmp_path / "ball.toml"
     p.write_text(text.replace("../models/", str(ROOT_SCENES.parent / "models") + "/"))
     traj = ms.simulate(ms.build_model(ms.load_scene(p)), progress=False)

@@ -13,8 +13,9 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from conftest import SCENES, run, scene
 from moreau_sim.tunnelling import motion_bounds, pair_distance, swept_contacts
+
+from helpers import SCENES, run, scene
 
 G = 9.81
 CORRECTIONS = ("none", "projection")
@@ -261,7 +262,8 @@ def test_swept_contacts_on_a_rotating_chain():
             continue
         pts = []
         for s in ss:
-            pin.updateGeometryPlacements(model.pin, data.pin, model.geom, data.geom, pin.integrate(model.pin, q0, s * dq))
+            q = pin.integrate(model.pin, q0, s * dq)
+            pin.updateGeometryPlacements(model.pin, data.pin, model.geom, data.geom, q)
             pts.append(data.geom.oMg[g].translation.copy())
         speed = np.linalg.norm(np.diff(pts, axis=0), axis=1) / (ss[1] - ss[0])
         assert speed.max() <= mu[g] * (1 + 1e-9)
@@ -334,7 +336,7 @@ def test_cradle_random_1e16_perturbations(tmp_path):
     base = [0.1 + 0.2 * i for i in range(5)]
     for v in range(20):
         t = text
-        for i, x in enumerate(base):
+        for x in base:
             t = t.replace(f"q0 = [{x!r}]", f"q0 = [{float(x + int(rng.integers(-3, 4)) * 1e-16)!r}]", 1)
         p = tmp_path / f"cradle_{v}.toml"
         p.write_text(t)
