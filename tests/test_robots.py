@@ -291,7 +291,7 @@ def test_quadruped_drop(runs):
     assert (model.nq, model.nv, len(model.pairs)) == (19, 18, 25)
     assert all(isinstance(go.geometry, (coal.Box, coal.Cylinder, coal.Sphere, coal.Halfspace))
                for go in model.geom.geometryObjects)
-    s = _check_run(model, traj, rise=1e-9, penetration=5e-3)
+    s = _check_run(model, traj, rise=1e-12, penetration=5e-3)  # measured: rise 2.6e-13 J, gap -1.6e-3 m
     assert s["impacts"] > 50
     # it comes to rest lying on its trunk (0.114 m high), level
     assert traj.kinetic_energy[-1] < 1e-3 and abs(traj.q[-1, 2] - 0.057) < 2e-3 and abs(traj.q[-1, 6]) > 0.999
@@ -314,7 +314,7 @@ def test_quadruped_drop_pairs_are_all_that_touch():
 def test_panda_table(runs):
     model, traj = runs("panda_table")
     assert (model.nq, model.nv, len(model.pairs)) == (7, 7, 36)
-    s = _check_run(model, traj, rise=1e-9, penetration=1e-3)
+    s = _check_run(model, traj, rise=1e-12, penetration=1e-3)  # measured: rise 0 J, gap -2.4e-4 m
     assert s["impacts"] > 10
     hit = {model.pair_names[p].split("|")[0] for p in traj.arrays["log_pair"]}
     assert {"panda/panda_link4_0", "panda/panda_hand_0"} <= hit
@@ -327,7 +327,7 @@ def test_solo_drop_mesh_robot(runs):
     hulls = [go.geometry for go in model.geom.geometryObjects[:-1]]
     assert len(hulls) == 13 and all(isinstance(g, coal.ConvexBase) for g in hulls)
     assert all(len(v) >= 297 for v in model.vertices[:-1])
-    _check_run(model, traj, rise=1e-9, penetration=1e-3)
+    _check_run(model, traj, rise=1e-13, penetration=1e-3)  # measured: rise 4.3e-14 J, gap -2.2e-4 m
     # rests on its belly: level, still, not sinking
     assert traj.kinetic_energy[-200:].max() < 1e-6 and abs(traj.q[-1, 6]) > 0.9999
     assert np.ptp(traj.q[-200:, 2]) < 1e-6 and traj.q[-1, 2] > 0.02
@@ -335,8 +335,8 @@ def test_solo_drop_mesh_robot(runs):
 
 def test_mjcf_example(runs):
     model, traj = runs("mjcf_example")
-    # a revolute pendulum's free swing is not integrated exactly: |E - E0| = O(h^2), 2e-5 J measured
-    s = _check_run(model, traj, rise=1e-4, penetration=1e-3)
+    # a revolute pendulum's free swing is not integrated exactly: |E - E0| = O(h^2), 2.1e-5 J measured
+    s = _check_run(model, traj, rise=5e-5, penetration=1e-3)
     assert s["impacts"] == 2
 
 
