@@ -38,9 +38,9 @@ sys.path.insert(0, str(ROOT))
 
 import moreau_sim as ms  # noqa: E402
 from moreau_sim import metrics  # noqa: E402
-from moreau_sim.contacts import distinct  # noqa: E402
-from moreau_sim.reference import simulate_event_driven  # noqa: E402
-from moreau_sim.simulate import versions  # noqa: E402
+from moreau_sim.constraints import distinct  # noqa: E402
+from moreau_sim.event_driven import simulate_event_driven  # noqa: E402
+from moreau_sim.recording import versions  # noqa: E402
 from scripts.peers import PEERS, PeerError, available, ball_reference, cradle_reference  # noqa: E402
 from scripts.peers import run as run_peer  # noqa: E402
 from scripts.peers._common import min_corner_height, to_jsonable  # noqa: E402
@@ -104,7 +104,7 @@ def run_moreau(model: ms.Model, h: float, T: float) -> dict:
     step = ms.step
     c0 = time.process_time()
     for k in range(n):
-        r = step(model, data, st, h, e, t_next=(k + 1) * h)
+        r = step(model, data, st, h=h, e=e, t_next=(k + 1) * h)
         if r.qp is not None and not r.qp.ok:
             raise ms.SimulationError(f"step {k + 1}: QP {r.qp.status}")
         st = r.state
