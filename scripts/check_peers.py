@@ -1,4 +1,4 @@
-"""Every available peer against the exact references: moreau_sim.bench.check_peers (python scripts/check_peers.py --help)."""
+"""Every available peer against the exact references: moreau_sim.bench.check_peers."""
 
 from moreau_sim.bench.check_peers import main
 

@@ -1,4 +1,4 @@
-"""Figure from a restitution sweep of the bouncing ball: moreau_sim.bench.plot_sweep (python scripts/plot_sweep.py --help)."""
+"""Figure from a restitution sweep of the bouncing ball: moreau_sim.bench.plot_sweep."""
 
 from moreau_sim.bench.plot_sweep import main
 

@@ -6,12 +6,18 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
+from moreau_sim.bench.references import (
+    ball_apex_gaps,
+    ball_apex_times,
+    ball_first_impact,
+    ball_impact_times,
+    cradle_sequential,
+    zeno_time,
+)
 from moreau_sim.event_driven import EventDrivenRun, UnsupportedModel, simulate_event_driven
 from moreau_sim.trajectory import ARRAYS
-from moreau_sim.bench.references import (ball_apex_gaps, ball_apex_times, ball_first_impact, ball_impact_times,
-                                         cradle_sequential, zeno_time)
 
-from conftest import scene
+from helpers import scene
 
 G, D0 = 9.81, 0.9  # gravity [m/s^2]; the ball's initial gap [m] (centre at 1 m, r = 0.1 m)
 T0 = ball_first_impact(D0, G)  # first impact time [s]

@@ -8,7 +8,7 @@ import moreau_sim as ms
 from moreau_sim.bench import metrics
 from moreau_sim.trajectory import ARRAYS
 
-from conftest import scene
+from helpers import scene
 
 
 def traj(t, q, u=None, gap=None, E=None, log=()) -> ms.Trajectory:
@@ -93,7 +93,8 @@ def test_state_error_lie_group():
     q0 = ms.initial_state(ms.build_model(scene("box_drop"))).q
     v = np.array([0.1, -0.2, 0.3, 1.0, -2.0, 0.5])  # constant: a one-parameter subgroup
     tf, tc = np.linspace(0, 1, 101), np.linspace(0, 1, 6)
-    qs = lambda ts: np.array([pin.integrate(model, q0, s * v) for s in ts])
+    def qs(ts):
+        return np.array([pin.integrate(model, q0, s * v) for s in ts])
     ref, run = traj(tc, qs(tc)), traj(tf, qs(tf))
     r = metrics.state_error(run, ref, [0.13, 0.5, 0.77], model=model)
     assert r.q_max < 1e-12  # interpolation along the group is exact on a geodesic

@@ -6,8 +6,9 @@ import json
 import subprocess
 import sys
 
-from conftest import ROOT
 from moreau_sim.bench.peers import available
+
+from helpers import ROOT
 
 POINT_KEYS = {"case", "scene", "e", "method", "h", "T", "cpu_repeats", "cpu_per_sim_s", "error", "rel_error"}
 

@@ -322,7 +322,8 @@ def summarize(points: list, cases, peer_names) -> list[dict]:
 def table_md(rows: list) -> str:
     out = ["| case | rel. error <= | moreau-sim CPU s/sim s | best peer (CPU s/sim s) | ratio best-peer / moreau-sim |",
            "|---|---|---|---|---|"]
-    f = lambda x: "—" if x is None else f"{x:.3g}"
+    def f(x):
+        return "—" if x is None else f"{x:.3g}"
     for r in rows:
         peer = "—" if r["best_peer"] is None else f"{r['best_peer']} ({f(r['best_peer_cpu'])})"
         ratio = r["note"] if r["ratio"] is None else (f"{r['ratio']:.3g}" + (f" ({r['note']})" if r["note"] else ""))
