@@ -1,5 +1,5 @@
 """The set-valued law at re-entrant corners in scenes: detection, the outcome sets of the note
-(impact-law.md §3), the stepper's choice and its record, and smooth contacts left alone."""
+(docs/theory.md §3), the stepper's choice and its record, and smooth contacts left alone."""
 
 import numpy as np
 import pytest

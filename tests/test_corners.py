@@ -1,4 +1,4 @@
-"""The set-valued impact law at re-entrant corners (moreau_sim.corners; impact-law.md §3)."""
+"""The set-valued impact law at re-entrant corners (moreau_sim.corners; docs/theory.md §3)."""
 
 import re
 

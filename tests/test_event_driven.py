@@ -1,4 +1,4 @@
-"""The event-driven reference against the closed forms of impact-law.md §4, then its own
+"""The event-driven reference against the closed forms of docs/theory.md §4, then its own
 invariants (energy ledger, rest, Lie-group chart) on the scenes without a closed form."""
 
 import numpy as np

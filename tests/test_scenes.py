@@ -1,4 +1,4 @@
-"""Scene-level physics against exact references (impact-law.md §4), energy, determinism."""
+"""Scene-level physics against exact references (docs/theory.md §4), energy, determinism."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""The stress suite (issue 5): every stress scene at a CI size against the bound stated in its
+"""The stress suite: every stress scene at a CI size against the bound stated in its
 description and in docs/stability.md; large steps over the bundled scenes; the swept-contact
 prototype against tunnelling (moreau_sim/tunnelling.py).
 

@@ -1,4 +1,4 @@
-"""Error metrics between a trajectory and a reference (work-precision benchmarks, issue 4).
+"""Error metrics between a trajectory and a reference (work-precision benchmarks).
 
 Every function takes :class:`~moreau_sim.trajectory.Trajectory` objects or plain mappings with
 the same array names (``t``, ``q``, ``u``, ``gap``, ``kinetic_energy``, ``potential_energy``,

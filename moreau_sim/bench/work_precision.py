@@ -1,4 +1,4 @@
-"""Work-precision benchmark (issue 4): error against exact references vs CPU time per simulated
+"""Work-precision benchmark: error against exact references vs CPU time per simulated
 second, for moreau-sim and the peers (MuJoCo, PyBullet default/tuned, Siconos), over step sizes.
 
     pip install -e '.[peers]'; apt-get install -y python3-siconos   # the peers (optional)
@@ -231,7 +231,7 @@ def _solve_all(M, W, Minv, v0, J, cms, cds):
         s.solve(pin.DelassusOperatorDense(G), g, cms, cds, st, res)
         return v0 + Minv @ (J.T @ res.retrieveConstraintImpulses())
 
-    def pgs():  # pinocchio-coal-piqp.md A6: with mu = 0 one call is one sweep; repeat, warm-started
+    def pgs():  # with mu = 0 one call of Pinocchio 4.1's PGS is one sweep (docs/benchmarks.md): repeat, warm-started
         s, D = pin.PGSConstraintSolver(G.shape[0]), pin.DelassusOperatorDense(G)
         st, res = pin.PGSSolverSettings(), pin.PGSSolverResult()
         s.solve(D, g, cms, cds, st, res)
