@@ -122,13 +122,13 @@ class FeatureContacts:
     bookkeeping shared by the event-driven and the adaptive runs: the Recorder `rec` (set by the
     caller), the Zeno declarations, the contact work since the last sample, counters."""
 
-    def __init__(self, model: Model, data: Data, e: float):
+    def __init__(self, model: Model, data: Data, e: float, feats: tuple[Feature, ...] | None = None):
         self.model, self.data, self.e = model, data, e
         # a feature is closed when its gap is <= this [m]: the tolerance contacts.detect uses
         self.gap_tol = max(model.options.contact_tolerance, G_RES)
         self.pm, self.pd = model.pin, data.pin
         self.nv = model.nv
-        self.feats = feature_list(model)
+        self.feats = feature_list(model) if feats is None else feats
         self.zero = np.zeros(self.nv)
         self.rec: Recorder | None = None
         self.zeno: list[dict] = []
