@@ -31,7 +31,8 @@ integrator: the law (law.impact on the contacts contacts.detect closes, with the
 then the acceleration-level problem that decides the persistent set C.
 
 Fixed steps (stepper.step at the scene's dt, the percussion log as ms.simulate's): the whole
-run when a pair has no per-feature gap (features.UnsupportedModel); from the instant of a
+run when a pair has no per-feature gap (features.UnsupportedModel) or there are more than
+MAX_FEATURES features (very many contacts); from the instant of a
 corner impact (features.CornerImpact); and when events accumulate (BURST_EVENTS events within
 one dt, or no progress in time). Back to extrapolated steps after BACK_STEPS consecutive fixed
 steps with no closed contact, or whose closed contacts all move slower than V_BACK (at rest);
@@ -69,6 +70,7 @@ G_LAND = 1e-15  # [m] a landed gap within this of 0 is not corrected further
 BURST_EVENTS = 64  # this many events within one fixed step dt: an accumulation, fixed steps
 BACK_STEPS = 8  # consecutive quiet fixed steps before returning to extrapolated steps
 V_BACK = 1e-6  # [m/s] closed contacts slower than this after a fixed step: at rest
+MAX_FEATURES = 64  # more features (very many contacts): fixed steps throughout
 H_MIN = 1e-14  # [s] smallest extrapolated step before giving up on a phase (fixed steps then)
 
 
@@ -110,6 +112,8 @@ class AdaptiveRun(FeatureContacts):
             feats, self.unsupported = feature_list(model), None
         except UnsupportedModel as exc:
             feats, self.unsupported = (), str(exc)
+        if len(feats) > MAX_FEATURES:
+            feats, self.unsupported = (), f"{len(feats)} features > MAX_FEATURES = {MAX_FEATURES}"
         super().__init__(model, data, e, feats)
         if order not in ORDERS:
             raise ValueError(f"order must be one of {ORDERS}, got {order!r}")
@@ -235,14 +239,18 @@ class AdaptiveRun(FeatureContacts):
             coef = np.array([e0.g, H * e0.gamma, H * H * e0.gdd, e1.g, H * e1.gamma, H * H * e1.gdd])
             G = _quintic(taus).T @ coef  # (points, features)
             G[-1] = e1.g
-            for k in np.flatnonzero((G[:, :nw] < 0.0).any(axis=0)):
-                j = int(np.argmax(G[:, k] < 0.0))
+            crossing = np.flatnonzero((G[:, :nw] < 0.0).any(axis=0))
+            first = {int(k): int(np.argmax(G[:, k] < 0.0)) for k in crossing}
+            j_min = min(first.values(), default=0)
+            for k, j in first.items():
+                if j > j_min:  # a later bracket: its root is later than one of the first bracket's
+                    continue
                 c = coef[:, k]
                 f = (lambda x, c=c: float(_quintic(np.array([x]))[:, 0] @ c))
                 lo = taus[j - 1]
                 tau = brentq(f, lo, taus[j], xtol=1e-15) if f(lo) > 0 else lo
                 if best is None or tau < best[0]:
-                    best = (tau, "gap", int(k))
+                    best = (tau, "gap", k)
             # a feature within G_RES of contact coming back: gamma below -2 V_TOL (cubic Hermite of gamma)
             for k in range(nw, len(e0.g)):
                 gc = np.array([e0.gamma[k], H * e0.gdd[k], e1.gamma[k], H * e1.gdd[k]]) + np.array([2 * V_TOL, 0, 2 * V_TOL, 0])
@@ -393,9 +401,10 @@ class AdaptiveRun(FeatureContacts):
         previous: set = set()
         quiet = 0
         while t < t_end:
-            nxt = t_grid[self.gi] if self.gi < len(t_grid) else t_end
-            h = min(self.h_fix, t_end - t, nxt - t) if nxt > t else min(self.h_fix, t_end - t)
-            t1 = t_end if h >= t_end - t else (nxt if h >= nxt - t else t + h)
+            nxt = min(t_grid[self.gi], t_end) if self.gi < len(t_grid) else t_end
+            # a step of dt, or onto the next sample instant when that is at most dt (+ round-off) away
+            t1 = nxt if nxt - t <= self.h_fix * (1.0 + 1e-9) else t + self.h_fix
+            h = t1 - t
             r = step(model, self.data, State(t, q, u), h=h, e=self.e, t_next=t1)
             if r.qp is not None and not r.qp.ok:
                 raise SimulationError(f"t = {t:.6g} s: a fixed step's impact QP failed with status {r.qp.status}", t=t)
