@@ -70,27 +70,39 @@ G_LAND = 1e-15  # [m] a landed gap within this of 0 is not corrected further
 BURST_EVENTS = 64  # this many events within one fixed step dt: an accumulation, fixed steps
 BACK_STEPS = 8  # consecutive quiet fixed steps before returning to extrapolated steps
 V_BACK = 1e-6  # [m/s] closed contacts slower than this after a fixed step: at rest
+FIXED_POINT = 1e-3  # the midpoint bias's fixed point is iterated to this fraction of the step tolerance
 MAX_FEATURES = 64  # more features (very many contacts): fixed steps throughout
 H_MIN = 1e-14  # [s] smallest extrapolated step before giving up on a phase (fixed steps then)
 
 
-def _quintic(tau: np.ndarray) -> np.ndarray:
-    """The quintic Hermite basis on [0, 1] (rows: value 0, slope 0, curvature 0, value 1,
-    slope 1, curvature 1) at the instants tau, shape (6, len(tau))."""
-    t = np.asarray(tau, float)
-    t2, t3, t4, t5 = t * t, t ** 3, t ** 4, t ** 5
-    return np.array([1 - 10 * t3 + 15 * t4 - 6 * t5, t - 6 * t3 + 8 * t4 - 3 * t5,
-                     0.5 * t2 - 1.5 * t3 + 1.5 * t4 - 0.5 * t5, 10 * t3 - 15 * t4 + 6 * t5,
-                     -4 * t3 + 7 * t4 - 3 * t5, 0.5 * t3 - t4 + 0.5 * t5])
+# The quintic Hermite basis on [0, 1] in powers of tau: row k holds the coefficients of tau^0..tau^5
+# of the basis function of value 0, slope 0, curvature 0, value 1, slope 1, curvature 1.
+QUINTIC = np.array([[1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1.5, 1.5, -0.5],
+                    [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5]])
+_POWERS = np.arange(6)
+_CHECK = np.linspace(0.0, 1.0, CHECK_POINTS + 1)
+_CHECK_BASIS = (_CHECK[:, None] ** _POWERS) @ QUINTIC.T  # (points, 6)
 
 
-def _quintic_slope(tau: np.ndarray) -> np.ndarray:
-    """d/dtau of the quintic basis."""
-    t = np.asarray(tau, float)
-    t2, t3, t4 = t * t, t ** 3, t ** 4
-    return np.array([-30 * t2 + 60 * t3 - 30 * t4, 1 - 18 * t2 + 32 * t3 - 15 * t4,
-                     t - 4.5 * t2 + 6 * t3 - 2.5 * t4, 30 * t2 - 60 * t3 + 30 * t4,
-                     -12 * t2 + 28 * t3 - 15 * t4, 1.5 * t2 - 4 * t3 + 2.5 * t4])
+def _poly(coef: np.ndarray) -> np.ndarray:
+    """Power coefficients (6, ...) of the quintic Hermite interpolant of Hermite data coef (6, ...)."""
+    return np.tensordot(QUINTIC.T, coef, axes=1)
+
+
+def _polyval(p: np.ndarray, x: float):
+    """p[0] + p[1] x + ... + p[5] x^5 (Horner), p (6, ...)."""
+    y = p[5]
+    for k in range(4, -1, -1):
+        y = y * x + p[k]
+    return y
+
+
+def _polyslope(p: np.ndarray, x: float):
+    """d/dx of _polyval(p, x)."""
+    y = 5.0 * p[5]
+    for k in range(4, 0, -1):
+        y = y * x + k * p[k]
+    return y
 
 
 class _End:
@@ -131,17 +143,22 @@ class AdaptiveRun(FeatureContacts):
 
     # ---- the extrapolated step -------------------------------------------------------------
     def _midpoint(self, q, u, h, C):
-        """The symmetric midpoint step (module doc), free or on the constrained set C."""
+        """The symmetric midpoint step (module doc), free or on the constrained set C. Without C
+        and without velocity-dependent forces it is stepper.free_velocity's single ABA; otherwise
+        the fixed point u1 = u + h a(q_m, (u + u1)/2) is iterated to FIXED_POINT times the step's
+        tolerance (atol + rtol |u|), well below what the extrapolation resolves."""
         pm = self.pm
         q_m = pin.integrate(pm, q, 0.5 * h * u)
-        if not C:
+        if not C and not self.model.velocity_bias:
             u1 = free_velocity(self.model, self.data, q_m, u, h, Bias.MIDPOINT)
         else:
-            u1 = u + h * self.dynamics(q_m, u, C)[0]
-            scale = 1e-15 * (1.0 + float(np.abs(u).max()))
+            def acc(v):
+                return self.dynamics(q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
+            u1 = u + h * acc(u)
+            tol = FIXED_POINT * (self.atol + self.rtol * float(np.abs(u).max()))
             for _ in range(MIDPOINT_ITERATIONS):
-                nxt = u + h * self.dynamics(q_m, 0.5 * (u + u1), C)[0]
-                done = float(np.abs(nxt - u1).max()) <= scale
+                nxt = u + h * acc(0.5 * (u + u1))
+                done = float(np.abs(nxt - u1).max()) <= tol
                 u1 = nxt
                 if done:
                     break
@@ -197,11 +214,10 @@ class AdaptiveRun(FeatureContacts):
             c1 = np.linalg.solve(pin.dIntegrate(self.pm, e0.q, d1, pin.ArgumentPosition.ARG1), e1.a) + Jinv_dot_u
         else:
             s1, c1 = e1.u, e1.a
-        coef = np.array([np.zeros(self.nv), H * e0.u, H * H * e0.a, d1, H * s1, H * H * c1])
+        p = _poly(np.array([np.zeros(self.nv), H * e0.u, H * H * e0.a, d1, H * s1, H * H * c1]))
 
         def at(tau: float):
-            b, db = _quintic(np.array([tau]))[:, 0], _quintic_slope(np.array([tau]))[:, 0]
-            d, s = b @ coef, (db @ coef) / H if H > 0 else e0.u
+            d, s = _polyval(p, tau), (_polyslope(p, tau) / H if H > 0 else e0.u)
             if not self.lie:
                 return e0.q + d, s
             J = pin.dIntegrate(self.pm, e0.q, d, pin.ArgumentPosition.ARG1)
@@ -234,10 +250,10 @@ class AdaptiveRun(FeatureContacts):
         """The earliest event on the step e0 -> e1 as (tau, kind, index into watch+low / C), or None."""
         H = e1.t - e0.t
         best = None
-        taus = np.linspace(0.0, 1.0, CHECK_POINTS + 1)
+        taus = _CHECK
         if len(e0.g):
             coef = np.array([e0.g, H * e0.gamma, H * H * e0.gdd, e1.g, H * e1.gamma, H * H * e1.gdd])
-            G = _quintic(taus).T @ coef  # (points, features)
+            G = _CHECK_BASIS @ coef  # (points, features)
             G[-1] = e1.g
             crossing = np.flatnonzero((G[:, :nw] < 0.0).any(axis=0))
             first = {int(k): int(np.argmax(G[:, k] < 0.0)) for k in crossing}
@@ -245,8 +261,8 @@ class AdaptiveRun(FeatureContacts):
             for k, j in first.items():
                 if j > j_min:  # a later bracket: its root is later than one of the first bracket's
                     continue
-                c = coef[:, k]
-                f = (lambda x, c=c: float(_quintic(np.array([x]))[:, 0] @ c))
+                pk = _poly(coef[:, k])
+                f = (lambda x, pk=pk: float(_polyval(pk, x)))
                 lo = taus[j - 1]
                 tau = brentq(f, lo, taus[j], xtol=1e-15) if f(lo) > 0 else lo
                 if best is None or tau < best[0]:
@@ -434,7 +450,7 @@ class AdaptiveRun(FeatureContacts):
 
 def simulate_adaptive(model: Model, *, state: State | None = None, t_end: float | None = None,
                       rtol: float | None = None, atol: float | None = None, order: int = DEFAULT_ORDER,
-                      t_eval=None, max_step: float = 0.05, max_events: int = 1_000_000,
+                      t_eval=None, max_step: float = 0.1, max_events: int = 1_000_000,
                       data: Data | None = None) -> Trajectory:
     """Integrate `model` adaptively (module doc) from `state` (default: the scene's initial
     state) to `t_end` [s] (default: state.t + the scene's duration), restitution = the scene's e.
