@@ -105,6 +105,16 @@ def _polyslope(p: np.ndarray, x: float):
     return y
 
 
+def _root(f, lo: float, hi: float, xtol: float) -> float:
+    """The crossing of f from > 0 to <= 0 in [lo, hi] (Brent); lo if f(lo) <= 0 already, hi if
+    f(hi) > 0 after all (round-off between the bracket test and f)."""
+    if f(lo) <= 0.0:
+        return lo
+    if f(hi) > 0.0:
+        return hi
+    return brentq(f, lo, hi, xtol=xtol)
+
+
 class _End:
     """A step end: (t, q, u), the accelerations a, the multipliers of C, and of the watched
     features (watch + low) the gaps g, rates gamma and second derivatives gdd = W'a + drift."""
@@ -264,7 +274,7 @@ class AdaptiveRun(FeatureContacts):
                 pk = _poly(coef[:, k])
                 f = (lambda x, pk=pk: float(_polyval(pk, x)))
                 lo = taus[j - 1]
-                tau = brentq(f, lo, taus[j], xtol=1e-15) if f(lo) > 0 else lo
+                tau = _root(f, lo, taus[j], 1e-15)
                 if best is None or tau < best[0]:
                     best = (tau, "gap", k)
             # a feature within G_RES of contact coming back: gamma below -2 V_TOL (cubic Hermite of gamma)
@@ -277,7 +287,7 @@ class AdaptiveRun(FeatureContacts):
                 vals = np.array([fr(x) for x in taus])
                 if (vals[1:] < 0).any() and vals[0] >= 0:
                     j = int(np.argmax(vals[1:] < 0)) + 1
-                    tau = brentq(fr, taus[j - 1], taus[j], xtol=1e-15)
+                    tau = _root(fr, taus[j - 1], taus[j], 1e-15)
                     if best is None or tau < best[0]:
                         best = (tau, "return", k)
         if len(C) and (e1.lam < -LAM_EPS).any():
@@ -286,7 +296,7 @@ class AdaptiveRun(FeatureContacts):
                 def fl(x, k=k):
                     q, u = at(x)
                     return float(self.dynamics(q, u, C)[1][k]) + LAM_EPS
-                tau = brentq(fl, 0.0, 1.0, xtol=1e-13) if fl(0.0) > 0 else 0.0
+                tau = _root(fl, 0.0, 1.0, 1e-13)
                 if best is None or tau < best[0]:
                     best = (tau, "release", int(k))
         return best
