@@ -53,10 +53,10 @@ from scipy.optimize import brentq
 from .data import Data, make_data
 from .errors import SimulationError
 from .features import (G_RES, LAM_EPS, V_TOL, CornerImpact, FeatureContacts, UnsupportedModel,
-                       feature_list)
+                       feature_list, run_recorded, sample_grid)
 from .model import Model, initial_state
 from .options import Bias
-from .recording import Recorder, run_metadata
+from .recording import run_metadata
 from .state import State
 from .stepper import MIDPOINT_ITERATIONS, free_velocity, step
 from .trajectory import Trajectory
@@ -479,27 +479,11 @@ def simulate_adaptive(model: Model, *, state: State | None = None, t_end: float 
     data = data or make_data(model)
     state = state or initial_state(model)
     opts = model.options
+    t_end, t_grid = sample_grid(model, state, t_end, t_eval)
     rtol = opts.rtol if rtol is None else float(rtol)
     atol = opts.atol if atol is None else float(atol)
-    t_end = state.t + opts.duration if t_end is None else float(t_end)
-    if not t_end > state.t:
-        raise ValueError(f"t_end = {t_end} s must be after the initial time {state.t} s")
-    if t_eval is None:
-        n = max(1, int(round((t_end - state.t) / (opts.dt * opts.save_every))))
-        t_grid = state.t + (t_end - state.t) * np.arange(n + 1) / n
-    else:
-        t_grid = np.asarray(t_eval, float)
-        if t_grid.ndim != 1 or np.any(np.diff(t_grid) <= 0) or t_grid[0] < state.t or t_grid[-1] > t_end:
-            raise ValueError(f"t_eval must increase strictly within [{state.t}, {t_end}] s")
     integ = AdaptiveRun(model, data, opts.restitution, rtol, atol, order, max_step, max_events)
-    integ.rec = Recorder(model, data, len(t_grid))
-    wall0 = time.perf_counter()
-    try:
-        integ.run(state, t_end, t_grid)
-    except SimulationError as exc:
-        exc.trajectory = integ.rec.trajectory(_meta(model, integ, f"failed: {exc}", wall0))
-        raise
-    return integ.rec.trajectory(_meta(model, integ, "complete", wall0))
+    return run_recorded(integ, state, t_end, t_grid, _meta)
 
 
 def _meta(model: Model, integ: AdaptiveRun, status: str, wall0: float) -> dict:

@@ -56,9 +56,9 @@ from scipy.integrate import solve_ivp
 from .data import Data, make_data
 from .errors import SimulationError
 from .features import (ACC_TOL, DT_ZENO, G_RES, G_ZENO, LAM_EPS, V_TOL, V_ZENO, FeatureContacts,  # noqa: F401
-                       UnsupportedModel)
+                       UnsupportedModel, run_recorded, sample_grid)
 from .model import Model, initial_state
-from .recording import Recorder, run_metadata
+from .recording import run_metadata
 from .state import State
 from .trajectory import Trajectory
 
@@ -205,26 +205,9 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     without an analytic gap, SimulationError (with .trajectory up to the failure) otherwise."""
     data = data or make_data(model)
     state = state or initial_state(model)
-    opts = model.options
-    t_end = state.t + opts.duration if t_end is None else float(t_end)
-    if not t_end > state.t:
-        raise ValueError(f"t_end = {t_end} s must be after the initial time {state.t} s")
-    if t_eval is None:
-        n = max(1, int(round((t_end - state.t) / (opts.dt * opts.save_every))))
-        t_grid = state.t + (t_end - state.t) * np.arange(n + 1) / n
-    else:
-        t_grid = np.asarray(t_eval, float)
-        if t_grid.ndim != 1 or np.any(np.diff(t_grid) <= 0) or t_grid[0] < state.t or t_grid[-1] > t_end:
-            raise ValueError(f"t_eval must increase strictly within [{state.t}, {t_end}] s")
-    integ = EventDrivenRun(model, data, opts.restitution, rtol, atol, method, max_step, max_events)
-    integ.rec = Recorder(model, data, len(t_grid))
-    wall0 = time.perf_counter()
-    try:
-        integ.run(state, t_end, t_grid)
-    except SimulationError as exc:
-        exc.trajectory = integ.rec.trajectory(_meta(model, integ, f"failed: {exc}", wall0))
-        raise
-    return integ.rec.trajectory(_meta(model, integ, "complete", wall0))
+    t_end, t_grid = sample_grid(model, state, t_end, t_eval)
+    integ = EventDrivenRun(model, data, model.options.restitution, rtol, atol, method, max_step, max_events)
+    return run_recorded(integ, state, t_end, t_grid, _meta)
 
 
 def _meta(model: Model, integ: EventDrivenRun, status: str, wall0: float) -> dict:

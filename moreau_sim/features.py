@@ -17,6 +17,7 @@ decides which touching contacts persist (event_driven.py's module doc states the
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import coal
@@ -31,6 +32,7 @@ from .law import impact, project
 from .model import Model
 from .recording import LOG_RELATIVE, PercussionRow, Recorder
 from .state import State
+from .trajectory import Trajectory
 
 V_TOL = 1e-9  # [m/s] |gamma| <= this on a closed feature: touching, not impacting
 G_RES = 1e-13  # [m] smallest gap whose sign is trusted (~3000x the rounding of positions ~ 1 m)
@@ -303,3 +305,33 @@ class FeatureContacts:
         """Record a sample with the contact work since the previous one."""
         self.rec.sample(State(t, q, u), self.work, 0.0, n_contacts)
         self.work = 0.0
+
+
+def sample_grid(model: Model, state: State, t_end: float | None, t_eval) -> tuple[float, np.ndarray]:
+    """t_end [s] (default: state.t + the scene's duration) and the sample instants of a run that
+    locates events: t_eval, checked to increase strictly within [t0, t_end], or by default every
+    save_every * dt of the scene's options (the instants ms.simulate records)."""
+    opts = model.options
+    t_end = state.t + opts.duration if t_end is None else float(t_end)
+    if not t_end > state.t:
+        raise ValueError(f"t_end = {t_end} s must be after the initial time {state.t} s")
+    if t_eval is None:
+        n = max(1, int(round((t_end - state.t) / (opts.dt * opts.save_every))))
+        return t_end, state.t + (t_end - state.t) * np.arange(n + 1) / n
+    t_grid = np.asarray(t_eval, float)
+    if t_grid.ndim != 1 or np.any(np.diff(t_grid) <= 0) or t_grid[0] < state.t or t_grid[-1] > t_end:
+        raise ValueError(f"t_eval must increase strictly within [{state.t}, {t_end}] s")
+    return t_end, t_grid
+
+
+def run_recorded(integ: FeatureContacts, state: State, t_end: float, t_grid: np.ndarray, meta) -> Trajectory:
+    """integ.run(state, t_end, t_grid) into a new Recorder; the Trajectory with meta(model, integ,
+    status, wall0), or SimulationError with .trajectory up to the failure."""
+    integ.rec = Recorder(integ.model, integ.data, len(t_grid))
+    wall0 = time.perf_counter()
+    try:
+        integ.run(state, t_end, t_grid)
+    except SimulationError as exc:
+        exc.trajectory = integ.rec.trajectory(meta(integ.model, integ, f"failed: {exc}", wall0))
+        raise
+    return integ.rec.trajectory(meta(integ.model, integ, "complete", wall0))
