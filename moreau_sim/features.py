@@ -69,7 +69,10 @@ class Feature:
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+    """a x b for 3-vectors (in Python floats: the same IEEE operations, without numpy's per-element cost)."""
+    a0, a1, a2 = a.tolist()
+    b0, b1, b2 = b.tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def feature_list(model: Model) -> tuple[Feature, ...]:
@@ -144,15 +147,20 @@ class FeatureContacts:
         point fixed in joint j's frame (needs forwardKinematics(q, u, 0) and, for rows, J)."""
         if j == 0:
             return p_local, np.zeros(3), np.zeros(3), (np.zeros((3, self.nv)) if rows else None)
-        M, v, a = self.pd.oMi[j], self.pd.v[j], self.pd.a[j]
-        R = M.rotation
-        w, vl = v.angular, v.linear + cross(v.angular, p_local)
-        p = R @ p_local + M.translation
+        frame = self._frames.get(j)
+        if frame is None:  # the joint's placement, twist and bias acceleration, read once per call
+            M, v, a = self.pd.oMi[j], self.pd.v[j], self.pd.a[j]
+            frame = self._frames[j] = (M.rotation, M.translation, v.angular, v.linear, a.angular, a.linear)
+        R, t, w, v_lin, a_ang, a_lin = frame
+        vl = v_lin + cross(w, p_local)
+        p = R @ p_local + t
         vel = R @ vl
-        acc = R @ (a.linear + cross(a.angular, p_local) + cross(w, vl))
+        acc = R @ (a_lin + cross(a_ang, p_local) + cross(w, vl))
         Jp = None
         if rows:
-            J = self.pd.J.reshape(6, -1)
+            if self._J is None:
+                self._J = self.pd.J.reshape(6, -1)
+            J = self._J
             Jp = (J[:3] - pin.skew(p) @ J[3:]) * self.model.support_mask[j]
         return p, vel, acc, Jp
 
@@ -162,6 +170,7 @@ class FeatureContacts:
         if rows:
             pin.computeJointJacobians(pm, pd, q)
         pin.forwardKinematics(pm, pd, q, u, self.zero)
+        self._frames, self._J = {}, None
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
