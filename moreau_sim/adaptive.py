@@ -272,14 +272,15 @@ class AdaptiveRun(FeatureContacts):
                 if j > j_min:  # a later bracket: its root is later than one of the first bracket's
                     continue
                 pk = _poly(coef[:, k])
-                f = (lambda x, pk=pk: float(_polyval(pk, x)))
-                lo = taus[j - 1]
-                tau = _root(f, lo, taus[j], 1e-15)
+
+                def f(x, pk=pk):
+                    return float(_polyval(pk, x))
+                tau = _root(f, taus[j - 1], taus[j], 1e-15)
                 if best is None or tau < best[0]:
                     best = (tau, "gap", k)
             # a feature within G_RES of contact coming back: gamma below -2 V_TOL (cubic Hermite of gamma)
             for k in range(nw, len(e0.g)):
-                gc = np.array([e0.gamma[k], H * e0.gdd[k], e1.gamma[k], H * e1.gdd[k]]) + np.array([2 * V_TOL, 0, 2 * V_TOL, 0])
+                gc = np.array([e0.gamma[k] + 2 * V_TOL, H * e0.gdd[k], e1.gamma[k] + 2 * V_TOL, H * e1.gdd[k]])
 
                 def fr(x, gc=gc):
                     return float(gc[0] * (1 - 3 * x * x + 2 * x ** 3) + gc[1] * (x - 2 * x * x + x ** 3)
@@ -354,7 +355,8 @@ class AdaptiveRun(FeatureContacts):
                 err = self._error(q, u, q1, u1, d)
                 if not np.isfinite(err) or err > 1.0:
                     self.rejected += 1
-                    H = h * (MIN_FACTOR if not np.isfinite(err) else max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1))))
+                    shrink = SAFETY * err ** (-1.0 / (self.order - 1)) if np.isfinite(err) else 0.0
+                    H = h * max(MIN_FACTOR, shrink)
                     if H < H_MIN:
                         break
                     continue

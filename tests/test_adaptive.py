@@ -11,7 +11,7 @@ from moreau_sim.adaptive import simulate_adaptive
 from moreau_sim.errors import SceneError
 from moreau_sim.event_driven import simulate_event_driven
 
-from conftest import BUNDLED, inline_scene, scene
+from helpers import BUNDLED, inline_scene, scene
 
 G, D0 = 9.81, 0.9  # gravity [m/s^2]; the ball's initial gap [m] (centre at 1 m, r = 0.1 m)
 T0 = math.sqrt(2 * D0 / G)  # first impact time [s]
