@@ -462,7 +462,7 @@ class AdaptiveRun(FeatureContacts):
 
 def simulate_adaptive(model: Model, *, state: State | None = None, t_end: float | None = None,
                       rtol: float | None = None, atol: float | None = None, order: int = DEFAULT_ORDER,
-                      t_eval=None, max_step: float = 0.1, max_events: int = 1_000_000,
+                      t_eval=None, max_step: float = 1.0, max_events: int = 1_000_000,
                       data: Data | None = None) -> Trajectory:
     """Integrate `model` adaptively (module doc) from `state` (default: the scene's initial
     state) to `t_end` [s] (default: state.t + the scene's duration), restitution = the scene's e.

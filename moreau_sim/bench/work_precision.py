@@ -129,7 +129,7 @@ def run_adaptive(model: ms.Model, rtol: float, T: float, t_eval: np.ndarray) -> 
     on the sample instants: samples come from the dense output) recorded at t_eval, untimed."""
     def once(grid):
         data = ms.make_data(model)
-        integ = AdaptiveRun(model, data, model.options.restitution, rtol, rtol / 100, 6, 0.1, 10 ** 6)
+        integ = AdaptiveRun(model, data, model.options.restitution, rtol, rtol / 100, 6, 1.0, 10 ** 6)
         integ.rec = ms.Recorder(model, data, len(grid))
         c0 = time.process_time()
         integ.run(ms.initial_state(model), T, grid)
