@@ -304,11 +304,11 @@ class AdaptiveRun(FeatureContacts):
 
     def _land(self, e0: _End, H: float, C, feature: int | None):
         """Re-take the step from e0 with size H onto the event; for a gap, Newton on g = 0."""
-        q1, u1 = e0.q, e0.u
+        hs, q1, u1 = 0.0, e0.q, e0.u  # the last step taken: its size and end
         for _ in range(LAND_ITER if feature is not None else 1):
             if H <= 0.0:
-                return 0.0, e0.q, e0.u
-            q1, u1, _ = self._step(e0.q, e0.u, H, C)
+                break
+            hs, (q1, u1, _) = H, self._step(e0.q, e0.u, H, C)
             self.landings += 1
             if feature is None:
                 break
@@ -317,7 +317,7 @@ class AdaptiveRun(FeatureContacts):
             if abs(g) <= G_LAND or gam >= 0.0:
                 break
             H -= g / gam
-        return H, q1, u1
+        return hs, q1, u1
 
     # ---- the run ---------------------------------------------------------------------------
     def run(self, state: State, t_end: float, t_grid: np.ndarray) -> None:
