@@ -58,7 +58,8 @@ FULL_REPEAT_H = 1e-4  # steps >= this are repeated --repeats times; smaller ones
 LEVELS = (1e-2, 1e-3)  # relative accuracy levels of the summary table (1 % and 0.1 % of the scale)
 FLOOR = 1e-16  # errors below this (exact to round-off) are drawn at this level
 PEER_CONFIGS = {"mujoco": ("mujoco", {}), "pybullet-default": ("pybullet", {"config": "default"}),
-                "pybullet-tuned": ("pybullet", {"config": "tuned"}), "siconos": ("siconos", {})}
+                "pybullet-tuned": ("pybullet", {"config": "tuned"}), "siconos": ("siconos", {}),
+                "siconos-event-driven": ("siconos", {"simulation": "event-driven"})}  # h: its sampling
 ADAPTIVE = "moreau-sim adaptive"  # integrator = "adaptive" (docs/theory.md §8), swept over rtol
 RTOLS = (1e-4, 1e-6, 1e-8, 1e-10, 1e-12)  # its sweep (atol = rtol / 100); a point's "h" holds its rtol
 QUICK_RTOLS = (1e-6, 1e-10)
