@@ -83,18 +83,26 @@ def _lcp(P):
     return lcp
 
 
-def _simulate(sim, record, N):
-    """Step N times; `record(k)` stores the state after step k. Returns CPU seconds."""
+def _simulate(sim, record, N, h=None):
+    """Step N times (time stepping), or with h go event by event to the end (event-driven);
+    `record(k)` stores the state after step k, or at the time event k h (impacts are events too,
+    not recorded). Returns CPU seconds."""
     c0 = time.process_time()
     k = 0
-    while k < N and sim.hasNextEvent():
-        sim.computeOneStep()
-        sim.nextStep()
+    while (h is not None or k < N) and sim.hasNextEvent():
+        if h is None:
+            sim.computeOneStep()
+            sim.nextStep()
+        else:
+            sim.advanceToEvent()
+            sim.processEvents()
+            if not (k < N and abs(sim.startingTime() - (k + 1) * h) <= 1e-9 * h):
+                continue
         k += 1
         record(k)
     cpu = time.process_time() - c0
     if k != N:
-        raise RuntimeError(f"simulation stopped after {k} of {N} steps")
+        raise RuntimeError(f"simulation stopped after {k} of {N} steps or time events")
     return cpu
 
 
@@ -114,23 +122,6 @@ def run(spec: dict, **params) -> dict:
         return _box(spec, P)
     raise NotExpressible("the Siconos runner takes spheres on collinear slide joints, or one free box over a "
                          "half-space")
-
-
-def _simulate_events(sim, record, N, h):
-    """Event by event to the end; `record(k)` stores the state at the time event k h (impacts
-    are events too, not recorded). Returns CPU seconds."""
-    c0 = time.process_time()
-    k = 0
-    while sim.hasNextEvent():
-        sim.advanceToEvent()
-        sim.processEvents()
-        if k < N and abs(sim.startingTime() - (k + 1) * h) <= 1e-9 * h:
-            k += 1
-            record(k)
-    cpu = time.process_time() - c0
-    if k != N:
-        raise RuntimeError(f"simulation recorded {k} of {N} time events")
-    return cpu
 
 
 def _settings_ed(P, e, h):
@@ -209,7 +200,7 @@ def _spheres(spec, P):
             v[k, j] = ds.velocity()[0]
 
     record(0)
-    cpu = _simulate_events(sim, record, N, h) if event_driven else _simulate(sim, record, N)
+    cpu = _simulate(sim, record, N, h if event_driven else None)
     if P["exact_gaps"]:
         q += np.array([float(b["q0"]) for b in bodies])
     sl = slice(None, None, max(1, int(spec.get("stride", 1))))
