@@ -51,6 +51,12 @@ def _settings(settings) -> dict:
     return out
 
 
+def _show_progress(flag: bool | None, as_json: bool) -> bool:
+    """--progress forces the bar, --no-progress hides it; by default it is drawn on a terminal only
+    (never into a log file or a CI log)."""
+    return (sys.stderr.isatty() if flag is None else flag) and not as_json
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="moreau-sim")
 def main():
@@ -69,7 +75,8 @@ def main():
                    "e.g. --set bias=explicit --set gravity=[0,0,-1.62] (docs/scenes.md).")
 @click.option("--out", "-o", type=click.Path(dir_okay=False), help="Output NPZ (default: the scene's [output] file).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
-@click.option("--progress/--no-progress", default=True, help="Progress bar on runs longer than 2 s (on a terminal).")
+@click.option("--progress/--no-progress", default=None,
+              help="Progress bar on runs longer than 2 s (default: only when stderr is a terminal).")
 def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as_json, progress):
     """Simulate SCENE and write a self-describing NPZ."""
     overrides = _settings(settings)
@@ -80,7 +87,7 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
     sc, model = _load(scene, **overrides)
     out = Path(out or sc.output or f"{sc.name}.npz")
     try:
-        traj = simulate(model, progress=progress and not as_json and sys.stderr.isatty())
+        traj = simulate(model, progress=_show_progress(progress, as_json))
     except SimulationError as exc:
         partial = out.with_name(out.stem + ".partial.npz")
         if exc.trajectory is not None:

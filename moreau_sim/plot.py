@@ -34,7 +34,6 @@ def figure(traj: Trajectory | str | Path, panels: tuple[str, ...] | list[str] = 
     if not isinstance(traj, Trajectory):
         traj = load_trajectory(traj)
     a, meta = traj.arrays, traj.meta
-    t = a["t"]
     pairs = list(meta.get("model", {}).get("collision_pairs", []))
     npairs = a["gap"].shape[1]
     pairs += [f"pair {k}" for k in range(len(pairs), npairs)]
