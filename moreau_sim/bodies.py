@@ -4,6 +4,7 @@ coexist (model.build_model appends them into one model)."""
 
 from __future__ import annotations
 
+import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -68,13 +69,70 @@ def _check_urdf(path: Path, where: str) -> dict[str, int]:
         if not name:
             raise SceneError(f"{path}: a <link> has no name [{where} urdf]")
         counts[name] = len(link.findall("collision"))
+        _check_inertial(link, f"{path}: link '{name}'", where)
         for col in link.findall("collision"):
             geo = col.find("geometry")
             kinds = [c.tag for c in geo] if geo is not None else []
             if len(kinds) != 1 or kinds[0] not in ("box", "sphere", "cylinder", "mesh"):
                 raise SceneError(f"{path}: link '{name}': collision geometry {kinds or 'missing'} cannot be parsed "
                                  f"by Pinocchio's URDF reader (supported: box, sphere, cylinder, mesh) [{where} urdf]")
+            _check_sizes(geo[0], f"{path}: link '{name}': <{kinds[0]}>", where)
     return counts
+
+
+_SIZES = {"sphere": ("radius",), "cylinder": ("radius", "length"), "box": ("size",), "mesh": ("scale",)}
+
+
+def _numbers(text: str | None, where: str, key: str, urdf_where: str) -> list[float]:
+    try:
+        values = [float(x) for x in (text or "").split()]
+    except ValueError:
+        raise SceneError(f"{where} {key}={_short(text)}: not numbers [{urdf_where} urdf]") from None
+    return values
+
+
+def _check_sizes(shape, where: str, urdf_where: str) -> None:
+    """Sizes of a collision shape: finite and > 0 (a negative radius would load and run with
+    wrong dynamics); a mesh scale finite and non-zero."""
+    for key in _SIZES[shape.tag]:
+        if shape.tag == "mesh" and shape.get(key) is None:
+            continue
+        values = _numbers(shape.get(key), where, key, urdf_where)
+        n = 3 if key in ("size", "scale") else 1
+        ok = len(values) == n and all(math.isfinite(v) for v in values)
+        point = shape.tag == "sphere"  # a sphere of radius 0 is a point particle (one vertex)
+        ok = ok and (all(v != 0 for v in values) if key == "scale" else all(v > 0 or (point and v == 0) for v in values))
+        if not ok:
+            need = (f"{n} finite non-zero numbers" if key == "scale" else
+                    "a finite radius >= 0 [m] (0: a point)" if point else f"{n} finite number(s) > 0 [m]")
+            raise SceneError(f"{where} {key}={_short(shape.get(key))}: must be {need} [{urdf_where} urdf]")
+
+
+def _check_inertial(link, where: str, urdf_where: str) -> None:
+    """A link's <inertial>: mass finite and >= 0, inertia finite (a link without one is massless).
+    Whether the model can move at all (M(q) positive definite) is checked once it is built."""
+    inertial = link.find("inertial")
+    if inertial is None:
+        return
+    mass = inertial.find("mass")
+    if mass is not None:
+        m = _numbers(mass.get("value"), f"{where} <mass>", "value", urdf_where)
+        if len(m) != 1 or not math.isfinite(m[0]) or m[0] < 0:
+            raise SceneError(f"{where} <mass> value={_short(mass.get('value'))}: must be a finite mass >= 0 [kg] "
+                             f"[{urdf_where} urdf]")
+    inertia = inertial.find("inertia")
+    if inertia is not None:
+        for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
+            v = _numbers(inertia.get(key, "0"), f"{where} <inertia>", key, urdf_where)
+            if len(v) != 1 or not math.isfinite(v[0]):
+                raise SceneError(f"{where} <inertia> {key}={_short(inertia.get(key))}: must be a finite number "
+                                 f"[kg m^2] [{urdf_where} urdf]")
+
+
+def _short(value, n: int = 40) -> str:
+    """repr of a value, cut to n characters (an error message never repeats a huge input)."""
+    text = repr(value)
+    return text if len(text) <= n else text[:n - 5] + "...'"
 
 
 def load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str]:

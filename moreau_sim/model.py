@@ -301,8 +301,28 @@ def build_model(scene: Scene) -> Model:
     if model.nv == 0:
         raise SceneError(f"{where} [[bodies]]: nothing moves (every body has a fixed root and no joints)")
     q0, u0 = _initial(scene, model, infos, where)
+    _check_mass_matrix(model, q0, where)
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0)
+
+
+def _check_mass_matrix(model: pin.Model, q0: np.ndarray, where: str) -> None:
+    """M(q0) must be positive definite: every moving dof must carry mass or inertia (a zero mass
+    or inertia otherwise surfaces as a failed QP or a NaN state at the first step)."""
+    M = pin.crba(model, model.createData(), q0)
+    if np.isfinite(M).all():
+        try:
+            np.linalg.cholesky(0.5 * (M + M.T))
+            return
+        except np.linalg.LinAlgError:
+            pass
+    bad = []
+    for j in range(1, model.njoints):
+        Y = model.inertias[j]
+        if not (Y.mass > 0.0 and np.linalg.eigvalsh(0.5 * (Y.inertia + Y.inertia.T)).min() > 0.0):
+            bad.append(model.names[j])
+    raise SceneError(f"{where} [[bodies]]: the mass matrix at the initial state is singular: every moving link "
+                     f"needs a mass > 0 and a positive-definite inertia (links without: {', '.join(bad) or 'none'})")
 
 
 def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndarray, np.ndarray]:

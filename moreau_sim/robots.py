@@ -196,9 +196,21 @@ def apply_mesh_mode(geom: pin.GeometryModel, mode: MeshMode, where: str = "") ->
     for go in geom.geometryObjects:
         g = go.geometry
         if isinstance(g, coal.BVHModelBase):
+            name = go.meshPath or go.name
+            V = np.asarray(g.vertices(), float).reshape(-1, 3)
+            bad = int((~np.isfinite(V).all(axis=1)).sum())
+            if bad:
+                raise SceneError(f"{where}: collision mesh {name}: {bad} of its {len(V)} vertices are not finite "
+                                 "(NaN or inf); fix the mesh file")
             if mode is MeshMode.BVH:
                 continue
             if g.convex is None:  # meshes come from a cache (model._MESH_LOADER): build each hull once
+                thickness = _thickness(V)
+                if thickness <= 1e-9 * max(1.0, float(np.ptp(V, axis=0).max(initial=0.0))):
+                    # qhull on a flat point set crashes coal 3.0.3 (segfault): refuse it here
+                    raise SceneError(f"{where}: collision mesh {name} is flat (its {len(V)} vertices lie within "
+                                     f"{thickness:.2g} m of one plane) and has no convex hull; give this body "
+                                     "meshes = \"bvh\", or a closed mesh")
                 try:
                     g.buildConvexHull(True, "Qt")
                 except Exception as exc:  # coal raises RuntimeError with its C++ location first
@@ -211,6 +223,15 @@ def apply_mesh_mode(geom: pin.GeometryModel, mode: MeshMode, where: str = "") ->
             for x in np.asarray(g.points(), float).reshape(-1, 3):
                 points.append(x)
             go.geometry = coal.ConvexBase.convexHull(points, True, "Qt")
+
+
+def _thickness(V: np.ndarray) -> float:
+    """The smallest extent [m] of a point set across its principal axes (0 when flat or < 4 points)."""
+    if len(V) < 4:
+        return 0.0
+    X = V - V.mean(axis=0)
+    s = np.linalg.svd(X, compute_uv=False)
+    return float(s[-1] / np.sqrt(len(V))) if len(s) == 3 else 0.0
 
 
 def unique_frame_names(model: pin.Model) -> None:
