@@ -4,7 +4,10 @@ coexist (model.build_model appends them into one model)."""
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -129,6 +132,30 @@ def _check_inertial(link, where: str, urdf_where: str) -> None:
                                  f"[kg m^2] [{urdf_where} urdf]")
 
 
+@contextlib.contextmanager
+def quiet_stderr():
+    """Silence the C/C++ libraries' own writes to stderr (file descriptor 2) for the block."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no real stderr (embedded interpreters): nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _one_line(exc: BaseException, n: int = 300) -> str:
+    """A library's (often multi-line C++) message as one line of at most n characters."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= n else text[:n - 3] + "..."
+
+
 def _short(value, n: int = 40) -> str:
     """repr of a value, cut to n characters (an error message never repeats a huge input)."""
     text = repr(value)
@@ -147,14 +174,15 @@ def load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str
         counts = _check_urdf(path, where)
         xml = robots.urdf_with_resolved_meshes(path, body.package_dirs, where)
         try:
-            if root is None:
-                m = pin.buildModelFromUrdf(str(path))
-            else:
-                m = pin.buildModelFromUrdf(str(path), root, "root")
-            g = pin.buildGeomFromUrdfString(m, xml, pin.GeometryType.COLLISION, package_dirs=[str(path.parent)],
-                                            mesh_loader=_MESH_LOADER)
-        except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with C++ text
-            raise SceneError(f"{path}: Pinocchio cannot load this URDF: {exc} [{where} urdf]") from None
+            with quiet_stderr():  # urdfdom and assimp print their own lines; the error below says what failed
+                if root is None:
+                    m = pin.buildModelFromUrdf(str(path))
+                else:
+                    m = pin.buildModelFromUrdf(str(path), root, "root")
+                g = pin.buildGeomFromUrdfString(m, xml, pin.GeometryType.COLLISION, package_dirs=[str(path.parent)],
+                                                mesh_loader=_MESH_LOADER)
+        except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with multi-line C++ text
+            raise SceneError(f"{path}: Pinocchio cannot load this URDF: {_one_line(exc)} [{where} urdf]") from None
         loaded: dict[str, int] = {}
         for go in g.geometryObjects:
             link = m.frames[go.parentFrame].name

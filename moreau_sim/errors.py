@@ -19,3 +19,7 @@ class SimulationError(MoreauSimError, RuntimeError):
         self.step = step
         self.t = t
         self.trajectory = trajectory
+
+
+class SimulationInterrupted(SimulationError):
+    """The run was interrupted (Ctrl-C, SIGTERM): ``trajectory`` holds the samples so far."""

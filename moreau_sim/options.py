@@ -247,6 +247,7 @@ class Options:
         require(isinstance(self.duration, (int, float)) and math.isfinite(self.duration) and self.duration > 0,
                f"{where}: duration", f"must be > 0 s, got {self.duration!r}")
         require(self.duration / h <= 1e9, f"{where}: dt", f"duration/dt = {self.duration / h:.3g} steps is too many")
+        require(h <= self.duration, f"{where}: dt", f"the step {h!r} s is longer than the duration {self.duration!r} s")
         finite_vector(list(self.gravity), 3, f"{where}: gravity")
         require(isinstance(self.contact_tolerance, (int, float)) and 0 <= self.contact_tolerance < 1e-3,
                f"{where}: contact_tolerance", f"must lie in [0, 1e-3) m, got {self.contact_tolerance!r}")

@@ -118,6 +118,8 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     b = np.zeros(m) if b is None else np.asarray(b, float)
     if polish is Polish.ACTIVE_SET and Minv is None:
         Minv = np.linalg.inv(M)
+    if not np.isfinite(v0).all():  # an overflow upstream: no projection of it is meaningful
+        return QPResult("NON_FINITE_INPUT", False, 0, False, v0.copy(), np.zeros(m))
     if screen and (W.T @ v0 - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
         return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), (M, W, v0, b))
@@ -142,6 +144,8 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     iters = s.result.info.iter
     if status != piqp.PIQP_SOLVED:
         return QPResult(_STATUS.get(status, str(status)), False, iters, False, v, lam)
+    if not (np.isfinite(v).all() and np.isfinite(lam).all()):  # piqp has answered "solved" with NaN
+        return QPResult("NON_FINITE_SOLUTION", False, iters, False, v, lam)
     p = None
     if polish is Polish.ACTIVE_SET:
         np.maximum(lam, 0.0, out=lam)

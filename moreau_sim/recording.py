@@ -134,6 +134,12 @@ class Recorder:
         c["gap"][i] = pair_distances(m, d, q)
         c["n_contacts"][i] = n_contacts
 
+    def finite(self) -> bool:
+        """Whether the last sample's energies and gaps are finite (an overflow shows there first)."""
+        i, c = self._samples.n - 1, self._samples.cols
+        return bool(np.isfinite(c["kinetic_energy"][i]) and np.isfinite(c["potential_energy"][i])
+                    and np.isfinite(c["gap"][i]).all())
+
     def log(self, row: PercussionRow) -> None:
         i = self._log.row()
         c = self._log.cols

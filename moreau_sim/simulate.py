@@ -11,7 +11,7 @@ from tqdm import tqdm
 
 from .adaptive import simulate_adaptive
 from .data import Data, make_data
-from .errors import SimulationError
+from .errors import MoreauSimError, SimulationError, SimulationInterrupted
 from .event_driven import simulate_event_driven
 from .model import Model, build_model, initial_state
 from .options import Integrator
@@ -50,7 +50,11 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     k = 0
     try:
         for k in range(n):
-            r = step(model, data, state, h=h, e=e, t_next=t0 + (k + 1) * h)
+            try:
+                r = step(model, data, state, h=h, e=e, t_next=t0 + (k + 1) * h)
+            except Exception as exc:  # a solver that raised (corner QP, NNLS on NaN): a named stop, not a traceback
+                raise SimulationError(f"step {k + 1} (t = {state.t:.6g} s): {_one_line(exc)}", step=k + 1,
+                                      t=state.t) from exc
             if r.qp is not None and not r.qp.ok:
                 raise SimulationError(f"step {k + 1} (t = {state.t:.6g} s -> {r.state.t:.6g} s): the impact QP "
                                       f"failed with status {r.qp.status} after {r.qp.iterations} iterations "
@@ -70,16 +74,32 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
             if (k + 1) % every == 0 or k == n - 1:
                 rec.sample(state, work, corr, r.contacts.m)
                 work = corr = 0.0
+                if not rec.finite():
+                    raise SimulationError(f"step {k + 1} (t = {state.t:.6g} s): the energies or gaps became non-finite "
+                                          "(an overflow: check gravity, masses and initial velocities)", step=k + 1,
+                                          t=state.t)
             if (k & 1023) == 1023:
                 bar.update(1024)
     except SimulationError as exc:
         wall = time.perf_counter() - wall0
         exc.trajectory = rec.trajectory(_meta(model, f"failed: {exc}", k, wall))
         raise
+    except KeyboardInterrupt:
+        wall = time.perf_counter() - wall0
+        msg = f"interrupted at step {k + 1} (t = {state.t:.6g} s)"
+        raise SimulationInterrupted(msg, step=k + 1, t=state.t,
+                                    trajectory=rec.trajectory(_meta(model, f"failed: {msg}", k, wall))) from None
     finally:
         bar.close()
     wall = time.perf_counter() - wall0
     return rec.trajectory(_meta(model, "complete", n, wall))
+
+
+def _one_line(exc: BaseException, n: int = 300) -> str:
+    """An exception as one short line: its type and its message's lines joined, cut to n characters."""
+    msg = " ".join(str(exc).split())
+    text = msg if isinstance(exc, MoreauSimError) else f"{type(exc).__name__}: {msg}"
+    return text if len(text) <= n else text[:n - 3] + "..."
 
 
 def _meta(model: Model, status: str, steps: int, wall: float) -> dict:

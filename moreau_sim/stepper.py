@@ -29,6 +29,7 @@ from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
 from .corners import MAX_PIECES, select, stationary_points
 from .data import Data
 from .energy import kinetic, potential
+from .errors import SimulationError
 from .law import outcome, percussion, project, restitution_bounds
 from .model import Model
 from .options import Bias, Options, PositionCorrection, QPForm, Tunnelling
@@ -219,8 +220,9 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     if budget <= 0.0:
         return q_next, 0.0
     res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
-    if not res.ok:
-        return q_next, 0.0
+    if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)
+        raise SimulationError(f"the position-correction QP failed with status {res.status} "
+                              f"({imp.contacts.m} closed contacts)")
     q_c = pin.integrate(model.pin, q_next, res.v)
     dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
     if dE > budget:

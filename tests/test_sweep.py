@@ -194,16 +194,16 @@ def test_rows_of_other_sweeps_are_kept(tmp_path):
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
 def test_a_failed_point_is_recorded_not_fatal(tmp_path):
-    # gravity 1.7e308 m/s^2 with h = 1 s: the velocity overflows at step 2 (SimulationError)
+    # gravity 1.7e308 m/s^2 with h = 1 s: the potential energy overflows at step 1 (SimulationError)
     ps = params("gravity=[0,0,-9.81],[0,0,1.7e308]", "dt=1", "duration=3")
     res = run_sweep(BALL, ps, tmp_path, workers=1, progress=False)
     assert (res.computed, res.skipped, res.failed) == (1, 0, 1)
     ok, bad = res.rows
     assert ok["status"] == "complete" and ok["gravity"] == "[0.0, 0.0, -9.81]"
-    assert bad["status"] == "failed" and "step 2" in bad["message"] and "non-finite" in bad["message"]
-    assert bad["npz"] == f"{RUNS}/{bad['id']}.failed.npz" and bad["steps"] == 1
+    assert bad["status"] == "failed" and "step 1" in bad["message"] and "non-finite" in bad["message"]
+    assert bad["npz"] == f"{RUNS}/{bad['id']}.failed.npz" and bad["steps"] == 0  # none completed cleanly
     partial = ms.load_trajectory(tmp_path / bad["npz"])
-    assert partial.meta["status"].startswith("failed: step 2")
+    assert partial.meta["status"].startswith("failed: step 1")
     assert read_csv(res.table)[1]["message"] == bad["message"]
     again = run_sweep(BALL, ps, tmp_path, workers=1, progress=False)  # failed points are retried
     assert (again.computed, again.skipped, again.failed) == (0, 1, 1)

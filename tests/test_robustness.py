@@ -1,0 +1,140 @@
+"""Nothing lost, nothing silently wrong: models that would crash a library are refused by name,
+every solver fault stops the run with a SimulationError naming the step and time (the samples
+so far attached), and nothing non-finite is ever reported complete."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import moreau_sim as ms
+from moreau_sim import qp, stepper
+
+from helpers import MODELS, run
+
+PLATE = """[scene]
+name = "plate"
+[simulation]
+duration = 0.01
+[[bodies]]
+name = "plate"
+urdf = "plate.urdf"
+root_joint = "free"
+position = [0, 0, 1]
+{meshes}
+[[statics]]
+name = "ground"
+shape = "halfspace"
+"""
+
+URDF = """<robot name="plate"><link name="plate">
+<inertial><mass value="{mass}"/><inertia ixx="{ixx}" iyy="0.1" izz="0.1" ixy="0" ixz="0" iyz="0"/></inertial>
+<collision><geometry>{geometry}</geometry></collision></link></robot>"""
+
+SQUARE = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n"  # two triangles: flat
+TETRA_NAN = "v 0 0 0\nv 1 0 0\nv 1 1 nan\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\nf 1 2 5\nf 2 3 5\n"
+
+
+def load_in_subprocess(folder) -> subprocess.CompletedProcess:
+    """Build the model in a child process: a regression to a library crash fails this test, not the suite."""
+    code = textwrap.dedent(f"""
+        import moreau_sim as ms
+        try:
+            ms.build_model(ms.load_scene({str(folder / "plate.toml")!r}))
+            print("BUILT")
+        except ms.SceneError as exc:
+            print("SCENE_ERROR", exc)
+    """)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+
+
+def plate(tmp_path, *, mesh=None, geometry=None, mass="1", ixx="0.1", meshes=""):
+    if mesh is not None:
+        (tmp_path / "plate.obj").write_text(mesh)
+        geometry = '<mesh filename="plate.obj"/>'
+    (tmp_path / "plate.urdf").write_text(URDF.format(mass=mass, ixx=ixx, geometry=geometry))
+    (tmp_path / "plate.toml").write_text(PLATE.format(meshes=meshes))
+    return tmp_path
+
+
+@pytest.mark.parametrize("mesh,words", [(SQUARE, ["is flat", 'meshes = "bvh"']), (TETRA_NAN, ["not finite"])])
+def test_meshes_coal_cannot_hull_are_named_not_crashed(tmp_path, mesh, words):
+    r = load_in_subprocess(plate(tmp_path, mesh=mesh))
+    assert r.returncode == 0, f"crashed with {r.returncode}: {r.stderr[-500:]}"
+    assert r.stdout.startswith("SCENE_ERROR") and "plate.obj" in r.stdout and all(w in r.stdout for w in words)
+    assert len(r.stdout.strip().splitlines()) == 1 and "Jacobi" not in r.stderr  # one line, no library chatter
+
+
+def test_a_flat_mesh_runs_as_a_bvh(tmp_path):
+    r = load_in_subprocess(plate(tmp_path, mesh=SQUARE, meshes='meshes = "bvh"'))
+    assert r.returncode == 0 and r.stdout.strip() == "BUILT", r.stdout + r.stderr[-500:]
+
+
+@pytest.mark.parametrize("geometry,field", [('<sphere radius="-0.1"/>', "radius"), ('<box size="0.1 0 0.1"/>', "size"),
+                                            ('<cylinder radius="0.1" length="nan"/>', "length")])
+def test_shape_sizes_must_be_positive(tmp_path, geometry, field):
+    with pytest.raises(ms.SceneError, match=f"{field}=.*must be"):
+        ms.load_scene(plate(tmp_path, geometry=geometry) / "plate.toml") and ms.build_model(
+            ms.load_scene(tmp_path / "plate.toml"))
+
+
+@pytest.mark.parametrize("mass,ixx,words", [("0", "0.1", "singular"), ("-1", "0.1", "mass"), ("1", "nan", "ixx"),
+                                            ("1", "0", "singular")])
+def test_mass_and_inertia_are_checked_at_load(tmp_path, mass, ixx, words):
+    sc = ms.load_scene(plate(tmp_path, geometry='<sphere radius="0.1"/>', mass=mass, ixx=ixx) / "plate.toml")
+    with pytest.raises(ms.SceneError, match=words) as info:
+        ms.build_model(sc)
+    assert "plate" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_step_longer_than_the_duration_is_refused():
+    with pytest.raises(ms.SceneError, match="dt.*longer than the duration"):
+        ms.load_scene(MODELS.parent / "scenes" / "bouncing_ball.toml").with_options(dt=0.5, duration=0.1)
+
+
+@pytest.mark.parametrize("options,words", [(dict(gravity=(0.0, 0.0, -1e300), dt=1e-2), "non-finite"),
+                                           (dict(gravity=(0.0, 0.0, 1e300), dt=1e-2), "non-finite")])
+def test_overflow_is_never_complete(options, words):
+    with pytest.raises(ms.SimulationError, match=words) as info:
+        run("bouncing_ball", duration=0.5, **options)
+    traj = info.value.trajectory
+    assert not traj.complete and traj.meta["status"].startswith("failed: step")
+    assert info.value.step >= 1 and info.value.t is not None
+
+
+def test_a_failed_correction_qp_stops_the_run(monkeypatch):
+    """Fault injection at the package's own QP call of the position correction (the plastic ball
+    at h = 1e-2 needs it at its first impact): the run stops, naming the step; nothing ignored."""
+    real = qp.solve
+
+    def failing(M, W, v0, *, b=None, **kw):
+        if b is not None and not np.any(v0):  # the correction's problem: v0 = 0, b = -g
+            return qp.QPResult("PIQP_MAX_ITER_REACHED", False, 250, False, v0, np.zeros(W.shape[1]))
+        return real(M, W, v0, b=b, **kw)
+
+    monkeypatch.setattr(stepper.qp, "solve", failing)
+    with pytest.raises(ms.SimulationError, match=r"step \d+ .*position-correction QP failed") as info:
+        run("bouncing_ball", restitution=0.0, dt=1e-2, duration=1.0)
+    assert info.value.trajectory is not None and not info.value.trajectory.complete
+
+
+def test_a_corner_law_that_raises_is_a_named_stop(monkeypatch):
+    def broken(*args, **kwargs):
+        raise IndexError("list index out of range")
+
+    monkeypatch.setattr(stepper, "stationary_points", broken)
+    with pytest.raises(ms.SimulationError, match=r"step 1 \(t = 0 s\): IndexError") as info:
+        run("corner_point")
+    assert info.value.trajectory.meta["status"].startswith("failed: step 1")
+
+
+def test_a_non_finite_qp_answer_is_not_a_solution():
+    """qp.solve on a problem whose data overflow: never ok with a NaN or inf in v or lam."""
+    M = np.eye(2)
+    W = np.array([[1.0], [0.0]])
+    res = qp.solve(M, W, np.array([-1e308 * 10, 0.0]))
+    assert not res.ok or (np.isfinite(res.v).all() and np.isfinite(res.lam).all())
