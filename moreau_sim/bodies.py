@@ -104,7 +104,8 @@ def _check_sizes(shape, where: str, urdf_where: str) -> None:
         n = 3 if key in ("size", "scale") else 1
         ok = len(values) == n and all(math.isfinite(v) for v in values)
         point = shape.tag == "sphere"  # a sphere of radius 0 is a point particle (one vertex)
-        ok = ok and (all(v != 0 for v in values) if key == "scale" else all(v > 0 or (point and v == 0) for v in values))
+        positive = [v != 0 if key == "scale" else v > 0 or (point and v == 0) for v in values]
+        ok = ok and all(positive)
         if not ok:
             need = (f"{n} finite non-zero numbers" if key == "scale" else
                     "a finite radius >= 0 [m] (0: a point)" if point else f"{n} finite number(s) > 0 [m]")
