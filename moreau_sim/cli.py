@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import json
+import signal
 import sys
+import tempfile
 from pathlib import Path
 
 import click
 import numpy as np
 
-from .errors import MoreauSimError, SimulationError
+from .errors import MoreauSimError, SimulationError, SimulationInterrupted
 from .model import build_model
 from .scene import load_scene
 from .simulate import simulate, summary
@@ -51,6 +53,33 @@ def _settings(settings) -> dict:
     return out
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _output(out: str | None, sc) -> Path:
+    """Where `run` writes: -o/--out as given; else the scene's [output] file, resolved in the
+    scene's folder and never outside it; else NAME.npz here. Checked writable before simulating."""
+    if out:
+        path, where = Path(out), f"--out {out}"
+    elif sc.output:
+        base = (sc.path.parent if sc.path else Path.cwd()).resolve()
+        path, where = (base / sc.output).resolve(), f"{sc.path} [output] file = {sc.output!r}"
+        if not path.is_relative_to(base):
+            _fail(f"{where}: must stay inside the scene's folder {base}; give -o/--out to write elsewhere")
+    else:
+        path, where = Path(f"{sc.name}.npz"), "output"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".check"):
+            pass
+    except OSError as exc:
+        _fail(f"{where}: cannot write there ({exc.strerror or exc}); nothing was simulated")
+    if path.is_dir():
+        _fail(f"{where}: is a folder; give a file name")
+    return path
+
+
 def _show_progress(flag: bool | None, as_json: bool) -> bool:
     """--progress forces the bar, --no-progress hides it; by default it is drawn on a terminal only
     (never into a log file or a CI log)."""
@@ -85,9 +114,15 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
         if value is not None:
             overrides[key] = value
     sc, model = _load(scene, **overrides)
-    out = Path(out or sc.output or f"{sc.name}.npz")
+    out = _output(out, sc)
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM as Ctrl-C: the samples so far are kept
     try:
         traj = simulate(model, progress=_show_progress(progress, as_json))
+    except SimulationInterrupted as exc:
+        partial = out.with_name(out.stem + ".partial.npz")
+        exc.trajectory.save(partial)
+        click.echo(f"moreau-sim: {exc}; the samples so far are in {partial} (meta status 'failed')", err=True)
+        sys.exit(130)
     except SimulationError as exc:
         partial = out.with_name(out.stem + ".partial.npz")
         if exc.trajectory is not None:
@@ -95,6 +130,8 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
             _fail(f"{exc}\n  nothing written to {out}; the samples up to the failure are in {partial} "
                   "(meta status 'failed')")
         _fail(str(exc))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     traj.save(out)
     s = summary(traj)
     s["output"] = str(out)

@@ -98,7 +98,8 @@ class Trajectory:
         """Write an NPZ atomically (a temporary file renamed into place: never half-written)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+        _remove_orphans(path)
+        fd, tmp = tempfile.mkstemp(prefix=f"{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as fh:
                 np.savez_compressed(fh, meta=np.array(json.dumps(self.meta)), **self.arrays)
@@ -110,6 +111,21 @@ class Trajectory:
             Path(tmp).unlink(missing_ok=True)
             raise
         return path
+
+
+def _remove_orphans(path: Path) -> None:
+    """Delete temporary files of earlier saves to `path` whose writer process is gone (killed
+    during its save): NAME.PID.XXXX.tmp."""
+    for tmp in path.parent.glob(f"{path.name}.*.tmp"):
+        pid = tmp.name[len(path.name) + 1:].split(".", 1)[0]
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            tmp.unlink(missing_ok=True)
+        except OSError:  # alive but another user's: leave it
+            pass
 
 
 def load_trajectory(path: str | Path) -> Trajectory:

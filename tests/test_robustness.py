@@ -4,9 +4,11 @@ so far attached), and nothing non-finite is ever reported complete."""
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 import textwrap
+import time
 
 import numpy as np
 import pytest
@@ -138,3 +140,55 @@ def test_a_non_finite_qp_answer_is_not_a_solution():
     W = np.array([[1.0], [0.0]])
     res = qp.solve(M, W, np.array([-1e308 * 10, 0.0]))
     assert not res.ok or (np.isfinite(res.v).all() and np.isfinite(res.lam).all())
+
+
+# --- the command line: output checked first, interrupts keep the work, temporaries do not outlive their writer
+
+BALL = MODELS.parent / "scenes" / "bouncing_ball.toml"
+
+
+def cli(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "moreau_sim", *map(str, args)], capture_output=True, text=True,
+                          timeout=300, **kw)
+
+
+def test_an_unwritable_output_fails_before_simulating(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    r = cli("run", BALL, "--duration", "100", "-o", blocker / "b.npz")  # 1e5 steps it must not start
+    assert r.returncode == 2 and "--out" in r.stderr and "nothing was simulated" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_a_scene_output_stays_in_its_folder(tmp_path):
+    text = BALL.read_text().replace('file = "bouncing_ball.npz"', 'file = "../escaped.npz"')
+    text = text.replace('urdf = "../models/ball.urdf"', f'urdf = "{MODELS / "ball.urdf"}"')
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "ball.toml").write_text(text)
+    r = cli("run", tmp_path / "s" / "ball.toml", "--duration", "0.1")
+    assert r.returncode == 2 and "[output] file" in r.stderr and not (tmp_path / "escaped.npz").exists()
+    (tmp_path / "s" / "ball.toml").write_text(text.replace("../escaped.npz", "runs/ball.npz"))
+    r = cli("run", tmp_path / "s" / "ball.toml", "--duration", "0.1", cwd=tmp_path)
+    assert r.returncode == 0 and (tmp_path / "s" / "runs" / "ball.npz").is_file()  # in the scene's folder
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupted_run_keeps_its_samples(tmp_path, sig):
+    out = tmp_path / "b.npz"
+    p = subprocess.Popen([sys.executable, "-m", "moreau_sim", "run", str(BALL), "--duration", "1000", "-o", str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(4.0)  # past the model's build, well before the 1e6 steps end
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    partial = ms.load_trajectory(tmp_path / "b.partial.npz")
+    assert partial.meta["status"].startswith("failed: interrupted at step") and len(partial.t) > 10
+    assert np.isfinite(partial.q).all() and not out.exists()
+    assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_temporaries_of_a_killed_save_are_removed(tmp_path):
+    dead = tmp_path / "b.npz.2147480000.x1y2.tmp"  # a writer PID that does not exist
+    dead.write_bytes(b"half a file")
+    run("bouncing_ball", duration=0.01).save(tmp_path / "b.npz")
+    assert not dead.exists() and ms.load_trajectory(tmp_path / "b.npz").complete
