@@ -35,13 +35,13 @@ import math
 import multiprocessing
 import os
 import tempfile
+import threading
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from tqdm import tqdm
 
 try:
@@ -382,13 +382,13 @@ def _pyarrow():
 
 
 def _npz_complete(path: Path) -> bool:
-    """True if `path` is a trajectory NPZ whose meta says complete (reads only the meta)."""
+    """True if `path` is a trajectory NPZ whose meta says complete and whose arrays match the
+    checksum written with them (a damaged file is recomputed, never passed as complete)."""
     if not path.is_file():
         return False
     try:
-        with np.load(path, allow_pickle=False) as z:
-            return json.loads(str(z["meta"])).get("status") == Status.COMPLETE.value
-    except Exception:  # unreadable, truncated, not ours: recompute
+        return load_trajectory(path, verify=True).meta.get("status") == Status.COMPLETE.value
+    except ValueError:  # unreadable, truncated, damaged, not ours: recompute
         return False
 
 
@@ -404,13 +404,30 @@ def _serial(tasks: list[tuple[int, Scene]]) -> Iterator[tuple[int, _Outcome]]:
 def _pool(tasks: list[tuple[int, Scene]], workers: int) -> Iterator[tuple[int, _Outcome]]:
     # forkserver (spawn where absent): no fork of a process that may run threads (tqdm, Dask)
     method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
-    ex = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context(method))
+    ex = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context(method), initializer=_die_with_parent,
+                                initargs=(os.getpid(),))
     try:
         futs = {ex.submit(_simulate_point, sc): i for i, sc in tasks}
         for f in cf.as_completed(futs):
             yield futs[f], f.result()
     finally:
         ex.shutdown(wait=False, cancel_futures=True)
+
+
+def _die_with_parent(parent: int) -> None:
+    """Worker initializer: exit as soon as the sweeping process is gone (killed), instead of
+    finishing its point for nobody."""
+    def watch():
+        while True:
+            time.sleep(0.5)
+            try:
+                os.kill(parent, 0)
+            except ProcessLookupError:
+                os._exit(1)
+            except OSError:
+                pass
+
+    threading.Thread(target=watch, daemon=True, name="moreau-sim parent watch").start()
 
 
 def _import_distributed():

@@ -21,10 +21,12 @@ Arrays (n = saved samples, k = logged contact percussions):
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -102,7 +104,8 @@ class Trajectory:
         fd, tmp = tempfile.mkstemp(prefix=f"{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as fh:
-                np.savez_compressed(fh, meta=np.array(json.dumps(self.meta)), **self.arrays)
+                meta = {**self.meta, "checksum": checksum(self.arrays)}  # lets a reader detect damaged data
+                np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **self.arrays)
             umask = os.umask(0)
             os.umask(umask)
             os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual mode
@@ -128,8 +131,20 @@ def _remove_orphans(path: Path) -> None:
             pass
 
 
-def load_trajectory(path: str | Path) -> Trajectory:
-    """Read an NPZ written by :meth:`Trajectory.save`. Raises ValueError naming the file."""
+def checksum(arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 of the arrays (names, dtypes, shapes and bytes, in schema order)."""
+    h = hashlib.sha256()
+    for k in ARRAYS:
+        if k in arrays:
+            a = np.ascontiguousarray(arrays[k])
+            h.update(f"{k}|{a.dtype.str}|{a.shape}|".encode())
+            h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def load_trajectory(path: str | Path, *, verify: bool = True) -> Trajectory:
+    """Read an NPZ written by :meth:`Trajectory.save`. Raises ValueError naming the file, also
+    when `verify` and its arrays do not match the checksum recorded at save (damaged data)."""
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -139,12 +154,14 @@ def load_trajectory(path: str | Path) -> Trajectory:
                 raise ValueError(f"{path}: not a moreau-sim trajectory (missing {missing})")
             meta = json.loads(str(z["meta"]))
             arrays = {k: z[k] for k in ARRAYS if k in z.files}
+            if verify and "checksum" in meta and checksum(arrays) != meta["checksum"]:
+                raise ValueError(f"{path}: damaged: its arrays do not match the checksum written with them")
             if old:
                 _from_format1(arrays)
     except ValueError as exc:
         if str(path) in str(exc):
             raise
         raise ValueError(f"{path}: not a moreau-sim trajectory NPZ ({exc})") from None
-    except (OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise ValueError(f"{path}: cannot read trajectory: {exc}") from None
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError) as exc:  # truncated or corrupted
+        raise ValueError(f"{path}: cannot read trajectory: {type(exc).__name__}: {exc}") from None
     return Trajectory(arrays, meta)
