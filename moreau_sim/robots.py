@@ -7,8 +7,8 @@ Search order for a ``package://PKG/rel/path`` URI (docs/robots.md):
 3. the ``share`` folder of an installed ``example-robot-data`` distribution (found through
    ``importlib.metadata``: its files ``.../share/example-robot-data/robots/...``), whose URDFs name
    their meshes ``package://example-robot-data/robots/...``;
-4. the folders above the file that names the URI (the URDF for a mesh, the scene file for a
-   body's ``urdf``/``mjcf``), nearest first.
+4. the folder of the file that names the URI (the URDF for a mesh, the scene file for a body's
+   ``urdf``/``mjcf``) and the PARENT_LEVELS folders above it, nearest first, never further up.
 
 A folder D resolves the URI when ``D/PKG/rel/path`` is a file (Pinocchio's rule), so a folder that
 *is* the package is found through its parent (step 4 covers a package the URDF lives in).
@@ -72,14 +72,19 @@ def env_package_dirs() -> list[Path]:
     return [Path(p).expanduser().resolve() for p in value.split(os.pathsep) if p.strip()]
 
 
+PARENT_LEVELS = 2  # folders above the naming file's own that package:// may search
+
+
 def search_dirs(package_dirs, folder: Path) -> list[Path]:
     """Folders searched for ``package://`` URIs, in order (module docstring): the body's
     `package_dirs`, the environment variable, example-robot-data's share folder, then `folder`
-    (that of the file naming the URI) and the folders above it. Duplicates are dropped."""
+    (that of the file naming the URI) and the PARENT_LEVELS folders above it (a ROS layout
+    share/PKG/urdf/x.urdf finds share/PKG/meshes/...), never further up. Duplicates are dropped."""
     out: list[Path] = []
     share = example_robot_data_share()
     folder = Path(folder).resolve()
-    for d in [*map(Path, package_dirs), *env_package_dirs(), *([share] if share else []), folder, *folder.parents]:
+    near = [folder, *list(folder.parents)[:PARENT_LEVELS]]
+    for d in [*map(Path, package_dirs), *env_package_dirs(), *([share] if share else []), *near]:
         if d not in out:
             out.append(d)
     return out
@@ -98,6 +103,8 @@ def resolve(uri: str, dirs: list[Path], base: Path) -> Path | None:
         scheme, rest = uri.split("://", 1)
         if scheme in ("package", "model"):
             rel = rest.lstrip("/")
+            if ".." in Path(rel).parts:
+                raise SceneError(f"{uri}: '..' may not climb out of a package root")
             for d in dirs:
                 p = d / rel
                 if p.is_file():

@@ -9,8 +9,7 @@ import tomllib
 
 import numpy as np
 import tomli_w
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
 
 import moreau_sim as ms
 

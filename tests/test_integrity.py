@@ -101,3 +101,20 @@ def test_workers_exit_when_the_sweep_is_killed(tmp_path):
     while time.time() < deadline and _tagged(tag):
         time.sleep(0.2)
     assert _tagged(tag) == [], json.dumps(_tagged(tag))
+
+
+def test_package_uris_stay_under_their_roots(tmp_path):
+    """package:// searches the declared roots and at most two folders above the naming file; '..'
+    cannot climb out of a package."""
+    from moreau_sim import robots
+
+    deep = tmp_path / "a" / "b" / "c" / "d"
+    deep.mkdir(parents=True)
+    dirs = robots.search_dirs([], deep)
+    assert dirs[-3:] == [deep, deep.parent, deep.parent.parent] and tmp_path not in dirs and Path("/") not in dirs
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "secret.urdf").write_text("<robot/>")
+    assert robots.resolve("package://pkg/secret.urdf", dirs, deep) is None  # four levels up: not searched
+    assert robots.resolve("package://pkg/secret.urdf", [tmp_path], deep) == tmp_path / "pkg" / "secret.urdf"
+    with pytest.raises(ms.SceneError, match="climb"):
+        robots.resolve("package://pkg/../../etc/passwd", [tmp_path], deep)
