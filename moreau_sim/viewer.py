@@ -520,7 +520,8 @@ catch (e) { window.moreauReplay.error = String(e); }
 """
 
 
-def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: float) -> tuple[str, dict]:
+def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: float,
+            shadows: bool = False) -> tuple[str, dict]:
     """viser's standalone page with the replay recorded in it, and the data of the plot."""
     import viser
 
@@ -560,6 +561,12 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
     try:
         sc = server.scene
         sc.set_up_direction(tuple(float(x) for x in up))
+        # lights without viser's default image-based environment map: as bright, and several times
+        # lighter to draw where WebGL runs in software (headless Chromium, remote desktops)
+        sc.configure_environment_map(hdri=None)
+        sc.configure_default_lights(cast_shadow=shadows)
+        sc.add_light_hemisphere("/lights/hemisphere", sky_color=(255, 255, 255), ground_color=(120, 120, 130),
+                                intensity=1.6)
         ic = server.initial_camera
         ic.position, ic.look_at = tuple(map(float, cam)), tuple(map(float, look))
         size = max(4 * radius, 2.0)
@@ -567,7 +574,7 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
             M, half = ground_box(n, d, center, size)
             import trimesh
             b = trimesh.creation.box(extents=2 * half)
-            sc.add_mesh_simple(f"/statics/ground_{k}", b.vertices, b.faces, color=_STATIC_COLOR,
+            sc.add_mesh_simple(f"/statics/ground_{k}", b.vertices, b.faces, color=_STATIC_COLOR, opacity=0.45,
                                wxyz=pin.Quaternion(M.rotation).coeffs()[[3, 0, 1, 2]], position=M.translation,
                                flat_shading=True)
         handles = {}
@@ -589,22 +596,29 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
         rec = server.get_scene_serializer()
         contacts = _contacts(traj, ft)
         pmax = max([c[6] for fr in contacts for c in fr] + [1e-300])
-        L = arrows * radius
-        shown = None
+        size = max([float(np.linalg.norm(np.ptp(p.vertices, axis=0))) for p in moving] + [0.02])  # largest part
+        L = arrows * size
+        shown: list = []
         for k in range(len(ft)):
             if k:
                 rec.insert_sleep(float(ft[k] - ft[k - 1]))
                 place(k)
-            if shown is not None:
-                shown.remove()
-                shown = None
+            for h in shown:
+                h.remove()
+            shown = []
             if contacts[k]:
                 c = np.array(contacts[k], float)
-                length = L * np.maximum(c[:, 6] / pmax, 0.06)
-                seg = np.stack([c[:, :3], c[:, :3] + c[:, 3:6] * length[:, None]], axis=1)
+                length = np.maximum(L * c[:, 6] / pmax, 0.18 * size)
+                # the percussion on the pair's first body, along the normal, drawn as a push: its tip
+                # at the contact point, its tail outside that body (through the see-through ground)
+                seg = np.stack([c[:, :3] - c[:, 3:6] * length[:, None], c[:, :3]], axis=1)
                 cols = np.array([_IMPACT_COLOR if imp else _PUSH_COLOR for imp in c[:, 7]], np.uint8)
-                shown = sc.add_arrows(f"/contacts/k{k}", seg.astype(np.float32), cols, shaft_radius=0.012 * L,
-                                      head_radius=0.035 * L, head_length=0.1 * L)
+                shown.append(sc.add_arrows(f"/contacts/k{k}", seg.astype(np.float32), cols, shaft_radius=0.025 * size,
+                                      head_radius=0.06 * size, head_length=0.15 * size))
+                if c[:, 7].any():  # the largest new impact of the frame, labelled on top of everything
+                    j = int(np.argmax(np.where(c[:, 7] > 0, c[:, 6], -1.0)))
+                    shown.append(sc.add_label(f"/contacts/k{k}_label", f"impact P = {c[j, 6]:.3g} N s",
+                                              position=c[j, :3], anchor="bottom-left"))
         page = rec.as_html()
     finally:
         with contextlib.redirect_stdout(io.StringIO()):
@@ -623,12 +637,13 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
 
 
 def page(traj: Trajectory | str | Path, model: Model | None = None, fps: float = DEFAULT_FPS, *,
-         colors: str = "link", arrows: float = 0.6) -> str:
+         colors: str = "link", arrows: float = 0.8, shadows: bool = False) -> str:
     """The self-contained replay page: viser's client, the recorded scene, the energy/gap plot.
-    `arrows`: length of the largest percussion's arrow, in units of the motion's radius."""
+    `arrows`: length of the largest percussion's arrow, in units of the largest part's diagonal;
+    `shadows`: the default lights cast shadows (off: lighter on software WebGL)."""
     traj = _trajectory(traj)
     model = model or model_from_trajectory(traj)
-    html, data = _record(traj, model, fps, colors, arrows)
+    html, data = _record(traj, model, fps, colors, arrows, shadows)
     overlay = _OVERLAY.replace("__MS_DATA__", _js_string(data))
     title = f"<title>{_html.escape(data['scene'])} - moreau-sim replay</title>"
     html = re.sub(r"<title>.*?</title>", lambda m: title, html, count=1, flags=re.S)
@@ -665,10 +680,10 @@ class _Handler(http.server.BaseHTTPRequestHandler):
 
 
 def make_server(traj: Trajectory | str | Path, port: int = 0, host: str = "127.0.0.1", *,
-                fps: float = DEFAULT_FPS) -> http.server.ThreadingHTTPServer:
+                fps: float = DEFAULT_FPS, colors: str = "link") -> http.server.ThreadingHTTPServer:
     """An HTTP server (not yet serving) whose page is the replay; port 0 picks a free port
     (``server.server_address[1]``). Call ``serve_forever()`` and ``shutdown()``."""
-    handler = type("ReplayHandler", (_Handler,), {"body": page(traj, fps=fps).encode("utf-8")})
+    handler = type("ReplayHandler", (_Handler,), {"body": page(traj, fps=fps, colors=colors).encode("utf-8")})
     return http.server.ThreadingHTTPServer((host, port), handler)
 
 
@@ -678,9 +693,9 @@ def url_of(server: http.server.HTTPServer) -> str:
 
 
 def serve(traj: Trajectory | str | Path, port: int = 0, host: str = "127.0.0.1", *, open_browser: bool = True,
-          fps: float = DEFAULT_FPS, ready=None) -> None:
+          fps: float = DEFAULT_FPS, colors: str = "link", ready=None) -> None:
     """Serve the replay until interrupted (Ctrl-C). `ready(url)` is called once it listens."""
-    server = make_server(traj, port, host, fps=fps)
+    server = make_server(traj, port, host, fps=fps, colors=colors)
     url = url_of(server)
     if ready:
         ready(url)
@@ -692,3 +707,40 @@ def serve(traj: Trajectory | str | Path, port: int = 0, host: str = "127.0.0.1",
         pass
     finally:
         server.server_close()
+
+
+# --- Pinocchio's own visualizers ------------------------------------------------------------------
+
+def drawable_geometry(model: Model, ground_size: float = 10.0, *, colors: bool = True) -> pin.GeometryModel:
+    """A copy of ``model.geom`` that Pinocchio's visualizers (ViserVisualizer, MeshcatVisualizer)
+    can draw: each half-space or plane becomes a thin box (`ground_size` wide, 1 % of it thick,
+    its top face on the boundary plane, centred on the point of the plane nearest the origin), and
+    each shape they do not draw (capsules, ellipsoids, ...) its convex hull as a coal.Convex.
+    `colors`: give each link a colour of the replay's palette (statics grey).
+
+    >>> viz = pin.visualize.ViserVisualizer(model.pin, geom, geom); viz.initViewer(); viz.loadViewerModel()
+    """
+    out = pin.GeometryModel()
+    links: list[str] = []
+    for g, src in enumerate(model.geom.geometryObjects):
+        go = src.copy()
+        geo = go.geometry
+        if isinstance(geo, (coal.Halfspace, coal.Plane)):
+            n = np.asarray(geo.n, float)
+            M, half = ground_box(n, float(geo.d), n * float(geo.d), ground_size)
+            go.geometry, go.placement = coal.Box(*(2 * half)), go.placement * M
+            go.meshPath = ""
+        elif not isinstance(geo, (coal.Box, coal.Sphere, coal.Cylinder, coal.ConvexBase, coal.BVHModelBase)):
+            mesh = shape_mesh(geo)
+            go.geometry = coal.Convex.convexHull(np.asarray(mesh.vertices, float), True, "")
+            go.meshPath = ""
+        if colors:
+            static = go.parentJoint == 0
+            link = model.geometry_body[g] if static else model.pin.frames[go.parentFrame].name
+            if link not in links:
+                links.append(link)
+            rgb = _STATIC_COLOR if static else _PALETTE[links.index(link) % len(_PALETTE)]
+            go.meshColor = np.array([*(c / 255 for c in rgb), 1.0])
+            go.overrideMaterial = True
+        out.addGeometryObject(go)
+    return out
