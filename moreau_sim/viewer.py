@@ -577,6 +577,12 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
             sc.add_mesh_simple(f"/statics/ground_{k}", b.vertices, b.faces, color=_STATIC_COLOR, opacity=0.45,
                                wxyz=pin.Quaternion(M.rotation).coeffs()[[3, 0, 1, 2]], position=M.translation,
                                flat_shading=True)
+            cell = 10 ** math.floor(math.log10(size / 20))  # 1, 2 or 5 times a power of ten, about size / 20
+            cell *= 5 if size / 20 >= 5 * cell else 2 if size / 20 >= 2 * cell else 1
+            sc.add_grid(f"/statics/ground_{k}_grid", size, size, cell_size=cell, section_size=5 * cell,
+                        cell_color=(150, 150, 160), section_color=(110, 110, 120),
+                        wxyz=pin.Quaternion(M.rotation).coeffs()[[3, 0, 1, 2]],
+                        position=M.translation + M.rotation[:, 2] * (half[2] + 1e-4 * size))
         handles = {}
         for f in fids:
             handles[f] = sc.add_frame(f"/links/f{f}", show_axes=False)
