@@ -57,15 +57,16 @@ def _trajectory(traj: Trajectory | str | Path) -> Trajectory:
 
 # --- which files a stored scene may name --------------------------------------------------------
 
-_FILE_ATTR = re.compile(r"""<(mesh|hfield|texture|include|model)\b[^>]*?\b(filename|file)\s*=\s*(["'])(.*?)\3""", re.S)
+_FILE_ATTR = re.compile(r"""\b(filename|file|meshdir|texturedir|assetdir)\s*=\s*(["'])(.*?)\2""", re.S)
 
 
 def check_named_files(text: str, where: str) -> None:
-    """Refuse a stored URDF/MJCF text that names a file other than by a ``package://`` or
-    ``model://`` URI or a relative path, or whose path climbs with ``..``: a crafted NPZ must not
-    make the viewer read arbitrary local files. Raises SceneError."""
+    """Refuse a stored URDF/MJCF text that names a file (``filename``, ``file``, MJCF's
+    ``meshdir``/``texturedir``/``assetdir``) other than by a ``package://`` or ``model://`` URI or
+    a relative path, or whose path climbs with ``..``: a crafted NPZ must not make the viewer read
+    arbitrary local files. Raises SceneError."""
     for m in _FILE_ATTR.finditer(text):
-        uri = m.group(4)
+        uri = m.group(3)
         rest = uri.split("://", 1)[1] if "://" in uri else uri
         scheme = uri.split("://", 1)[0] if "://" in uri else ""
         if scheme not in ("", "package", "model") or rest.startswith(("/", "~")) or re.match(r"^[A-Za-z]:", rest) \
@@ -292,7 +293,7 @@ def _load_mesh(path: Path, scale):
     return m
 
 
-def _urdf_visuals(text: str, body: str, model: Model, dirs: list[Path], base: Path, colors: str) -> dict:
+def _urdf_visuals(text: str, dirs: list[Path], base: Path) -> dict:
     """link name -> [(placement in the link frame, mesh, rgb or None)] of a URDF's <visual>s that load."""
     import trimesh
 
@@ -361,7 +362,7 @@ def parts(traj: Trajectory | str | Path, model: Model | None = None, *, colors: 
         urdf_value = str(table.get("urdf", ""))
         base = scene_path.parent / Path(urdf_value).parent if not robots.is_uri(urdf_value) else scene_path.parent
         dirs = robots.search_dirs(dirs0, base)
-        for link, items in _urdf_visuals(texts[name], name, model, dirs, base, colors).items():
+        for link, items in _urdf_visuals(texts[name], dirs, base).items():
             visuals[f"{name}/{link}"] = items
     out: list[Part] = []
     done: set[str] = set()
@@ -523,6 +524,7 @@ catch (e) { window.moreauReplay.error = String(e); }
 def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: float,
             shadows: bool = False) -> tuple[str, dict]:
     """viser's standalone page with the replay recorded in it, and the data of the plot."""
+    import trimesh
     import viser
 
     idx = frame_indices(traj.t, fps)
@@ -572,7 +574,6 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
         size = max(4 * radius, 2.0)
         for k, (n, d) in enumerate(halfspaces):
             M, half = ground_box(n, d, center, size)
-            import trimesh
             b = trimesh.creation.box(extents=2 * half)
             sc.add_mesh_simple(f"/statics/ground_{k}", b.vertices, b.faces, color=_STATIC_COLOR, opacity=0.45,
                                wxyz=pin.Quaternion(M.rotation).coeffs()[[3, 0, 1, 2]], position=M.translation,
@@ -703,11 +704,11 @@ def serve(traj: Trajectory | str | Path, port: int = 0, host: str = "127.0.0.1",
     """Serve the replay until interrupted (Ctrl-C). `ready(url)` is called once it listens."""
     server = make_server(traj, port, host, fps=fps, colors=colors)
     url = url_of(server)
-    if ready:
-        ready(url)
-    if open_browser:
-        threading.Thread(target=webbrowser.open, args=(url,), daemon=True).start()
     try:
+        if ready:
+            ready(url)
+        if open_browser:
+            threading.Thread(target=webbrowser.open, args=(url,), daemon=True).start()
         server.serve_forever()
     except KeyboardInterrupt:
         pass

@@ -23,7 +23,6 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
-import pinocchio as pin
 import pytest
 from click.testing import CliRunner
 
@@ -116,11 +115,12 @@ def test_ground_box():
 
 
 def test_crafted_npz_reads_no_other_file(traj, tmp_path):
-    for uri in ("/etc/passwd", "file:///etc/hostname.obj", "package://x/../../../etc/passwd.obj", "../../a.stl"):
+    visual = '<visual><geometry><mesh filename="{}"/></geometry></visual></link>'
+    for new in [visual.format(u) for u in ("/etc/passwd", "file:///etc/hostname.obj", "~/a.obj",
+                                             "package://x/../../../etc/passwd.obj", "../../a.stl")] + \
+               ['<compiler meshdir="/etc"/></link>']:  # MJCF's folder attributes too
         bad = ms.Trajectory(traj.arrays, json.loads(json.dumps(traj.meta)))
-        body = bad.meta["scene"]["urdf"]["box"]
-        bad.meta["scene"]["urdf"]["box"] = body.replace(
-            "</link>", f'<visual><geometry><mesh filename="{uri}"/></geometry></visual></link>', 1)
+        bad.meta["scene"]["urdf"]["box"] = bad.meta["scene"]["urdf"]["box"].replace("</link>", new, 1)
         with pytest.raises(SceneError, match="reads only files"):
             viewer.model_from_trajectory(bad)
         path = bad.save(tmp_path / "bad.npz")
