@@ -281,16 +281,47 @@ def _resolve_mesh(uri: str, dirs: list[Path], base: Path) -> Path | None:
 
 
 def _load_mesh(path: Path, scale):
+    """A mesh file as a trimesh: read by coal (assimp: .dae, .obj, .stl, ...), else by trimesh."""
     import trimesh
 
     try:
+        b = coal.MeshLoader().load(str(path), np.asarray(scale, float))
+        v = np.asarray(b.vertices(), float)
+        f = np.array([[t[0], t[1], t[2]] for t in (b.tri_indices(i) for i in range(b.num_tris))], np.int64)
+        if len(v) and len(f):
+            return trimesh.Trimesh(v, f, process=False)
+    except Exception:  # noqa: BLE001 (assimp's errors: try trimesh, then the collision geometry)
+        pass
+    try:
         m = trimesh.load(str(path), force="mesh", process=False)
-    except Exception:  # noqa: BLE001 (trimesh raises many kinds; the caller falls back to collision geometry)
+    except Exception:  # noqa: BLE001
         return None
     if not isinstance(m, trimesh.Trimesh) or not len(m.faces):
         return None
     m.apply_scale(np.asarray(scale, float))
     return m
+
+
+def rods(traj: Trajectory | str | Path, model: Model, index: np.ndarray | None = None) -> np.ndarray | None:
+    """(frames, segments, 2, 3): the segments that show the links of articulated bodies whose
+    collision geometry may be just their bobs (the double pendulum): each joint's origin to its
+    child joints' origins and to its offset geometries' centres. None when there are none."""
+    traj = _trajectory(traj)
+    pm, gm = model.pin, model.geom
+    pairs = [(pm.parents[j], j, None) for j in range(1, pm.njoints) if pm.parents[j] > 0]
+    pairs += [(go.parentJoint, None, g) for g, go in enumerate(gm.geometryObjects)
+              if go.parentJoint > 0 and np.linalg.norm(go.placement.translation) > 1e-9]
+    if not pairs:
+        return None
+    data, gdata = pm.createData(), pin.GeometryData(gm)
+    q = traj.q if index is None else traj.q[index]
+    out = np.empty((len(q), len(pairs), 2, 3))
+    for k, qk in enumerate(q):
+        pin.updateGeometryPlacements(pm, data, gm, gdata, qk)
+        for i, (a, j, g) in enumerate(pairs):
+            out[k, i, 0] = data.oMi[a].translation
+            out[k, i, 1] = data.oMi[j].translation if g is None else gdata.oMg[g].translation
+    return out
 
 
 def _urdf_visuals(text: str, dirs: list[Path], base: Path) -> dict:
@@ -593,11 +624,20 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
             sc.add_mesh_simple(f"{parent}/m{i}", p.vertices, p.faces, color=p.color, wxyz=q,
                                position=p.placement.translation)
 
+        rod = rods(traj, model, idx) if not any(p.source == "visual" for p in drawn) else None
+        rod_handle = None
+
         def place(k):
+            nonlocal rod_handle
             for f in fids:
                 T = W[k, col[f]]
                 handles[f].position = T[:3, 3]
                 handles[f].wxyz = pin.Quaternion(T[:3, :3]).coeffs()[[3, 0, 1, 2]]
+            if rod is not None:
+                if rod_handle is not None:
+                    rod_handle.remove()
+                rod_handle = sc.add_line_segments("/rods", rod[k].astype(np.float32), (70, 70, 80),
+                                                  thickness=3.0, thickness_units="screen")
 
         place(0)
         rec = server.get_scene_serializer()
