@@ -305,8 +305,11 @@ def _save(img, name):
 
 
 def test_box_drop_replay_in_chromium(traj, browser, tmp_path):
-    path = viewer.export_html(traj, tmp_path / "box_drop.html")
+    t = ms.Trajectory(traj.arrays, json.loads(json.dumps(traj.meta)))
+    t.meta["scene"]["description"] = NASTY + " -->"  # hidden until hovered: the screenshot is unchanged
+    path = viewer.export_html(t, tmp_path / "box_drop.html")
     p = Page(browser, path)
+    assert browser.execute_script("return document.getElementById('ms-desc').textContent") == NASTY + " -->"
     ft = traj.t[viewer.frame_indices(traj.t, 100)]
     t_hit = float(traj.log_t[traj.log_impact][0])
     f = int(np.searchsorted(ft, t_hit))
