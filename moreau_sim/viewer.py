@@ -457,7 +457,7 @@ def camera(center, radius: float, up, obstacles=(), halfspaces=(), fov: float = 
     e1 = np.cross(up, [0.0, 1.0, 0.0] if abs(up[1]) < 0.9 else [1.0, 0.0, 0.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(up, e1)
-    dist = 0.95 * max(radius, 0.05) / math.sin(fov / 2)
+    dist = 0.7 * max(radius, 0.05) / math.sin(fov / 2)
     best = None
     for k in range(12):
         az = math.radians(-60 + 30 * k)
