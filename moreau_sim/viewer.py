@@ -520,13 +520,16 @@ function start(){
     g.fillStyle = "#555"; g.fillText(fmt(hi), 2, top+8); g.fillText(fmt(lo), 2, top+hE); g.fillText("J", 2, top+hE/2+4);
     g.fillText(fmt(ghi), 2, gTop+8); g.fillText(fmt(glo), 2, gTop+hG); g.fillText("gap m", 2, gTop+hG/2+4);
     g.fillText(t0.toFixed(2)+" s", L, H-2); g.fillText(t1.toFixed(2)+" s", W-R-36, H-2);
-    if (glo < 0 && ghi > 0) { g.strokeStyle = "#e0a0a0"; g.beginPath(); g.moveTo(L, YG(0)); g.lineTo(W-R, YG(0)); g.stroke(); }
+    if (glo < 0 && ghi > 0) {
+      g.strokeStyle = "#e0a0a0"; g.beginPath(); g.moveTo(L, YG(0)); g.lineTo(W-R, YG(0)); g.stroke();
+    }
     for (const [name, ys, col] of ser.concat([["min gap", D.gap, "#c8455a"]])) {
       const Y = name === "min gap" ? YG : YE;
       g.strokeStyle = col; g.lineWidth = name === "E = T + V" ? 1.6 : 1; g.beginPath();
       ys.forEach((y, i) => i ? g.lineTo(X(t[i]), Y(y)) : g.moveTo(X(t[i]), Y(y))); g.stroke();
     }
-    g.strokeStyle = "#e0202a"; g.lineWidth = 1.5; g.beginPath(); g.moveTo(X(tc), top); g.lineTo(X(tc), gTop+hG); g.stroke();
+    g.strokeStyle = "#e0202a"; g.lineWidth = 1.5; g.beginPath();
+    g.moveTo(X(tc), top); g.lineTo(X(tc), gTop+hG); g.stroke();
   }
   document.getElementById("ms-legend").innerHTML = "";
   for (const [name, , col] of ser.concat([["min gap", null, "#c8455a"]])) {
@@ -620,7 +623,7 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
             handles[f] = sc.add_frame(f"/links/f{f}", show_axes=False)
         for i, p in enumerate(drawn):
             q = pin.Quaternion(p.placement.rotation).coeffs()[[3, 0, 1, 2]]
-            parent = f"/statics" if p.static else f"/links/f{p.frame}"
+            parent = "/statics" if p.static else f"/links/f{p.frame}"
             sc.add_mesh_simple(f"{parent}/m{i}", p.vertices, p.faces, color=p.color, wxyz=q,
                                position=p.placement.translation)
 

@@ -270,7 +270,7 @@ class Page:
             before = self.t()
             ActionChains(self.drv).move_to_element_with_offset(track, int(round(x)), 0).click().perform()
             with contextlib.suppress(TimeoutException):
-                WebDriverWait(self.drv, 3, 0.1).until(lambda d: self.t() != before)
+                WebDriverWait(self.drv, 3, 0.1).until(lambda d, b=before: self.t() != b)
             now = self.t()
             if abs(now - t) < tol:
                 break
@@ -286,7 +286,8 @@ class Page:
         img = Image.open(io.BytesIO(self.drv.get_screenshot_as_png())).convert("RGB")
         panel = self.drv.execute_script("const r = document.getElementById('ms-panel').getBoundingClientRect();"
                                         "return [r.left, r.top, r.right, r.bottom]")
-        bar = self.drv.execute_script("return document.querySelector('.mantine-Slider-root').getBoundingClientRect().top")
+        bar = self.drv.execute_script(
+            "return document.querySelector('.mantine-Slider-root').getBoundingClientRect().top")
         a = np.asarray(img).copy()
         x0, y0, x1, y1 = (int(v) for v in panel)
         a[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = 255
