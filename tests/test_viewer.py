@@ -1,14 +1,18 @@
-"""Browser replay (moreau_sim.viewer, docs/viewer.md): the model rebuilt from the NPZ alone, the
-frames, and the page drawn for real by headless Chromium, served by `moreau-sim view` and opened
-from an exported file. Chromium is required: without it these tests fail (never skip).
+"""Browser replay (moreau_sim.viewer, docs/viewer.md): the model rebuilt from the NPZ alone, what is
+drawn (visual meshes, collision geometry where a link has none), the files a stored scene may
+name, scene text escaping, the CLI, Pinocchio's visualizers on the helper's geometry, and the
+exported pages of box_drop and solo_drop drawn by headless Chromium, with their screenshots
+checked. Chromium is required: without it these tests fail (never skip).
 
-MOREAU_SIM_DOCS_IMG=1 also writes the screenshot docs/img/viewer_box_drop.png.
+Screenshots are written to out/viewer/; MOREAU_SIM_DOCS_IMG=1 also writes docs/img/viewer_box_drop.png
+and docs/img/viewer_solo_drop.png.
 """
 
 from __future__ import annotations
 
-import colorsys
+import contextlib
 import io
+import json
 import os
 import shutil
 import subprocess
@@ -24,14 +28,17 @@ from click.testing import CliRunner
 
 import moreau_sim as ms
 from moreau_sim import viewer
+from moreau_sim.errors import SceneError
 from moreau_sim.viewer_cli import view
 
 ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "out" / "viewer"
 INSTALL = ("headless Chromium is required for the viewer tests: apt-get install -y chromium chromium-driver, "
            "and pip install selenium pillow")
 FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--disable-quic",
          "--no-first-run", "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--hide-scrollbars", "--window-size=1000,650")
+         "--hide-scrollbars", "--window-size=900,600")
+NASTY = "box</title><!--<script>alert(1)</script>\u2028'\"&"
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +61,11 @@ def traj(npz):
     return ms.load_trajectory(npz)
 
 
+@pytest.fixture(scope="module")
+def solo():
+    return ms.run(ROOT / "scenes/solo_drop.toml", duration=0.5)
+
+
 def test_scene_toml_round_trip():
     for path in sorted((ROOT / "scenes").glob("*.toml")):
         doc = tomllib.loads(path.read_text())
@@ -67,47 +79,118 @@ def test_model_from_trajectory_without_the_files(traj):
     assert [g.name for g in model.geom.geometryObjects] == traj.meta["model"]["geometries"]
     X = viewer.frames(traj, model)
     assert X.shape == (len(traj.t), 2, 7)
-    # the box's collision origin is its joint: its placement is q = [x y z qx qy qz qw]
     assert np.abs(X[:, 0, :3] - traj.q[:, :3]).max() < 1e-12
-    assert np.abs(np.abs(np.einsum("ij,ij->i", X[:, 0, 3:], traj.q[:, 3:])) - 1).max() < 1e-12
     assert np.abs(X[:, 1] - X[0, 1]).max() == 0  # the ground does not move
 
 
-def test_scene_data_frames_and_contacts(traj):
-    d = viewer.scene_data(traj, fps=100)
-    assert [g["type"] for g in d["geometries"]] == ["box", "halfspace"]
-    assert d["geometries"][0]["size"] == pytest.approx([0.2, 0.2, 0.4])
-    assert d["moving"] == [0] and len(d["poses"]) == len(d["t"]) == 61  # 0.6 s at 100 frames/s
-    assert d["t"][0] == 0.0 and d["t"][-1] == pytest.approx(0.6)
+def test_contacts_per_frame(traj):
+    idx = viewer.frame_indices(traj.t, 100)
+    ft = traj.t[idx]
+    assert len(ft) == 61 and ft[-1] == pytest.approx(0.6)
+    c = viewer._contacts(traj, ft)
     # every logged percussion lands in exactly one frame: the one whose interval holds its time
-    assert sum(c[6] for f in d["contacts"] for c in f) == pytest.approx(traj.log_P.sum(), rel=1e-5)
+    assert sum(x[6] for f in c for x in f) == pytest.approx(traj.log_P.sum(), rel=1e-5)
     t_hit = float(traj.log_t[traj.log_impact][0])
-    f = int(np.searchsorted(d["t"], t_hit))
-    assert d["t"][f - 1] < t_hit <= d["t"][f]
-    assert any(c[7] for c in d["contacts"][f]) and not any(d["contacts"][f - 1])
-    assert len(viewer.scene_data(traj, fps=0)["t"]) == len(traj.t)
+    f = int(np.searchsorted(ft, t_hit))
+    assert any(x[7] for x in c[f]) and not any(c[f - 1])
 
 
-def test_articulated_bodies_get_their_links():
-    """pendulum_wall's collision geometry is its two bobs: the page also draws the links."""
-    tr = ms.run(ROOT / "scenes/pendulum_wall.toml", duration=0.01)
-    d = viewer.scene_data(tr)
-    assert [g["type"] for g in d["geometries"]] == ["sphere", "sphere", "box"]
-    seg = np.reshape(d["sticks"][0], (-1, 2, 3))  # pivot -> elbow, pivot -> bob 1, elbow -> bob 2
-    assert np.allclose(seg[0], [[0, 0, 1.2], [-0.5, 0, 1.2]]) and np.allclose(seg[-1, 1], [-1.0, 0, 1.2])
-    assert viewer.scene_data(ms.run(ROOT / "scenes/box_drop.toml", duration=0.01))["sticks"] is None
+def test_parts_box_and_solo(traj, solo):
+    box = viewer.parts(traj)
+    assert [(p.source, p.static) for p in box] == [("collision", False)]  # box.urdf has no <visual>
+    assert np.ptp(box[0].vertices, axis=0) == pytest.approx([0.2, 0.2, 0.4])
+    ps = viewer.parts(solo)
+    assert len(ps) == 13 and {p.source for p in ps} == {"visual"}  # solo's 13 OBJ visual meshes
+    assert min(len(p.faces) for p in ps) > 100  # real meshes, not boxes
+    links = {p.link: p.color for p in ps}
+    assert len(links) == 13 and len(set(links.values())) >= 9  # a colour per link (10-colour palette)
+    grey = {p.color for p in viewer.parts(solo, colors="model")}
+    assert grey == {(204, 204, 204)}  # the URDF's material "grey" 0.8
 
 
-def test_cli_export_and_errors(npz, tmp_path):
-    r = CliRunner().invoke(view, [str(npz), "--export", str(tmp_path / "r.html")])
+def test_ground_box():
+    M, half = viewer.ground_box([0, 0, 1], 0.0, [0.3, -0.2, 5.0], 4.0)
+    assert half == pytest.approx([2, 2, 0.02])
+    assert M.translation == pytest.approx([0.3, -0.2, -0.02])  # top face on z = 0, under the centre
+
+
+def test_crafted_npz_reads_no_other_file(traj, tmp_path):
+    visual = '<visual><geometry><mesh filename="{}"/></geometry></visual></link>'
+    for new in [visual.format(u) for u in ("/etc/passwd", "file:///etc/hostname.obj", "~/a.obj",
+                                             "package://x/../../../etc/passwd.obj", "../../a.stl")] + \
+               ['<compiler meshdir="/etc"/></link>']:  # MJCF's folder attributes too
+        bad = ms.Trajectory(traj.arrays, json.loads(json.dumps(traj.meta)))
+        bad.meta["scene"]["urdf"]["box"] = bad.meta["scene"]["urdf"]["box"].replace("</link>", new, 1)
+        with pytest.raises(SceneError, match="reads only files"):
+            viewer.model_from_trajectory(bad)
+        path = bad.save(tmp_path / "bad.npz")
+        r = CliRunner().invoke(view, [str(path), "-o", str(tmp_path / "bad.html")])
+        assert r.exit_code == 2 and "reads only files" in r.output and not (tmp_path / "bad.html").exists()
+
+
+def test_scene_text_is_escaped(traj):
+    t = ms.Trajectory(traj.arrays, json.loads(json.dumps(traj.meta)))
+    t.meta["scene"]["name"] = NASTY
+    t.meta["scene"]["description"] = NASTY + " -->"
+    page = viewer.page(t)
+    overlay = page[page.rindex('<div id="ms-panel">'):]
+    assert "<!--" not in overlay and "alert(1)</script>" not in overlay and "\u2028" not in overlay
+    assert page.count("</title>") == 1 and "&lt;!--&lt;script&gt;" in page
+
+
+def test_cli_out_export_alias_and_errors(npz, tmp_path):
+    r = CliRunner().invoke(view, [str(npz), "-o", str(tmp_path / "r.html")])
     assert r.exit_code == 0, r.output
     html = (tmp_path / "r.html").read_text()
-    assert "box_drop" in html and "http://" not in html and "https://" not in html  # nothing fetched
-    r = CliRunner().invoke(view, [str(tmp_path / "missing.npz"), "--export", str(tmp_path / "x.html")])
+    assert "box_drop" in html and "__VISER_EMBED_DATA__" in html
+    r = CliRunner().invoke(view, [str(npz), "--export", str(tmp_path / "old.html")])  # hidden alias
+    assert r.exit_code == 0 and (tmp_path / "old.html").exists()
+    assert "--export" not in CliRunner().invoke(view, ["--help"]).output
+    r = CliRunner().invoke(view, [str(tmp_path / "missing.npz"), "-o", str(tmp_path / "x.html")])
     assert r.exit_code == 2 and "missing.npz" in r.output
 
 
-# --- the page, drawn by headless Chromium ------------------------------------------------------
+def test_pinocchio_viser_visualizer_draws_the_helper_geometry(traj):
+    from pinocchio.visualize import ViserVisualizer
+
+    model = viewer.model_from_trajectory(traj)
+    with contextlib.redirect_stdout(io.StringIO()):
+        with pytest.raises(RuntimeError, match="Halfspace"):  # what users meet without the helper
+            v = ViserVisualizer(model.pin, model.geom, model.geom)
+            v.initViewer(open=False)
+            try:
+                v.loadViewerModel()
+            finally:
+                v.viewer.stop()
+        geom = viewer.drawable_geometry(model)
+        v = ViserVisualizer(model.pin, geom, geom)
+        v.initViewer(open=False)
+        v.loadViewerModel()
+        v.display(traj.q[-1])
+        v.viewer.stop()
+    ground = geom.geometryObjects[1]
+    assert ground.geometry.halfSide == pytest.approx([5, 5, 0.05]) and ground.placement.translation[2] == -0.05
+
+
+def test_served_page(npz):
+    proc = subprocess.Popen([sys.executable, "-u", "-m", "moreau_sim.viewer_cli", str(npz), "--port", "0",
+                             "--no-browser"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("serving "), (line, proc.stderr.read() if proc.poll() is not None else "")
+        url = line.split(" at ")[1].split()[0]
+        assert url.startswith("http://127.0.0.1:")
+        with urllib.request.urlopen(url, timeout=10) as r:
+            body = r.read()
+            assert r.headers["Content-Type"].startswith("text/html") and b"__VISER_EMBED_DATA__" in body
+        with pytest.raises(urllib.error.HTTPError):  # nothing but the page is served
+            urllib.request.urlopen(url + "etc/passwd", timeout=10)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+# --- the exported pages, drawn by headless Chromium ---------------------------------------------
 
 @pytest.fixture(scope="module")
 def browser(tmp_path_factory):
@@ -124,77 +207,141 @@ def browser(tmp_path_factory):
     opts.binary_location = chromium
     for a in FLAGS + (f"--user-data-dir={tmp_path_factory.mktemp('chromium')}",):
         opts.add_argument(a)
+    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     drv = webdriver.Chrome(service=Service(driver), options=opts)
-    drv.set_page_load_timeout(30)
+    drv.set_page_load_timeout(60)
     yield drv
     drv.quit()
 
 
-def _hues(img, lo: float, hi: float, sat: float = 0.5) -> int:
-    """Pixels whose hue [deg] is in [lo, hi] (wrapping through 0 if lo > hi) and saturation >= sat."""
-    a = np.asarray(img.convert("RGB"), float).reshape(-1, 3) / 255
-    mx, mn = a.max(1), a.min(1)
-    s = np.where(mx > 0, (mx - mn) / np.maximum(mx, 1e-9), 0)
-    h = np.array([colorsys.rgb_to_hsv(*p)[0] * 360 for p in a[s >= sat]])
-    if not len(h):
-        return 0
-    return int(np.count_nonzero((h >= lo) & (h <= hi) if lo <= hi else (h >= lo) | (h <= hi)))
+def _hsv(img) -> np.ndarray:
+    """Per pixel (hue [deg], saturation, value)."""
+    a = np.asarray(img.convert("RGB"), float) / 255
+    r, g, b = a[..., 0], a[..., 1], a[..., 2]
+    mx, mn = a.max(-1), a.min(-1)
+    d = mx - mn
+    dd = np.maximum(d, 1e-9)
+    h = np.where(mx == r, ((g - b) / dd) % 6, np.where(mx == g, (b - r) / dd + 2, (r - g) / dd + 4)) * 60
+    return np.stack([np.where(d > 0, h, 0), np.where(mx > 0, d / np.maximum(mx, 1e-9), 0), mx], -1)
 
 
-def _load(drv, url):
-    from PIL import Image
-    from selenium.webdriver.support.ui import WebDriverWait
-
-    drv.get(url)
-    WebDriverWait(drv, 30).until(lambda d: d.execute_script(
-        "return !!window.viewer && (window.viewer.ready || !!window.viewer.error)"))
-    assert drv.execute_script("return window.viewer.error") is None
-    return lambda: Image.open(io.BytesIO(drv.get_screenshot_as_png())).convert("RGB")
+def _hue_count(hsv, lo, hi, sat=0.35, val=0.25) -> int:
+    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    inside = (h >= lo) & (h <= hi) if lo <= hi else (h >= lo) | (h <= hi)
+    return int(np.count_nonzero(inside & (s >= sat) & (v >= val)))
 
 
-def _check_replay(drv, url, t_hit, save: Path | None = None):
-    shot = _load(drv, f"{url}#t={t_hit}&contacts=1&play=0")
-    img = shot()
-    colours = len(np.unique(np.asarray(img).reshape(-1, 3), axis=0))
-    box = _hues(img, 15, 35)       # the box, #e07b39 shaded
-    red = _hues(img, 350, 8, 0.6)  # the new-impact marker and arrow, #e0202a shaded
-    assert colours > 200, f"blank page? {colours} colours"
-    assert box > 2000, f"the box is not drawn ({box} orange pixels)"
-    assert red > 150, f"the impact percussion is not drawn ({red} red pixels)"
-    assert drv.execute_script("return window.viewer.contactsShown") >= 1
-    if save:
-        save.parent.mkdir(parents=True, exist_ok=True)
-        img.save(save)
-    drv.find_element("id", "contacts").click()  # the toggle hides contacts and arrows
-    time.sleep(0.2)
-    img = shot()
-    assert drv.execute_script("return window.viewer.contactsShown") == 0
-    off = _hues(img, 350, 8, 0.6)  # only the red x axis at the origin is left
-    assert off < 60 and red > off + 150 and _hues(img, 15, 35) > 2000
-    frame = drv.execute_script("return window.viewer.frame")
-    drv.find_element("id", "play").click()  # plays on from the impact
-    time.sleep(0.5)
-    assert drv.execute_script("return window.viewer.frame") > frame
-    drv.find_element("id", "play").click()
+class Page:
+    """An exported replay open in Chromium: seek with the slider, screenshot the 3D view."""
+
+    def __init__(self, drv, path: Path):
+        from selenium.webdriver.support.ui import WebDriverWait
+
+        self.drv = drv
+        drv.get_log("browser")  # drop earlier entries
+        drv.get(path.as_uri())
+        WebDriverWait(drv, 45).until(lambda d: d.execute_script(
+            "return !!window.moreauReplay && (window.moreauReplay.ready || !!window.moreauReplay.error)"))
+        assert drv.execute_script("return window.moreauReplay.error") is None
+        time.sleep(1.0)  # the loading screen fades out
+        drv.execute_script("document.querySelectorAll('.mantine-Notification-closeButton').forEach(b => b.click())")
+        WebDriverWait(drv, 20).until(lambda d: self.t() > 0, "the replay does not play")
+        drv.execute_script("document.querySelector('.mantine-Slider-root').parentElement.querySelector('button').click()")
+        seen = [self.t()]  # paused: the time stops
+        WebDriverWait(drv, 20, 0.3).until(lambda d: seen.append(self.t()) or seen[-1] == seen[-2])
+        self.duration = float(drv.execute_script(
+            "return parseFloat(document.querySelector('[role=slider]').getAttribute('aria-valuemax'))"))
+
+    def t(self) -> float:
+        """The playback time shown by viser's slider."""
+        return float(self.drv.execute_script(
+            "return parseFloat(document.querySelector('[role=slider]').getAttribute('aria-valuenow'))"))
+
+    def seek(self, t: float, tol: float = 0.003) -> None:
+        """Click viser's slider where time `t` is (corrected by what it then reads), wait for the frame."""
+        from selenium.common.exceptions import TimeoutException
+        from selenium.webdriver.common.action_chains import ActionChains
+        from selenium.webdriver.support.ui import WebDriverWait
+
+        track = self.drv.find_element("css selector", ".mantine-Slider-root")
+        w = track.rect["width"]
+        x = (t / self.duration - 0.5) * w
+        for _ in range(4):
+            before = self.t()
+            ActionChains(self.drv).move_to_element_with_offset(track, int(round(x)), 0).click().perform()
+            with contextlib.suppress(TimeoutException):
+                WebDriverWait(self.drv, 3, 0.1).until(lambda d, b=before: self.t() != b)
+            now = self.t()
+            if abs(now - t) < tol:
+                break
+            x = min(max(x + (t - now) / self.duration * w, -0.5 * w + 1), 0.5 * w - 1)
+        assert self.t() == pytest.approx(t, abs=tol)
+        WebDriverWait(self.drv, 20).until(lambda d: d.execute_script("return window.moreauReplay.t") == self.t())
+        time.sleep(0.4)  # the frame is drawn
+
+    def shot(self):
+        """(screenshot, HSV of the 3D view without the plot panel and the playback bar)."""
+        from PIL import Image
+
+        img = Image.open(io.BytesIO(self.drv.get_screenshot_as_png())).convert("RGB")
+        panel = self.drv.execute_script("const r = document.getElementById('ms-panel').getBoundingClientRect();"
+                                        "return [r.left, r.top, r.right, r.bottom]")
+        bar = self.drv.execute_script(
+            "return document.querySelector('.mantine-Slider-root').getBoundingClientRect().top")
+        a = np.asarray(img).copy()
+        x0, y0, x1, y1 = (int(v) for v in panel)
+        a[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = 255
+        a[int(bar) - 20:] = 255
+        return img, _hsv(Image.fromarray(a).reduce(2))  # half resolution: counts are per 4 pixels
+
+    def errors(self) -> list:
+        return [e for e in self.drv.get_log("browser") if e["level"] == "SEVERE"]
 
 
-def test_served_replay_in_chromium(npz, traj, browser):
+def _save(img, name):
+    OUT.mkdir(parents=True, exist_ok=True)
+    img.save(OUT / name)
+    if os.environ.get("MOREAU_SIM_DOCS_IMG"):
+        img.save(ROOT / "docs/img" / name)
+
+
+def test_box_drop_replay_in_chromium(traj, browser, tmp_path):
+    t = ms.Trajectory(traj.arrays, json.loads(json.dumps(traj.meta)))
+    t.meta["scene"]["description"] = NASTY + " -->"  # hidden until hovered: the screenshot is unchanged
+    path = viewer.export_html(t, tmp_path / "box_drop.html")
+    p = Page(browser, path)
+    assert browser.execute_script("return document.getElementById('ms-desc').textContent") == NASTY + " -->"
+    ft = traj.t[viewer.frame_indices(traj.t, 100)]
     t_hit = float(traj.log_t[traj.log_impact][0])
-    proc = subprocess.Popen([sys.executable, "-u", "-m", "moreau_sim.viewer_cli", str(npz), "--port", "0",
-                             "--no-browser"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        line = proc.stdout.readline()
-        assert line.startswith("serving "), (line, proc.stderr.read() if proc.poll() is not None else "")
-        url = line.split(" at ")[1].split()[0]
-        with urllib.request.urlopen(url, timeout=10) as r:
-            assert r.headers["Content-Type"].startswith("text/html") and b"box_drop" in r.read()
-        save = ROOT / "docs/img/viewer_box_drop.png" if os.environ.get("MOREAU_SIM_DOCS_IMG") else None
-        _check_replay(browser, url, t_hit, save)
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
+    f = int(np.searchsorted(ft, t_hit))
+    p.seek(0.02)
+    assert p.t() == pytest.approx(0.02, abs=0.01)
+    early, hsv0 = p.shot()
+    assert _hue_count(hsv0, 15, 35) > 800, "the box is not drawn"
+    p.seek(0.5 * (ft[f] + ft[f + 1]))  # the first impact's frame: its arrows
+    img, hsv = p.shot()
+    _save(img, "viewer_box_drop.png")
+    assert p.t() == pytest.approx(0.5 * (ft[f] + ft[f + 1]), abs=0.004)
+    assert _hue_count(hsv, 15, 35) > 800
+    red = _hue_count(hsv, 330, 8, 0.15, 0.5)  # the impact arrow, red, seen through the grey ground
+    assert red > 15 and _hue_count(hsv0, 330, 8, 0.15, 0.5) < 5, f"the impact arrow is not drawn ({red} pixels)"
+    moved = np.abs(np.asarray(early, float) - np.asarray(img, float)).sum(-1) > 60
+    assert moved.sum() > 2000, "the slider does not move the box"
+    _save(img, "viewer_box_drop.png")
+    assert p.errors() == []
 
 
-def test_exported_replay_from_file_in_chromium(traj, browser, tmp_path):
-    path = viewer.export_html(traj, tmp_path / "replay.html")
-    _check_replay(browser, path.as_uri(), float(traj.log_t[traj.log_impact][0]))
+def test_solo_drop_replay_in_chromium(solo, browser, tmp_path):
+    path = viewer.export_html(solo, tmp_path / "solo_drop.html")
+    p = Page(browser, path)
+    p.seek(0.05)
+    early, hsv0 = p.shot()
+    p.seek(0.45)
+    img, hsv = p.shot()
+    coloured = int(np.count_nonzero((hsv[..., 1] >= 0.3) & (hsv[..., 2] >= 0.25)))
+    assert coloured > 1500, f"solo is not drawn ({coloured} coloured pixels)"
+    assert _hue_count(hsv, 15, 35) > 100 and _hue_count(hsv, 195, 225) > 30  # the body's and a leg's colour
+    moved = np.abs(np.asarray(early, float) - np.asarray(img, float)).sum(-1) > 60
+    assert moved.sum() > 1500, "the slider does not move solo"
+    _save(img, "viewer_solo_drop.png")
+    assert p.errors() == []
