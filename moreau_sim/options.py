@@ -120,6 +120,18 @@ class PositionCorrection(enum.Enum):
     PROJECTION = "projection"
 
 
+class StepImpl(enum.Enum):
+    """Which implementation takes the time steps (moreau_sim/compiled.py).
+
+    COMPILED: the C++ step (moreau_sim._step) where it covers the step, else the Python step; the
+        Python step alone when the extension is unavailable (one warning says why).
+    PYTHON: the Python step (stepper.py), the reference implementation.
+    Both give the same trajectory (tests/test_compiled.py)."""
+
+    COMPILED = "compiled"
+    PYTHON = "python"
+
+
 class StaticShape(enum.Enum):
     HALFSPACE = "halfspace"
     BOX = "box"
@@ -207,6 +219,7 @@ class Options:
         (:class:`Selection`; every branching step is logged).
     qp_tolerance: piqp's eps_abs and eps_rel; the solution is then polished on its active set.
     save_every: record the state every N steps (the last step is always recorded).
+    step_impl: the compiled step where it applies, or the Python step only (see :class:`StepImpl`).
     """
 
     restitution: float = 0.5
@@ -224,6 +237,7 @@ class Options:
     position_correction: PositionCorrection = PositionCorrection.PROJECTION
     qp_tolerance: float = 1e-10
     save_every: int = 1
+    step_impl: StepImpl = StepImpl.COMPILED
 
     def __post_init__(self):
         self.validate("options")
@@ -257,6 +271,8 @@ class Options:
                f"must be a Selection, got {self.corner_selection!r}")
         require(isinstance(self.qp_tolerance, (int, float)) and 0 < self.qp_tolerance < 1e-3,
                f"{where}: qp_tolerance", f"must lie in (0, 1e-3), got {self.qp_tolerance!r}")
+        require(isinstance(self.step_impl, StepImpl), f"{where}: step_impl",
+               f"must be a StepImpl, got {self.step_impl!r}")
         require(isinstance(self.save_every, int) and not isinstance(self.save_every, bool) and self.save_every >= 1,
                f"{where}: save_every", f"must be an integer >= 1, got {self.save_every!r}")
 
@@ -285,4 +301,4 @@ class Options:
 
 CHOICES = {"qp_form": QPForm, "separating": Separating, "corner_selection": Selection, "bias": Bias,
            "position_correction": PositionCorrection, "slow_impacts": SlowImpacts, "integrator": Integrator,
-           "tunnelling": Tunnelling}
+           "tunnelling": Tunnelling, "step_impl": StepImpl}
