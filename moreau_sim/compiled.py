@@ -80,11 +80,26 @@ def _dgesv_pointer() -> int:
     return int(api.PyCapsule_GetPointer(cap, api.PyCapsule_GetName(cap)))
 
 
+def _analytic(a, b) -> bool:
+    """Whether coal resolves this pair of shapes in closed form. Other pairs go through GJK/EPA, whose
+    support search is warm-started from the pair's previous call (state kept in the collision functor):
+    a step handed back to Python would run it a second time at the same configuration and can get a
+    different contact at the EPA tolerance than the Python-only run."""
+    half = (coal.Halfspace, coal.Plane)
+    for x, y in ((a, b), (b, a)):
+        if isinstance(y, half) and isinstance(x, (coal.Sphere, coal.Box, coal.Capsule, coal.Cylinder, coal.Cone)):
+            return True
+    return isinstance(a, coal.Sphere) and isinstance(b, (coal.Sphere, coal.Capsule, coal.Box))
+
+
 def unsupported(model) -> str | None:
     """Why the compiled step never takes this model's steps (None: it takes the ones it covers)."""
     o = model.options
     if model.nv > MAX_NV:
         return f"more than {MAX_NV} velocities"
+    geoms = model.geom.geometryObjects
+    if not all(_analytic(geoms[p.first].geometry, geoms[p.second].geometry) for p in model.pairs):
+        return "a pair coal resolves by GJK/EPA (warm-started from its previous call)"
     if model.polytope_pairs:
         return "pairs of two polytopes (their detection keeps a warm start)"
     if o.tunnelling is Tunnelling.ALWAYS:

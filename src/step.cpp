@@ -89,6 +89,13 @@ inline double gemv_dot(const double *a, const double *b, Eigen::Index n, Eigen::
   return block ? s + t : 0.0 + t;
 }
 
+// coal warm-starts GJK's support search from the previous call of the same pair (a hint kept in the
+// collision functor's solver, a protected member): a step handed to Python must find the hints as the
+// Python step would have left them, so they are saved before detection and restored on a fallback.
+struct SolverOf : coal::ComputeCollision {
+  static coal::GJKSolver coal::ComputeCollision::*member() { return &SolverOf::solver; }
+};
+
 struct Found {
   double g;
   Vec3 pa, pb, n;
@@ -133,6 +140,7 @@ class Stepper {
     try {
       return step_(q, u, h, e);
     } catch (const Fallback &f) {
+      restore_guesses();
       return nb::make_tuple(FALLBACK, f.why);
     }
   }
@@ -177,6 +185,25 @@ class Stepper {
     VectorXd d(gd_.distanceResults.size());
     for (size_t k = 0; k < gd_.distanceResults.size(); ++k) d[k] = gd_.distanceResults[k].min_distance;
     return d;
+  }
+
+  std::vector<coal::Vec3s> saved_guess_;
+  std::vector<coal::support_func_guess_t> saved_hint_;
+  void save_guesses() {
+    const auto mem = SolverOf::member();
+    const size_t n = gd_.collision_functors.size();
+    saved_guess_.resize(n), saved_hint_.resize(n);
+    for (size_t k = 0; k < n; ++k) {
+      const coal::GJKSolver &sv = gd_.collision_functors[k].*mem;
+      saved_guess_[k] = sv.cached_guess, saved_hint_[k] = sv.support_func_cached_guess;
+    }
+  }
+  void restore_guesses() {
+    const auto mem = SolverOf::member();
+    for (size_t k = 0; k < saved_guess_.size() && k < gd_.collision_functors.size(); ++k) {
+      coal::GJKSolver &sv = gd_.collision_functors[k].*mem;
+      sv.cached_guess = saved_guess_[k], sv.support_func_cached_guess = saved_hint_[k];
+    }
   }
 
   // stepper.free_velocity
@@ -244,6 +271,7 @@ class Stepper {
     std::vector<Found> found;
     pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q_m);
     if (pairs_.rows() == 0) return found;
+    save_guesses();
     const bool coll = pinocchio::computeCollisions(gm_, gd_, false);
     if (!coll) return found;
     for (Eigen::Index k = 0; k < pairs_.rows(); ++k) {
