@@ -89,9 +89,9 @@ def _kind(default) -> tuple[Kind, type[enum.Enum] | None]:
 
 
 # Every field of Options (new ones included), with its kind, read from its default.
-_FIELDS: dict[str, tuple[Kind, type[enum.Enum] | None]] = {
+FIELDS: dict[str, tuple[Kind, type[enum.Enum] | None]] = {
     f.name: _kind(getattr(Options(), f.name)) for f in dataclasses.fields(Options)}
-SWEEPABLE = tuple(_FIELDS)  # the names a --param may take
+SWEEPABLE = tuple(FIELDS)  # the names a --param may take
 
 
 class Status(enum.Enum):
@@ -160,7 +160,7 @@ def _float(s: str, where: str) -> float:
 
 
 def _value(name: str, s: str, where: str):
-    kind, choices = _FIELDS[name]
+    kind, choices = FIELDS[name]
     if kind is Kind.FLOAT:
         return _float(s, where)
     if kind is Kind.INT:
@@ -215,10 +215,10 @@ def parse_param(text: str) -> Param:
     name, spec = name.strip(), spec.strip()
     if not sep or not name or not spec:
         raise SceneError(f"{where}: expected NAME=A:B:N or NAME=V1,V2,...")
-    if name not in _FIELDS:
+    if name not in FIELDS:
         raise SceneError(f"{where}: unknown option {name!r}; sweepable options: {', '.join(SWEEPABLE)}")
     if ":" in spec:
-        if _FIELDS[name][0] is not Kind.FLOAT:
+        if FIELDS[name][0] is not Kind.FLOAT:
             raise SceneError(f"{where}: a range A:B:N is only for real-valued options, not {name}")
         values = _range(spec, where)
     else:
@@ -271,7 +271,7 @@ def _simulate_point(scene: Scene) -> _Outcome:
 
 
 def _param_cell(name: str, value):
-    return json.dumps(list(value)) if _FIELDS[name][0] is Kind.VECTOR else value
+    return json.dumps(list(value)) if FIELDS[name][0] is Kind.VECTOR else value
 
 
 def _row(pid: str, point: dict, status: Status, message: str | None, traj: Trajectory | None,
@@ -290,8 +290,8 @@ def _row(pid: str, point: dict, status: Status, message: str | None, traj: Traje
 def _cell(col: str, text: str):
     if text == "":
         return None
-    if col in _FIELDS:
-        kind = _FIELDS[col][0]
+    if col in FIELDS:
+        kind = FIELDS[col][0]
         return float(text) if kind is Kind.FLOAT else int(text) if kind is Kind.INT else text
     if col in _TEXT_COLUMNS:
         return text
@@ -337,7 +337,7 @@ class _Table:
         self.path, self.parquet = out_dir / TABLE, out_dir / PARQUET
         self.old, self.order = old, list(order)
         self.rows: dict[str, dict] = {}
-        others = sorted({c for r in old.values() for c in r if c in _FIELDS} - set(params))
+        others = sorted({c for r in old.values() for c in r if c in FIELDS} - set(params))
         self.params = ["id", *params, *others]
         self.last_write = -math.inf
 
@@ -345,7 +345,7 @@ class _Table:
     def columns(self) -> list[str]:
         """id, swept options, then every other column of the rows (summary figures...) in order."""
         rows = itertools.chain(self.rows.values(), self.old.values())
-        keys = dict.fromkeys(k for r in rows for k in r if k not in _FIELDS and k != "id")
+        keys = dict.fromkeys(k for r in rows for k in r if k not in FIELDS and k != "id")
         rank = {"status": 0, "message": 1, "energy_lost": 3, "npz": 4}
         return [*self.params, *sorted(keys, key=lambda k: rank.get(k, 2))]
 
@@ -440,7 +440,7 @@ def _dask(tasks: list[tuple[int, Scene]], address: str) -> Iterator[tuple[int, _
 
 
 @contextlib.contextmanager
-def _locked(out_dir: Path):
+def locked(out_dir: Path):
     """Hold out_dir/.sweep.lock: two sweeps writing one directory would overwrite each other's table."""
     with open(out_dir / ".sweep.lock", "w") as fh:
         if fcntl is not None:
@@ -514,7 +514,7 @@ def run_sweep(scene_path: str | Path, params: Iterable[Param], out_dir: str | Pa
     out_dir = Path(out_dir)
     (out_dir / RUNS).mkdir(parents=True, exist_ok=True)
     computed = failed = 0
-    with _locked(out_dir):
+    with locked(out_dir):
         table = _Table(out_dir, [p.name for p in params], _read_table(out_dir / TABLE), ids)
         todo = _resume(table, out_dir, ids, points, scenes)
         skipped = len(table.rows)

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from conftest import BUNDLED, SCENES
 from moreau_sim.trajectory import ARRAYS
+
+from helpers import BUNDLED, SCENES
 
 
 def cli(*args, cwd=None):

@@ -1,12 +1,13 @@
 """The set-valued law at re-entrant corners in scenes: detection, the outcome sets of the note
-(impact-law.md §3), the stepper's choice and its record, and smooth contacts left alone."""
+(docs/theory.md §3), the stepper's choice and its record, and smooth contacts left alone."""
 
 import numpy as np
 import pytest
 
 import moreau_sim as ms
-from conftest import run, scene
 from moreau_sim.outcomes import impact_outcomes
+
+from helpers import run, scene
 
 
 def outcome_set(outs, decimals=12):
@@ -123,7 +124,8 @@ HEAD = '[scene]\nname = "s"\n[simulation]\ngravity = [0, 0, 0]\n'
 def test_smooth_contacts_are_not_corners(tmp_scene):
     """Face on face (aligned stacked boxes share edges and vertices), a sphere at a box's corner,
     a box corner on a half-space: ordinary contacts, one outcome."""
-    stacked = HEAD + ('[[bodies]]\nname = "top"\nurdf = "{models}/box.urdf"\nroot_joint = "free"\nposition = [0, 0, 0.6]\n'
+    stacked = HEAD + ('[[bodies]]\nname = "top"\nurdf = "{models}/box.urdf"\nroot_joint = "free"\n'
+                      'position = [0, 0, 0.6]\n'
                       '[[statics]]\nname = "bottom"\nshape = "box"\nsize = [0.2, 0.2, 0.4]\nposition = [0, 0, 0.2]\n')
     model, c = smooth_only(stacked, tmp_scene)
     assert not c.corners and c.m >= 4

@@ -1,4 +1,4 @@
-"""The set-valued impact law at re-entrant corners (moreau_sim.corners; impact-law.md §3)."""
+"""The set-valued impact law at re-entrant corners (moreau_sim.corners; docs/theory.md §3)."""
 
 import re
 
@@ -6,8 +6,10 @@ import numpy as np
 import piqp
 import pytest
 
-from moreau_sim.corners import (MAX_PIECES, CornerSolution, Selection, impact_outcomes, select,
-                                stationary_points)
+import moreau_sim as ms
+from moreau_sim.corners import MAX_PIECES, CornerSolution, Selection, impact_outcomes, select, stationary_points
+
+from helpers import scene
 
 # note §3: point mass, M = I, obstacle x > 0, y > 0 near the corner: K = {v_x <= 0} ∪ {v_y <= 0}
 I2 = np.eye(2)
@@ -202,7 +204,8 @@ def test_squeezed_smooth_contacts_lower_dimensional_pieces():
 def test_deterministic_and_selection_policies():
     rng = np.random.default_rng(2)
     B = rng.normal(size=(3, 3))
-    args = (B @ B.T + np.eye(3), rng.normal(size=3), [rng.normal(size=(2, 3)) for _ in range(3)], rng.normal(size=(3, 1)))
+    args = (B @ B.T + np.eye(3), rng.normal(size=3), [rng.normal(size=(2, 3)) for _ in range(3)],
+            rng.normal(size=(3, 1)))
     a, b = stationary_points(*args), stationary_points(*args)
     assert len(a.candidates) == len(b.candidates)
     for x, y in zip(a.candidates, b.candidates):
@@ -250,3 +253,25 @@ def test_validation_restitution(e):
         impact_outcomes(I2, np.array([1.0, 1.0]), e, CORNER)
     with pytest.raises(ValueError, match="u_minus"):
         impact_outcomes(I2, np.ones(2)[:, None], 0.5, CORNER)
+
+
+# 5. the energy identity at every branch of the bundled corner scenes -------------------------
+
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("name", ["corner_point", "corner_point_asymmetric", "blocks_corner"])
+def test_energy_identity_at_each_corner_branch(name, e):
+    """Every admissible outcome u+ = (1 + e) v - e u- of the scene's corner impact (three stationary
+    points each) loses T(u-) - T(u+) = (1 - e^2)/2 |u- - v|_M^2, to 1e-12 J."""
+    model = ms.build_model(scene(name))
+    data = ms.make_data(model)
+    state = ms.initial_state(model)
+    M = ms.assemble_constraints(model, data, state.q, ms.detect(model, data, state.q)).M
+    u = state.u
+    outs = ms.impact_outcomes(model, state, e=e)
+    assert len(outs) == 3 and sum(o.selected for o in outs) == 1
+    for o in outs:
+        dv = u - o.v
+        loss = 0.5 * u @ M @ u - 0.5 * o.u_plus @ M @ o.u_plus
+        assert abs(loss - 0.5 * (1 - e * e) * (dv @ M @ dv)) <= 1e-12
+        assert abs(o.distance - 0.5 * dv @ M @ dv) <= 1e-12
+        np.testing.assert_allclose(o.u_plus, (1 + e) * o.v - e * u, rtol=0, atol=1e-14)

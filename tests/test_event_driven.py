@@ -1,25 +1,26 @@
-"""The event-driven reference against the closed forms of impact-law.md §4, then its own
+"""The event-driven reference against the closed forms of docs/theory.md §4, then its own
 invariants (energy ledger, rest, Lie-group chart) on the scenes without a closed form."""
-
-import math
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
+from moreau_sim.bench.references import (
+    ball_apex_gaps,
+    ball_apex_times,
+    ball_first_impact,
+    ball_impact_times,
+    cradle_sequential,
+    zeno_time,
+)
 from moreau_sim.event_driven import EventDrivenRun, UnsupportedModel, simulate_event_driven
 from moreau_sim.trajectory import ARRAYS
 
-from conftest import scene
+from helpers import scene
 
 G, D0 = 9.81, 0.9  # gravity [m/s^2]; the ball's initial gap [m] (centre at 1 m, r = 0.1 m)
-T0 = math.sqrt(2 * D0 / G)  # first impact time [s]
-
-
-def impact_times(e: float, n: int) -> np.ndarray:
-    """t_k = t0 (1 + 2 e + ... + 2 e^k), k = 0..n-1 (impact-law.md §4)."""
-    return np.array([T0 * (1 + 2 * sum(e ** j for j in range(1, k + 1))) for k in range(n)])
+T0 = ball_first_impact(D0, G)  # first impact time [s]
 
 
 def ref(name: str, **kw) -> ms.Trajectory:
@@ -30,19 +31,19 @@ def ref(name: str, **kw) -> ms.Trajectory:
 @pytest.mark.parametrize("e", [0.5, 0.8, 1.0])
 def test_ball_impact_times_and_apex_heights(e):
     n = 6
-    tn = impact_times(e, n + 1)
-    apex_t = tn[:n] + e ** np.arange(1, n + 1) * T0  # apex after bounce k: t_{k-1} + e^k t0
+    tn = np.array(ball_impact_times(e, n + 1, D0, G))  # t_k = t0 (1 + 2 e + ... + 2 e^k) (docs/theory.md §4)
+    apex_t = np.array(ball_apex_times(e, n, D0, G))  # apex after bounce k: t_{k-1} + e^k t0
     tr = ref("bouncing_ball", restitution=e, duration=float(tn[n]) + 0.01, t_eval=np.r_[0.0, apex_t])
     assert tr.complete and tr.meta["integrator"] == "event-driven"
     assert np.abs(tr.log_t[:n + 1] - tn).max() < 1e-8
-    assert np.abs(tr.gap[1:, 0] - D0 * e ** (2 * np.arange(1, n + 1))).max() < 1e-8
+    assert np.abs(tr.gap[1:, 0] - np.array(ball_apex_gaps(e, n, D0))).max() < 1e-8
     assert np.abs(tr.u[1:, 0]).max() < 1e-8  # at the apex the ball is at rest
     assert np.allclose(tr.log_gamma_plus[:n], -e * tr.log_gamma_minus[:n], rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("e", [0.5, 0.8])
 def test_ball_zeno_time_and_rest(e):
-    t_inf = T0 * (1 + 2 * e / (1 - e))
+    t_inf = zeno_time(e, D0, G)
     tr = ref("bouncing_ball", restitution=e, duration=t_inf + 0.5)
     assert tr.complete
     (z,) = tr.meta["zeno"]  # one accumulation point, declared just before it
@@ -75,13 +76,8 @@ def test_gapped_cradle_sequential():
 
 def test_gapped_cradle_e_half_matches_binary_impacts():
     """e = 0.5: repeated binary impacts; the order is fixed by the geometry, so the result is the
-    reference's sweep of left-to-right binary Newton impacts (scripts/peers/_common.py)."""
-    v = [1.0, 0, 0, 0, 0]
-    for _ in range(100):
-        for i in range(4):
-            if v[i] > v[i + 1] + 1e-15:
-                a, b = v[i], v[i + 1]
-                v[i], v[i + 1] = 0.25 * a + 0.75 * b, 0.75 * a + 0.25 * b
+    reference's sweep of left-to-right binary Newton impacts (moreau_sim.bench.references)."""
+    v = cradle_sequential(0.5)
     tr = ref("newton_cradle_5_gapped", restitution=0.5, duration=0.5)
     assert np.abs(tr.u[-1] - v).max() < 2e-2  # ordering differences only (peers/README.md)
     assert abs(tr.u[-1].sum() - 1.0) < 1e-12

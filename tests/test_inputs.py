@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from conftest import MODELS, SCENES
+
+from helpers import MODELS, SCENES
 
 BALL = """
 [scene]

@@ -1,21 +1,12 @@
-"""The impact law at one instant (impact-law.md §1) and the QP that computes it."""
+"""The impact law at one instant (docs/theory.md §1): outcome, percussion, energy, restitution bounds.
+The projection itself (both forms, the polish) is tested in test_qp.py."""
 
 import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import qp
 
-
-def random_problem(seed, nv=6, m=3):
-    rng = np.random.default_rng(seed)
-    A = rng.standard_normal((nv, nv))
-    M = A @ A.T + nv * np.eye(nv)
-    W = rng.standard_normal((nv, m))
-    u = rng.standard_normal(nv)
-    u -= W @ np.linalg.lstsq(W, u, rcond=None)[0] * 0  # keep u generic
-    u -= 2.0 * np.linalg.solve(M, W @ np.ones(m))  # make the contacts approach
-    return M, W, u
+from helpers import random_problem
 
 
 def energy(M, x):
@@ -60,29 +51,6 @@ def test_admissible_velocity_is_unchanged():
     imp = ms.impact(M, W, u_sep, 0.5)
     np.testing.assert_array_equal(imp.u_plus, u_sep)
     np.testing.assert_array_equal(imp.P, 0.0)
-
-
-def test_primal_and_dual_forms_agree():
-    for seed in range(5):
-        M, W, u = random_problem(seed, nv=7, m=5)
-        a = qp.solve(M, W, u, form=ms.QPForm.PRIMAL)
-        b = qp.solve(M, W, u, form=ms.QPForm.DUAL)
-        assert a.ok and b.ok
-        np.testing.assert_allclose(a.v, b.v, atol=1e-12)
-        assert a.residual <= 1e-12 and b.residual <= 1e-12
-
-
-def test_redundant_rows_are_solved_exactly():
-    """Four corners of a box face resting on a plane give rank-3 rows: the projection is still exact."""
-    M = np.diag([1.0, 1.0, 1.0, 0.02, 0.03, 0.01])
-    pts = [np.array([sx * 0.1, sy * 0.2, -0.1]) for sx in (-1, 1) for sy in (-1, 1)]
-    n = np.array([0.0, 0.0, 1.0])
-    W = np.array([np.concatenate([n, np.cross(p, n)]) for p in pts]).T
-    u = np.array([0.3, -0.2, -1.0, 0.5, -0.4, 0.7])
-    res = qp.solve(M, W, u)
-    assert res.ok and res.polished and res.residual <= 1e-13
-    np.testing.assert_allclose(res.v[[2, 3, 4]], 0.0, atol=1e-14)  # normal motion stopped
-    np.testing.assert_allclose(res.v[[0, 1, 5]], u[[0, 1, 5]], atol=1e-14)  # tangential kept
 
 
 def test_two_ball_head_on_momentum():

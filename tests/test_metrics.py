@@ -5,10 +5,10 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import metrics
+from moreau_sim.bench import metrics
 from moreau_sim.trajectory import ARRAYS
 
-from conftest import scene
+from helpers import scene
 
 
 def traj(t, q, u=None, gap=None, E=None, log=()) -> ms.Trajectory:
@@ -93,7 +93,8 @@ def test_state_error_lie_group():
     q0 = ms.initial_state(ms.build_model(scene("box_drop"))).q
     v = np.array([0.1, -0.2, 0.3, 1.0, -2.0, 0.5])  # constant: a one-parameter subgroup
     tf, tc = np.linspace(0, 1, 101), np.linspace(0, 1, 6)
-    qs = lambda ts: np.array([pin.integrate(model, q0, s * v) for s in ts])
+    def qs(ts):
+        return np.array([pin.integrate(model, q0, s * v) for s in ts])
     ref, run = traj(tc, qs(tc)), traj(tf, qs(tf))
     r = metrics.state_error(run, ref, [0.13, 0.5, 0.77], model=model)
     assert r.q_max < 1e-12  # interpolation along the group is exact on a geodesic
@@ -119,7 +120,7 @@ def test_energy_error_and_penetration():
 
 def test_metrics_on_two_real_runs():
     """The stepper against the event-driven reference on the bouncing ball: first-order errors."""
-    from moreau_sim.reference import simulate_event_driven
+    from moreau_sim.event_driven import simulate_event_driven
 
     model = ms.build_model(scene("bouncing_ball", restitution=0.8, duration=2.0))
     ref = simulate_event_driven(model)

@@ -1,4 +1,4 @@
-"""The stress suite (issue 5): every stress scene at a CI size against the bound stated in its
+"""The stress suite: every stress scene at a CI size against the bound stated in its
 description and in docs/stability.md; large steps over the bundled scenes; the swept-contact
 prototype against tunnelling (moreau_sim/tunnelling.py).
 
@@ -13,8 +13,10 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from conftest import SCENES, run, scene
+from moreau_sim.bench.references import cradle_simultaneous, zeno_rest_bound, zeno_time
 from moreau_sim.tunnelling import motion_bounds, pair_distance, swept_contacts
+
+from helpers import SCENES, run, scene
 
 G = 9.81
 CORRECTIONS = ("none", "projection")
@@ -49,22 +51,13 @@ def free_drift(model, traj):
 D0_ZENO = 0.5  # zeno_ball: initial gap [m] (centre at 0.6 m, r = 0.1 m)
 
 
-def zeno_rest_bound(e, h):
-    """|t_rest - t_inf| <= 2 N h/(1-e) + 2 ln(1e-12/(hG))/ln(e) h: the N = ln(hG/v0)/ln(e) bounces
-    faster than hG each end O(h) off (carried to the next times e), and a residual speed <= hG
-    then dies out by e every two steps (Separating.ELASTIC), or at once where slow impacts are
-    plastic. The scene's stated bound (zeno_ball.toml)."""
-    n = np.log(h * G / np.sqrt(2 * G * D0_ZENO)) / np.log(e)
-    return 2 * n * h / (1 - e) + 2 * np.log(1e-12 / (h * G)) / np.log(e) * h
-
-
 @pytest.mark.parametrize("e,h,correction", [(0.5, 1e-3, "none"), (0.5, 1e-3, "projection"),
                                             (0.8, 1e-3, "none"), (0.8, 1e-3, "projection"),
                                             (0.95, 1e-3, "none"), (0.95, 1e-3, "projection"),
                                             (0.8, 1e-2, "none"), (0.8, 1e-2, "projection")])
 def test_zeno_ball_rests_near_t_inf_and_stays_still(e, h, correction):
-    t_inf = np.sqrt(2 * D0_ZENO / G) * (1 + 2 * e / (1 - e))
-    bound = zeno_rest_bound(e, h)
+    t_inf = zeno_time(e, D0_ZENO)
+    bound = zeno_rest_bound(e, h, D0_ZENO)  # the scene's stated bound (zeno_ball.toml)
     traj = run("zeno_ball", restitution=e, dt=h, duration=t_inf + bound + 10.0 + 10 * h,
                position_correction=correction)
     speed = np.abs(traj.u[:, 0])
@@ -261,7 +254,8 @@ def test_swept_contacts_on_a_rotating_chain():
             continue
         pts = []
         for s in ss:
-            pin.updateGeometryPlacements(model.pin, data.pin, model.geom, data.geom, pin.integrate(model.pin, q0, s * dq))
+            q = pin.integrate(model.pin, q0, s * dq)
+            pin.updateGeometryPlacements(model.pin, data.pin, model.geom, data.geom, q)
             pts.append(data.geom.oMg[g].translation.copy())
         speed = np.linalg.norm(np.diff(pts, axis=0), axis=1) / (ss[1] - ss[0])
         assert speed.max() <= mu[g] * (1 + 1e-9)
@@ -271,13 +265,14 @@ def test_swept_contacts_on_a_rotating_chain():
 @pytest.mark.parametrize("h", [1e-3, 1e-2])
 @pytest.mark.parametrize("bias", ["midpoint"])
 def test_spinning_box_free_flight_energy(h, bias):
-    """spinning_box.toml: |T - T0|/T0 <= 1e-9 in free flight (t < 10 s); the flip happens; the
-    landing never raises T; angular momentum (world) drifts by <= 10 (h / 1 s)^2 of itself."""
+    """spinning_box.toml: |T - T0|/T0 <= 1e-9 in free flight (t < 10 s; measured 1.5e-14 at h = 1e-3
+    and 1.2e-13 at 1e-2: asserted <= 3e-13); the flip happens; the landing never raises T; angular
+    momentum (world) drifts by <= 10 (h / 1 s)^2 of itself (measured 4.15 h^2)."""
     traj = run("spinning_box", dt=h, bias=bias)
     T = traj.kinetic_energy
     flight = traj.t < 10.0
     assert not np.any(traj.log_t < 10.0)  # no contact in free flight
-    assert np.abs(T[flight] - T[0]).max() <= 1e-9 * T[0]
+    assert np.abs(T[flight] - T[0]).max() <= 3e-13 * T[0]
     assert np.sum(np.diff(np.sign(traj.u[flight, 4])) != 0) >= 2  # the Dzhanibekov flips
     assert T[~flight].max() <= T[flight][-1] * (1 + 1e-12)
     inertia = np.diag([0.0108333333333333, 0.00833333333333333, 0.00416666666666667])
@@ -314,17 +309,11 @@ def test_column_of_beads(name, duration, correction):
 
 
 # ----------------------------------------------------------------------------- 8. cradle_rounding
-def cradle_reference(e):
-    ref = np.full(5, (1 + e) / 5)
-    ref[0] -= e
-    return ref
-
-
 @pytest.mark.parametrize("name", ["cradle_rounding", "cradle_rounding_perturbed", "newton_cradle_5"])
 @pytest.mark.parametrize("e", [1.0, 0.5, 0.0])
 def test_cradle_rounding_gives_the_exact_touching_result(name, e):
     traj = run(name, restitution=e, duration=0.05)
-    np.testing.assert_allclose(traj.u[-1], cradle_reference(e), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(traj.u[-1], cradle_simultaneous(e), rtol=0, atol=1e-14)
 
 
 def test_cradle_random_1e16_perturbations(tmp_path):
@@ -334,25 +323,25 @@ def test_cradle_random_1e16_perturbations(tmp_path):
     base = [0.1 + 0.2 * i for i in range(5)]
     for v in range(20):
         t = text
-        for i, x in enumerate(base):
+        for x in base:
             t = t.replace(f"q0 = [{x!r}]", f"q0 = [{float(x + int(rng.integers(-3, 4)) * 1e-16)!r}]", 1)
         p = tmp_path / f"cradle_{v}.toml"
         p.write_text(t)
         traj = ms.run(p, duration=0.05)
-        np.testing.assert_allclose(traj.u[-1], cradle_reference(1.0), rtol=0, atol=1e-14)
+        np.testing.assert_allclose(traj.u[-1], cradle_simultaneous(1.0), rtol=0, atol=1e-14)
 
 
 # ---------------------------------------------------------------------- 9. slider_crank_clearance
 @pytest.mark.parametrize("correction,bias", [("none", "explicit"), ("projection", "midpoint")])
 def test_slider_crank_clearance(correction, bias):
     """slider_crank_clearance.toml at h = 1e-5 (0.05 s, 5000 steps: about 0.8 of a crank turn):
-    finite, T + V <= E0 + 1e-4 |E0|, max_i P_i/h <= 2e4 N, the slider strikes
-    the guide (impacts on both half-spaces)."""
+    finite, T + V <= E0 + 1e-4 |E0| (stated; measured: never above E0, asserted to 1e-12 |E0|),
+    max_i P_i/h <= 2e4 N (measured 6.3e3 N), the slider strikes the guide (impacts on both half-spaces)."""
     traj = run("slider_crank_clearance", duration=0.05, position_correction=correction, bias=bias)
     h = 1e-5
     assert traj.complete and np.isfinite(traj.q).all() and np.isfinite(traj.u).all()
     E = energy(traj)
-    assert np.max(E - E[0]) <= 1e-4 * abs(E[0])
+    assert np.max(E - E[0]) <= 1e-12 * abs(E[0])
     assert traj.log_P.max() / h <= 2e4
     assert set(traj.log_pair.tolist()) == {0, 1}
     assert traj.q[-1, 0] > 3.0  # the crank kept turning (more than half a turn)

@@ -13,10 +13,10 @@ import pytest
 from click.testing import CliRunner
 
 import moreau_sim as ms
-from conftest import SCENES
-from moreau_sim.sweep import (RUNS, WALL_COLUMNS, Kind, Param, SweepError, _FIELDS, grid, parse_param, point_id,
-                              run_sweep)
+from moreau_sim.sweep import FIELDS, RUNS, WALL_COLUMNS, Kind, Param, SweepError, grid, parse_param, point_id, run_sweep
 from moreau_sim.sweep_cli import sweep
+
+from helpers import SCENES
 
 BALL = SCENES / "bouncing_ball.toml"
 # 2 x 2 grid; 0.5 s so that the ball (gap 0.9 m) hits the ground once
@@ -61,9 +61,9 @@ def test_lists_of_every_kind():
 
 
 def test_every_option_is_sweepable():
-    assert set(_FIELDS) == {f.name for f in dataclasses.fields(ms.Options)}
-    assert _FIELDS["restitution"][0] is Kind.FLOAT and _FIELDS["save_every"][0] is Kind.INT
-    assert _FIELDS["gravity"][0] is Kind.VECTOR and _FIELDS["qp_form"] == (Kind.CHOICE, ms.QPForm)
+    assert set(FIELDS) == {f.name for f in dataclasses.fields(ms.Options)}
+    assert FIELDS["restitution"][0] is Kind.FLOAT and FIELDS["save_every"][0] is Kind.INT
+    assert FIELDS["gravity"][0] is Kind.VECTOR and FIELDS["qp_form"] == (Kind.CHOICE, ms.QPForm)
 
 
 @pytest.mark.parametrize("text, msg", [
@@ -251,9 +251,9 @@ def test_command(tmp_path):
 
 
 def test_one_sweep_at_a_time_per_directory(tmp_path):
-    from moreau_sim.sweep import _locked
+    from moreau_sim.sweep import locked
 
-    with _locked(tmp_path):
+    with locked(tmp_path):
         with pytest.raises(SweepError, match="another sweep is writing this directory"):
             run_sweep(BALL, params("duration=0.1"), tmp_path, workers=1, progress=False)
     assert run_sweep(BALL, params("duration=0.1"), tmp_path, workers=1, progress=False).computed == 1

@@ -1,15 +1,14 @@
-"""Smoke test of scripts/work_precision.py: a tiny sweep (--quick: 2 step sizes, short runs, one
-repeat) with whichever peers scripts.peers.available() reports; checks the JSON schema and the
-PNGs, never timings."""
+"""Smoke test of scripts/work_precision.py (moreau_sim.bench.work_precision): a tiny sweep (--quick:
+2 step sizes, short runs, one repeat) with whichever peers moreau_sim.bench.peers.available()
+reports; checks the JSON schema and the PNGs, never timings."""
 
 import json
 import subprocess
 import sys
 
-from conftest import ROOT
+from moreau_sim.bench.peers import available
 
-sys.path.insert(0, str(ROOT))
-from scripts.peers import available  # noqa: E402
+from helpers import ROOT
 
 POINT_KEYS = {"case", "scene", "e", "method", "h", "T", "cpu_repeats", "cpu_per_sim_s", "error", "rel_error"}
 

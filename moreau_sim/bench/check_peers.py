@@ -1,44 +1,50 @@
-#!/usr/bin/env python3
 """Measure how each available peer reproduces the exact impact references.
 
 - bouncing_ball, e in {0.5, 0.8, 1.0}, h in {1e-2, 1e-3, 1e-4}, T = 3 s: apex gaps of the
   first 3 bounces vs e^{2n} d0, effective restitution e_n = sqrt(apex_n / apex_{n-1})
   (apex_0 = d0 = 0.9 m), deepest penetration, final gap z(T) - r, CPU per simulated second.
-- newton_cradle_5, touching and 1 mm gaps, e in {1, 0.5}, h = 1e-3, T = 0.5 s: final
-  velocities vs Moreau's simultaneous result (touching) or the binary-impact sequence
-  (gapped), momentum and kinetic energy.
+- newton_cradle_5 (touching) and newton_cradle_5_gapped (1 mm gaps), e in {1, 0.5}, h = 1e-3,
+  T = 0.5 s: final velocities vs Glocker's simultaneous result (touching) or the binary-impact
+  sequence (gapped), momentum and kinetic energy (Siconos with exact_gaps, as in work_precision).
 - box_drop, e = 0.5, h = 1e-3, T = 1.5 s: deepest penetration, where the box comes to rest
   (no exact reference: frictionless tumbling is sensitive; this shows resting-contact health).
 
-This is a measurement, not a test: it never fails on a bad number.
+Every peer runs the neutral spec of the bundled scene (moreau_sim.bench.spec) with its runner's
+defaults; apexes are found by metrics.apexes. This is a measurement, not a test: it never fails
+on a bad number.
 
-    python scripts/peers/check_peers.py --out /tmp/peers.json [--md /tmp/peers.md]
+    python scripts/check_peers.py --out out/peers.json [--md out/peers.md]
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
-import os
-import sys
 import time
 
-_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-if _ROOT not in sys.path:
-    sys.path.insert(0, _ROOT)
+import numpy as np
 
-import numpy as np  # noqa: E402
+import moreau_sim as ms
 
-from scripts.peers import (PeerError, apexes, available, ball_reference,  # noqa: E402
-                           cradle_reference, cradle_sequential_reference, run, to_jsonable)
+from . import peers, scene_path
+from .metrics import apexes
+from .references import BALL_GAP as D0, ball_reference, cradle_sequential, cradle_simultaneous
+from .spec import min_corner_height, quat_to_mats, to_jsonable
 
-R, Z0, G = 0.1, 1.0, 9.81
-D0 = Z0 - R
+R = 0.1  # ball radius [m]
 ES = (0.5, 0.8, 1.0)
 HS = (1e-2, 1e-3, 1e-4)
 T_BALL = 3.0
 T_CRADLE = 0.5
 H_CRADLE = 1e-3
+CRADLE_PARAMS = {"siconos": {"exact_gaps": True}}  # Siconos given exact touching / exact 1 mm gaps
+HALF = np.array([0.1, 0.1, 0.2])  # box_drop's half extents [m]
+
+
+def run(peer, scene, *, e, h, T, **kw):
+    """(t, q, u, result) of `peer` on the bundled scene with restitution e, step h, duration T."""
+    model = ms.build_model(ms.load_scene(scene_path(scene)).with_options(restitution=e, dt=h, duration=T))
+    return peers.run_model(peer, model, **kw)
 
 
 def configs(avail):
@@ -54,16 +60,16 @@ def configs(avail):
 
 
 def ball_row(label, peer, kw, e, h):
-    ref = ball_reference(e, D0, G)
+    ref = ball_reference(e)
     try:
-        res = run(peer, "bouncing_ball", e=e, h=h, T=T_BALL, **kw)
-    except PeerError as exc:
+        t, q, u, res = run(peer, "bouncing_ball", e=e, h=h, T=T_BALL, **kw)
+    except peers.PeerError as exc:
         return {"label": label, "e": e, "h": h, "error": str(exc)}
-    gaps, times = apexes(res["t"], res["z"], r=R, g=G, count=3, skip_t=0.5 * ref["t0"])
+    z = q[:, 0]
+    gaps, times = (x.tolist() for x in apexes(t, z - R, count=3, skip_t=0.5 * ref["t0"]))
     prev = [D0] + gaps[:-1]
     e_eff = [math.sqrt(a / b) for a, b in zip(gaps, prev)]
     rel = [(a - b) / b for a, b in zip(gaps, ref["apex_gap"])]
-    z = np.asarray(res["z"])
     return {
         "label": label, "peer": peer, "params": kw, "e": e, "h": h, "T": T_BALL,
         "apex_gap": gaps, "apex_time": times, "apex_gap_ref": ref["apex_gap"],
@@ -76,13 +82,13 @@ def ball_row(label, peer, kw, e, h):
 
 
 def cradle_row(label, peer, kw, e, gap):
+    scene = "newton_cradle_5" if gap == 0 else "newton_cradle_5_gapped"
     try:
-        res = run(peer, "newton_cradle_5", e=e, h=H_CRADLE, T=T_CRADLE, gap=gap, **kw)
-    except PeerError as exc:
+        t, x, u, res = run(peer, scene, e=e, h=H_CRADLE, T=T_CRADLE, **kw, **CRADLE_PARAMS.get(peer, {}))
+    except peers.PeerError as exc:
         return {"label": label, "e": e, "gap": gap, "error": str(exc)}
-    v = np.asarray(res["vx_final"], float)
-    ref = cradle_reference(e) if gap == 0 else cradle_sequential_reference(e)
-    x = np.asarray(res["x"])
+    v = u[-1]
+    ref = cradle_simultaneous(e) if gap == 0 else cradle_sequential(e)
     return {
         "label": label, "peer": peer, "params": kw, "e": e, "gap": gap, "h": H_CRADLE,
         "T": T_CRADLE, "vx_final": v.tolist(), "ref": ref,
@@ -98,20 +104,19 @@ def cradle_row(label, peer, kw, e, gap):
 
 def box_row(label, peer, kw, e=0.5, h=1e-3, T=1.5):
     try:
-        res = run(peer, "box_drop", e=e, h=h, T=T, **kw)
-    except PeerError as exc:
+        t, q, u, res = run(peer, "box_drop", e=e, h=h, T=T, **kw)
+    except peers.PeerError as exc:
         return {"label": label, "e": e, "h": h, "error": str(exc)}
-    from scripts.peers._common import quat_to_mats
-    Rm = quat_to_mats(np.asarray(res["quat"])[-1:])[0]
-    half = np.array([0.1, 0.1, 0.2])
+    quat = np.c_[q[:, 6:7], q[:, 3:6]]  # Pinocchio's x y z w -> w x y z
+    Rm = quat_to_mats(quat[-1:])[0]
     axis = int(np.argmax(np.abs(Rm[2, :])))  # body axis closest to vertical
-    mz = np.asarray(res["min_corner_z"])
+    mz = min_corner_height(q[:, :3], quat, HALF)
     return {
         "label": label, "peer": peer, "params": kw, "e": e, "h": h, "T": T,
         "max_penetration": float(max(0.0, -mz.min())), "final_min_corner_z": float(mz[-1]),
-        "final_z": float(np.asarray(res["pos"])[-1, 2]), "rest_axis": "xyz"[axis],
-        "rest_height": float(half[axis]),
-        "final_speed": float(np.linalg.norm(np.asarray(res["vel"])[-1])),
+        "final_z": float(q[-1, 2]), "rest_axis": "xyz"[axis],
+        "rest_height": float(HALF[axis]),
+        "final_speed": float(np.linalg.norm(u[-1, :3])),
         "cpu_seconds": res["cpu_seconds"], "cpu_per_sim_second": res["cpu_seconds"] / T,
         "version": res["version"],
     }
@@ -125,17 +130,10 @@ def _error_line(r):
 def box_table(rows, md=False):
     head = ["peer/config", "e", "h", "max pen [mm]", "final centre z (rest height)",
             "axis up", "final min corner [mm]", "final speed", "CPU s/sim-s"]
-    lines = []
-    for r in rows:
-        if "error" in r:
-            lines.append(_error_line(r))
-            continue
-        lines.append([r["label"], f"{r['e']:g}", f"{r['h']:g}",
-                      f"{1000 * r['max_penetration']:.2f}",
-                      f"{r['final_z']:.4f} ({r['rest_height']:.1f})", r["rest_axis"],
-                      f"{1000 * r['final_min_corner_z']:+.2f}", f"{r['final_speed']:.3f}",
-                      f"{r['cpu_per_sim_second']:.4f}"])
-    return _table(head, lines, md)
+    return _table(head, [_error_line(r) if "error" in r else [
+        r["label"], f"{r['e']:g}", f"{r['h']:g}", f"{1000 * r['max_penetration']:.2f}",
+        f"{r['final_z']:.4f} ({r['rest_height']:.1f})", r["rest_axis"], f"{1000 * r['final_min_corner_z']:+.2f}",
+        f"{r['final_speed']:.3f}", f"{r['cpu_per_sim_second']:.4f}"] for r in rows], md)
 
 
 def mujoco_scan():
@@ -162,20 +160,12 @@ def _list(xs, fmt, n=3):
 def ball_table(rows, md=False):
     head = ["peer/config", "e", "h", "apex gaps [m] (exact e^2n d0)", "rel err %",
             "e_eff 1..3", "max pen [mm]", "z(T)-r [mm]", "CPU s/sim-s"]
-    lines = []
-    for r in rows:
-        if "error" in r:
-            lines.append(_error_line(r))
-            continue
-        lines.append([
-            r["label"], f"{r['e']:g}", f"{r['h']:g}",
-            _list(r["apex_gap"], ".4f") + " (" + _list(r["apex_gap_ref"], ".4f") + ")",
-            _list([100 * x for x in r["apex_rel_err"]], "+.2f"),
-            _list(r["e_eff"], ".4f"),
-            f"{1000 * r['max_penetration']:.2f}", f"{1000 * r['final_gap']:+.2f}",
-            f"{r['cpu_per_sim_second']:.4f}",
-        ])
-    return _table(head, lines, md)
+    return _table(head, [_error_line(r) if "error" in r else [
+        r["label"], f"{r['e']:g}", f"{r['h']:g}",
+        _list(r["apex_gap"], ".4f") + " (" + _list(r["apex_gap_ref"], ".4f") + ")",
+        _list([100 * x for x in r["apex_rel_err"]], "+.2f"), _list(r["e_eff"], ".4f"),
+        f"{1000 * r['max_penetration']:.2f}", f"{1000 * r['final_gap']:+.2f}", f"{r['cpu_per_sim_second']:.4f}"]
+        for r in rows], md)
 
 
 def cradle_table(rows, md=False):
@@ -220,7 +210,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
 
     t_start = time.time()
-    avail = available()
+    avail = peers.available()
     print("peers:", {k: ("ok" if v is None else v) for k, v in avail.items()})
     cfgs = configs(avail)
     if a.peers:
@@ -265,7 +255,3 @@ def main(argv=None):
                 f.write(f"\n### MuJoCo omega_h scan\n\n{ball_table(scan, True)}\n")
         print(f"saved {a.md}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,4 +1,4 @@
-"""Error metrics between a trajectory and a reference (work-precision benchmarks, issue 4).
+"""Error metrics between a trajectory and a reference (work-precision benchmarks).
 
 Every function takes :class:`~moreau_sim.trajectory.Trajectory` objects or plain mappings with
 the same array names (``t``, ``q``, ``u``, ``gap``, ``kinetic_energy``, ``potential_energy``,
@@ -98,7 +98,7 @@ class ApexError:
 def apex_error(traj, ref, *, pair: int = 0, count: int = 3, min_height: float = 1e-9) -> ApexError:
     """Rebound heights of a flight sequence: the apexes of traj's gap[:, pair] against the
     reference's (a Trajectory/mapping, whose apexes are taken the same way, or the heights
-    themselves, e.g. the closed form e^(2n) d0 of impact-law.md §4)."""
+    themselves, e.g. the closed form e^(2n) d0 of docs/theory.md §4)."""
     h, _ = apexes(_get(traj, "t"), _get(traj, "gap")[:, pair], count=count, min_height=min_height)
     if isinstance(ref, (list, tuple, np.ndarray)):
         href = np.asarray(ref, float)[:count]

@@ -1,0 +1,157 @@
+"""Per-step cost of every bundled scene, split into dynamics, collision, QP and Python glue.
+
+A benchmark, not a test. For each scene it runs the simulation once to collect states, then
+times the step on those states (free-flight steps and contact steps apart), and each stage
+on the same states:
+  dyn   Pinocchio: integrate x 2, the free velocity (ABA; several with Bias.MIDPOINT when the
+        bias depends on u), + CRBA and M^-1 in contact steps
+  coll  coal through Pinocchio: geometry placements + narrow phase (+ contact patches), C++ only
+  qp    the impact QP: piqp setup + solve + active-set polish (law.project)
+  glue  the rest: Python and numpy (reading coal results, vertices, rows W, bookkeeping)
+and the QP in both forms (primal M-metric vs dual Delassus) on the contact states.
+Medians over states of the best of `repeat` timings (us). Writes step_costs.json and
+step_costs.png to out/ (--out docs/bench: the committed files).
+
+    python scripts/bench_step.py [--out docs/bench] [--repeat 5] [--states 300]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+import moreau_sim as ms
+from moreau_sim.options import QPForm
+from moreau_sim.recording import versions
+from moreau_sim.stepper import assemble, free_velocity
+
+from . import OUT, SCENES, scene_path
+
+TARGETS = {"bouncing_ball": {"flight": 10, "contact": 40}, "newton_cradle_5": {"contact": 150},
+           "box_drop": {"contact": 80}}
+
+
+def best(f, repeat):
+    out = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        f()
+        out.append(time.perf_counter() - t0)
+    return min(out) * 1e6
+
+
+def bench_scene(name: str, repeat: int, n_states: int) -> dict:
+    model = ms.build_model(ms.load_scene(scene_path(name)))
+    opts = model.options
+    h, e = opts.dt, opts.restitution
+    traj = ms.simulate(model, progress=False)
+    data = ms.make_data(model)
+    idx = np.unique(np.linspace(0, len(traj.t) - 2, min(n_states, len(traj.t) - 1)).astype(int))
+    pm, pd, gm, gd = model.pin, data.pin, model.geom, data.geom
+    rows = {"flight": [], "contact": []}
+    qp_forms = {"primal": [], "dual": []}
+    for i in idx:
+        st = ms.State(float(traj.t[i]), traj.q[i], traj.u[i])
+        r = ms.step(model, data, st, h=h, e=e)
+        kind = "contact" if r.contacts.m else "flight"
+        q, u = st.q, st.u
+        qm = pin.integrate(pm, q, 0.5 * h * u)
+        total = best(lambda: ms.step(model, data, st, h=h, e=e), repeat)
+        bias = opts.bias
+        if kind == "flight":
+            dyn = best(lambda: (pin.integrate(pm, q, 0.5 * h * u), free_velocity(model, data, qm, u, h, bias),
+                                pin.integrate(pm, qm, 0.5 * h * u)), repeat)
+            qp_t = 0.0
+        else:
+            dyn = best(lambda: (pin.integrate(pm, q, 0.5 * h * u), pin.crba(pm, pd, qm, pin.Convention.WORLD),
+                                pin.computeMinverse(pm, pd, qm), free_velocity(model, data, qm, u, h, bias),
+                                pin.integrate(pm, qm, 0.5 * h * u)), repeat)
+            p = assemble(model, data, st, h=h, e=e)
+            M, W, Minv, v_free = p.M, p.W, p.Minv, p.v_free
+            qp_t = 0.0  # the step's contacts came from its history (a kept pair, a swept contact): none here
+            if W is not None:
+                qp_t = best(lambda: ms.project(M, W, v_free, Minv=Minv), repeat)
+                for form in QPForm:
+                    qp_forms[form.value].append(best(lambda: ms.project(M, W, v_free, Minv=Minv, form=form), repeat))
+
+        def coll():
+            pin.updateGeometryPlacements(pm, pd, gm, gd, qm)
+            if pin.computeCollisions(gm, gd, False) and kind == "contact":
+                pin.computeContactPatches(gm, gd)
+        coll_t = best(coll, repeat)
+        rows[kind].append({"total": total, "dyn": dyn, "coll": coll_t, "qp": qp_t,
+                           "glue": max(0.0, total - dyn - coll_t - qp_t), "m": int(r.contacts.m)})
+    out = {"nq": model.nq, "nv": model.nv, "pairs": len(model.pairs), "h": h, "e": e}
+    for kind, rs in rows.items():
+        if rs:
+            out[kind] = {k: statistics.median(r[k] for r in rs) for k in ("total", "dyn", "coll", "qp", "glue", "m")}
+            out[kind]["states"] = len(rs)
+    for form, ts in qp_forms.items():
+        if ts:
+            out[f"qp_{form}"] = statistics.median(ts)
+    out["run_us_per_step"] = traj.meta["run"]["us_per_step"]
+    out["target"] = TARGETS.get(name, {})
+    return out
+
+
+def plot(results: dict, png: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels, parts = [], {k: [] for k in ("dyn", "coll", "qp", "glue")}
+    for name, r in results.items():
+        for kind in ("flight", "contact"):
+            if kind in r:
+                labels.append(f"{name}\n{kind} (m={r[kind]['m']:.0f})")
+                for k in parts:
+                    parts[k].append(r[kind][k])
+    fig, ax = plt.subplots(figsize=(11, 4.5), constrained_layout=True)
+    x = np.arange(len(labels))
+    bottom = np.zeros(len(labels))
+    for k, vals in parts.items():
+        ax.bar(x, vals, bottom=bottom, label=k)
+        bottom += np.array(vals)
+    ax.set_xticks(x, labels, fontsize=7)
+    ax.set_ylabel("us per step (median)")
+    ax.set_title("moreau-sim: cost of one midpoint Moreau step")
+    ax.legend()
+    fig.savefig(png, dpi=110)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=str(OUT), help="output folder (docs/bench: the committed files)")
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--states", type=int, default=300)
+    ap.add_argument("--scenes", nargs="*", default=sorted(p.stem for p in SCENES.glob("*.toml")))
+    a = ap.parse_args()
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results = {}
+    print(f"{'scene':24s} {'kind':8s} {'m':>4s} {'total':>8s} {'dyn':>7s} {'coll':>7s} {'qp':>7s} {'glue':>7s}"
+          f" {'target':>7s}   qp primal / dual")
+    for name in a.scenes:
+        r = results[name] = bench_scene(name, a.repeat, a.states)
+        for kind in ("flight", "contact"):
+            if kind in r:
+                k = r[kind]
+                tgt = r["target"].get(kind)
+                qp = f"{r.get('qp_primal', 0):.1f} / {r.get('qp_dual', 0):.1f}" if kind == "contact" else ""
+                print(f"{name:24s} {kind:8s} {k['m']:4.0f} {k['total']:8.1f} {k['dyn']:7.1f} {k['coll']:7.1f}"
+                      f" {k['qp']:7.1f} {k['glue']:7.1f} {tgt if tgt else '':>7}   {qp}")
+    meta = {"machine": platform.machine(), "cpus": os.cpu_count(), "versions": versions(),
+            "repeat": a.repeat, "states": a.states,
+            "note": "us per step, median over states of the best of `repeat` timings"}
+    (out / "step_costs.json").write_text(json.dumps({"meta": meta, "scenes": results}, indent=2))
+    plot(results, out / "step_costs.png")
+    print(f"wrote {out / 'step_costs.json'} and {out / 'step_costs.png'}")

@@ -1,0 +1,70 @@
+"""Shared test helpers: paths of the bundled scenes and models, and short ways to load and run them.
+
+Tests import from here (`from helpers import run, scene`); conftest.py keeps only fixtures."""
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+import moreau_sim as ms
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENES = ROOT / "scenes"
+MODELS = ROOT / "models"
+BUNDLED = sorted(p.stem for p in SCENES.glob("*.toml"))
+
+
+def scene(name: str, **options) -> ms.Scene:
+    """A bundled scene with options overridden."""
+    return ms.load_scene(SCENES / f"{name}.toml").with_options(**options)
+
+
+def run(name: str, **options) -> ms.Trajectory:
+    return ms.simulate(ms.build_model(scene(name, **options)), progress=False)
+
+
+def inline_scene(toml: str, tmp_path: Path, name: str = "inline") -> ms.Scene:
+    """A scene written to tmp_path (URDF paths may use {models})."""
+    p = tmp_path / f"{name}.toml"
+    p.write_text(toml.replace("{models}", str(MODELS)))
+    return ms.load_scene(p)
+
+
+def random_problem(seed, nv=6, m=3):
+    """(M, W, u): a random SPD mass matrix, m random rows and a velocity approaching every contact."""
+    rng = np.random.default_rng(seed)
+    A = rng.standard_normal((nv, nv))
+    M = A @ A.T + nv * np.eye(nv)
+    W = rng.standard_normal((nv, m))
+    u = rng.standard_normal(nv)
+    u -= W @ np.linalg.lstsq(W, u, rcond=None)[0] * 0  # keep u generic
+    u -= 2.0 * np.linalg.solve(M, W @ np.ones(m))  # make the contacts approach
+    return M, W, u
+
+
+# A scene of free boxes (format with g, e, T and the bodies' TOML), for contact and row tests.
+FREE_BOX = """
+[scene]
+name = "fd"
+[simulation]
+gravity = [0, 0, {g}]
+restitution = {e}
+dt = 1e-3
+duration = {T}
+{bodies}
+"""
+
+
+def box_body(name, urdf="box.urdf", position=(0, 0, 0), rpy=(0, 0, 0)):
+    return (f'[[bodies]]\nname = "{name}"\nurdf = "{{models}}/{urdf}"\nroot_joint = "free"\n'
+            f"position = {list(position)}\nrpy = {list(rpy)}\n")
+
+
+GROUND = '[[statics]]\nname = "ground"\nshape = "halfspace"\n'
+
+
+def lowest_corner_height(rpy, half=(0.1, 0.1, 0.2)):
+    R = pin.rpy.rpyToMatrix(*rpy)
+    c = np.array([[sx * half[0], sy * half[1], sz * half[2]] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    return -(c @ R.T)[:, 2].min()

@@ -1,0 +1,85 @@
+"""The trajectory file (moreau_sim.trajectory, docs/output.md): a bit-exact round trip, atomic writes,
+format-1 files read into format 2, unreadable files named in the error."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+import moreau_sim as ms
+from moreau_sim import trajectory
+from moreau_sim.contacts import FeatureKind
+
+from helpers import run
+
+
+@pytest.fixture(scope="module")
+def traj():
+    """box_drop for 0.6 s: samples, a percussion log with new impacts, several feature kinds."""
+    return run("box_drop", duration=0.6)
+
+
+def test_save_load_round_trip_is_bit_exact(traj, tmp_path):
+    back = ms.load_trajectory(traj.save(tmp_path / "sub" / "box.npz"))
+    assert list(back.arrays) == list(trajectory.ARRAYS)
+    for k in trajectory.ARRAYS:
+        assert back.arrays[k].dtype == traj.arrays[k].dtype, k
+        np.testing.assert_array_equal(back.arrays[k], traj.arrays[k], strict=True)
+    assert back.meta == json.loads(json.dumps(traj.meta))
+    assert back.meta["format"] == trajectory.FORMAT and back.complete
+
+
+def test_save_is_atomic(traj, tmp_path):
+    """A write that fails half-way leaves the previous file whole and no temporary file behind; a
+    written file gets the usual mode (umask), not mkstemp's 0600."""
+    path = traj.save(tmp_path / "t.npz")
+    before = path.read_bytes()
+    broken = ms.Trajectory(traj.arrays, {**traj.meta, "bad": object()})  # not JSON: fails while writing
+    with pytest.raises(TypeError):
+        broken.save(path)
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.npz"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+FORMAT1_IDS = {FeatureKind.WITNESS: lambda f: -1, FeatureKind.VERTEX: lambda f: f,
+               FeatureKind.PATCH: lambda f: 10_000 + f, FeatureKind.CORNER: lambda f: 20_000 + f,
+               FeatureKind.SWEPT: lambda f: 30_000}
+
+
+def test_format_1_files_load_with_kind_and_feature(traj, tmp_path):
+    """A format-1 file (one log_feature id: WITNESS = -1, VERTEX k, PATCH 10000 + k, CORNER 20000 + f,
+    SWEPT 30000; no log_kind) reads as log_kind + log_feature."""
+    kinds = [FeatureKind.VERTEX, FeatureKind.WITNESS, FeatureKind.PATCH, FeatureKind.CORNER, FeatureKind.SWEPT]
+    feats = [7, 0, 3, 1, 0]
+    arrays = {k: v for k, v in traj.arrays.items() if k not in trajectory.LOG}
+    n = len(kinds)
+    for k, (dtype, shape) in trajectory.LOG.items():
+        arrays[k] = np.zeros((n,) + shape, dtype)
+    del arrays["log_kind"]
+    arrays["log_feature"] = np.array([FORMAT1_IDS[k](f) for k, f in zip(kinds, feats)], np.int64)
+    arrays["log_P"] = np.arange(1.0, n + 1)
+    meta = {**traj.meta, "format": "moreau-sim trajectory 1"}
+    path = tmp_path / "old.npz"
+    np.savez_compressed(path, meta=np.array(json.dumps(meta)), **arrays)
+    back = ms.load_trajectory(path)
+    np.testing.assert_array_equal(back.log_kind, [int(k) for k in kinds])
+    np.testing.assert_array_equal(back.log_feature, feats)
+    np.testing.assert_array_equal(back.log_P, arrays["log_P"])
+    assert set(back.arrays) == set(trajectory.ARRAYS)
+
+
+def test_unreadable_files_are_named(traj, tmp_path):
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="junk.npz: not a moreau-sim trajectory"):
+        ms.load_trajectory(junk)
+    partial = tmp_path / "partial.npz"
+    np.savez(partial, t=traj.t, meta=np.array("{}"))
+    with pytest.raises(ValueError, match=r"partial.npz: not a moreau-sim trajectory \(missing \['q'"):
+        ms.load_trajectory(partial)
+    with pytest.raises(ValueError, match="nowhere.npz"):
+        ms.load_trajectory(tmp_path / "nowhere.npz")
