@@ -125,7 +125,7 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     t1 = state.t + h if t_next is None else t_next
     if (opts.step_impl is StepImpl.COMPILED and form is None and eps is None and corner_choice is None
             and compiled.available()):
-        r = compiled.step(model, data, state, h, e, t1)  # None: a step the compiled one does not cover
+        r = compiled.step(model, data, state, h, e, t1, StepResult)  # None: a step the compiled one does not cover
         if r is not None:
             return r
     pb = assemble(model, data, state, h=h, e=e)
