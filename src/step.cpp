@@ -506,7 +506,9 @@ class Stepper {
     if (found.empty()) {
       VectorXd u_free = free_velocity(q_m, u, h);
       VectorXd q_next = pinocchio::integrate(model_, q_m, (0.5 * h) * u_free);
-      return nb::make_tuple(FLIGHT, q_next, u_free);
+      VectorXd out(q_next.size() + nv);  // one array crosses (each numpy array made costs ~1 us)
+      out << q_next, u_free;
+      return nb::make_tuple(FLIGHT, out);
     }
     if ((int)found.size() > max_contacts_) throw Fallback{"more contacts than the compiled step takes"};
     // constraints.assemble_constraints: M by CRBA (fills the WORLD Jacobians), rows, distinct rows
@@ -553,17 +555,27 @@ class Stepper {
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
     if (projection_) correct_positions(q, u, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
-    // the contacts as arrays (contacts.Contacts)
-    MatrixXd pa(m, 3), pb(m, 3), nn(m, 3);
-    VectorXl pair(m), kind(m), feature(m), ja(m), jb(m);
+    // one float and one int array cross (moreau_sim/compiled.py slices them): q_next, u_next, g, point_a,
+    // point_b, normal (m x 3, row-major), P, gamma_minus, gamma_plus, v, lam, M (nv x nv), W (column-major),
+    // v_free, b; pair, kind, feature, joint_a, joint_b
+    const Eigen::Index nq = q_next.size();
+    VectorXd out(nq + 2 * nv + m + 9 * m + 3 * m + nv + m + nv * nv + nv * m + nv + m);
+    Eigen::Index o = 0;
+    auto put = [&](const double *src, Eigen::Index n) {
+      for (Eigen::Index k = 0; k < n; ++k) out[o++] = src[k];
+    };
+    put(q_next.data(), nq), put(u_next.data(), nv), put(g.data(), m);
+    for (Eigen::Index i = 0; i < m; ++i) put(con[i].pa.data(), 3);
+    for (Eigen::Index i = 0; i < m; ++i) put(con[i].pb.data(), 3);
+    for (Eigen::Index i = 0; i < m; ++i) put(con[i].n.data(), 3);
+    put(P.data(), m), put(gamma_minus.data(), m), put(gamma_plus.data(), m), put(res.v.data(), nv);
+    put(res.lam.data(), m), put(M.data(), nv * nv), put(W.data(), nv * m), put(v_free.data(), nv), put(b.data(), m);
+    VectorXl ints(5 * m);
     for (Eigen::Index i = 0; i < m; ++i) {
-      pa.row(i) = con[i].pa.transpose(), pb.row(i) = con[i].pb.transpose(), nn.row(i) = con[i].n.transpose();
-      pair[i] = con[i].pair, kind[i] = con[i].kind, feature[i] = con[i].feature;
-      ja[i] = pairs_(con[i].pair, 2), jb[i] = pairs_(con[i].pair, 3);
+      ints[i] = con[i].pair, ints[m + i] = con[i].kind, ints[2 * m + i] = con[i].feature;
+      ints[3 * m + i] = pairs_(con[i].pair, 2), ints[4 * m + i] = pairs_(con[i].pair, 3);
     }
-    nb::tuple contacts = nb::make_tuple(g, pa, pb, nn, pair, kind, feature, ja, jb);
-    return nb::make_tuple(CONTACT, q_next, u_next, contacts, P, gamma_minus, gamma_plus, work, res.status, res.v,
-                          res.lam, M, W, v_free, b, corr);
+    return nb::make_tuple(CONTACT, out, ints, (int)m, work, res.status, corr);
   }
 
   // stepper.correct_positions
