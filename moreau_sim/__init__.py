@@ -7,6 +7,7 @@ restitution e) in a midpoint Moreau time-stepper, on Pinocchio + coal + piqp.
 Each name below has one home (its module); this namespace re-exports the public ones.
 """
 
+from .builder import SceneBuilder
 from .constraints import Constraints, assemble_constraints, contact_rows
 from .contacts import Contacts, FeatureKind, detect, pair_distances
 from .data import Data, make_data
@@ -30,8 +31,9 @@ __version__ = "0.1.0"
 __all__ = [
     "Bias", "ContactProblem", "Constraints", "Contacts", "Data", "FeatureKind", "Impact", "ImpactSolution",
     "Integrator", "MeshMode", "Model", "MoreauSimError", "Options", "Outcome", "PositionCorrection", "QPForm",
-    "QPResult", "Recorder", "RootJoint", "Scene", "SceneError", "Selection", "Separating", "SimulationError",
-    "SlowImpacts", "State", "StaticShape", "StepResult", "Trajectory", "Tunnelling", "UnsupportedModel",
+    "QPResult", "Recorder", "RootJoint", "Scene", "SceneBuilder", "SceneError", "Selection", "Separating",
+    "SimulationError", "SlowImpacts", "State", "StaticShape", "StepResult", "Trajectory", "Tunnelling",
+    "UnsupportedModel",
     "assemble", "assemble_constraints", "build_model", "contact_rows", "correct_positions", "detect", "impact",
     "impact_outcomes", "initial_state", "load_scene", "load_trajectory", "make_data", "outcome", "pair_distances",
     "parse_scene", "percussion", "project", "run", "simulate", "simulate_event_driven", "solve_impact", "step",

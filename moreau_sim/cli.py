@@ -35,6 +35,28 @@ def _load(scene: str, **overrides):
         _fail(str(exc))
 
 
+def _settings(settings) -> dict:
+    """--set NAME=VALUE pairs -> option overrides, parsed as a sweep's one-value --param."""
+    from .sweep import parse_param
+
+    out = {}
+    for text in settings:
+        try:
+            p = parse_param(text, flag="--set")
+        except MoreauSimError as exc:
+            _fail(f"command line: {exc}")
+        if len(p.values) != 1:
+            _fail(f"command line: --set {text}: one value, not {len(p.values)} (a grid is `moreau-sim sweep`)")
+        out[p.name] = p.values[0]
+    return out
+
+
+def _show_progress(flag: bool | None, as_json: bool) -> bool:
+    """--progress forces the bar, --no-progress hides it; by default it is drawn on a terminal only
+    (never into a log file or a CI log)."""
+    return (sys.stderr.isatty() if flag is None else flag) and not as_json
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="moreau-sim")
 def main():
@@ -48,16 +70,24 @@ def main():
 @click.option("--restitution", "-e", type=float, help="Global restitution e in [0, 1].")
 @click.option("--save-every", type=int, help="Record every N steps.")
 @click.option("--qp-form", type=click.Choice(["primal", "dual"]), help="Form of the impact QP.")
+@click.option("--set", "-s", "settings", multiple=True, metavar="NAME=VALUE",
+              help="Any option of the scene's [simulation] table, by its scene-file name (repeatable), "
+                   "e.g. --set bias=explicit --set gravity=[0,0,-1.62] (docs/scenes.md).")
 @click.option("--out", "-o", type=click.Path(dir_okay=False), help="Output NPZ (default: the scene's [output] file).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
-@click.option("--progress/--no-progress", default=True, help="Progress bar on runs longer than 2 s.")
-def run(scene, dt, duration, restitution, save_every, qp_form, out, as_json, progress):
+@click.option("--progress/--no-progress", default=None,
+              help="Progress bar on runs longer than 2 s (default: only when stderr is a terminal).")
+def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as_json, progress):
     """Simulate SCENE and write a self-describing NPZ."""
-    sc, model = _load(scene, dt=dt, duration=duration, restitution=restitution, save_every=save_every,
-                      qp_form=qp_form)
+    overrides = _settings(settings)
+    for key, value in (("dt", dt), ("duration", duration), ("restitution", restitution), ("save_every", save_every),
+                       ("qp_form", qp_form)):
+        if value is not None:
+            overrides[key] = value
+    sc, model = _load(scene, **overrides)
     out = Path(out or sc.output or f"{sc.name}.npz")
     try:
-        traj = simulate(model, progress=progress and not as_json)
+        traj = simulate(model, progress=_show_progress(progress, as_json))
     except SimulationError as exc:
         partial = out.with_name(out.stem + ".partial.npz")
         if exc.trajectory is not None:
@@ -150,13 +180,16 @@ def outcomes(scene, npz, t, restitution, as_json):
 
 @main.command()
 @click.argument("file", type=click.Path(dir_okay=False))
-@click.option("--save", "png", type=click.Path(dir_okay=False), help="PNG to write (default: FILE with .png).")
-def plot(file, png):
-    """Energy, gaps and percussions against time from a trajectory FILE."""
+@click.option("--out", "-o", "png", type=click.Path(dir_okay=False), help="PNG to write (default: FILE with .png).")
+@click.option("--save", "png", type=click.Path(dir_okay=False), hidden=True)  # the old name of --out
+@click.option("--panels", default="energy,gap,percussion", show_default=True,
+              help="Comma-separated panels among energy, gap, percussion, q, u.")
+def plot(file, png, panels):
+    """Energy, gaps, percussions (and q, u) against time from a trajectory FILE."""
     from .plot import save
 
     try:
-        path = save(file, png or Path(file).with_suffix(".png"))
+        path = save(file, png or Path(file).with_suffix(".png"), [p.strip() for p in panels.split(",") if p.strip()])
     except ValueError as exc:
         _fail(str(exc))
     click.echo(f"wrote {path}")

@@ -158,6 +158,36 @@ class Model:
     def pair_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.pairs)
 
+    def coordinates(self) -> dict[str, list[str]]:
+        """Names and SI units of every coordinate of q and velocity of u (joint name, then the
+        component: x y z qx qy qz qw for a free root's world position and quaternion, vx vy vz
+        wx wy wz for its world linear and body angular velocity; s_a s_b theta for a planar root)."""
+        q_names, u_names, q_units, u_units = [], [], [], []
+        for j in range(1, self.pin.njoints):
+            jm, name = self.pin.joints[j], self.pin.names[j]
+            parts = jm.extract().joints if jm.shortname() == "JointModelComposite" else [jm]
+            for sub in parts:
+                kind = sub.shortname()
+                if "Translation" in kind:
+                    qs, us, qu, uu = ["x", "y", "z"], ["vx", "vy", "vz"], ["m"] * 3, ["m/s"] * 3
+                elif "Spherical" in kind:
+                    qs, us, qu, uu = ["qx", "qy", "qz", "qw"], ["wx", "wy", "wz"], ["1"] * 4, ["rad/s"] * 3
+                elif "Prismatic" in kind or kind.startswith("JointModelP"):
+                    qs, us, qu, uu = [_axis(kind, "s")], [_axis(kind, "v")], ["m"], ["m/s"]
+                elif "Revolute" in kind or kind.startswith("JointModelR"):
+                    qs, us, qu, uu = [_axis(kind, "theta")], [_axis(kind, "omega")], ["rad"], ["rad/s"]
+                else:  # any other joint: its coordinates by index, units unknown
+                    qs = [f"q{i}" for i in range(sub.nq)]
+                    us = [f"u{i}" for i in range(sub.nv)]
+                    qu, uu = ["?"] * sub.nq, ["?"] * sub.nv
+                if len(parts) > 1 and len(qs) == 1:  # one of several 1-dof parts: number them
+                    qs, us = [f"{qs[0]}{len(q_names) - _start(q_names, name)}"], [f"{us[0]}{len(u_names) - _start(u_names, name)}"]
+                q_names += [f"{name}/{x}" for x in qs]
+                u_names += [f"{name}/{x}" for x in us]
+                q_units += qu
+                u_units += uu
+        return {"q_names": q_names, "u_names": u_names, "q_units": q_units, "u_units": u_units}
+
     def describe(self) -> dict:
         """A JSON-able summary (for `moreau-sim info` and output metadata)."""
         o = self.options
@@ -303,3 +333,15 @@ def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndar
 
 def initial_state(model: Model) -> State:
     return State(0.0, model.q0.copy(), model.u0.copy())
+
+
+def _axis(kind: str, base: str) -> str:
+    """'theta_y' for JointModelRY, 'theta' for an unaligned axis."""
+    tail = kind.removeprefix("JointModel")
+    return f"{base}_{tail[-1].lower()}" if len(tail) == 2 and tail[-1] in "XYZ" else base
+
+
+def _start(names: list[str], joint: str) -> int:
+    """Index of the first name of `joint` in names (len(names) if none yet)."""
+    prefix = f"{joint}/"
+    return next((i for i, n in enumerate(names) if n.startswith(prefix)), len(names))

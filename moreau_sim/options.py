@@ -74,10 +74,14 @@ class Integrator(enum.Enum):
         the supported pairs (box vertices or spheres vs half-spaces, spheres vs spheres and static
         boxes) where exactness matters more than speed; dt x save_every is then the sampling
         interval only.
+    ADAPTIVE: adaptive.simulate_adaptive: extrapolated symmetric midpoint steps with error control
+        (rtol, atol) between impacts located on the per-feature gaps, the same law at the located
+        instants; fixed midpoint Moreau steps of dt where features are missing or impacts accumulate.
     """
 
     TIME_STEPPING = "time-stepping"
     EVENT_DRIVEN = "event-driven"
+    ADAPTIVE = "adaptive"
 
 
 class SlowImpacts(enum.Enum):
@@ -219,6 +223,9 @@ class Options:
         (:class:`Selection`; every branching step is logged).
     qp_tolerance: piqp's eps_abs and eps_rel; the solution is then polished on its active set.
     save_every: record the state every N steps (the last step is always recorded).
+    rtol, atol: the adaptive integrator's relative and absolute error tolerances per step
+        (positions [m or rad] and velocities [m/s or rad/s]; atol in SI units), rtol in (0, 1),
+        atol > 0.
     step_impl: the compiled step where it applies, or the Python step only (see :class:`StepImpl`).
     """
 
@@ -237,6 +244,8 @@ class Options:
     position_correction: PositionCorrection = PositionCorrection.PROJECTION
     qp_tolerance: float = 1e-10
     save_every: int = 1
+    rtol: float = 1e-8
+    atol: float = 1e-10
     step_impl: StepImpl = StepImpl.COMPILED
 
     def __post_init__(self):
@@ -275,6 +284,10 @@ class Options:
                f"must be a StepImpl, got {self.step_impl!r}")
         require(isinstance(self.save_every, int) and not isinstance(self.save_every, bool) and self.save_every >= 1,
                f"{where}: save_every", f"must be an integer >= 1, got {self.save_every!r}")
+        require(isinstance(self.rtol, (int, float)) and not isinstance(self.rtol, bool) and 0 < self.rtol < 1,
+                f"{where}: rtol", f"must lie in (0, 1), got {self.rtol!r}")
+        require(isinstance(self.atol, (int, float)) and not isinstance(self.atol, bool)
+                and math.isfinite(self.atol) and self.atol > 0, f"{where}: atol", f"must be a finite number > 0, got {self.atol!r}")
 
     @property
     def n_steps(self) -> int:

@@ -1,4 +1,9 @@
-"""Figures from a Trajectory (or its NPZ file): energy, gaps and percussions against time."""
+"""Figures from a Trajectory (or its NPZ file): energy, gaps, percussions, coordinates and
+velocities against time, readable for a ball and for a robot with dozens of pairs alike.
+
+Each collision pair keeps one colour in every panel; panels with many pairs show the pairs that
+matter most (the closest gaps, the largest percussions) with a legend outside the data.
+"""
 
 from __future__ import annotations
 
@@ -8,58 +13,152 @@ import numpy as np
 
 from .trajectory import Trajectory, load_trajectory
 
+PANELS = ("energy", "gap", "percussion", "q", "u")
+DEFAULT_PANELS = ("energy", "gap", "percussion")
+TOP = 8  # pairs (or coordinates) named in a legend; the others are drawn thin and grey
 
-def figure(traj: Trajectory | str | Path):
-    """A matplotlib Figure with three panels sharing the time axis:
-    energy (T, V, T + V and the contact-work ledger E0 + sum W_c), pair gaps [m], percussions [N s]."""
+
+def figure(traj: Trajectory | str | Path, panels: tuple[str, ...] | list[str] = DEFAULT_PANELS):
+    """A matplotlib Figure with the given `panels` (any of PANELS) sharing the time axis:
+    energy [J] (T, V, T + V and the ledger E0 + sum(W_c + correction)), gap [m] per collision pair,
+    percussion [N s] per logged contact, q and u per coordinate."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    panels = tuple(panels)
+    bad = [p for p in panels if p not in PANELS]
+    if bad or not panels:
+        raise ValueError(f"panels must be among {list(PANELS)}, got {list(panels)}")
     if not isinstance(traj, Trajectory):
         traj = load_trajectory(traj)
     a, meta = traj.arrays, traj.meta
-    t = a["t"]
-    fig, (ax_e, ax_g, ax_p) = plt.subplots(3, 1, figsize=(9, 8), sharex=True, constrained_layout=True)
-    E = a["kinetic_energy"] + a["potential_energy"]
-    ax_e.plot(t, a["kinetic_energy"], lw=1, label="kinetic T")
-    ax_e.plot(t, a["potential_energy"], lw=1, label="potential V")
-    ax_e.plot(t, E, lw=2, color="k", label="total T + V")
-    ledger = np.cumsum(a["contact_work"] + a.get("correction_energy", 0.0 * t))
-    ax_e.plot(t, E[0] + ledger, lw=1, ls="--", color="tab:red", label="E0 + contact work + correction (ledger)")
-    ax_e.set_ylabel("energy [J]")
-    ax_e.legend(loc="best", fontsize=8)
-    pairs = meta.get("model", {}).get("collision_pairs", [])
-    gaps = a["gap"]
-    for k in range(gaps.shape[1]):
-        ax_g.plot(t, gaps[:, k], lw=1, label=pairs[k] if k < len(pairs) else f"pair {k}")
-    ax_g.axhline(0.0, color="k", lw=0.5)
-    ax_g.set_ylabel("gap g [m]")
-    if 0 < gaps.shape[1] <= 8:
-        ax_g.legend(loc="best", fontsize=7)
-    if len(a["log_P"]):
-        for k in np.unique(a["log_pair"]):
-            sel = a["log_pair"] == k
-            ax_p.vlines(a["log_t"][sel], 0, a["log_P"][sel], lw=1,
-                        label=pairs[k] if k < len(pairs) else f"pair {k}")
-        imp = a["log_impact"]
-        ax_p.plot(a["log_t"][imp], a["log_P"][imp], "k.", ms=4, label="new impact")
-        ax_p.set_yscale("symlog", linthresh=max(1e-6, float(np.median(a["log_P"]))))
-        ax_p.legend(loc="best", fontsize=7)
-    ax_p.set_ylabel("percussion P [N s]")
-    ax_p.set_xlabel("t [s]")
+    pairs = list(meta.get("model", {}).get("collision_pairs", []))
+    npairs = a["gap"].shape[1]
+    pairs += [f"pair {k}" for k in range(len(pairs), npairs)]
+    colour = _pair_colours(a, npairs, plt)
+    fig, axes = plt.subplots(len(panels), 1, figsize=(11, 2.6 * len(panels) + 0.6), sharex=True,
+                             constrained_layout=True, squeeze=False)
+    for ax, panel in zip(axes[:, 0], panels):
+        {"energy": _energy, "gap": _gaps, "percussion": _percussions, "q": _coordinates,
+         "u": _coordinates}[panel](ax, panel, a, meta, pairs, colour)
+        ax.grid(True, lw=0.3, alpha=0.5)
+    axes[-1, 0].set_xlabel("t [s]")
     o = meta.get("options", {})
     fig.suptitle(f"{meta.get('scene', {}).get('name', '')}  e = {o.get('restitution')}  h = {o.get('dt')} s"
                  f"  ({meta.get('status', '')})")
     return fig
 
 
-def save(traj: Trajectory | str | Path, png: str | Path) -> Path:
+def _legend(ax, title=None):
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, title=title, title_fontsize=7,
+                  frameon=False)
+
+
+def _energy(ax, _, a, meta, pairs, colour):
+    t = a["t"]
+    E = a["kinetic_energy"] + a["potential_energy"]
+    ax.plot(t, a["kinetic_energy"], lw=1, label="kinetic T")
+    ax.plot(t, a["potential_energy"], lw=1, label="potential V")
+    ax.plot(t, E, lw=2, color="k", label="total T + V")
+    ledger = np.cumsum(a["contact_work"] + a["correction_energy"])
+    ax.plot(t, E[0] + ledger, lw=1, ls="--", color="tab:red", label="ledger E0 + Σ(W_c + corr.)")
+    ax.set_ylabel("energy [J]")
+    _legend(ax)
+
+
+def _pair_colours(a, npairs: int, plt) -> dict[int, tuple]:
+    """One distinct colour per pair that a panel names (the closest gaps, then the largest
+    percussions), the same in every panel; pairs no panel names are drawn grey."""
+    named = _top(-np.nanmin(a["gap"], axis=0)) if len(a["t"]) and npairs else []
+    P, lp = a["log_P"], a["log_pair"]
+    ids = np.unique(lp)
+    named += [int(ids[i]) for i in _top(np.array([P[lp == k].sum() for k in ids]))]
+    cmap = plt.get_cmap("tab10" if len(set(named)) <= 10 else "tab20")
+    out: dict[int, tuple] = {}
+    for k in named:
+        if k not in out:
+            out[k] = cmap(len(out) % cmap.N)
+    return out
+
+
+def _top(scores: np.ndarray, n: int = TOP) -> list[int]:
+    """Indices of the n largest finite scores, largest first."""
+    order = [int(i) for i in np.argsort(-scores, kind="stable") if np.isfinite(scores[i])]
+    return order[:n]
+
+
+def _gaps(ax, _, a, meta, pairs, colour):
+    t, gaps = a["t"], a["gap"]
+    if not gaps.shape[1]:
+        ax.text(0.5, 0.5, "no collision pairs", transform=ax.transAxes, ha="center")
+        return
+    # the pairs that come closest are the ones to see; the rest are context
+    shown = set(_top(-np.nanmin(gaps, axis=0))) if len(t) else set()
+    for k in range(gaps.shape[1]):
+        if k not in shown:
+            ax.plot(t, gaps[:, k], lw=0.5, color="0.75")
+    for k in sorted(shown, key=lambda k: np.nanmin(gaps[:, k])):
+        ax.plot(t, gaps[:, k], lw=1.2, color=colour.get(k, "0.4"), label=pairs[k])
+    ax.axhline(0.0, color="k", lw=0.6)
+    g = gaps[np.isfinite(gaps)]
+    if g.size and g.max() > 0:
+        lo = min(float(g.min()), 0.0)
+        ax.set_ylim(lo - 0.05 * (g.max() - lo), float(np.quantile(g, 0.99)) * 1.1 + 1e-12)
+    ax.set_ylabel("gap g [m]")
+    more = gaps.shape[1] - len(shown)
+    _legend(ax, f"closest {len(shown)} of {gaps.shape[1]} pairs" if more else None)
+
+
+def _percussions(ax, _, a, meta, pairs, colour):
+    P, lt, lp = a["log_P"], a["log_t"], a["log_pair"]
+    if not len(P):
+        ax.text(0.5, 0.5, "no percussion logged", transform=ax.transAxes, ha="center")
+        ax.set_ylabel("percussion P [N s]")
+        return
+    ids = np.unique(lp)
+    total = np.array([P[lp == k].sum() for k in ids])
+    shown = {int(ids[i]) for i in _top(total)}
+    # one dot per logged percussion (a resting contact draws its weight x h as a line of dots)
+    for k in sorted(ids, key=lambda k: int(k) in shown):
+        sel = lp == k
+        named = int(k) in shown
+        ax.plot(lt[sel], P[sel], ".", ms=2.5 if named else 1.5, color=colour.get(int(k), "0.75") if named else "0.75",
+                label=pairs[int(k)] if named and int(k) < len(pairs) else None)
+    imp = a["log_impact"]
+    ax.plot(lt[imp], P[imp], "o", ms=5, mfc="none", mec="k", mew=0.8, label="new impact")
+    positive = P[P > 0]
+    if positive.size and positive.max() / positive.min() > 100:
+        ax.set_yscale("log")  # P > 0 by construction: a plain log axis with its decades labelled
+        ax.set_ylim(positive.min() / 2, positive.max() * 2)
+    ax.set_ylabel("percussion P [N s]")
+    more = len(ids) - len(shown)
+    _legend(ax, f"largest {len(shown)} of {len(ids)} pairs" if more else None)
+
+
+def _coordinates(ax, panel, a, meta, pairs, colour):
+    x = a[panel]
+    names = list(meta.get(f"{panel}_names", [])) or [f"{panel}[{i}]" for i in range(x.shape[1])]
+    spread = np.ptp(x, axis=0) if len(x) else np.zeros(x.shape[1])
+    shown = set(_top(spread))
+    cmap_colours = [f"C{i % 10}" for i in range(len(shown))]
+    for i in range(x.shape[1]):
+        if i not in shown:
+            ax.plot(a["t"], x[:, i], lw=0.5, color="0.75")
+    for c, i in zip(cmap_colours, sorted(shown)):
+        ax.plot(a["t"], x[:, i], lw=1.0, color=c, label=names[i] if i < len(names) else f"{panel}[{i}]")
+    ax.set_ylabel("q (coordinates)" if panel == "q" else "u (velocities)")
+    more = x.shape[1] - len(shown)
+    _legend(ax, f"{len(shown)} of {x.shape[1]} that move most" if more else None)
+
+
+def save(traj: Trajectory | str | Path, png: str | Path, panels=DEFAULT_PANELS) -> Path:
     """Draw :func:`figure` and write it to `png`."""
     import matplotlib.pyplot as plt
 
-    fig = figure(traj)
+    fig = figure(traj, panels)
     png = Path(png)
     png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png, dpi=110)

@@ -37,7 +37,8 @@ def versions() -> dict[str, str]:
 
 def run_metadata(model: Model, status: str, run: dict, **extra) -> dict:
     """The `meta` of a trajectory: format, status, scene (name, path, TOML and URDF texts), options,
-    model summary, versions, `run` statistics, and any `extra` entries (e.g. integrator)."""
+    model summary, the names and units of q and u, versions, `run` statistics, and any `extra`
+    entries (e.g. integrator)."""
     sc = model.scene
     meta = {
         "format": trajectory.FORMAT,
@@ -49,6 +50,7 @@ def run_metadata(model: Model, status: str, run: dict, **extra) -> dict:
                   "urdf": {b.name: Path(b.urdf).read_text(encoding="utf-8") for b in sc.bodies}},
         "options": model.options.to_dict(),
         "model": model.describe(),
+        **model.coordinates(),  # q_names, u_names, q_units, u_units
         "versions": versions(),
         **{k: v for k, v in extra.items() if k != "integrator"},
         "run": run,

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from .adaptive import simulate_adaptive
 from .data import Data, make_data
 from .errors import SimulationError
 from .event_driven import simulate_event_driven
@@ -36,6 +37,8 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     opts = model.options
     if opts.integrator is Integrator.EVENT_DRIVEN:
         return simulate_event_driven(model, data=data, state=state)
+    if opts.integrator is Integrator.ADAPTIVE:
+        return simulate_adaptive(model, data=data, state=state)
     h, e, n, every = opts.dt, opts.restitution, opts.n_steps, opts.save_every
     rec = Recorder(model, data, min(1 + n // every + 1, 1 << 16))  # columns grow beyond this
     rec.sample(state, 0.0, 0.0, 0)
@@ -87,7 +90,8 @@ def _meta(model: Model, status: str, steps: int, wall: float) -> dict:
 def run(scene: Scene | str | Path, *, dt: float | None = None, duration: float | None = None,
         restitution: float | None = None, progress: bool = False, **options) -> Trajectory:
     """Load (if a path), override options (dt [s], duration [s], restitution, any other
-    :class:`~moreau_sim.options.Options` field), build and simulate. Returns the Trajectory."""
+    :class:`~moreau_sim.options.Options` field, e.g. integrator="adaptive", rtol=1e-10,
+    atol=1e-12), build and simulate. Returns the Trajectory."""
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     sc = sc.with_options(dt=dt, duration=duration, restitution=restitution, **options)
     return simulate(build_model(sc), progress=progress)

@@ -205,18 +205,18 @@ def _probe(name: str, value) -> None:
     Options().replace(**probe)
 
 
-def parse_param(text: str) -> Param:
+def parse_param(text: str, *, flag: str = "--param") -> Param:
     """Parse ``NAME=A:B:N`` (N points from A to B inclusive, equal spacing; real-valued options)
     or ``NAME=V1,V2,...`` (one value is a fixed override). NAME is an Options field; gravity
     values are written ``[x,y,z]``, enum options by value (``qp_form=primal,dual``).
     Raises :class:`SceneError` naming the --param: unknown option, bad or out-of-range value."""
-    where = f"--param {text}"
+    where = f"{flag} {text}"
     name, sep, spec = text.partition("=")
     name, spec = name.strip(), spec.strip()
     if not sep or not name or not spec:
         raise SceneError(f"{where}: expected NAME=A:B:N or NAME=V1,V2,...")
     if name not in FIELDS:
-        raise SceneError(f"{where}: unknown option {name!r}; sweepable options: {', '.join(SWEEPABLE)}")
+        raise SceneError(f"{where}: unknown option {name!r}; options: {', '.join(SWEEPABLE)}")
     if ":" in spec:
         if FIELDS[name][0] is not Kind.FLOAT:
             raise SceneError(f"{where}: a range A:B:N is only for real-valued options, not {name}")

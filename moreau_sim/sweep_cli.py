@@ -29,7 +29,8 @@ def _fail(msg: str, code: int = 2) -> None:
 @click.option("--workers", "-j", type=click.IntRange(min=1), help="Local worker processes (default: cores).")
 @click.option("--dask", "dask_address", metavar="ADDRESS",
               help="Run on this Dask distributed scheduler (e.g. tcp://host:8786) instead of locally.")
-@click.option("--progress/--no-progress", default=True, help="Progress bar.")
+@click.option("--progress/--no-progress", default=None,
+              help="Progress bar (default: only when stderr is a terminal).")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def sweep(scene, params, out_dir, workers, dask_address, progress, as_json):
     """Simulate SCENE at every point of a grid of options; write a table of summary metrics
@@ -38,7 +39,7 @@ def sweep(scene, params, out_dir, workers, dask_address, progress, as_json):
         parsed = [parse_param(p) for p in params]
         out_dir = Path(out_dir) if out_dir else Path("sweeps") / Path(scene).stem
         res = run_sweep(scene, parsed, out_dir, workers=workers, dask_address=dask_address,
-                        progress=progress and not as_json)
+                        progress=(sys.stderr.isatty() if progress is None else progress) and not as_json)
     except MoreauSimError as exc:
         _fail(str(exc))
     except KeyboardInterrupt:

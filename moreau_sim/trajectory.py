@@ -73,6 +73,14 @@ class Trajectory:
             return arrays[name]
         raise AttributeError(name)
 
+    def __repr__(self) -> str:
+        a, m = self.arrays, self.meta
+        t = a.get("t", np.zeros(0))
+        span = f"t = {t[0]:g} .. {t[-1]:g} s" if len(t) else "no samples"
+        return (f"Trajectory({m.get('scene', {}).get('name', '?')!r}, {m.get('status', '?')}, {len(t)} samples, "
+                f"{span}, nq = {a['q'].shape[1] if 'q' in a else '?'}, "
+                f"{len(a.get('log_P', ()))} percussions logged)")
+
     @property
     def complete(self) -> bool:
         return self.meta.get("status") == "complete"

@@ -13,8 +13,9 @@ from .errors import MoreauSimError
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--port", type=int, default=8765, show_default=True, help="Port to serve on (0: any free port).")
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on.")
-@click.option("--export", "html", type=click.Path(dir_okay=False),
+@click.option("--out", "-o", "html", type=click.Path(dir_okay=False),
               help="Write a self-contained replay page (opens from file://, no server) and exit.")
+@click.option("--export", "html", type=click.Path(dir_okay=False), hidden=True)  # the old name of --out
 @click.option("--fps", type=float, default=100.0, show_default=True,
               help="Frames kept per simulated second (0: every sample).")
 @click.option("--no-browser", is_flag=True, help="Do not open a browser.")

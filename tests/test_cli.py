@@ -80,13 +80,13 @@ def test_errors_are_one_clear_line(tmp_path):
 
 def test_progress_bar_on_long_runs(tmp_path):
     """The bar appears once a run has lasted the delay (2 s by default; 0 here so it always shows),
-    on stderr, and is not printed with --json or --no-progress."""
+    on stderr, when forced with --progress (stderr is a pipe here), and not with --no-progress."""
     import os
 
     env = dict(os.environ, MOREAU_SIM_PROGRESS_DELAY="0")
     args = [sys.executable, "-m", "moreau_sim.cli", "run", str(SCENES / "bouncing_ball.toml"), "--duration", "3",
             "--out", str(tmp_path / "b.npz")]
-    r = subprocess.run(args, capture_output=True, text=True, env=env, timeout=300)
+    r = subprocess.run(args + ["--progress"], capture_output=True, text=True, env=env, timeout=300)  # forced
     assert r.returncode == 0 and "step" in r.stderr and "3000" in r.stderr
     r = subprocess.run(args + ["--no-progress"], capture_output=True, text=True, env=env, timeout=300)
     assert r.returncode == 0 and "3000" not in r.stderr

@@ -69,7 +69,7 @@ def test_every_option_is_sweepable():
 @pytest.mark.parametrize("text, msg", [
     ("restitution", "expected NAME=A:B:N"),
     ("=1", "expected NAME=A:B:N"),
-    ("bounciness=0:1:3", "unknown option 'bounciness'; sweepable options: restitution, dt"),
+    ("bounciness=0:1:3", "unknown option 'bounciness'; options: restitution, dt"),
     ("restitution=0:1.5:4", "restitution: must lie in [0, 1], got 1.5"),
     ("restitution=-0.1,0.5", "restitution: must lie in [0, 1], got -0.1"),
     ("dt=1e-3,0", "dt: must be a finite step > 0 s, got 0.0"),

@@ -38,8 +38,10 @@ def test_quick_sweep_writes_json_table_and_pngs(tmp_path):
     for key, c in cases.items():
         ours = [p for p in doc["points"] if p["case"] == key and p["method"] == "moreau-sim"]
         assert sorted(p["h"] for p in ours) == [1e-3, 1e-2]
+        adaptive = [p for p in doc["points"] if p["case"] == key and p["method"] == "moreau-sim adaptive"]
+        assert sorted(p["rtol"] for p in adaptive) == [1e-10, 1e-6]  # the adaptive curve: an rtol sweep
         if c["peer_scene"] is None:  # a scene the peers cannot express is reported as such
-            assert all(p["method"] == "moreau-sim" for p in doc["points"] if p["case"] == key)
+            assert all(p["method"] in ("moreau-sim", "moreau-sim adaptive") for p in doc["points"] if p["case"] == key)
             assert all("no peer can express" in r["note"] for r in doc["summary"] if r["case"] == key)
         png = tmp_path / f"wp_{key}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -17,6 +17,10 @@ run the neutral spec of each bundled scene (moreau_sim.bench.spec) with their ru
 the impact solver inside our step: piqp (primal, dual), the closed form for one contact,
 Pinocchio's ADMM and PGS, on contact problems of our scenes (stepper.assemble: the step's own
 free velocity, i.e. the scene's bias).
+The adaptive integrator (integrator = "adaptive", docs/theory.md §8) is one more curve,
+"moreau-sim adaptive", swept over rtol (RTOLS, atol = rtol/100; a point's "h" holds its rtol): its
+CPU time is AdaptiveRun.run's on a run recording t = 0 and T only, its error that of the same run
+recorded where the case's metric reads (run_adaptive).
 Writes OUT/work_precision.json, OUT/wp_<case>.png and OUT/work_precision_table.md.
 """
 
@@ -37,6 +41,7 @@ import numpy as np
 import pinocchio as pin
 
 import moreau_sim as ms
+from moreau_sim.adaptive import AdaptiveRun
 from moreau_sim.event_driven import simulate_event_driven
 from moreau_sim.options import Options, QPForm
 from moreau_sim.recording import versions
@@ -53,8 +58,12 @@ FULL_REPEAT_H = 1e-4  # steps >= this are repeated --repeats times; smaller ones
 LEVELS = (1e-2, 1e-3)  # relative accuracy levels of the summary table (1 % and 0.1 % of the scale)
 FLOOR = 1e-16  # errors below this (exact to round-off) are drawn at this level
 PEER_CONFIGS = {"mujoco": ("mujoco", {}), "pybullet-default": ("pybullet", {"config": "default"}),
-                "pybullet-tuned": ("pybullet", {"config": "tuned"}), "siconos": ("siconos", {})}
-METHODS = ("moreau-sim",) + tuple(PEER_CONFIGS)
+                "pybullet-tuned": ("pybullet", {"config": "tuned"}), "siconos": ("siconos", {}),
+                "siconos-event-driven": ("siconos", {"simulation": "event-driven"})}  # h: its sampling
+ADAPTIVE = "moreau-sim adaptive"  # integrator = "adaptive" (docs/theory.md §8), swept over rtol
+RTOLS = (1e-4, 1e-6, 1e-8, 1e-10, 1e-12)  # its sweep (atol = rtol / 100); a point's "h" holds its rtol
+QUICK_RTOLS = (1e-6, 1e-10)
+METHODS = ("moreau-sim", ADAPTIVE) + tuple(PEER_CONFIGS)
 
 
 @dataclass(frozen=True)
@@ -113,6 +122,36 @@ def run_moreau(model: ms.Model, h: float, T: float) -> dict:
         Q[k + 1], U[k + 1] = st.q, st.u
     cpu = time.process_time() - c0
     return {"t": np.arange(n + 1) * h, "q": Q, "u": U, "cpu_seconds": cpu, "steps": n}
+
+
+def run_adaptive(model: ms.Model, rtol: float, T: float, t_eval: np.ndarray) -> dict:
+    """The adaptive integrator at rtol (atol = rtol / 100), default order: AdaptiveRun.run timed with
+    process_time on a run that records only t = 0 and T; then the same run (its steps do not depend
+    on the sample instants: samples come from the dense output) recorded at t_eval, untimed."""
+    def once(grid):
+        data = ms.make_data(model)
+        integ = AdaptiveRun(model, data, model.options.restitution, rtol, rtol / 100, 6, 1.0, 10 ** 6)
+        integ.rec = ms.Recorder(model, data, len(grid))
+        c0 = time.process_time()
+        integ.run(ms.initial_state(model), T, grid)
+        return time.process_time() - c0, integ
+    cpu, integ = once(np.array([0.0, T]))
+    _, sampled = once(t_eval)
+    a = sampled.rec.arrays()
+    return {"t": a["t"], "q": a["q"], "u": a["u"], "cpu_seconds": cpu, "steps": integ.accepted + integ.fixed,
+            "steps_fixed": integ.fixed, "events": integ.events}
+
+
+def adaptive_grid(case: Case, T: float) -> np.ndarray:
+    """Where run_adaptive records: every 1 ms (the ball: apexes from samples, exact for any sampling
+    of a free flight), the error instants (state errors), or t = 0 and T (the cradle's u(T))."""
+    if case.scene == "bouncing_ball":
+        n = int(round(T / 1e-3))
+        return np.arange(n + 1) * (T / n)
+    if case.scene == "newton_cradle_5":
+        return np.array([0.0, T])
+    instants = np.arange(1, int(round(T / case.instants)) + 1) * case.instants
+    return np.unique(np.r_[0.0, instants[instants <= T]])
 
 
 def series(case: Case, out: dict) -> dict:
@@ -313,21 +352,24 @@ def summarize(points: list, cases, peer_names) -> list[dict]:
             any_mine = cost_at(pts, "moreau-sim", level, reliable=False)
             any_peer = [c for c in (cost_at(pts, m, level, reliable=False) for m in peer_names) if c is not None]
             ratio_any = min(any_peer) / any_mine if any_peer and any_mine else None
+            adaptive = cost_at(pts, ADAPTIVE, level)
             rows.append({"case": case.key, "level": level, "moreau_cpu": mine, "best_peer": best,
                          "best_peer_cpu": reached.get(best), "ratio": ratio, "note": note,
-                         "ratio_any_point": ratio_any})
+                         "ratio_any_point": ratio_any, "adaptive_cpu": adaptive,
+                         "ratio_adaptive": reached[best] / adaptive if best is not None and adaptive else None})
     return rows
 
 
 def table_md(rows: list) -> str:
-    out = ["| case | rel. error <= | moreau-sim CPU s/sim s | best peer (CPU s/sim s) | ratio best-peer / moreau-sim |",
-           "|---|---|---|---|---|"]
+    out = ["| case | rel. error <= | moreau-sim CPU s/sim s | best peer (CPU s/sim s) | ratio best-peer / moreau-sim "
+           "| adaptive CPU s/sim s | ratio best-peer / adaptive |", "|---|---|---|---|---|---|---|"]
     def f(x):
         return "—" if x is None else f"{x:.3g}"
     for r in rows:
         peer = "—" if r["best_peer"] is None else f"{r['best_peer']} ({f(r['best_peer_cpu'])})"
         ratio = r["note"] if r["ratio"] is None else (f"{r['ratio']:.3g}" + (f" ({r['note']})" if r["note"] else ""))
-        out.append(f"| {r['case']} | {r['level']:g} | {f(r['moreau_cpu'])} | {peer} | {ratio} |")
+        out.append(f"| {r['case']} | {r['level']:g} | {f(r['moreau_cpu'])} | {peer} | {ratio} "
+                   f"| {f(r.get('adaptive_cpu'))} | {f(r.get('ratio_adaptive'))} |")
     return "\n".join(out) + "\n"
 
 
@@ -346,7 +388,8 @@ def plot(case: Case, points: list, path: Path) -> None:
         x = [p["cpu_per_sim_s"] for p in pts]
         y = [max(p["rel_error"], FLOOR) for p in pts]
         clamped |= min(p["rel_error"] for p in pts) < FLOOR
-        ax.loglog(x, y, "o-", color=f"C{i}", label=m, lw=2 if m == "moreau-sim" else 1)
+        ax.loglog(x, y, "o-", color=f"C{i}", label=m + (" (rtol)" if m == ADAPTIVE else ""),
+                  lw=2 if m in ("moreau-sim", ADAPTIVE) else 1)
         for p, xi, yi in zip(pts, x, y):
             ax.annotate(f"{p['h']:.0e}".replace("e-0", "e-"), (xi, yi), fontsize=6, color=f"C{i}",
                         xytext=(3, 3), textcoords="offset points")
@@ -456,6 +499,28 @@ def main(argv=None) -> int:
                     if rep == 0:
                         print(f"{case.key:20s} {m:17s} h={h:7.0e}  cpu/sim-s={p['cpu_per_sim_s']:9.4f}  "
                               f"rel.err={p['rel_error']:.2e}", flush=True)
+            for rtol in (QUICK_RTOLS if a.quick else RTOLS):
+                key = (case.key, ADAPTIVE, rtol)
+                p = points.setdefault(key, {"case": case.key, "scene": case.scene, "e": case.e, "method": ADAPTIVE,
+                                            "h": rtol, "rtol": rtol, "T": T, "cpu_repeats": []})
+                if p.get("failed"):
+                    continue
+                try:
+                    res = run_adaptive(models[case.key, steps[0]], rtol, T, adaptive_grid(case, T))
+                except ms.MoreauSimError as exc:
+                    print(f"NOTE: {ADAPTIVE} failed on {case.key} rtol={rtol:g}: {str(exc).splitlines()[0]}",
+                          flush=True)
+                    p.update(failed=str(exc).splitlines()[0], error=None, rel_error=None)
+                    continue
+                p["cpu_repeats"].append(res["cpu_seconds"] / T)
+                if rep == 0:
+                    p.update(error_of(case, series(case, res), refs[case.key], models[case.key, steps[0]]))
+                    p.update(rel_error=p["error"] / case.scale, steps=res["steps"], steps_fixed=res["steps_fixed"],
+                             events=res["events"])
+                p["cpu_per_sim_s"] = statistics.median(p["cpu_repeats"])
+                if rep == 0:
+                    print(f"{case.key:20s} {ADAPTIVE:17s} rtol={rtol:7.0e}  cpu/sim-s={p['cpu_per_sim_s']:9.4f}  "
+                          f"rel.err={p['rel_error']:.2e}", flush=True)
         print(f"-- repeat {rep + 1}/{n_rep} done ({time.time() - wall0:.0f} s wall)", flush=True)
 
     pts = list(points.values())
@@ -466,7 +531,8 @@ def main(argv=None) -> int:
                  "repeats": repeats, "full_repeat_min_h": FULL_REPEAT_H, "levels": list(LEVELS),
                  "platform": platform.platform(), "cpus": os.cpu_count(), "load_start": load0,
                  "load_end": os.getloadavg(), "versions": versions(), "git": _git(), "peers_available": avail,
-                 "peers_skipped": skipped, "methods": ["moreau-sim"] + peer_methods,
+                 "peers_skipped": skipped, "methods": ["moreau-sim", ADAPTIVE] + peer_methods,
+                 "adaptive_rtols": list(QUICK_RTOLS if a.quick else RTOLS),
                  "moreau_options": Options().to_dict(),
                  "cpu_time": "time.process_time() around the stepping loop only; per simulated second; "
                              "median over repeats (h < 1e-4: one run)"},

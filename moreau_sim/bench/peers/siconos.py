@@ -20,6 +20,11 @@ shapes are expressible:
   (it builds 3-D contact relations), so the law is NewtonImpactFrictionNSL(e, 0, mu = 0) solved
   as FrictionContact(3) (NSGS): with mu = 0 the same frictionless Newton law.
 Anything else raises NotExpressible.
+
+simulation="event-driven" (spheres only) runs Siconos' event-driven simulation instead:
+EventDriven with LsodarOSI (its default tolerances), an LCP for the impacts
+(SICONOS_OSNSP_ED_IMPACT) and one for the accelerations (SICONOS_OSNSP_ED_SMOOTH_ACC), impacts
+located by Lsodar's root finding, time events every h (the samples; h is then no step size).
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ DEFAULTS = {
     # give it (what moreau-sim sees); True = displacement coordinates with every initial gap rounded
     # to 1e-12 m (a touching cradle exactly touching, a 1 mm gap exactly 1e-3)
     "exact_gaps": False,
+    "simulation": "time-stepping",  # or "event-driven" (spheres only; module doc)
     # free box only (Siconos' Bullet contact detection)
     "contact_breaking_threshold": 0.02,
     "perturbation_iterations": 3,
@@ -77,18 +83,26 @@ def _lcp(P):
     return lcp
 
 
-def _simulate(sim, record, N):
-    """Step N times; `record(k)` stores the state after step k. Returns CPU seconds."""
+def _simulate(sim, record, N, h=None):
+    """Step N times (time stepping), or with h go event by event to the end (event-driven);
+    `record(k)` stores the state after step k, or at the time event k h (impacts are events too,
+    not recorded). Returns CPU seconds."""
     c0 = time.process_time()
     k = 0
-    while k < N and sim.hasNextEvent():
-        sim.computeOneStep()
-        sim.nextStep()
+    while (h is not None or k < N) and sim.hasNextEvent():
+        if h is None:
+            sim.computeOneStep()
+            sim.nextStep()
+        else:
+            sim.advanceToEvent()
+            sim.processEvents()
+            if not (k < N and abs(sim.startingTime() - (k + 1) * h) <= 1e-9 * h):
+                continue
         k += 1
         record(k)
     cpu = time.process_time() - c0
     if k != N:
-        raise RuntimeError(f"simulation stopped after {k} of {N} steps")
+        raise RuntimeError(f"simulation stopped after {k} of {N} steps or time events")
     return cpu
 
 
@@ -97,13 +111,24 @@ def run(spec: dict, **params) -> dict:
     e = float(spec["e"])
     if not 0.0 <= e <= 1.0:
         raise ValueError(f"restitution e={e} outside [0, 1]")
+    if P["simulation"] not in ("time-stepping", "event-driven"):
+        raise ValueError(f"simulation must be 'time-stepping' or 'event-driven', got {P['simulation']!r}")
     bodies = spec["bodies"]
     if all(b["joint"] == "slide" and b["shape"] == "sphere" for b in bodies):
         return _spheres(spec, P)
     if len(bodies) == 1 and bodies[0]["joint"] == "free" and bodies[0]["shape"] == "box":
+        if P["simulation"] == "event-driven":
+            raise NotExpressible("the Siconos runner's event-driven simulation takes spheres only")
         return _box(spec, P)
     raise NotExpressible("the Siconos runner takes spheres on collinear slide joints, or one free box over a "
                          "half-space")
+
+
+def _settings_ed(P, e, h):
+    return {"integrator": "LsodarOSI (default tolerances)",
+            "simulation": "EventDriven (impact LCP + acceleration LCP, impacts located by Lsodar's root finding)",
+            "nonsmooth_law": f"NewtonImpactNSL(e={e})", "lcp_solver": P["lcp_solver"],
+            "lcp_tolerance": P["lcp_tolerance"], "time_events_every": h}
 
 
 def _settings(P, e, h):
@@ -159,7 +184,14 @@ def _spheres(spec, P):
         rel = sk.LagrangianLinearTIR(np.array([[-sig, sig]]), np.array([b0]))
         nsds.link(sk.Interaction(sk.NewtonImpactNSL(e), rel), dss[a], dss[o])
         relations.append(f"body {a} - body {o}")
-    sim = sk.TimeStepping(nsds, sk.TimeDiscretisation(0.0, h), sk.MoreauJeanOSI(float(P["theta"])), _lcp(P))
+    event_driven = P["simulation"] == "event-driven"
+    if event_driven:
+        sim = sk.EventDriven(nsds, sk.TimeDiscretisation(0.0, h))
+        sim.insertIntegrator(sk.LsodarOSI())
+        sim.insertNonSmoothProblem(_lcp(P), sk.SICONOS_OSNSP_ED_IMPACT)
+        sim.insertNonSmoothProblem(_lcp(P), sk.SICONOS_OSNSP_ED_SMOOTH_ACC)
+    else:
+        sim = sk.TimeStepping(nsds, sk.TimeDiscretisation(0.0, h), sk.MoreauJeanOSI(float(P["theta"])), _lcp(P))
     q, v = np.empty((N + 1, len(dss))), np.empty((N + 1, len(dss)))
 
     def record(k):
@@ -168,13 +200,14 @@ def _spheres(spec, P):
             v[k, j] = ds.velocity()[0]
 
     record(0)
-    cpu = _simulate(sim, record, N)
+    cpu = _simulate(sim, record, N, h if event_driven else None)
     if P["exact_gaps"]:
         q += np.array([float(b["q0"]) for b in bodies])
     sl = slice(None, None, max(1, int(spec.get("stride", 1))))
     coords = ("displacement coordinates, initial gaps rounded to 1e-12 m" if P["exact_gaps"] else
               "absolute coordinates, gaps from the spec's floating-point positions")
-    settings = _settings(P, e, h) | {"model": f"1-dof LagrangianLinearTIDS per sphere ({coords}), LagrangianLinearTIR",
+    settings = (_settings_ed(P, e, h) if event_driven else _settings(P, e, h)) | {
+        "model": f"1-dof LagrangianLinearTIDS per sphere ({coords}), LagrangianLinearTIR",
                                      "exact_gaps": bool(P["exact_gaps"]), "relations": len(relations)}
     return {"peer": "siconos", "scene": spec["name"], "t": (np.arange(N + 1) * h)[sl],
             "bodies": [{"q": q[sl, j], "u": v[sl, j]} for j in range(len(dss))], "cpu_seconds": cpu,

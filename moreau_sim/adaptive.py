@@ -1,0 +1,498 @@
+"""The adaptive integrator (docs/theory.md §8): extrapolated symmetric midpoint steps with error
+control between events, impacts located on the per-feature gaps, fixed Moreau steps where that
+does not apply.
+
+    traj = simulate_adaptive(model)          # or ms.run(path, integrator="adaptive", rtol=..., atol=...)
+
+Smooth phases. The base step is the contact-free midpoint step with the midpoint bias
+(stepper.free_velocity, Bias.MIDPOINT), or, with a persistent set C, the same step on the
+constrained accelerations a_C(q, u) of features.FeatureContacts.dynamics:
+
+    q_m = q (+) h/2 u,   u1 = u + h a(q_m, (u + u1)/2),   q1 = q_m (+) h/2 u1
+
+It is symmetric, so its error expands in h^2: n = 1, 2 (, 3, 4) steps of H/n extrapolated to
+h -> 0 (Aitken-Neville in h^2) give orders 4, 6, 8. q is extrapolated in the tangent space
+about the step's start (pin.difference / pin.integrate). The difference of the last two
+columns is the error estimate, in scipy solve_ivp's RMS norm with scale atol + rtol max(|y0|,
+|y1|), y = (pin.difference(neutral, q), u); a step with error norm > 1 is refused; the next
+step is H * min(MAX_FACTOR, max(MIN_FACTOR, SAFETY err^(-1/(order-1)))).
+
+Dense output: a quintic Hermite interpolant in the tangent space from (q, u, a) at both ends of
+an accepted step gives the samples and the event functions between step ends.
+
+Events. The gaps of the free features are checked on the quintic Hermite of g (from g, gamma,
+W'a + drift at both ends) at CHECK_POINTS instants of each accepted step; the first crossing
+below 0 is located on that polynomial (Brent), the step is re-taken from its start to the root
+and landed on g = 0 by Newton corrections dt = -g/gamma on the re-taken step (LAND_ITER at
+most; impact times to round-off). A persistent contact's multiplier crossing -LAM_EPS
+(release) and a feature just released (g < G_RES/2) coming back (gamma < -2 V_TOL) are located
+likewise. At every event, features.FeatureContacts.resolve decides as in the event-driven
+integrator: the law (law.impact on the contacts contacts.detect closes, with the Zeno rule),
+then the acceleration-level problem that decides the persistent set C.
+
+Fixed steps (stepper.step at the scene's dt, the percussion log as ms.simulate's): the whole
+run when a pair has no per-feature gap (features.UnsupportedModel) or there are more than
+MAX_FEATURES features (very many contacts); from the instant of a
+corner impact (features.CornerImpact); and when events accumulate (BURST_EVENTS events within
+one dt, or no progress in time). Back to extrapolated steps after BACK_STEPS consecutive fixed
+steps with no closed contact, or whose closed contacts all move slower than V_BACK (at rest);
+FeatureContacts.resolve then takes over at that state (the Zeno rule ends what is left of an
+accumulation). The count doubles whenever a fallback follows within 10 BACK_STEPS steps of a
+return (no ping-pong). meta["run"] counts extrapolated, refused and fixed steps and events;
+meta["fallbacks"] lists each switch with its time and reason.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pinocchio as pin
+from scipy.optimize import brentq
+
+from .data import Data, make_data
+from .errors import SimulationError
+from .features import (G_RES, LAM_EPS, V_TOL, CornerImpact, FeatureContacts, UnsupportedModel,
+                       feature_list, run_recorded, sample_grid)
+from .model import Model, initial_state
+from .options import Bias
+from .recording import run_metadata
+from .state import State
+from .stepper import MIDPOINT_ITERATIONS, free_velocity, step
+from .trajectory import Trajectory
+
+ORDERS = (4, 6, 8)  # n = 1..order/2 midpoint steps of H/n, extrapolated in h^2
+DEFAULT_ORDER = 6
+SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0  # step-size control as scipy's solve_ivp
+CHECK_POINTS = 16  # interior instants of a step where the gaps' interpolants are checked
+LAND_ITER = 4  # Newton corrections of a landed step (dt = -g/gamma)
+G_LAND = 1e-15  # [m] a landed gap within this of 0 is not corrected further
+BURST_EVENTS = 64  # this many events within one fixed step dt: an accumulation, fixed steps
+BACK_STEPS = 8  # consecutive quiet fixed steps before returning to extrapolated steps
+V_BACK = 1e-6  # [m/s] closed contacts slower than this after a fixed step: at rest
+FIXED_POINT = 1e-3  # the midpoint bias's fixed point is iterated to this fraction of the step tolerance
+MAX_FEATURES = 64  # more features (very many contacts): fixed steps throughout
+H_MIN = 1e-14  # [s] smallest extrapolated step before giving up on a phase (fixed steps then)
+
+
+# The quintic Hermite basis on [0, 1] in powers of tau: row k holds the coefficients of tau^0..tau^5
+# of the basis function of value 0, slope 0, curvature 0, value 1, slope 1, curvature 1.
+QUINTIC = np.array([[1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1.5, 1.5, -0.5],
+                    [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5]])
+_POWERS = np.arange(6)
+_CHECK = np.linspace(0.0, 1.0, CHECK_POINTS + 1)
+_CHECK_BASIS = (_CHECK[:, None] ** _POWERS) @ QUINTIC.T  # (points, 6)
+
+
+def _poly(coef: np.ndarray) -> np.ndarray:
+    """Power coefficients (6, ...) of the quintic Hermite interpolant of Hermite data coef (6, ...)."""
+    return np.tensordot(QUINTIC.T, coef, axes=1)
+
+
+def _polyval(p: np.ndarray, x: float):
+    """p[0] + p[1] x + ... + p[5] x^5 (Horner), p (6, ...)."""
+    y = p[5]
+    for k in range(4, -1, -1):
+        y = y * x + p[k]
+    return y
+
+
+def _polyslope(p: np.ndarray, x: float):
+    """d/dx of _polyval(p, x)."""
+    y = 5.0 * p[5]
+    for k in range(4, 0, -1):
+        y = y * x + k * p[k]
+    return y
+
+
+def _root(f, lo: float, hi: float, xtol: float) -> float:
+    """The crossing of f from > 0 to <= 0 in [lo, hi] (Brent); lo if f(lo) <= 0 already, hi if
+    f(hi) > 0 after all (round-off between the bracket test and f)."""
+    if f(lo) <= 0.0:
+        return lo
+    if f(hi) > 0.0:
+        return hi
+    return brentq(f, lo, hi, xtol=xtol)
+
+
+class _End:
+    """A step end: (t, q, u), the accelerations a, the multipliers of C, and of the watched
+    features (watch + low) the gaps g, rates gamma and second derivatives gdd = W'a + drift."""
+
+    __slots__ = ("t", "q", "u", "a", "lam", "g", "gamma", "gdd")
+
+    def __init__(self, t, q, u, a, lam, g, gamma, gdd):
+        self.t, self.q, self.u, self.a, self.lam, self.g, self.gamma, self.gdd = t, q, u, a, lam, g, gamma, gdd
+
+
+class AdaptiveRun(FeatureContacts):
+    """One adaptive run (mutable bookkeeping; the public API is simulate_adaptive)."""
+
+    def __init__(self, model: Model, data: Data, e: float, rtol: float, atol: float, order: int,
+                 max_step: float, max_events: int):
+        try:
+            feats, self.unsupported = feature_list(model), None
+        except UnsupportedModel as exc:
+            feats, self.unsupported = (), str(exc)
+        if len(feats) > MAX_FEATURES:
+            feats, self.unsupported = (), f"{len(feats)} features > MAX_FEATURES = {MAX_FEATURES}"
+        super().__init__(model, data, e, feats)
+        if order not in ORDERS:
+            raise ValueError(f"order must be one of {ORDERS}, got {order!r}")
+        self.rtol, self.atol, self.order, self.max_step, self.max_events = rtol, atol, order, max_step, max_events
+        self.seq = tuple(range(1, order // 2 + 1))
+        self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
+        self.neutral = pin.neutral(model.pin)
+        self.h_fix = model.options.dt
+        self.corr = 0.0
+        self.events = self.accepted = self.rejected = self.fixed = self.landings = 0
+        self.fallbacks: list[dict] = []
+        self.back_steps = BACK_STEPS
+        self.burst: list[float] = []
+        self.gi = 0
+
+    # ---- the extrapolated step -------------------------------------------------------------
+    def _midpoint(self, q, u, h, C):
+        """The symmetric midpoint step (module doc), free or on the constrained set C. Without C
+        and without velocity-dependent forces it is stepper.free_velocity's single ABA; otherwise
+        the fixed point u1 = u + h a(q_m, (u + u1)/2) is iterated to FIXED_POINT times the step's
+        tolerance (atol + rtol |u|), well below what the extrapolation resolves."""
+        pm = self.pm
+        q_m = pin.integrate(pm, q, 0.5 * h * u)
+        if not C and not self.model.velocity_bias:
+            u1 = free_velocity(self.model, self.data, q_m, u, h, Bias.MIDPOINT)
+        else:
+            def acc(v):
+                return self.dynamics(q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
+            u1 = u + h * acc(u)
+            tol = FIXED_POINT * (self.atol + self.rtol * float(np.abs(u).max()))
+            for _ in range(MIDPOINT_ITERATIONS):
+                nxt = u + h * acc(0.5 * (u + u1))
+                done = float(np.abs(nxt - u1).max()) <= tol
+                u1 = nxt
+                if done:
+                    break
+        return pin.integrate(pm, q_m, 0.5 * h * u1), u1
+
+    def _delta(self, q0, q):
+        return pin.difference(self.pm, q0, q) if self.lie else q - q0
+
+    def _step(self, q0, u0, H, C):
+        """The extrapolated step of size H: (q1, u1, error estimate in (delta, u) coordinates)."""
+        seq, nv = self.seq, self.nv
+        rows = []
+        for j, n in enumerate(seq):
+            h = H / n
+            q, u = q0, u0
+            for _ in range(n):
+                q, u = self._midpoint(q, u, h, C)
+            row = [np.concatenate((self._delta(q0, q), u))]
+            for m in range(1, j + 1):
+                r = (seq[j] / seq[j - m]) ** 2 - 1.0
+                row.append(row[m - 1] + (row[m - 1] - rows[j - 1][m - 1]) / r)
+            rows.append(row)
+        y = rows[-1][-1]
+        q1 = pin.integrate(self.pm, q0, y[:nv]) if self.lie else q0 + y[:nv]
+        return q1, y[nv:].copy(), y - rows[-1][-2]
+
+    def _error(self, q0, u0, q1, u1, d) -> float:
+        z0 = np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q0), u0)))
+        z1 = np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q1), u1)))
+        sc = self.atol + self.rtol * np.maximum(z0, z1)
+        return float(np.sqrt(np.mean((d / sc) ** 2)))
+
+    def _end(self, t, q, u, C, idx) -> _End:
+        a, lam = self.dynamics(q, u, C)
+        if idx:
+            fs = self.features(q, u, idx)
+            return _End(t, q, u, a, lam, fs.g, fs.gamma, fs.W.T @ a + fs.drift)
+        z = np.zeros(0)
+        return _End(t, q, u, a, lam, z, z, z)
+
+    # ---- dense output ----------------------------------------------------------------------
+    def _dense(self, e0: _End, e1: _End):
+        """tau in [0, 1] -> (q, u) on the step from e0 to e1 (quintic Hermite in the tangent space
+        about e0.q; for a Lie group the end slopes through dIntegrate)."""
+        H = e1.t - e0.t
+        d1 = self._delta(e0.q, e1.q)
+        if self.lie:  # delta' = J^-1 u, delta'' = J^-1 a + (J^-1)' u, the last by central differences
+            def slope(d):
+                return np.linalg.solve(pin.dIntegrate(self.pm, e0.q, d, pin.ArgumentPosition.ARG1), e1.u)
+            s1 = slope(d1)
+            eps = 1e-5 / (1.0 + float(np.abs(s1).max()))
+            Jinv_dot_u = (slope(d1 + eps * s1) - slope(d1 - eps * s1)) / (2.0 * eps)
+            c1 = np.linalg.solve(pin.dIntegrate(self.pm, e0.q, d1, pin.ArgumentPosition.ARG1), e1.a) + Jinv_dot_u
+        else:
+            s1, c1 = e1.u, e1.a
+        p = _poly(np.array([np.zeros(self.nv), H * e0.u, H * H * e0.a, d1, H * s1, H * H * c1]))
+
+        def at(tau: float):
+            d, s = _polyval(p, tau), (_polyslope(p, tau) / H if H > 0 else e0.u)
+            if not self.lie:
+                return e0.q + d, s
+            J = pin.dIntegrate(self.pm, e0.q, d, pin.ArgumentPosition.ARG1)
+            return pin.integrate(self.pm, e0.q, d), J @ s
+        return at
+
+    def _sample_step(self, e0: _End, e1: _End, t_grid, n_contacts: int, last: bool) -> None:
+        """Record the grid instants before e1.t (up to and including it if `last`) on the step."""
+        gi, H = self.gi, e1.t - e0.t
+        if gi < len(t_grid) and (t_grid[gi] < e1.t or (last and t_grid[gi] <= e1.t)):
+            at = self._dense(e0, e1)
+            while gi < len(t_grid) and (t_grid[gi] < e1.t or (last and t_grid[gi] <= e1.t)):
+                tg = float(t_grid[gi])
+                if tg >= e1.t:
+                    q, u = e1.q, e1.u
+                elif H > 0:
+                    q, u = at(min(max((tg - e0.t) / H, 0.0), 1.0))
+                else:
+                    q, u = e0.q, e0.u
+                self.sample(tg, q, u, n_contacts)
+                gi += 1
+        self.gi = gi
+
+    def sample(self, t: float, q: np.ndarray, u: np.ndarray, n_contacts: int) -> None:
+        self.rec.sample(State(t, q, u), self.work, self.corr, n_contacts)
+        self.work = self.corr = 0.0
+
+    # ---- events ----------------------------------------------------------------------------
+    def _first_event(self, e0: _End, e1: _End, nw: int, C):
+        """The earliest event on the step e0 -> e1 as (tau, kind, index into watch+low / C), or None."""
+        H = e1.t - e0.t
+        best = None
+        taus = _CHECK
+        if len(e0.g):
+            coef = np.array([e0.g, H * e0.gamma, H * H * e0.gdd, e1.g, H * e1.gamma, H * H * e1.gdd])
+            G = _CHECK_BASIS @ coef  # (points, features)
+            G[-1] = e1.g
+            crossing = np.flatnonzero((G[:, :nw] < 0.0).any(axis=0))
+            first = {int(k): int(np.argmax(G[:, k] < 0.0)) for k in crossing}
+            j_min = min(first.values(), default=0)
+            for k, j in first.items():
+                if j > j_min:  # a later bracket: its root is later than one of the first bracket's
+                    continue
+                pk = _poly(coef[:, k])
+
+                def f(x, pk=pk):
+                    return float(_polyval(pk, x))
+                tau = _root(f, taus[j - 1], taus[j], 1e-15)
+                if best is None or tau < best[0]:
+                    best = (tau, "gap", k)
+            # a feature within G_RES of contact coming back: gamma below -2 V_TOL (cubic Hermite of gamma)
+            for k in range(nw, len(e0.g)):
+                gc = np.array([e0.gamma[k] + 2 * V_TOL, H * e0.gdd[k], e1.gamma[k] + 2 * V_TOL, H * e1.gdd[k]])
+
+                def fr(x, gc=gc):
+                    return float(gc[0] * (1 - 3 * x * x + 2 * x ** 3) + gc[1] * (x - 2 * x * x + x ** 3)
+                                 + gc[2] * (3 * x * x - 2 * x ** 3) + gc[3] * (x ** 3 - x * x))
+                vals = np.array([fr(x) for x in taus])
+                if (vals[1:] < 0).any() and vals[0] >= 0:
+                    j = int(np.argmax(vals[1:] < 0)) + 1
+                    tau = _root(fr, taus[j - 1], taus[j], 1e-15)
+                    if best is None or tau < best[0]:
+                        best = (tau, "return", k)
+        if len(C) and (e1.lam < -LAM_EPS).any():
+            at = self._dense(e0, e1)
+            for k in np.flatnonzero(e1.lam < -LAM_EPS):
+                def fl(x, k=k):
+                    q, u = at(x)
+                    return float(self.dynamics(q, u, C)[1][k]) + LAM_EPS
+                tau = _root(fl, 0.0, 1.0, 1e-13)
+                if best is None or tau < best[0]:
+                    best = (tau, "release", int(k))
+        return best
+
+    def _land(self, e0: _End, H: float, C, feature: int | None):
+        """Re-take the step from e0 with size H onto the event; for a gap, Newton on g = 0."""
+        hs, q1, u1 = 0.0, e0.q, e0.u  # the last step taken: its size and end
+        for _ in range(LAND_ITER if feature is not None else 1):
+            if H <= 0.0:
+                break
+            hs, (q1, u1, _) = H, self._step(e0.q, e0.u, H, C)
+            self.landings += 1
+            if feature is None:
+                break
+            fs = self.features(q1, u1, [feature])
+            g, gam = float(fs.g[0]), float(fs.gamma[0])
+            if abs(g) <= G_LAND or gam >= 0.0:
+                break
+            H -= g / gam
+        return hs, q1, u1
+
+    # ---- the run ---------------------------------------------------------------------------
+    def run(self, state: State, t_end: float, t_grid: np.ndarray) -> None:
+        t, q, u = float(state.t), np.array(state.q, float), np.array(state.u, float)
+        while self.gi < len(t_grid) and t_grid[self.gi] <= t:  # the initial state
+            self.sample(t, q, u, 0)
+            self.gi += 1
+        fixed = self.unsupported is not None
+        if fixed:
+            self.fallbacks.append({"t": t, "reason": self.unsupported})
+        released: frozenset = frozenset()
+        H = min(self.max_step, 10.0 * self.h_fix)
+        t_back, stuck = -np.inf, 0
+        while t < t_end:
+            if fixed:
+                t, q, u = self._fixed(t, q, u, t_end, t_grid)
+                fixed, t_back, stuck = False, t, 0
+                self.burst.clear()
+                continue
+            try:
+                u, C, shadow = self.resolve(t, q, u, released)
+            except CornerImpact as exc:
+                fixed = self._fall(t, t_back, f"corner impact: {exc}")
+                continue
+            released = frozenset()
+            nf = len(self.feats)
+            free = [i for i in range(nf) if i not in C and i not in shadow]
+            g0 = self.features(q, u, free, rows=False).g if free else np.zeros(0)
+            low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES]
+            watch = [i for i in free if i not in low]
+            e0 = self._end(t, q, u, C, watch + low)
+            while True:  # the phase: steps until an event or t_end
+                h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)))
+                q1, u1, d = self._step(q, u, h, C)
+                err = self._error(q, u, q1, u1, d)
+                if not np.isfinite(err) or err > 1.0:
+                    self.rejected += 1
+                    shrink = SAFETY * err ** (-1.0 / (self.order - 1)) if np.isfinite(err) else 0.0
+                    H = h * max(MIN_FACTOR, shrink)
+                    if H < H_MIN:
+                        break
+                    continue
+                last = h >= t_end - t
+                t1 = t_end if last else t + h
+                e1 = self._end(t1, q1, u1, C, watch + low)
+                ev = self._first_event(e0, e1, len(watch), C)
+                grow = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
+                if ev is None:
+                    self.accepted += 1
+                    self._sample_step(e0, e1, t_grid, len(C), last)
+                    t, q, u, e0 = t1, q1, u1, e1
+                    H = h * grow if h >= H else H
+                    if last:
+                        return
+                    risen = [i for k, i in enumerate(low) if e1.g[len(watch) + k] >= G_RES]
+                    if risen:  # a feature rose above G_RES: its gap is watched from now on
+                        low = [i for i in low if i not in risen]
+                        watch = watch + risen
+                        e0 = self._end(t, q, u, C, watch + low)
+                    continue
+                tau, kind, k = ev
+                feature = (watch + low)[k] if kind == "gap" else None
+                hs, q1, u1 = self._land(e0, tau * h, C, feature)
+                hs = min(hs, t_end - t)
+                e1 = self._end(t + hs, q1, u1, C, watch + low)
+                self._sample_step(e0, e1, t_grid, len(C), False)
+                stuck = stuck + 1 if hs < 1e-13 else 0
+                t, q, u = t + hs, q1, u1
+                H = max(h, H_MIN)
+                if kind == "release":
+                    released = frozenset({C[k]})
+                break
+            if H < H_MIN:
+                fixed = self._fall(t, t_back, "the error test refused every step size")
+                H = min(self.max_step, 10.0 * self.h_fix)
+                continue
+            if t >= t_end:
+                break
+            self.events += 1
+            if self.events > self.max_events:
+                raise SimulationError(f"t = {t:.12g} s: more than {self.max_events} events", t=t)
+            self.burst.append(t)
+            while self.burst and self.burst[0] < t - self.h_fix:
+                self.burst.pop(0)
+            if len(self.burst) >= BURST_EVENTS or stuck > 100:
+                fixed = self._fall(t, t_back, f"{len(self.burst)} events within dt = {self.h_fix:g} s"
+                                   if len(self.burst) >= BURST_EVENTS else "100 events without time advancing")
+        while self.gi < len(t_grid):  # the end instant
+            self.sample(float(t_grid[self.gi]), q, u, 0)
+            self.gi += 1
+
+    def _rise_limit(self, e0: _End, nw: int) -> float:
+        """While a feature within G_RES of contact rises, steps stay below half its time to apex
+        (its rise and fall must not fit in one step)."""
+        gam, gdd = e0.gamma[nw:], e0.gdd[nw:]
+        up = (gam > V_TOL) & (gdd < 0)
+        return float(np.min(0.5 * gam[up] / -gdd[up])) if up.any() else np.inf
+
+    def _fall(self, t: float, t_back: float, reason: str) -> bool:
+        if t - t_back < 10 * self.back_steps * self.h_fix:
+            self.back_steps *= 2
+        self.fallbacks.append({"t": t, "reason": reason})
+        return True
+
+    def _fixed(self, t, q, u, t_end, t_grid):
+        """Fixed midpoint Moreau steps of the scene's dt (landing on the sample instants) until
+        t_end, or until back_steps quiet steps (module doc) when the model has features."""
+        model, rec = self.model, self.rec
+        previous: set = set()
+        quiet = 0
+        while t < t_end:
+            nxt = min(t_grid[self.gi], t_end) if self.gi < len(t_grid) else t_end
+            # a step of dt, or onto the next sample instant when that is at most dt (+ round-off) away
+            t1 = nxt if nxt - t <= self.h_fix * (1.0 + 1e-9) else t + self.h_fix
+            h = t1 - t
+            r = step(model, self.data, State(t, q, u), h=h, e=self.e, t_next=t1)
+            if r.qp is not None and not r.qp.ok:
+                raise SimulationError(f"t = {t:.6g} s: a fixed step's impact QP failed with status {r.qp.status}", t=t)
+            if not (np.isfinite(r.state.q).all() and np.isfinite(r.state.u).all()):
+                raise SimulationError(f"t = {t:.6g} s: a fixed step's state became non-finite", t=t)
+            self.fixed += 1
+            self.work += r.contact_work
+            self.corr += r.correction_energy
+            previous = rec.log_percussions(rec.n, t + 0.5 * h, r.contacts, r.P, r.gamma_minus, r.gamma_plus, previous)
+            if r.branch is not None:
+                sol, chosen, u_plus = r.branch
+                rec.branch(rec.n, t + 0.5 * h, chosen, [(up, c.distance, c.global_min)
+                                                         for up, c in zip(u_plus, sol.candidates)])
+            t, q, u = t1, r.state.q, r.state.u
+            while self.gi < len(t_grid) and t_grid[self.gi] <= t:
+                self.sample(float(t_grid[self.gi]), q, u, r.contacts.m)
+                self.gi += 1
+            if self.unsupported is not None:
+                continue
+            calm = r.branch is None and (r.contacts.m == 0 or float(np.abs(r.gamma_plus).max()) <= V_BACK)
+            quiet = quiet + 1 if calm else 0
+            if quiet >= self.back_steps:
+                self.fallbacks.append({"t": t, "reason": "back to extrapolated steps"})
+                break
+        return t, q, u
+
+
+def simulate_adaptive(model: Model, *, state: State | None = None, t_end: float | None = None,
+                      rtol: float | None = None, atol: float | None = None, order: int = DEFAULT_ORDER,
+                      t_eval=None, max_step: float = 1.0, max_events: int = 1_000_000,
+                      data: Data | None = None) -> Trajectory:
+    """Integrate `model` adaptively (module doc) from `state` (default: the scene's initial
+    state) to `t_end` [s] (default: state.t + the scene's duration), restitution = the scene's e.
+
+    rtol, atol: the error tolerances of the extrapolated steps (default: the scene's options
+    rtol, atol); order: 4, 6 or 8; max_step [s]: bound on an extrapolated step; t_eval: sample
+    instants [s] in [t0, t_end] (default: every save_every * dt, the instants ms.simulate
+    records); max_events: give up beyond this many events.
+
+    Returns a :class:`Trajectory` with ms.simulate's arrays: samples at t_eval (a sample at an
+    impact instant is the post-impact state); one log row per contact percussion (log_t: the
+    located impact instant, or a fixed step's midpoint); contact_work and correction_energy
+    since the previous sample. meta: "integrator": "adaptive", "status", "adaptive" (settings),
+    "zeno", "fallbacks", "run" (steps extrapolated / refused / fixed, events, impacts,
+    wall_seconds). Raises SimulationError (with .trajectory up to the failure)."""
+    data = data or make_data(model)
+    state = state or initial_state(model)
+    opts = model.options
+    t_end, t_grid = sample_grid(model, state, t_end, t_eval)
+    rtol = opts.rtol if rtol is None else float(rtol)
+    atol = opts.atol if atol is None else float(atol)
+    integ = AdaptiveRun(model, data, opts.restitution, rtol, atol, order, max_step, max_events)
+    return run_recorded(integ, state, t_end, t_grid, _meta)
+
+
+def _meta(model: Model, integ: AdaptiveRun, status: str, wall0: float) -> dict:
+    settings = {"rtol": integ.rtol, "atol": integ.atol, "order": integ.order, "max_step": integ.max_step,
+                "features": len(integ.feats), "unsupported": integ.unsupported, "lie_group": integ.lie}
+    run = {"steps": integ.accepted + integ.fixed, "steps_extrapolated": integ.accepted, "steps_refused": integ.rejected,
+           "steps_landed": integ.landings, "steps_fixed": integ.fixed, "events": integ.events,
+           "impacts": integ.impacts, "nfev": integ.nfev, "wall_seconds": time.perf_counter() - wall0}
+    return run_metadata(model, status, run, integrator="adaptive", adaptive=settings, zeno=integ.zeno,
+                        fallbacks=integ.fallbacks)
