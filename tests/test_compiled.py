@@ -14,6 +14,12 @@ correction's energy test (dE > budget) and the active set of dependent rows are 
 round-off, and one flipped tie moves box_drop by 1e-5 m. On a CPU whose OpenBLAS kernels sum in
 another order the vertex-polytope scenes would fail here first (the ball and cradle rows have one
 non-zero term per sum and stay exact anywhere); the step to take then is to mirror those kernels too.
+
+A scene none of whose steps the compiled step takes (models it does not cover: more than 12
+velocities, pairs of two polytopes, GJK/EPA pairs) runs the Python step both ways, which is itself
+not bit-reproducible from one run to the next where numpy's products are large: two Python-only
+runs of heavy_on_light_box_1000 differ by 5e-26 m (not from BLAS threads: it persists with one;
+likely the large kernels' memory-alignment-dependent order). There, within 1e-12 is required.
 """
 
 from __future__ import annotations
@@ -74,7 +80,12 @@ def test_same_trajectory_both_ways(path):
     print(f"    max |dq| = {diff['q']:.3g}, max |du| = {diff['u']:.3g}")
     for key in COMPARED:
         x, y = np.asarray(a[key]), np.asarray(b[key])
-        assert x.shape == y.shape and np.array_equal(x, y), (key, float(np.abs(x - y).max(initial=0.0)))
+        assert x.shape == y.shape, key
+        if done or key in ("t", "n_contacts"):
+            assert np.array_equal(x, y), (key, float(np.abs(x - y).max(initial=0.0)))
+        else:  # Python both ways: as reproducible as the Python step itself (module docstring)
+            scale = 1.0 if key in ("q", "u", "gap") else 1.0 + np.abs(x).max(initial=0.0)
+            assert np.abs(x - y).max(initial=0.0) <= 1e-12 * scale, (key, float(np.abs(x - y).max()))
     assert len(a["log_step"]) == len(b["log_step"]) and np.array_equal(a["log_step"], b["log_step"])
 
 
