@@ -124,6 +124,18 @@ class PositionCorrection(enum.Enum):
     PROJECTION = "projection"
 
 
+class StepImpl(enum.Enum):
+    """Which implementation takes the time steps (moreau_sim/compiled.py).
+
+    COMPILED: the C++ step (moreau_sim._step) where it covers the step, else the Python step; the
+        Python step alone when the extension is unavailable (one warning says why).
+    PYTHON: the Python step (stepper.py), the reference implementation.
+    Both give the same trajectory (tests/test_compiled.py)."""
+
+    COMPILED = "compiled"
+    PYTHON = "python"
+
+
 class StaticShape(enum.Enum):
     HALFSPACE = "halfspace"
     BOX = "box"
@@ -214,6 +226,7 @@ class Options:
     rtol, atol: the adaptive integrator's relative and absolute error tolerances per step
         (positions [m or rad] and velocities [m/s or rad/s]; atol in SI units), rtol in (0, 1),
         atol > 0.
+    step_impl: the compiled step where it applies, or the Python step only (see :class:`StepImpl`).
     """
 
     restitution: float = 0.5
@@ -233,6 +246,7 @@ class Options:
     save_every: int = 1
     rtol: float = 1e-8
     atol: float = 1e-10
+    step_impl: StepImpl = StepImpl.COMPILED
 
     def __post_init__(self):
         self.validate("options")
@@ -267,6 +281,8 @@ class Options:
                f"must be a Selection, got {self.corner_selection!r}")
         require(isinstance(self.qp_tolerance, (int, float)) and 0 < self.qp_tolerance < 1e-3,
                f"{where}: qp_tolerance", f"must lie in (0, 1e-3), got {self.qp_tolerance!r}")
+        require(isinstance(self.step_impl, StepImpl), f"{where}: step_impl",
+               f"must be a StepImpl, got {self.step_impl!r}")
         require(isinstance(self.save_every, int) and not isinstance(self.save_every, bool) and self.save_every >= 1,
                f"{where}: save_every", f"must be an integer >= 1, got {self.save_every!r}")
         require(isinstance(self.rtol, (int, float)) and not isinstance(self.rtol, bool) and 0 < self.rtol < 1,
@@ -299,4 +315,4 @@ class Options:
 
 CHOICES = {"qp_form": QPForm, "separating": Separating, "corner_selection": Selection, "bias": Bias,
            "position_correction": PositionCorrection, "slow_impacts": SlowImpacts, "integrator": Integrator,
-           "tunnelling": Tunnelling}
+           "tunnelling": Tunnelling, "step_impl": StepImpl}

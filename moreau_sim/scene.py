@@ -88,7 +88,7 @@ _SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravi
         "contact_tolerance": "contact_tolerance", "qp_form": "qp_form", "qp_tolerance": "qp_tolerance",
         "separating": "separating", "corner_selection": "corner_selection", "bias": "bias",
         "position_correction": "position_correction", "slow_impacts": "slow_impacts", "integrator": "integrator",
-        "tunnelling": "tunnelling", "rtol": "rtol", "atol": "atol"}
+        "tunnelling": "tunnelling", "rtol": "rtol", "atol": "atol", "step_impl": "step_impl"}
 _BODY = {"name", "urdf", "mjcf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0", "package_dirs", "meshes"}
 _STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy"}
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from . import qp
+from . import compiled, qp
 from .constraints import CornerPieces, assemble_constraints, corner_faces
 from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
 from .corners import MAX_PIECES, select, stationary_points
@@ -32,7 +32,7 @@ from .energy import kinetic, potential
 from .errors import SimulationError
 from .law import outcome, percussion, project, restitution_bounds
 from .model import Model
-from .options import Bias, Options, PositionCorrection, QPForm, Tunnelling
+from .options import Bias, Options, PositionCorrection, QPForm, StepImpl, Tunnelling
 from .qp import QPResult
 from .state import State
 from .tunnelling import swept_detect
@@ -124,6 +124,11 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     h = opts.dt if h is None else h
     e = opts.restitution if e is None else e
     t1 = state.t + h if t_next is None else t_next
+    if (opts.step_impl is StepImpl.COMPILED and form is None and eps is None and corner_choice is None
+            and compiled.available()):
+        r = compiled.step(model, data, state, h, e, t1, StepResult)  # None: a step the compiled one does not cover
+        if r is not None:
+            return r
     pb = assemble(model, data, state, h=h, e=e)
     if not pb.closed:
         q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * pb.u_free)

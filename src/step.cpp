@@ -1,0 +1,619 @@
+// moreau_sim._step: the midpoint Moreau contact step of moreau_sim/stepper.py in C++, on the
+// pin.Model / pin.Data / GeometryModel / GeometryData built in Python (taken by reference through
+// boost.python's registry: the same Pinocchio and coal libraries as the Python bindings).
+//
+// It mirrors stepper.step stage by stage and operation by operation (the same products and sums in
+// the same order, no FMA contraction), for the contacts of the simple scenes: polytope vertices against
+// a half-space (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight
+// steps; the restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed
+// form for one contact, an active set for a few, accepted under qp._polish's test); the energy-budgeted
+// position correction with its pair-distance guard. Anything else returns FALLBACK with a reason and
+// the Python step (the reference) takes the step: corners, point queries against non-half-spaces,
+// contact patches, swept detection, coal's EPA fallback, more than MAX_CONTACTS contacts, a projection
+// the active set does not settle unambiguously.
+#include <nanobind/nanobind.h>
+#include <nanobind/eigen/dense.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+
+#include <boost/python.hpp>
+
+#include <pinocchio/multibody/model.hpp>
+#include <pinocchio/multibody/data.hpp>
+#include <pinocchio/multibody/geometry.hpp>
+#include <pinocchio/algorithm/joint-configuration.hpp>
+#include <pinocchio/algorithm/crba.hpp>
+#include <pinocchio/algorithm/aba.hpp>
+#include <pinocchio/algorithm/energy.hpp>
+#include <pinocchio/algorithm/geometry.hpp>
+#include <pinocchio/collision/collision.hpp>
+#include <pinocchio/collision/distance.hpp>
+
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+namespace nb = nanobind;
+namespace bp = boost::python;
+using Eigen::MatrixXd;
+using Eigen::VectorXd;
+using Vec3 = Eigen::Vector3d;
+using VectorXl = Eigen::Matrix<int64_t, Eigen::Dynamic, 1>;
+
+namespace {
+
+constexpr int FLIGHT = 0, CONTACT = 1, FALLBACK = 2;
+constexpr int VERTEX = 0, WITNESS = 1;  // contacts.FeatureKind
+constexpr int MIDPOINT_ITERATIONS = 8;  // stepper.MIDPOINT_ITERATIONS
+
+typedef void (*dgesv_t)(int *, int *, double *, int *, int *, double *, int *, int *);
+
+template <class T> T &extract_ref(nb::handle h, const char *what) {
+  bp::object o{bp::handle<>(bp::borrowed(h.ptr()))};
+  bp::extract<T &> x(o);
+  if (!x.check()) throw nb::type_error((std::string("expected a ") + what).c_str());
+  return x();
+}
+
+// numpy's small products, operation by operation (measured against numpy 2 with its OpenBLAS on this
+// AVX-512 machine, tests/test_compiled.py; every other sum here is written out in numpy's order):
+// a 1-d @ 1-d dot (ddot, n < 16): left to right, separate multiply and add
+inline double ddot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
+  double s = 0.0;
+  for (Eigen::Index k = 0; k < n; ++k) s += a[k * sa] * b[k * sb];
+  return s;
+}
+// an entry of a 2-d @ 2-d product (dgemm): a fused multiply-add chain in k order
+inline double gemm_dot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
+  double s = 0.0;
+  for (Eigen::Index k = 0; k < n; ++k) s = std::fma(a[k * sa], b[k * sb], s);
+  return s;
+}
+// an entry of a row-major 2-d @ 1-d product with 2 or more rows (dgemv "t" kernel): four fused lanes
+// over the blocks of 4, reduced as (l0 + l2) + (l1 + l3), then the tail of 1-3 terms
+inline double gemv_dot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
+  const Eigen::Index nb = n & ~Eigen::Index(3);
+  double s = 0.0;
+  bool block = nb > 0;
+  if (block) {
+    double l[4] = {0.0, 0.0, 0.0, 0.0};
+    for (Eigen::Index k = 0; k < nb; ++k) l[k & 3] = std::fma(a[k * sa], b[k * sb], l[k & 3]);
+    s = (l[0] + l[2]) + (l[1] + l[3]);
+  }
+  const Eigen::Index r = n - nb;
+  if (r == 0) return s;
+  if (r == 1) return block ? std::fma(a[nb * sa], b[nb * sb], s) : 0.0 + a[nb * sa] * b[nb * sb];
+  double t = std::fma(a[nb * sa], b[nb * sb], a[(nb + 1) * sa] * b[(nb + 1) * sb]);
+  if (r == 3) t = std::fma(a[(nb + 2) * sa], b[(nb + 2) * sb], t);
+  return block ? s + t : 0.0 + t;
+}
+
+// coal warm-starts GJK's support search from the previous call of the same pair (a hint kept in the
+// collision functor's solver, a protected member): a step handed to Python must find the hints as the
+// Python step would have left them, so they are saved before detection and restored on a fallback.
+struct SolverOf : coal::ComputeCollision {
+  static coal::GJKSolver coal::ComputeCollision::*member() { return &SolverOf::solver; }
+};
+
+struct Found {
+  double g;
+  Vec3 pa, pb, n;
+  int pair, kind, feature;
+};
+
+struct Fallback {
+  std::string why;
+};
+
+struct Solved {  // a projection: v, lam, status (0 ADMISSIBLE, 1 solved on its active set)
+  VectorXd v, lam;
+  int status;
+};
+
+}  // namespace
+
+class Stepper {
+ public:
+  Stepper(nb::object model, nb::object data, nb::object geom_model, nb::object geom_data,
+          std::vector<MatrixXd> vertices, std::vector<int> bound_kind, std::vector<Vec3> bound_a,
+          std::vector<double> bound_b, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic> pairs, MatrixXd mask,
+          double reach, double thinnest_pair, double tol, int tunnelling, bool separating_elastic,
+          bool slow_plastic, bool bias_midpoint, bool velocity_bias, bool projection, int max_contacts,
+          uintptr_t dgesv)
+      : py_{model, data, geom_model, geom_data},
+        model_(extract_ref<pinocchio::Model>(model, "pinocchio.Model")),
+        data_(extract_ref<pinocchio::Data>(data, "pinocchio.Data")),
+        gm_(extract_ref<pinocchio::GeometryModel>(geom_model, "pinocchio.GeometryModel")),
+        gd_(extract_ref<pinocchio::GeometryData>(geom_data, "pinocchio.GeometryData")),
+        vertices_(std::move(vertices)), bound_kind_(std::move(bound_kind)), bound_a_(std::move(bound_a)),
+        bound_b_(std::move(bound_b)), pairs_(std::move(pairs)), mask_(std::move(mask)), reach_(reach),
+        thinnest_(thinnest_pair), tol_(tol), tunnelling_(tunnelling), sep_elastic_(separating_elastic),
+        slow_plastic_(slow_plastic), bias_midpoint_(bias_midpoint), velocity_bias_(velocity_bias),
+        projection_(projection), max_contacts_(max_contacts), dgesv_(reinterpret_cast<dgesv_t>(dgesv)) {
+    if (pairs_.cols() != 5 || (Eigen::Index)gm_.collisionPairs.size() != pairs_.rows())
+      throw nb::value_error("pairs: (number of collision pairs, 5) expected");
+    if (mask_.rows() != model_.njoints || mask_.cols() != model_.nv) throw nb::value_error("mask: (njoints, nv)");
+  }
+
+  nb::tuple step(const VectorXd &q, const VectorXd &u, double h, double e) {
+    try {
+      return step_(q, u, h, e);
+    } catch (const Fallback &f) {
+      restore_guesses();
+      return nb::make_tuple(FALLBACK, f.why);
+    }
+  }
+
+ private:
+  nb::object py_[4];  // keeps the Python objects (and so the C++ ones) alive
+  const pinocchio::Model &model_;
+  pinocchio::Data &data_;
+  const pinocchio::GeometryModel &gm_;
+  pinocchio::GeometryData &gd_;
+  std::vector<MatrixXd> vertices_;
+  std::vector<int> bound_kind_;  // 0: half-space {n.x <= d} ("plane"), 1: bounding sphere
+  std::vector<Vec3> bound_a_;
+  std::vector<double> bound_b_;
+  Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic> pairs_;  // first, second, joint_first, joint_second, patch
+  MatrixXd mask_;
+  double reach_, thinnest_, tol_;
+  int tunnelling_;  // 0 swept, 1 none, 2 always
+  bool sep_elastic_, slow_plastic_, bias_midpoint_, velocity_bias_, projection_;
+  int max_contacts_;
+  dgesv_t dgesv_;
+  nb::object scipy_nnls_ = nb::module_::import_("scipy.optimize").attr("nnls");
+
+  // ---- pinocchio calls as the Python bindings make them (crba and Minv symmetrized)
+  const MatrixXd &crba_world(const VectorXd &q) {
+    pinocchio::crba(model_, data_, q, pinocchio::Convention::WORLD);
+    data_.M.triangularView<Eigen::StrictlyLower>() = data_.M.transpose().triangularView<Eigen::StrictlyLower>();
+    return data_.M;
+  }
+  MatrixXd minverse(const VectorXd &q) {
+    pinocchio::computeMinverse(model_, data_, q);
+    data_.Minv.triangularView<Eigen::StrictlyLower>() = data_.Minv.transpose().triangularView<Eigen::StrictlyLower>();
+    return data_.Minv;
+  }
+  double energy(const VectorXd &q, const VectorXd &u) {
+    double T = pinocchio::computeKineticEnergy(model_, data_, q, u);
+    double V = pinocchio::computePotentialEnergy(model_, data_, q);
+    return T + V;
+  }
+  VectorXd pair_distances(const VectorXd &q) {
+    pinocchio::computeDistances(model_, data_, gm_, gd_, q);
+    VectorXd d(gd_.distanceResults.size());
+    for (size_t k = 0; k < gd_.distanceResults.size(); ++k) d[k] = gd_.distanceResults[k].min_distance;
+    return d;
+  }
+
+  std::vector<coal::Vec3s> saved_guess_;
+  std::vector<coal::support_func_guess_t> saved_hint_;
+  void save_guesses() {
+    const auto mem = SolverOf::member();
+    const size_t n = gd_.collision_functors.size();
+    saved_guess_.resize(n), saved_hint_.resize(n);
+    for (size_t k = 0; k < n; ++k) {
+      const coal::GJKSolver &sv = gd_.collision_functors[k].*mem;
+      saved_guess_[k] = sv.cached_guess, saved_hint_[k] = sv.support_func_cached_guess;
+    }
+  }
+  void restore_guesses() {
+    const auto mem = SolverOf::member();
+    for (size_t k = 0; k < saved_guess_.size() && k < gd_.collision_functors.size(); ++k) {
+      coal::GJKSolver &sv = gd_.collision_functors[k].*mem;
+      sv.cached_guess = saved_guess_[k], sv.support_func_cached_guess = saved_hint_[k];
+    }
+  }
+
+  // stepper.free_velocity
+  VectorXd free_velocity(const VectorXd &q_m, const VectorXd &u, double h) {
+    const VectorXd zero = VectorXd::Zero(model_.nv);
+    VectorXd a = pinocchio::aba(model_, data_, q_m, u, zero);
+    VectorXd u_free = u + h * a;
+    if (!bias_midpoint_ || !velocity_bias_) return u_free;
+    const double scale = 1e-15 * (1.0 + u.cwiseAbs().maxCoeff());
+    for (int it = 0; it < MIDPOINT_ITERATIONS; ++it) {
+      VectorXd ubar = 0.5 * (u + u_free);
+      a = pinocchio::aba(model_, data_, q_m, ubar, zero);
+      VectorXd nxt = u + h * a;
+      bool done = (nxt - u_free).cwiseAbs().maxCoeff() <= scale;
+      u_free = nxt;
+      if (done) break;
+    }
+    return u_free;
+  }
+
+  // contacts._vertex_contacts for one geometry's vertices against another
+  void vertex_contacts(int g_vert, int joint_v, int g_other, int joint_other, std::vector<Found> &out, int pair,
+                       int offset, bool v_is_a) {
+    const MatrixXd &V = vertices_[g_vert];
+    if (V.rows() == 0) return;
+    const auto &oMi = data_.oMi[joint_v], &oMo = data_.oMi[joint_other];
+    const Eigen::Matrix3d &R = oMi.rotation();
+    const Vec3 &t = oMi.translation();
+    MatrixXd Vw(V.rows(), 3);  // V @ R.T + t
+    for (Eigen::Index i = 0; i < V.rows(); ++i)
+      for (int j = 0; j < 3; ++j)
+        Vw(i, j) = std::fma(V(i, 2), R(j, 2), std::fma(V(i, 1), R(j, 1), V(i, 0) * R(j, 0))) + t[j];
+    const Vec3 &a = bound_a_[g_other];
+    const double b = bound_b_[g_other];
+    const Eigen::Matrix3d &Ro = oMo.rotation();
+    const Vec3 &to = oMo.translation();
+    if (bound_kind_[g_other] == 0) {  // a half-space: exact signed distances
+      Vec3 n;
+      for (int j = 0; j < 3; ++j) n[j] = (Ro(j, 0) * a[0] + Ro(j, 1) * a[1]) + Ro(j, 2) * a[2];
+      const double c = b + ddot(n.data(), to.data(), 3);
+      for (Eigen::Index i = 0; i < V.rows(); ++i) {
+        const double vn = V.rows() == 1 ? ddot(&Vw(i, 0), n.data(), 3, V.rows(), 1) : gemv_dot(&Vw(i, 0), n.data(), 3, V.rows(), 1);
+        const double d = vn - c;
+        if (!(d <= tol_)) continue;
+        Vec3 p = Vw.row(i).transpose();
+        Vec3 dn = d * n;
+        if (v_is_a)
+          out.push_back({d, p, p - dn, n, pair, VERTEX, offset + (int)i});
+        else
+          out.push_back({d, p - dn, p, -n, pair, VERTEX, offset + (int)i});
+      }
+      return;
+    }
+    // a bounding sphere: the vertices near it need coal's point queries (and corner tests): Python
+    Vec3 ctr;
+    for (int j = 0; j < 3; ++j) ctr[j] = ((Ro(j, 0) * a[0] + Ro(j, 1) * a[1]) + Ro(j, 2) * a[2]) + to[j];
+    for (Eigen::Index i = 0; i < V.rows(); ++i) {
+      const double est = (Vw.row(i).transpose() - ctr).norm() - b;
+      if (est <= tol_ + 1e-9 * (1.0 + std::abs(b))) throw Fallback{"vertex near a shape that is no half-space"};
+    }
+  }
+
+  // contacts.detect (without the polytope warm start: such models are not compiled)
+  std::vector<Found> detect(const VectorXd &q_m) {
+    std::vector<Found> found;
+    pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q_m);
+    if (pairs_.rows() == 0) return found;
+    save_guesses();
+    const bool coll = pinocchio::computeCollisions(gm_, gd_, false);
+    if (!coll) return found;
+    for (Eigen::Index k = 0; k < pairs_.rows(); ++k) {
+      const auto &res = gd_.collisionResults[k];
+      if (!res.isCollision()) continue;
+      const int first = (int)pairs_(k, 0), second = (int)pairs_(k, 1), jf = (int)pairs_(k, 2), js = (int)pairs_(k, 3);
+      const bool patch = pairs_(k, 4) != 0;
+      const size_t start = found.size();
+      const int na = (int)vertices_[first].rows(), nb_ = (int)vertices_[second].rows();
+      if (na) vertex_contacts(first, jf, second, js, found, (int)k, 0, true);
+      if (nb_) vertex_contacts(second, js, first, jf, found, (int)k, na, false);
+      const auto &c = res.getContact(0);
+      const Vec3 n = -c.normal;
+      const double depth = c.penetration_depth;
+      if (!(std::abs(depth) < 1e100 && std::isfinite(n.dot(n)))) throw Fallback{"coal's contact needs the EPA fallback"};
+      if (patch && depth <= tol_) throw Fallback{"contact patch"};
+      if (found.size() == start && depth <= tol_)
+        found.push_back({depth, c.nearest_points[0], c.nearest_points[1], n, (int)k, WITNESS, 0});
+    }
+    return found;
+  }
+
+  // constraints.contact_rows: w = mask_a (n'J_lin + (p_a n')·(EPS9 J_ang)) - mask_b (same at p_b)
+  MatrixXd contact_rows(const std::vector<Found> &f) {
+    const Eigen::Index nv = model_.nv, m = (Eigen::Index)f.size();
+    const auto &J = data_.J;  // (6, nv) WORLD
+    MatrixXd W(nv, m);
+    for (Eigen::Index i = 0; i < m; ++i) {
+      const int ja = (int)pairs_(f[i].pair, 2), jb = (int)pairs_(f[i].pair, 3);
+      const Vec3 &n = f[i].n;
+      for (Eigen::Index v = 0; v < nv; ++v) {
+        double side[2];
+        for (int s = 0; s < 2; ++s) {
+          const Vec3 &p = s == 0 ? f[i].pa : f[i].pb;
+          const double lin = std::fma(n[2], J(2, v), std::fma(n[1], J(1, v), n[0] * J(0, v)));
+          // E = EPS9 @ J_ang: E[3a+b] = eps[c, a, b] J_ang[c]
+          const double E[9] = {0.0, J(5, v), -J(4, v), -J(5, v), 0.0, J(3, v), J(4, v), -J(3, v), 0.0};
+          double ang = 0.0;
+          for (int a = 0; a < 3; ++a)
+            for (int b = 0; b < 3; ++b) ang = std::fma(p[a] * n[b], E[3 * a + b], ang);
+          side[s] = lin + ang;
+        }
+        W(v, i) = side[0] * mask_(ja, v) - side[1] * mask_(jb, v);
+      }
+    }
+    return W;
+  }
+
+  // constraints.distinct: drop a contact whose row repeats an earlier one (to 1e-12 relative)
+  static std::vector<int> distinct(const MatrixXd &W) {
+    const Eigen::Index m = W.cols();
+    std::vector<int> keep;
+    if (m < 2) {
+      for (int i = 0; i < m; ++i) keep.push_back(i);
+      return keep;
+    }
+    const double thr = 1e-12 * (1.0 + W.cwiseAbs().maxCoeff());
+    for (Eigen::Index j = 0; j < m; ++j) {
+      bool dup = false;
+      for (Eigen::Index i = 0; i < j && !dup; ++i) dup = (W.col(i) - W.col(j)).cwiseAbs().maxCoeff() <= thr;
+      if (!dup) keep.push_back((int)j);
+    }
+    return keep;
+  }
+
+  // numpy's A @ x for a C-ordered A (rows of A: stride `rs` between rows, `cs` along a row)
+  static VectorXd matvec(const double *A, Eigen::Index rows, Eigen::Index cols, Eigen::Index rs, Eigen::Index cs,
+                         const VectorXd &x) {
+    VectorXd y(rows);
+    for (Eigen::Index i = 0; i < rows; ++i)
+      y[i] = rows == 1 ? ddot(A + i * rs, x.data(), cols, cs, 1) : gemv_dot(A + i * rs, x.data(), cols, cs, 1);
+    return y;
+  }
+  static VectorXd wt_times(const MatrixXd &W, const VectorXd &x) {  // W.T @ x (W Fortran-ordered in numpy)
+    return matvec(W.data(), W.cols(), W.rows(), W.rows(), 1, x);
+  }
+  static VectorXd times(const MatrixXd &A, const VectorXd &x) {  // A @ x (A C-ordered in numpy)
+    return matvec(A.data(), A.rows(), A.cols(), 1, A.rows(), x);
+  }
+
+  // Lawson-Hanson NNLS: min ||A x - y||, x >= 0 (scipy.optimize.nnls's method); returns the residual norm
+  static double nnls(const MatrixXd &A, const VectorXd &y, VectorXd &x) {
+    const Eigen::Index n = A.cols();
+    x = VectorXd::Zero(n);
+    std::vector<bool> P(n, false);
+    const double tol = 10.0 * std::max(A.rows(), n) * std::numeric_limits<double>::epsilon() *
+                       A.cwiseAbs().colwise().sum().maxCoeff();
+    for (int outer = 0; outer < 3 * n + 3; ++outer) {
+      VectorXd w = A.transpose() * (y - A * x);
+      Eigen::Index jmax = -1;
+      double wmax = tol;
+      for (Eigen::Index j = 0; j < n; ++j)
+        if (!P[j] && w[j] > wmax) wmax = w[j], jmax = j;
+      if (jmax < 0) break;
+      P[jmax] = true;
+      for (int inner = 0; inner < 3 * n + 3; ++inner) {
+        std::vector<Eigen::Index> idx;
+        for (Eigen::Index j = 0; j < n; ++j)
+          if (P[j]) idx.push_back(j);
+        MatrixXd AP(A.rows(), (Eigen::Index)idx.size());
+        for (size_t k = 0; k < idx.size(); ++k) AP.col(k) = A.col(idx[k]);
+        VectorXd z = AP.colPivHouseholderQr().solve(y);
+        bool pos = true;
+        for (double zk : z) pos = pos && zk > 0.0;
+        if (pos) {
+          x.setZero();
+          for (size_t k = 0; k < idx.size(); ++k) x[idx[k]] = z[k];
+          break;
+        }
+        double alpha = 1.0;
+        for (size_t k = 0; k < idx.size(); ++k)
+          if (z[k] <= 0.0) alpha = std::min(alpha, x[idx[k]] / (x[idx[k]] - z[k]));
+        for (size_t k = 0; k < idx.size(); ++k) x[idx[k]] += alpha * (z[k] - x[idx[k]]);
+        for (size_t k = 0; k < idx.size(); ++k)
+          if (x[idx[k]] <= 1e-300) P[idx[k]] = false, x[idx[k]] = 0.0;
+      }
+    }
+    return (A * x - y).norm();
+  }
+
+  // qp._polish on the active set `act` (LAPACK dgesv, NNLS when singular or not >= 0); empty when rejected
+  bool polish(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
+              const std::vector<int> &act, VectorXd &vp, VectorXd &lp) {
+    const Eigen::Index m = W.cols(), nv = W.rows();
+    lp = VectorXd::Zero(m);
+    if (act.empty()) {
+      vp = v0;
+    } else {
+      const Eigen::Index k = (Eigen::Index)act.size();
+      MatrixXd WA(nv, k), MiWA(nv, k), G(k, k);
+      VectorXd rhs(k);
+      for (Eigen::Index j = 0; j < k; ++j) WA.col(j) = W.col(act[j]);
+      for (Eigen::Index i = 0; i < nv; ++i)  // Minv @ WA, WA.T @ MiWA: dgemm
+        for (Eigen::Index j = 0; j < k; ++j) MiWA(i, j) = gemm_dot(Minv.data() + i, WA.col(j).data(), nv, nv, 1);
+      for (Eigen::Index i = 0; i < k; ++i)
+        for (Eigen::Index j = 0; j < k; ++j) G(i, j) = gemm_dot(WA.col(i).data(), MiWA.col(j).data(), nv);
+      const VectorXd WAv0 = wt_times(WA, v0);
+      for (Eigen::Index i = 0; i < k; ++i) rhs[i] = b[act[i]] - WAv0[i];
+      const double tol = 1e-12 * (1.0 + rhs.cwiseAbs().maxCoeff());
+      MatrixXd lu = G;
+      VectorXd lamA = rhs;
+      std::vector<int> piv(k);
+      int n = (int)k, nrhs = 1, lda = (int)k, ldb = (int)k, info = 0;
+      dgesv_(&n, &nrhs, lu.data(), &lda, piv.data(), lamA.data(), &ldb, &info);
+      bool ok = info == 0 && lamA.minCoeff() >= 0;
+      if (ok) {
+        VectorXd r = times(G, lamA) - rhs;
+        ok = r.cwiseAbs().maxCoeff() <= tol;  // false for NaN too
+      }
+      if (!ok) {  // scipy's own NNLS, as qp._polish calls it (a step with dependent rows: a face on a plane)
+        Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> Gc = G;
+        nb::tuple res = nb::cast<nb::tuple>(scipy_nnls_(Gc, rhs));
+        lamA = nb::cast<VectorXd>(res[0]);
+        const double rnorm = nb::cast<double>(res[1]);
+        if (!(rnorm <= tol)) return false;
+      }
+      vp = v0 + times(MiWA, lamA);
+      for (Eigen::Index j = 0; j < k; ++j) lp[act[j]] = lamA[j];
+    }
+    return (wt_times(W, vp) - b).minCoeff() >= -1e-12 * (1.0 + v0.cwiseAbs().maxCoeff());
+  }
+
+  // qp.solve (primal form, polish ACTIVE_SET): the screen, then the polished projection. The active set
+  // that piqp would report (lam_i > 1e-7 max(1, lam)) is found by a primal-dual active-set iteration on
+  // the contact-space problem; a multiplier near that threshold hands the step to Python.
+  Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv) {
+    const Eigen::Index m = W.cols();
+    const VectorXd slack0 = wt_times(W, v0) - b;
+    if (slack0.minCoeff() >= -1e-13 * (1.0 + v0.cwiseAbs().maxCoeff())) return {v0, VectorXd::Zero(m), 0};
+    if (m == 1) {
+      VectorXd w = W.col(0);
+      VectorXd Miw = times(Minv, w);
+      const double lam1 = std::max(0.0, (b[0] - ddot(w.data(), v0.data(), w.size())) / ddot(w.data(), Miw.data(), w.size()));
+      VectorXd v = v0 + lam1 * Miw;
+      return {v, VectorXd::Constant(1, lam1), 1};
+    }
+    // contact space: G lam - r >= 0, lam >= 0, complementary; r = b - W'v0
+    MatrixXd MiW(W.rows(), m);
+    for (Eigen::Index j = 0; j < m; ++j) MiW.col(j) = Minv * W.col(j);
+    const MatrixXd G = W.transpose() * MiW;
+    const VectorXd r = -slack0;
+    std::vector<bool> A(m);
+    for (Eigen::Index i = 0; i < m; ++i) A[i] = r[i] > 0.0;
+    VectorXd lam = VectorXd::Zero(m);
+    const double scale = 1e-12 * (1.0 + r.cwiseAbs().maxCoeff() + G.cwiseAbs().maxCoeff());
+    bool settled = false;
+    for (int it = 0; it < 4 * m + 8 && !settled; ++it) {
+      std::vector<Eigen::Index> idx;
+      for (Eigen::Index i = 0; i < m; ++i)
+        if (A[i]) idx.push_back(i);
+      lam.setZero();
+      if (!idx.empty()) {
+        const Eigen::Index k = (Eigen::Index)idx.size();
+        MatrixXd GA(k, k);
+        VectorXd rA(k), z;
+        for (Eigen::Index i = 0; i < k; ++i) {
+          rA[i] = r[idx[i]];
+          for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
+        }
+        nnls(GA, rA, z);  // least squares >= 0 on A (rows may be dependent)
+        for (Eigen::Index i = 0; i < k; ++i) lam[idx[i]] = z[i];
+      }
+      const VectorXd y = G * lam - r;
+      settled = true;
+      for (Eigen::Index i = 0; i < m; ++i) {
+        const bool want = A[i] ? lam[i] > 0.0 || y[i] < -scale : y[i] < -scale;
+        if (want != A[i]) settled = false, A[i] = want;
+      }
+    }
+    if (!settled) throw Fallback{"active set did not settle"};
+    const double lmax = std::max(1.0, lam.maxCoeff());
+    // piqp (an interior point) spreads the multipliers over dependent rows (a face resting on a plane:
+    // four rows of rank 3): every tight row (W'v = b to round-off) is taken as active
+    const VectorXd y = G * lam - r;
+    std::vector<int> act;
+    for (Eigen::Index i = 0; i < m; ++i) {
+      if (lam[i] > 1e-10 * lmax && lam[i] <= 1e-5 * lmax) throw Fallback{"a multiplier near piqp's activity threshold"};
+      if (lam[i] > 1e-5 * lmax || std::abs(y[i]) <= scale) act.push_back((int)i);
+    }
+    VectorXd vp, lp;
+    if (!polish(W, v0, b, Minv, act, vp, lp)) throw Fallback{"polish rejected"};
+    return {vp, lp, 1};
+  }
+
+  nb::tuple step_(const VectorXd &q, const VectorXd &u, double h, double e) {
+    const Eigen::Index nv = model_.nv;
+    if (q.size() != model_.nq || u.size() != nv) throw nb::value_error("q, u: sizes nq, nv expected");
+    VectorXd q_m = pinocchio::integrate(model_, q, (0.5 * h) * u);
+    const double travel = h * (nv ? u.cwiseAbs().maxCoeff() : 0.0) * reach_;
+    std::vector<Found> found = detect(q_m);
+    if (tunnelling_ == 2 || (tunnelling_ == 0 && travel > thinnest_)) throw Fallback{"swept detection"};
+    if (found.empty()) {
+      VectorXd u_free = free_velocity(q_m, u, h);
+      VectorXd q_next = pinocchio::integrate(model_, q_m, (0.5 * h) * u_free);
+      VectorXd out(q_next.size() + nv);  // one array crosses (each numpy array made costs ~1 us)
+      out << q_next, u_free;
+      return nb::make_tuple(FLIGHT, out);
+    }
+    if ((int)found.size() > max_contacts_) throw Fallback{"more contacts than the compiled step takes"};
+    // constraints.assemble_constraints: M by CRBA (fills the WORLD Jacobians), rows, distinct rows
+    MatrixXd M = crba_world(q_m);
+    MatrixXd W0 = contact_rows(found);
+    std::vector<int> keep = distinct(W0);
+    const Eigen::Index m = (Eigen::Index)keep.size();
+    MatrixXd W(nv, m);
+    std::vector<Found> con;
+    for (Eigen::Index j = 0; j < m; ++j) W.col(j) = W0.col(keep[j]), con.push_back(found[keep[j]]);
+    MatrixXd Minv = minverse(q_m);
+    VectorXd u_free = free_velocity(q_m, u, h);
+    VectorXd v_free = (u_free + e * u) / (1.0 + e);
+    // solve_impact
+    VectorXd gamma_minus = wt_times(W, u);
+    VectorXd b = VectorXd::Zero(m);  // law.restitution_bounds (None -> b = 0 in qp.solve)
+    {
+      bool any = false;
+      VectorXd e_i = VectorXd::Constant(m, e);
+      if (sep_elastic_ && e < 1.0 && std::max(0.0, gamma_minus.maxCoeff()) > 0.0) {
+        any = true;
+        for (Eigen::Index i = 0; i < m; ++i) e_i[i] = gamma_minus[i] > 0.0 ? 1.0 : e;
+      }
+      if (slow_plastic_ && e > 0.0 && std::min(0.0, gamma_minus.minCoeff()) < 0.0) {
+        VectorXd du = u_free - u;
+        VectorXd wdu = wt_times(W, du);
+        bool slow_any = false;
+        for (Eigen::Index i = 0; i < m; ++i) {
+          if (gamma_minus[i] < 0.0 && gamma_minus[i] >= wdu[i]) slow_any = true, e_i[i] = 0.0;
+        }
+        any = any || slow_any;
+      }
+      if (any)
+        for (Eigen::Index i = 0; i < m; ++i) b[i] = ((e - e_i[i]) * gamma_minus[i]) / (1.0 + e);
+    }
+    Solved res = project(W, v_free, b, Minv);
+    VectorXd u_next = res.v - e * (u - res.v);
+    VectorXd P = (1.0 + e) * res.lam;
+    VectorXd gamma_plus = wt_times(W, u_next);
+    VectorXd gsum = gamma_plus + gamma_minus;
+    const double work = ddot(P.data(), gsum.data(), m) * 0.5;
+    VectorXd q_next = pinocchio::integrate(model_, q_m, (0.5 * h) * u_next);
+    double corr = 0.0;
+    VectorXd g(m);
+    for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
+    if (projection_) correct_positions(q, u, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
+    // one float and one int array cross (moreau_sim/compiled.py slices them): q_next, u_next, g, point_a,
+    // point_b, normal (m x 3, row-major), P, gamma_minus, gamma_plus, v, lam, M (nv x nv), W (column-major),
+    // v_free, b; pair, kind, feature, joint_a, joint_b
+    const Eigen::Index nq = q_next.size();
+    VectorXd out(nq + 2 * nv + m + 9 * m + 3 * m + nv + m + nv * nv + nv * m + nv + m);
+    Eigen::Index o = 0;
+    auto put = [&](const double *src, Eigen::Index n) {
+      for (Eigen::Index k = 0; k < n; ++k) out[o++] = src[k];
+    };
+    put(q_next.data(), nq), put(u_next.data(), nv), put(g.data(), m);
+    for (Eigen::Index i = 0; i < m; ++i) put(con[i].pa.data(), 3);
+    for (Eigen::Index i = 0; i < m; ++i) put(con[i].pb.data(), 3);
+    for (Eigen::Index i = 0; i < m; ++i) put(con[i].n.data(), 3);
+    put(P.data(), m), put(gamma_minus.data(), m), put(gamma_plus.data(), m), put(res.v.data(), nv);
+    put(res.lam.data(), m), put(M.data(), nv * nv), put(W.data(), nv * m), put(v_free.data(), nv), put(b.data(), m);
+    VectorXl ints(5 * m);
+    for (Eigen::Index i = 0; i < m; ++i) {
+      ints[i] = con[i].pair, ints[m + i] = con[i].kind, ints[2 * m + i] = con[i].feature;
+      ints[3 * m + i] = pairs_(con[i].pair, 2), ints[4 * m + i] = pairs_(con[i].pair, 3);
+    }
+    return nb::make_tuple(CONTACT, out, ints, (int)m, work, res.status, corr);
+  }
+
+  // stepper.correct_positions
+  void correct_positions(const VectorXd &q, const VectorXd &u, double h, const VectorXd &g, const VectorXd &gamma_plus,
+                         const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W, const MatrixXd &Minv,
+                         VectorXd &q_next, double &corr) {
+    (void)M;
+    const Eigen::Index m = g.size();
+    VectorXd g_next = g + (0.5 * h) * gamma_plus;
+    if (m == 0 || g_next.minCoeff() >= -tol_) return;
+    const double E0 = energy(q, u);
+    const double E1 = energy(q_next, u_next);
+    const double budget = E0 - E1;
+    if (budget <= 0.0) return;
+    Solved res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
+    VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
+    double dE = energy(q_c, u_next) - E1;
+    if (dE > budget) {
+      q_c = pinocchio::integrate(model_, q_next, (budget / dE) * res.v);
+      dE = energy(q_c, u_next) - E1;
+      if (dE > budget) return;
+    }
+    const VectorXd before = pair_distances(q_next), after = pair_distances(q_c);
+    for (Eigen::Index k = 0; k < before.size(); ++k)
+      if (after[k] < std::min(before[k], 0.0) - tol_) return;
+    q_next = q_c;
+    corr = dE;
+  }
+};
+
+NB_MODULE(_step, mod) {
+  mod.doc() = "The compiled midpoint Moreau contact step (moreau_sim/compiled.py).";
+  mod.attr("FLIGHT") = FLIGHT;
+  mod.attr("CONTACT") = CONTACT;
+  mod.attr("FALLBACK") = FALLBACK;
+  nb::class_<Stepper>(mod, "Stepper")
+      .def(nb::init<nb::object, nb::object, nb::object, nb::object, std::vector<MatrixXd>, std::vector<int>,
+                    std::vector<Vec3>, std::vector<double>, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic>,
+                    MatrixXd, double, double, double, int, bool, bool, bool, bool, bool, int, uintptr_t>())
+      .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"));
+}
