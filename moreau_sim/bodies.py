@@ -16,7 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from . import robots
-from .errors import SceneError
+from .errors import SceneError, one_line
 from .options import RootJoint
 from .scene import Body
 from .shapes import unit
@@ -151,12 +151,6 @@ def quiet_stderr():
         os.close(saved)
 
 
-def _one_line(exc: BaseException, n: int = 300) -> str:
-    """A library's (often multi-line C++) message as one line of at most n characters."""
-    text = " ".join(str(exc).split())
-    return text if len(text) <= n else text[:n - 3] + "..."
-
-
 def _short(value, n: int = 40) -> str:
     """repr of a value, cut to n characters (an error message never repeats a huge input)."""
     text = repr(value)
@@ -183,7 +177,7 @@ def load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str
                 g = pin.buildGeomFromUrdfString(m, xml, pin.GeometryType.COLLISION, package_dirs=[str(path.parent)],
                                                 mesh_loader=_MESH_LOADER)
         except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with multi-line C++ text
-            raise SceneError(f"{path}: Pinocchio cannot load this URDF: {_one_line(exc)} [{where} urdf]") from None
+            raise SceneError(f"{path}: Pinocchio cannot load this URDF: {one_line(exc)} [{where} urdf]") from None
         loaded: dict[str, int] = {}
         for go in g.geometryObjects:
             link = m.frames[go.parentFrame].name

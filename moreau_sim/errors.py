@@ -23,3 +23,9 @@ class SimulationError(MoreauSimError, RuntimeError):
 
 class SimulationInterrupted(SimulationError):
     """The run was interrupted (Ctrl-C, SIGTERM): ``trajectory`` holds the samples so far."""
+
+
+def one_line(message: object, n: int = 300) -> str:
+    """A message (often a library's multi-line C++ text) on one line of at most n characters."""
+    text = " ".join(str(message).split())
+    return text if len(text) <= n else text[:n - 3] + "..."

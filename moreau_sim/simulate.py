@@ -11,7 +11,7 @@ from tqdm import tqdm
 
 from .adaptive import simulate_adaptive
 from .data import Data, make_data
-from .errors import MoreauSimError, SimulationError, SimulationInterrupted
+from .errors import MoreauSimError, SimulationError, SimulationInterrupted, one_line
 from .event_driven import simulate_event_driven
 from .model import Model, build_model, initial_state
 from .options import Integrator
@@ -95,11 +95,9 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     return rec.trajectory(_meta(model, "complete", n, wall))
 
 
-def _one_line(exc: BaseException, n: int = 300) -> str:
-    """An exception as one short line: its type and its message's lines joined, cut to n characters."""
-    msg = " ".join(str(exc).split())
-    text = msg if isinstance(exc, MoreauSimError) else f"{type(exc).__name__}: {msg}"
-    return text if len(text) <= n else text[:n - 3] + "..."
+def _one_line(exc: BaseException) -> str:
+    """An exception as one short line, with its type unless it is one of ours."""
+    return one_line(exc if isinstance(exc, MoreauSimError) else f"{type(exc).__name__}: {exc}")
 
 
 def _meta(model: Model, status: str, steps: int, wall: float) -> dict:
