@@ -92,9 +92,9 @@ def test_same_trajectory_both_ways(path):
 def test_step_impl_is_a_scene_key(tmp_path):
     text = (Path(__file__).resolve().parent.parent / "scenes" / "bouncing_ball.toml").read_text()
     ball = Path(__file__).resolve().parent.parent / "scenes" / "bouncing_ball.toml"
-    sc = parse_scene(text.replace("duration = 3.0", 'duration = 3.0\nstep_impl = "python"'), path=ball)
-    assert sc.options.step_impl is StepImpl.PYTHON
-    assert load_scene(ball).options.step_impl is StepImpl.COMPILED  # the default
+    sc = parse_scene(text.replace("duration = 3.0", 'duration = 3.0\nstep_impl = "compiled"'), path=ball)
+    assert sc.options.step_impl is StepImpl.COMPILED
+    assert load_scene(ball).options.step_impl is StepImpl.PYTHON  # the default, until the two agree everywhere
     with pytest.raises(SceneError, match="step_impl"):
         parse_scene(text.replace("duration = 3.0", 'duration = 3.0\nstep_impl = "fortran"'), path=ball)
 
