@@ -74,7 +74,7 @@ def test_admissible_velocity_is_screened_without_a_qp():
     assert res.status == "ADMISSIBLE" and res.ok and res.iterations == 0
     np.testing.assert_array_equal(res.v, u_sep)
     np.testing.assert_array_equal(res.lam, 0.0)
-    solved = qp.solve(M, W, u_sep, screen=False)
+    solved = qp.solve(M, W, u_sep, screen=False, polish=qp.Polish.NONE)
     assert solved.status == "PIQP_SOLVED" and solved.iterations > 0
     np.testing.assert_allclose(solved.v, u_sep, atol=1e-12)
 
@@ -93,9 +93,9 @@ def test_redundant_rows_are_solved_exactly():
 
 
 def test_failure_is_reported_not_polished():
-    """A solve that runs out of iterations: piqp's status, not ok, infinite residual, no polish."""
+    """A piqp solve that runs out of iterations: piqp's status, not ok, infinite residual, no polish."""
     M, W, u = random_problem(0, nv=7, m=5)
-    res = qp.solve(M, W, u, max_iter=1)
+    res = qp.solve(M, W, u, max_iter=1, polish=qp.Polish.NONE)
     assert res.status == "PIQP_MAX_ITER_REACHED"
     assert not res.ok and not res.polished and res.residual == np.inf
 
