@@ -166,7 +166,7 @@ def _polish(W, v0, b, Minv, act=None):
         w = W[:, 0]
         Miw = mul(Minv, w)
         lam1 = max(0.0, float(b[0] - mul(w, v0)) / float(mul(w, Miw)))
-        return v0 + lam1 * Miw, np.array([lam1]), 0
+        return v0 + lam1 * Miw, np.array([lam1]), 1
     scale = 1.0 + np.abs(v0).max(initial=0.0)
     MiW = mul(Minv, W)
     G = mul(W.T, MiW)
