@@ -93,16 +93,16 @@ def _ordered(A, x):
 
 
 def _active_set(G, r, tol, act=None, mul=np.matmul):
-    """The contact-space QP  min 1/2 lam'G lam - r'lam, lam >= 0  (G = W'M^-1 W, r = b - W'v0) by Goldfarb
-    and Idnani's dual active-set method (docs/theory.md §1): from lam = 0 (or the warm start `act`, the
-    rows taken as active), repeatedly add the most violated inactive row p (slack s = G lam - r < -tol;
-    the first such row on ties), moving lam_A along G_AA d = -G_Ap and lam_p by t until row p is tight
-    (t = -s_p/z, z = G_pp + G_pA d) or a multiplier of A reaches zero first (that row leaves A, and the
-    same p is tried again); a row dependent on A (z <= 1e-12 G_pp: four corners of a face on a plane)
-    moves only the multipliers. Returns (act, lam, moves) with every row of act tight, or None when the rows
-    are infeasible, a solve is singular or it takes more than 5 m + 10 moves. mul: the products (_ordered
-    for the cold start, which src/step.cpp mirrors operation for operation with scipy's own dgesv, so both
-    steps decide alike)."""
+    """The contact-space QP  min 1/2 lam'G lam - r'lam, lam >= 0  (G = W'M^-1 W, r = b - W'v0) by
+    Goldfarb and Idnani's dual active-set method (docs/theory.md §1). From lam = 0 (or the warm start
+    `act`, the rows taken as active) it adds the most violated inactive row p (slack s = G lam - r below
+    -tol and the round-off of G lam; the first such row on ties): lam_A moves along G_AA d = -G_Ap and
+    lam_p by t until row p is tight (t = -s_p/z, z = G_pp + G_pA d), or until a multiplier of A reaches
+    zero first (that row leaves A, and the same p is tried again). A row dependent on A (z <= 1e-12 G_pp:
+    four corners of a face on a plane) moves only the multipliers. Returns (act, lam, moves) with every
+    row of act tight, or None when the rows are infeasible, a solve is singular or it takes more than
+    5 m + 10 moves. mul: the products (_ordered for the cold start, which src/step.cpp mirrors operation
+    for operation with scipy's own dgesv, so both steps decide alike)."""
     m = r.shape[0]
     lam = np.zeros(m)
     if act is None:
@@ -115,12 +115,12 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
         else:
             act = act.copy()
             lam[idx] = x
-    moves = 0
+    moves, gmax = 0, np.abs(G).max()
     while True:
         s = mul(G, lam) - r
         s[act] = np.inf
         p = int(np.argmin(s))
-        if s[p] >= -tol:
+        if s[p] >= -(tol + 1e-14 * m * gmax * lam.max()):  # tol, or the round-off of G lam when lam is large
             return act, lam, moves
         while True:  # add p, dropping the rows whose multipliers reach zero on the way
             moves += 1

@@ -170,6 +170,7 @@ bool active_set(dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol,
   act.assign(m, 0);
   lam = VectorXd::Zero(m);
   int moves = 0;
+  const double gmax = G.cwiseAbs().maxCoeff();
   std::vector<Eigen::Index> idx;
   VectorXd d, rhs, Gp;
   MatrixXd GA;
@@ -181,7 +182,7 @@ bool active_set(dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol,
       const double si = act[i] ? inf : s[i];
       if (si < best) best = si, p = i;
     }
-    if (best >= -tol) return true;
+    if (best >= -(tol + 1e-14 * (double)m * gmax * lam.maxCoeff())) return true;
     while (true) {  // add p, dropping the rows whose multipliers reach zero on the way
       if (++moves > 5 * m + 10) return false;
       idx.clear();
