@@ -96,13 +96,14 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
     """The contact-space QP  min 1/2 lam'G lam - r'lam, lam >= 0  (G = W'M^-1 W, r = b - W'v0) by
     Goldfarb and Idnani's dual active-set method (docs/theory.md §1). From lam = 0 (or the warm start
     `act`, the rows taken as active) it adds the most violated inactive row p (slack s = G lam - r below
-    -tol and the round-off of G lam; the first such row on ties): lam_A moves along G_AA d = -G_Ap and
-    lam_p by t until row p is tight (t = -s_p/z, z = G_pp + G_pA d), or until a multiplier of A reaches
-    zero first (that row leaves A, and the same p is tried again). A row dependent on A (z <= 1e-12 G_pp:
-    four corners of a face on a plane) moves only the multipliers. Returns (act, lam, moves) with every
-    row of act tight, or None when the rows are infeasible, a solve is singular or it takes more than
-    5 m + 10 moves. mul: the products (_ordered for the cold start, which src/step.cpp mirrors operation
-    for operation with scipy's own dgesv, so both steps decide alike)."""
+    -tol; the first such row on ties): lam_A moves along G_AA d = -G_Ap and lam_p by t until row p is
+    tight (t = -s_p/z, z = G_pp + G_pA d), or until a multiplier of A reaches zero first (that row leaves
+    A, and the same p is tried again). A row dependent on A (z <= 1e-12 G_pp: four corners of a face on
+    a plane) moves only the multipliers; if none can shrink, p counts as met when its violation is within
+    the round-off of G lam, else the rows cannot all be met. Returns (act, lam, moves) with every row of
+    act tight, or None when the rows are infeasible, a solve is singular or it takes more than 5 m + 10
+    moves. mul: the products (_ordered for the cold start, which src/step.cpp mirrors operation for
+    operation with scipy's own dgesv, so both steps decide alike)."""
     m = r.shape[0]
     lam = np.zeros(m)
     if act is None:
@@ -120,7 +121,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
         s = mul(G, lam) - r
         s[act] = np.inf
         p = int(np.argmin(s))
-        if s[p] >= -(tol + 1e-14 * m * gmax * lam.max()):  # tol, or the round-off of G lam when lam is large
+        if s[p] >= -tol:
             return act, lam, moves
         while True:  # add p, dropping the rows whose multipliers reach zero on the way
             moves += 1
@@ -142,8 +143,10 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
                 ratio = lam[idx[neg]] / -d[neg]
                 j = int(np.argmin(ratio))
                 t2, k = ratio[j], int(idx[neg][j])
-            if t1 == np.inf and t2 == np.inf:
-                return None  # no multiplier can grow: the rows cannot all be met (or z is NaN)
+            if t1 == np.inf and t2 == np.inf:  # p depends on A and no multiplier of A can shrink
+                if lam[p] == 0.0 and sp >= -(tol + 1e-14 * m * gmax * lam.max()):
+                    return act, lam, moves  # p is met to the round-off of G lam (lam large): as met as it can be
+                return None  # the rows cannot all be met (or z is NaN)
             t = t1 if t1 <= t2 else t2
             lam[idx] = lam[idx] + t * d
             lam[p] = lam[p] + t

@@ -182,7 +182,7 @@ bool active_set(dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol,
       const double si = act[i] ? inf : s[i];
       if (si < best) best = si, p = i;
     }
-    if (best >= -(tol + 1e-14 * (double)m * gmax * lam.maxCoeff())) return true;
+    if (best >= -tol) return true;
     while (true) {  // add p, dropping the rows whose multipliers reach zero on the way
       if (++moves > 5 * m + 10) return false;
       idx.clear();
@@ -211,7 +211,8 @@ bool active_set(dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol,
         const double ratio = lam[idx[j]] / -d[j];
         if (kk < 0 || ratio < t2) t2 = ratio, kk = idx[j];
       }
-      if (t1 == inf && t2 == inf) return false;
+      if (t1 == inf && t2 == inf)  // p depends on A and no multiplier of A can shrink: met to round-off, or not
+        return lam[p] == 0.0 && sp >= -(tol + 1e-14 * (double)m * gmax * lam.maxCoeff());
       const double t = t1 <= t2 ? t1 : t2;
       for (Eigen::Index j = 0; j < k; ++j) lam[idx[j]] = lam[idx[j]] + t * d[j];
       lam[p] = lam[p] + t;
