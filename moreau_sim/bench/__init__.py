@@ -15,11 +15,15 @@ Modules:
   (scripts/work_precision.py).
 - stability: the stress suite side by side (scripts/stability.py).
 - step_costs: the cost of one step split into dynamics, collision, QP and glue (scripts/bench_step.py).
+- compiled_costs: the compiled step against the Python step (and MuJoCo's mj_step), one run.
+- adaptive_costs: the adaptive integrator against the event-driven one and the fixed step.
+- robots_table: the bundled robot scenes' figures (scripts/robots_table.py).
+- doc_tables: every table of docs/*.md generated from the committed JSON, and the drift check.
 - check_peers: every available peer against the exact references (scripts/check_peers.py).
 - corner_branches, plot_sweep: figures (scripts/corner_branches.py, scripts/plot_sweep.py).
 
 Every driver writes to out/ by default; `--out docs/bench` (work_precision, bench_step,
-compiled_costs, robots_table) or `--out docs/stability.md` (stability) regenerates the committed
+compiled_costs, adaptive_costs, robots_table) or `--out docs/stability.md` (stability) regenerates the committed
 files. The tables of figures in docs/*.md are generated from the committed JSON, never typed: each
 sits between the markers of `splice_table`, and each driver's `--table JSON DOC` rewrites its own
 (doc_tables: all of them at once, and the check that none drifted).
