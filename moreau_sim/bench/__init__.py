@@ -23,9 +23,9 @@ Modules:
 - corner_branches, plot_sweep: figures (scripts/corner_branches.py, scripts/plot_sweep.py).
 
 Every driver writes to out/ by default; `--out docs/bench` (work_precision, bench_step,
-compiled_costs, adaptive_costs, robots_table) or `--out docs/stability.md` (stability) regenerates the committed
-files. The tables of figures in docs/*.md are generated from the committed JSON, never typed: each
-sits between the markers of `splice_table`, and each driver's `--table JSON DOC` rewrites its own
+compiled_costs, adaptive_costs, robots_table, stability) regenerates the committed files. The
+tables of figures in docs/*.md are generated from the committed JSON, never typed: each sits
+between the markers of `splice_table`, and each driver's `--table JSON DOC` rewrites its own
 (doc_tables: all of them at once, and the check that none drifted).
 
 Peers, install:
