@@ -65,3 +65,15 @@ def test_the_sweep_example_of_docs_sweeps_is_what_the_sweep_writes(tmp_path):
     with open(res.table, newline="") as f:
         ran = [{c: r[c] for c in cols} for r in csv.DictReader(f)]
     assert doc == ran
+
+
+def test_a_rerun_without_mujoco_still_renders():
+    """compiled_costs.json of a run where mujoco was not importable (another engineer's machine)."""
+    from moreau_sim.bench import compiled_costs
+
+    data = json.loads((REPO / "docs/bench/compiled_costs.json").read_text(encoding="utf-8"))
+    data["mujoco"] = None
+    table = compiled_costs.markdown_table(data)
+    assert "MuJoCo not installed in that run" in table
+    rows = [ln for ln in table.splitlines() if ln.startswith("| `")]
+    assert len(rows) == len(data["cases"]) and all(ln.endswith("| – | – |") for ln in rows)

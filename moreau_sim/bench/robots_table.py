@@ -102,10 +102,7 @@ def table(rows: dict) -> str:
 
 def doc_tables(data: dict) -> dict[str, str]:
     """The tables of docs/robots.md this script's JSON gives (marker name: Markdown)."""
-    out = {"robots table": table(data["scenes"])}
-    if "meshes" in data:
-        out["mesh-mode table"] = mesh_table(data["meshes"])
-    return out
+    return {"robots table": table(data["scenes"]), "mesh-mode table": mesh_table(data["meshes"])}
 
 
 def main(argv=None) -> int:
