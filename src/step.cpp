@@ -6,8 +6,8 @@
 // the same order, no FMA contraction), for the contacts of the simple scenes: polytope vertices against
 // a half-space (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight
 // steps; the restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed
-// form for one contact, else qp._active_set's dual active set, re-solved and checked as qp._polish does); the energy-budgeted
-// position correction with its pair-distance guard. Anything else returns FALLBACK with a reason and
+// form for one contact, else qp._active_set's dual active set, re-solved and checked as qp._polish does);
+// the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with a reason and
 // the Python step (the reference) takes the step: corners, point queries against non-half-spaces,
 // contact patches, swept detection, coal's EPA fallback, more than MAX_CONTACTS contacts, a projection
 // the active set does not settle (where qp.solve turns to piqp).
