@@ -234,9 +234,11 @@ def plot(file, png, panels):
 
 from .sweep_cli import sweep  # noqa: E402  (thin commands in their own modules)
 from .viewer_cli import view  # noqa: E402
+from .regress_cli import regress  # noqa: E402
 
 main.add_command(sweep)
 main.add_command(view)
+main.add_command(regress)
 
 if __name__ == "__main__":
     main()

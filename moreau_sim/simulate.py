@@ -66,6 +66,7 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
             corr += r.correction_energy
             previous = rec.log_percussions(k + 1, state.t + 0.5 * h, r.contacts, r.P, r.gamma_minus, r.gamma_plus,
                                            previous)
+            rec.account_step(k + 1, state.t + 0.5 * h, state, r, h, e)
             if r.branch is not None:
                 sol, chosen, u_plus = r.branch
                 rec.branch(k + 1, state.t + 0.5 * h, chosen,
