@@ -84,7 +84,8 @@ def regress(scenes, directory, update, settings, rtol, atol, tol_specs, junit_fi
         except OSError as exc:
             _fail(f"{junit_file}: cannot write the JUnit report ({exc.strerror or exc})")
     bad = [r for r in results if r.status in ("drift", "failed")]
-    click.echo(f"{len(results)} scenes: {len(results) - len(bad) - errors} within tolerance"
+    click.echo(f"{len(results)} scene{'' if len(results) == 1 else 's'}: {len(results) - len(bad) - errors} within "
+               "tolerance"
                + ("" if not bad else f", {len(bad)} drifted or failed: {', '.join(r.scene for r in bad)}")
                + ("" if not errors else f", {errors} not run (bad input)"))
     sys.exit(2 if errors else 1 if bad else 0)
