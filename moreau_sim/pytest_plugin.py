@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from .regress import write_baseline
-from .testing import assert_dissipation_follows_law, assert_matches_baseline, assert_no_energy_gain
+# The simulator is imported when a test uses the fixture, not when pytest loads the plugin: every
+# pytest run in an environment with moreau-sim installed loads it.
 
 
 def pytest_addoption(parser):
@@ -44,6 +44,9 @@ class EnergyLedger:
         checked); no energy gain beyond no_gain_rtol (None, the default: not checked; the smooth
         motion of a jointed robot oscillates at O(h^2)); then the baseline within `tolerances`
         {quantity: (rtol, atol)} (regress.py's defaults otherwise)."""
+        from .regress import write_baseline
+        from .testing import assert_dissipation_follows_law, assert_matches_baseline, assert_no_energy_gain
+
         if no_gain_rtol is not None:
             assert_no_energy_gain(traj, rtol=no_gain_rtol)
         if law_rtol is not None:

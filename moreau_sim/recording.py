@@ -151,6 +151,8 @@ class Recorder:
         c["n_contacts"][i] = n_contacts
         if self._E is not None:  # contact-free motion since the last accounted state (0 after a step)
             self._smooth += (T + V) - self._E
+            if (T + V) - self._E > self._rise[0]:  # event-driven, adaptive: a smooth stretch counts as a step
+                self._rise = ((T + V) - self._E, float(state.t))
         c["smooth_error"][i], c["dissipation"][i], c["law_dissipation"][i] = self._smooth, self._diss, self._law
         self._smooth = self._diss = self._law = 0.0
         self._E, self._at = T + V, (q, u)
@@ -167,6 +169,8 @@ class Recorder:
             E0 = total(m, d, q0, u0)
             if self._E is not None:
                 self._smooth += E0 - self._E
+                if E0 - self._E > self._rise[0]:
+                    self._rise = (E0 - self._E, float(before.t))
         E1 = total(m, d, q1, u1)
         if E1 - E0 > self._rise[0]:
             self._rise = (E1 - E0, float(r.state.t))
@@ -189,6 +193,8 @@ class Recorder:
         E0 = total(m, d, q, u_minus)
         if self._E is not None:
             self._smooth += E0 - self._E
+            if E0 - self._E > self._rise[0]:
+                self._rise = (E0 - self._E, float(t))
         T_minus, T_plus, law = impact_terms(M, u_minus, v, u_minus, u_plus, e, P, None)
         self._add_impact(self.n, t, T_minus, T_plus, law, int(np.count_nonzero(P > 0)), True)
         self._E, self._at = total(m, d, q, u_plus), None

@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
+from importlib.metadata import entry_points
 
 import numpy as np
 import pytest
@@ -196,10 +197,14 @@ def test_pytest_fixture_in_three_lines(tmp_path):
     restitution fails with the drift table, --ledger-update accepts it."""
     test = tmp_path / "test_user.py"
 
+    # an installed package registers the plugin by its entry point; a source tree needs -p
+    installed = any(ep.name == "moreau_sim" for ep in entry_points(group="pytest11"))
+    plugin = [] if installed else ["-p", "moreau_sim.pytest_plugin"]
+
     def pytest_run(e, *extra):
         test.write_text(USER_TEST.format(scene=SCENES / "bouncing_ball.toml", e=e))
-        return subprocess.run([sys.executable, "-m", "pytest", "-p", "moreau_sim.pytest_plugin", "-q", str(test),
-                               "-p", "no:cacheprovider", *extra], capture_output=True, text=True, cwd=tmp_path,
+        return subprocess.run([sys.executable, "-m", "pytest", *plugin, "-q", str(test), "-p", "no:cacheprovider",
+                               *extra], capture_output=True, text=True, cwd=tmp_path,
                               env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=300)
 
     r = pytest_run(0.8)
