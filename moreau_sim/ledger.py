@@ -168,6 +168,9 @@ def ledger(traj: Trajectory) -> Ledger:
 # ---- comparison with a baseline record -----------------------------------------------------------
 
 DEFAULT_TOLERANCE = (1e-6, 1e-9)  # (rtol, atol [J]) of every quantity unless given
+TOTALS = ("energy_start", "energy_end", "contact_work", "correction", "smooth_error", "dissipation", "law", "residual",
+          "max_step_rise", "impacts")  # the keys of Ledger.totals()
+QUANTITIES = TOTALS + ("impact_t", "impact_dissipated", "energy", "default")  # what a tolerance can name
 
 
 @dataclass(frozen=True, slots=True)

@@ -11,7 +11,7 @@ from pathlib import Path
 import click
 
 from .errors import MoreauSimError
-from .ledger import DEFAULT_TOLERANCE
+from .ledger import DEFAULT_TOLERANCE, QUANTITIES
 from .regress import Result, check_scene, junit
 from .sweep import parse_param
 
@@ -33,7 +33,9 @@ def _tolerances(rtol, atol, specs) -> dict | None:
             r, a = (float(x) for x in value.split(","))
         except ValueError:
             _fail(f"command line: --tol {spec}: expected NAME=RTOL,ATOL (e.g. energy_end=1e-6,1e-9)")
-        if not name or r < 0 or a < 0:
+        if name not in QUANTITIES:
+            _fail(f"command line: --tol {spec}: unknown quantity {name!r}; one of {', '.join(QUANTITIES)}")
+        if r < 0 or a < 0:
             _fail(f"command line: --tol {spec}: expected NAME=RTOL,ATOL with RTOL, ATOL >= 0")
         out[name] = (r, a)
     return out or None

@@ -110,6 +110,12 @@ def test_event_driven_ledger():
     assert_budget_closes(traj, rtol=1e-12)
 
 
+def test_totals_name_every_quantity():
+    from moreau_sim.ledger import TOTALS
+
+    assert tuple(ms.ledger(run("bouncing_ball", duration=0.5)).totals()) == TOTALS
+
+
 def test_ledger_is_in_the_file_and_old_files_have_none(tmp_path):
     traj = run("box_drop", duration=0.5)
     back = ms.load_trajectory(traj.save(tmp_path / "b.npz"))
@@ -176,7 +182,8 @@ def test_regress_command(tmp_path):
     r = cli("regress", ball, box, "--baseline", base)
     assert r.returncode == 2 and "bouncing_ball.json: not JSON" in r.stderr and "OK       box_drop" in r.stdout
     assert len(r.stderr.strip().splitlines()) == 1
-    for args, words in ((("--tol", "x=1"), "--tol x=1"), (("--set", "restitution=2"), "--set restitution=2")):
+    for args, words in ((("--tol", "x=1"), "--tol x=1"), (("--tol", "energy_edn=1e-3,0"), "unknown quantity"),
+                        (("--set", "restitution=2"), "--set restitution=2")):
         r = cli("regress", box, "--baseline", base, *args)
         assert r.returncode == 2 and words in r.stderr, r.stderr
     r = cli("regress", SCENES / "zeno_ball.toml", "--baseline", base)
