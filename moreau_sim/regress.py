@@ -142,9 +142,15 @@ def check_scene(scene: str | Path, directory: str | Path, *, update: bool = Fals
     except SimulationError as exc:
         return Result(sc.name, str(scene), "failed", message=f"the run failed: {exc}",
                       seconds=time.perf_counter() - t0)
-    if update:
+    if update:  # what the new baseline changes, when there was one, is shown (it is accepted)
+        try:
+            old = read_baseline(path) if path.exists() else None
+        except ValueError:
+            old = None
+        accepted = compare(ledger(traj).record(), old["ledger"], tolerances) if old else []
         write_baseline(path, traj, overrides=used, tolerances=tolerances)
-        return Result(sc.name, str(scene), "recorded", notes=[f"baseline written to {path}"],
+        return Result(sc.name, str(scene), "recorded", accepted,
+                      [f"baseline written to {path}"] + (["it replaces these figures:"] if accepted else []),
                       seconds=time.perf_counter() - t0)
     tol = tolerances or {k: tuple(v) for k, v in doc.get("tolerances", {}).items()} or None
     drifts = compare(ledger(traj).record(), doc["ledger"], tol)

@@ -177,6 +177,9 @@ def test_regress_command(tmp_path):
     assert "energy_end" in r.stdout and "impact 1 dissipated" in r.stdout
     suite = ET.parse(xml).getroot().find("testsuite")
     assert suite.get("failures") == "2" and suite.find("testcase/failure").get("type") == "drift"
+    r = cli("regress", box, "--baseline", base, "--set", "restitution=0.3", "--update")  # accept it, showing what
+    assert r.returncode == 0 and "RECORDED box_drop" in r.stdout and "energy_end" in r.stdout
+    assert cli("regress", box, "--baseline", base).returncode == 0  # the override is recorded too
     # bad input: exit 2 with one line naming the file or the flag; the other scenes still run
     (base / "bouncing_ball.json").write_text("{not json")
     r = cli("regress", ball, box, "--baseline", base)
