@@ -131,6 +131,10 @@ class Ledger:
         return "\n".join(lines)
 
 
+def _time(t) -> float:
+    return math.nan if t is None else float(t)
+
+
 def _rel(x: float, scale: float) -> str:
     return f"{abs(x) / scale:.1e}" if scale > 0 else "n/a"
 
@@ -160,8 +164,8 @@ def ledger(traj: Trajectory) -> Ledger:
         contact_work=float(a["contact_work"].sum()), correction=float(a["correction_energy"].sum()),
         smooth_error=float(a["smooth_error"].sum()), dissipation=float(a["dissipation"].sum()),
         law=float(a["law_dissipation"].sum()), residual=float(E[-1] - E[0] - budget[1:].sum()),
-        max_step_rise=float(led["max_step_rise"]), t_step_rise=float(led["t_step_rise"]),
-        max_law_difference=float(led["max_law_difference"]), t_law_difference=float(led["t_law_difference"]),
+        max_step_rise=float(led["max_step_rise"]), t_step_rise=_time(led["t_step_rise"]),
+        max_law_difference=float(led["max_law_difference"]), t_law_difference=_time(led["t_law_difference"]),
         contact_steps=int(led["contact_steps"]), impacts=impacts, t=a["t"], E=E, residuals=residuals)
 
 

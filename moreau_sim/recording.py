@@ -215,11 +215,13 @@ class Recorder:
             c["impact_dissipation"][i], c["impact_law"][i] = T_minus - T_plus, law
 
     def ledger_meta(self) -> dict:
-        """The per-run ledger figures no array holds (meta["ledger"] of the trajectory)."""
+        """The per-run ledger figures no array holds (meta["ledger"] of the trajectory; a time is None
+        when there was no such step: JSON has no NaN)."""
         rise, t_rise = self._rise if np.isfinite(self._rise[0]) else (0.0, np.nan)
-        return {"max_step_rise": float(rise), "t_step_rise": float(t_rise),
+        t_diff = self._law_difference[1]
+        return {"max_step_rise": float(rise), "t_step_rise": None if np.isnan(t_rise) else float(t_rise),
                 "max_law_difference": float(self._law_difference[0]),
-                "t_law_difference": float(self._law_difference[1]), "contact_steps": self._contact_steps}
+                "t_law_difference": None if np.isnan(t_diff) else float(t_diff), "contact_steps": self._contact_steps}
 
     def finite(self) -> bool:
         """Whether the last sample's energies and gaps are finite (an overflow shows there first)."""

@@ -83,13 +83,14 @@ def assert_budget_closes(traj: Trajectory | Ledger, *, rtol: float = 1e-9, atol:
 
 def assert_matches_baseline(traj: Trajectory | Ledger, baseline: str | Path | dict, *,
                             tolerances: dict | None = None, update: bool = False) -> None:
-    """The ledger matches a recorded baseline: a JSON file of `moreau-sim regress` (or its dict),
-    within tolerances {quantity: (rtol, atol [J])} ("default" for the rest; docs/regression.md).
+    """The ledger matches a recorded baseline: a JSON file of `moreau-sim regress` (a path ending in
+    .json; any other path is a folder holding SCENE_NAME.json) or its dict, within tolerances
+    {quantity: (rtol, atol [J])} ("default" for the rest; docs/regression.md).
     update: write the baseline from this run instead (also when the file does not exist yet)."""
     L = _ledger(traj)
     if not isinstance(baseline, dict):
         path = Path(baseline)
-        if path.is_dir():
+        if path.suffix != ".json":
             path = baseline_path(path, L.scene)
         if update or not path.exists():
             if not isinstance(traj, Trajectory):

@@ -121,6 +121,9 @@ def test_ledger_is_in_the_file_and_old_files_have_none(tmp_path):
     back = ms.load_trajectory(traj.save(tmp_path / "b.npz"))
     assert back.meta["format"] == "moreau-sim trajectory 3"
     assert ms.ledger(back).totals() == ms.ledger(traj).totals()
+    flight = run("bouncing_ball", duration=0.1)  # no contact step: no time of a law difference, not NaN
+    assert flight.meta["ledger"]["t_law_difference"] is None and np.isnan(ms.ledger(flight).t_law_difference)
+    assert "NaN" not in json.dumps(flight.meta)
     arrays = {k: v for k, v in traj.arrays.items() if k not in trajectory.LEDGER_ARRAYS}
     meta = {k: v for k, v in traj.meta.items() if k != "ledger"}
     old = tmp_path / "old.npz"
@@ -144,9 +147,11 @@ def test_assertions_fail_with_a_table():
 
 def test_changed_restitution_fails_the_baseline(tmp_path):
     base = run("solo_drop", duration=0.25)
-    assert_matches_baseline(base, tmp_path)  # no baseline yet: recorded
-    assert (tmp_path / "solo_drop.json").exists()
+    assert_matches_baseline(base, tmp_path / "new")  # no baseline yet: recorded in the new folder
+    assert (tmp_path / "new" / "solo_drop.json").is_file()
+    tmp_path = tmp_path / "new"
     assert_matches_baseline(run("solo_drop", duration=0.25), tmp_path)  # the same run: bitwise equal
+    assert_matches_baseline(run("solo_drop", duration=0.25), tmp_path / "solo_drop.json")  # the file itself
     with pytest.raises(AssertionError) as exc:
         assert_matches_baseline(run("solo_drop", duration=0.25, restitution=0.6), tmp_path)
     text = str(exc.value)
