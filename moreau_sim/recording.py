@@ -125,6 +125,7 @@ class Recorder:
         self._smooth = self._diss = self._law = 0.0  # ledger terms since the previous sample [J]
         self._E: float | None = None  # T + V at the last state the ledger accounted [J]
         self._at: tuple | None = None  # that state's (q, u) arrays (a step starting there reuses _E)
+        self._TV = (0.0, 0.0)  # that state's (T, V) [J] (a sample of it reuses them)
         self._new_impact = False  # the last log_percussions logged a new impact
         self._rise = (-np.inf, np.nan)  # (largest T + V increase of one step [J], t [s])
         self._law_difference = (0.0, np.nan)  # (largest |D - L| of a contact step [J], t [s])
@@ -143,8 +144,11 @@ class Recorder:
         c["t"][i] = state.t
         c["q"][i] = q
         c["u"][i] = u
-        c["kinetic_energy"][i] = T = kinetic(m, d, q, u)
-        c["potential_energy"][i] = V = potential(m, d, q)
+        if self._at is not None and self._at[0] is q and self._at[1] is u:
+            T, V = self._TV  # the state the last step left, already evaluated by account_step
+        else:
+            T, V = kinetic(m, d, q, u), potential(m, d, q)
+        c["kinetic_energy"][i], c["potential_energy"][i] = T, V
         c["contact_work"][i] = work
         c["correction_energy"][i] = corr
         c["gap"][i] = pair_distances(m, d, q)
@@ -155,7 +159,7 @@ class Recorder:
                 self._rise = ((T + V) - self._E, float(state.t))
         c["smooth_error"][i], c["dissipation"][i], c["law_dissipation"][i] = self._smooth, self._diss, self._law
         self._smooth = self._diss = self._law = 0.0
-        self._E, self._at = T + V, (q, u)
+        self._E, self._at, self._TV = T + V, (q, u), (T, V)
 
     def account_step(self, step: int, t: float, before: State, r, h: float, e: float) -> None:
         """The ledger of one midpoint Moreau step (docs/theory.md §5, ledger.py) from `before` to the
@@ -171,7 +175,8 @@ class Recorder:
                 self._smooth += E0 - self._E
                 if E0 - self._E > self._rise[0]:
                     self._rise = (E0 - self._E, float(before.t))
-        E1 = total(m, d, q1, u1)
+        T1, V1 = kinetic(m, d, q1, u1), potential(m, d, q1)
+        E1 = T1 + V1
         if E1 - E0 > self._rise[0]:
             self._rise = (E1 - E0, float(r.state.t))
         if r.qp is None or not r.qp.problem:
@@ -183,7 +188,7 @@ class Recorder:
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * u_free)
             self._smooth += total(m, d, q_free, u_free) - E0
             self._add_impact(step, t, T_minus, T_plus, law, int(np.count_nonzero(r.P > 0)), self._new_impact)
-        self._E, self._at = E1, (q1, u1)
+        self._E, self._at, self._TV = E1, (q1, u1), (T1, V1)
 
     def account_impact(self, t: float, q: np.ndarray, u_minus: np.ndarray, u_plus: np.ndarray, M: np.ndarray,
                        v: np.ndarray, e: float, P: np.ndarray) -> None:
