@@ -149,7 +149,8 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
                    f"{s['law_difference_max']:.2g} J (docs/regression.md)")
     if s["min_gap"] is not None:
         click.echo(f"  min gap {s['min_gap']:.3g} m")
-    click.echo(f"  wall {s['wall_seconds']:.3f} s, {s['us_per_step']:.1f} us/step  -> {out}")
+    per_step = f", {s['us_per_step']:.1f} us/step" if s["us_per_step"] is not None else ""  # event-driven: no steps
+    click.echo(f"  wall {s['wall_seconds']:.3f} s{per_step}  -> {out}")
 
 
 @main.command()
