@@ -74,22 +74,12 @@ def _ordered(A, x):
     """A @ x (A 1-d or 2-d, x 1-d or 2-d) summed over the inner index in order from its first product, one
     rounding per product and per sum (no BLAS kernel, no FMA): the same bits on every CPU, and the same as
     src/step.cpp's odot. (numpy's own products follow OpenBLAS's kernels, whose order changes with the
-    size and the machine.)"""
+    size and the machine.) np.add.accumulate adds in index order by definition (reductions need not)."""
     if A.ndim == 1:
-        a, y = A.tolist(), x.tolist()
-        s = a[0] * y[0]
-        for j in range(1, len(a)):
-            s = s + a[j] * y[j]
-        return s
+        return np.add.accumulate(A * x)[-1]
     if x.ndim == 1:
-        out = A[:, 0] * x[0]
-        for j in range(1, A.shape[1]):
-            out += A[:, j] * x[j]
-        return out
-    out = np.multiply.outer(A[:, 0], x[0])
-    for j in range(1, A.shape[1]):
-        out += np.multiply.outer(A[:, j], x[j])
-    return out
+        return np.add.accumulate(A * x, axis=1)[:, -1]
+    return np.add.accumulate(A[:, :, None] * x[None, :, :], axis=1)[:, -1, :]
 
 
 def _active_set(G, r, tol, act=None, mul=np.matmul):
@@ -110,7 +100,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
         act = np.zeros(m, bool)
     else:
         idx = np.flatnonzero(act)
-        x = _gesv_ok(G[np.ix_(idx, idx)], r[idx])
+        x = _gesv_ok(G[idx][:, idx], r[idx])
         if x is None or x.min(initial=0.0) < 0.0:
             act = np.zeros(m, bool)  # not a valid start: from nothing
         else:
@@ -129,7 +119,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
                 return None
             idx = np.flatnonzero(act)
             if idx.size:
-                d = _gesv_ok(G[np.ix_(idx, idx)], -G[idx, p])
+                d = _gesv_ok(G[idx][:, idx], -G[idx, p])
                 if d is None:
                     return None
                 z = G[p, p] + mul(G[p, idx], d)
@@ -183,7 +173,7 @@ def _polish(W, v0, b, Minv, act=None):
     if not idx.size:
         vp = v0.copy()
     else:
-        lamA = _gesv_ok(G[np.ix_(idx, idx)], r[idx])
+        lamA = _gesv_ok(G[idx][:, idx], r[idx])
         if lamA is None or lamA.min() < -1e-12 * max(1.0, lamA.max()):
             return None
         np.maximum(lamA, 0.0, out=lamA)
