@@ -96,6 +96,40 @@ def _polish(W, v0, b, Minv, lam):
     return vp, lp
 
 
+def _refine(W, v0, b, Minv, lam):
+    """When the active set is redundant (more rows than independent constraints: the corners of
+    two faces resting on each other and on the ground, rank 7 of 10) the active-set polish fails:
+    G_AA is singular, and NNLS can end on a subset that does not fit. The projection v is unique all
+    the same, and piqp's multipliers are a strictly positive point of the solution set to ~eps; correct
+    them by the least-norm step that solves G_AA lam_A = b_A - W_A' v0 (SVD pseudo-inverse),
+    lam_A <- lam_A + G_AA^+ (rhs - G_AA lam_A), twice. Kept under the same test as the polish (KKT to
+    round-off); a row whose corrected multiplier comes out negative is dropped from A. Without it
+    piqp's answer stands, and with a 1000:1 mass ratio its 1e-10 tolerance on
+    multipliers of ~1e2 N s moves the light body by ~1e-4 m/s (docs/theory.md §1, heavy_on_light_box_1000)."""
+    act = lam > 1e-7 * max(1.0, lam.max())
+    for _ in range(len(lam)):  # a row the step pushes negative is dropped (it did not push), and again
+        if not act.any():
+            return None
+        WA = W[:, act]
+        MiWA = Minv @ WA
+        G, rhs = WA.T @ MiWA, b[act] - WA.T @ v0
+        lamA = lam[act].copy()
+        for _ in range(2):
+            lamA += np.linalg.lstsq(G, rhs - G @ lamA, rcond=1e-12)[0]
+        if lamA.min() >= 0:
+            break
+        act[np.flatnonzero(act)[int(np.argmin(lamA))]] = False
+    tol = 1e-12 * (1.0 + np.abs(rhs).max())
+    if not (lamA.min() >= 0 and np.abs(G @ lamA - rhs).max() <= tol):
+        return None
+    vp = v0 + MiWA @ lamA
+    if (W.T @ vp - b).min() < -1e-12 * (1.0 + np.abs(v0).max()):
+        return None
+    lp = np.zeros_like(lam)
+    lp[act] = lamA
+    return vp, lp
+
+
 class Polish(enum.Enum):
     """How piqp's answer is refined on its active set (docs/theory.md §1)."""
 
@@ -150,6 +184,8 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if polish is Polish.ACTIVE_SET:
         np.maximum(lam, 0.0, out=lam)
         p = _polish(W, v0, b, Minv, lam)
+        if p is None and m > 1:
+            p = _refine(W, v0, b, Minv, lam)
     elif polish is Polish.LEAST_SQUARES:
         p = _polish_least_squares(M, W, v0, lam, polish_tol)
     if p is not None:
