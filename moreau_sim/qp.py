@@ -7,7 +7,9 @@ Both return (v, lam) with M (v - v0) = W lam (docs/theory.md §1; b = 0 there, t
 restitution rules shift b, docs/theory.md §2.7). After piqp the solution is
 polished on its active set A = {lam_i > 0}: G_AA lam_A = b_A - W_A' v0 is solved directly and
 kept when it satisfies the KKT conditions to round-off, which makes single impacts and the
-cradle exact to round-off instead of to piqp's tolerance.
+cradle exact to round-off instead of to piqp's tolerance. Where that fails (a redundant active set:
+G_AA singular) or piqp does not converge, the projection is solved exactly as a least-distance
+program by NNLS (_least_distance).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import piqp
+import scipy.linalg
 import scipy.linalg.lapack
 import scipy.optimize
 
@@ -96,38 +99,34 @@ def _polish(W, v0, b, Minv, lam):
     return vp, lp
 
 
-def _refine(W, v0, b, Minv, lam):
-    """When the active set is redundant (more rows than independent constraints: the corners of
-    two faces resting on each other and on the ground, rank 7 of 10) the active-set polish fails:
-    G_AA is singular, and NNLS can end on a subset that does not fit. The projection v is unique all
-    the same, and piqp's multipliers are a strictly positive point of the solution set to ~eps; correct
-    them by the least-norm step that solves G_AA lam_A = b_A - W_A' v0 (SVD pseudo-inverse),
-    lam_A <- lam_A + G_AA^+ (rhs - G_AA lam_A), twice. Kept under the same test as the polish (KKT to
-    round-off); a row whose corrected multiplier comes out negative is dropped from A. Without it
-    piqp's answer stands, and with a 1000:1 mass ratio its 1e-10 tolerance on
-    multipliers of ~1e2 N s moves the light body by ~1e-4 m/s (docs/theory.md §1, heavy_on_light_box_1000)."""
-    act = lam > 1e-7 * max(1.0, lam.max())
-    for _ in range(len(lam)):  # a row the step pushes negative is dropped (it did not push), and again
-        if not act.any():
-            return None
-        WA = W[:, act]
-        MiWA = Minv @ WA
-        G, rhs = WA.T @ MiWA, b[act] - WA.T @ v0
-        lamA = lam[act].copy()
-        for _ in range(2):
-            lamA += np.linalg.lstsq(G, rhs - G @ lamA, rcond=1e-12)[0]
-        if lamA.min() >= 0:
-            break
-        act[np.flatnonzero(act)[int(np.argmin(lamA))]] = False
-    tol = 1e-12 * (1.0 + np.abs(rhs).max())
-    if not (lamA.min() >= 0 and np.abs(G @ lamA - rhs).max() <= tol):
+def _least_distance(M, W, v0, b, Minv):
+    """The projection as a least-distance program solved by NNLS (Lawson & Hanson, Solving Least
+    Squares Problems, ch. 23): with M = L L' and x = L'(v - v0), min |x| s.t. (L^-1 W)' x >= b - W'v0;
+    u = nnls([A'; h'], e_last), lam = u / (1 - h'u), v = v0 + M^-1 W lam. Exact on degenerate
+    problems (redundant rows: the corners of faces resting on faces; bounds of per-contact
+    restitution that the redundant rows cannot all meet), where piqp may not converge and the
+    active-set polish, which needs G_AA regular, fails; and the metric L balances the bodies of a
+    large mass ratio. Returns (v, lam) if it satisfies the polish's KKT test, else None."""
+    try:
+        L = np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
         return None
-    vp = v0 + MiWA @ lamA
-    if (W.T @ vp - b).min() < -1e-12 * (1.0 + np.abs(v0).max()):
+    A = scipy.linalg.solve_triangular(L, W, lower=True)  # L^-1 W: (nv, m)
+    h = b - W.T @ v0
+    E = np.vstack((A, h[None, :]))
+    f = np.zeros(E.shape[0])
+    f[-1] = 1.0
+    u, _ = scipy.optimize.nnls(E, f)
+    den = 1.0 - float(h @ u)
+    if not den > 0.0:  # infeasible (cannot happen for a cone with b <= 0) or degenerate
         return None
-    lp = np.zeros_like(lam)
-    lp[act] = lamA
-    return vp, lp
+    lam = u / den
+    v = v0 + Minv @ (W @ lam)
+    scale = 1e-12 * (1.0 + np.abs(v0).max())
+    slack = W.T @ v - b
+    if slack.min() < -scale or np.abs(lam * slack).max() > scale * (1.0 + lam.max()):
+        return None
+    return v, lam
 
 
 class Polish(enum.Enum):
@@ -176,16 +175,20 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
         lam = s.result.x.copy()
         v = v0 + MiW @ lam
     iters = s.result.info.iter
-    if status != piqp.PIQP_SOLVED:
-        return QPResult(_STATUS.get(status, str(status)), False, iters, False, v, lam)
-    if not (np.isfinite(v).all() and np.isfinite(lam).all()):  # piqp has answered "solved" with NaN
-        return QPResult("NON_FINITE_SOLUTION", False, iters, False, v, lam)
+    if status != piqp.PIQP_SOLVED or not (np.isfinite(v).all() and np.isfinite(lam).all()):
+        # piqp did not converge (degenerate rows with a large mass ratio: 1:10,000), or answered
+        # "solved" with NaN: the least-distance program is exact there (docs/theory.md §1.5)
+        p = _least_distance(M, W, v0, b, Minv) if polish is Polish.ACTIVE_SET else None
+        if p is not None:
+            return QPResult("LEAST_DISTANCE", True, iters, True, p[0], p[1], (M, W, v0, b))
+        name = _STATUS.get(status, str(status)) if status != piqp.PIQP_SOLVED else "NON_FINITE_SOLUTION"
+        return QPResult(name, False, iters, False, v, lam)
     p = None
     if polish is Polish.ACTIVE_SET:
         np.maximum(lam, 0.0, out=lam)
         p = _polish(W, v0, b, Minv, lam)
-        if p is None and m > 1:
-            p = _refine(W, v0, b, Minv, lam)
+        if p is None and m > 1:  # a redundant active set (G_AA singular): the least-distance program
+            p = _least_distance(M, W, v0, b, Minv)
     elif polish is Polish.LEAST_SQUARES:
         p = _polish_least_squares(M, W, v0, lam, polish_tol)
     if p is not None:

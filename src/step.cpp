@@ -46,6 +46,7 @@ namespace {
 constexpr int FLIGHT = 0, CONTACT = 1, FALLBACK = 2;
 constexpr int VERTEX = 0, WITNESS = 1;  // contacts.FeatureKind
 constexpr int MIDPOINT_ITERATIONS = 8;  // stepper.MIDPOINT_ITERATIONS
+constexpr double RESTING = 1e-9;  // stepper.RESTING
 
 typedef void (*dgesv_t)(int *, int *, double *, int *, int *, double *, int *, int *);
 
@@ -554,7 +555,7 @@ class Stepper {
     double corr = 0.0;
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
-    if (projection_) correct_positions(q, u, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
+    if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
     // one float and one int array cross (moreau_sim/compiled.py slices them): q_next, u_next, g, point_a,
     // point_b, normal (m x 3, row-major), P, gamma_minus, gamma_plus, v, lam, M (nv x nv), W (column-major),
     // v_free, b; pair, kind, feature, joint_a, joint_b
@@ -579,9 +580,9 @@ class Stepper {
   }
 
   // stepper.correct_positions
-  void correct_positions(const VectorXd &q, const VectorXd &u, double h, const VectorXd &g, const VectorXd &gamma_plus,
-                         const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W, const MatrixXd &Minv,
-                         VectorXd &q_next, double &corr) {
+  void correct_positions(const VectorXd &q, const VectorXd &u, const VectorXd &u_free, double h, const VectorXd &g,
+                         const VectorXd &gamma_plus, const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W,
+                         const MatrixXd &Minv, VectorXd &q_next, double &corr) {
     (void)M;
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
@@ -589,11 +590,22 @@ class Stepper {
     const double E0 = energy(q, u);
     const double E1 = energy(q_next, u_next);
     const double budget = E0 - E1;
-    if (budget <= 0.0) return;
+    // stepper._resting: every penetrating contact ends the step at rest (|gamma+| <= RESTING |w|'|du|)
+    bool resting = true;
+    {
+      const VectorXd du = (u_free - u).cwiseAbs();
+      for (Eigen::Index i = 0; i < m && resting; ++i) {
+        if (!(g_next[i] < -tol_)) continue;
+        double scale = 0.0;
+        for (Eigen::Index j = 0; j < W.rows(); ++j) scale += std::abs(W(j, i)) * du[j];
+        resting = std::abs(gamma_plus[i]) <= RESTING * scale;
+      }
+    }
+    if (budget <= 0.0 && !resting) return;
     Solved res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
     double dE = energy(q_c, u_next) - E1;
-    if (dE > budget) {
+    if (dE > budget && !resting) {
       q_c = pinocchio::integrate(model_, q_next, (budget / dE) * res.v);
       dE = energy(q_c, u_next) - E1;
       if (dE > budget) return;
