@@ -208,10 +208,9 @@ _SNAP = 0.5  # [rad] the patch is computed about the face normal nearest to coal
 # box are 90 deg apart, so the nearest one is the contact normal there
 
 
-def _face_axis(model: Model, data: Data, pair) -> tuple[np.ndarray, float]:
+def _face_axis(model: Model, data: Data, pair) -> np.ndarray:
     """For two polytopes: the face normal (of A or B, oriented B -> A) along which they are least
-    interpenetrating, s(n) = min_A n.x - max_B n.x largest: the normal of a face-on-face contact,
-    and that separation s(n) [m] (the pair's signed distance when the faces are parallel).
+    interpenetrating, s(n) = min_A n.x - max_B n.x largest: the normal of a face-on-face contact.
     Used instead of coal's GJK/EPA normal, which for exactly touching boxes can point anywhere
     (along a side face, 90 deg off, seen in a 10-box stack)."""
     oa, ob = data.pin.oMi[pair.joint_first], data.pin.oMi[pair.joint_second]
@@ -219,8 +218,7 @@ def _face_axis(model: Model, data: Data, pair) -> tuple[np.ndarray, float]:
     Vb = model.vertices[pair.second] @ ob.rotation.T + ob.translation
     N = np.concatenate((-(model.face_normals[pair.first] @ oa.rotation.T), model.face_normals[pair.second] @ ob.rotation.T))
     sep = (Va @ N.T).min(axis=0) - (Vb @ N.T).max(axis=0)
-    k = int(np.argmax(sep))
-    return N[k], float(sep[k])
+    return N[int(np.argmax(sep))]
 
 
 def _snap(model: Model, data: Data, pair, n: np.ndarray) -> np.ndarray:
@@ -258,33 +256,17 @@ def _near_polytopes(model: Model, data: Data, tol: float) -> set:
     return out
 
 
-def _patch(data: Data, pair, pos: np.ndarray, depth: float, n: np.ndarray):
-    """coal's contact patch of a pair computed about normal n (ours, B -> A) instead of coal's own,
-    through the point pos [m] with signed depth [m]."""
+def _patch(data: Data, pair, c, n: np.ndarray):
+    """coal's contact patch of a pair computed about normal n (ours, B -> A) instead of coal's own."""
     res = data.patch_collision
     res.clear()
     g1, g2 = data.shapes[pair.first], data.shapes[pair.second]
-    res.addContact(coal.Contact(g1, g2, -1, -1, np.asarray(pos), -n, depth))
+    res.addContact(coal.Contact(g1, g2, -1, -1, np.asarray(c.pos), -n, c.penetration_depth))
     out = data.patch_result
     out.clear()
     coal.computeContactPatch(g1, coal.Transform3s(data.geom.oMg[pair.first]), g2,
                              coal.Transform3s(data.geom.oMg[pair.second]), res, data.patch_request, out)
     return out.getContactPatch(0)
-
-
-def _add_patch(found: list, start: int, patch, depth: float, n: np.ndarray, pair: int) -> None:
-    """Append the corners of a contact patch (more than one) that are not already vertex contacts of
-    the pair (found[start:]), with the pair's depth [m] and normal n (B -> A)."""
-    k_patch = patch.size()
-    if k_patch < 2:
-        return
-    P1 = np.array([patch.getPointShape1(k) for k in range(k_patch)])
-    new = np.ones(k_patch, bool)
-    if len(found) > start:
-        known = np.array([f[1] for f in found[start:]])
-        new = np.abs(P1[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > _SAME_POINT
-    for k in np.flatnonzero(new):
-        found.append((depth, P1[k], np.array(patch.getPointShape2(int(k))), n, pair, FeatureKind.PATCH, int(k)))
 
 
 def _fallback_contact(data: Data, pair):
@@ -338,17 +320,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
                 continue  # the corner is the contact of this pair: no patch, no witness
             # a corner beside smooth contacts of the same pair (a face resting on an edge): keep both
         if not hit:
-            # coal's narrow phase missed an exactly touching pair of polytopes (near): its face-on-face
-            # contact is still the overlap polygon, whose corners need not be vertices of either (two
-            # aligned cubes slid apart by more than the tolerance touch on a rectangle with two edge
-            # crossings): without them the support degenerates to a triangle through the centre of
-            # mass and the upper cube tips (docs/theory.md §6, heavy_on_light_box_1000)
-            if pair.patch and len(found) > start:
-                n_face, sep = _face_axis(model, data, pair)
-                if sep <= tol and float(n_face @ found[start][3]) >= 1.0 - 1e-9:
-                    pos = 0.5 * (found[start][1] + found[start][2])
-                    _add_patch(found, start, _patch(data, pair, pos, sep, n_face), sep, n_face, pair.index)
-            continue
+            continue  # examined for its vertices only (coal saw no collision): no patch, no witness
         c = res.getContact(0)
         n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
         fallback = not (abs(c.penetration_depth) < 1e100 and math.isfinite(n @ n))
@@ -361,15 +333,21 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
         if pair.patch and not fallback and c.penetration_depth <= tol:
             # the patch (overlap polygon of parallel faces) about the face normal nearest to coal's
             # (whose EPA normal of resting faces drifts by up to 4e-3 rad: the polygon collapses)
-            n_face = (_face_axis(model, data, pair)[0] if pair.index in model.polytope_pair_set
-                      else _snap(model, data, pair, n))
+            n_face = _face_axis(model, data, pair) if pair.index in model.polytope_pair_set else _snap(model, data, pair, n)
             # with vertex contacts, a patch must lie in their plane: coal's normal of coplanar
             # aligned boxes can point along a side face, which is no contact at all
             if len(found) == start or float(n_face @ found[start][3]) >= 1.0 - 1e-9:
-                patch = _patch(data, pair, c.pos, c.penetration_depth, n_face)
+                patch = _patch(data, pair, c, n_face)
                 k_patch = patch.size()
         if k_patch > 1:
-            _add_patch(found, start, patch, c.penetration_depth, n_face, pair.index)
+            P1 = np.array([patch.getPointShape1(k) for k in range(k_patch)])
+            new = np.ones(k_patch, bool)
+            if len(found) > start:
+                known = np.array([f[1] for f in found[start:]])
+                new = np.abs(P1[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > _SAME_POINT
+            for k in np.flatnonzero(new):
+                found.append((c.penetration_depth, P1[k], np.array(patch.getPointShape2(int(k))), n_face, pair.index,
+                              FeatureKind.PATCH, int(k)))
         elif len(found) == start and c.penetration_depth <= tol:  # no vertex: edge-edge, smooth shapes
             found.append((c.penetration_depth, np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2()),
                           n, pair.index, FeatureKind.WITNESS, 0))

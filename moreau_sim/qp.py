@@ -7,9 +7,7 @@ Both return (v, lam) with M (v - v0) = W lam (docs/theory.md §1; b = 0 there, t
 restitution rules shift b, docs/theory.md §2.7). After piqp the solution is
 polished on its active set A = {lam_i > 0}: G_AA lam_A = b_A - W_A' v0 is solved directly and
 kept when it satisfies the KKT conditions to round-off, which makes single impacts and the
-cradle exact to round-off instead of to piqp's tolerance. Where that fails (a redundant active set:
-G_AA singular) or piqp does not converge, the projection is solved exactly as a least-distance
-program by NNLS (_least_distance).
+cradle exact to round-off instead of to piqp's tolerance.
 """
 
 from __future__ import annotations
@@ -19,7 +17,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import piqp
-import scipy.linalg
 import scipy.linalg.lapack
 import scipy.optimize
 
@@ -66,8 +63,9 @@ def _polish(W, v0, b, Minv, lam):
     """Re-solve exactly on the active set A = {lam_i > 0} of piqp's answer.
 
     On A: G_AA lam_A = b_A - W_A' v0, lam_A >= 0 (a direct solve, or NNLS when the rows are
-    redundant, e.g. 4 corners of a face on a plane: rank 3); v = v0 + M^-1 W_A lam_A. Kept only if
-    it satisfies the KKT conditions to round-off (W' v >= b for every row): the exact solution."""
+    redundant, e.g. 4 corners of a face on a plane: rank 3); v = v0 + M^-1 W_A lam_A, then one step
+    of iterative refinement on the rows that push. Kept only if it satisfies the KKT conditions to
+    round-off (W' v >= b for every row): the exact solution."""
     if len(lam) == 1:  # one contact: the projection in closed form (same formula as below)
         w = W[:, 0]
         Miw = Minv @ w
@@ -89,6 +87,19 @@ def _polish(W, v0, b, Minv, lam):
             if not rnorm <= tol:
                 return None
         vp = v0 + MiWA @ lamA
+        # one step of iterative refinement: lamA is as exact as its magnitude allows, but a light body
+        # under a heavy one (lamA ~ R times its own weight impulse) then moves by ~R eps in the directions
+        # the rows hold; the residual of W_A'v = b_A is computed where v ~ 0, so accurately, and solving
+        # for it on the independent rows P = {lamA_i > 0} leaves W_A'v - b_A at ulp(v) (docs/theory.md §1.5)
+        P = lamA > 0.0
+        if P.any():
+            rP = ((b if full else b[act]) - WA.T @ vp)[P]
+            _, _, dP, info = _gesv(G[np.ix_(P, P)], rP)
+            if info == 0 and np.abs(dP).max() <= 1e-8 * (1.0 + np.abs(lamA).max()):  # False for NaN too
+                d = np.zeros_like(lamA)
+                d[P] = dP
+                lamA = np.maximum(lamA + d, 0.0)
+                vp = vp + MiWA @ d
         if full:
             lp = lamA
         else:
@@ -97,36 +108,6 @@ def _polish(W, v0, b, Minv, lam):
     if (W.T @ vp - b).min() < -1e-12 * (1.0 + np.abs(v0).max()):
         return None
     return vp, lp
-
-
-def _least_distance(M, W, v0, b, Minv):
-    """The projection as a least-distance program solved by NNLS (Lawson & Hanson, Solving Least
-    Squares Problems, ch. 23): with M = L L' and x = L'(v - v0), min |x| s.t. (L^-1 W)' x >= b - W'v0;
-    u = nnls([A'; h'], e_last), lam = u / (1 - h'u), v = v0 + M^-1 W lam. Exact on degenerate
-    problems (redundant rows: the corners of faces resting on faces; bounds of per-contact
-    restitution that the redundant rows cannot all meet), where piqp may not converge and the
-    active-set polish, which needs G_AA regular, fails; and the metric L balances the bodies of a
-    large mass ratio. Returns (v, lam) if it satisfies the polish's KKT test, else None."""
-    try:
-        L = np.linalg.cholesky(M)
-    except np.linalg.LinAlgError:
-        return None
-    A = scipy.linalg.solve_triangular(L, W, lower=True)  # L^-1 W: (nv, m)
-    h = b - W.T @ v0
-    E = np.vstack((A, h[None, :]))
-    f = np.zeros(E.shape[0])
-    f[-1] = 1.0
-    u, _ = scipy.optimize.nnls(E, f)
-    den = 1.0 - float(h @ u)
-    if not den > 0.0:  # infeasible (cannot happen for a cone with b <= 0) or degenerate
-        return None
-    lam = u / den
-    v = v0 + Minv @ (W @ lam)
-    scale = 1e-12 * (1.0 + np.abs(v0).max())
-    slack = W.T @ v - b
-    if slack.min() < -scale or np.abs(lam * slack).max() > scale * (1.0 + lam.max()):
-        return None
-    return v, lam
 
 
 class Polish(enum.Enum):
@@ -175,20 +156,14 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
         lam = s.result.x.copy()
         v = v0 + MiW @ lam
     iters = s.result.info.iter
-    if status != piqp.PIQP_SOLVED or not (np.isfinite(v).all() and np.isfinite(lam).all()):
-        # piqp did not converge (degenerate rows with a large mass ratio: 1:10,000), or answered
-        # "solved" with NaN: the least-distance program is exact there (docs/theory.md §1.5)
-        p = _least_distance(M, W, v0, b, Minv) if polish is Polish.ACTIVE_SET else None
-        if p is not None:
-            return QPResult("LEAST_DISTANCE", True, iters, True, p[0], p[1], (M, W, v0, b))
-        name = _STATUS.get(status, str(status)) if status != piqp.PIQP_SOLVED else "NON_FINITE_SOLUTION"
-        return QPResult(name, False, iters, False, v, lam)
+    if status != piqp.PIQP_SOLVED:
+        return QPResult(_STATUS.get(status, str(status)), False, iters, False, v, lam)
+    if not (np.isfinite(v).all() and np.isfinite(lam).all()):  # piqp has answered "solved" with NaN
+        return QPResult("NON_FINITE_SOLUTION", False, iters, False, v, lam)
     p = None
     if polish is Polish.ACTIVE_SET:
         np.maximum(lam, 0.0, out=lam)
         p = _polish(W, v0, b, Minv, lam)
-        if p is None and m > 1:  # a redundant active set (G_AA singular): the least-distance program
-            p = _least_distance(M, W, v0, b, Minv)
     elif polish is Polish.LEAST_SQUARES:
         p = _polish_least_squares(M, W, v0, lam, polish_tol)
     if p is not None:

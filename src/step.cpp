@@ -430,6 +430,33 @@ class Stepper {
         if (!(rnorm <= tol)) return false;
       }
       vp = v0 + times(MiWA, lamA);
+      // qp._polish's refinement step: solve for the residual of W_A'v = b_A on the rows that push
+      std::vector<Eigen::Index> pidx;
+      for (Eigen::Index j = 0; j < k; ++j)
+        if (lamA[j] > 0.0) pidx.push_back(j);
+      if (!pidx.empty()) {
+        const VectorXd WAvp = wt_times(WA, vp);
+        const int kp = (int)pidx.size();
+        MatrixXd GP(kp, kp);
+        VectorXd dP(kp);
+        for (int i = 0; i < kp; ++i) {
+          dP[i] = b[act[pidx[i]]] - WAvp[pidx[i]];
+          for (int j = 0; j < kp; ++j) GP(i, j) = G(pidx[i], pidx[j]);
+        }
+        std::vector<int> pivp(kp);
+        int np_ = kp, nrhs_ = 1, lda_ = kp, ldb_ = kp, info_ = 0;
+        dgesv_(&np_, &nrhs_, GP.data(), &lda_, pivp.data(), dP.data(), &ldb_, &info_);
+        double lmax = 0.0;
+        for (Eigen::Index j = 0; j < k; ++j) lmax = std::max(lmax, std::abs(lamA[j]));
+        bool small = info_ == 0;
+        for (int i = 0; i < kp && small; ++i) small = std::abs(dP[i]) <= 1e-8 * (1.0 + lmax);  // false for NaN
+        if (small) {
+          VectorXd d = VectorXd::Zero(k);
+          for (int i = 0; i < kp; ++i) d[pidx[i]] = dP[i];
+          for (Eigen::Index j = 0; j < k; ++j) lamA[j] = std::max(lamA[j] + d[j], 0.0);
+          vp = vp + times(MiWA, d);
+        }
+      }
       for (Eigen::Index j = 0; j < k; ++j) lp[act[j]] = lamA[j];
     }
     return (wt_times(W, vp) - b).minCoeff() >= -1e-12 * (1.0 + v0.cwiseAbs().maxCoeff());
@@ -590,15 +617,18 @@ class Stepper {
     const double E0 = energy(q, u);
     const double E1 = energy(q_next, u_next);
     const double budget = E0 - E1;
-    // stepper._resting: every penetrating contact ends the step at rest (|gamma+| <= RESTING |w|'|du|)
+    // stepper._resting: the bodies of every penetrating contact end the step at rest
+    // (|u_next_j| <= RESTING max|u_free - u| wherever a penetrating row has w_ij != 0)
     bool resting = true;
     {
-      const VectorXd du = (u_free - u).cwiseAbs();
-      for (Eigen::Index i = 0; i < m && resting; ++i) {
-        if (!(g_next[i] < -tol_)) continue;
-        double scale = 0.0;
-        for (Eigen::Index j = 0; j < W.rows(); ++j) scale += std::abs(W(j, i)) * du[j];
-        resting = std::abs(gamma_plus[i]) <= RESTING * scale;
+      double dmax = 0.0;
+      for (Eigen::Index j = 0; j < u.size(); ++j) dmax = std::max(dmax, std::abs(u_free[j] - u[j]));
+      const double scale = RESTING * dmax;
+      for (Eigen::Index j = 0; j < W.rows() && resting; ++j) {
+        bool involved = false;
+        for (Eigen::Index i = 0; i < m; ++i)
+          if (g_next[i] < -tol_ && W(j, i) != 0.0) involved = true;
+        if (involved) resting = std::abs(u_next[j]) <= scale;
       }
     }
     if (budget <= 0.0 && !resting) return;
