@@ -41,8 +41,7 @@ from moreau_sim.simulate import simulate
 SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.toml"))
 MUST_COMPILE = {"bouncing_ball", "zeno_ball", "newton_cradle_5", "box_drop"}
 # CI-sized durations [s]: long enough for the first impacts (and box_drop to settle on a face)
-DURATION = {"bouncing_ball": 1.0, "zeno_ball": 1.5, "box_drop": 1.5, "newton_cradle_5": 0.3,
-            "heavy_on_light_box_10000": 0.2}  # (1:10,000 amplifies the Python runs' 5e-26 m differences)
+DURATION = {"bouncing_ball": 1.0, "zeno_ball": 1.5, "box_drop": 1.5, "newton_cradle_5": 0.3}
 MAX_STEPS = 300  # other scenes: at most this many steps
 COMPARED = ("t", "q", "u", "kinetic_energy", "potential_energy", "contact_work", "correction_energy", "gap",
             "n_contacts")
