@@ -178,6 +178,17 @@ def _polish(W, v0, b, Minv, act=None):
             return None
         np.maximum(lamA, 0.0, out=lamA)
         vp = v0 + mul(MiW[:, idx], lamA)
+        # one step of iterative refinement: lamA is as exact as its magnitude allows, but a light body
+        # under a heavy one (lamA ~ R times its own weight impulse) then moves by ~R eps in the directions
+        # the rows hold; the residual of W_P'v = b_P is computed where v ~ 0, so accurately, and solving
+        # for it on the rows that push, P = {lamA_i > 0}, leaves W_P'v - b_P at ulp(v) (docs/theory.md §1.5)
+        P = lamA > 0.0
+        if P.any():
+            iP = idx[P]
+            dP = _gesv_ok(G[iP][:, iP], b[iP] - mul(W[:, iP].T, vp))
+            if dP is not None and np.abs(dP).max() <= 1e-8 * (1.0 + lamA.max()):
+                lamA[P] = np.maximum(lamA[P] + dP, 0.0)
+                vp = vp + mul(MiW[:, iP], dP)
         lp[idx] = lamA
     if (mul(W.T, vp) - b).min() < -1e-12 * scale:
         return None

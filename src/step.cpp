@@ -46,6 +46,7 @@ namespace {
 constexpr int FLIGHT = 0, CONTACT = 1, FALLBACK = 2;
 constexpr int VERTEX = 0, WITNESS = 1;  // contacts.FeatureKind
 constexpr int MIDPOINT_ITERATIONS = 8;  // stepper.MIDPOINT_ITERATIONS
+constexpr double RESTING = 1e-9;  // stepper.RESTING
 
 typedef void (*dgesv_t)(int *, int *, double *, int *, int *, double *, int *, int *);
 
@@ -270,6 +271,25 @@ Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const M
       throw Fallback{"active set's final solve rejected"};
     for (Eigen::Index i = 0; i < k; ++i) lamA[i] = std::max(lamA[i], 0.0);
     vp = v0 + otimes(MiWA, lamA);
+    // qp._polish's refinement step: the residual of W_P'v = b_P solved for on the rows that push
+    std::vector<Eigen::Index> pi, iP;
+    for (Eigen::Index i = 0; i < k; ++i)
+      if (lamA[i] > 0.0) pi.push_back(i), iP.push_back(idx[i]);
+    const Eigen::Index kp = (Eigen::Index)iP.size();
+    if (kp) {
+      MatrixXd GP(kp, kp), WP(nv, kp), MiWP(nv, kp);
+      for (Eigen::Index i = 0; i < kp; ++i) {
+        WP.col(i) = W.col(iP[i]), MiWP.col(i) = MiW.col(iP[i]);
+        for (Eigen::Index j = 0; j < kp; ++j) GP(i, j) = G(iP[i], iP[j]);
+      }
+      const VectorXd WPv = otimes_t(WP, vp);
+      VectorXd rP(kp), dP;
+      for (Eigen::Index i = 0; i < kp; ++i) rP[i] = b[iP[i]] - WPv[i];
+      if (gesv(dgesv, GP, rP, dP) && dP.cwiseAbs().maxCoeff() <= 1e-8 * (1.0 + lamA.maxCoeff())) {
+        for (Eigen::Index i = 0; i < kp; ++i) lamA[pi[i]] = std::max(lamA[pi[i]] + dP[i], 0.0);
+        vp = vp + otimes(MiWP, dP);
+      }
+    }
     for (Eigen::Index i = 0; i < k; ++i) lp[idx[i]] = lamA[i];
   }
   if ((otimes_t(W, vp) - b).minCoeff() < -1e-12 * scale) throw Fallback{"active set's answer rejected"};
@@ -563,7 +583,7 @@ class Stepper {
     double corr = 0.0;
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
-    if (projection_) correct_positions(q, u, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
+    if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
     // one float and one int array cross (moreau_sim/compiled.py slices them): q_next, u_next, g, point_a,
     // point_b, normal (m x 3, row-major), P, gamma_minus, gamma_plus, v, lam, M (nv x nv), W (column-major),
     // v_free, b; pair, kind, feature, joint_a, joint_b
@@ -588,9 +608,9 @@ class Stepper {
   }
 
   // stepper.correct_positions
-  void correct_positions(const VectorXd &q, const VectorXd &u, double h, const VectorXd &g, const VectorXd &gamma_plus,
-                         const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W, const MatrixXd &Minv,
-                         VectorXd &q_next, double &corr) {
+  void correct_positions(const VectorXd &q, const VectorXd &u, const VectorXd &u_free, double h, const VectorXd &g,
+                         const VectorXd &gamma_plus, const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W,
+                         const MatrixXd &Minv, VectorXd &q_next, double &corr) {
     (void)M;
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
@@ -598,11 +618,25 @@ class Stepper {
     const double E0 = energy(q, u);
     const double E1 = energy(q_next, u_next);
     const double budget = E0 - E1;
-    if (budget <= 0.0) return;
+    // stepper._resting: the bodies of every penetrating contact end the step at rest
+    // (|u_next_j| <= RESTING max|u_free - u| wherever a penetrating row has w_ij != 0)
+    bool resting = true;
+    {
+      double dmax = 0.0;
+      for (Eigen::Index j = 0; j < u.size(); ++j) dmax = std::max(dmax, std::abs(u_free[j] - u[j]));
+      const double scale = RESTING * dmax;
+      for (Eigen::Index j = 0; j < W.rows() && resting; ++j) {
+        bool involved = false;
+        for (Eigen::Index i = 0; i < m; ++i)
+          if (g_next[i] < -tol_ && W(j, i) != 0.0) involved = true;
+        if (involved) resting = std::abs(u_next[j]) <= scale;
+      }
+    }
+    if (budget <= 0.0 && !resting) return;
     Solved res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
     double dE = energy(q_c, u_next) - E1;
-    if (dE > budget) {
+    if (dE > budget && !resting) {
       q_c = pinocchio::integrate(model_, q_next, (budget / dE) * res.v);
       dE = energy(q_c, u_next) - E1;
       if (dE > budget) return;
