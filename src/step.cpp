@@ -291,6 +291,27 @@ Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const M
       }
     }
     for (Eigen::Index i = 0; i < k; ++i) lp[idx[i]] = lamA[i];
+    // qp._polish's second pass: the active set on the answer's own residual
+    const VectorXd r2 = b - otimes_t(W, vp);
+    const double tol2 = 1e-15 * (b.cwiseAbs().maxCoeff() + W.cwiseAbs().maxCoeff() * vp.cwiseAbs().maxCoeff());
+    std::vector<char> act2;
+    VectorXd dl;
+    if (active_set(dgesv, G, r2, tol2, act2, dl)) {
+      std::vector<Eigen::Index> i2;
+      for (Eigen::Index i = 0; i < m; ++i)
+        if (act2[i]) i2.push_back(i);
+      const Eigen::Index k2 = (Eigen::Index)i2.size();
+      if (k2) {
+        MatrixXd MiW2(nv, k2);
+        VectorXd d2(k2);
+        for (Eigen::Index i = 0; i < k2; ++i) MiW2.col(i) = MiW.col(i2[i]), d2[i] = dl[i2[i]];
+        const VectorXd v2 = vp + otimes(MiW2, d2);
+        if ((otimes_t(W, v2) - b).minCoeff() >= -r2.maxCoeff()) {
+          vp = v2;
+          for (Eigen::Index i = 0; i < k2; ++i) lp[i2[i]] = lp[i2[i]] + d2[i];
+        }
+      }
+    }
   }
   if ((otimes_t(W, vp) - b).minCoeff() < -1e-12 * scale) throw Fallback{"active set's answer rejected"};
   return {vp, lp, 1};
