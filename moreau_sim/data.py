@@ -4,6 +4,7 @@ queries, the detection's warm start). One per thread and per run; the state itse
 from __future__ import annotations
 
 import coal
+import numpy as np
 import pinocchio as pin
 
 from .model import Model
@@ -57,6 +58,28 @@ class Data:
         self._point_queries: dict[int, coal.ComputeDistance] = {}
         geoms = model.geom.geometryObjects
         self.shapes = [g.geometry for g in geoms]
+
+    def _guess_holders(self) -> list:
+        """Every coal request and result that carries a GJK guess from one call to the next."""
+        g = self.geom
+        return [*g.collisionRequests, *g.collisionResults, *g.distanceRequests, *g.distanceResults,
+                self.patch_collision, self.fallback_request, self.fallback_result, self.distance_request,
+                self.distance_result]
+
+    def warm_start(self) -> dict:
+        """What the next detection starts from, as JSON-able lists: warm_start_pairs and coal's
+        cached GJK guesses (requests keep enable_cached_gjk_guess, coal's default). Restoring it
+        (restore_warm_start) makes a new Data continue bit for bit (checkpoint.py)."""
+        holders = self._guess_holders()
+        return {"pairs": sorted(self.warm_start_pairs),
+                "gjk_guess": [h.cached_gjk_guess.tolist() for h in holders],
+                "support_guess": [h.cached_support_func_guess.tolist() for h in holders]}
+
+    def restore_warm_start(self, warm: dict) -> None:
+        self.warm_start_pairs = set(warm["pairs"])
+        for h, guess, support in zip(self._guess_holders(), warm["gjk_guess"], warm["support_guess"], strict=True):
+            h.cached_gjk_guess = np.array(guess, float)
+            h.cached_support_func_guess = np.array(support, np.int32)
 
     def point_query(self, g: int) -> coal.ComputeDistance:
         """Cached coal functor: signed distance from a point to geometry g."""

@@ -1,7 +1,7 @@
 """One Recorder for every integrator: samples, the percussion log and corner branches, filling
 the arrays of trajectory.py's schema; and the run metadata every trajectory file carries.
 
-Columns grow by doubling (compact: memory is proportional to what was recorded)."""
+Columns grow by 1.5x in place (compact: memory is proportional to what was recorded)."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ from .model import Model
 from .state import State
 from .trajectory import Trajectory
 
+GROWTH = 1.5  # a full column grows to 1.5x its rows (in place: see _Columns)
 LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) of its step (and > 0)
 
 
@@ -80,23 +81,47 @@ class PercussionRow:
 
 
 class _Columns:
-    """Arrays of one schema group that grow by doubling; `n` rows used."""
+    """Arrays of one schema group, `n` rows used, grown by GROWTH in place (ndarray.resize:
+    realloc, which moves no data for large arrays), so the memory is ~ the rows recorded. A row is
+    counted (commit) only once written: an interrupt never leaves a half-written row."""
 
     def __init__(self, schema: dict, sizes: dict, capacity: int):
         self.shapes = {k: tuple(sizes.get(d, d) for d in shape) for k, (_, shape) in schema.items()}
         self.cols = {k: np.empty((max(capacity, 1),) + self.shapes[k], dtype) for k, (dtype, _) in schema.items()}
         self.n = 0
 
-    def row(self) -> int:
-        """Index of a new row (growing the columns if full)."""
+    def free(self) -> int:
+        """Index of the next row (growing the columns if full); call commit() once it is written."""
         i = self.n
         if i == len(next(iter(self.cols.values()))):
-            for k, a in self.cols.items():
-                b = np.empty((2 * len(a),) + a.shape[1:], a.dtype)
-                b[:i] = a
-                self.cols[k] = b
-        self.n = i + 1
+            self._resize(max(i + 1, int(GROWTH * i)))
         return i
+
+    def commit(self) -> None:
+        self.n += 1
+
+    def _resize(self, rows: int) -> None:
+        for k in self.cols:
+            try:  # in place; refused (ValueError) while a view of the array is alive: then copied
+                self.cols[k].resize((rows,) + self.cols[k].shape[1:])
+            except ValueError:
+                a = self.cols[k]
+                b = np.empty((rows,) + a.shape[1:], a.dtype)
+                b[:min(rows, self.n)] = a[:min(rows, self.n)]
+                self.cols[k] = b
+
+    def fit(self) -> None:
+        """Release the unused rows (at the end of a run)."""
+        self._resize(max(self.n, 1))
+
+    def load(self, arrays: dict[str, np.ndarray]) -> None:
+        """Start from rows recorded earlier (a checkpoint's arrays)."""
+        n = len(arrays[next(iter(self.cols))])
+        if n > len(next(iter(self.cols.values()))):
+            self._resize(n)
+        for k, a in self.cols.items():
+            a[:n] = arrays[k]
+        self.n = n
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {k: a[:self.n] for k, a in self.cols.items()}
@@ -122,7 +147,7 @@ class Recorder:
     def sample(self, state: State, work: float, corr: float, n_contacts: int) -> None:
         m, d = self.model, self.data
         q, u = state.q, state.u
-        i = self._samples.row()
+        i = self._samples.free()
         c = self._samples.cols
         c["t"][i] = state.t
         c["q"][i] = q
@@ -133,6 +158,7 @@ class Recorder:
         c["correction_energy"][i] = corr
         c["gap"][i] = pair_distances(m, d, q)
         c["n_contacts"][i] = n_contacts
+        self._samples.commit()
 
     def finite(self) -> bool:
         """Whether the last sample's energies and gaps are finite (an overflow shows there first)."""
@@ -141,10 +167,11 @@ class Recorder:
                     and np.isfinite(c["gap"][i]).all())
 
     def log(self, row: PercussionRow) -> None:
-        i = self._log.row()
+        i = self._log.free()
         c = self._log.cols
         for name in PercussionRow.__slots__:
             c[f"log_{name}"][i] = getattr(row, name)
+        self._log.commit()
 
     def log_percussions(self, step: int, t: float, contacts: Contacts, P: np.ndarray, gamma_minus: np.ndarray,
                         gamma_plus: np.ndarray, previous: set) -> set:
@@ -161,19 +188,34 @@ class Recorder:
 
     def branch(self, step: int, t: float, chosen: int, candidates: list[tuple]) -> None:
         """A step with several admissible corner outcomes: candidates [(u_plus, distance, global_min)]."""
-        i = self._branches.row()
-        b = self._branches.cols
-        b["branch_step"][i], b["branch_t"][i], b["branch_chosen"][i] = step, t, chosen
-        b["branch_start"][i], b["branch_count"][i] = self._candidates.n, len(candidates)
-        c = self._candidates.cols
+        start = self._candidates.n
         for u_plus, distance, global_min in candidates:
-            j = self._candidates.row()
+            j = self._candidates.free()
+            c = self._candidates.cols
             c["candidate_u_plus"][j], c["candidate_distance"][j], c["candidate_global_min"][j] = \
                 u_plus, distance, global_min
+            self._candidates.commit()
+        i = self._branches.free()
+        b = self._branches.cols
+        b["branch_step"][i], b["branch_t"][i], b["branch_chosen"][i] = step, t, chosen
+        b["branch_start"][i], b["branch_count"][i] = start, len(candidates)
+        self._branches.commit()
+
+    def _groups(self) -> tuple[_Columns, ...]:
+        return self._samples, self._log, self._branches, self._candidates
+
+    def restore(self, arrays: dict[str, np.ndarray]) -> None:
+        """Continue a recording from its arrays (a checkpoint's, checkpoint.py)."""
+        for g in self._groups():
+            g.load(arrays)
 
     def arrays(self) -> dict[str, np.ndarray]:
         out = {**self._samples.arrays(), **self._log.arrays(), **self._branches.arrays(), **self._candidates.arrays()}
         return {k: out[k] for k in trajectory.ARRAYS}
 
-    def trajectory(self, meta: dict) -> Trajectory:
+    def trajectory(self, meta: dict, *, final: bool = True) -> Trajectory:
+        """The arrays so far (views) with `meta`; `final`: the recording ends, unused rows are released."""
+        if final:
+            for g in self._groups():
+                g.fit()
         return Trajectory(self.arrays(), meta)
