@@ -7,8 +7,9 @@ A checkpoint is a trajectory NPZ (trajectory.py, written atomically) of the samp
 log and branches so far, whose meta["checkpoint"] holds everything else the loop carries from
 one step to the next: the steps done, t0, the state (t, q, u), the contact work and correction
 energy since the last sample, the contacts of the last step (the log's new-impact test) and the
-detection's warm start (Data.warm_start: the pairs it examines, coal's cached GJK guesses). JSON keeps floats exactly (shortest repr), so
-the resumed run takes the same steps on the same numbers as an uninterrupted one.
+detection's warm start (Data.warm_start: the pairs it examines, coal's cached GJK guesses).
+JSON keeps floats exactly (shortest repr), so the resumed run takes the same steps on the same
+numbers as an uninterrupted one.
 """
 
 from __future__ import annotations

@@ -17,6 +17,23 @@ PATCH_TOLERANCE = 1e-6
 GATE_MARGIN = 1e-6  # [m] see Data: pairs this close are examined (contacts still need g <= tol)
 
 
+def _pin_box_support() -> None:
+    """coal 3.0's Box support function keeps a function-static `inflate`, set once per process by
+    the direction of its first call (1 + 1e-10 when that direction has a zero component, else 1):
+    box results (5e-12 m on a gap) then depend on which box query a process made first, and a run
+    resumed in a new process (checkpoint.py) would part from the uninterrupted one. Make the first
+    calls here, at import, along axes (GJK's default guess (1, 0, 0), a ground normal), the value
+    most runs set: the same in every process that imports moreau_sim before its first coal query."""
+    box, far = coal.Box(1.0, 1.0, 1.0), coal.Transform3s()
+    far.setTranslation(np.array([3.0, 0.0, 0.0]))
+    coal.distance(box, coal.Transform3s(), box, far, coal.DistanceRequest(), coal.DistanceResult())  # GJK
+    coal.collide(box, coal.Transform3s(), coal.Halfspace(np.array([0.0, 0.0, 1.0]), -10.0), coal.Transform3s(),
+                 coal.CollisionRequest(), coal.CollisionResult())  # box vs half-space (the swept-sphere support)
+
+
+_pin_box_support()
+
+
 class Data:
     """Scratch reused by every step: Pinocchio data, coal results, cached queries, and the
     detection's warm start `warm_start_pairs`, the pairs that had contacts at the last detection
