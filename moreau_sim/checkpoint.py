@@ -15,6 +15,7 @@ numbers as an uninterrupted one.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,6 +44,12 @@ class Checkpoint:
     every: float | None = None
     resume: bool = False
     keep: bool = False
+
+    def __post_init__(self):
+        e = self.every
+        if e is not None and not (isinstance(e, (int, float)) and not isinstance(e, bool) and math.isfinite(e)
+                                  and e > 0):
+            raise SceneError(f"checkpoint_every: must be a finite time > 0 s, got {e!r}")
 
     def steps(self, dt: float) -> int | None:
         """The interval in steps of dt [s] (None: no checkpoints)."""

@@ -132,3 +132,9 @@ def test_checkpoint_every_must_be_positive(tmp_path, every):
     r = cli("run", SCENES / "bouncing_ball.toml", "-o", tmp_path / "b.npz", "--checkpoint-every", every)
     _, err = r.communicate(timeout=120)
     assert r.returncode == 2 and "--checkpoint-every" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("every", [0.0, -1.0, float("nan"), float("inf")])
+def test_the_api_checks_the_interval(tmp_path, every):
+    with pytest.raises(ms.SceneError, match="checkpoint_every: must be a finite time > 0 s"):
+        ms.run(SCENES / "bouncing_ball.toml", duration=0.1, checkpoint=tmp_path / "c.npz", checkpoint_every=every)
