@@ -1,7 +1,7 @@
 """One Recorder for every integrator: samples, the percussion log and corner branches, filling
 the arrays of trajectory.py's schema; and the run metadata every trajectory file carries.
 
-Columns grow by blocks joined once at the end (compact: memory is proportional to what was recorded)."""
+Columns grow in place by at most BLOCK_ROWS rows (compact: memory is proportional to what was recorded)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from .model import Model
 from .state import State
 from .trajectory import Trajectory
 
-BLOCK_ROWS = 1 << 16  # the largest block of rows a recording adds at a time (see _Columns)
+BLOCK_ROWS = 1 << 16  # the most rows a full column grows by at a time (see _Columns)
 LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) of its step (and > 0)
 
 
@@ -81,69 +81,53 @@ class PercussionRow:
 
 
 class _Columns:
-    """Arrays of one schema group in blocks: rows are written into the current block (`cols`,
-    np.empty: pages untouched until written), a full block is kept and a new one started (as
-    many rows as recorded so far, at most BLOCK_ROWS), and the blocks are joined once when the
-    recording ends (fit). Memory stays ~ the rows recorded, with no copy while recording. A row
+    """Arrays of one schema group, `n` rows used. A full column grows in place (ndarray.resize:
+    realloc, which for large arrays remaps pages instead of copying them) by as many rows as it
+    has, at most BLOCK_ROWS at a time, and is cut to its n rows when the recording ends (fit):
+    the memory stays ~ the rows recorded, with no copy and at most BLOCK_ROWS rows to spare. A row
     counts (commit) only once written: an interrupt never leaves a half-written row."""
 
     def __init__(self, schema: dict, sizes: dict, capacity: int):
         self.shapes = {k: tuple(sizes.get(d, d) for d in shape) for k, (_, shape) in schema.items()}
-        self.dtypes = {k: dtype for k, (dtype, _) in schema.items()}
-        self.full: dict[str, list[np.ndarray]] = {k: [] for k in schema}
-        self.cols = self._block(max(1, min(capacity, BLOCK_ROWS)))
-        self.i = 0  # rows used in the current block
-        self.n = 0  # rows in all
-
-    def _block(self, rows: int) -> dict[str, np.ndarray]:
-        return {k: np.empty((rows,) + self.shapes[k], self.dtypes[k]) for k in self.shapes}
+        self.cols = {k: np.empty((max(capacity, 1),) + self.shapes[k], dtype) for k, (dtype, _) in schema.items()}
+        self.n = 0
 
     def free(self) -> int:
-        """Index in `cols` of the next row (a new block if the current one is full); commit() once written."""
-        if self.i == len(next(iter(self.cols.values()))):
-            for k, a in self.cols.items():
-                self.full[k].append(a)
-            self.cols = self._block(min(max(self.n, 64), BLOCK_ROWS))
-            self.i = 0
-        return self.i
+        """Index of the next row (growing the columns if full); call commit() once it is written."""
+        i = self.n
+        if i == len(next(iter(self.cols.values()))):
+            self._resize(i + min(max(i, 64), BLOCK_ROWS))
+        return i
 
     def commit(self) -> None:
-        self.i += 1
         self.n += 1
 
-    def fit(self) -> None:
-        """Join the blocks into one array per column, exactly n rows (at the end of a recording):
-        the first block is grown in place (ndarray.resize: realloc, which moves no data for large
-        arrays) and the others copied into it and freed, one column at a time."""
+    def _resize(self, rows: int) -> None:
         for k in self.cols:
-            if not self.full[k]:
-                self.cols[k] = self.cols[k][:self.i]
-                continue
-            first = self.full[k].pop(0)
-            at = len(first)
-            try:
-                first.resize((self.n,) + first.shape[1:])
-            except ValueError:  # a view of it is alive (a checkpoint's arrays): copy instead
-                first = np.concatenate([first] + self.full[k] + [self.cols[k][:self.i]])
-            else:
-                for part in self.full[k] + [self.cols[k][:self.i]]:
-                    first[at:at + len(part)] = part
-                    at += len(part)
-            self.full[k] = []
-            self.cols[k] = first
-        self.i = self.n
+            try:  # in place; refused (ValueError) while a view of the array is alive: then copied
+                self.cols[k].resize((rows,) + self.cols[k].shape[1:])
+            except ValueError:
+                a = self.cols[k]
+                b = np.empty((rows,) + a.shape[1:], a.dtype)
+                b[:min(rows, self.n)] = a[:min(rows, self.n)]
+                self.cols[k] = b
+
+    def fit(self) -> None:
+        """Release the rows not used (at the end of a recording)."""
+        if len(next(iter(self.cols.values()))) > max(self.n, 1):
+            self._resize(max(self.n, 1))
 
     def load(self, arrays: dict[str, np.ndarray]) -> None:
-        """Start from rows recorded earlier (a checkpoint's arrays): they become the first block."""
-        for k in self.cols:
-            self.full[k] = [np.array(arrays[k], self.dtypes[k])]
-        self.n = len(self.full[next(iter(self.cols))][0])
-        self.cols, self.i = self._block(min(max(self.n, 64), BLOCK_ROWS)), 0
+        """Start from rows recorded earlier (a checkpoint's arrays)."""
+        n = len(arrays[next(iter(self.cols))])
+        if n > len(next(iter(self.cols.values()))):
+            self._resize(n)
+        for k, a in self.cols.items():
+            a[:n] = arrays[k]
+        self.n = n
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The rows so far: views of one block, or the blocks joined (a copy)."""
-        return {k: a[:self.i] if not self.full[k] else np.concatenate(self.full[k] + [a[:self.i]])
-                for k, a in self.cols.items()}
+        return {k: a[:self.n] for k, a in self.cols.items()}
 
 
 class Recorder:
@@ -181,7 +165,7 @@ class Recorder:
 
     def finite(self) -> bool:
         """Whether the last sample's energies and gaps are finite (an overflow shows there first)."""
-        i, c = self._samples.i - 1, self._samples.cols
+        i, c = self._samples.n - 1, self._samples.cols
         return bool(np.isfinite(c["kinetic_energy"][i]) and np.isfinite(c["potential_energy"][i])
                     and np.isfinite(c["gap"][i]).all())
 
