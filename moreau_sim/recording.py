@@ -21,7 +21,7 @@ from .model import Model
 from .state import State
 from .trajectory import Trajectory
 
-BLOCK_ROWS = 1 << 16  # the most rows a full column grows by at a time (see _Columns)
+BLOCK_ROWS = 1 << 14  # the most rows a full column grows by at a time (see _Columns)
 LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) of its step (and > 0)
 
 
