@@ -14,6 +14,7 @@ from .data import Data, make_data
 from .errors import MoreauSimError, SceneError, SimulationError
 from .event_driven import UnsupportedModel, simulate_event_driven
 from .law import Impact, impact, outcome, percussion, project
+from .ledger import Ledger, ledger
 from .model import Model, build_model, initial_state
 from .options import (Bias, Integrator, MeshMode, Options, PositionCorrection, QPForm, RootJoint, Selection,
                       Separating, SlowImpacts, StaticShape, Tunnelling)
@@ -30,12 +31,12 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Bias", "ContactProblem", "Constraints", "Contacts", "Data", "FeatureKind", "Impact", "ImpactSolution",
-    "Integrator", "MeshMode", "Model", "MoreauSimError", "Options", "Outcome", "PositionCorrection", "QPForm",
+    "Integrator", "Ledger", "MeshMode", "Model", "MoreauSimError", "Options", "Outcome", "PositionCorrection", "QPForm",
     "QPResult", "Recorder", "RootJoint", "Scene", "SceneBuilder", "SceneError", "Selection", "Separating",
     "SimulationError", "SlowImpacts", "State", "StaticShape", "StepResult", "Trajectory", "Tunnelling",
     "UnsupportedModel",
     "assemble", "assemble_constraints", "build_model", "contact_rows", "correct_positions", "detect", "impact",
-    "impact_outcomes", "initial_state", "load_scene", "load_trajectory", "make_data", "outcome", "pair_distances",
-    "parse_scene", "percussion", "project", "run", "simulate", "simulate_event_driven", "solve_impact", "step",
-    "summary",
+    "impact_outcomes", "initial_state", "ledger", "load_scene", "load_trajectory", "make_data", "outcome",
+    "pair_distances", "parse_scene", "percussion", "project", "run", "simulate", "simulate_event_driven",
+    "solve_impact", "step", "summary",
 ]

@@ -450,6 +450,7 @@ class AdaptiveRun(FeatureContacts):
             self.work += r.contact_work
             self.corr += r.correction_energy
             previous = rec.log_percussions(rec.n, t + 0.5 * h, r.contacts, r.P, r.gamma_minus, r.gamma_plus, previous)
+            rec.account_step(rec.n, t + 0.5 * h, State(t, q, u), r, h, self.e)
             if r.branch is not None:
                 sol, chosen, u_plus = r.branch
                 rec.branch(rec.n, t + 0.5 * h, chosen, [(up, c.distance, c.global_min)

@@ -6,7 +6,8 @@
 A checkpoint is a trajectory NPZ (trajectory.py, written atomically) of the samples, percussion
 log and branches so far, whose meta["checkpoint"] holds everything else the loop carries from
 one step to the next: the steps done, t0, the state (t, q, u), the contact work and correction
-energy since the last sample, the contacts of the last step (the log's new-impact test) and the
+energy since the last sample, the recorder's running ledger terms (Recorder.carried), the
+contacts of the last step (the log's new-impact test) and the
 detection's warm start (Data.warm_start: the pairs it examines, coal's cached GJK guesses).
 JSON keeps floats exactly (shortest repr), so the resumed run takes the same steps on the same
 numbers as an uninterrupted one.
@@ -83,7 +84,8 @@ def save(path: Path, rec: Recorder, meta: dict, *, steps: int, t0: float, state:
     """Write the checkpoint after `steps` steps (atomically: a reader sees the old or the new one)."""
     meta = {**meta, KEY: {"steps": steps, "t0": t0, "t": state.t, "q": state.q.tolist(), "u": state.u.tolist(),
                           "work": work, "corr": corr, "previous": sorted(previous),
-                          "warm_start": data.warm_start(), "identity": identity(rec.model)}}
+                          "warm_start": data.warm_start(), "recorder": rec.carried(state),
+                          "identity": identity(rec.model)}}
     rec.trajectory(meta, final=False).save(path)
 
 
@@ -100,8 +102,8 @@ def load(path: Path, model: Model, rec: Recorder, data: Data) -> Resumed:
     if ck.get("identity") != identity(model):
         raise SceneError(f"{path}: a checkpoint of another run (its scene, URDFs or options differ); "
                          "delete it or resume with the same settings")
-    rec.restore(traj.arrays)
-    data.restore_warm_start(ck["warm_start"])
     state = State(float(ck["t"]), np.array(ck["q"], float), np.array(ck["u"], float))
+    rec.restore(traj.arrays, ck["recorder"], state)
+    data.restore_warm_start(ck["warm_start"])
     return Resumed(int(ck["steps"]), float(ck["t0"]), state, float(ck["work"]), float(ck["corr"]),
                    {tuple(p) for p in ck["previous"]}, float(traj.meta.get("run", {}).get("wall_seconds") or 0.0))

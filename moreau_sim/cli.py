@@ -165,9 +165,13 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
                + (f", corner impacts with several outcomes {s['branching_steps']}" if s["branching_steps"] else ""))
     click.echo(f"  energy {s['energy_start']:.6g} J -> {s['energy_end']:.6g} J "
                f"(contact work {s['contact_work_total']:.6g} J, max rise {s['energy_max_increase']:.3g} J)")
+    if s["law_difference_max"] is not None:
+        click.echo(f"  ledger: smooth error {s['smooth_error_total']:.3g} J, impacts against the law within "
+                   f"{s['law_difference_max']:.2g} J (docs/regression.md)")
     if s["min_gap"] is not None:
         click.echo(f"  min gap {s['min_gap']:.3g} m")
-    click.echo(f"  wall {s['wall_seconds']:.3f} s, {s['us_per_step']:.1f} us/step  -> {out}")
+    per_step = f", {s['us_per_step']:.1f} us/step" if s["us_per_step"] is not None else ""  # event-driven: no steps
+    click.echo(f"  wall {s['wall_seconds']:.3f} s{per_step}  -> {out}")
 
 
 @main.command()
@@ -255,9 +259,11 @@ def plot(file, png, panels):
 
 from .sweep_cli import sweep  # noqa: E402  (thin commands in their own modules)
 from .viewer_cli import view  # noqa: E402
+from .regress_cli import regress  # noqa: E402
 
 main.add_command(sweep)
 main.add_command(view)
+main.add_command(regress)
 
 if __name__ == "__main__":
     main()

@@ -305,6 +305,7 @@ class FeatureContacts:
         for i in np.flatnonzero((imp.P > cut) & (imp.P > 0)):  # step: the index of the next sample
             self.rec.log(PercussionRow(self.rec.n, t, int(c.pair[i]), int(c.kind[i]), int(c.feature[i]), float(c.g[i]),
                                        float(imp.P[i]), float(gm[i]), float(gp[i]), c.point_a[i], c.normal[i], True))
+        self.rec.account_impact(t, q, u, imp.u_plus, M, imp.qp.v, 0.0 if zeno else self.e, imp.P)
         self.work -= imp.energy_loss
         self.last_impact = t
         self.impacts += 1

@@ -20,7 +20,7 @@ TOP = 8  # pairs (or coordinates) named in a legend; the others are drawn thin a
 
 def figure(traj: Trajectory | str | Path, panels: tuple[str, ...] | list[str] = DEFAULT_PANELS):
     """A matplotlib Figure with the given `panels` (any of PANELS) sharing the time axis:
-    energy [J] (T, V, T + V and the ledger E0 + sum(W_c + correction)), gap [m] per collision pair,
+    energy [J] (T, V, T + V and the ledger E0 + sum(W_c + correction + smooth error)), gap [m] per collision pair,
     percussion [N s] per logged contact, q and u per coordinate."""
     import matplotlib
 
@@ -63,8 +63,12 @@ def _energy(ax, _, a, meta, pairs, colour):
     ax.plot(t, a["kinetic_energy"], lw=1, label="kinetic T")
     ax.plot(t, a["potential_energy"], lw=1, label="potential V")
     ax.plot(t, E, lw=2, color="k", label="total T + V")
-    ledger = np.cumsum(a["contact_work"] + a["correction_energy"])
-    ax.plot(t, E[0] + ledger, lw=1, ls="--", color="tab:red", label="ledger E0 + Σ(W_c + corr.)")
+    smooth = a.get("smooth_error")
+    if smooth is not None and len(smooth) and np.isfinite(smooth).all():  # files before format 3 have none
+        ledger, label = np.cumsum(a["contact_work"] + a["correction_energy"] + smooth), "Σ(W_c + corr. + smooth)"
+    else:
+        ledger, label = np.cumsum(a["contact_work"] + a["correction_energy"]), "Σ(W_c + corr.)"
+    ax.plot(t, E[0] + ledger, lw=1, ls="--", color="tab:red", label=f"ledger E0 + {label}")
     ax.set_ylabel("energy [J]")
     _legend(ax)
 

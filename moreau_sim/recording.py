@@ -1,5 +1,6 @@
-"""One Recorder for every integrator: samples, the percussion log and corner branches, filling
-the arrays of trajectory.py's schema; and the run metadata every trajectory file carries.
+"""One Recorder for every integrator: samples, the percussion log, corner branches and the energy
+ledger (docs/theory.md §5), filling the arrays of trajectory.py's schema; and the run metadata every
+trajectory file carries.
 
 Columns grow in place by at most BLOCK_ROWS rows (compact: memory is proportional to what was recorded)."""
 
@@ -12,11 +13,13 @@ from importlib import metadata
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
 from . import trajectory
 from .contacts import Contacts, pair_distances
 from .data import Data
-from .energy import kinetic, potential
+from .energy import kinetic, potential, total
+from .ledger import impact_terms
 from .model import Model
 from .state import State
 from .trajectory import Trajectory
@@ -132,7 +135,12 @@ class _Columns:
 
 class Recorder:
     """Samples (t, q, u, T, V, contact work and correction energy since the previous sample, pair
-    gaps, closed contacts), percussion rows and corner branches of one run."""
+    gaps, closed contacts), percussion rows, corner branches and the energy ledger of one run.
+
+    The ledger (docs/theory.md §5, ledger.py): the integrator reports each fixed step
+    (account_step) and each impact located in time (account_impact); the energy change between
+    the states they leave and the next reported or sampled state is contact-free motion and counts
+    as smooth error."""
 
     def __init__(self, model: Model, data: Data, n_samples: int = 1):
         self.model, self.data = model, data
@@ -141,6 +149,15 @@ class Recorder:
         self._log = _Columns(trajectory.LOG, sizes, 64)
         self._branches = _Columns(trajectory.BRANCHES, sizes, 4)
         self._candidates = _Columns(trajectory.CANDIDATES, sizes, 8)
+        self._impacts = _Columns(trajectory.IMPACTS, sizes, 16)
+        self._smooth = self._diss = self._law = 0.0  # ledger terms since the previous sample [J]
+        self._E: float | None = None  # T + V at the last state the ledger accounted [J]
+        self._at: tuple | None = None  # that state's (q, u) arrays (a step starting there reuses _E)
+        self._TV = (0.0, 0.0)  # that state's (T, V) [J] (a sample of it reuses them)
+        self._new_impact = False  # the last log_percussions logged a new impact
+        self._rise = (-np.inf, np.nan)  # (largest T + V increase of one step [J], t [s])
+        self._law_difference = (0.0, np.nan)  # (largest |D - L| of a contact step [J], t [s])
+        self._contact_steps = 0
 
     @property
     def n(self) -> int:
@@ -155,13 +172,91 @@ class Recorder:
         c["t"][i] = state.t
         c["q"][i] = q
         c["u"][i] = u
-        c["kinetic_energy"][i] = kinetic(m, d, q, u)
-        c["potential_energy"][i] = potential(m, d, q)
+        if self._at is not None and self._at[0] is q and self._at[1] is u:
+            T, V = self._TV  # the state the last step left, already evaluated by account_step
+        else:
+            T, V = kinetic(m, d, q, u), potential(m, d, q)
+        c["kinetic_energy"][i], c["potential_energy"][i] = T, V
         c["contact_work"][i] = work
         c["correction_energy"][i] = corr
         c["gap"][i] = pair_distances(m, d, q)
         c["n_contacts"][i] = n_contacts
+        if self._E is not None:  # contact-free motion since the last accounted state (0 after a step)
+            self._smooth += (T + V) - self._E
+            if (T + V) - self._E > self._rise[0]:  # event-driven, adaptive: a smooth stretch counts as a step
+                self._rise = ((T + V) - self._E, float(state.t))
+        c["smooth_error"][i], c["dissipation"][i], c["law_dissipation"][i] = self._smooth, self._diss, self._law
         self._samples.commit()
+        self._smooth = self._diss = self._law = 0.0
+        self._E, self._at, self._TV = T + V, (q, u), (T, V)
+
+    def account_step(self, step: int, t: float, before: State, r, h: float, e: float) -> None:
+        """The ledger of one midpoint Moreau step (docs/theory.md §5, ledger.py) from `before` to the
+        StepResult r, of size h [s] and restitution e; t [s]: the step's midpoint. Call it after
+        log_percussions (a step with a new impact gets an impact row)."""
+        m, d = self.model, self.data
+        q0, u0, q1, u1 = before.q, before.u, r.state.q, r.state.u
+        if self._at is not None and self._at[0] is q0 and self._at[1] is u0:
+            E0 = self._E
+        else:
+            E0 = total(m, d, q0, u0)
+            if self._E is not None:
+                self._smooth += E0 - self._E
+                if E0 - self._E > self._rise[0]:
+                    self._rise = (E0 - self._E, float(before.t))
+        T1, V1 = kinetic(m, d, q1, u1), potential(m, d, q1)
+        E1 = T1 + V1
+        if E1 - E0 > self._rise[0]:
+            self._rise = (E1 - E0, float(r.state.t))
+        if r.qp is None or not r.qp.problem:
+            self._smooth += E1 - E0  # a contact-free step is smooth motion only
+        else:
+            M, _, v_free, b = r.qp.problem
+            T_minus, T_plus, law = impact_terms(M, v_free, r.qp.v, u0, u1, e, r.P, b)
+            u_free = v_free + e * (v_free - u0)  # inverts v_free = (u_free + e u_k)/(1 + e)
+            q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * u_free)
+            self._smooth += total(m, d, q_free, u_free) - E0
+            self._add_impact(step, t, T_minus, T_plus, law, int(np.count_nonzero(r.P > 0)), self._new_impact)
+        self._E, self._at, self._TV = E1, (q1, u1), (T1, V1)
+
+    def account_impact(self, t: float, q: np.ndarray, u_minus: np.ndarray, u_plus: np.ndarray, M: np.ndarray,
+                       v: np.ndarray, e: float, P: np.ndarray) -> None:
+        """The ledger of an impact located at t [s] (event-driven and adaptive runs): the law of
+        docs/theory.md §1 at q, u- -> u+ with v the projection and M = M(q)."""
+        m, d = self.model, self.data
+        E0 = total(m, d, q, u_minus)
+        if self._E is not None:
+            self._smooth += E0 - self._E
+            if E0 - self._E > self._rise[0]:
+                self._rise = (E0 - self._E, float(t))
+        T_minus, T_plus, law = impact_terms(M, u_minus, v, u_minus, u_plus, e, P, None)
+        self._add_impact(self.n, t, T_minus, T_plus, law, int(np.count_nonzero(P > 0)), True)
+        self._E, self._at = total(m, d, q, u_plus), None
+
+    def _add_impact(self, step: int, t: float, T_minus: float, T_plus: float, law: float, contacts: int,
+                    new: bool) -> None:
+        self._contact_steps += 1
+        self._diss += T_minus - T_plus
+        self._law += law
+        diff = abs((T_minus - T_plus) - law)
+        if diff > self._law_difference[0]:
+            self._law_difference = (diff, float(t))
+        if new:
+            i = self._impacts.free()
+            c = self._impacts.cols
+            c["impact_step"][i], c["impact_t"][i], c["impact_contacts"][i] = step, t, contacts
+            c["impact_T_minus"][i], c["impact_T_plus"][i] = T_minus, T_plus
+            c["impact_dissipation"][i], c["impact_law"][i] = T_minus - T_plus, law
+            self._impacts.commit()
+
+    def ledger_meta(self) -> dict:
+        """The per-run ledger figures no array holds (meta["ledger"] of the trajectory; a time is None
+        when there was no such step: JSON has no NaN)."""
+        rise, t_rise = self._rise if np.isfinite(self._rise[0]) else (0.0, np.nan)
+        t_diff = self._law_difference[1]
+        return {"max_step_rise": float(rise), "t_step_rise": None if np.isnan(t_rise) else float(t_rise),
+                "max_law_difference": float(self._law_difference[0]),
+                "t_law_difference": None if np.isnan(t_diff) else float(t_diff), "contact_steps": self._contact_steps}
 
     def finite(self) -> bool:
         """Whether the last sample's energies and gaps are finite (an overflow shows there first)."""
@@ -180,11 +275,13 @@ class Recorder:
                         gamma_plus: np.ndarray, previous: set) -> set:
         """Log the percussions of a step above LOG_RELATIVE of its largest; a row is a new impact
         when its contact (pair, kind, feature) is not in `previous`. Returns this step's contacts."""
+        self._new_impact = False
         if not contacts.m:
             return set()
         cut = LOG_RELATIVE * float(P.max())
         for i in np.flatnonzero((P > cut) & (P > 0)):
             key = (int(contacts.pair[i]), int(contacts.kind[i]), int(contacts.feature[i]))
+            self._new_impact |= key not in previous
             self.log(PercussionRow(step, t, *key, float(contacts.g[i]), float(P[i]), float(gamma_minus[i]),
                                    float(gamma_plus[i]), contacts.point_a[i], contacts.normal[i], key not in previous))
         return contacts.keys()
@@ -205,20 +302,41 @@ class Recorder:
         self._branches.commit()
 
     def _groups(self) -> tuple[_Columns, ...]:
-        return self._samples, self._log, self._branches, self._candidates
+        return self._samples, self._log, self._branches, self._candidates, self._impacts
 
-    def restore(self, arrays: dict[str, np.ndarray]) -> None:
-        """Continue a recording from its arrays (a checkpoint's, checkpoint.py)."""
+    def carried(self, state: State) -> dict:
+        """What the recording carries from one step to the next besides its arrays (the ledger's
+        running terms), as JSON for a checkpoint (checkpoint.py); `state`: the run's current state."""
+        return {"smooth": float(self._smooth), "diss": float(self._diss), "law": float(self._law),
+                "E": None if self._E is None else float(self._E),
+                "at_state": self._at is not None and self._at[0] is state.q and self._at[1] is state.u,
+                "TV": [float(x) for x in self._TV], "new_impact": bool(self._new_impact),
+                "rise": [None if not np.isfinite(x) else x for x in self._rise],
+                "law_difference": [None if np.isnan(x) else x for x in self._law_difference],
+                "contact_steps": self._contact_steps}
+
+    def restore(self, arrays: dict[str, np.ndarray], carried: dict, state: State) -> None:
+        """Continue a recording from its arrays and carried() (a checkpoint's) at `state`."""
         for g in self._groups():
             g.load(arrays)
+        c = carried
+        self._smooth, self._diss, self._law, self._E = c["smooth"], c["diss"], c["law"], c["E"]
+        self._at = (state.q, state.u) if c["at_state"] else None
+        self._TV, self._new_impact, self._contact_steps = tuple(c["TV"]), c["new_impact"], c["contact_steps"]
+        rise, t_rise = c["rise"]
+        self._rise = (-np.inf if rise is None else rise, np.nan if t_rise is None else t_rise)
+        diff, t_diff = c["law_difference"]
+        self._law_difference = (diff, np.nan if t_diff is None else t_diff)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        out = {**self._samples.arrays(), **self._log.arrays(), **self._branches.arrays(), **self._candidates.arrays()}
+        out = {**self._samples.arrays(), **self._log.arrays(), **self._branches.arrays(), **self._candidates.arrays(),
+               **self._impacts.arrays()}
         return {k: out[k] for k in trajectory.ARRAYS}
 
     def trajectory(self, meta: dict, *, final: bool = True) -> Trajectory:
-        """The arrays so far (views) with `meta`; `final`: the recording ends, unused rows are released."""
+        """The arrays so far (views) with `meta` (and its "ledger" entry, ledger_meta()); `final`:
+        the recording ends, its unused rows are released."""
         if final:
             for g in self._groups():
                 g.fit()
-        return Trajectory(self.arrays(), meta)
+        return Trajectory(self.arrays(), {**meta, "ledger": self.ledger_meta()})

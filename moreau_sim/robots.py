@@ -260,12 +260,13 @@ def unique_frame_names(model: pin.Model) -> None:
             taken.add(new)
 
 
-def load_mjcf(path: Path, root, where: str) -> tuple[pin.Model, pin.GeometryModel]:
-    """Model and collision geometry of an MJCF file. `root` (a JointModel or None) attaches the
-    MJCF's world body to the world: Pinocchio 4.1's MJCF reader silently ignores a root joint when
-    the top body has a joint of its own, so the root is built here (a one-joint model) and the
-    MJCF model appended to it, which treats both cases alike (inertias of bodies welded to the
-    world body move onto the root)."""
+def load_mjcf(path: Path, root, where: str,
+              kind: pin.GeometryType = pin.GeometryType.COLLISION) -> tuple[pin.Model, pin.GeometryModel]:
+    """Model and collision geometry (or `kind`: VISUAL, what the replay draws) of an MJCF file.
+    `root` (a JointModel or None) attaches the MJCF's world body to the world: Pinocchio 4.1's
+    MJCF reader silently ignores a root joint when the top body has a joint of its own, so the
+    root is built here (a one-joint model) and the MJCF model appended to it, which treats both
+    cases alike (inertias of bodies welded to the world body move onto the root)."""
     try:
         root_el = ET.parse(path).getroot()
     except ET.ParseError as exc:
@@ -275,7 +276,7 @@ def load_mjcf(path: Path, root, where: str) -> tuple[pin.Model, pin.GeometryMode
                          f"[{where} mjcf]")
     try:
         m = pin.buildModelFromMJCF(str(path))
-        g = pin.buildGeomFromMJCF(m, str(path), pin.GeometryType.COLLISION)
+        g = pin.buildGeomFromMJCF(m, str(path), kind)
     except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with C++ text
         raise SceneError(f"{path}: Pinocchio cannot load this MJCF: {exc} [{where} mjcf]") from None
     if root is None:

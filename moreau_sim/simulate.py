@@ -84,6 +84,7 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
                 corr += r.correction_energy
                 previous = rec.log_percussions(k + 1, state.t + 0.5 * h, r.contacts, r.P, r.gamma_minus,
                                                r.gamma_plus, previous)
+                rec.account_step(k + 1, state.t + 0.5 * h, state, r, h, e)
                 if r.branch is not None:
                     sol, chosen, u_plus = r.branch
                     rec.branch(k + 1, state.t + 0.5 * h, chosen,
@@ -149,6 +150,8 @@ def summary(traj: Trajectory) -> dict:
         "energy_max_increase": float(E.max() - E[0]) if len(E) else None,  # = max(E - E[0]): rounding is monotone
         "contact_work_total": float(a["contact_work"].sum()),
         "correction_energy_total": float(a["correction_energy"].sum()),
+        "smooth_error_total": float(a["smooth_error"].sum()),  # the ledger (docs/theory.md §5, ms.ledger)
+        "law_difference_max": traj.meta.get("ledger", {}).get("max_law_difference"),
         "min_gap": float(gaps.min()) if gaps.size else None,
         "wall_seconds": run_.get("wall_seconds"),
         "us_per_step": run_.get("us_per_step"),

@@ -7,6 +7,12 @@ Arrays (n = saved samples, k = logged contact percussions):
   correction_energy (n,) [J]: the change of T + V made by the position correction over those steps;
   gap (n, pairs) [m]: signed distance of each collision pair at the sample;
   n_contacts (n,): closed contacts in the step that produced the sample;
+  the energy ledger (docs/theory.md §5, ledger.py), summed over the steps since the previous sample:
+  smooth_error (n,) [J]: the change of T + V of the contact-free part of each step,
+  dissipation (n,) [J]: T- - T+ of the impacts (the law's frame: u- = v_free at q_m),
+  law_dissipation (n,) [J]: the law's prediction of it, (1 - e^2)/2 |v_free - v|_M^2 - P.b;
+  impacts (steps with a new impact), i of them: impact_step, impact_t [s] (step midpoint),
+  impact_contacts (pushing contacts), impact_T_minus, impact_T_plus, impact_dissipation, impact_law [J];
   log_step, log_t [s] (step midpoint time), log_pair, log_kind (contacts.FeatureKind value),
   log_feature (index within the kind), log_gap [m], log_P [N s],
   log_gamma_minus, log_gamma_plus [m/s], log_point (k, 3) [m], log_normal (k, 3),
@@ -16,7 +22,8 @@ Arrays (n = saved samples, k = logged contact percussions):
   branch_start, branch_count (its candidates' rows in candidate_*); candidate_u_plus (c, nv),
   candidate_distance (c,) [J] (1/2 |v - v_free|_M^2), candidate_global_min (c,) bool.
   meta: one JSON string: scene (name, path, TOML source, URDF texts), options, model summary,
-  package versions, status ("complete" or "failed: ..."), run statistics.
+  package versions, status ("complete" or "failed: ..."), run statistics, and "ledger": the
+  per-run figures no array holds (largest energy rise of any step, largest law difference).
 """
 
 from __future__ import annotations
@@ -32,12 +39,13 @@ from pathlib import Path
 
 import numpy as np
 
-FORMAT = "moreau-sim trajectory 2"  # 2: log_kind + log_feature (1: one feature id with kind offsets)
+FORMAT = "moreau-sim trajectory 3"  # 3: the ledger arrays; 2: log_kind + log_feature (1: one feature id)
 
 # name -> (dtype, trailing shape); "nq", "nv", "pairs" are the model's sizes
 SAMPLES = {"t": (float, ()), "q": (float, ("nq",)), "u": (float, ("nv",)), "kinetic_energy": (float, ()),
            "potential_energy": (float, ()), "contact_work": (float, ()), "correction_energy": (float, ()),
-           "gap": (float, ("pairs",)), "n_contacts": (np.int64, ())}
+           "gap": (float, ("pairs",)), "n_contacts": (np.int64, ()), "smooth_error": (float, ()),
+           "dissipation": (float, ()), "law_dissipation": (float, ())}
 LOG = {"log_step": (np.int64, ()), "log_t": (float, ()), "log_pair": (np.int64, ()), "log_kind": (np.int64, ()),
        "log_feature": (np.int64, ()), "log_gap": (float, ()), "log_P": (float, ()), "log_gamma_minus": (float, ()),
        "log_gamma_plus": (float, ()), "log_point": (float, (3,)), "log_normal": (float, (3,)), "log_impact": (bool, ())}
@@ -45,7 +53,11 @@ BRANCHES = {"branch_step": (np.int64, ()), "branch_t": (float, ()), "branch_chos
             "branch_start": (np.int64, ()), "branch_count": (np.int64, ())}
 CANDIDATES = {"candidate_u_plus": (float, ("nv",)), "candidate_distance": (float, ()),
               "candidate_global_min": (bool, ())}
-ARRAYS = tuple(SAMPLES) + tuple(LOG) + tuple(BRANCHES) + tuple(CANDIDATES)
+IMPACTS = {"impact_step": (np.int64, ()), "impact_t": (float, ()), "impact_contacts": (np.int64, ()),
+           "impact_T_minus": (float, ()), "impact_T_plus": (float, ()), "impact_dissipation": (float, ()),
+           "impact_law": (float, ())}
+ARRAYS = tuple(SAMPLES) + tuple(LOG) + tuple(BRANCHES) + tuple(CANDIDATES) + tuple(IMPACTS)
+LEDGER_ARRAYS = ("smooth_error", "dissipation", "law_dissipation") + tuple(IMPACTS)  # absent before format 3
 _FORMAT1_OFFSETS = ((30_000, 4), (20_000, 3), (10_000, 2))  # format 1 feature ids: SWEPT, CORNER, PATCH
 
 
@@ -60,6 +72,16 @@ def _from_format1(arrays: dict) -> None:
         sel = (f >= offset) & (kind == 0)
         kind[sel], feature[sel] = k, f[sel] - offset
     arrays["log_kind"], arrays["log_feature"] = kind, feature
+
+
+def _without_ledger(arrays: dict) -> None:
+    """A file of format 1 or 2 has no ledger: its per-sample terms read as NaN (not measured) and it
+    has no impact rows; ledger.ledger() says so instead of reporting zeros."""
+    n = len(arrays["t"])
+    for k in LEDGER_ARRAYS:
+        if k not in arrays:
+            dtype = SAMPLES[k][0] if k in SAMPLES else IMPACTS[k][0]
+            arrays[k] = np.full(n, np.nan) if k in SAMPLES else np.zeros(0, dtype)
 
 
 @dataclass(eq=False)
@@ -170,7 +192,8 @@ def load_trajectory(path: str | Path, *, verify: bool = True) -> Trajectory:
     try:
         with np.load(path, allow_pickle=False) as z:
             old = "log_kind" not in z.files
-            missing = [k for k in ARRAYS + ("meta",) if k not in z.files and not (old and k == "log_kind")]
+            optional = LEDGER_ARRAYS + (("log_kind",) if old else ())
+            missing = [k for k in ARRAYS + ("meta",) if k not in z.files and k not in optional]
             if missing:
                 raise ValueError(f"{path}: not a moreau-sim trajectory (missing {missing})")
             meta = json.loads(str(z["meta"]))
@@ -179,6 +202,7 @@ def load_trajectory(path: str | Path, *, verify: bool = True) -> Trajectory:
                 raise ValueError(f"{path}: damaged: its arrays do not match the checksum written with them")
             if old:
                 _from_format1(arrays)
+            _without_ledger(arrays)
     except ValueError as exc:
         if str(path) in str(exc):
             raise

@@ -364,12 +364,49 @@ def _urdf_visuals(text: str, dirs: list[Path], base: Path) -> dict:
     return out
 
 
+def _mjcf_visuals(model: Model, body, text: str, original: Path | None) -> list:
+    """[(link, frame of model.pin, placement in that frame, mesh, rgb)] of an MJCF body's visual
+    geometry: Pinocchio's reader with GeometryType.VISUAL (every geom but MuJoCo's collision-only
+    group > 2; contype = conaffinity = 0 geoms are visual only), placed as bodies.load_body places
+    the collision geometry, with each geom's rgba or its material's. The stored text is read from
+    the `original` file when that file still holds it (its meshes are then found), else from a
+    temporary copy; [] when Pinocchio cannot load it (the collision geometry is drawn instead)."""
+    from .bodies import root_joint
+
+    where = f"trajectory metadata, body {body.name!r}"
+    with tempfile.TemporaryDirectory(prefix="moreau-sim-view-") as tmp:
+        path = Path(tmp) / "model.xml"
+        path.write_text(text, encoding="utf-8")
+        try:
+            if original is not None and original.is_file() and original.read_text(encoding="utf-8") == text:
+                path = original
+            m, g = robots.load_mjcf(path, root_joint(body, where), where, pin.GeometryType.VISUAL)
+        except (OSError, SceneError):
+            return []
+    pm = model.pin
+    fixed = pin.SE3(pin.rpy.rpyToMatrix(*body.rpy), np.array(body.position, float))  # a fixed root's placement
+    out = []
+    for go in g.geometryObjects:
+        mesh = shape_mesh(go.geometry)
+        if mesh is None:
+            continue
+        rgb = tuple(int(round(255 * min(max(float(c), 0.0), 1.0))) for c in go.meshColor[:3])
+        frame = m.frames[go.parentFrame]
+        name = f"{body.name}/{frame.name}"
+        if go.parentFrame > 0 and pm.existFrame(name):
+            out.append((name, pm.getFrameId(name), frame.placement.inverse() * go.placement, mesh, rgb))
+        elif go.parentJoint == 0:  # a geom of the MJCF's world body under a fixed root
+            out.append((name, 0, fixed * go.placement, mesh, rgb))
+    return out
+
+
 def parts(traj: Trajectory | str | Path, model: Model | None = None, *, colors: str = "link") -> list[Part]:
-    """The meshes the replay draws: each link's URDF <visual> geometry (meshes loaded with trimesh,
-    boxes, spheres, cylinders), its collision geometry where it has no visual that loads, and the
-    statics (a half-space is left to the caller: :func:`ground_box`). `colors`: "link" gives each
-    link its own colour of a palette, "model" keeps the URDF material colours (the palette where
-    there is none)."""
+    """The meshes the replay draws: each link's visual geometry - a URDF's <visual>s (meshes loaded
+    with trimesh, boxes, spheres, cylinders), an MJCF's visual geoms (:func:`_mjcf_visuals`) -, its
+    collision geometry where it has no visual that loads, and the statics (a half-space is left to
+    the caller: :func:`ground_box`). `colors`: "link" gives each link its own colour of a palette,
+    "model" keeps the model's colours (URDF materials; MJCF rgba and materials; the palette where a
+    URDF visual has none)."""
     traj = _trajectory(traj)
     model = model or model_from_trajectory(traj)
     sc = traj.meta.get("scene") or {}
@@ -385,6 +422,19 @@ def parts(traj: Trajectory | str | Path, model: Model | None = None, *, colors: 
         return rgb if colors == "model" and rgb is not None else _PALETTE[links.index(link) % len(_PALETTE)]
 
     visuals: dict[str, list] = {}
+    frames: dict[str, int] = {}
+    tables = {t.get("name"): t for t in doc.get("bodies", [])}
+    for body in model.scene.bodies:
+        if body.mjcf and body.name in texts:
+            table = tables.get(body.name, {})
+            try:
+                original = robots.resolve_model_file(str(table.get("mjcf", "")), scene_path.parent,
+                                                     [scene_path.parent / d for d in table.get("package_dirs", [])], "")
+            except SceneError:
+                original = None
+            for link, f, M, mesh, rgb in _mjcf_visuals(model, body, texts[body.name], original):
+                visuals.setdefault(link, []).append((M, mesh, rgb))
+                frames[link] = f
     for table in doc.get("bodies", []):
         name = table.get("name")
         if "mjcf" in table or name not in texts:
@@ -398,9 +448,12 @@ def parts(traj: Trajectory | str | Path, model: Model | None = None, *, colors: 
     out: list[Part] = []
     done: set[str] = set()
     for link, items in visuals.items():
-        if not pm.existFrame(link, pin.FrameType.BODY):
+        if link in frames:
+            f = frames[link]
+        elif pm.existFrame(link, pin.FrameType.BODY):
+            f = pm.getFrameId(link, pin.FrameType.BODY)
+        else:
             continue
-        f = pm.getFrameId(link, pin.FrameType.BODY)
         for k, (M, mesh, rgb) in enumerate(items):
             out.append(Part(f"{link}/visual_{k}", link, f, M, np.asarray(mesh.vertices, np.float32),
                             np.asarray(mesh.faces, np.uint32), color_of(link, rgb), "visual"))

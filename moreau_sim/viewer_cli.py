@@ -19,7 +19,7 @@ from .errors import MoreauSimError
 @click.option("--fps", type=float, default=100.0, show_default=True,
               help="Frames kept per simulated second (0: every sample).")
 @click.option("--colors", type=click.Choice(["link", "model"]), default="link", show_default=True,
-              help="A colour per link, or the model's own (URDF material) colours.")
+              help="A colour per link, or the model's own colours (URDF materials, MJCF rgba and materials).")
 @click.option("--no-browser", is_flag=True, help="Do not open a browser.")
 def view(file, port, host, html, html_alias, fps, colors, no_browser):
     """3D replay of a trajectory FILE in the browser (viser): the models' meshes, play/pause, time

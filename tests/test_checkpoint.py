@@ -1,5 +1,6 @@
 """Checkpoint and resume: a resumed run is bit-identical to an uninterrupted one (every array:
-samples, energies, gaps, the percussion log, branches), also after kill -9 of the process; a
+samples, energies, gaps, the percussion log, branches, the ledger; and the ledger's meta), also
+after kill -9 of the process; a
 killed sweep resumes to the same table; checkpoints of another run are refused by name."""
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ def test_resume_from_a_checkpoint_is_bitwise(tmp_path, name, steps, e, h_factor,
     assert 0 < ck["steps"] < steps  # the last checkpoint, mid-run
     resumed = ms.simulate(ms.build_model(sc), progress=False, checkpoint=Checkpoint(path=path, resume=True))
     assert resumed.complete and same_arrays(full, resumed) == []
+    assert resumed.meta["ledger"] == full.meta["ledger"]  # the ledger's running figures carried too
     assert not path.exists()  # removed once the run completed
 
 
@@ -98,7 +100,7 @@ def test_a_killed_run_resumes_bit_identical(tmp_path):
     _, err = r.communicate(timeout=300)
     assert r.returncode == 0, err
     a, b = ms.load_trajectory(tmp_path / "full.npz"), ms.load_trajectory(tmp_path / "b.npz")
-    assert b.complete and same_arrays(a, b) == []
+    assert b.complete and same_arrays(a, b) == [] and b.meta["ledger"] == a.meta["ledger"]
     assert not ck.exists() and not list(tmp_path.glob("*.tmp"))
 
 

@@ -73,3 +73,13 @@ def test_trajectory_repr_is_short():
     text = repr(traj)
     assert len(text) < 200 and "bouncing_ball" in text and "1001 samples" in text and "array" not in text
     assert np.isfinite(traj.q).all()
+
+
+def test_run_prints_its_summary_for_every_integrator(tmp_path):
+    """An event-driven run has no fixed steps (us_per_step is None): `run` still ends with its summary."""
+    out = tmp_path / "ball.npz"
+    r = cli("run", ROOT / "scenes" / "bouncing_ball.toml", "--set", "integrator=event-driven", "--duration", "1",
+            "-o", out)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr and out.exists()
+    assert "us/step" not in r.stdout and "wall" in r.stdout

@@ -44,7 +44,7 @@ MUST_COMPILE = {"bouncing_ball", "zeno_ball", "newton_cradle_5", "box_drop"}
 DURATION = {"bouncing_ball": 1.0, "zeno_ball": 1.5, "box_drop": 1.5, "newton_cradle_5": 0.3}
 MAX_STEPS = 300  # other scenes: at most this many steps
 COMPARED = ("t", "q", "u", "kinetic_energy", "potential_energy", "contact_work", "correction_energy", "gap",
-            "n_contacts")
+            "n_contacts", "smooth_error", "dissipation", "law_dissipation", "impact_t", "impact_dissipation")
 
 
 def _run(scene, impl: StepImpl):

@@ -36,7 +36,8 @@ def test_arrays_follow_the_schema():
     a = rec.arrays()
     assert tuple(a) == trajectory.ARRAYS
     sizes = {"nq": model.nq, "nv": model.nv, "pairs": len(model.pairs)}
-    schema = {**trajectory.SAMPLES, **trajectory.LOG, **trajectory.BRANCHES, **trajectory.CANDIDATES}
+    schema = {**trajectory.SAMPLES, **trajectory.LOG, **trajectory.BRANCHES, **trajectory.CANDIDATES,
+              **trajectory.IMPACTS}
     for name, (dtype, shape) in schema.items():
         assert a[name].dtype == np.dtype(dtype), name
         assert a[name].shape[1:] == tuple(sizes.get(d, d) for d in shape), name

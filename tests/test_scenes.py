@@ -12,6 +12,7 @@ from moreau_sim.bench.references import (
     zeno_bounces,
     zeno_time,
 )
+from moreau_sim.testing import assert_budget_closes, assert_dissipation_follows_law, assert_no_energy_gain
 
 from helpers import BUNDLED, SCENES as ROOT_SCENES, run, scene
 
@@ -151,10 +152,11 @@ def test_energy_never_increases(name, h):
     traj = run(name, dt=h, duration=1.5)
     E = traj.total_energy
     roundoff = 1e-12 * max(1.0, abs(E[0]))
-    assert np.max(E - E[0]) <= roundoff
     assert traj.contact_work.max() <= roundoff
     if name != "box_drop":
-        assert np.diff(E).max() <= roundoff
+        assert_no_energy_gain(traj, rtol=1e-12)  # no step, no sample above E_0
+    else:
+        assert np.max(E - E[0]) <= roundoff
 
 
 def test_newton_rule_for_separating_contacts_gains_energy():
@@ -199,6 +201,7 @@ def test_contact_work_ledger_balances_energy():
     ledger = traj.contact_work + traj.correction_energy
     assert abs((E[-1] - E[0]) - ledger.sum()) <= 1e-12
     assert np.abs(np.diff(E) - ledger[1:]).max() <= 1e-12
+    assert_budget_closes(traj, rtol=1e-13)  # with the smooth error term (round-off here)
     assert traj.correction_energy.max() > 0.0  # the correction gave back some of what impacts dissipated
     assert np.all(traj.correction_energy <= -traj.contact_work + 1e-15)  # never more than that
     assert traj.contact_work.max() <= 1e-15  # every impact of an approaching contact dissipates
@@ -232,10 +235,14 @@ def test_one_step_without_forces_is_the_impact_law():
 @pytest.mark.parametrize("name", BUNDLED)
 def test_every_bundled_scene_runs(name):
     """Each bundled scene, at its own options, for its duration or 20000 steps (the stress
-    scenes' long runs and their bounds are in test_stress.py)."""
+    scenes' long runs and their bounds are in test_stress.py). Every contact step dissipates what
+    the law says to 1e-9 of the run's energy (docs/theory.md §5; largest measured: 1.0e-10 in
+    slider_crank_clearance, 7.6e-12 in column_of_beads_100, round-off in the others)."""
     o = scene(name).options
     traj = run(name, duration=min(o.duration, 20000 * o.dt))
     assert traj.complete
+    assert ms.ledger(traj).contact_steps > 0
+    assert_dissipation_follows_law(traj, rtol=1e-9)
     assert np.all(np.isfinite(traj.q)) and np.all(np.isfinite(traj.u))
     o = scene(name, duration=min(o.duration, 20000 * o.dt)).options
     assert len(traj.t) == 1 + -(-o.n_steps // o.save_every)  # the start, every save_every steps, the last

@@ -1,11 +1,11 @@
 """Browser replay (moreau_sim.viewer, docs/viewer.md): the model rebuilt from the NPZ alone, what is
 drawn (visual meshes, collision geometry where a link has none), the files a stored scene may
 name, scene text escaping, the CLI, Pinocchio's visualizers on the helper's geometry, and the
-exported pages of box_drop and solo_drop drawn by headless Chromium, with their screenshots
-checked. Chromium is required: without it these tests fail (never skip).
+exported pages of box_drop, solo_drop and the MJCF pendulum drawn by headless Chromium, with their
+screenshots checked. Chromium is required: without it these tests fail (never skip).
 
-Screenshots are written to out/viewer/; MOREAU_SIM_DOCS_IMG=1 also writes docs/img/viewer_box_drop.png
-and docs/img/viewer_solo_drop.png.
+Screenshots are written to out/viewer/; MOREAU_SIM_DOCS_IMG=1 also writes docs/img/viewer_box_drop.png,
+docs/img/viewer_solo_drop.png and docs/img/viewer_mjcf_example.png.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 import pytest
 from click.testing import CliRunner
 
@@ -59,6 +60,17 @@ def npz(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def traj(npz):
     return ms.load_trajectory(npz)
+
+
+@pytest.fixture(scope="module")
+def mjcf():
+    """The MJCF pendulum (scenes/mjcf_example.toml) swinging into its wall: 0.8 s, past its first impact."""
+    return ms.run(ROOT / "scenes/mjcf_example.toml", duration=0.8)
+
+
+# models/pendulum.xml's colours (rgba 0-1 -> 0-255): the bracket's and axle's rgba (visual-only
+# geoms), the rod's material "steel", the bob's rgba
+MJCF_COLORS = {"bracket": (76, 76, 76), "rod": (89, 115, 153), "bob": (217, 76, 38), "axle": (230, 191, 51)}
 
 
 @pytest.fixture(scope="module")
@@ -106,6 +118,54 @@ def test_parts_box_and_solo(traj, solo):
     assert len(links) == 13 and len(set(links.values())) >= 9  # a colour per link (10-colour palette)
     grey = {p.color for p in viewer.parts(solo, colors="model")}
     assert grey == {(204, 204, 204)}  # the URDF's material "grey" 0.8
+
+
+def test_parts_mjcf_from_the_visual_model(mjcf, tmp_path):
+    model = viewer.model_from_trajectory(mjcf)
+    collision = {go.name for go in model.geom.geometryObjects}
+    assert collision == {"pendulum/rod", "pendulum/bob", "wall"}  # the axle and the bracket are visual only
+    for t in (mjcf, _without_files(mjcf, tmp_path)):  # the original model file, or the NPZ's copy of it
+        ps = viewer.parts(t, colors="model")
+        vis = [p for p in ps if p.source == "visual"]
+        assert [p.source for p in ps] == ["visual"] * 4 + ["collision"]  # the wall is a static
+        assert sorted(p.color for p in vis) == sorted(MJCF_COLORS.values())
+        assert {p.link for p in vis} == {"pendulum/universe", "pendulum/link"}
+        assert len({p.color for p in viewer.parts(t)}) == 3  # colors="link": one per link, statics grey
+    # the visual rod and bob sit where the collision rod and bob are, at every frame (pin's placements)
+    gdata, data = model.geom.createData(), model.pin.createData()
+    by_color = {p.color: p for p in viewer.parts(mjcf, colors="model")}
+    for k in (0, 300, 700):
+        pin.framesForwardKinematics(model.pin, data, mjcf.q[k])
+        pin.updateGeometryPlacements(model.pin, data, model.geom, gdata, mjcf.q[k])
+        for name in ("rod", "bob"):
+            p = by_color[MJCF_COLORS[name]]
+            world = data.oMf[p.frame] * p.placement
+            g = model.geom.getGeometryId(f"pendulum/{name}")
+            np.testing.assert_allclose(world.homogeneous, gdata.oMg[g].homogeneous, atol=1e-14)
+    bracket = by_color[MJCF_COLORS["bracket"]]  # on the world body: the scene's fixed root placement
+    assert bracket.frame == 0 and bracket.placement.translation == pytest.approx([0, 0, 1.05], abs=1e-15)
+
+
+def _without_files(traj, tmp_path):
+    """`traj` as if its scene and model files had moved away: the NPZ's stored texts only."""
+    t = ms.Trajectory(traj.arrays, json.loads(json.dumps(traj.meta)))
+    t.meta["scene"]["path"] = str(tmp_path / "gone" / "mjcf_example.toml")
+    return t
+
+
+def test_mjcf_visual_that_does_not_load_falls_back_to_collision(tmp_path):
+    (tmp_path / "models").mkdir()
+    text = (ROOT / "models/pendulum.xml").read_text().replace(
+        '<asset>', '<asset>\n    <mesh name="gone" file="gone.stl"/>').replace(
+        '<body name="link" pos="0 0 0">', '<body name="link" pos="0 0 0">\n      <geom type="mesh" mesh="gone" '
+        'contype="0" conaffinity="0" mass="0"/>')
+    (tmp_path / "models/pendulum.xml").write_text(text)
+    (tmp_path / "scene.toml").write_text((ROOT / "scenes/mjcf_example.toml").read_text().replace(
+        "../models/pendulum.xml", "models/pendulum.xml"))
+    t = ms.run(tmp_path / "scene.toml", duration=0.01)
+    assert [(p.name, p.source) for p in viewer.parts(t)] == [
+        ("pendulum/link/collision_0", "collision"), ("pendulum/link/collision_1", "collision"),
+        ("wall/collision_2", "collision")]
 
 
 def test_ground_box():
@@ -344,4 +404,21 @@ def test_solo_drop_replay_in_chromium(solo, browser, tmp_path):
     moved = np.abs(np.asarray(early, float) - np.asarray(img, float)).sum(-1) > 60
     assert moved.sum() > 1500, "the slider does not move solo"
     _save(img, "viewer_solo_drop.png")
+    assert p.errors() == []
+
+
+def test_mjcf_pendulum_replay_in_chromium(mjcf, browser, tmp_path):
+    path = viewer.export_html(mjcf, tmp_path / "mjcf_example.html", colors="model")
+    p = Page(browser, path)
+    p.seek(0.05)
+    early, hsv0 = p.shot()
+    p.seek(0.5)
+    img, hsv = p.shot()
+    _save(img, "viewer_mjcf_example.png")
+    bob, rod, axle = _hue_count(hsv, 5, 22), _hue_count(hsv, 205, 228, 0.25), _hue_count(hsv, 40, 52)
+    assert bob > 150, f"the bob (rgba of its geom) is not drawn ({bob} pixels)"  # counts per 4 pixels
+    assert rod > 60, f"the rod (its material's rgba) is not drawn ({rod} pixels)"
+    assert axle > 15, f"the axle (a visual-only geom) is not drawn ({axle} pixels)"
+    moved = np.abs(np.asarray(early, float) - np.asarray(img, float)).sum(-1) > 60
+    assert moved.sum() > 1500, "the slider does not move the pendulum"
     assert p.errors() == []

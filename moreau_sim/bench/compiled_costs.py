@@ -7,13 +7,15 @@ step took itself (the rest it hands back to Python). MuJoCo's mj_step on the bal
 settings, peers.mujoco) is timed in the same run when mujoco is importable. Writes
 compiled_costs.json and compiled_costs.png to out/ (or --out).
 
-    python -m moreau_sim.bench.compiled_costs [--out out] [--repeat 7] [--states 200]
+    python -m moreau_sim.bench.compiled_costs [--out docs/bench] [--repeat 7] [--states 200]
+    python -m moreau_sim.bench.compiled_costs --table docs/bench/compiled_costs.json docs/benchmarks.md
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import time
@@ -23,8 +25,9 @@ import numpy as np
 
 import moreau_sim as ms
 from moreau_sim import compiled
+from moreau_sim.recording import versions
 
-from . import OUT, scene_path
+from . import OUT, scene_path, write_tables
 from .step_costs import best  # best of `repeat` timings, us
 
 # (label, scene, which states: "flight", "contact", or "late-contact" = the last third of the run's contact states)
@@ -50,7 +53,7 @@ def bench_case(label: str, scene: str, which: str, repeat: int, n_states: int) -
     if which.startswith("late-"):
         states = states[2 * len(states) // 3:]
     states = [states[i] for i in np.unique(np.linspace(0, len(states) - 1, min(n_states, len(states))).astype(int))]
-    out = {"label": label, "scene": scene, "states": len(states)}
+    out = {"label": label, "scene": scene, "which": which, "states": len(states)}
     for impl in ("python", "compiled"):
         m, d = mods[impl], datas[impl]
         t = [best(lambda st=st, m=m, d=d: ms.step(m, d, st, h=h, e=e), repeat) for st in states]
@@ -112,12 +115,42 @@ def plot(res: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def markdown_table(res: dict) -> str:
+    """The compiled-step table of docs/benchmarks.md from a compiled_costs.json."""
+    mj = res.get("mujoco") or {}
+    reps = f"the best of {res['repeat']}" if "repeat" in res else "the best of several timings"
+    states = sorted({c["states"] for c in res["cases"]})
+    out = [f"Medians over {'/'.join(map(str, states))} states of {reps}, µs per step"
+           + (f"; MuJoCo {mj['version']}" if mj else "; MuJoCo not installed in that run") + ":", "",
+           "| case | Python step | compiled step | Python / compiled | steps taken compiled | MuJoCo mj_step "
+           "| compiled / MuJoCo |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for c in res["cases"]:
+        kind = c.get("which", "flight" if "flight" in c["label"] else "contact").replace("late-", "")
+        ref = mj.get(kind) if c["scene"] in ("bouncing_ball", "zeno_ball") else None
+        label = f"`{c['scene']}`: {c['label']}"
+        vs_mj = ("–", "–") if ref is None else (f"{ref:.2f}", f"{c['compiled'] / ref:.1f}")
+        out.append(f"| {label} | {c['python']:.1f} | {c['compiled']:.1f} | {c['python'] / c['compiled']:.1f} | "
+                   f"{100 * c['compiled_share']:.1f} % | {vs_mj[0]} | {vs_mj[1]} |")
+    return "\n".join(out)
+
+
+def doc_tables(res: dict) -> dict[str, str]:
+    """The tables of docs/benchmarks.md this benchmark's JSON gives (marker name: Markdown)."""
+    return {"compiled-step table": markdown_table(res)}
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--states", type=int, default=200)
+    ap.add_argument("--table", nargs=2, type=Path, metavar=("JSON", "DOC"),
+                    help="only rewrite the table in DOC (docs/benchmarks.md) from a compiled_costs.json, and exit")
     a = ap.parse_args(argv)
+    if a.table:
+        write_tables(a.table[0], a.table[1], doc_tables)
+        print(f"wrote the table into {a.table[1]}")
+        return
     if not compiled.available():
         raise SystemExit(f"the compiled step is unavailable: {compiled.unavailable_reason()}")
     cases = []
@@ -127,7 +160,9 @@ def main(argv=None) -> None:
               f"x{c['ratio']:.1f}  ({c['states']} states)")
         cases.append(c)
     res = {"cases": cases, "mujoco": bench_mujoco(a.repeat), "machine": platform.processor() or platform.machine(),
-           "python": platform.python_version()}
+           "python": platform.python_version(), "cpus": os.cpu_count(), "load": os.getloadavg()[0],
+           "repeat": a.repeat, "versions": versions(),
+           "note": "us per step, median over states of the best of `repeat` timings"}
     if res["mujoco"]:
         print("MuJoCo mj_step, ball:", {k: res["mujoco"][k] for k in ("flight", "contact") if k in res["mujoco"]})
     a.out.mkdir(parents=True, exist_ok=True)

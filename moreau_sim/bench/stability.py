@@ -1,13 +1,16 @@
 """The stress suite side by side: every stress scene in moreau-sim (its default options
 and the plain scheme: position_correction = "none", bias = "explicit") and, where the peer can
 express it, in MuJoCo, PyBullet (default and tuned configs) and Siconos; one row per scene with
-the scene's own metric and pass bound; writes out/stability.md and its plots (out/img/), or
-docs/stability.md and docs/img/ with --out docs/stability.md.
+the scene's own metric and pass bound; writes out/stability.json and its plots (out/img/), or
+docs/bench/stability.json and docs/img/ with --out docs/bench; --table rewrites the generated
+parts of docs/stability.md (between its markers) from the JSON. The page's prose (causes, the
+tunnelling fix, the scenes' parameters) is written by hand in docs/stability.md.
 
     pip install -e '.[peers]'; apt-get install -y python3-siconos   # the peers (optional)
-    python scripts/stability.py            # everything (~10 min), into out/
-    python scripts/stability.py --out docs/stability.md   # regenerate the committed report
-    python scripts/stability.py --quick --no-peers --out /tmp/stability.md        # smoke test
+    python scripts/stability.py            # everything (~4 min), into out/
+    python scripts/stability.py --out docs/bench   # regenerate the committed JSON and plots
+    python scripts/stability.py --table docs/bench/stability.json docs/stability.md
+    python scripts/stability.py --quick --no-peers --out /tmp/stability        # smoke test
     python scripts/stability.py --write-scenes        # regenerate the generated scene files
 
 Every method's energy and gaps are measured by moreau-sim's own functions (Pinocchio energies,
@@ -22,6 +25,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
+import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -34,8 +38,9 @@ from moreau_sim.energy import kinetic, potential
 from moreau_sim.options import Options, RootJoint
 from moreau_sim.recording import versions
 
-from . import OUT, REPO, peers, scene_path
+from . import OUT, REPO, peers, scene_path, write_tables
 from .references import G, ZENO_GAP, cradle_simultaneous, zeno_rest_bound, zeno_time
+from .spec import to_jsonable
 
 PLAIN = {"position_correction": "none", "bias": "explicit"}
 METHODS = ("moreau-sim", "moreau-sim plain", "mujoco", "pybullet-default", "pybullet-tuned", "siconos")
@@ -510,174 +515,102 @@ def plots(R: list[Row], img: Path) -> list[tuple[str, str]]:
 
 
 # ------------------------------------------------------------------------------------ report
-def projection_note(R: list[Row]) -> str:
-    """The paragraph on position_correction = "projection", from this run's numbers."""
+def projection_note(rows: list[dict]) -> str:
+    """The paragraph on position_correction = "projection", from a run's rows (report_data)."""
     def cell(key, m):
-        r = next((r for r in R if r.key == key), None)
-        return r.cells.get(m) if r else None
+        r = next((r for r in rows if r["key"] == key), None)
+        return r["cells"].get(m) if r else None
 
     parts = []
     z, zp = cell("zeno_ball e=0.95", "moreau-sim"), cell("zeno_ball e=0.95", "moreau-sim plain")
-    if z and zp and "t_rest_minus_t_inf" in z.detail and "t_rest_minus_t_inf" in zp.detail:
-        parts.append(f"the Zeno ball (e = 0.95) rests {z.detail['t_rest_minus_t_inf']:+.2f} s from t∞ with it, "
-                     f"{zp.detail['t_rest_minus_t_inf']:+.2f} s with \"none\" (both within the bound)")
+    if z and zp and "t_rest_minus_t_inf" in z["detail"] and "t_rest_minus_t_inf" in zp["detail"]:
+        parts.append(f"the Zeno ball (e = 0.95) rests {z['detail']['t_rest_minus_t_inf']:+.2f} s from t∞ with it, "
+                     f"{zp['detail']['t_rest_minus_t_inf']:+.2f} s with \"none\" (both within the bound)")
     b, bp = cell("column_of_beads_100", "moreau-sim"), cell("column_of_beads_100", "moreau-sim plain")
-    if b and bp and "pen" in b.detail and "pen" in bp.detail:
+    if b and bp and "pen" in b["detail"] and "pen" in bp["detail"]:
         parts.append(f"in the 100-bead column the bottom pair sinks steadily from 0.25 s on: penetration "
-                     f"{b.detail['pen']:.2g} m at the end against {bp.detail['pen']:.2g} m with \"none\" "
+                     f"{b['detail']['pen']:.2g} m at the end against {bp['detail']['pen']:.2g} m with \"none\" "
                      "(bound h v_max = 0.01 m), and the column loses far more energy - a defect of the "
                      "correction with many stacked contacts")
     c, cp = cell("slider_crank_clearance", "moreau-sim"), cell("slider_crank_clearance", "moreau-sim plain")
-    if c and cp and c.detail.get("impacts") is not None and cp.detail.get("impacts") is not None:
-        parts.append(f"the slider-crank penetrates {c.detail['pen']:.2g} m with {c.detail['impacts']} impacts "
-                     f"against {cp.detail['pen']:.2g} m with {cp.detail['impacts']} impacts with \"none\"")
+    if c and cp and c["detail"].get("impacts") is not None and cp["detail"].get("impacts") is not None:
+        parts.append(f"the slider-crank penetrates {c['detail']['pen']:.2g} m with {c['detail']['impacts']} impacts "
+                     f"against {cp['detail']['pen']:.2g} m with {cp['detail']['impacts']} impacts with \"none\"")
     if not parts:
         return ""
     return ("- **position_correction = \"projection\" (the default)**: " + "; ".join(parts) +
             ". Worth a look by the option's author (tests/test_stress.py pins the 100-bead case as a strict xfail).")
 
 
-def write_md(R: list[Row], methods, figs, path: Path, elapsed: float, quick: bool) -> None:
-    o = Options()
-    shown = [m for m in ("moreau-sim", "moreau-sim plain", "moreau-sim + swept", "mujoco", "pybullet-default",
-                         "pybullet-tuned", "siconos") if any(m in r.cells for r in R)]
-    L = ["# Stability under stress", "",
-         f"Generated by `scripts/stability.py` on {datetime.date.today().isoformat()}"
-         f"{' (--quick: shortened runs)' if quick else ''} in {elapsed / 60:.1f} min. Regenerate with",
-         "", "    .venv/bin/pip install -e '.[peers]' && apt-get install -y python3-siconos && "
-         ".venv/bin/python scripts/stability.py --out docs/stability.md", "",
-         "Every stress scene is a bundled scene file (`scenes/*.toml`) whose description states its metric and pass "
-         "bound; `tests/test_stress.py` asserts the bound at a CI size (one strict xfail where moreau-sim still fails, with "
-         "the cause). Methods:", "",
-         "- **moreau-sim**: the scene's options, i.e. the defaults (" + ", ".join(
-             f"{k} = \"{v}\"" for k, v in o.to_dict().items() if isinstance(v, str)) + ").",
-         "- **moreau-sim plain**: the same with position_correction = \"none\", bias = \"explicit\" (the "
-         "midpoint step of docs/theory.md §2 without the two additions).",
-         "- **moreau-sim + swept**: the default with the swept detection forced at every step "
-         "(`tunnelling = \"always\"`, whatever the speed), fast_impact only.",
-         "- **MuJoCo / PyBullet / Siconos**: the neutral spec of `moreau_sim.bench.spec` run by "
-         "`moreau_sim.bench.peers` with each peer's default settings (documented in `moreau_sim.bench.peers`): "
-         "MuJoCo soft contacts with ω·h = 0.2 and the Schwager–Pöschel damping for e; PyBullet default and tuned "
-         "configs, every body and static at restitution √e (so every pair's product is e); Siconos MoreauJeanOSI(½) + "
-         "NewtonImpactNSL(e) + Lemke, for spheres on collinear slide joints only, with the gaps as the scene file's "
-         "floating-point positions give them.", "",
-         "Energies and gaps of every method are computed by moreau-sim (Pinocchio T + V, coal signed distances of "
-         "the scene's collision pairs) from the configurations the method produced. ✓ = within the stated bound, "
-         "✗ = not, n/a = the method cannot express the scene (see the notes).", "",
-         "| row | metric | bound | " + " | ".join(shown) + " |",
-         "|---|---|---|" + "---|" * len(shown)]
-    for r in R:
+SHOWN = ("moreau-sim", "moreau-sim plain", "moreau-sim + swept", "mujoco", "pybullet-default", "pybullet-tuned",
+         "siconos")
+
+
+def report_data(R: list[Row], figs, elapsed: float, quick: bool) -> dict:
+    """What docs/stability.md shows of a run, as JSON: every row's cells (ok, text, detail), the
+    plots, the options and versions."""
+    rows = [{"key": r.key, "metric": r.metric, "bound": r.bound,
+             "cells": {m: {"ok": c.ok, "text": c.text, "detail": to_jsonable(c.detail)} for m, c in r.cells.items()}}
+            for r in R]
+    meta = {"created": datetime.date.today().isoformat(), "minutes": elapsed / 60, "quick": quick,
+            "options": to_jsonable(Options().to_dict()), "versions": versions()}
+    return {"meta": meta, "rows": rows, "figures": [list(f) for f in figs]}
+
+
+def run_md(data: dict) -> str:
+    meta = data["meta"]
+    return "\n".join([
+        f"Generated by `scripts/stability.py` on {meta['created']}{' (--quick: shortened runs)' if meta['quick'] else ''}"
+        f" in {meta['minutes']:.1f} min into [`bench/stability.json`](bench/stability.json); the table, the "
+        "failures, the projection note, the plots and the versions on this page are written from that JSON. "
+        "Regenerate with", "",
+        "    .venv/bin/pip install -e '.[peers]' && apt-get install -y python3-siconos && "
+        ".venv/bin/python scripts/stability.py --out docs/bench", "",
+        "(`scripts/stability.py --table docs/bench/stability.json docs/stability.md` rewrites them from the JSON "
+        "alone.)", "", "Every stress scene is a bundled scene file (`scenes/*.toml`) whose description states its "
+        "metric and pass bound; `tests/test_stress.py` asserts the bound at a CI size (strict xfails where "
+        "moreau-sim still fails, with the cause). Methods:", "",
+        "- **moreau-sim**: the scene's options, i.e. the defaults (" + ", ".join(
+            f"{k} = \"{v}\"" for k, v in meta["options"].items() if isinstance(v, str)) + ")."])
+
+
+def table_md(data: dict) -> str:
+    rows = data["rows"]
+    shown = [m for m in SHOWN if any(m in r["cells"] for r in rows)]
+    L = ["| row | metric | bound | " + " | ".join(shown) + " |", "|---|---|---|" + "---|" * len(shown)]
+    for r in rows:
         cells = []
         for m in shown:
-            c = r.cells.get(m)
-            if c is None:
-                cells.append("")
-            elif c.ok is None:
-                cells.append("n/a")
-            else:
-                cells.append(f"{'✓' if c.ok else '✗'} {c.text}")
-        L.append(f"| {r.key} | {r.metric} | {r.bound} | " + " | ".join(cells) + " |")
+            c = r["cells"].get(m)
+            cells.append("" if c is None else "n/a" if c["ok"] is None else f"{'✓' if c['ok'] else '✗'} {c['text']}")
+        L.append(f"| {r['key']} | {r['metric']} | {r['bound']} | " + " | ".join(cells) + " |")
     L += ["", "n/a reasons:", ""]
     seen = set()
-    for r in R:
-        for m, c in r.cells.items():
-            why = c.detail.get("why")
-            if c.ok is None and why and (m, why) not in seen:
+    for r in rows:
+        for m, c in r["cells"].items():
+            why = c["detail"].get("why")
+            if c["ok"] is None and why and (m, why) not in seen:
                 seen.add((m, why))
                 L.append(f"- {m}: {why}")
-    fails = [(r, m) for r in R for m in ("moreau-sim", "moreau-sim plain") if r.cells.get(m) and r.cells[m].ok is False]
+    fails = [(r, m) for r in rows for m in ("moreau-sim", "moreau-sim plain")
+             if r["cells"].get(m) and r["cells"][m]["ok"] is False]
     L += ["", "## Where moreau-sim does not pass, and why", ""]
-    L += [f"- **{r.key}** ({m}): {r.cells[m].text}" for r, m in fails] or ["- none"]
-    L += ["", WHY, projection_note(R), "", TUNNELLING, "", NOTES, ""]
-    if figs:
-        L += ["## Plots", ""]
-        for name, cap in figs:
-            L += [f"![{cap}](img/{name})", "", f"*{cap}*", ""]
-    L += ["## Versions", "", "    " + ", ".join(f"{k} {v}" for k, v in versions().items()), ""]
-    path.write_text("\n".join(L))
+    L += [f"- **{r['key']}** ({m}): {r['cells'][m]['text']}" for r, m in fails] or ["- none"]
+    return "\n".join(L)
 
 
-WHY = """### Causes (measured while building the suite)
-
-- **Box on box, exactly touching (box_stack_5/10, heavy_on_light_box_100/1000): fixed in contacts.py, one
-  row left.** coal's narrow phase on exactly touching boxes misled the contact stage three ways: its EPA
-  normal of resting faces drifts by up to 4e-3 rad after round-off motion and was once seen along a side face
-  (90 deg off), collapsing the contact patch to one tilted witness point; and `computeCollisions` now and
-  then reports no collision at a gap of -5e-12 m. contacts.py now computes the patch of two polytopes about
-  the face axis of least interpenetration (over the 6 + 6 face normals), keeps examining a pair that had
-  contacts at the previous step, and gates with a 1e-6 m margin. The yawed 5- and 10-cube stacks hold 10 s
-  at h = 1e-2 to 1e-11 m (they broke up at 5.35 s and 7 s before), both heavy_on_light_box_100 rows and
-  heavy_on_light_box_1000 at h = 1e-3 pass. **Still failing: heavy_on_light_box_1000 at h = 1e-2**: the
-  round-off velocities of the two resting cubes (1e-11 m/s) grow to 3e-9 m/s over 3.4 s as the light cube's
-  upper corners leave and re-enter the 1e-9 m contact tolerance one by one, and the 1000 kg cube tips over
-  at 8.8 s (strict xfail in tests/test_stress.py with this reason).
-- **fast_impact: fixed** by `tunnelling = "swept"` (the default; next section): 0 of 20 start phases pass.
-  With midpoint activation alone (`tunnelling = "none"`) 14 of 20 did.
-- **Explicit bias (moreau-sim plain)**: the explicit gyroscopic term gains energy in free rotation
-  (spinning_box: +2.9 % of T in 10 s at h = 1e-3, +36 % at 1e-2; MuJoCo and PyBullet gain the same
-  1.2e-2 J at 1e-3) and the double pendulum gains +2.9 % / +17 % of E0 at h = 2e-2 / 5e-2 (large_step
-  pendulum_wall). bias = "midpoint" holds the free rotation's T to 1e-14 and the pendulum to 0.06 % / 0.4 %."""
+def figures_md(data: dict) -> str:
+    L = []
+    for name, cap in data["figures"]:
+        L += [f"![{cap}](img/{name})", "", f"*{cap}*", ""]
+    return "\n".join(L)
 
 
-TUNNELLING = """## Tunnelling (fast_impact) and its fix
-
-**Measured.** The marble (r = 1 cm) moves 5 cm per step at h = 1e-3; it overlaps the 1 cm plate only over
-3 cm of travel. With contacts activated at the midpoint (g(q_m) <= tol) a step's midpoint falls in the
-overlap window with probability 3/5, and on the far side of the plate's mid-plane with 1.5/5 - there
-coal's normal points *down*, the contact looks separating and pushes nothing. So the marble passes the plate
-at 70 % of start phases: 14 of 20 in the table (35 of 50 in a finer sweep), for any e and either
-position correction. (A margin h|γ| on the activation does not help: a midpoint past the plate measures the
-distance to the plate's far face.)
-
-**The fix** (`moreau_sim/tunnelling.py`, wired into the stepper as `tunnelling = "swept"`, the default). `swept_contacts(model, data, q0, q1)` finds every collision
-pair that is apart at q0 and touches on the path q(s) = q0 ⊕ s (q1 ⊖ q0) by conservative advancement with
-coal's signed distance (coal's `continuousCollide` is not in its Python bindings): `motion_bounds` bounds
-the speed of every point of every geometry along the path (exact for one body, conservative for chains),
-so nothing can touch before s + d(s)/μ. It returns the time of first contact, the configuration, normal and
-witness points there, and whether the pair is apart again at q1 (`tunnels`). `swept_detect` is the
-proposed active set of a step: the midpoint contacts, corrected by the swept test over q_k → q_k ⊕ 1.5 h u_k
-(to the next predicted midpoint): where a pair apart at q_k touches on that path and the midpoint misses it
-or sees it from the far side - and, for a contact after q_m, the next midpoint would too - the pair's
-contact is the swept one, with its first-contact normal and body-fixed witness points carried rigidly to
-q_m, its gap their signed distance along that normal at q_m. Grazes (a corner dipping below a plane and
-back within the path) and thick obstacles change nothing: bouncing_ball, box_drop, rocking_block,
-pendulum_wall, the gapped cradle, block_on_step and spinning_box give bit-identical trajectories with it.
-With it the marble never passes the plate (0 of 20 in the table; tests/test_stress.py checks 20 phases for
-e = 0, 0.5, 0.9 and both corrections).
-
-**Wiring.** `stepper.step` calls `swept_detect` after the midpoint detection when a body may move
-further in the step than the thinnest pair of shapes is thick (h·‖u‖∞·reach > `Model.thinnest_pair`),
-so ordinary scenes never pay for it (their trajectories are bit-identical with `tunnelling = "none"`,
-tested). Limit: after a replaced contact q_{k+1} lies at most h|γ|(1 − e)/2 past q_k; an obstacle
-thinner than twice that can still end on the wrong side."""
-
-
-NOTES = """## Scenes, parameters and tests
-
-| scene file(s) | dof | what | CI size in tests/test_stress.py |
-|---|---|---|---|
-| zeno_ball | 1 | ball r = 0.1 m dropped from a 0.5 m gap, e = 0.8 (tests: 0.5, 0.8, 0.95) | t∞ + bound + 10 s at h = 1e-3 (e = 0.8 also 1e-2), both corrections |
-| resting_box | 6 | 0.4 x 0.3 x 0.1 m box on its face, 60 s | 60 s at 1e-2, 3 s at 1e-3, both corrections |
-| box_stack_5, box_stack_10 | 30, 60 | cubes 0.1 m, ±2 mm offsets, ±0.1 rad yaws | 2 s at 1e-2, 0.2 s at 1e-3 |
-| heavy_on_light_box_100/1000 | 12 | 100 / 1000 kg cube on a 1 kg cube | 10 s at 1e-2, 5.5 / 2 s at 1e-3 (1000 at 1e-2: strict xfail) |
-| heavy_on_light_ball_100/1000 | 2 | 100 / 1000 kg ball on a 1 kg ball (prismatic z) | 10 s at 1e-2, 3 s at 1e-3, both corrections |
-| (bundled scenes) | - | large steps h = 2e-2, 5e-2 | all ten original scenes, plain and default (pendulum_wall plain: a test that the explicit bias gains the energy) |
-| fast_impact | 1 | marble r = 1 cm at 50 m/s onto a 1 cm plate, h = 1e-3 | the file, and 20 phases with tunnelling = "swept" and "none" |
-| spinning_box | 6 | 0.1 x 0.2 x 0.3 m brick, 10 rad/s about y, no gravity, lands after ~10.5 s | 12 s at 1e-3 and 1e-2 (explicit bias: a test that it gains the energy) |
-| column_of_beads, column_of_beads_100 | 10, 100 | balls r = 0.1 m, 1 kg, prismatic z, gaps 0.05 / 0.01 m, e = 0.9, h = 5e-4 | 1.5 s / 0.4 s, both corrections |
-| cradle_rounding, cradle_rounding_perturbed | 5 | touching cradle at x = 0.1 + 0.2 i in floating point, and ±1e-16..2e-16 m moves | e = 1, 0.5, 0 and 20 random ±3e-16 m variants |
-| slider_crank_clearance | 3 | Flores, Leine & Glocker (2010) slider-crank with 1 mm clearance | 0.05 s at 1e-5, plain and default |
-
-Slider-crank parameters: those of Flores, Leine & Glocker, Multibody Syst Dyn 23:165-190 (2010), Table 1, as
-in Siconos' `examples/Mechanics/SliderCrank` (found with the code search): l1 = 0.153 m, l2 = 0.306 m,
-slider half-length a = 0.05 m, half-height b = 0.025 m, clearance c = 0.001 m on each side (guide half-height
-b + c), m1 = m2 = 0.038 kg, m3 = 0.076 kg, J1 = 7.4e-5, J2 = 5.9e-4, J3 = 2.7e-6 kg m^2, gravity across the
-guide, initial crank rate 150 rad/s and absolute rod rate -75 rad/s at the top dead centre. Restitution:
-e = 0.4 (Siconos' example first sets 0.4, then overrides it to 0.1). The force bound 2e4 N is about three
-times the largest P/h measured at h = 1e-5 (an impact's P/h grows like 1/h; the persistent-contact forces
-are ~1e2 N). Bead column: no parameter file of the Siconos benchmark was found; the values are ours (the
-bundled 1 kg, r = 0.1 m ball). fast_impact: the marble is small on purpose - a ball of r = 0.1 m
-overlaps the plate over 21 cm of travel and cannot tunnel at 5 cm per step."""
+def doc_tables(data: dict) -> dict[str, str]:
+    """The generated parts of docs/stability.md (marker name: Markdown) from a stability.json."""
+    return {"stability run": run_md(data), "stability table": table_md(data),
+            "stability projection note": projection_note(data["rows"]), "stability plots": figures_md(data),
+            "stability versions": "    " + ", ".join(f"{k} {v}" for k, v in data["meta"]["versions"].items())}
 
 
 # ------------------------------------------------------------------------------ scene files
@@ -779,16 +712,23 @@ def _cradle(name, xs, desc):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=OUT / "stability.md",
-                    help="the report (docs/stability.md: the committed one; plots go to its folder's img/)")
-    ap.add_argument("--img", type=Path, default=None, help="plot folder (default: OUT's folder / img)")
+    ap.add_argument("--out", type=Path, default=OUT,
+                    help="folder of stability.json (docs/bench: the committed one; plots go to ../img beside a "
+                         "folder named bench, else to its img/)")
+    ap.add_argument("--img", type=Path, default=None, help="plot folder (default: see --out)")
     ap.add_argument("--quick", action="store_true", help="shortened runs (smoke test)")
     ap.add_argument("--no-peers", action="store_true", help="moreau-sim only")
     ap.add_argument("--only", default=None, help="comma-separated row-key prefixes")
     ap.add_argument("--write-scenes", action="store_true", help="regenerate the generated scene files and exit")
+    ap.add_argument("--table", nargs=2, type=Path, metavar=("JSON", "DOC"),
+                    help="only rewrite the generated parts of DOC (docs/stability.md) from a stability.json, and exit")
     a = ap.parse_args(argv)
     if a.write_scenes:
         write_generated_scenes()
+        return 0
+    if a.table:
+        names = write_tables(a.table[0], a.table[1], doc_tables)
+        print(f"wrote {', '.join(names)} into {a.table[1]}")
         return 0
     methods = ("moreau-sim", "moreau-sim plain", "moreau-sim + swept") if a.no_peers else (
         METHODS + ("moreau-sim + swept",))
@@ -798,10 +738,11 @@ def main(argv=None) -> int:
         R = [r for r in R if r.key.startswith(keys)]
     t0 = time.time()
     evaluate(R, methods, lambda s: print(s, flush=True))
-    img = a.img or a.out.parent / "img"
+    img = a.img or (a.out.parent / "img" if a.out.name == "bench" else a.out / "img")
     img.mkdir(parents=True, exist_ok=True)
     figs = plots(R, img)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    write_md(R, methods, figs, a.out, time.time() - t0, a.quick)
-    print(f"wrote {a.out} and {len(figs)} plots in {img}")
+    a.out.mkdir(parents=True, exist_ok=True)
+    path = a.out / "stability.json"
+    path.write_text(json.dumps(report_data(R, figs, time.time() - t0, a.quick), indent=1))
+    print(f"wrote {path} and {len(figs)} plots in {img}")
     return 0

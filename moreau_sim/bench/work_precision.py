@@ -5,6 +5,7 @@ second, for moreau-sim and the peers (MuJoCo, PyBullet default/tuned, Siconos), 
     python scripts/work_precision.py                  # writes out/
     python scripts/work_precision.py --out docs/bench # regenerates the committed tables and figures
     python scripts/work_precision.py --quick --out /tmp/wp        # tiny sweep (smoke test)
+    python scripts/work_precision.py --table docs/bench/work_precision.json docs/benchmarks.md  # its tables
 
 Errors (docs/benchmarks.md): bouncing ball - the first three rebound heights against e^(2n) d0;
 touching cradle - the final velocities against Moreau's simultaneous result (docs/theory.md §4);
@@ -47,7 +48,7 @@ from moreau_sim.options import Options, QPForm
 from moreau_sim.recording import versions
 from moreau_sim.stepper import assemble
 
-from . import OUT, REPO, metrics, peers, scene_path
+from . import OUT, REPO, metrics, peers, scene_path, write_tables
 from .references import ball_apex_gaps, cradle_simultaneous
 from .spec import min_corner_height, to_jsonable
 
@@ -373,6 +374,109 @@ def table_md(rows: list) -> str:
     return "\n".join(out) + "\n"
 
 
+LABELS = {"moreau-sim": "moreau-sim", "mujoco": "MuJoCo", "pybullet-default": "PyBullet default",
+          "pybullet-tuned": "PyBullet tuned", "siconos": "Siconos", "siconos-event-driven": "Siconos event-driven"}
+EXACT = 1e-12  # relative errors below this are reported as "exact to round-off"
+
+
+def _pts(points: list, case: str, method: str) -> list:
+    """The points of one curve that have an error, coarse to fine (adaptive: loose to tight rtol)."""
+    return sorted((p for p in points if p["case"] == case and p["method"] == method
+                   and p.get("rel_error") is not None), key=lambda p: -p["h"])
+
+
+def _errors_cell(pts: list) -> str:
+    errs = [(p["rel_error"], p["h"]) for p in pts]
+    if not errs:
+        return "—"
+    worst = max(e for e, _ in errs)
+    if worst <= EXACT:
+        return f"≤ {worst:.1g} at every h"
+    cell = f"{errs[0][0]:.2g} … {errs[-1][0]:.2g}"
+    best, h = min(errs)
+    if best < errs[-1][0] / 3 and h != errs[0][1]:  # finer steps lose accuracy again: say where it was best
+        cell += f" (best {best:.2g} at h = {h:g})"
+    return cell
+
+
+def errors_table(doc: dict) -> str:
+    """Relative errors of every time-stepping method per case, coarse to fine h (docs/benchmarks.md)."""
+    methods = [m for m in doc["meta"]["methods"] if m in LABELS]
+    steps = doc["meta"]["steps"]
+    out = [f"Relative errors per h (coarse → fine, h = {steps[0]:g} … {steps[-1]:g}; "
+           f"\"best\" where a finer step loses accuracy again):", "",
+           "| case | " + " | ".join(LABELS[m] for m in methods) + " |", "|---" * (len(methods) + 1) + "|"]
+    for case in doc["cases"]:
+        cells = [_errors_cell(_pts(doc["points"], case["key"], m)) for m in methods]
+        out.append(f"| {case['key']} | " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
+def summary_table(doc: dict) -> str:
+    """The summary table (as in work_precision_table.md) with the run it comes from (docs/benchmarks.md)."""
+    meta = doc["meta"]
+    git = meta.get("git") or {}
+    modified = f" plus {len(git['modified'])} modified files" if git.get("modified") else ""
+    load = f"{meta['load_start'][0]:.1f} → {meta['load_end'][0]:.1f}" if meta.get("load_end") else "?"
+    return (f"Run of {meta['created'][:10]} (git `{str(git.get('commit', '?'))[:7]}`{modified}; "
+            f"{meta['wall_seconds']:.0f} s wall on {meta['cpus']} cores, load average {load}):\n\n"
+            + table_md(doc["summary"]))
+
+
+SOLVERS = ("piqp primal", "piqp dual", "closed form (1 contact)", "pinocchio ADMM", "pinocchio PGS")
+
+
+def solvers_table(doc: dict) -> str:
+    """The impact-solver micro-benchmark, µs per solve (docs/benchmarks.md)."""
+    groups: dict = {}
+    for r in doc["solvers"]:
+        groups.setdefault((r["scene"], r["states"], tuple(r["contacts"])), {})[r["solver"]] = r
+    out = ["| scene (contacts), states | piqp primal | piqp dual | closed form | Pinocchio ADMM | Pinocchio PGS "
+           "| max \\|v − v_piqp\\| ADMM / PGS |", "|---|---:|---:|---:|---:|---:|---|"]
+    for (scene, states, contacts), rs in groups.items():
+        cells = [f"{rs[s]['us_per_solve']:.1f}" if s in rs else "—" for s in SOLVERS]
+        diff = " / ".join((f"{rs[s]['max_abs_v_diff']:.0e}" if rs[s]["max_abs_v_diff"] else "0") if s in rs else "—"
+                          for s in ("pinocchio ADMM", "pinocchio PGS"))
+        n = "/".join(map(str, contacts))
+        out.append(f"| `{scene}` ({n}), {states} | " + " | ".join(cells) + f" | {diff} |")
+    return "\n".join(out)
+
+
+def adaptive_table(doc: dict) -> str:
+    """The adaptive integrator against Siconos event-driven and the fixed step (docs/benchmarks.md)."""
+    summary = {(r["case"], r["level"]): r for r in doc["summary"]}
+    rtols = doc["meta"].get("adaptive_rtols", [])
+    steps = doc["meta"]["steps"]
+    out = [f"| case | adaptive: relative error at CPU s/sim s (rtol {rtols[0]:g} → {rtols[-1]:g}) "
+           f"| Siconos event-driven: error at CPU s/sim s (h = {steps[0]:g} … {steps[-1]:g}) "
+           "| fixed step at rel. error 1e-3 | fixed / adaptive at 1e-3 |", "|---|---|---|---:|---:|"]
+    for case in doc["cases"]:
+        key = case["key"]
+        pts = _pts(doc["points"], key, ADAPTIVE)
+        errs = [p["rel_error"] for p in pts]
+        cpus = [p["cpu_per_sim_s"] for p in pts]
+        if not pts:
+            ad = "—"
+        elif max(errs) <= EXACT:
+            ad = f"{max(errs):.2g} at {min(cpus):.2g}-{max(cpus):.2g} (any rtol)"
+        else:
+            ad = ", ".join(f"{p['rel_error']:.2g} at {p['cpu_per_sim_s']:.2g}" for p in pts)
+        ed = _pts(doc["points"], key, "siconos-event-driven")
+        sic = (f"{max(p['rel_error'] for p in ed):.1g} at {ed[0]['cpu_per_sim_s']:.2g} … {ed[-1]['cpu_per_sim_s']:.2g}"
+               if ed else "—")
+        row = summary.get((key, 1e-3), {})
+        fixed, adapt = row.get("moreau_cpu"), row.get("adaptive_cpu")
+        ratio = "—" if not (fixed and adapt) else f"{fixed / adapt:{'.2g' if fixed < 100 * adapt else '.0f'}}"
+        out.append(f"| {key} | {ad} | {sic} | {'—' if fixed is None else f'{fixed:.2g}'} | {ratio} |")
+    return "\n".join(out)
+
+
+def doc_tables(doc: dict) -> dict[str, str]:
+    """The tables of docs/benchmarks.md this benchmark's JSON gives (marker name: Markdown)."""
+    return {"work-precision summary": summary_table(doc), "work-precision errors": errors_table(doc),
+            "impact-solver table": solvers_table(doc), "adaptive table": adaptive_table(doc)}
+
+
 def plot(case: Case, points: list, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -427,7 +531,13 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3, help="timed repeats of runs with h >= 1e-4 (median)")
     ap.add_argument("--peers", default=",".join(peers.PEERS), help="peers to try (comma-separated)")
     ap.add_argument("--no-solvers", action="store_true", help="skip the impact-solver micro-benchmark")
+    ap.add_argument("--table", nargs=2, type=Path, metavar=("JSON", "DOC"),
+                    help="only rewrite the tables in DOC (docs/benchmarks.md) from a work_precision.json, and exit")
     a = ap.parse_args(argv)
+    if a.table:
+        names = write_tables(a.table[0], a.table[1], doc_tables)
+        print(f"wrote {', '.join(names)} into {a.table[1]}")
+        return 0
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     steps = QUICK_STEPS if a.quick else STEPS

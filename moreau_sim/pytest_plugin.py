@@ -1,0 +1,67 @@
+"""pytest plugin (entry point pytest11 "moreau_sim"): the `energy_ledger` fixture, so that an
+energy-dissipation regression test is three lines (docs/regression.md):
+
+    def test_solo_energy(energy_ledger):
+        traj = ms.run("scenes/solo_drop.toml", duration=0.3)
+        energy_ledger.check(traj)
+
+check() asserts that every contact step dissipates what the law says and that the ledger matches
+its baseline, the same JSON file as `moreau-sim regress` writes: by default
+<test folder>/ledger_baselines/<test module>/<test name>.json (ini option
+`moreau_sim_baselines` changes the folder). A missing baseline is recorded and the test fails
+once (rerun it); `pytest --ledger-update` rewrites the baselines of the tests that run.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+# The simulator is imported when a test uses the fixture, not when pytest loads the plugin: every
+# pytest run in an environment with moreau-sim installed loads it.
+
+
+def pytest_addoption(parser):
+    group = parser.getgroup("moreau-sim")
+    group.addoption("--ledger-update", action="store_true", default=False,
+                    help="moreau-sim: rewrite the energy-ledger baselines of the tests that run")
+    parser.addini("moreau_sim_baselines", "moreau-sim: folder of the energy-ledger baselines, relative to the "
+                  "test file's folder (default ledger_baselines)", default="ledger_baselines")
+
+
+class EnergyLedger:
+    """The fixture: check(traj) against this test's baseline file (`path`)."""
+
+    def __init__(self, path: Path, update: bool):
+        self.path = path
+        self.update = update
+
+    def check(self, traj, *, tolerances: dict | None = None, law_rtol: float | None = 1e-9,
+              no_gain_rtol: float | None = None) -> None:
+        """The law's dissipation in every contact step to law_rtol of the run's energy scale (None: not
+        checked); no energy gain beyond no_gain_rtol (None, the default: not checked; the smooth
+        motion of a jointed robot oscillates at O(h^2)); then the baseline within `tolerances`
+        {quantity: (rtol, atol)} (regress.py's defaults otherwise)."""
+        from .regress import write_baseline
+        from .testing import assert_dissipation_follows_law, assert_matches_baseline, assert_no_energy_gain
+
+        if no_gain_rtol is not None:
+            assert_no_energy_gain(traj, rtol=no_gain_rtol)
+        if law_rtol is not None:
+            assert_dissipation_follows_law(traj, rtol=law_rtol)
+        if self.update or not self.path.exists():
+            write_baseline(self.path, traj, tolerances=tolerances)
+            if not self.update:
+                pytest.fail(f"no energy-ledger baseline yet: recorded {self.path}; run the test again", pytrace=False)
+            return
+        assert_matches_baseline(traj, self.path, tolerances=tolerances)
+
+
+@pytest.fixture
+def energy_ledger(request) -> EnergyLedger:
+    """Energy-ledger regression check of one test (module doc)."""
+    folder = Path(request.path).parent / request.config.getini("moreau_sim_baselines") / Path(request.path).stem
+    name = re.sub(r"[^\w.=-]+", "_", request.node.name)
+    return EnergyLedger(folder / f"{name}.json", request.config.getoption("--ledger-update"))
