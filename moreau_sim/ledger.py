@@ -63,7 +63,8 @@ class Ledger:
     energy_start/end: T + V at the first/last sample; scale: max(|E_0|, max T), the energy the
     relative tolerances refer to; contact_work, correction, smooth_error, dissipation, law: the
     run's totals; residual = E_end - E_0 - (contact_work + correction + smooth_error);
-    max_step_rise: the largest increase of T + V over one step (at t_step_rise, the step's end; in
+    max_step_rise: the largest increase of T + V over one step, less the energy the position
+    correction booked in it (docs/theory.md §2.5) (at t_step_rise, the step's end; in
     event-driven and adaptive runs, over one stretch of smooth motion between samples and events);
     max_law_difference: the largest |D - L| of any contact step (at t_law_difference);
     impacts: the steps with a new impact; t, E, residuals: per sample (residuals: the budget's

@@ -206,8 +206,11 @@ class Recorder:
                     self._rise = (E0 - self._E, float(before.t))
         T1, V1 = kinetic(m, d, q1, u1), potential(m, d, q1)
         E1 = T1 + V1
-        if E1 - E0 > self._rise[0]:
-            self._rise = (E1 - E0, float(r.state.t))
+        # a rise the position correction made and booked (the lift of bodies at rest, docs/theory.md
+        # §2.5) is in the ledger's correction term, not a gain of the physics
+        rise = E1 - E0 - max(r.correction_energy, 0.0)
+        if rise > self._rise[0]:
+            self._rise = (rise, float(r.state.t))
         if r.qp is None or not r.qp.problem:
             self._smooth += E1 - E0  # a contact-free step is smooth motion only
         else:

@@ -38,6 +38,7 @@ from .state import State
 from .tunnelling import swept_detect
 
 _EMPTY = np.zeros(0)
+RESTING = 1e-9  # bodies end a step at rest when their speeds are below this fraction of one step's (_resting)
 MIDPOINT_ITERATIONS = 8  # fixed-point sweeps of Bias.MIDPOINT (contraction factor ~ h |omega|)
 
 
@@ -213,7 +214,9 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     g_i + w_i'dq >= 0 on the closed contacts (g_i: gaps at q_{k+1} linearized from q_m), applied
     as q_{k+1} (+) alpha dq with alpha <= 1 the largest step for which T + V at the end does not
     exceed T + V at the start of the step: the correction may give back energy the step dissipated,
-    never more. Returns (q, the change of T + V it made [J])."""
+    never more - except where every penetrating contact ends the step resting (_resting): then
+    alpha = 1 and the potential energy the lift adds is booked as correction energy (§2.5, §5).
+    Returns (q, the change of T + V it made [J])."""
     tol = model.options.contact_tolerance
     g_next = imp.contacts.g + 0.5 * pb.h * imp.gamma_plus
     if not len(g_next) or g_next.min() >= -tol:
@@ -222,7 +225,8 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     E0 = kinetic(model, data, q, u) + potential(model, data, q)
     E1 = kinetic(model, data, q_next, u_next) + potential(model, data, q_next)
     budget = E0 - E1
-    if budget <= 0.0:
+    resting = _resting(pb, imp, g_next < -tol)
+    if budget <= 0.0 and not resting:
         return q_next, 0.0
     res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
     if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)
@@ -230,7 +234,7 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
                               f"({imp.contacts.m} closed contacts)")
     q_c = pin.integrate(model.pin, q_next, res.v)
     dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
-    if dE > budget:
+    if dE > budget and not resting:
         q_c = pin.integrate(model.pin, q_next, (budget / dE) * res.v)  # E is ~linear in dq here
         dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
         if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
@@ -241,6 +245,18 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     if (after < np.minimum(before, 0.0) - tol).any():
         return q_next, 0.0
     return q_c, dE
+
+
+def _resting(pb: ContactProblem, imp: ImpactSolution, pen: np.ndarray) -> bool:
+    """Whether the bodies of every penetrating contact (mask `pen`) end the step at rest: every
+    velocity their rows involve is zero to round-off, |u_{k+1,j}| <= RESTING max|u_free - u_k| for
+    each j with w_ij != 0 (the scale: what one step of the smooth forces adds). Their penetration
+    would then stay for good: the correction lifts it in full, beyond the step's dissipation, and
+    books the energy it adds (docs/theory.md §2.5). A contact of a moving body (a block rocking on
+    its edge) keeps the budget rule."""
+    scale = RESTING * float(np.abs(pb.u_free - pb.u).max(initial=0.0))
+    involved = (imp.W[:, pen] != 0.0).any(axis=1)
+    return bool((np.abs(imp.u_next[involved]) <= scale).all())
 
 
 def _corner_law(pb: ContactProblem, options: Options, choice: int | None):

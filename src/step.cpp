@@ -46,6 +46,7 @@ namespace {
 constexpr int FLIGHT = 0, CONTACT = 1, FALLBACK = 2;
 constexpr int VERTEX = 0, WITNESS = 1;  // contacts.FeatureKind
 constexpr int MIDPOINT_ITERATIONS = 8;  // stepper.MIDPOINT_ITERATIONS
+constexpr double RESTING = 1e-9;  // stepper.RESTING
 
 typedef void (*dgesv_t)(int *, int *, double *, int *, int *, double *, int *, int *);
 
@@ -429,6 +430,33 @@ class Stepper {
         if (!(rnorm <= tol)) return false;
       }
       vp = v0 + times(MiWA, lamA);
+      // qp._polish's refinement step: solve for the residual of W_A'v = b_A on the rows that push
+      std::vector<Eigen::Index> pidx;
+      for (Eigen::Index j = 0; j < k; ++j)
+        if (lamA[j] > 0.0) pidx.push_back(j);
+      if (!pidx.empty()) {
+        const VectorXd WAvp = wt_times(WA, vp);
+        const int kp = (int)pidx.size();
+        MatrixXd GP(kp, kp);
+        VectorXd dP(kp);
+        for (int i = 0; i < kp; ++i) {
+          dP[i] = b[act[pidx[i]]] - WAvp[pidx[i]];
+          for (int j = 0; j < kp; ++j) GP(i, j) = G(pidx[i], pidx[j]);
+        }
+        std::vector<int> pivp(kp);
+        int np_ = kp, nrhs_ = 1, lda_ = kp, ldb_ = kp, info_ = 0;
+        dgesv_(&np_, &nrhs_, GP.data(), &lda_, pivp.data(), dP.data(), &ldb_, &info_);
+        double lmax = 0.0;
+        for (Eigen::Index j = 0; j < k; ++j) lmax = std::max(lmax, std::abs(lamA[j]));
+        bool small = info_ == 0;
+        for (int i = 0; i < kp && small; ++i) small = std::abs(dP[i]) <= 1e-8 * (1.0 + lmax);  // false for NaN
+        if (small) {
+          VectorXd d = VectorXd::Zero(k);
+          for (int i = 0; i < kp; ++i) d[pidx[i]] = dP[i];
+          for (Eigen::Index j = 0; j < k; ++j) lamA[j] = std::max(lamA[j] + d[j], 0.0);
+          vp = vp + times(MiWA, d);
+        }
+      }
       for (Eigen::Index j = 0; j < k; ++j) lp[act[j]] = lamA[j];
     }
     return (wt_times(W, vp) - b).minCoeff() >= -1e-12 * (1.0 + v0.cwiseAbs().maxCoeff());
@@ -554,7 +582,7 @@ class Stepper {
     double corr = 0.0;
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
-    if (projection_) correct_positions(q, u, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
+    if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
     // one float and one int array cross (moreau_sim/compiled.py slices them): q_next, u_next, g, point_a,
     // point_b, normal (m x 3, row-major), P, gamma_minus, gamma_plus, v, lam, M (nv x nv), W (column-major),
     // v_free, b; pair, kind, feature, joint_a, joint_b
@@ -579,9 +607,9 @@ class Stepper {
   }
 
   // stepper.correct_positions
-  void correct_positions(const VectorXd &q, const VectorXd &u, double h, const VectorXd &g, const VectorXd &gamma_plus,
-                         const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W, const MatrixXd &Minv,
-                         VectorXd &q_next, double &corr) {
+  void correct_positions(const VectorXd &q, const VectorXd &u, const VectorXd &u_free, double h, const VectorXd &g,
+                         const VectorXd &gamma_plus, const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W,
+                         const MatrixXd &Minv, VectorXd &q_next, double &corr) {
     (void)M;
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
@@ -589,11 +617,25 @@ class Stepper {
     const double E0 = energy(q, u);
     const double E1 = energy(q_next, u_next);
     const double budget = E0 - E1;
-    if (budget <= 0.0) return;
+    // stepper._resting: the bodies of every penetrating contact end the step at rest
+    // (|u_next_j| <= RESTING max|u_free - u| wherever a penetrating row has w_ij != 0)
+    bool resting = true;
+    {
+      double dmax = 0.0;
+      for (Eigen::Index j = 0; j < u.size(); ++j) dmax = std::max(dmax, std::abs(u_free[j] - u[j]));
+      const double scale = RESTING * dmax;
+      for (Eigen::Index j = 0; j < W.rows() && resting; ++j) {
+        bool involved = false;
+        for (Eigen::Index i = 0; i < m; ++i)
+          if (g_next[i] < -tol_ && W(j, i) != 0.0) involved = true;
+        if (involved) resting = std::abs(u_next[j]) <= scale;
+      }
+    }
+    if (budget <= 0.0 && !resting) return;
     Solved res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
     double dE = energy(q_c, u_next) - E1;
-    if (dE > budget) {
+    if (dE > budget && !resting) {
       q_c = pinocchio::integrate(model_, q_next, (budget / dE) * res.v);
       dE = energy(q_c, u_next) - E1;
       if (dE > budget) return;

@@ -6,6 +6,7 @@ import pytest
 
 import moreau_sim as ms
 from moreau_sim import qp
+from moreau_sim.options import QPForm
 
 from helpers import random_problem
 
@@ -98,6 +99,37 @@ def test_failure_is_reported_not_polished():
     res = qp.solve(M, W, u, max_iter=1)
     assert res.status == "PIQP_MAX_ITER_REACHED"
     assert not res.ok and not res.polished and res.residual == np.inf
+
+
+@pytest.mark.parametrize("ratio", [1.0, 1e2, 1e3, 1e4])
+@pytest.mark.parametrize("form", list(QPForm))
+def test_heavy_on_light_stack_comes_to_rest_exactly(ratio, form):
+    """A cube of `ratio` kg on a 1 kg cube on the ground, aligned, one step of gravity (v0 = -h g/1.5
+    for both): 4 + 4 corner rows of rank 3 + 3. The exact projection is v = 0. Solving for multipliers
+    of ~ratio times the light cube's weight impulse leaves its velocity at ~ratio * eps (1e-12 m/s at
+    1:10,000, the round-off that tipped the 1:1000 stack over, docs/theory.md §1.5); the polish's
+    refinement step computes the residual where v ~ 0 and brings v to round-off of v itself."""
+    h, g = 1e-2, 9.81
+    I1, I2 = 1.0 * 0.01 / 6, ratio * 0.01 / 6
+    M = np.diag([1.0, 1.0, 1.0, I1, I1, I1, ratio, ratio, ratio, I2, I2, I2])
+    n = np.array([0.0, 0.0, 1.0])
+    cols = []
+    for z in (-0.05, 0.05):  # the ground under the light cube, then the light-heavy face
+        for sx in (-1, 1):
+            for sy in (-1, 1):
+                p = np.array([0.05 * sx, 0.05 * sy, z])
+                w = np.zeros(12)
+                w[:3], w[3:6] = n, np.cross(p, n)
+                if z > 0:  # the row of the heavy cube (B = light, A = heavy): n'(v_heavy(p) - v_light(p))
+                    w[:6] *= -1.0
+                    w[6:9], w[9:12] = n, np.cross(p - np.array([0.0, 0.0, 0.1]), n)
+                cols.append(w)
+    W = np.array(cols).T
+    v0 = np.zeros(12)
+    v0[2] = v0[8] = -h * g / 1.5
+    res = qp.solve(M, W, v0, form=form)
+    assert res.ok and res.polished and res.residual <= 1e-13 * ratio
+    assert np.abs(res.v).max() <= 1e-17, np.abs(res.v).max()
 
 
 def test_kkt_residual_measures_each_condition():
