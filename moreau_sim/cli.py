@@ -40,18 +40,12 @@ def _load(scene: str, **overrides):
 
 def _settings(settings) -> dict:
     """--set NAME=VALUE pairs -> option overrides, parsed as a sweep's one-value --param."""
-    from .sweep import parse_param
+    from .sweep import parse_settings
 
-    out = {}
-    for text in settings:
-        try:
-            p = parse_param(text, flag="--set")
-        except MoreauSimError as exc:
-            _fail(f"command line: {exc}")
-        if len(p.values) != 1:
-            _fail(f"command line: --set {text}: one value, not {len(p.values)} (a grid is `moreau-sim sweep`)")
-        out[p.name] = p.values[0]
-    return out
+    try:
+        return parse_settings(settings)
+    except MoreauSimError as exc:
+        _fail(f"command line: {exc}")
 
 
 def _interrupt(signum, frame):
