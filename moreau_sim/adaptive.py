@@ -252,8 +252,13 @@ class AdaptiveRun(FeatureContacts):
         self.gi = gi
 
     def sample(self, t: float, q: np.ndarray, u: np.ndarray, n_contacts: int) -> None:
-        self.rec.sample(State(t, q, u), self.work, self.corr, n_contacts)
-        self.work = self.corr = 0.0
+        super().sample(t, q, u, n_contacts, self.corr)
+        self.corr = 0.0
+
+    unit = "step"
+
+    def position(self) -> tuple[int, float]:
+        return self.accepted + self.rejected + self.fixed + 1, self.t
 
     # ---- events ----------------------------------------------------------------------------
     def _first_event(self, e0: _End, e1: _End, nw: int, C):
@@ -350,13 +355,15 @@ class AdaptiveRun(FeatureContacts):
             watch = [i for i in free if i not in low]
             e0 = self._end(t, q, u, C, watch + low)
             while True:  # the phase: steps until an event or t_end
+                self.t = t
                 h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)))
                 q1, u1, d = self._step(q, u, h, C)
                 err = self._error(q, u, q1, u1, d)
-                if not np.isfinite(err) or err > 1.0:
+                if not np.isfinite(err):  # an overflow (or a failed library call): no step size helps
+                    raise SimulationError(f"the error estimate of an extrapolated step of {h:.3g} s is non-finite")
+                if err > 1.0:
                     self.rejected += 1
-                    shrink = SAFETY * err ** (-1.0 / (self.order - 1)) if np.isfinite(err) else 0.0
-                    H = h * max(MIN_FACTOR, shrink)
+                    H = h * max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
                     if H < H_MIN:
                         break
                     continue
@@ -398,7 +405,7 @@ class AdaptiveRun(FeatureContacts):
                 break
             self.events += 1
             if self.events > self.max_events:
-                raise SimulationError(f"t = {t:.12g} s: more than {self.max_events} events", t=t)
+                raise SimulationError(f"more than {self.max_events} events")
             self.burst.append(t)
             while self.burst and self.burst[0] < t - self.h_fix:
                 self.burst.pop(0)
@@ -429,15 +436,16 @@ class AdaptiveRun(FeatureContacts):
         previous: set = set()
         quiet = 0
         while t < t_end:
+            self.t = t
             nxt = min(t_grid[self.gi], t_end) if self.gi < len(t_grid) else t_end
             # a step of dt, or onto the next sample instant when that is at most dt (+ round-off) away
             t1 = nxt if nxt - t <= self.h_fix * (1.0 + 1e-9) else t + self.h_fix
             h = t1 - t
             r = step(model, self.data, State(t, q, u), h=h, e=self.e, t_next=t1)
             if r.qp is not None and not r.qp.ok:
-                raise SimulationError(f"t = {t:.6g} s: a fixed step's impact QP failed with status {r.qp.status}", t=t)
+                raise SimulationError(f"a fixed step's impact QP failed with status {r.qp.status}")
             if not (np.isfinite(r.state.q).all() and np.isfinite(r.state.u).all()):
-                raise SimulationError(f"t = {t:.6g} s: a fixed step's state became non-finite", t=t)
+                raise SimulationError("a fixed step's state became non-finite (NaN or inf)")
             self.fixed += 1
             self.work += r.contact_work
             self.corr += r.correction_energy

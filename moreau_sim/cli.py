@@ -11,7 +11,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from .errors import MoreauSimError, SimulationError, SimulationInterrupted
+from .checkpoint import Checkpoint
+from .errors import MoreauSimError, SceneError, SimulationError, SimulationInterrupted
 from .model import build_model
 from .scene import load_scene
 from .simulate import simulate, summary
@@ -39,18 +40,12 @@ def _load(scene: str, **overrides):
 
 def _settings(settings) -> dict:
     """--set NAME=VALUE pairs -> option overrides, parsed as a sweep's one-value --param."""
-    from .sweep import parse_param
+    from .sweep import parse_settings
 
-    out = {}
-    for text in settings:
-        try:
-            p = parse_param(text, flag="--set")
-        except MoreauSimError as exc:
-            _fail(f"command line: {exc}")
-        if len(p.values) != 1:
-            _fail(f"command line: --set {text}: one value, not {len(p.values)} (a grid is `moreau-sim sweep`)")
-        out[p.name] = p.values[0]
-    return out
+    try:
+        return parse_settings(settings)
+    except MoreauSimError as exc:
+        _fail(f"command line: {exc}")
 
 
 def _interrupt(signum, frame):
@@ -106,7 +101,13 @@ def main():
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar on runs longer than 2 s (default: only when stderr is a terminal).")
-def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as_json, progress):
+@click.option("--checkpoint-every", type=float, metavar="SECONDS",
+              help="Save a checkpoint FILE.checkpoint.npz every SECONDS of simulated time (time-stepping runs).")
+@click.option("--resume", is_flag=True,
+              help="Continue from FILE.checkpoint.npz if it exists; the result is bit-identical to an "
+                   "uninterrupted run.")
+def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as_json, progress, checkpoint_every,
+        resume):
     """Simulate SCENE and write a self-describing NPZ."""
     overrides = _settings(settings)
     for key, value in (("dt", dt), ("duration", duration), ("restitution", restitution), ("save_every", save_every),
@@ -115,13 +116,25 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
             overrides[key] = value
     sc, model = _load(scene, **overrides)
     out = _output(out, sc)
+    if checkpoint_every is not None and not (checkpoint_every > 0 and np.isfinite(checkpoint_every)):
+        _fail(f"command line: --checkpoint-every: must be a finite time > 0 s, got {checkpoint_every!r}")
+    ck = None
+    if checkpoint_every is not None or resume:
+        ck = Checkpoint(path=out.with_name(out.stem + ".checkpoint.npz"), every=checkpoint_every, resume=resume,
+                        keep=True)
+        if resume and not ck.path.exists():
+            click.echo(f"moreau-sim: no checkpoint {ck.path}: starting from the beginning", err=True)
     previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM as Ctrl-C: the samples so far are kept
     try:
-        traj = simulate(model, progress=_show_progress(progress, as_json))
+        traj = simulate(model, progress=_show_progress(progress, as_json), checkpoint=ck)
+    except SceneError as exc:  # a damaged checkpoint, or one of another run
+        _fail(str(exc))
     except SimulationInterrupted as exc:
         partial = out.with_name(out.stem + ".partial.npz")
         exc.trajectory.save(partial)
-        click.echo(f"moreau-sim: {exc}; the samples so far are in {partial} (meta status 'failed')", err=True)
+        again = (f"; --resume continues from the last checkpoint {ck.path}" if ck is not None and ck.path.exists()
+                 else "")
+        click.echo(f"moreau-sim: {exc}; the samples so far are in {partial} (meta status 'failed'){again}", err=True)
         sys.exit(130)
     except SimulationError as exc:
         partial = out.with_name(out.stem + ".partial.npz")
@@ -133,6 +146,8 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
     finally:
         signal.signal(signal.SIGTERM, previous)
     traj.save(out)
+    if ck is not None:
+        ck.path.unlink(missing_ok=True)  # the run is complete and saved
     s = summary(traj)
     s["output"] = str(out)
     if as_json:

@@ -4,6 +4,7 @@ queries, the detection's warm start). One per thread and per run; the state itse
 from __future__ import annotations
 
 import coal
+import numpy as np
 import pinocchio as pin
 
 from .model import Model
@@ -14,6 +15,23 @@ GJK_TOLERANCE = 1e-12  # coal's GJK/EPA tolerances for the contact normal (defau
 # tighter value makes the patch flicker between 1 and 8 points from one step to the next.
 PATCH_TOLERANCE = 1e-6
 GATE_MARGIN = 1e-6  # [m] see Data: pairs this close are examined (contacts still need g <= tol)
+
+
+def _pin_box_support() -> None:
+    """coal 3.0's Box support function keeps a function-static `inflate`, set once per process by
+    the direction of its first call (1 + 1e-10 when that direction has a zero component, else 1):
+    box results (5e-12 m on a gap) then depend on which box query a process made first, and a run
+    resumed in a new process (checkpoint.py) would part from the uninterrupted one. Make the first
+    calls here, at import, along axes (GJK's default guess (1, 0, 0), a ground normal), the value
+    most runs set: the same in every process that imports moreau_sim before its first coal query."""
+    box, far = coal.Box(1.0, 1.0, 1.0), coal.Transform3s()
+    far.setTranslation(np.array([3.0, 0.0, 0.0]))
+    coal.distance(box, coal.Transform3s(), box, far, coal.DistanceRequest(), coal.DistanceResult())  # GJK
+    coal.collide(box, coal.Transform3s(), coal.Halfspace(np.array([0.0, 0.0, 1.0]), -10.0), coal.Transform3s(),
+                 coal.CollisionRequest(), coal.CollisionResult())  # box vs half-space (the swept-sphere support)
+
+
+_pin_box_support()
 
 
 class Data:
@@ -57,6 +75,28 @@ class Data:
         self._point_queries: dict[int, coal.ComputeDistance] = {}
         geoms = model.geom.geometryObjects
         self.shapes = [g.geometry for g in geoms]
+
+    def _guess_holders(self) -> list:
+        """Every coal request and result that carries a GJK guess from one call to the next."""
+        g = self.geom
+        return [*g.collisionRequests, *g.collisionResults, *g.distanceRequests, *g.distanceResults,
+                self.patch_collision, self.fallback_request, self.fallback_result, self.distance_request,
+                self.distance_result]
+
+    def warm_start(self) -> dict:
+        """What the next detection starts from, as JSON-able lists: warm_start_pairs and coal's
+        cached GJK guesses (requests keep enable_cached_gjk_guess, coal's default). Restoring it
+        (restore_warm_start) makes a new Data continue bit for bit (checkpoint.py)."""
+        holders = self._guess_holders()
+        return {"pairs": sorted(self.warm_start_pairs),
+                "gjk_guess": [h.cached_gjk_guess.tolist() for h in holders],
+                "support_guess": [h.cached_support_func_guess.tolist() for h in holders]}
+
+    def restore_warm_start(self, warm: dict) -> None:
+        self.warm_start_pairs = set(warm["pairs"])
+        for h, guess, support in zip(self._guess_holders(), warm["gjk_guess"], warm["support_guess"], strict=True):
+            h.cached_gjk_guess = np.array(guess, float)
+            h.cached_support_func_guess = np.array(support, np.int32)
 
     def point_query(self, g: int) -> coal.ComputeDistance:
         """Cached coal functor: signed distance from a point to geometry g."""

@@ -162,7 +162,7 @@ class EventDrivenRun(FeatureContacts):
                             dense_output=True, events=events or None, rtol=self.rtol, atol=self.atol,
                             max_step=self._max_step(q, u, C, low))
             if sol.status < 0:
-                raise SimulationError(f"t = {t:.12g} s: solve_ivp failed: {sol.message}", t=t)
+                raise SimulationError(f"solve_ivp failed: {sol.message}")
             t_stop, end = float(sol.t[-1]), sol.status == 0
             while gi < len(t_grid) and (t_grid[gi] < t_stop or (end and t_grid[gi] <= t_stop)):
                 y = sol.sol(t_grid[gi])
@@ -170,12 +170,13 @@ class EventDrivenRun(FeatureContacts):
                 gi += 1
             if end:
                 return
+            self.t = t_stop
             self.events += 1
             if self.events > self.max_events:
-                raise SimulationError(f"t = {t_stop:.12g} s: more than {self.max_events} events", t=t_stop)
+                raise SimulationError(f"more than {self.max_events} events")
             stuck = stuck + 1 if t_stop - t < 1e-13 else 0
             if stuck > 100:
-                raise SimulationError(f"t = {t_stop:.12g} s: 100 events without time advancing", t=t_stop)
+                raise SimulationError("100 events without time advancing")
             y = sol.y[:, -1]
             q, u, t = self.q_of(qb, y[:nv]), y[nv:].copy(), t_stop
             released = frozenset(i for (kind, i), te in zip(tags, sol.t_events)

@@ -27,7 +27,7 @@ import pinocchio as pin
 from .constraints import assemble_constraints
 from .contacts import detect
 from .data import Data
-from .errors import MoreauSimError, SimulationError
+from .errors import MoreauSimError, SimulationError, named_stops
 from .law import impact, project
 from .model import Model
 from .recording import LOG_RELATIVE, PercussionRow, Recorder
@@ -140,6 +140,7 @@ class FeatureContacts:
         self.work = 0.0  # contact work since the last sample [J] (= -energy lost in impacts)
         self.last_impact = -np.inf
         self.impacts = self.nfev = 0
+        self.t = float("nan")  # [s] where the run is (errors name it): a step's or phase's start, an event
 
     # ---- kinematics of the features -------------------------------------------------------
     def _point(self, j: int, p_local: np.ndarray, rows: bool):
@@ -241,6 +242,7 @@ class FeatureContacts:
     def resolve(self, t: float, q: np.ndarray, u: np.ndarray, released: frozenset):
         """Impact (with the Zeno rule), then the persistent set C at (t, q, u) (module doc).
         Returns (u, C, shadow): C persistent features, shadow: duplicates of C's rows."""
+        self.t = t
         fs = self.features(q, u)
         closed = fs.g <= self.gap_tol
         if (closed & (fs.gamma < -V_TOL)).any():
@@ -259,7 +261,7 @@ class FeatureContacts:
         Wk, dk = fs.W[:, keep], fs.drift[keep]
         res = project(M, Wk, a_free, b=-dk)
         if not res.ok:
-            raise SimulationError(f"t = {t:.12g} s: the contact-force QP failed ({res.status})", t=t)
+            raise SimulationError(f"the contact-force QP failed ({res.status}) at t = {t:.12g} s")
         rel = Wk.T @ res.v + dk
         tol = ACC_TOL * (1.0 + np.abs(dk).max() + np.abs(Wk.T @ a_free).max())
         C = tuple(int(i) for i, r in zip(keep, rel) if r <= tol)
@@ -276,16 +278,16 @@ class FeatureContacts:
         pm, pd, model = self.pm, self.pd, self.model
         c = detect(model, self.data, q)
         if c.corners:
-            raise CornerImpact(f"t = {t:.12g} s: a corner impact (docs/theory.md §3); the event-driven "
+            raise CornerImpact(f"a corner impact at t = {t:.12g} s (docs/theory.md §3); the event-driven "
                                   "reference handles smooth contacts only", t=t)
         cs = assemble_constraints(model, self.data, q, c)
         c, M, W = cs.contacts, cs.M, cs.W
         if c.m == 0:
-            raise SimulationError(f"t = {t:.12g} s: a gap event but coal finds no closed contact", t=t)
+            raise SimulationError(f"a gap event at t = {t:.12g} s but coal finds no closed contact")
         gm = W.T @ u
         if not (gm < -V_TOL).any():
-            raise SimulationError(f"t = {t:.12g} s: a feature approaches (gamma = {fs.gamma.min():.3g} m/s) but "
-                                  "none of coal's closed contacts does", t=t)
+            raise SimulationError(f"a feature approaches at t = {t:.12g} s (gamma = {fs.gamma.min():.3g} m/s) but "
+                                  "none of coal's closed contacts does")
         # the Zeno rule (module doc) on the approaching features: their free normal accelerations a_n
         appr = np.flatnonzero((fs.g <= self.gap_tol) & (fs.gamma < -V_TOL))
         a_n = fs.W[:, appr].T @ pin.aba(pm, pd, q, u, self.zero) + fs.drift[appr]
@@ -311,10 +313,22 @@ class FeatureContacts:
 
 
 
-    def sample(self, t: float, q: np.ndarray, u: np.ndarray, n_contacts: int) -> None:
-        """Record a sample with the contact work since the previous one."""
-        self.rec.sample(State(t, q, u), self.work, 0.0, n_contacts)
+    unit = "phase"  # what position() counts, in error messages
+
+    def position(self) -> tuple[int, float]:
+        """(the number of the step or phase under way, its time [s]): what an error names."""
+        return self.events + 1, self.t
+
+    def sample(self, t: float, q: np.ndarray, u: np.ndarray, n_contacts: int, corr: float = 0.0) -> None:
+        """Record a sample with the contact work (and correction energy) since the previous one;
+        a non-finite one stops the run (nothing non-finite is ever complete)."""
+        if not (np.isfinite(q).all() and np.isfinite(u).all()):
+            raise SimulationError(f"the state at t = {t:.6g} s became non-finite (NaN or inf)")
+        self.rec.sample(State(t, q, u), self.work, corr, n_contacts)
         self.work = 0.0
+        if not self.rec.finite():
+            raise SimulationError(f"the energies or gaps at t = {t:.6g} s became non-finite (an overflow: check "
+                                  "gravity, masses and initial velocities)")
 
 
 def sample_grid(model: Model, state: State, t_end: float | None, t_eval) -> tuple[float, np.ndarray]:
@@ -336,12 +350,15 @@ def sample_grid(model: Model, state: State, t_end: float | None, t_eval) -> tupl
 
 def run_recorded(integ: FeatureContacts, state: State, t_end: float, t_grid: np.ndarray, meta) -> Trajectory:
     """integ.run(state, t_end, t_grid) into a new Recorder; the Trajectory with meta(model, integ,
-    status, wall0), or SimulationError with .trajectory up to the failure."""
+    status, wall0), or (errors.named_stops) SimulationError naming integ.position() with
+    .trajectory up to the failure, SimulationInterrupted on Ctrl-C."""
     integ.rec = Recorder(integ.model, integ.data, len(t_grid))
+    integ.t = float(state.t)
     wall0 = time.perf_counter()
-    try:
+
+    def partial(status: str) -> Trajectory:
+        return integ.rec.trajectory(meta(integ.model, integ, status, wall0))
+
+    with named_stops(integ.position, partial, unit=integ.unit):
         integ.run(state, t_end, t_grid)
-    except SimulationError as exc:
-        exc.trajectory = integ.rec.trajectory(meta(integ.model, integ, f"failed: {exc}", wall0))
-        raise
     return integ.rec.trajectory(meta(integ.model, integ, "complete", wall0))

@@ -2,7 +2,7 @@
 ledger (docs/theory.md §5), filling the arrays of trajectory.py's schema; and the run metadata every
 trajectory file carries.
 
-Columns grow by doubling (compact: memory is proportional to what was recorded)."""
+Columns grow in place by at most BLOCK_ROWS rows (compact: memory is proportional to what was recorded)."""
 
 from __future__ import annotations
 
@@ -24,6 +24,7 @@ from .model import Model
 from .state import State
 from .trajectory import Trajectory
 
+BLOCK_ROWS = 1 << 14  # the most rows a full column grows by at a time (see _Columns)
 LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) of its step (and > 0)
 
 
@@ -83,23 +84,50 @@ class PercussionRow:
 
 
 class _Columns:
-    """Arrays of one schema group that grow by doubling; `n` rows used."""
+    """Arrays of one schema group, `n` rows used. A full column grows in place (ndarray.resize:
+    realloc, which for large arrays remaps pages instead of copying them) by as many rows as it
+    has, at most BLOCK_ROWS at a time, and is cut to its n rows when the recording ends (fit):
+    the memory stays ~ the rows recorded, with no copy and at most BLOCK_ROWS rows to spare. A row
+    counts (commit) only once written: an interrupt never leaves a half-written row."""
 
     def __init__(self, schema: dict, sizes: dict, capacity: int):
         self.shapes = {k: tuple(sizes.get(d, d) for d in shape) for k, (_, shape) in schema.items()}
         self.cols = {k: np.empty((max(capacity, 1),) + self.shapes[k], dtype) for k, (dtype, _) in schema.items()}
         self.n = 0
 
-    def row(self) -> int:
-        """Index of a new row (growing the columns if full)."""
+    def free(self) -> int:
+        """Index of the next row (growing the columns if full); call commit() once it is written."""
         i = self.n
         if i == len(next(iter(self.cols.values()))):
-            for k, a in self.cols.items():
-                b = np.empty((2 * len(a),) + a.shape[1:], a.dtype)
-                b[:i] = a
-                self.cols[k] = b
-        self.n = i + 1
+            self._resize(i + min(max(i, 64), BLOCK_ROWS))
         return i
+
+    def commit(self) -> None:
+        self.n += 1
+
+    def _resize(self, rows: int) -> None:
+        for k in self.cols:
+            try:  # in place; refused (ValueError) while a view of the array is alive: then copied
+                self.cols[k].resize((rows,) + self.cols[k].shape[1:])
+            except ValueError:
+                a = self.cols[k]
+                b = np.empty((rows,) + a.shape[1:], a.dtype)
+                b[:min(rows, self.n)] = a[:min(rows, self.n)]
+                self.cols[k] = b
+
+    def fit(self) -> None:
+        """Release the rows not used (at the end of a recording)."""
+        if len(next(iter(self.cols.values()))) > max(self.n, 1):
+            self._resize(max(self.n, 1))
+
+    def load(self, arrays: dict[str, np.ndarray]) -> None:
+        """Start from rows recorded earlier (a checkpoint's arrays)."""
+        n = len(arrays[next(iter(self.cols))])
+        if n > len(next(iter(self.cols.values()))):
+            self._resize(n)
+        for k, a in self.cols.items():
+            a[:n] = arrays[k]
+        self.n = n
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {k: a[:self.n] for k, a in self.cols.items()}
@@ -139,7 +167,7 @@ class Recorder:
     def sample(self, state: State, work: float, corr: float, n_contacts: int) -> None:
         m, d = self.model, self.data
         q, u = state.q, state.u
-        i = self._samples.row()
+        i = self._samples.free()
         c = self._samples.cols
         c["t"][i] = state.t
         c["q"][i] = q
@@ -158,6 +186,7 @@ class Recorder:
             if (T + V) - self._E > self._rise[0]:  # event-driven, adaptive: a smooth stretch counts as a step
                 self._rise = ((T + V) - self._E, float(state.t))
         c["smooth_error"][i], c["dissipation"][i], c["law_dissipation"][i] = self._smooth, self._diss, self._law
+        self._samples.commit()
         self._smooth = self._diss = self._law = 0.0
         self._E, self._at, self._TV = T + V, (q, u), (T, V)
 
@@ -216,11 +245,12 @@ class Recorder:
         if diff > self._law_difference[0]:
             self._law_difference = (diff, float(t))
         if new:
-            i = self._impacts.row()
+            i = self._impacts.free()
             c = self._impacts.cols
             c["impact_step"][i], c["impact_t"][i], c["impact_contacts"][i] = step, t, contacts
             c["impact_T_minus"][i], c["impact_T_plus"][i] = T_minus, T_plus
             c["impact_dissipation"][i], c["impact_law"][i] = T_minus - T_plus, law
+            self._impacts.commit()
 
     def ledger_meta(self) -> dict:
         """The per-run ledger figures no array holds (meta["ledger"] of the trajectory; a time is None
@@ -238,10 +268,11 @@ class Recorder:
                     and np.isfinite(c["gap"][i]).all())
 
     def log(self, row: PercussionRow) -> None:
-        i = self._log.row()
+        i = self._log.free()
         c = self._log.cols
         for name in PercussionRow.__slots__:
             c[f"log_{name}"][i] = getattr(row, name)
+        self._log.commit()
 
     def log_percussions(self, step: int, t: float, contacts: Contacts, P: np.ndarray, gamma_minus: np.ndarray,
                         gamma_plus: np.ndarray, previous: set) -> set:
@@ -260,21 +291,55 @@ class Recorder:
 
     def branch(self, step: int, t: float, chosen: int, candidates: list[tuple]) -> None:
         """A step with several admissible corner outcomes: candidates [(u_plus, distance, global_min)]."""
-        i = self._branches.row()
-        b = self._branches.cols
-        b["branch_step"][i], b["branch_t"][i], b["branch_chosen"][i] = step, t, chosen
-        b["branch_start"][i], b["branch_count"][i] = self._candidates.n, len(candidates)
-        c = self._candidates.cols
+        start = self._candidates.n
         for u_plus, distance, global_min in candidates:
-            j = self._candidates.row()
+            j = self._candidates.free()
+            c = self._candidates.cols
             c["candidate_u_plus"][j], c["candidate_distance"][j], c["candidate_global_min"][j] = \
                 u_plus, distance, global_min
+            self._candidates.commit()
+        i = self._branches.free()
+        b = self._branches.cols
+        b["branch_step"][i], b["branch_t"][i], b["branch_chosen"][i] = step, t, chosen
+        b["branch_start"][i], b["branch_count"][i] = start, len(candidates)
+        self._branches.commit()
+
+    def _groups(self) -> tuple[_Columns, ...]:
+        return self._samples, self._log, self._branches, self._candidates, self._impacts
+
+    def carried(self, state: State) -> dict:
+        """What the recording carries from one step to the next besides its arrays (the ledger's
+        running terms), as JSON for a checkpoint (checkpoint.py); `state`: the run's current state."""
+        return {"smooth": float(self._smooth), "diss": float(self._diss), "law": float(self._law),
+                "E": None if self._E is None else float(self._E),
+                "at_state": self._at is not None and self._at[0] is state.q and self._at[1] is state.u,
+                "TV": [float(x) for x in self._TV], "new_impact": bool(self._new_impact),
+                "rise": [None if not np.isfinite(x) else x for x in self._rise],
+                "law_difference": [None if np.isnan(x) else x for x in self._law_difference],
+                "contact_steps": self._contact_steps}
+
+    def restore(self, arrays: dict[str, np.ndarray], carried: dict, state: State) -> None:
+        """Continue a recording from its arrays and carried() (a checkpoint's) at `state`."""
+        for g in self._groups():
+            g.load(arrays)
+        c = carried
+        self._smooth, self._diss, self._law, self._E = c["smooth"], c["diss"], c["law"], c["E"]
+        self._at = (state.q, state.u) if c["at_state"] else None
+        self._TV, self._new_impact, self._contact_steps = tuple(c["TV"]), c["new_impact"], c["contact_steps"]
+        rise, t_rise = c["rise"]
+        self._rise = (-np.inf if rise is None else rise, np.nan if t_rise is None else t_rise)
+        diff, t_diff = c["law_difference"]
+        self._law_difference = (diff, np.nan if t_diff is None else t_diff)
 
     def arrays(self) -> dict[str, np.ndarray]:
         out = {**self._samples.arrays(), **self._log.arrays(), **self._branches.arrays(), **self._candidates.arrays(),
                **self._impacts.arrays()}
         return {k: out[k] for k in trajectory.ARRAYS}
 
-    def trajectory(self, meta: dict) -> Trajectory:
-        """The recorded arrays with `meta` (and its "ledger" entry, ledger_meta())."""
+    def trajectory(self, meta: dict, *, final: bool = True) -> Trajectory:
+        """The arrays so far (views) with `meta` (and its "ledger" entry, ledger_meta()); `final`:
+        the recording ends, its unused rows are released."""
+        if final:
+            for g in self._groups():
+                g.fit()
         return Trajectory(self.arrays(), {**meta, "ledger": self.ledger_meta()})

@@ -13,7 +13,7 @@ import click
 from .errors import MoreauSimError
 from .ledger import DEFAULT_TOLERANCE, QUANTITIES
 from .regress import Result, check_scene, junit
-from .sweep import parse_param
+from .sweep import parse_settings
 
 
 def _fail(msg: str) -> None:
@@ -60,15 +60,10 @@ def regress(scenes, directory, update, settings, rtol, atol, tol_specs, junit_fi
     """Run SCENES and compare their energy ledgers with the baselines in --baseline (docs/regression.md).
     Exits 0 when every scene is within tolerance, 1 when a ledger drifted, 2 on bad input."""
     tolerances = _tolerances(rtol, atol, tol_specs)
-    overrides = {}
-    for text in settings:
-        try:
-            p = parse_param(text, flag="--set")
-        except MoreauSimError as exc:
-            _fail(f"command line: {exc}")
-        if len(p.values) != 1:
-            _fail(f"command line: --set {text}: one value, not {len(p.values)}")
-        overrides[p.name] = p.values[0]
+    try:
+        overrides = parse_settings(settings)
+    except MoreauSimError as exc:
+        _fail(f"command line: {exc}")
     results, errors = [], 0
     for scene in scenes:
         try:

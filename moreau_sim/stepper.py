@@ -137,7 +137,7 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     imp = solve_impact(pb, opts, form=form, eps=eps, corner_choice=corner_choice)
     q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
     corr = 0.0
-    if opts.position_correction is PositionCorrection.PROJECTION:
+    if opts.position_correction is PositionCorrection.PROJECTION and imp.qp.ok:  # a failed QP: simulate names it
         q_next, corr = correct_positions(model, data, pb, imp, q_next)
     return StepResult(State(t1, q_next, imp.u_next), imp.contacts, imp.P, imp.gamma_minus, imp.gamma_plus,
                       imp.contact_work, imp.qp, imp.branch, corr)

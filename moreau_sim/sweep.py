@@ -233,6 +233,18 @@ def parse_param(text: str, *, flag: str = "--param") -> Param:
     return Param(name, values, text)
 
 
+
+def parse_settings(texts: Iterable[str], *, flag: str = "--set") -> dict[str, Any]:
+    """``NAME=VALUE`` overrides, one value each (the command line's --set) -> {name: value}.
+    Raises :class:`SceneError` naming the flag, as :func:`parse_param` does, or a grid given."""
+    out = {}
+    for text in texts:
+        p = parse_param(text, flag=flag)
+        if len(p.values) != 1:
+            raise SceneError(f"{flag} {text}: one value, not {len(p.values)} (a grid is `moreau-sim sweep`)")
+        out[p.name] = p.values[0]
+    return out
+
 def grid(params: Sequence[Param]) -> tuple[dict[str, Any], ...]:
     """The cartesian product of the params' values, the first param varying slowest.
     No params: one point (the scene as it is). Raises SceneError on a name given twice."""

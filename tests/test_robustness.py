@@ -172,17 +172,22 @@ def test_a_scene_output_stays_in_its_folder(tmp_path):
     assert r.returncode == 0 and (tmp_path / "s" / "runs" / "ball.npz").is_file()  # in the scene's folder
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_an_interrupted_run_keeps_its_samples(tmp_path, sig):
+@pytest.mark.parametrize("sig,integrator", [(signal.SIGINT, "time-stepping"), (signal.SIGTERM, "time-stepping"),
+                                            (signal.SIGINT, "adaptive"), (signal.SIGTERM, "event-driven")])
+def test_an_interrupted_run_keeps_its_samples(tmp_path, sig, integrator):
+    """Ctrl-C or SIGTERM in any integrator's loop (errors.named_stops): the samples so far, exit 130."""
     out = tmp_path / "b.npz"
-    p = subprocess.Popen([sys.executable, "-m", "moreau_sim", "run", str(BALL), "--duration", "1000", "-o", str(out)],
+    p = subprocess.Popen([sys.executable, "-m", "moreau_sim", "run", str(BALL), "--duration", "1000", "-o", str(out),
+                          "--set", f"integrator={integrator}"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)  # past the model's build, well before the 1e6 steps end
+    time.sleep(4.0)  # past the model's build, well before the 1e6 steps (or samples) end
     p.send_signal(sig)
     _, err = p.communicate(timeout=120)
     assert p.returncode == 130, err
     partial = ms.load_trajectory(tmp_path / "b.partial.npz")
-    assert partial.meta["status"].startswith("failed: interrupted at step") and len(partial.t) > 10
+    unit = "phase" if integrator == "event-driven" else "step"
+    assert partial.meta["status"].startswith(f"failed: interrupted at {unit}") and len(partial.t) > 10
+    assert partial.meta.get("integrator", "time-stepping") == integrator
     assert np.isfinite(partial.q).all() and not out.exists()
     assert not list(tmp_path.glob("*.tmp"))
 

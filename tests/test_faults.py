@@ -1,0 +1,143 @@
+"""Fault injection at every solver call: the library call is patched to fail (a failed status, an
+exception) or to answer NaN, and the run must stop with a SimulationError naming the step (or
+event-driven phase) and the time, carrying the samples so far as a trajectory marked failed
+that saves and loads as FILE.partial.npz does. The libraries themselves are not mocked elsewhere."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import piqp
+import pytest
+import scipy.integrate
+import scipy.optimize
+
+import moreau_sim as ms
+from moreau_sim import adaptive, event_driven, qp
+
+from helpers import run
+
+_DENSE_SOLVER = piqp.DenseSolver  # the real one (the tests patch the module's attribute)
+
+
+class _Result:
+    """piqp's result with x and z_l replaced by NaN (an answer "solved" with NaN in it)."""
+
+    def __init__(self, real):
+        self.info = real.info
+        self.x = np.full_like(real.x, np.nan)
+        self.z_l = np.full_like(real.z_l, np.nan)
+
+
+def faulty_piqp(mode: str, when=lambda c: True):
+    """A piqp.DenseSolver whose solve() fails ("fail": max iterations reached) or answers NaN with
+    status solved ("nan") on the problems where when(c) (c: the linear term given to setup)."""
+    class Solver:
+        def __init__(self):
+            self._real = _DENSE_SOLVER()
+            self.settings = self._real.settings
+            self._hit = False
+
+        def setup(self, P, c, *args):
+            self._hit = bool(when(np.asarray(c)))
+            return self._real.setup(P, c, *args)
+
+        def solve(self):
+            status = self._real.solve()
+            if not self._hit:
+                return status
+            return piqp.PIQP_MAX_ITER_REACHED if mode == "fail" else piqp.PIQP_SOLVED
+
+        @property
+        def result(self):
+            real = self._real.result
+            return _Result(real) if self._hit and mode == "nan" else real
+    return Solver
+
+
+def raising(exc: Exception):
+    def f(*args, **kwargs):
+        raise exc
+    return f
+
+
+def nan_root(f, a, b, *args, **kwargs):
+    return math.nan
+
+
+def failed_ivp(*args, **kwargs):
+    sol = scipy.integrate.solve_ivp(*args, **kwargs)
+    sol.status, sol.message = -1, "Required step size is less than spacing between numbers."
+    return sol
+
+
+def zero_c(c):  # the position correction's QP: v0 = 0, so piqp's linear term -M v0 is 0
+    return not np.any(c)
+
+
+# (id, patch target, replacement, scene, options, what the message says)
+TS = dict(integrator="time-stepping")
+FAULTS = [
+    ("impact QP fails", (qp.piqp, "DenseSolver"), faulty_piqp("fail"), "bouncing_ball", TS,
+     "impact QP failed with status PIQP_MAX_ITER_REACHED"),
+    ("impact QP answers NaN", (qp.piqp, "DenseSolver"), faulty_piqp("nan"), "bouncing_ball", TS,
+     "impact QP failed with status NON_FINITE_SOLUTION"),
+    ("correction QP fails", (qp.piqp, "DenseSolver"), faulty_piqp("fail", zero_c), "bouncing_ball",
+     dict(restitution=0.0, dt=1e-2), "position-correction QP failed with status PIQP_MAX_ITER_REACHED"),
+    ("correction QP answers NaN", (qp.piqp, "DenseSolver"), faulty_piqp("nan", zero_c), "bouncing_ball",
+     dict(restitution=0.0, dt=1e-2), "position-correction QP failed with status NON_FINITE_SOLUTION"),
+    ("corner law QP fails", (qp.piqp, "DenseSolver"), faulty_piqp("fail"), "corner_point", TS,
+     "corner projection QP failed: PIQP_MAX_ITER_REACHED"),
+    ("corner law QP answers NaN", (qp.piqp, "DenseSolver"), faulty_piqp("nan"), "corner_point", TS,
+     "corner projection QP failed: NON_FINITE_SOLUTION"),
+    ("NNLS of the polish raises", (qp.scipy.optimize, "nnls"), raising(ValueError("array must not contain infs "
+                                                                                  "or NaNs")),
+     "resting_box", TS, "ValueError: array must not contain infs or NaNs"),
+    ("event-driven solve_ivp raises", (event_driven, "solve_ivp"), raising(RuntimeError("ODE failure")),
+     "bouncing_ball", dict(integrator="event-driven"), "RuntimeError: ODE failure"),
+    ("event-driven solve_ivp fails", (event_driven, "solve_ivp"), failed_ivp, "bouncing_ball",
+     dict(integrator="event-driven"), "solve_ivp failed: Required step size"),
+    ("event-driven event root raises", (scipy.optimize, "brentq"), raising(RuntimeError("failed to converge")),
+     "bouncing_ball", dict(integrator="event-driven"), "RuntimeError: failed to converge"),
+    ("event-driven impact QP fails", (qp.piqp, "DenseSolver"), faulty_piqp("fail"), "bouncing_ball",
+     dict(integrator="event-driven"), "impact QP failed: PIQP_MAX_ITER_REACHED"),
+    ("event-driven contact-force QP answers NaN", (qp.piqp, "DenseSolver"), faulty_piqp("nan"), "resting_box",
+     dict(integrator="event-driven"), "QP failed"),
+    ("adaptive event root raises", (adaptive, "brentq"), raising(RuntimeError("failed to converge")),
+     "bouncing_ball", dict(integrator="adaptive"), "RuntimeError: failed to converge"),
+    ("adaptive event root answers NaN", (adaptive, "brentq"), nan_root, "bouncing_ball",
+     dict(integrator="adaptive"), "non-finite"),
+    ("adaptive error estimate is NaN", (adaptive.AdaptiveRun, "_error"), lambda self, *a: math.nan,
+     "bouncing_ball", dict(integrator="adaptive"), "error estimate of an extrapolated step"),
+    ("adaptive impact QP fails", (qp.piqp, "DenseSolver"), faulty_piqp("fail"), "bouncing_ball",
+     dict(integrator="adaptive"), "impact QP failed: PIQP_MAX_ITER_REACHED"),
+]
+
+
+@pytest.mark.parametrize("target,replacement,name,options,words", [f[1:] for f in FAULTS], ids=[f[0] for f in FAULTS])
+def test_a_solver_fault_is_a_named_stop_with_the_samples_so_far(monkeypatch, tmp_path, target, replacement, name,
+                                                                 options, words):
+    monkeypatch.setattr(*target, replacement)
+    with pytest.raises(ms.SimulationError) as info:
+        run(name, duration=1.0, step_impl="python", **options)
+    exc = info.value
+    msg = str(exc)
+    unit = "phase" if options.get("integrator") == "event-driven" else "step"
+    assert re.match(rf"{unit} \d+ \(t = [^)]* s\S*( -> [^)]* s)?\): ", msg), msg
+    assert words in msg and "\n" not in msg
+    assert exc.step >= 1 and math.isfinite(exc.t)
+    traj = exc.trajectory
+    assert traj is not None and not traj.complete and traj.meta["status"] == f"failed: {msg}"
+    assert len(traj.t) >= 1 and np.isfinite(traj.q).all()  # the samples before the fault, all finite
+    monkeypatch.undo()  # save and load with the real libraries
+    back = ms.load_trajectory(traj.save(tmp_path / "run.partial.npz"))
+    assert back.meta["status"].startswith("failed: ") and len(back.t) == len(traj.t)
+
+
+def test_a_nan_nnls_is_never_used(monkeypatch):
+    """NNLS answering NaN in the polish: the polish is refused and piqp's (finite) answer kept."""
+    monkeypatch.setattr(qp.scipy.optimize, "nnls", lambda G, rhs: (np.full(len(rhs), np.nan), math.nan))
+    traj = run("resting_box", duration=0.2, step_impl="python")
+    assert traj.complete and np.isfinite(traj.q).all() and np.isfinite(traj.arrays["log_P"]).all()
