@@ -25,10 +25,10 @@ import pinocchio
 
 from .contacts import NO_CONTACTS, Contacts
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts
-from .qp import QPResult
+from .qp import COLD_START_ROWS, QPResult
 from .state import State
 
-MAX_CONTACTS = 12  # closed contacts a compiled step takes (numpy's sums are mirrored up to this size)
+MAX_CONTACTS = COLD_START_ROWS  # closed contacts a compiled step takes: those qp.solve solves by the cold active set
 MAX_NV = 12  # likewise for the number of velocities
 _EMPTY = np.zeros(0)
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}

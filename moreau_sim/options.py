@@ -127,12 +127,10 @@ class PositionCorrection(enum.Enum):
 class StepImpl(enum.Enum):
     """Which implementation takes the time steps (moreau_sim/compiled.py).
 
-    COMPILED: the C++ step (moreau_sim._step) where it covers the step, else the Python step; the
-        Python step alone when the extension is unavailable (one warning says why).
-    PYTHON: the Python step (stepper.py), the reference implementation, and the default: the two
-        give the same trajectory on the runs of tests/test_compiled.py, but not yet everywhere
-        (column_of_beads parts at t = 0.646 s, where the Python step keeps piqp's answer to a
-        position-correction QP whose polish it rejects and the C++ step solves it exactly)."""
+    COMPILED: the default: the C++ step (moreau_sim._step) where it covers the step, else the Python
+        step; the Python step alone when the extension is unavailable (one warning says why). The two
+        give the same trajectory, bit for bit, on every bundled scene over its full duration.
+    PYTHON: the Python step (stepper.py) only, the reference implementation."""
 
     COMPILED = "compiled"
     PYTHON = "python"
@@ -223,12 +221,13 @@ class Options:
     position_correction: what is done with penetration after a contact step (:class:`PositionCorrection`).
     corner_selection: which admissible outcome of a corner impact the run continues with
         (:class:`Selection`; every branching step is logged).
-    qp_tolerance: piqp's eps_abs and eps_rel; the solution is then polished on its active set.
+    qp_tolerance: piqp's eps_abs and eps_rel (piqp answers where the exact active set does not settle,
+        and starts it above 12 rows; qp.solve).
     save_every: record the state every N steps (the last step is always recorded).
     rtol, atol: the adaptive integrator's relative and absolute error tolerances per step
         (positions [m or rad] and velocities [m/s or rad/s]; atol in SI units), rtol in (0, 1),
         atol > 0.
-    step_impl: the Python step (default), or the compiled step where it applies (see :class:`StepImpl`).
+    step_impl: the compiled step where it applies (default), or the Python step only (see :class:`StepImpl`).
     """
 
     restitution: float = 0.5
@@ -248,7 +247,7 @@ class Options:
     save_every: int = 1
     rtol: float = 1e-8
     atol: float = 1e-10
-    step_impl: StepImpl = StepImpl.PYTHON
+    step_impl: StepImpl = StepImpl.COMPILED
 
     def __post_init__(self):
         self.validate("options")

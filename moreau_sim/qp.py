@@ -4,10 +4,11 @@ primal (velocity space):  v = argmin 1/2 (v - v0)' M (v - v0)  s.t.  W' v >= b
 dual   (contact space):   lam = argmin 1/2 lam' G lam + lam' (W' v0 - b),  lam >= 0,
                           G = W' M^-1 W (Delassus),  v = v0 + M^-1 W lam
 Both return (v, lam) with M (v - v0) = W lam (docs/theory.md §1; b = 0 there, the per-contact
-restitution rules shift b, docs/theory.md §2.7). After piqp the solution is
-polished on its active set A = {lam_i > 0}: G_AA lam_A = b_A - W_A' v0 is solved directly and
-kept when it satisfies the KKT conditions to round-off, which makes single impacts and the
-cradle exact to round-off instead of to piqp's tolerance.
+restitution rules shift b, docs/theory.md §2.7). With Polish.ACTIVE_SET (the law's) the problem is
+solved exactly by a dual active-set method (Goldfarb-Idnani) in contact space, re-solved on its
+final active set: from nothing up to COLD_START_ROWS rows (piqp then runs only when the active set
+fails), from piqp's active set above. The compiled step (src/step.cpp) mirrors the cold start
+operation for operation, so both steps take the same decisions, ties included.
 """
 
 from __future__ import annotations
@@ -18,16 +19,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import piqp
 import scipy.linalg.lapack
-import scipy.optimize
 
 from .options import QPForm
 
 
 @dataclass(frozen=True, slots=True)
 class QPResult:
-    """status: piqp's status name ("PIQP_SOLVED", ...), or "ADMISSIBLE" when v0 already satisfies
-    every constraint (no QP to solve); ok: solved and usable; iterations: piqp's interior-point
-    iterations; polished: the active-set polish was accepted; v (nv,), lam (m,);
+    """status: piqp's status name ("PIQP_SOLVED", ...), "ACTIVE_SET" when the active set solved it
+    without piqp, or "ADMISSIBLE" when v0 already satisfies every constraint (no QP to solve); ok:
+    solved and usable; iterations: piqp's interior-point iterations, or the active set's moves;
+    polished: the answer is the active set's exact one (Polish.ACTIVE_SET) or the least-squares one; v (nv,), lam (m,);
     residual (property): the KKT residual of (v, lam), computed when asked (it costs ~5 us)."""
 
     status: str
@@ -50,6 +51,7 @@ class QPResult:
 
 _STATUS = {getattr(piqp, n): n for n in dir(piqp) if n.startswith("PIQP_")}
 _gesv = scipy.linalg.lapack.dgesv
+_EMPTY = np.zeros(0)
 
 
 def kkt_residual(M, W, v0, v, lam, b=None) -> float:
@@ -59,61 +61,157 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
     return float(max(r, -slack.min(initial=0.0), -lam.min(initial=0.0), abs(lam @ slack)))
 
 
-def _polish(W, v0, b, Minv, lam):
-    """Re-solve exactly on the active set A = {lam_i > 0} of piqp's answer.
+COLD_START_ROWS = 12  # up to this many rows the active set starts from nothing, and piqp is only its fallback
 
-    On A: G_AA lam_A = b_A - W_A' v0, lam_A >= 0 (a direct solve, or NNLS when the rows are
-    redundant, e.g. 4 corners of a face on a plane: rank 3); v = v0 + M^-1 W_A lam_A, then one step
-    of iterative refinement on the rows that push. Kept only if it satisfies the KKT conditions to
-    round-off (W' v >= b for every row): the exact solution."""
-    if len(lam) == 1:  # one contact: the projection in closed form (same formula as below)
-        w = W[:, 0]
-        Miw = Minv @ w
-        lam1 = max(0.0, float(b[0] - w @ v0) / float(w @ Miw)) if lam[0] > 0 else 0.0
-        return v0 + lam1 * Miw, np.array([lam1])
-    act = lam > 1e-7 * max(1.0, lam.max())
-    if not act.any():
-        vp, lp = v0.copy(), np.zeros_like(lam)
+
+def _gesv_ok(A, rhs):
+    """x = A^-1 rhs by LAPACK's dgesv (np.linalg.solve costs ~20 us here), or None when singular or not finite."""
+    x, info = _gesv(A, rhs)[2:]
+    return x if info == 0 and np.isfinite(x).all() else None
+
+
+def _ordered(A, x):
+    """A @ x (A 1-d or 2-d, x 1-d or 2-d) summed over the inner index in order from its first product, one
+    rounding per product and per sum (no BLAS kernel, no FMA): the same bits on every CPU, and the same as
+    src/step.cpp's odot. (numpy's own products follow OpenBLAS's kernels, whose order changes with the
+    size and the machine.) np.add.accumulate adds in index order by definition (reductions need not)."""
+    if A.ndim == 1:
+        return np.add.accumulate(A * x)[-1]
+    if x.ndim == 1:
+        return np.add.accumulate(A * x, axis=1)[:, -1]
+    return np.add.accumulate(A[:, :, None] * x[None, :, :], axis=1)[:, -1, :]
+
+
+def _active_set(G, r, tol, act=None, mul=np.matmul):
+    """The contact-space QP  min 1/2 lam'G lam - r'lam, lam >= 0  (G = W'M^-1 W, r = b - W'v0) by
+    Goldfarb and Idnani's dual active-set method (docs/theory.md §1). From lam = 0 (or the warm start
+    `act`, the rows taken as active) it adds the most violated inactive row p (slack s = G lam - r below
+    -tol; the first such row on ties): lam_A moves along G_AA d = -G_Ap and lam_p by t until row p is
+    tight (t = -s_p/z, z = G_pp + G_pA d), or until a multiplier of A reaches zero first (that row leaves
+    A, and the same p is tried again). A row dependent on A (z <= 1e-12 G_pp: four corners of a face on
+    a plane) moves only the multipliers; if none can shrink, p counts as met when its violation is within
+    the round-off of G lam, else the rows cannot all be met. Returns (act, lam, moves) with every row of
+    act tight, or None when the rows are infeasible, a solve is singular or it takes more than 5 m + 10
+    moves. mul: the products (_ordered for the cold start, which src/step.cpp mirrors operation for
+    operation with scipy's own dgesv, so both steps decide alike)."""
+    m = r.shape[0]
+    lam = np.zeros(m)
+    if act is None:
+        act = np.zeros(m, bool)
     else:
-        full = act.all()
-        WA = W if full else W[:, act]
-        MiWA = Minv @ WA
-        G, rhs = WA.T @ MiWA, (b if full else b[act]) - WA.T @ v0
-        tol = 1e-12 * (1.0 + np.abs(rhs).max())
-        lu, piv, lamA, info = _gesv(G, rhs)  # LAPACK directly: np.linalg.solve costs ~20 us here
-        ok = info == 0 and lamA.min() >= 0 and np.abs(G @ lamA - rhs).max() <= tol  # False for NaN too
-        if not ok:
-            lamA, rnorm = scipy.optimize.nnls(G, rhs)
-            if not rnorm <= tol:
+        idx = np.flatnonzero(act)
+        x = _gesv_ok(G[idx][:, idx], r[idx])
+        if x is None or x.min(initial=0.0) < 0.0:
+            act = np.zeros(m, bool)  # not a valid start: from nothing
+        else:
+            act = act.copy()
+            lam[idx] = x
+    moves, gmax = 0, np.abs(G).max()
+    while True:
+        s = mul(G, lam) - r
+        s[act] = np.inf
+        p = int(np.argmin(s))
+        if s[p] >= -tol:
+            return act, lam, moves
+        while True:  # add p, dropping the rows whose multipliers reach zero on the way
+            moves += 1
+            if moves > 5 * m + 10:
                 return None
-        vp = v0 + MiWA @ lamA
+            idx = np.flatnonzero(act)
+            if idx.size:
+                d = _gesv_ok(G[idx][:, idx], -G[idx, p])
+                if d is None:
+                    return None
+                z = G[p, p] + mul(G[p, idx], d)
+            else:
+                d, z = _EMPTY, G[p, p]
+            sp = mul(G[p], lam) - r[p]  # row p's slack now
+            t1 = -sp / z if z > 1e-12 * G[p, p] else np.inf  # row p tight (inf: p depends on A)
+            neg = d < 0.0
+            t2, k = np.inf, -1
+            if neg.any():
+                ratio = lam[idx[neg]] / -d[neg]
+                j = int(np.argmin(ratio))
+                t2, k = ratio[j], int(idx[neg][j])
+            if t1 == np.inf and t2 == np.inf:  # p depends on A and no multiplier of A can shrink
+                if lam[p] == 0.0 and sp >= -(tol + 1e-14 * m * gmax * lam.max()):
+                    return act, lam, moves  # p is met to the round-off of G lam (lam large): as met as it can be
+                return None  # the rows cannot all be met (or z is NaN)
+            t = t1 if t1 <= t2 else t2
+            lam[idx] = lam[idx] + t * d
+            lam[p] = lam[p] + t
+            np.maximum(lam, 0.0, out=lam)
+            if t1 <= t2:
+                act[p] = True
+                break
+            lam[k] = 0.0
+            act[k] = False
+
+
+def _polish(W, v0, b, Minv, act=None):
+    """The exact projection by the active set (_active_set, cold with _ordered products, or warm-started from
+    `act` with numpy's), re-solved on
+    its final set A: G_AA lam_A = b_A - W_A'v0 (dgesv), v = v0 + M^-1 W_A lam_A. Kept only if lam_A >= 0
+    and W'v >= b to round-off (the KKT conditions; M (v - v0) = W lam holds by construction); else None."""
+    m = W.shape[1]
+    mul = _ordered if act is None else np.matmul
+    if m == 1:  # one contact: the projection in closed form
+        w = W[:, 0]
+        Miw = mul(Minv, w)
+        lam1 = max(0.0, float(b[0] - mul(w, v0)) / float(mul(w, Miw)))
+        return v0 + lam1 * Miw, np.array([lam1]), 1
+    scale = 1.0 + np.abs(v0).max(initial=0.0)
+    MiW = mul(Minv, W)
+    G = mul(W.T, MiW)
+    r = b - mul(W.T, v0)
+    sol = _active_set(G, r, 1e-13 * scale, act, mul)
+    if sol is None:
+        return None
+    act, lam, moves = sol
+    idx = np.flatnonzero(act)
+    lp = np.zeros(m)
+    if not idx.size:
+        vp = v0.copy()
+    else:
+        lamA = _gesv_ok(G[idx][:, idx], r[idx])
+        if lamA is None or lamA.min() < -1e-12 * max(1.0, lamA.max()):
+            return None
+        np.maximum(lamA, 0.0, out=lamA)
+        vp = v0 + mul(MiW[:, idx], lamA)
         # one step of iterative refinement: lamA is as exact as its magnitude allows, but a light body
         # under a heavy one (lamA ~ R times its own weight impulse) then moves by ~R eps in the directions
-        # the rows hold; the residual of W_A'v = b_A is computed where v ~ 0, so accurately, and solving
-        # for it on the independent rows P = {lamA_i > 0} leaves W_A'v - b_A at ulp(v) (docs/theory.md §1.5)
+        # the rows hold; the residual of W_P'v = b_P is computed where v ~ 0, so accurately, and solving
+        # for it on the rows that push, P = {lamA_i > 0}, leaves W_P'v - b_P at ulp(v) (docs/theory.md §1.5)
         P = lamA > 0.0
         if P.any():
-            rP = ((b if full else b[act]) - WA.T @ vp)[P]
-            _, _, dP, info = _gesv(G[np.ix_(P, P)], rP)
-            if info == 0 and np.abs(dP).max() <= 1e-8 * (1.0 + np.abs(lamA).max()):  # False for NaN too
-                d = np.zeros_like(lamA)
-                d[P] = dP
-                lamA = np.maximum(lamA + d, 0.0)
-                vp = vp + MiWA @ d
-        if full:
-            lp = lamA
-        else:
-            lp = np.zeros_like(lam)
-            lp[act] = lamA
-    if (W.T @ vp - b).min() < -1e-12 * (1.0 + np.abs(v0).max()):
+            iP = idx[P]
+            dP = _gesv_ok(G[iP][:, iP], b[iP] - mul(W[:, iP].T, vp))
+            if dP is not None and np.abs(dP).max() <= 1e-8 * (1.0 + lamA.max()):
+                lamA[P] = np.maximum(lamA[P] + dP, 0.0)
+                vp = vp + mul(MiW[:, iP], dP)
+        lp[idx] = lamA
+        # and the answer projected once more: its residual W'v - b is accurate where v ~ 0, so the rows the
+        # first pass left violated at the round-off of lam (a resting 1:10,000 stack's other corners) are
+        # met to that accuracy (tol2); kept when it violates no row more than before
+        r2 = b - mul(W.T, vp)
+        tol2 = 1e-15 * (np.abs(b).max() + np.abs(W).max() * np.abs(vp).max())
+        sol = _active_set(G, r2, tol2, None, mul)
+        if sol is not None and sol[0].any():
+            i2 = np.flatnonzero(sol[0])
+            v2 = vp + mul(MiW[:, i2], sol[1][i2])
+            if (mul(W.T, v2) - b).min() >= -r2.max():
+                vp = v2
+                lp[i2] += sol[1][i2]
+                moves += sol[2]
+    if (mul(W.T, vp) - b).min() < -1e-12 * scale:
         return None
-    return vp, lp
+    return vp, lp, moves
 
 
 class Polish(enum.Enum):
     """How piqp's answer is refined on its active set (docs/theory.md §1)."""
 
-    ACTIVE_SET = "active-set"  # the law: exact KKT solve on A = {lam_i > 0} (LAPACK; NNLS if redundant)
+    ACTIVE_SET = "active-set"  # the law: exact, by the dual active set (_active_set), piqp its fallback
     LEAST_SQUARES = "least-squares"  # the corner law: least squares on the strictly active rows
     NONE = "none"  # piqp's answer as it is
 
@@ -134,9 +232,15 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
         Minv = np.linalg.inv(M)
     if not np.isfinite(v0).all():  # an overflow upstream: no projection of it is meaningful
         return QPResult("NON_FINITE_INPUT", False, 0, False, v0.copy(), np.zeros(m))
-    if screen and (W.T @ v0 - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
+    cold = polish is Polish.ACTIVE_SET and m <= COLD_START_ROWS
+    mul = _ordered if cold else np.matmul
+    if screen and (mul(W.T, v0) - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
         return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), (M, W, v0, b))
+    if cold:
+        p = _polish(W, v0, b, Minv)
+        if p is not None:
+            return QPResult("ACTIVE_SET", True, p[2], True, p[0], p[1], (M, W, v0, b))
     s = piqp.DenseSolver()
     st = s.settings
     st.verbose = False
@@ -161,13 +265,13 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if not (np.isfinite(v).all() and np.isfinite(lam).all()):  # piqp has answered "solved" with NaN
         return QPResult("NON_FINITE_SOLUTION", False, iters, False, v, lam)
     p = None
-    if polish is Polish.ACTIVE_SET:
+    if polish is Polish.ACTIVE_SET and not cold:  # warm-started from piqp's active set
         np.maximum(lam, 0.0, out=lam)
-        p = _polish(W, v0, b, Minv, lam)
+        p = _polish(W, v0, b, Minv, lam > 1e-7 * max(1.0, lam.max()))
     elif polish is Polish.LEAST_SQUARES:
         p = _polish_least_squares(M, W, v0, lam, polish_tol)
     if p is not None:
-        v, lam = p
+        v, lam = p[:2]
     return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, (M, W, v0, b))
 
 

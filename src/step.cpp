@@ -6,11 +6,11 @@
 // the same order, no FMA contraction), for the contacts of the simple scenes: polytope vertices against
 // a half-space (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight
 // steps; the restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed
-// form for one contact, an active set for a few, accepted under qp._polish's test); the energy-budgeted
-// position correction with its pair-distance guard. Anything else returns FALLBACK with a reason and
+// form for one contact, else qp._active_set's dual active set, re-solved and checked as qp._polish does);
+// the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with a reason and
 // the Python step (the reference) takes the step: corners, point queries against non-half-spaces,
 // contact patches, swept detection, coal's EPA fallback, more than MAX_CONTACTS contacts, a projection
-// the active set does not settle unambiguously.
+// the active set does not settle (where qp.solve turns to piqp).
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/stl/string.h>
@@ -114,6 +114,211 @@ struct Solved {  // a projection: v, lam, status (0 ADMISSIBLE, 1 solved on its 
 
 }  // namespace
 
+namespace {
+
+// numpy's A @ x for a C-ordered A (rows of A: stride `rs` between rows, `cs` along a row)
+VectorXd matvec(const double *A, Eigen::Index rows, Eigen::Index cols, Eigen::Index rs, Eigen::Index cs,
+                       const VectorXd &x) {
+  VectorXd y(rows);
+  for (Eigen::Index i = 0; i < rows; ++i)
+    y[i] = rows == 1 ? ddot(A + i * rs, x.data(), cols, cs, 1) : gemv_dot(A + i * rs, x.data(), cols, cs, 1);
+  return y;
+}
+VectorXd wt_times(const MatrixXd &W, const VectorXd &x) {  // W.T @ x (W Fortran-ordered in numpy)
+  return matvec(W.data(), W.cols(), W.rows(), W.rows(), 1, x);
+}
+VectorXd times(const MatrixXd &A, const VectorXd &x) {  // A @ x (A C-ordered in numpy)
+  return matvec(A.data(), A.rows(), A.cols(), 1, A.rows(), x);
+}
+
+// qp._ordered: a sum of products in index order from the first product, one rounding each (no FMA: this
+// file is compiled with -ffp-contract=off); n >= 1
+inline double odot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
+  double s = a[0] * b[0];
+  for (Eigen::Index k = 1; k < n; ++k) s = s + a[k * sa] * b[k * sb];
+  return s;
+}
+// qp._ordered(A, x) for a matrix A (Eigen, column-major) and a vector x
+VectorXd otimes(const MatrixXd &A, const VectorXd &x) {
+  VectorXd y(A.rows());
+  for (Eigen::Index i = 0; i < A.rows(); ++i) y[i] = odot(A.data() + i, x.data(), A.cols(), A.rows(), 1);
+  return y;
+}
+// qp._ordered(W.T, x)
+VectorXd otimes_t(const MatrixXd &W, const VectorXd &x) {
+  VectorXd y(W.cols());
+  for (Eigen::Index i = 0; i < W.cols(); ++i) y[i] = odot(W.col(i).data(), x.data(), W.rows());
+  return y;
+}
+
+// LAPACK's dgesv (scipy's, the routine qp._gesv_ok calls) on a copy of A: x = A^-1 rhs; false when singular
+// or not finite
+bool gesv(dgesv_t dgesv, const MatrixXd &A, const VectorXd &rhs, VectorXd &x) {
+  MatrixXd lu = A;
+  x = rhs;
+  std::vector<int> piv(A.rows());
+  int n = (int)A.rows(), nrhs = 1, lda = n, ldb = n, info = 0;
+  dgesv(&n, &nrhs, lu.data(), &lda, piv.data(), x.data(), &ldb, &info);
+  return info == 0 && x.allFinite();
+}
+
+// qp._active_set cold (Goldfarb-Idnani's dual active set on min 1/2 lam'G lam - r'lam, lam >= 0), operation
+// for operation; false where qp._active_set returns None (the Python step then takes it, and piqp)
+bool active_set(dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol, std::vector<char> &act,
+                VectorXd &lam) {
+  const Eigen::Index m = r.size();
+  const double inf = std::numeric_limits<double>::infinity();
+  act.assign(m, 0);
+  lam = VectorXd::Zero(m);
+  int moves = 0;
+  const double gmax = G.cwiseAbs().maxCoeff();
+  std::vector<Eigen::Index> idx;
+  VectorXd d, rhs, Gp;
+  MatrixXd GA;
+  while (true) {
+    const VectorXd s = otimes(G, lam) - r;  // G @ lam - r
+    Eigen::Index p = 0;
+    double best = act[0] ? inf : s[0];
+    for (Eigen::Index i = 1; i < m; ++i) {
+      const double si = act[i] ? inf : s[i];
+      if (si < best) best = si, p = i;
+    }
+    if (best >= -tol) return true;
+    while (true) {  // add p, dropping the rows whose multipliers reach zero on the way
+      if (++moves > 5 * m + 10) return false;
+      idx.clear();
+      for (Eigen::Index i = 0; i < m; ++i)
+        if (act[i]) idx.push_back(i);
+      const Eigen::Index k = (Eigen::Index)idx.size();
+      double z;
+      if (k) {
+        GA.resize(k, k), rhs.resize(k), Gp.resize(k);
+        for (Eigen::Index i = 0; i < k; ++i) {
+          rhs[i] = -G(idx[i], p), Gp[i] = G(p, idx[i]);
+          for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
+        }
+        if (!gesv(dgesv, GA, rhs, d)) return false;
+        z = G(p, p) + odot(Gp.data(), d.data(), k);
+      } else {
+        d.resize(0);
+        z = G(p, p);
+      }
+      const double sp = odot(&G(p, 0), lam.data(), m, m, 1) - r[p];  // G[p] @ lam - r[p]
+      const double t1 = z > 1e-12 * G(p, p) ? -sp / z : inf;
+      double t2 = inf;
+      Eigen::Index kk = -1;
+      for (Eigen::Index j = 0; j < k; ++j) {
+        if (!(d[j] < 0.0)) continue;
+        const double ratio = lam[idx[j]] / -d[j];
+        if (kk < 0 || ratio < t2) t2 = ratio, kk = idx[j];
+      }
+      if (t1 == inf && t2 == inf)  // p depends on A and no multiplier of A can shrink: met to round-off, or not
+        return lam[p] == 0.0 && sp >= -(tol + 1e-14 * (double)m * gmax * lam.maxCoeff());
+      const double t = t1 <= t2 ? t1 : t2;
+      for (Eigen::Index j = 0; j < k; ++j) lam[idx[j]] = lam[idx[j]] + t * d[j];
+      lam[p] = lam[p] + t;
+      for (Eigen::Index i = 0; i < m; ++i) lam[i] = std::max(lam[i], 0.0);
+      if (t1 <= t2) {
+        act[p] = 1;
+        break;
+      }
+      lam[kk] = 0.0;
+      act[kk] = 0;
+    }
+  }
+}
+
+// qp.solve (primal form, Polish.ACTIVE_SET, at most qp.COLD_START_ROWS rows): the screen, the closed form for
+// one row, else qp._polish cold: the active set, re-solved on its final set and checked. Throws Fallback where
+// qp.solve would go on to piqp.
+Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv, dgesv_t dgesv) {
+  const Eigen::Index m = W.cols(), nv = W.rows();
+  const VectorXd slack0 = otimes_t(W, v0) - b;
+  if (slack0.minCoeff() >= -1e-13 * (1.0 + v0.cwiseAbs().maxCoeff())) return {v0, VectorXd::Zero(m), 0};
+  if (m == 1) {
+    const VectorXd w = W.col(0);
+    const VectorXd Miw = otimes(Minv, w);
+    const double lam1 = std::max(0.0, (b[0] - odot(w.data(), v0.data(), nv)) / odot(w.data(), Miw.data(), nv));
+    VectorXd v = v0 + lam1 * Miw;
+    return {v, VectorXd::Constant(1, lam1), 1};
+  }
+  const double scale = 1.0 + v0.cwiseAbs().maxCoeff();
+  MatrixXd MiW(nv, m), G(m, m);  // Minv @ W, W.T @ MiW
+  for (Eigen::Index i = 0; i < nv; ++i)
+    for (Eigen::Index j = 0; j < m; ++j) MiW(i, j) = odot(Minv.data() + i, W.col(j).data(), nv, nv, 1);
+  for (Eigen::Index i = 0; i < m; ++i)
+    for (Eigen::Index j = 0; j < m; ++j) G(i, j) = odot(W.col(i).data(), MiW.col(j).data(), nv);
+  const VectorXd r = b - otimes_t(W, v0);
+  std::vector<char> act;
+  VectorXd lam;
+  if (!active_set(dgesv, G, r, 1e-13 * scale, act, lam)) throw Fallback{"active set did not settle"};
+  std::vector<Eigen::Index> idx;
+  for (Eigen::Index i = 0; i < m; ++i)
+    if (act[i]) idx.push_back(i);
+  const Eigen::Index k = (Eigen::Index)idx.size();
+  VectorXd lp = VectorXd::Zero(m), vp;
+  if (!k) {
+    vp = v0;
+  } else {
+    MatrixXd GA(k, k), MiWA(nv, k);
+    VectorXd rA(k), lamA;
+    for (Eigen::Index i = 0; i < k; ++i) {
+      rA[i] = r[idx[i]];
+      MiWA.col(i) = MiW.col(idx[i]);
+      for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
+    }
+    if (!gesv(dgesv, GA, rA, lamA) || lamA.minCoeff() < -1e-12 * std::max(1.0, lamA.maxCoeff()))
+      throw Fallback{"active set's final solve rejected"};
+    for (Eigen::Index i = 0; i < k; ++i) lamA[i] = std::max(lamA[i], 0.0);
+    vp = v0 + otimes(MiWA, lamA);
+    // qp._polish's refinement step: the residual of W_P'v = b_P solved for on the rows that push
+    std::vector<Eigen::Index> pi, iP;
+    for (Eigen::Index i = 0; i < k; ++i)
+      if (lamA[i] > 0.0) pi.push_back(i), iP.push_back(idx[i]);
+    const Eigen::Index kp = (Eigen::Index)iP.size();
+    if (kp) {
+      MatrixXd GP(kp, kp), WP(nv, kp), MiWP(nv, kp);
+      for (Eigen::Index i = 0; i < kp; ++i) {
+        WP.col(i) = W.col(iP[i]), MiWP.col(i) = MiW.col(iP[i]);
+        for (Eigen::Index j = 0; j < kp; ++j) GP(i, j) = G(iP[i], iP[j]);
+      }
+      const VectorXd WPv = otimes_t(WP, vp);
+      VectorXd rP(kp), dP;
+      for (Eigen::Index i = 0; i < kp; ++i) rP[i] = b[iP[i]] - WPv[i];
+      if (gesv(dgesv, GP, rP, dP) && dP.cwiseAbs().maxCoeff() <= 1e-8 * (1.0 + lamA.maxCoeff())) {
+        for (Eigen::Index i = 0; i < kp; ++i) lamA[pi[i]] = std::max(lamA[pi[i]] + dP[i], 0.0);
+        vp = vp + otimes(MiWP, dP);
+      }
+    }
+    for (Eigen::Index i = 0; i < k; ++i) lp[idx[i]] = lamA[i];
+    // qp._polish's second pass: the active set on the answer's own residual
+    const VectorXd r2 = b - otimes_t(W, vp);
+    const double tol2 = 1e-15 * (b.cwiseAbs().maxCoeff() + W.cwiseAbs().maxCoeff() * vp.cwiseAbs().maxCoeff());
+    std::vector<char> act2;
+    VectorXd dl;
+    if (active_set(dgesv, G, r2, tol2, act2, dl)) {
+      std::vector<Eigen::Index> i2;
+      for (Eigen::Index i = 0; i < m; ++i)
+        if (act2[i]) i2.push_back(i);
+      const Eigen::Index k2 = (Eigen::Index)i2.size();
+      if (k2) {
+        MatrixXd MiW2(nv, k2);
+        VectorXd d2(k2);
+        for (Eigen::Index i = 0; i < k2; ++i) MiW2.col(i) = MiW.col(i2[i]), d2[i] = dl[i2[i]];
+        const VectorXd v2 = vp + otimes(MiW2, d2);
+        if ((otimes_t(W, v2) - b).minCoeff() >= -r2.maxCoeff()) {
+          vp = v2;
+          for (Eigen::Index i = 0; i < k2; ++i) lp[i2[i]] = lp[i2[i]] + d2[i];
+        }
+      }
+    }
+  }
+  if ((otimes_t(W, vp) - b).minCoeff() < -1e-12 * scale) throw Fallback{"active set's answer rejected"};
+  return {vp, lp, 1};
+}
+
+}  // namespace
+
 class Stepper {
  public:
   Stepper(nb::object model, nb::object data, nb::object geom_model, nb::object geom_data,
@@ -163,7 +368,6 @@ class Stepper {
   bool sep_elastic_, slow_plastic_, bias_midpoint_, velocity_bias_, projection_;
   int max_contacts_;
   dgesv_t dgesv_;
-  nb::object scipy_nnls_ = nb::module_::import_("scipy.optimize").attr("nnls");
 
   // ---- pinocchio calls as the Python bindings make them (crba and Minv symmetrized)
   const MatrixXd &crba_world(const VectorXd &q) {
@@ -338,190 +542,8 @@ class Stepper {
     return keep;
   }
 
-  // numpy's A @ x for a C-ordered A (rows of A: stride `rs` between rows, `cs` along a row)
-  static VectorXd matvec(const double *A, Eigen::Index rows, Eigen::Index cols, Eigen::Index rs, Eigen::Index cs,
-                         const VectorXd &x) {
-    VectorXd y(rows);
-    for (Eigen::Index i = 0; i < rows; ++i)
-      y[i] = rows == 1 ? ddot(A + i * rs, x.data(), cols, cs, 1) : gemv_dot(A + i * rs, x.data(), cols, cs, 1);
-    return y;
-  }
-  static VectorXd wt_times(const MatrixXd &W, const VectorXd &x) {  // W.T @ x (W Fortran-ordered in numpy)
-    return matvec(W.data(), W.cols(), W.rows(), W.rows(), 1, x);
-  }
-  static VectorXd times(const MatrixXd &A, const VectorXd &x) {  // A @ x (A C-ordered in numpy)
-    return matvec(A.data(), A.rows(), A.cols(), 1, A.rows(), x);
-  }
-
-  // Lawson-Hanson NNLS: min ||A x - y||, x >= 0 (scipy.optimize.nnls's method); returns the residual norm
-  static double nnls(const MatrixXd &A, const VectorXd &y, VectorXd &x) {
-    const Eigen::Index n = A.cols();
-    x = VectorXd::Zero(n);
-    std::vector<bool> P(n, false);
-    const double tol = 10.0 * std::max(A.rows(), n) * std::numeric_limits<double>::epsilon() *
-                       A.cwiseAbs().colwise().sum().maxCoeff();
-    for (int outer = 0; outer < 3 * n + 3; ++outer) {
-      VectorXd w = A.transpose() * (y - A * x);
-      Eigen::Index jmax = -1;
-      double wmax = tol;
-      for (Eigen::Index j = 0; j < n; ++j)
-        if (!P[j] && w[j] > wmax) wmax = w[j], jmax = j;
-      if (jmax < 0) break;
-      P[jmax] = true;
-      for (int inner = 0; inner < 3 * n + 3; ++inner) {
-        std::vector<Eigen::Index> idx;
-        for (Eigen::Index j = 0; j < n; ++j)
-          if (P[j]) idx.push_back(j);
-        MatrixXd AP(A.rows(), (Eigen::Index)idx.size());
-        for (size_t k = 0; k < idx.size(); ++k) AP.col(k) = A.col(idx[k]);
-        VectorXd z = AP.colPivHouseholderQr().solve(y);
-        bool pos = true;
-        for (double zk : z) pos = pos && zk > 0.0;
-        if (pos) {
-          x.setZero();
-          for (size_t k = 0; k < idx.size(); ++k) x[idx[k]] = z[k];
-          break;
-        }
-        double alpha = 1.0;
-        for (size_t k = 0; k < idx.size(); ++k)
-          if (z[k] <= 0.0) alpha = std::min(alpha, x[idx[k]] / (x[idx[k]] - z[k]));
-        for (size_t k = 0; k < idx.size(); ++k) x[idx[k]] += alpha * (z[k] - x[idx[k]]);
-        for (size_t k = 0; k < idx.size(); ++k)
-          if (x[idx[k]] <= 1e-300) P[idx[k]] = false, x[idx[k]] = 0.0;
-      }
-    }
-    return (A * x - y).norm();
-  }
-
-  // qp._polish on the active set `act` (LAPACK dgesv, NNLS when singular or not >= 0); empty when rejected
-  bool polish(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
-              const std::vector<int> &act, VectorXd &vp, VectorXd &lp) {
-    const Eigen::Index m = W.cols(), nv = W.rows();
-    lp = VectorXd::Zero(m);
-    if (act.empty()) {
-      vp = v0;
-    } else {
-      const Eigen::Index k = (Eigen::Index)act.size();
-      MatrixXd WA(nv, k), MiWA(nv, k), G(k, k);
-      VectorXd rhs(k);
-      for (Eigen::Index j = 0; j < k; ++j) WA.col(j) = W.col(act[j]);
-      for (Eigen::Index i = 0; i < nv; ++i)  // Minv @ WA, WA.T @ MiWA: dgemm
-        for (Eigen::Index j = 0; j < k; ++j) MiWA(i, j) = gemm_dot(Minv.data() + i, WA.col(j).data(), nv, nv, 1);
-      for (Eigen::Index i = 0; i < k; ++i)
-        for (Eigen::Index j = 0; j < k; ++j) G(i, j) = gemm_dot(WA.col(i).data(), MiWA.col(j).data(), nv);
-      const VectorXd WAv0 = wt_times(WA, v0);
-      for (Eigen::Index i = 0; i < k; ++i) rhs[i] = b[act[i]] - WAv0[i];
-      const double tol = 1e-12 * (1.0 + rhs.cwiseAbs().maxCoeff());
-      MatrixXd lu = G;
-      VectorXd lamA = rhs;
-      std::vector<int> piv(k);
-      int n = (int)k, nrhs = 1, lda = (int)k, ldb = (int)k, info = 0;
-      dgesv_(&n, &nrhs, lu.data(), &lda, piv.data(), lamA.data(), &ldb, &info);
-      bool ok = info == 0 && lamA.minCoeff() >= 0;
-      if (ok) {
-        VectorXd r = times(G, lamA) - rhs;
-        ok = r.cwiseAbs().maxCoeff() <= tol;  // false for NaN too
-      }
-      if (!ok) {  // scipy's own NNLS, as qp._polish calls it (a step with dependent rows: a face on a plane)
-        Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> Gc = G;
-        nb::tuple res = nb::cast<nb::tuple>(scipy_nnls_(Gc, rhs));
-        lamA = nb::cast<VectorXd>(res[0]);
-        const double rnorm = nb::cast<double>(res[1]);
-        if (!(rnorm <= tol)) return false;
-      }
-      vp = v0 + times(MiWA, lamA);
-      // qp._polish's refinement step: solve for the residual of W_A'v = b_A on the rows that push
-      std::vector<Eigen::Index> pidx;
-      for (Eigen::Index j = 0; j < k; ++j)
-        if (lamA[j] > 0.0) pidx.push_back(j);
-      if (!pidx.empty()) {
-        const VectorXd WAvp = wt_times(WA, vp);
-        const int kp = (int)pidx.size();
-        MatrixXd GP(kp, kp);
-        VectorXd dP(kp);
-        for (int i = 0; i < kp; ++i) {
-          dP[i] = b[act[pidx[i]]] - WAvp[pidx[i]];
-          for (int j = 0; j < kp; ++j) GP(i, j) = G(pidx[i], pidx[j]);
-        }
-        std::vector<int> pivp(kp);
-        int np_ = kp, nrhs_ = 1, lda_ = kp, ldb_ = kp, info_ = 0;
-        dgesv_(&np_, &nrhs_, GP.data(), &lda_, pivp.data(), dP.data(), &ldb_, &info_);
-        double lmax = 0.0;
-        for (Eigen::Index j = 0; j < k; ++j) lmax = std::max(lmax, std::abs(lamA[j]));
-        bool small = info_ == 0;
-        for (int i = 0; i < kp && small; ++i) small = std::abs(dP[i]) <= 1e-8 * (1.0 + lmax);  // false for NaN
-        if (small) {
-          VectorXd d = VectorXd::Zero(k);
-          for (int i = 0; i < kp; ++i) d[pidx[i]] = dP[i];
-          for (Eigen::Index j = 0; j < k; ++j) lamA[j] = std::max(lamA[j] + d[j], 0.0);
-          vp = vp + times(MiWA, d);
-        }
-      }
-      for (Eigen::Index j = 0; j < k; ++j) lp[act[j]] = lamA[j];
-    }
-    return (wt_times(W, vp) - b).minCoeff() >= -1e-12 * (1.0 + v0.cwiseAbs().maxCoeff());
-  }
-
-  // qp.solve (primal form, polish ACTIVE_SET): the screen, then the polished projection. The active set
-  // that piqp would report (lam_i > 1e-7 max(1, lam)) is found by a primal-dual active-set iteration on
-  // the contact-space problem; a multiplier near that threshold hands the step to Python.
   Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv) {
-    const Eigen::Index m = W.cols();
-    const VectorXd slack0 = wt_times(W, v0) - b;
-    if (slack0.minCoeff() >= -1e-13 * (1.0 + v0.cwiseAbs().maxCoeff())) return {v0, VectorXd::Zero(m), 0};
-    if (m == 1) {
-      VectorXd w = W.col(0);
-      VectorXd Miw = times(Minv, w);
-      const double lam1 = std::max(0.0, (b[0] - ddot(w.data(), v0.data(), w.size())) / ddot(w.data(), Miw.data(), w.size()));
-      VectorXd v = v0 + lam1 * Miw;
-      return {v, VectorXd::Constant(1, lam1), 1};
-    }
-    // contact space: G lam - r >= 0, lam >= 0, complementary; r = b - W'v0
-    MatrixXd MiW(W.rows(), m);
-    for (Eigen::Index j = 0; j < m; ++j) MiW.col(j) = Minv * W.col(j);
-    const MatrixXd G = W.transpose() * MiW;
-    const VectorXd r = -slack0;
-    std::vector<bool> A(m);
-    for (Eigen::Index i = 0; i < m; ++i) A[i] = r[i] > 0.0;
-    VectorXd lam = VectorXd::Zero(m);
-    const double scale = 1e-12 * (1.0 + r.cwiseAbs().maxCoeff() + G.cwiseAbs().maxCoeff());
-    bool settled = false;
-    for (int it = 0; it < 4 * m + 8 && !settled; ++it) {
-      std::vector<Eigen::Index> idx;
-      for (Eigen::Index i = 0; i < m; ++i)
-        if (A[i]) idx.push_back(i);
-      lam.setZero();
-      if (!idx.empty()) {
-        const Eigen::Index k = (Eigen::Index)idx.size();
-        MatrixXd GA(k, k);
-        VectorXd rA(k), z;
-        for (Eigen::Index i = 0; i < k; ++i) {
-          rA[i] = r[idx[i]];
-          for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
-        }
-        nnls(GA, rA, z);  // least squares >= 0 on A (rows may be dependent)
-        for (Eigen::Index i = 0; i < k; ++i) lam[idx[i]] = z[i];
-      }
-      const VectorXd y = G * lam - r;
-      settled = true;
-      for (Eigen::Index i = 0; i < m; ++i) {
-        const bool want = A[i] ? lam[i] > 0.0 || y[i] < -scale : y[i] < -scale;
-        if (want != A[i]) settled = false, A[i] = want;
-      }
-    }
-    if (!settled) throw Fallback{"active set did not settle"};
-    const double lmax = std::max(1.0, lam.maxCoeff());
-    // piqp (an interior point) spreads the multipliers over dependent rows (a face resting on a plane:
-    // four rows of rank 3): every tight row (W'v = b to round-off) is taken as active
-    const VectorXd y = G * lam - r;
-    std::vector<int> act;
-    for (Eigen::Index i = 0; i < m; ++i) {
-      if (lam[i] > 1e-10 * lmax && lam[i] <= 1e-5 * lmax) throw Fallback{"a multiplier near piqp's activity threshold"};
-      if (lam[i] > 1e-5 * lmax || std::abs(y[i]) <= scale) act.push_back((int)i);
-    }
-    VectorXd vp, lp;
-    if (!polish(W, v0, b, Minv, act, vp, lp)) throw Fallback{"polish rejected"};
-    return {vp, lp, 1};
+    return ::project(W, v0, b, Minv, dgesv_);
   }
 
   nb::tuple step_(const VectorXd &q, const VectorXd &u, double h, double e) {
@@ -658,4 +680,16 @@ NB_MODULE(_step, mod) {
                     std::vector<Vec3>, std::vector<double>, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic>,
                     MatrixXd, double, double, double, int, bool, bool, bool, bool, bool, int, uintptr_t>())
       .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"));
+  // the projection alone (tests/test_qp.py holds it bit-identical to qp.solve): (status, v, lam), status 0
+  // admissible, 1 solved, FALLBACK where qp.solve goes on to piqp
+  mod.def("project", [](const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv, uintptr_t dgesv) {
+    if (W.rows() != v0.size() || b.size() != W.cols() || Minv.rows() != W.rows() || Minv.cols() != W.rows())
+      throw nb::value_error("W (nv, m), v0 (nv,), b (m,), Minv (nv, nv) expected");
+    try {
+      Solved s = project(W, v0, b, Minv, reinterpret_cast<dgesv_t>(dgesv));
+      return nb::make_tuple(s.status, s.v, s.lam);
+    } catch (const Fallback &f) {
+      return nb::make_tuple(FALLBACK, f.why, nb::none());
+    }
+  }, nb::arg("W"), nb::arg("v0"), nb::arg("b"), nb::arg("Minv"), nb::arg("dgesv"));
 }

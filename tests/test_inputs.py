@@ -123,7 +123,7 @@ def test_option_overrides_are_validated():
 def test_qp_failure_stops_with_step_and_time():
     """A QP that cannot be solved in its iteration budget stops the run naming step and time,
     with the samples so far attached and marked failed."""
-    # the Python step: piqp is what is starved here (the compiled step hands a QP it does not settle back to it)
+    # the Python step, piqp alone (no active set): piqp is what is starved here
     sc = ms.load_scene(SCENES / "newton_cradle_5.toml").with_options(step_impl="python")
     model = ms.build_model(sc)
     import moreau_sim.qp as qp
@@ -132,6 +132,7 @@ def test_qp_failure_stops_with_step_and_time():
 
     def starved(*args, **kw):  # a real piqp solve with 1 iteration allowed
         kw["max_iter"] = 1
+        kw["polish"] = qp.Polish.NONE
         return real(*args, **kw)
 
     qp.solve = starved

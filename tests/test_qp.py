@@ -1,6 +1,8 @@
 """The one QP projection (moreau_sim.qp, docs/theory.md §1): v = argmin 1/2 |v - v0|_M^2 s.t. W'v >= b,
 in both forms, with the active-set polish, the admissible screen, Polish.LEAST_SQUARES and failures."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -75,7 +77,7 @@ def test_admissible_velocity_is_screened_without_a_qp():
     assert res.status == "ADMISSIBLE" and res.ok and res.iterations == 0
     np.testing.assert_array_equal(res.v, u_sep)
     np.testing.assert_array_equal(res.lam, 0.0)
-    solved = qp.solve(M, W, u_sep, screen=False)
+    solved = qp.solve(M, W, u_sep, screen=False, polish=qp.Polish.NONE)
     assert solved.status == "PIQP_SOLVED" and solved.iterations > 0
     np.testing.assert_allclose(solved.v, u_sep, atol=1e-12)
 
@@ -94,9 +96,9 @@ def test_redundant_rows_are_solved_exactly():
 
 
 def test_failure_is_reported_not_polished():
-    """A solve that runs out of iterations: piqp's status, not ok, infinite residual, no polish."""
+    """A piqp solve that runs out of iterations: piqp's status, not ok, infinite residual, no polish."""
     M, W, u = random_problem(0, nv=7, m=5)
-    res = qp.solve(M, W, u, max_iter=1)
+    res = qp.solve(M, W, u, max_iter=1, polish=qp.Polish.NONE)
     assert res.status == "PIQP_MAX_ITER_REACHED"
     assert not res.ok and not res.polished and res.residual == np.inf
 
@@ -140,3 +142,102 @@ def test_kkt_residual_measures_each_condition():
     assert qp.kkt_residual(M, w, v0, v, np.array([1.5])) == pytest.approx(0.5)  # stationarity
     assert qp.kkt_residual(M, w, v0, np.array([1.0, -0.25]), lam) >= 0.25  # feasibility
     assert qp.kkt_residual(M, w, v0, v, lam, b=np.array([-0.5])) == pytest.approx(1.0)  # lam (w'v - b)
+
+
+def _random_qp(seed, dependent=False, bounds=False):
+    """A random projection with 1-12 rows in 1-12 velocities (W Fortran-ordered as the step's rows);
+    `dependent`: row 3 = row 0 + row 1 - row 2 (a face on a plane); `bounds`: b != 0."""
+    rng = np.random.default_rng(seed)
+    nv, m = int(rng.integers(1, 13)), int(rng.integers(4 if dependent else 1, 13))
+    A = rng.standard_normal((nv, nv))
+    M = A @ A.T + nv * np.eye(nv)
+    W = np.asfortranarray(rng.standard_normal((nv, m)))
+    if dependent:
+        W[:, 3] = W[:, 0] + W[:, 1] - W[:, 2]
+    b = 0.1 * rng.standard_normal(m) if bounds else np.zeros(m)
+    return M, W, rng.standard_normal(nv), b
+
+
+@pytest.mark.parametrize("bounds", [False, True])
+@pytest.mark.parametrize("dependent", [False, True])
+def test_active_set_is_the_exact_projection(dependent, bounds):
+    """The dual active set alone (no piqp) solves random problems, dependent rows and shifted bounds
+    included, to round-off: the KKT residual is <= 1e-13 of the problem's scale, and piqp agrees
+    to its own tolerance. An infeasible problem (a dependent row with an inconsistent bound) is
+    left to piqp, which says so."""
+    solved = 0
+    for seed in range(60):
+        M, W, v0, b = _random_qp(seed, dependent, bounds)
+        res = qp.solve(M, W, v0, b=b)
+        raw = qp.solve(M, W, v0, b=b, polish=qp.Polish.NONE)
+        if res.status != "ACTIVE_SET":
+            assert res.status == "ADMISSIBLE" or not raw.ok, (seed, res.status, raw.status)
+            continue
+        solved += 1
+        assert res.polished and res.iterations >= 1
+        scale = 1.0 + np.abs(v0).max() + np.abs(res.lam).max() * np.abs(W).max()
+        assert res.residual <= 1e-13 * scale, (seed, res.residual)
+        assert (res.lam >= 0).all()
+        if raw.ok:
+            np.testing.assert_allclose(res.v, raw.v, atol=1e-6)
+    assert solved >= 40
+
+
+def test_active_set_drops_a_row_on_the_way():
+    """Row 1 is the most violated and is taken first; row 0, then violated, cannot join it (row 1's
+    multiplier would turn negative): row 1 leaves on the way and row 0 alone is active. One guess of
+    the active set ({1} or {0, 1}) would have been rejected."""
+    W = np.asfortranarray(np.array([[-1.0, 2.0], [1.0, 4.0], [3.0, -3.0]]).T)
+    v0 = np.array([3.0, -4.0])  # W'v0 = (-11, -13, 21)
+    res = qp.solve(np.eye(2), W, v0)
+    assert res.status == "ACTIVE_SET" and res.polished
+    assert res.iterations == 3  # add 1; add 0 (row 1 leaves first); add 0
+    lam0 = 11.0 / 5.0  # -(w0'v0) / (w0'w0)
+    np.testing.assert_allclose(res.lam, [lam0, 0.0, 0.0], rtol=1e-15, atol=0)
+    np.testing.assert_allclose(res.v, v0 + lam0 * W[:, 0], rtol=0, atol=1e-15)
+    assert (W.T @ res.v)[1:].min() > 1.0 and res.residual <= 1e-14
+
+
+def test_infeasible_rows_go_to_piqp():
+    """w'v >= 1 and -w'v >= 1 cannot both hold: the active set gives up and piqp reports it."""
+    M, w = np.eye(3), np.array([1.0, 2.0, 0.0])
+    res = qp.solve(M, np.column_stack([w, -w]), np.zeros(3), b=np.ones(2))
+    assert not res.ok and res.status == "PIQP_PRIMAL_INFEASIBLE"
+
+
+def test_column_of_beads_correction_at_step_1292_is_exact():
+    """The full-length column_of_beads run parted between the two steps at step 1292 (t = 0.646 s): its
+    position-correction QP (2 rows) was left at piqp's ~1e-11 answer by the one-guess polish. Every QP of
+    that step is now solved exactly by the active set."""
+    from moreau_sim import stepper
+    from moreau_sim.data import make_data
+    from moreau_sim.simulate import initial_state
+
+    sc = ms.load_scene(Path(__file__).resolve().parent.parent / "scenes" / "column_of_beads.toml")
+    sc = sc.with_options(step_impl="python")
+    model = ms.build_model(sc)
+    data = make_data(model)
+    state, h, e = initial_state(model), sc.options.dt, sc.options.restitution
+    seen = []
+    solve = qp.solve
+
+    def spy(M, W, v0, **kw):
+        r = solve(M, W, v0, **kw)
+        seen.append((M, W, v0, kw.get("b"), r))
+        return r
+
+    for k in range(1292):
+        if k == 1291:
+            qp.solve = spy
+        try:
+            state = stepper.step(model, data, state, h=h, e=e, t_next=(k + 1) * h).state
+        finally:
+            qp.solve = solve
+    corr = [s for s in seen if not s[2].any()]
+    assert corr, "no position correction at step 1292"
+    for *_, r in seen:
+        assert r.status in ("ACTIVE_SET", "ADMISSIBLE"), r.status
+        assert r.residual <= 1e-15
+    M, W, v0, b, r = corr[0]
+    raw = qp.solve(M, W, v0, b=b, polish=qp.Polish.NONE)
+    assert raw.residual > 1e-12 > r.residual  # piqp alone is not exact here

@@ -1,12 +1,12 @@
 """Per-step cost of every bundled scene, split into dynamics, collision, QP and Python glue.
 
-A benchmark, not a test. For each scene it runs the simulation once to collect states, then
-times the step on those states (free-flight steps and contact steps apart), and each stage
-on the same states:
+A benchmark, not a test. For each scene it runs the simulation once (the Python step,
+step_impl = "python") to collect states, then times the Python step on those states (free-flight
+steps and contact steps apart), and each stage on the same states:
   dyn   Pinocchio: integrate x 2, the free velocity (ABA; several with Bias.MIDPOINT when the
         bias depends on u), + CRBA and M^-1 in contact steps
   coll  coal through Pinocchio: geometry placements + narrow phase (+ contact patches), C++ only
-  qp    the impact QP: piqp setup + solve + active-set polish (law.project)
+  qp    the impact QP (law.project: the dual active set; piqp where it does not settle, or above 12 rows)
   glue  the rest: Python and numpy (reading coal results, vertices, rows W, bookkeeping)
 and the QP in both forms (primal M-metric vs dual Delassus) on the contact states.
 Medians over states of the best of `repeat` timings (us). Writes step_costs.json and
@@ -49,7 +49,8 @@ def best(f, repeat):
 
 
 def bench_scene(name: str, repeat: int, n_states: int) -> dict:
-    model = ms.build_model(ms.load_scene(scene_path(name)))
+    # the Python step (the split below is of the Python step's stages; the default is the compiled one)
+    model = ms.build_model(ms.load_scene(scene_path(name)).with_options(step_impl="python"))
     opts = model.options
     h, e = opts.dt, opts.restitution
     traj = ms.simulate(model, progress=False)
