@@ -88,3 +88,19 @@ def write_tables(json_path: Path, doc: Path, render) -> list[str]:
         raise SystemExit(f"error: {kind}{err}") from None
     Path(doc).write_text(text, encoding="utf-8")
     return list(tables)
+
+
+def add_table_option(ap, json_name: str, doc: str) -> None:
+    """The --table JSON DOC option every benchmark's command line has (argparse parser `ap`)."""
+    ap.add_argument("--table", nargs=2, type=Path, metavar=("JSON", "DOC"),
+                    help=f"only rewrite the generated tables in DOC ({doc}) from a {json_name}, and exit")
+
+
+def rewrite_tables(args, render) -> bool:
+    """With --table given, rewrite DOC's tables `render` gives from JSON and say which; whether it
+    was given (the caller then exits)."""
+    if not args.table:
+        return False
+    names = write_tables(args.table[0], args.table[1], render)
+    print(f"wrote {', '.join(names)} into {args.table[1]}")
+    return True

@@ -38,7 +38,7 @@ from moreau_sim.adaptive import DEFAULT_ORDER, AdaptiveRun, simulate_adaptive
 from moreau_sim.event_driven import EventDrivenRun, simulate_event_driven
 from moreau_sim.recording import versions
 
-from . import OUT, metrics, scene_path, write_tables
+from . import OUT, metrics, add_table_option, rewrite_tables, scene_path
 from .references import ball_apex_gaps, ball_impact_times, cradle_simultaneous
 from .work_precision import run_moreau
 
@@ -230,12 +230,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=OUT, help="output folder (docs/bench: the committed file)")
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--table", nargs=2, type=Path, metavar=("JSON", "DOC"),
-                    help="only rewrite the tables in DOC (docs/benchmarks.md) from an adaptive_costs.json, and exit")
+    add_table_option(ap, "adaptive_costs.json", "docs/benchmarks.md")
     a = ap.parse_args(argv)
-    if a.table:
-        names = write_tables(a.table[0], a.table[1], doc_tables)
-        print(f"wrote {', '.join(names)} into {a.table[1]}")
+    if rewrite_tables(a, doc_tables):
         return 0
     load0, wall0 = os.getloadavg()[0], time.time()
     cases = []

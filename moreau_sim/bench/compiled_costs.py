@@ -27,7 +27,7 @@ import moreau_sim as ms
 from moreau_sim import compiled
 from moreau_sim.recording import versions
 
-from . import OUT, scene_path, write_tables
+from . import OUT, add_table_option, rewrite_tables, scene_path
 from .step_costs import best  # best of `repeat` timings, us
 
 # (label, scene, which states: "flight", "contact", or "late-contact" = the last third of the run's contact states)
@@ -144,12 +144,9 @@ def main(argv=None) -> None:
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--states", type=int, default=200)
-    ap.add_argument("--table", nargs=2, type=Path, metavar=("JSON", "DOC"),
-                    help="only rewrite the table in DOC (docs/benchmarks.md) from a compiled_costs.json, and exit")
+    add_table_option(ap, "compiled_costs.json", "docs/benchmarks.md")
     a = ap.parse_args(argv)
-    if a.table:
-        write_tables(a.table[0], a.table[1], doc_tables)
-        print(f"wrote the table into {a.table[1]}")
+    if rewrite_tables(a, doc_tables):
         return
     if not compiled.available():
         raise SystemExit(f"the compiled step is unavailable: {compiled.unavailable_reason()}")

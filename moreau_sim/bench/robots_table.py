@@ -22,7 +22,7 @@ import moreau_sim as ms
 from moreau_sim.options import MeshMode
 from moreau_sim.recording import versions
 
-from . import OUT, REPO, scene_path, write_tables
+from . import OUT, REPO, add_table_option, rewrite_tables, scene_path
 
 ROBOTS = {"quadruped_drop": "Unitree A1 (`a1.urdf`: boxes, cylinders, sphere feet)",
           "panda_table": "Franka Panda, sphere/cylinder model (`models/panda_arm_collision.urdf`)",
@@ -109,12 +109,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=OUT,
                     help="output folder of robots.json (docs/bench: the committed file)")
-    ap.add_argument("--table", nargs=2, type=Path, metavar=("JSON", "DOC"),
-                    help="only rewrite the table in DOC (docs/robots.md) from a robots.json, and exit")
+    add_table_option(ap, "robots.json", "docs/robots.md")
     a = ap.parse_args(argv)
-    if a.table:
-        write_tables(a.table[0], a.table[1], doc_tables)
-        print(f"wrote the table into {a.table[1]}")
+    if rewrite_tables(a, doc_tables):
         return 0
     scenes = {name: measure(name) for name in ROBOTS}
     meshes = {key: measure_meshes(scene, urdf, mode) for key, scene, urdf, mode, _ in MESH_CASES}

@@ -38,7 +38,7 @@ from moreau_sim.energy import kinetic, potential
 from moreau_sim.options import Options, RootJoint
 from moreau_sim.recording import versions
 
-from . import OUT, REPO, peers, scene_path, write_tables
+from . import OUT, REPO, peers, add_table_option, rewrite_tables, scene_path
 from .references import G, ZENO_GAP, cradle_simultaneous, zeno_rest_bound, zeno_time
 from .spec import to_jsonable
 
@@ -746,15 +746,12 @@ def main(argv=None) -> int:
     ap.add_argument("--no-peers", action="store_true", help="moreau-sim only")
     ap.add_argument("--only", default=None, help="comma-separated row-key prefixes")
     ap.add_argument("--write-scenes", action="store_true", help="regenerate the generated scene files and exit")
-    ap.add_argument("--table", nargs=2, type=Path, metavar=("JSON", "DOC"),
-                    help="only rewrite the generated parts of DOC (docs/stability.md) from a stability.json, and exit")
+    add_table_option(ap, "stability.json", "docs/stability.md")
     a = ap.parse_args(argv)
     if a.write_scenes:
         write_generated_scenes()
         return 0
-    if a.table:
-        names = write_tables(a.table[0], a.table[1], doc_tables)
-        print(f"wrote {', '.join(names)} into {a.table[1]}")
+    if rewrite_tables(a, doc_tables):
         return 0
     methods = ("moreau-sim", "moreau-sim plain", "moreau-sim + swept") if a.no_peers else (
         METHODS + ("moreau-sim + swept",))

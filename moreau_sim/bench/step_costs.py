@@ -33,7 +33,7 @@ from moreau_sim.options import QPForm
 from moreau_sim.recording import versions
 from moreau_sim.stepper import assemble, free_velocity
 
-from . import OUT, SCENES, scene_path, write_tables
+from . import OUT, SCENES, add_table_option, rewrite_tables, scene_path
 
 TARGETS = {"bouncing_ball": {"flight": 10, "contact": 40}, "newton_cradle_5": {"contact": 150},
            "box_drop": {"contact": 80}}
@@ -166,15 +166,12 @@ def doc_tables(data: dict) -> dict[str, str]:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(OUT), help="output folder (docs/bench: the committed files)")
-    ap.add_argument("--table", nargs=2, metavar=("JSON", "DOC"),
-                    help="only rewrite the table in DOC (docs/benchmarks.md) from a step_costs.json, and exit")
+    add_table_option(ap, "step_costs.json", "docs/benchmarks.md")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--states", type=int, default=300)
     ap.add_argument("--scenes", nargs="*", default=sorted(p.stem for p in SCENES.glob("*.toml")))
     a = ap.parse_args()
-    if a.table:
-        write_tables(Path(a.table[0]), Path(a.table[1]), doc_tables)
-        print(f"wrote the table into {a.table[1]}")
+    if rewrite_tables(a, doc_tables):
         return
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -48,7 +48,7 @@ from moreau_sim.options import Options, QPForm
 from moreau_sim.recording import versions
 from moreau_sim.stepper import assemble
 
-from . import OUT, REPO, metrics, peers, scene_path, write_tables
+from . import OUT, REPO, metrics, peers, add_table_option, rewrite_tables, scene_path
 from .references import ball_apex_gaps, cradle_simultaneous
 from .spec import min_corner_height, to_jsonable
 
@@ -531,12 +531,9 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3, help="timed repeats of runs with h >= 1e-4 (median)")
     ap.add_argument("--peers", default=",".join(peers.PEERS), help="peers to try (comma-separated)")
     ap.add_argument("--no-solvers", action="store_true", help="skip the impact-solver micro-benchmark")
-    ap.add_argument("--table", nargs=2, type=Path, metavar=("JSON", "DOC"),
-                    help="only rewrite the tables in DOC (docs/benchmarks.md) from a work_precision.json, and exit")
+    add_table_option(ap, "work_precision.json", "docs/benchmarks.md")
     a = ap.parse_args(argv)
-    if a.table:
-        names = write_tables(a.table[0], a.table[1], doc_tables)
-        print(f"wrote {', '.join(names)} into {a.table[1]}")
+    if rewrite_tables(a, doc_tables):
         return 0
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
