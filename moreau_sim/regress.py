@@ -21,7 +21,7 @@ from .ledger import Drift, compare, drift_table, ledger
 from .model import build_model
 from .scene import load_scene
 from .simulate import simulate
-from .trajectory import Trajectory
+from .trajectory import Trajectory, atomic_write
 
 FORMAT = "moreau-sim baseline 1"
 
@@ -51,11 +51,8 @@ def write_baseline(path: str | Path, traj: Trajectory, *, overrides: dict | None
            "ledger": ledger(traj).record()}
     if tolerances:
         doc["tolerances"] = {k: list(v) for k, v in tolerances.items()}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n", encoding="utf-8")
-    tmp.replace(path)
-    return path
+    return atomic_write(path, lambda tmp: tmp.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n",
+                                                         encoding="utf-8"))
 
 
 def read_baseline(path: str | Path) -> dict:
@@ -107,14 +104,12 @@ def _differences(doc: dict, traj: Trajectory) -> list[str]:
     notes = []
     if doc.get("scene_hash") != scene_hash(traj):
         notes.append("the scene file (TOML or URDF) changed since the baseline")
-    old, new = doc.get("options", {}), traj.meta.get("options", {})
-    changed = [f"{k} {old.get(k)!r} -> {new.get(k)!r}" for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
-    if changed:
-        notes.append("options: " + ", ".join(changed))
-    old, new = doc.get("versions", {}), traj.meta.get("versions", {})
-    changed = [f"{k} {old.get(k)} -> {new.get(k)}" for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
-    if changed:
-        notes.append("versions: " + ", ".join(changed))
+    for key, show in (("options", repr), ("versions", str)):
+        old, new = doc.get(key, {}), traj.meta.get(key, {})
+        changed = [f"{k} {show(old.get(k))} -> {show(new.get(k))}" for k in sorted(set(old) | set(new))
+                   if old.get(k) != new.get(k)]
+        if changed:
+            notes.append(f"{key}: " + ", ".join(changed))
     return notes
 
 
@@ -174,14 +169,9 @@ def junit(results: list[Result], path: str | Path) -> Path:
             fail.text = r.report()
         else:
             ET.SubElement(case, "system-out").text = r.report()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
     root = ET.Element("testsuites", name="moreau-sim", tests=suite.get("tests"), failures=suite.get("failures"),
                       errors=suite.get("errors"))
     root.append(suite)
     tree = ET.ElementTree(root)
     ET.indent(tree)
-    tree.write(tmp, encoding="utf-8", xml_declaration=True)
-    tmp.replace(path)
-    return path
+    return atomic_write(path, lambda tmp: tree.write(tmp, encoding="utf-8", xml_declaration=True))

@@ -34,7 +34,6 @@ import json
 import math
 import multiprocessing
 import os
-import tempfile
 import threading
 import time
 from collections.abc import Iterable, Iterator, Sequence
@@ -54,7 +53,7 @@ from .model import build_model
 from .options import Options
 from .scene import Scene, load_scene
 from .simulate import simulate, summary
-from .trajectory import Trajectory, load_trajectory
+from .trajectory import Trajectory, atomic_write, load_trajectory
 
 __all__ = ["Kind", "Param", "Status", "SWEEPABLE", "SweepError", "SweepResult", "TABLE", "WALL_COLUMNS",
            "grid", "parse_param", "point_id", "run_sweep"]
@@ -328,20 +327,6 @@ def _read_table(path: Path) -> dict[str, dict]:
         raise SweepError(f"{path}: cannot read the sweep table: {exc}") from None
 
 
-def _atomic_write(path: Path, write) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        os.close(fd)
-        write(tmp)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 class _Table:
     """The rows of a sweep directory, keyed by id, rewritten atomically."""
 
@@ -377,10 +362,10 @@ class _Table:
                 w.writeheader()
                 w.writerows({c: "" if v is None else v for c, v in r.items()} for r in rows)
 
-        _atomic_write(self.path, write_csv)
+        atomic_write(self.path, write_csv)
         if force and _pyarrow() is not None:
             pa, pq = _pyarrow()
-            _atomic_write(self.parquet, lambda tmp: pq.write_table(pa.Table.from_pylist(rows), tmp))
+            atomic_write(self.parquet, lambda tmp: pq.write_table(pa.Table.from_pylist(rows), tmp))
         self.last_write = time.monotonic()
 
 

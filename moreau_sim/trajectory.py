@@ -121,21 +121,34 @@ class Trajectory:
     def save(self, path: str | Path) -> Path:
         """Write an NPZ atomically (a temporary file renamed into place: never half-written)."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        _remove_orphans(path)
-        fd, tmp = tempfile.mkstemp(prefix=f"{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
+
+        def write(tmp: Path) -> None:
+            with tmp.open("wb") as fh:
                 meta = {**self.meta, "checksum": checksum(self.arrays)}  # lets a reader detect damaged data
                 _write_npz(fh, {"meta": np.array(json.dumps(meta)), **self.arrays})
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual mode
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-        return path
+
+        _remove_orphans(path)
+        return atomic_write(path, write)
+
+
+def atomic_write(path: str | Path, write) -> Path:
+    """Write `path` atomically: write(tmp) fills a temporary file beside it (NAME.PID.XXXX.tmp, which
+    _remove_orphans recognises once its writer is gone), renamed into place with the usual file mode;
+    removed when writing fails or is interrupted. Every file the package writes goes through here."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f"{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
+    try:
+        os.close(fd)
+        write(Path(tmp))
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual mode
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
 
 
 _PIECE = 1 << 20  # [bytes] written (and compressed) at a time by _write_npz
