@@ -181,14 +181,19 @@ class Recorder:
         c["correction_energy"][i] = corr
         c["gap"][i] = pair_distances(m, d, q)
         c["n_contacts"][i] = n_contacts
-        if self._E is not None:  # contact-free motion since the last accounted state (0 after a step)
-            self._smooth += (T + V) - self._E
-            if (T + V) - self._E > self._rise[0]:  # event-driven, adaptive: a smooth stretch counts as a step
-                self._rise = ((T + V) - self._E, float(state.t))
+        self._smooth_until(T + V, state.t)  # 0 right after a step
         c["smooth_error"][i], c["dissipation"][i], c["law_dissipation"][i] = self._smooth, self._diss, self._law
         self._samples.commit()
         self._smooth = self._diss = self._law = 0.0
         self._E, self._at, self._TV = T + V, (q, u), (T, V)
+
+    def _smooth_until(self, E: float, t: float) -> None:
+        """Contact-free motion from the last accounted state to a state of T + V = E [J] at t [s]:
+        smooth error, and a rise that counts as one step's (event-driven, adaptive: a smooth stretch)."""
+        if self._E is not None:
+            self._smooth += E - self._E
+            if E - self._E > self._rise[0]:
+                self._rise = (E - self._E, float(t))
 
     def account_step(self, step: int, t: float, before: State, r, h: float, e: float) -> None:
         """The ledger of one midpoint Moreau step (docs/theory.md §5, ledger.py) from `before` to the
@@ -200,10 +205,7 @@ class Recorder:
             E0 = self._E
         else:
             E0 = total(m, d, q0, u0)
-            if self._E is not None:
-                self._smooth += E0 - self._E
-                if E0 - self._E > self._rise[0]:
-                    self._rise = (E0 - self._E, float(before.t))
+            self._smooth_until(E0, before.t)
         T1, V1 = kinetic(m, d, q1, u1), potential(m, d, q1)
         E1 = T1 + V1
         # a rise the position correction made and booked (the lift of bodies at rest, docs/theory.md
@@ -228,10 +230,7 @@ class Recorder:
         docs/theory.md §1 at q, u- -> u+ with v the projection and M = M(q)."""
         m, d = self.model, self.data
         E0 = total(m, d, q, u_minus)
-        if self._E is not None:
-            self._smooth += E0 - self._E
-            if E0 - self._E > self._rise[0]:
-                self._rise = (E0 - self._E, float(t))
+        self._smooth_until(E0, t)
         T_minus, T_plus, law = impact_terms(M, u_minus, v, u_minus, u_plus, e, P, None)
         self._add_impact(self.n, t, T_minus, T_plus, law, int(np.count_nonzero(P > 0)), True)
         self._E, self._at = total(m, d, q, u_plus), None
