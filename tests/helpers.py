@@ -2,6 +2,7 @@
 
 Tests import from here (`from helpers import run, scene`); conftest.py keeps only fixtures."""
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -68,3 +69,15 @@ def lowest_corner_height(rpy, half=(0.1, 0.1, 0.2)):
     R = pin.rpy.rpyToMatrix(*rpy)
     c = np.array([[sx * half[0], sy * half[1], sz * half[2]] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
     return -(c @ R.T)[:, 2].min()
+
+
+def damage_member(path: Path, member: str = "q.npy") -> None:
+    """Flip one byte inside the compressed data of one array of an NPZ. (A byte picked at a fixed
+    offset of the file can land in a zip local header, whose fields a reader does not use: the
+    arrays then read back intact and nothing is damaged.)"""
+    raw = bytearray(path.read_bytes())
+    info = zipfile.ZipFile(path).getinfo(member)
+    start = info.header_offset + 30 + int.from_bytes(raw[info.header_offset + 26:info.header_offset + 28], "little") \
+        + int.from_bytes(raw[info.header_offset + 28:info.header_offset + 30], "little")
+    raw[start + info.compress_size // 2] ^= 0xFF
+    path.write_bytes(bytes(raw))

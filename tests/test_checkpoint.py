@@ -18,7 +18,7 @@ from moreau_sim.checkpoint import Checkpoint
 from moreau_sim.sweep import WALL_COLUMNS
 from moreau_sim.trajectory import ARRAYS
 
-from helpers import SCENES, scene
+from helpers import SCENES, damage_member, scene
 
 
 def same_arrays(a: ms.Trajectory, b: ms.Trajectory) -> list[str]:
@@ -55,9 +55,7 @@ def test_a_checkpoint_of_another_run_or_damaged_is_refused(tmp_path):
     with pytest.raises(ms.SceneError, match="c.npz: a checkpoint of another run"):
         ms.simulate(ms.build_model(sc.with_options(restitution=0.3)), progress=False,
                     checkpoint=Checkpoint(path=path, resume=True))
-    raw = bytearray(path.read_bytes())
-    raw[len(raw) // 2] ^= 0xFF
-    path.write_bytes(bytes(raw))
+    damage_member(path)
     with pytest.raises(ms.SceneError, match="c.npz.*delete it"):
         ms.simulate(ms.build_model(sc), progress=False, checkpoint=Checkpoint(path=path, resume=True))
 
