@@ -126,7 +126,8 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
             click.echo(f"moreau-sim: no checkpoint {ck.path}: starting from the beginning", err=True)
     previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM as Ctrl-C: the samples so far are kept
     try:
-        traj = simulate(model, progress=_show_progress(progress, as_json), checkpoint=ck)
+        # the recorded rows wait in unnamed files beside the output, not in memory (docs/output.md)
+        traj = simulate(model, progress=_show_progress(progress, as_json), checkpoint=ck, spill=out.parent)
     except SceneError as exc:  # a damaged checkpoint, or one of another run
         _fail(str(exc))
     except SimulationInterrupted as exc:

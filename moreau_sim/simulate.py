@@ -29,7 +29,8 @@ _PROGRESS_DELAY = float(os.environ.get("MOREAU_SIM_PROGRESS_DELAY", "2.0"))
 
 
 def simulate(model: Model, *, data: Data | None = None, state: State | None = None,
-             progress: bool = True, checkpoint: Checkpoint | None = None) -> Trajectory:
+             progress: bool = True, checkpoint: Checkpoint | None = None,
+             spill: str | Path | None = None) -> Trajectory:
     """Run the scene's options (restitution, dt, duration) from `state` (default: the scene's
     initial state). Returns a complete :class:`Trajectory` or raises :class:`SimulationError`
     (naming the step and time) whose ``.trajectory`` holds the samples up to the failure,
@@ -38,7 +39,12 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     checkpoint: save a checkpoint every so often and/or resume from one (time-stepping only;
     :class:`~moreau_sim.checkpoint.Checkpoint`); a resumed run gives the same arrays, bit for
     bit, as an uninterrupted one. The checkpoint file is removed when the run completes unless
-    ``checkpoint.keep``."""
+    ``checkpoint.keep``.
+
+    spill: a folder where a time-stepping run keeps all but the last block of its recorded rows, in
+    unnamed temporary files (recording.Recorder): the memory of a long run stays that of the
+    libraries and one block, and the returned arrays are read-only maps of those files (they
+    disappear with the arrays)."""
     data = data or make_data(model)
     state = state or initial_state(model)
     opts = model.options
@@ -50,7 +56,7 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     if opts.integrator is Integrator.ADAPTIVE:
         return simulate_adaptive(model, data=data, state=state)
     h, e, n, every = opts.dt, opts.restitution, opts.n_steps, opts.save_every
-    rec = Recorder(model, data, min(1 + n // every + 1, 1 << 16))  # columns grow beyond this
+    rec = Recorder(model, data, min(1 + n // every + 1, 1 << 16), spill=spill)  # columns grow beyond this
     t0, k0, previous, work, corr, wall_before = state.t, 0, set(), 0.0, 0.0, 0.0
     if checkpoint is not None and checkpoint.resume and Path(checkpoint.path).exists():
         r = ckpt.load(Path(checkpoint.path), model, rec, data)
