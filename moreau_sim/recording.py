@@ -10,7 +10,6 @@ from __future__ import annotations
 import datetime
 import math
 import mmap
-import os
 import platform
 import tempfile
 from dataclasses import dataclass
@@ -149,7 +148,7 @@ class _Columns:
         if m == 0:
             return
         for k, a in self.cols.items():
-            _write_at(self._files[k].fileno(), memoryview(a[:m]).cast("B"), self.spilled * self._row_bytes(k))
+            _write_at(self._files[k], a[:m], self.spilled * self._row_bytes(k))
         self.spilled = self.n
 
     def _row_bytes(self, k: str) -> int:
@@ -167,8 +166,7 @@ class _Columns:
         n = len(arrays[next(iter(self.cols))])
         if self._files is not None:
             for k in self.cols:
-                a = np.ascontiguousarray(arrays[k], self.dtypes[k])
-                _write_at(self._files[k].fileno(), memoryview(a).cast("B") if a.size else b"", 0)
+                _write_at(self._files[k], np.ascontiguousarray(arrays[k], self.dtypes[k]), 0)
             self.n = self.spilled = n
             return
         if n > len(next(iter(self.cols.values()))):
@@ -193,12 +191,12 @@ class _Columns:
                 f.close()
 
 
-def _write_at(fd: int, data, offset: int) -> None:
-    """All of `data` (bytes-like) into file descriptor fd at byte `offset`."""
-    view = memoryview(data)
-    while len(view):
-        k = os.pwrite(fd, view, offset)
-        view, offset = view[k:], offset + k
+def _write_at(f, a: np.ndarray, offset: int) -> None:
+    """The bytes of the C-contiguous array `a` into the file `f` at byte `offset`, flushed (a map
+    of the file then reads them)."""
+    f.seek(offset)
+    f.write(memoryview(a.reshape(-1).view(np.uint8)))
+    f.flush()
 
 
 def _file_rows(f, n: int, dtype: np.dtype, shape: tuple) -> np.ndarray:

@@ -179,7 +179,7 @@ def _pieces(a: np.ndarray):
         start = a.__array_interface__["data"][0] - np.frombuffer(mm, np.uint8).__array_interface__["data"][0]
     for i in range(0, len(data), _PIECE):
         yield data[i:i + _PIECE]
-        if mm is not None:  # page-aligned from below; the kernel rounds the length up
+        if mm is not None and hasattr(mmap, "MADV_DONTNEED"):  # page-aligned from below; the kernel rounds up
             lo = (start + i) // mmap.PAGESIZE * mmap.PAGESIZE
             mm.madvise(mmap.MADV_DONTNEED, lo, start + i + _PIECE - lo)
 

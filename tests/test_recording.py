@@ -3,6 +3,7 @@ trajectory.ARRAYS (names, order, dtypes, shapes), percussions are logged above L
 impacts flagged; a spilling recording gives the same arrays bit for bit; memory follows the data
 (in memory) or stays flat (spilling)."""
 
+import errno
 import json
 import os
 import subprocess
@@ -140,3 +141,29 @@ def test_memory_is_proportional_to_the_data(tmp_path, spill):
         assert m["growth"] <= 0.25 * m["data"], m  # data: 19 MB
     else:
         assert m["growth"] <= 1.5 * m["data"] + 8e6, m  # data: 19 MB; allocator slack and one joined column
+
+
+def test_a_full_disk_under_the_spill_files_is_a_named_error(monkeypatch, tmp_path):
+    """`moreau-sim run` keeps its rows in unnamed files beside the output: when that folder fills
+    up during the run, one line naming the folder and the output, exit 2, no traceback."""
+    from click.testing import CliRunner
+
+    from moreau_sim.cli import main
+
+    monkeypatch.setattr(recording, "SPILL_ROWS", 100)
+    write = recording._write_at
+    calls = []
+
+    def full(f, a, offset):
+        calls.append(offset)
+        if len(calls) > 30:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        write(f, a, offset)
+
+    monkeypatch.setattr(recording, "_write_at", full)
+    out = tmp_path / "ball.npz"
+    r = CliRunner().invoke(main, ["run", str(SCENES / "zeno_ball.toml"), "-o", str(out), "--duration", "2"])
+    assert r.exit_code == 2, r.output
+    assert r.output.strip() == (f"moreau-sim: error: {tmp_path}: cannot write there (No space left on device); "
+                                f"nothing written to {out}")
+    assert os.listdir(tmp_path) == []
