@@ -123,18 +123,19 @@ def _meta(model: Model, status: str, steps: int, wall: float) -> dict:
 
 def run(scene: Scene | str | Path, *, dt: float | None = None, duration: float | None = None,
         restitution: float | None = None, progress: bool = False, checkpoint: str | Path | None = None,
-        checkpoint_every: float | None = None, resume: bool = False, **options) -> Trajectory:
+        checkpoint_every: float | None = None, resume: bool = False, spill: str | Path | None = None,
+        **options) -> Trajectory:
     """Load (if a path), override options (dt [s], duration [s], restitution, any other
     :class:`~moreau_sim.options.Options` field, e.g. integrator="adaptive", rtol=1e-10,
     atol=1e-12), build and simulate. Returns the Trajectory.
 
     checkpoint: a checkpoint file, written every `checkpoint_every` seconds of simulated time
     (rounded to whole steps) and removed when the run completes; resume: continue from it when
-    it exists (checkpoint.py)."""
+    it exists (checkpoint.py); spill: a folder for the recorded rows instead of memory (simulate)."""
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     sc = sc.with_options(dt=dt, duration=duration, restitution=restitution, **options)
     ck = None if checkpoint is None else Checkpoint(path=Path(checkpoint), every=checkpoint_every, resume=resume)
-    return simulate(build_model(sc), progress=progress, checkpoint=ck)
+    return simulate(build_model(sc), progress=progress, checkpoint=ck, spill=spill)
 
 
 def summary(traj: Trajectory) -> dict:
