@@ -12,6 +12,7 @@ import math
 import mmap
 import platform
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -161,19 +162,21 @@ class _Columns:
         if len(next(iter(self.cols.values()))) > max(self.n - self.spilled, 1):
             self._resize(max(self.n - self.spilled, 1))
 
-    def load(self, arrays: dict[str, np.ndarray]) -> None:
-        """Start from rows recorded earlier (a checkpoint's arrays)."""
-        n = len(arrays[next(iter(self.cols))])
-        if self._files is not None:
-            for k in self.cols:
-                _write_at(self._files[k], np.ascontiguousarray(arrays[k], self.dtypes[k]), 0)
-            self.n = self.spilled = n
-            return
-        if n > len(next(iter(self.cols.values()))):
-            self._resize(n)
-        for k, a in self.cols.items():
-            a[:n] = arrays[k]
+    def load(self, arrays: Mapping[str, np.ndarray]) -> None:
+        """Start from rows recorded earlier (a checkpoint's arrays: a dict, or an open NPZ whose
+        arrays are read one at a time; spilling, each goes to its file)."""
+        for k in self.cols:
+            a = np.ascontiguousarray(arrays[k], self.dtypes[k])
+            n = len(a)
+            if self._files is not None:
+                _write_at(self._files[k], a, 0)
+                continue
+            if n > len(self.cols[k]):
+                self._resize(n)
+            self.cols[k][:n] = a
         self.n = n
+        if self._files is not None:
+            self.spilled = n
 
     def arrays(self) -> dict[str, np.ndarray]:
         if self._files is None:
@@ -397,8 +400,9 @@ class Recorder:
                 "law_difference": [None if np.isnan(x) else x for x in self._law_difference],
                 "contact_steps": self._contact_steps}
 
-    def restore(self, arrays: dict[str, np.ndarray], carried: dict, state: State) -> None:
-        """Continue a recording from its arrays and carried() (a checkpoint's) at `state`."""
+    def restore(self, arrays: Mapping[str, np.ndarray], carried: dict, state: State) -> None:
+        """Continue a recording from its arrays (a dict or an open NPZ) and carried() (a
+        checkpoint's) at `state`."""
         for g in self._groups():
             g.load(arrays)
         c = carried

@@ -28,6 +28,7 @@ Arrays (n = saved samples, k = logged contact percussions):
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import mmap
@@ -227,24 +228,39 @@ def load_trajectory(path: str | Path, *, verify: bool = True) -> Trajectory:
     """Read an NPZ written by :meth:`Trajectory.save`. Raises ValueError naming the file, also
     when `verify` and its arrays do not match the checksum recorded at save (damaged data)."""
     path = Path(path)
+    with read_npz(path) as z:
+        old = "log_kind" not in z.files
+        optional = LEDGER_ARRAYS + (("log_kind",) if old else ())
+        missing = [k for k in ARRAYS + ("meta",) if k not in z.files and k not in optional]
+        if missing:
+            raise ValueError(f"{path}: not a moreau-sim trajectory (missing {missing})")
+        meta = json.loads(str(z["meta"]))
+        arrays = {k: z[k] for k in ARRAYS if k in z.files}
+        if verify:
+            verify_checksum(path, meta, arrays)
+        if old:
+            _from_format1(arrays)
+        _without_ledger(arrays)
+    return Trajectory(arrays, meta)
+
+
+def verify_checksum(path: Path, meta: dict, arrays) -> None:
+    """ValueError naming `path` when `arrays` (a dict, or an open NPZ) do not match the checksum
+    in `meta` (damaged data; a file without one passes)."""
+    if "checksum" in meta and checksum(arrays) != meta["checksum"]:
+        raise ValueError(f"{path}: damaged: its arrays do not match the checksum written with them")
+
+
+@contextlib.contextmanager
+def read_npz(path: Path):
+    """A trajectory NPZ open (np.load: each array read when asked for, so one at a time can be in
+    memory); any error reading it, also inside the with block, a ValueError naming the file."""
     try:
         with np.load(path, allow_pickle=False) as z:
-            old = "log_kind" not in z.files
-            optional = LEDGER_ARRAYS + (("log_kind",) if old else ())
-            missing = [k for k in ARRAYS + ("meta",) if k not in z.files and k not in optional]
-            if missing:
-                raise ValueError(f"{path}: not a moreau-sim trajectory (missing {missing})")
-            meta = json.loads(str(z["meta"]))
-            arrays = {k: z[k] for k in ARRAYS if k in z.files}
-            if verify and "checksum" in meta and checksum(arrays) != meta["checksum"]:
-                raise ValueError(f"{path}: damaged: its arrays do not match the checksum written with them")
-            if old:
-                _from_format1(arrays)
-            _without_ledger(arrays)
+            yield z
     except ValueError as exc:
         if str(path) in str(exc):
             raise
         raise ValueError(f"{path}: not a moreau-sim trajectory NPZ ({exc})") from None
     except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError) as exc:  # truncated or corrupted
         raise ValueError(f"{path}: cannot read trajectory: {type(exc).__name__}: {exc}") from None
-    return Trajectory(arrays, meta)
