@@ -3,7 +3,7 @@ ledger (docs/theory.md §5), filling the arrays of trajectory.py's schema; and t
 trajectory file carries.
 
 Columns grow in place by at most BLOCK_ROWS rows (compact: memory is proportional to what was recorded),
-or, spilling, keep SPILL_ROWS rows in memory and the rest in unnamed temporary files."""
+or, spilling, keep SPILL_BYTES of rows in memory and the rest in unnamed temporary files."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from .state import State
 from .trajectory import Trajectory
 
 BLOCK_ROWS = 1 << 14  # the most rows a full column grows by at a time (see _Columns)
-SPILL_ROWS = 1 << 16  # rows a spilling column keeps in memory before it writes them to its file
+SPILL_BYTES = 8 << 20  # [bytes] the rows a spilling group of columns keeps in memory before it writes them out
 LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) of its step (and > 0)
 
 
@@ -96,7 +96,7 @@ class _Columns:
     the memory stays ~ the rows recorded, with no copy and at most BLOCK_ROWS rows to spare. A row
     counts (commit) only once written: an interrupt never leaves a half-written row.
 
-    With `spill` (a folder), every SPILL_ROWS rows the columns move their rows to one unnamed
+    With `spill` (a folder), every SPILL_BYTES of rows the columns move their rows to one unnamed
     temporary file each there (rows [0, spilled); the columns in memory hold the rest) and
     arrays() returns read-only maps of those files: the memory is one block of rows, the files
     vanish with the last map or on any exit of the process (they have no name)."""
@@ -104,8 +104,10 @@ class _Columns:
     def __init__(self, schema: dict, sizes: dict, capacity: int, spill: str | Path | None = None):
         self.shapes = {k: tuple(sizes.get(d, d) for d in shape) for k, (_, shape) in schema.items()}
         self.dtypes = {k: np.dtype(dtype) for k, (dtype, _) in schema.items()}
+        # spilling: the rows of one block (at least one)
+        self.block = max(1, SPILL_BYTES // sum(self._row_bytes(k) for k in schema))
         if spill is not None:
-            capacity = min(capacity, SPILL_ROWS)
+            capacity = min(capacity, self.block)
         self.cols = {k: np.empty((max(capacity, 1),) + self.shapes[k], dtype) for k, (dtype, _) in schema.items()}
         self.n = 0
         self.spilled = 0  # rows in the spill files (rows [0, spilled); cols[k][i] is row spilled + i)
@@ -117,7 +119,7 @@ class _Columns:
         it is written."""
         i = self.n - self.spilled
         if i == len(next(iter(self.cols.values()))):
-            if self._files is not None and i >= SPILL_ROWS:
+            if self._files is not None and i >= self.block:
                 self._spill()
                 return 0
             self._resize(i + min(max(i, 64), BLOCK_ROWS))
@@ -221,7 +223,7 @@ class Recorder:
     the states they leave and the next reported or sampled state is contact-free motion and counts
     as smooth error.
 
-    spill: a folder for temporary files that hold all but the last SPILL_ROWS rows of each column
+    spill: a folder for temporary files that hold all but the last SPILL_BYTES of rows of each group
     (_Columns): memory for one block of rows instead of the whole record, and the trajectory's
     arrays are read-only maps of those files."""
 

@@ -79,11 +79,11 @@ def same_arrays(a: ms.Trajectory, b: ms.Trajectory) -> list[str]:
 @pytest.mark.parametrize("name,steps", [("zeno_ball", 4000), ("corner_point", 60), ("newton_cradle_5", 200)])
 @pytest.mark.parametrize("e,h_factor", [(None, 1.0), (0.0, 0.5), (1.0, 2.0)])
 def test_a_spilling_recording_is_bitwise_the_in_memory_one(monkeypatch, tmp_path, name, steps, e, h_factor):
-    """Rows moved to the spill files every 3 rows (the ball: samples and percussion rows; the corner:
-    candidates too): the same arrays (dtypes, shapes, bits) and
+    """Rows moved to the spill files in blocks of 300 bytes (1 to 12 rows; the ball: samples and
+    percussion rows; the corner: branches and candidates too): the same arrays (dtypes, shapes, bits) and
     checksum, read-only; a checkpoint written mid-run and a run resumed from it into spill files
     give them too; the saved file reads back the same; the spill files never have a name."""
-    monkeypatch.setattr(recording, "SPILL_ROWS", 3)
+    monkeypatch.setattr(recording, "SPILL_BYTES", 300)
     base = scene(name)
     h = base.options.dt * h_factor
     sc = base.with_options(dt=h, duration=steps * h, restitution=e, save_every=2)
@@ -111,7 +111,7 @@ import json, resource, sys
 import moreau_sim as ms
 from moreau_sim import recording
 spill = sys.argv[3] if len(sys.argv) > 3 else None
-recording.SPILL_ROWS = 4096  # one block: 4096 rows of 96 + 121 bytes
+recording.SPILL_BYTES = 1 << 19  # blocks of 5461 samples and 4332 percussion rows
 sc = ms.load_scene(sys.argv[1]).with_options(step_impl="compiled")
 ms.simulate(ms.build_model(sc.with_options(duration=1.0)), progress=False, spill=spill).save(sys.argv[2])  # warm
 model = ms.build_model(sc.with_options(duration=100.0))
@@ -150,7 +150,7 @@ def test_a_full_disk_under_the_spill_files_is_a_named_error(monkeypatch, tmp_pat
 
     from moreau_sim.cli import main
 
-    monkeypatch.setattr(recording, "SPILL_ROWS", 100)
+    monkeypatch.setattr(recording, "SPILL_BYTES", 10_000)
     write = recording._write_at
     calls = []
 
