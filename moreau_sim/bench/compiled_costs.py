@@ -39,10 +39,10 @@ from .step_costs import best  # best of `repeat` timings, us
 CASES = (("ball, flight", "bouncing_ball", "flight"),
          ("ball, in contact (resting)", "zeno_ball", "contact"),
          ("cradle, contacts closed", "newton_cradle_5", "contact"),
-         ("box_drop, resting", "box_drop", "late-contact"),
-         ("box_stack_10, resting", "box_stack_10", "late-contact"),
-         ("column_of_beads_100, in contact", "column_of_beads_100", "contact"),
-         ("quadruped_drop, resting", "quadruped_drop", "late-contact"))
+         ("box, resting", "box_drop", "late-contact"),
+         ("ten boxes, resting", "box_stack_10", "late-contact"),
+         ("100 beads, in contact", "column_of_beads_100", "contact"),
+         ("quadruped, resting", "quadruped_drop", "late-contact"))
 WHOLE_RUNS = ("bouncing_ball", "zeno_ball")  # ms.simulate, recording included
 PEERS = ("siconos", "mujoco")
 PEER_NAMES = {"siconos": "Siconos", "mujoco": "MuJoCo"}
@@ -229,7 +229,9 @@ def plot(res: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    groups = [(f"{c['scene']}\n{c['label'].split(', ', 1)[-1]}", c["python"], c["compiled"],
+    groups = [(f"{c['scene']}\n{c['label'].split(', ', 1)[-1]}"
+               + ("" if c["compiled_share"] == 1 else f"\n({100 * c['compiled_share']:.0f} % compiled)"),
+               c["python"], c["compiled"],
                (c.get("siconos") or {}).get("us"), (c.get("mujoco") or {}).get("us")) for c in res["cases"]]
     groups += [(f"{w['scene']}\nwhole run", w["python"], w["compiled"], w["siconos"], w["mujoco"])
                for w in res.get("whole_runs", [])]
@@ -256,10 +258,11 @@ def plot(res: dict, path: Path) -> None:
         labelled = True
     ax.set_xticks(x, [g[0] for g in groups], fontsize=7)
     ax.set_yscale("log")
+    ax.set_ylim(top=30 * max(max(v for v in g[1:] if v is not None) for g in groups))  # room for the legend
     ax.set_ylabel("µs per step (median; whole runs: wall / steps)")
     ax.set_title(f"One step, side by side in one run ({res['cpus']} cores, load {res['load']:.1f})", fontsize=9)
     ax.grid(axis="y", which="both", alpha=0.3)
-    ax.legend(fontsize=7, ncol=3)
+    ax.legend(fontsize=7, ncol=5, loc="upper center")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
