@@ -3,8 +3,9 @@
 A benchmark, not a test. For each case the scene is run once to collect its states; on the same
 states one step is timed with step_impl = "compiled" and with step_impl = "python" (ms.step, best
 of `repeat` per state, median over up to `states` states of the phase, us), with the share of those
-steps the compiled step took itself (the rest it hands back to Python). In the same run each peer
-that can express the scene (peers.siconos: Moreau-Jean theta 1/2 with its LCP; peers.mujoco:
+steps the compiled step took itself (the rest it hands back to Python) and, where it took them all,
+the extension's call alone (the C++ step and its crossing, without ms.step's Python around it).
+In the same run each peer that can express the scene (peers.siconos: Moreau-Jean theta 1/2 with its LCP; peers.mujoco:
 mj_step; their runners' settings) runs the whole scene `repeat` times with a timer around each step
 inside its own stepping loop; per step the best of those runs, median over the steps of the same
 phase (the phase rule `phase` applied to the peer's own contact count per step). Whole runs: the
@@ -89,6 +90,10 @@ def bench_case(label: str, scene: str, which: str, repeat: int, n_states: int) -
         t = [best(lambda st=states[i], m=m, d=d: ms.step(m, d, st, h=h, e=e), repeat) for i in idx]
         out[impl] = statistics.median(t)
     c = compiled.counts(datas["compiled"])  # every timed call of the compiled model's step
+    # the extension's call alone (no ms.step around it, no StepResult), where it takes every step
+    stepper = compiled._context(mods["compiled"], ms.make_data(mods["compiled"])).stepper
+    out["extension"] = None if stepper is None or c["flight"] + c["contact"] < sum(c.values()) else statistics.median(
+        best(lambda st=states[i]: stepper.step(st.q, st.u, h, e), repeat) for i in idx)
     out["compiled_share"] = (c["flight"] + c["contact"]) / max(1, sum(c.values()))
     out["handed_back"] = {k.removeprefix("python: "): v for k, v in c.items() if k.startswith("python")}
     out["ratio"] = out["python"] / out["compiled"]
@@ -148,7 +153,9 @@ def verdicts(res: dict) -> list[dict]:
         elif kind == "x siconos" and (cases.get(key) or {}).get("siconos"):
             c = cases[key]
             value = c["compiled"] / c["siconos"]["us"]
-            shown = f"{value:.2f}× ({c['compiled']:.1f} against {c['siconos']['us']:.1f} µs)"
+            shown = f"{value:.2f}× ({c['compiled']:.1f} against {c['siconos']['us']:.2f} µs)"
+            if c.get("extension"):
+                shown += f"; the extension call alone {c['extension'] / c['siconos']['us']:.2f}×"
         elif kind == "run x siconos" and (runs.get(key) or {}).get("siconos"):
             w = runs[key]
             value = w["compiled"] / w["siconos"]
@@ -177,16 +184,21 @@ def markdown_table(res: dict) -> str:
            f"per state, median over the states. Peers: the whole scene run {reps.removeprefix('the best of ')} "
            "times in the peer's own stepping loop with a timer around each step (Siconos: `computeOneStep` + "
            "`nextStep`; MuJoCo: `mj_step`, both called from Python), per step the best of the runs, median "
-           "over the steps of the same phase by the peer's own contact count. " + peers + ":", "",
-           "| case | contacts | Python step | compiled step | Python / compiled | steps taken compiled "
-           "| Siconos | compiled / Siconos | MuJoCo mj_step | compiled / MuJoCo |",
-           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+           "over the steps of the same phase by the peer's own contact count (contacts: the median number in the "
+           "step, ours detected, Siconos's in its LCP, MuJoCo's `ncon`). " + peers + ":", "",
+           "| case | contacts (ours / Siconos / MuJoCo) | Python step | compiled step | its extension call alone "
+           "| Python / compiled | steps taken compiled | Siconos | compiled / Siconos | MuJoCo mj_step "
+           "| compiled / MuJoCo |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for c in res["cases"]:
         sic = c.get("siconos") if have["siconos"] else None
         mj = c.get("mujoco") if have["mujoco"] else None
-        out.append(f"| `{c['scene']}`: {c['label']} | {c['contacts']:g} | {c['python']:.1f} | {c['compiled']:.1f} | "
-                   f"{c['python'] / c['compiled']:.1f} | {100 * c['compiled_share']:.1f} % | "
-                   f"{_fmt(sic and sic['us'])} | {_ratio(c['compiled'], sic and sic['us'])} | "
+        contacts = " / ".join(f"{x:g}" if x is not None else "–"
+                              for x in (c["contacts"], sic and sic["contacts"], mj and mj["contacts"]))
+        out.append(f"| `{c['scene']}`: {c['label']} | {contacts} | {c['python']:.1f} | {c['compiled']:.1f} | "
+                   f"{_fmt(c.get('extension'))} | {c['python'] / c['compiled']:.1f} | "
+                   f"{100 * c['compiled_share']:.1f} % | "
+                   f"{_fmt(sic and sic['us'], 2)} | {_ratio(c['compiled'], sic and sic['us'])} | "
                    f"{_fmt(mj and mj['us'], 2)} | {_ratio(c['compiled'], mj and mj['us'])} |")
     return "\n".join(out)
 
