@@ -10,9 +10,9 @@ mj_step; their runners' settings) runs the whole scene `repeat` times with a tim
 inside its own stepping loop; per step the best of those runs, median over the steps of the same
 phase (the phase rule `phase` applied to the peer's own contact count per step). Whole runs: the
 scene by ms.simulate (recording included, compiled and Python step) against the peers' whole runs
-of the same scene and step size (their loop with its recording), wall time per step, best of
-`repeat`. The issue-12 targets (TARGETS) get their verdicts from these figures. Writes
-compiled_costs.json and compiled_costs.png to out/ (or --out).
+of the same scene and step size (their loop with its recording), wall time per step, the best of
+`repeat` rounds that run every side in turn. The issue-12 targets (TARGETS) get their verdicts from
+these figures. Writes compiled_costs.json and compiled_costs.png to out/ (or --out).
 
     python -m moreau_sim.bench.compiled_costs [--out docs/bench] [--repeat 7] [--states 200]
     python -m moreau_sim.bench.compiled_costs --table docs/bench/compiled_costs.json docs/benchmarks.md
@@ -126,19 +126,22 @@ def peer_phase(run: dict, which: str) -> dict | None:
             "contacts": float(np.median(run["contacts"][mask]))}
 
 
-def whole_run(scene: str, repeat: int, peer_runs: dict) -> dict:
-    """ms.simulate of the scene (recording included), wall per step (best of `repeat`), both steps,
-    against each peer's whole run of the same scene per step."""
+def whole_run(scene: str, repeat: int, peers: tuple) -> dict:
+    """ms.simulate of the scene (recording included), wall per step, both steps, against each peer's
+    whole run of the same scene per step (`peers`: those available): `repeat` rounds, each running
+    every side once in turn (so that all see the same load), the best round of each side."""
     sc = ms.load_scene(scene_path(scene))
     n = int(round(sc.options.duration / sc.options.dt))
-    out = {"scene": scene, "steps": n}
-    for impl in ("compiled", "python"):
-        model = ms.build_model(sc.with_options(step_impl=impl))
-        out[impl] = best(lambda model=model: ms.simulate(model, progress=False), repeat) / n
-    for peer in PEERS:
-        r = peer_runs[peer, scene]
-        out[peer] = None if "why" in r else r["wall_seconds"] * 1e6 / r["steps"]
-    return out
+    models = {impl: ms.build_model(sc.with_options(step_impl=impl)) for impl in ("compiled", "python")}
+    walls: dict = {side: [] for side in (*models, *PEERS)}
+    for _ in range(repeat):
+        for impl, model in models.items():
+            walls[impl].append(best(lambda model=model: ms.simulate(model, progress=False), 1) / n)
+        for peer in peers:
+            r = run_peer(peer, scene, 1)
+            if "why" not in r:
+                walls[peer].append(r["wall_seconds"] * 1e6 / r["steps"])
+    return {"scene": scene, "steps": n, **{side: min(w) if w else None for side, w in walls.items()}}
 
 
 def verdicts(res: dict) -> list[dict]:
@@ -206,7 +209,8 @@ def markdown_table(res: dict) -> str:
 def whole_run_table(res: dict) -> str:
     """Whole runs, wall per step: ms.simulate (recording included) against the peers' whole runs."""
     sic, mj = res.get("siconos"), res.get("mujoco")
-    out = [f"Wall time of the whole run over its number of steps, µs, the best of {res.get('repeat', '?')} runs: "
+    out = [f"Wall time of the whole run over its number of steps, µs, the best of {res.get('repeat', '?')} rounds "
+           "that run every side in turn: "
            "`ms.simulate` (the `Trajectory` recorded), Siconos's stepping loop with its recording of q and v "
            "(the runner's), MuJoCo's `mujoco.rollout` (a C loop storing the full state):", "",
            "| scene | steps | compiled `ms.simulate` | Python `ms.simulate` | Siconos whole run | compiled / Siconos "
@@ -316,7 +320,7 @@ def main(argv=None) -> None:
               f"({c['states']} states, {c['contacts']:g} contacts, {100 * c['compiled_share']:.0f} % compiled)  "
               + "  ".join(f"{p} {_fmt(c[p] and c[p]['us'], 2)}" for p in PEERS))
         cases.append(c)
-    runs = [whole_run(s, a.repeat, peer_runs) for s in WHOLE_RUNS]
+    runs = [whole_run(s, a.repeat, tuple(p for p in PEERS if avail[p] is None)) for s in WHOLE_RUNS]
     for w in runs:
         print(f"whole run {w['scene']:14s} compiled {w['compiled']:.2f}  python {w['python']:.2f}  "
               f"siconos {_fmt(w['siconos'], 2)}  mujoco {_fmt(w['mujoco'], 2)} us per step")
