@@ -152,7 +152,7 @@ def verdicts(res: dict) -> list[dict]:
     for what, kind, key, bound in TARGETS:
         value = None
         if kind == "us" and key in cases:
-            value, shown = cases[key]["compiled"], f"{cases[key]['compiled']:.1f} µs"
+            value, shown = cases[key]["compiled"], f"{cases[key]['compiled']:.2f} µs"
         elif kind == "x siconos" and (cases.get(key) or {}).get("siconos"):
             c = cases[key]
             value = c["compiled"] / c["siconos"]["us"]
@@ -162,7 +162,7 @@ def verdicts(res: dict) -> list[dict]:
         elif kind == "run x siconos" and (runs.get(key) or {}).get("siconos"):
             w = runs[key]
             value = w["compiled"] / w["siconos"]
-            shown = f"{value:.2f}× ({w['compiled']:.1f} against {w['siconos']:.1f} µs per step)"
+            shown = f"{value:.2f}× ({w['compiled']:.1f} against {w['siconos']:.2f} µs per step)"
         out.append({"target": what, "value": value, "shown": shown if value is not None else "not measured",
                     "met": None if value is None else bool(value <= bound)})
     return out
@@ -260,6 +260,9 @@ def plot(res: dict, path: Path) -> None:
         xs = [x[i] + (j - 1.5) * w for i, g in enumerate(groups) if g[1 + j] is not None]
         ys = [g[1 + j] for g in groups if g[1 + j] is not None]
         ax.bar(xs, ys, w, label=name, color=color)
+    ext = [(x[i] - 0.1, c["extension"]) for i, c in enumerate(res["cases"]) if c.get("extension")]
+    if ext:
+        ax.plot(*zip(*ext), "k_", ms=14, mew=2, label="compiled: its extension call alone")
     where = {c["scene"]: i for i, c in enumerate(res["cases"])}
     where_run = {wr["scene"]: len(res["cases"]) + i for i, wr in enumerate(res.get("whole_runs", []))}
     labelled = False
@@ -274,11 +277,11 @@ def plot(res: dict, path: Path) -> None:
         labelled = True
     ax.set_xticks(x, [g[0] for g in groups], fontsize=7)
     ax.set_yscale("log")
-    ax.set_ylim(top=30 * max(max(v for v in g[1:] if v is not None) for g in groups))  # room for the legend
+    ax.set_ylim(top=8 * max(max(v for v in g[1:] if v is not None) for g in groups))  # room for the legend
     ax.set_ylabel("µs per step (median; whole runs: wall / steps)")
     ax.set_title(f"One step, side by side in one run ({res['cpus']} cores, load {res['load']:.1f})", fontsize=9)
     ax.grid(axis="y", which="both", alpha=0.3)
-    ax.legend(fontsize=7, ncol=5, loc="upper center")
+    ax.legend(fontsize=7, ncol=3, loc="upper center")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
