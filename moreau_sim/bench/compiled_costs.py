@@ -127,16 +127,28 @@ def peer_phase(run: dict, which: str) -> dict | None:
 
 
 def whole_run(scene: str, repeat: int, peers: tuple) -> dict:
-    """ms.simulate of the scene (recording included), wall per step, both steps, against each peer's
-    whole run of the same scene per step (`peers`: those available): `repeat` rounds, each running
-    every side once in turn (so that all see the same load), the best round of each side."""
+    """ms.simulate of the scene (recording included), wall per step, both steps, and a bare Python
+    loop of the compiled ms.step over the same steps (nothing recorded: the difference is what
+    ms.simulate adds), against each peer's whole run of the same scene per step (`peers`: those
+    available): `repeat` rounds, each running every side once in turn (so that all see the same
+    load), the best round of each side."""
     sc = ms.load_scene(scene_path(scene))
     n = int(round(sc.options.duration / sc.options.dt))
     models = {impl: ms.build_model(sc.with_options(step_impl=impl)) for impl in ("compiled", "python")}
-    walls: dict = {side: [] for side in (*models, *PEERS)}
+    walls: dict = {side: [] for side in (*models, "step_loop", *PEERS)}
+    h, e = sc.options.dt, sc.options.restitution
+
+    loop_data = ms.make_data(models["compiled"])
+
+    def step_loop(model=models["compiled"], data=loop_data):
+        st = ms.initial_state(model)
+        for _ in range(n):
+            st = ms.step(model, data, st, h=h, e=e).state
+
     for _ in range(repeat):
         for impl, model in models.items():
             walls[impl].append(best(lambda model=model: ms.simulate(model, progress=False), 1) / n)
+        walls["step_loop"].append(best(step_loop, 1) / n)
         for peer in peers:
             r = run_peer(peer, scene, 1)
             if "why" not in r:
@@ -211,14 +223,17 @@ def whole_run_table(res: dict) -> str:
     sic, mj = res.get("siconos"), res.get("mujoco")
     out = [f"Wall time of the whole run over its number of steps, µs, the best of {res.get('repeat', '?')} rounds "
            "that run every side in turn: "
-           "`ms.simulate` (the `Trajectory` recorded), Siconos's stepping loop with its recording of q and v "
+           "`ms.simulate` (the `Trajectory` recorded) and a bare Python loop `state = ms.step(...).state` over the "
+           "same steps (nothing recorded), Siconos's stepping loop with its recording of q and v "
            "(the runner's), MuJoCo's `mujoco.rollout` (a C loop storing the full state):", "",
-           "| scene | steps | compiled `ms.simulate` | Python `ms.simulate` | Siconos whole run | compiled / Siconos "
-           "| MuJoCo rollout | compiled / MuJoCo |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+           "| scene | steps | compiled `ms.simulate` | Python `ms.simulate` | a bare loop of the compiled `ms.step` "
+           "| Siconos whole run | compiled / Siconos | MuJoCo rollout | compiled / MuJoCo |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for w in res.get("whole_runs", []):
         s = w["siconos"] if sic else None
         m = w["mujoco"] if mj else None
-        out.append(f"| `{w['scene']}` | {w['steps']} | {w['compiled']:.2f} | {w['python']:.2f} | {_fmt(s, 2)} | "
+        out.append(f"| `{w['scene']}` | {w['steps']} | {w['compiled']:.2f} | {w['python']:.2f} | "
+                   f"{_fmt(w.get('step_loop'), 2)} | {_fmt(s, 2)} | "
                    f"{_ratio(w['compiled'], s)} | {_fmt(m, 2)} | {_ratio(w['compiled'], m)} |")
     return "\n".join(out)
 
