@@ -278,6 +278,10 @@ def plot(res: dict, path: Path) -> None:
     ext = [(x[i] - 0.1, c["extension"]) for i, c in enumerate(res["cases"]) if c.get("extension")]
     if ext:
         ax.plot(*zip(*ext), "k_", ms=14, mew=2, label="compiled: its extension call alone")
+    bare = [(x[len(res["cases"]) + i] - 0.1, w["step_loop"]) for i, w in enumerate(res.get("whole_runs", []))
+            if w.get("step_loop")]
+    if bare:
+        ax.plot(*zip(*bare), "kv", ms=6, label="compiled: a bare ms.step loop (nothing recorded)")
     where = {c["scene"]: i for i, c in enumerate(res["cases"])}
     where_run = {wr["scene"]: len(res["cases"]) + i for i, wr in enumerate(res.get("whole_runs", []))}
     labelled = False
