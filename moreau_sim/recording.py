@@ -353,7 +353,7 @@ class Recorder:
         i, c = self._samples.last, self._samples.cols
         g = c["gap"][i]
         return (math.isfinite(c["kinetic_energy"][i]) and math.isfinite(c["potential_energy"][i])
-                and (not len(g) or bool(np.isfinite(g).all())))
+                and all(map(math.isfinite, g.tolist())))
 
     def log(self, row: PercussionRow) -> None:
         i = self._log.free()
