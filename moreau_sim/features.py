@@ -66,6 +66,65 @@ class Feature:
     r_b: float = 0.0
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
     h: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    box: "BoxPair | None" = None  # "vertex_box" / "edge_edge": the pair's geometry (vectorized kinds)
+
+
+ARC_TOL = 1e-9  # an edge pair's normal may leave the edges' normal cones by this (face on face: at their ends)
+PARALLEL = 1e-9  # |e_A x e_B| below this: parallel edges, no edge-edge gap (the vertices cover faces on faces)
+BOX_FEATURES = 16 + 144  # per box pair: 8 + 8 vertices in the other box, 12 x 12 edge pairs
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class _Box:
+    """One box of a pair, in its joint frame: vertices v (8, 3), the edges leaving each vertex
+    ve (8, 3, 3), face planes (normals fn (6, 3), offsets fd (6,)), edges (starts e0 (12, 3),
+    unit directions ed (12, 3), lengths el (12,), the two adjacent faces' normals ef (12, 2, 3)),
+    bounding sphere (centre c, radius r)."""
+
+    joint: int
+    v: np.ndarray
+    ve: np.ndarray
+    fn: np.ndarray
+    fd: np.ndarray
+    e0: np.ndarray
+    ed: np.ndarray
+    el: np.ndarray
+    ef: np.ndarray
+    c: np.ndarray
+    r: float
+    half: float  # [m] smallest half side
+
+
+def _box(model: Model, g: int, joint: int) -> _Box:
+    go = model.geom.geometryObjects[g]
+    h = np.asarray(go.geometry.halfSide, float)
+    Rg, tg = go.placement.rotation, go.placement.translation
+    e0, ed, el, ef = [], [], [], []
+    for a in range(3):  # the 4 edges along axis a, at the signs (sb, sc) of the other two axes
+        b, c = (a + 1) % 3, (a + 2) % 3
+        for sb in (-1.0, 1.0):
+            for sc in (-1.0, 1.0):
+                x = np.zeros(3)
+                x[a], x[b], x[c] = -h[a], sb * h[b], sc * h[c]
+                e0.append(Rg @ x + tg)
+                ed.append(Rg[:, a].copy())
+                el.append(2.0 * h[a])
+                ef.append([sb * Rg[:, b], sc * Rg[:, c]])
+    fn, fd = model.face_planes[g]
+    return _Box(joint, np.asarray(model.vertices[g]), np.asarray(model.vertex_edges[g]), np.asarray(fn),
+                np.asarray(fd), np.array(e0), np.array(ed), np.array(el), np.array(ef), tg.copy(),
+                float(np.linalg.norm(h)), float(h.min()))
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class BoxPair:
+    """A pair of two boxes A (coal's first shape) and B (second), either moving or static: the
+    geometry of its BOX_FEATURES features (docs/theory.md §7.1): feature i < 8 is A's vertex i in
+    B, 8 <= i < 16 B's vertex i - 8 in A, 16 + 12 k + l the edge pair (A's edge k, B's edge l)."""
+
+    pair: int
+    a: _Box
+    b: _Box
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -75,8 +134,9 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
-def feature_list(model: Model) -> tuple[Feature, ...]:
-    """The gap functions of every collision pair (UnsupportedModel for other pair types)."""
+def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]:
+    """The gap functions of every collision pair (UnsupportedModel for other pair types);
+    box_pairs=False: box-box pairs are unsupported too (the adaptive integrator's choice)."""
     out = []
     gobs = model.geom.geometryObjects
     for pair in model.pairs:
@@ -102,9 +162,16 @@ def feature_list(model: Model) -> tuple[Feature, ...]:
                                 R=gb.placement.rotation.copy(), p_b=gb.placement.translation.copy(),
                                 h=np.asarray(sb.halfSide, float).copy()))
             continue
+        if box_pairs and isinstance(sa, coal.Box) and isinstance(sb, coal.Box):
+            bp = BoxPair(pair.index, _box(model, pair.first, ja), _box(model, pair.second, jb))
+            out += [Feature("vertex_box" if i < 16 else "edge_edge", pair.index, i, ja, jb,
+                            (bp.a.v[i] if i < 8 else bp.b.v[i - 8]) if i < 16 else np.zeros(3), box=bp)
+                    for i in range(BOX_FEATURES)]
+            continue
         raise UnsupportedModel(f"{model.scene.name}: pair '{pair.name}' ({type(sa).__name__} vs "
                                f"{type(sb).__name__}): the event-driven reference has gaps for polytope or "
-                               "sphere vs half-space, sphere vs sphere and sphere vs static box only")
+                               "sphere vs half-space, sphere vs sphere, sphere vs static box and box vs box only"
+                               + ("" if box_pairs else " (box vs box: event-driven only)"))
     return tuple(out)
 
 
@@ -141,6 +208,7 @@ class FeatureContacts:
         self.last_impact = -np.inf
         self.impacts = self.nfev = 0
         self.t = float("nan")  # [s] where the run is (errors name it): a step's or phase's start, an event
+        self.edge_active: dict = {}  # pair -> (12, 12) edge pairs whose gap was d at the last call (tests)
 
     # ---- kinematics of the features -------------------------------------------------------
     def _point(self, j: int, p_local: np.ndarray, rows: bool):
@@ -175,8 +243,16 @@ class FeatureContacts:
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
+        boxes: dict = {}
         for col, i in enumerate(idx):
             f = self.feats[i]
+            if f.box is not None:  # box-box kinds: vectorized per pair, below
+                entry = boxes.get(f.pair)
+                if entry is None:
+                    entry = boxes[f.pair] = (f.box, [], [])
+                entry[1].append(col)
+                entry[2].append(f.feature)
+                continue
             pa, va, aa, Ja = self._point(f.joint_a, f.p, rows)
             if f.kind == "point_plane":
                 n, curv = f.n, 0.0
@@ -216,8 +292,130 @@ class FeatureContacts:
             if rows:
                 drift[col] = n @ arel + curv
                 W[:, col] = n @ Jrel
+        for bp, cols, which in boxes.values():
+            gb, Wb, db = self._box_pair(bp, rows)
+            g[cols] = gb[which]
+            if rows:
+                W[:, cols] = Wb[:, which]
+                drift[cols] = db[which]
         gamma = W.T @ u if rows else np.zeros(k)
         return FeatureState(g, W, drift, gamma)
+
+    # ---- box-box kinds (docs/theory.md §7.1), all BOX_FEATURES of a pair at once ----------------
+    def _frame(self, j: int):
+        """(R, t, w, v, a_ang, a_lin) of joint j (placement; twist and bias acceleration in its frame)."""
+        frame = self._frames.get(j)
+        if frame is None:
+            M, v, a = self.pd.oMi[j], self.pd.v[j], self.pd.a[j]
+            frame = self._frames[j] = (M.rotation, M.translation, v.angular, v.linear, a.angular, a.linear)
+        return frame
+
+    def _motion(self, j: int, P: np.ndarray, rows: bool):
+        """Velocities and bias accelerations (q'' = 0) (k, 3) of joint j's material points at the
+        world points P (k, 3), its angular velocity (world) and its masked (J_lin, J_ang) if rows."""
+        if j == 0:
+            z = np.zeros_like(P)
+            return z, z, np.zeros(3), None
+        R, t, w, v_lin, a_ang, a_lin = self._frame(j)
+        Pl = (P - t) @ R
+        vl = v_lin + np.cross(w, Pl)
+        vel = vl @ R.T
+        acc = (a_lin + np.cross(a_ang, Pl) + np.cross(w, vl)) @ R.T
+        J = None
+        if rows:
+            if self._J is None:
+                self._J = self.pd.J.reshape(6, -1)
+            mask = self.model.support_mask[j]
+            J = (self._J[:3] * mask, self._J[3:] * mask)
+        return vel, acc, R @ w, J
+
+    def _rows(self, JA, JB, PA: np.ndarray, PB: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """w = J_A(p_A)' n - J_B(p_B)' n (nv, k) for contact points PA, PB and normals n (k, 3)."""
+        W = np.zeros((self.nv, len(n)))
+        for J, P, sign in ((JA, PA, 1.0), (JB, PB, -1.0)):
+            if J is not None:  # n' J_p = n' J_lin + (p x n)' J_ang
+                W += sign * (J[0].T @ n.T + J[1].T @ np.cross(P, n).T)
+        return W
+
+    def _box_pair(self, bp: BoxPair, rows: bool):
+        """(g, W, drift) of all BOX_FEATURES features of box pair bp (docs/theory.md §7.1)."""
+        A, B = bp.a, bp.b
+        RA, tA = self._frame(A.joint)[:2] if A.joint else (np.eye(3), np.zeros(3))
+        RB, tB = self._frame(B.joint)[:2] if B.joint else (np.eye(3), np.zeros(3))
+        cA, cB = RA @ A.c + tA, RB @ B.c + tB
+        dc = cA - cB
+        dist = float(np.sqrt(dc @ dc))
+        if dist > A.r + B.r:  # bounding spheres apart: every feature is open; their gap stands in
+            g = np.full(BOX_FEATURES, dist - A.r - B.r)
+            if not rows:
+                return g, None, None
+            n = dc / dist
+            vA, aA, _, JA = self._motion(A.joint, cA[None], True)
+            vB, aB, _, JB = self._motion(B.joint, cB[None], True)
+            dv = (vA - vB)[0]
+            drift = n @ (aA - aB)[0] + (dv @ dv - (n @ dv) ** 2) / dist  # as sphere_sphere
+            w = self._rows(JA, JB, cA[None], cB[None], n[None])
+            return g, np.repeat(w, BOX_FEATURES, axis=1), np.full(BOX_FEATURES, drift)
+        # vertices in the other box: s(p) = max_f (n_f' p - d_f); at ties (within gap_tol) the face
+        # whose normal the vertex's own cone faces (a vertex on a vertex: the face it rests on)
+        NA, NB = A.fn @ RA.T, B.fn @ RB.T
+        DA, DB = A.fd + NA @ tA, B.fd + NB @ tB
+        PA, PB = A.v @ RA.T + tA, B.v @ RB.T + tB
+        gv, nv_ = [], []
+        for P, E, N, D, sign in ((PA, A.ve @ RA.T, NB, DB, 1.0), (PB, B.ve @ RB.T, NA, DA, -1.0)):
+            S = P @ N.T - D
+            smax = S.max(axis=1)
+            score = np.einsum("vke,fe->vkf", E, N).min(axis=1)
+            f = np.where(S >= smax[:, None] - self.gap_tol, score, -np.inf).argmax(axis=1)
+            gv.append(smax)
+            nv_.append(sign * N[f])  # from B to A
+        # edge pairs: d = n'(a0 - b0) along n = +-(e_A x e_B)/|.| (outward of B's edge)
+        a0, ea, fa = A.e0 @ RA.T + tA, A.ed @ RA.T, A.ef @ RA.T
+        b0, eb, fb = B.e0 @ RB.T + tB, B.ed @ RB.T, B.ef @ RB.T
+        c = np.cross(ea[:, None, :], eb[None, :, :])  # (12, 12, 3)
+        cn = np.sqrt((c * c).sum(axis=2))
+        ok = cn > PARALLEL
+        cn = np.where(ok, cn, 1.0)
+        n = c / cn[..., None]
+        sigma = np.where(np.einsum("kle,le->kl", n, fb.sum(axis=1)) < 0.0, -1.0, 1.0)
+        n = n * sigma[..., None]
+        arcs = ((np.einsum("kle,lje->klj", n, fb) >= -ARC_TOL).all(axis=2)
+                & (np.einsum("kle,kje->klj", n, fa) <= ARC_TOL).all(axis=2))
+        r = a0[:, None, :] - b0[None, :, :]
+        d = (n * r).sum(axis=2)
+        bb = ea @ eb.T
+        ra, rb = np.einsum("kle,ke->kl", r, ea), np.einsum("kle,le->kl", r, eb)
+        s = (bb * rb - ra) / cn ** 2  # the lines' closest points a0 + s e_A, b0 + t e_B
+        t = (rb - bb * ra) / cn ** 2
+        ex_s = np.maximum(np.maximum(-s, s - A.el[:, None]), 0.0)
+        ex_t = np.maximum(np.maximum(-t, t - B.el[None, :]), 0.0)
+        active = ok & arcs & (ex_s == 0.0) & (ex_t == 0.0) & (d >= -min(A.half, B.half))
+        self.edge_active[bp.pair] = active  # which edge pairs' gap is d (the others are stand-ins)
+        ge = np.where(active, d, np.where(ok, np.sqrt(d * d + ex_s * ex_s + ex_t * ex_t), A.r + B.r))
+        g = np.concatenate((gv[0], gv[1], ge.ravel()))
+        if not rows:
+            return g, None, None
+        # rows and drift (docs/theory.md §7.1): vertices, then edge pairs at the lines' closest points
+        pe_a = (a0[:, None, :] + s[..., None] * ea[:, None, :]).reshape(-1, 3)
+        pe_b = (b0[None, :, :] + t[..., None] * eb[None, :, :]).reshape(-1, 3)
+        nE = np.where(ok[..., None], n, 0.0).reshape(-1, 3)
+        P_a = np.concatenate((PA, PB, pe_a))
+        P_b = np.concatenate((PA, PB, pe_b))
+        nn = np.concatenate((nv_[0], nv_[1], nE))
+        vA, aA, wA, JA = self._motion(A.joint, P_a, True)
+        vB, aB, wB, JB = self._motion(B.joint, P_b, True)
+        dv, da = vA - vB, aA - aB
+        drift = (nn * da).sum(axis=1)
+        # vertex in a face that turns with its box: + 2 (w_face x n)' dv
+        drift[:8] += 2.0 * (np.cross(wB, nv_[0]) * dv[:8]).sum(axis=1)
+        drift[8:16] += 2.0 * (np.cross(wA, nv_[1]) * dv[8:16]).sum(axis=1)
+        # edge pair: + 2 n' dv - d |n'|^2, n' the rate of the normal of e_A x e_B
+        cdot = (np.cross(np.cross(wA, ea)[:, None, :], eb[None, :, :])
+                + np.cross(ea[:, None, :], np.cross(wB, eb)[None, :, :])) * sigma[..., None]
+        ndot = (cdot - n * (n * cdot).sum(axis=2)[..., None]) / cn[..., None]
+        ndot = np.where(ok[..., None], ndot, 0.0).reshape(-1, 3)
+        drift[16:] += 2.0 * (ndot * dv[16:]).sum(axis=1) - np.where(ok, d, 0.0).ravel() * (ndot * ndot).sum(axis=1)
+        return g, self._rows(JA, JB, P_a, P_b, nn), drift
 
 
     # ---- dynamics --------------------------------------------------------------------------
