@@ -70,6 +70,7 @@ class Feature:
 
 
 ARC_TOL = 1e-9  # an edge pair's normal may leave the edges' normal cones by this (face on face: at their ends)
+EDGE_END = 1e-6  # an edge pair is active only where both closest points are this far (relative) from the ends
 PARALLEL = 1e-9  # |e_A x e_B| below this: parallel edges, no edge-edge gap (the vertices cover faces on faces)
 BOX_FEATURES = 16 + 144  # per box pair: 8 + 8 vertices in the other box, 12 x 12 edge pairs
 
@@ -208,6 +209,7 @@ class FeatureContacts:
         self.last_impact = -np.inf
         self.impacts = self.nfev = 0
         self.t = float("nan")  # [s] where the run is (errors name it): a step's or phase's start, an event
+        self._redundant: dict = {}  # persistent set C -> its rows are linearly dependent
         self.edge_active: dict = {}  # pair -> (12, 12) edge pairs whose gap was d at the last call (tests)
 
     # ---- kinematics of the features -------------------------------------------------------
@@ -387,8 +389,11 @@ class FeatureContacts:
         ra, rb = np.einsum("kle,ke->kl", r, ea), np.einsum("kle,le->kl", r, eb)
         s = (bb * rb - ra) / cn ** 2  # the lines' closest points a0 + s e_A, b0 + t e_B
         t = (rb - bb * ra) / cn ** 2
-        ex_s = np.maximum(np.maximum(-s, s - A.el[:, None]), 0.0)
-        ex_t = np.maximum(np.maximum(-t, t - B.el[None, :]), 0.0)
+        # within both edges, EDGE_END (relative) from their ends: a crossing at an end is a vertex's
+        # contact (vertex_box); there the stand-in is >= EDGE_END * length, never closed
+        mA, mB = EDGE_END * A.el[:, None], EDGE_END * B.el[None, :]
+        ex_s = np.maximum(np.maximum(mA - s, s - A.el[:, None] + mA), 0.0)
+        ex_t = np.maximum(np.maximum(mB - t, t - B.el[None, :] + mB), 0.0)
         active = ok & arcs & (ex_s == 0.0) & (ex_t == 0.0) & (d >= -min(A.half, B.half))
         self.edge_active[bp.pair] = active  # which edge pairs' gap is d (the others are stand-ins)
         ge = np.where(active, d, np.where(ok, np.sqrt(d * d + ex_s * ex_s + ex_t * ex_t), A.r + B.r))
@@ -430,6 +435,11 @@ class FeatureContacts:
         MiW = Minv @ fs.W
         G = fs.W.T @ MiW
         rhs = -(fs.W.T @ a + fs.drift)
+        redundant = self._redundant.get(C)
+        if redundant is None:  # rows of C dependent (4 corners of a face on a face): decided once per set
+            redundant = self._redundant[C] = bool(np.linalg.matrix_rank(fs.W) < len(C))
+        if redundant:
+            return a + MiW @ (lam := np.linalg.lstsq(G, rhs, rcond=1e-12)[0]), lam  # minimum-norm forces
         try:
             lam = np.linalg.solve(G, rhs)
         except np.linalg.LinAlgError:
