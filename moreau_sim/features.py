@@ -3,9 +3,18 @@
 A *feature* is one gap function of a collision pair, with its row w, the drift term Wdot' u
 (from Pinocchio's bias accelerations) and gamma = w' u: every vertex of a polytope against a
 half-space, a sphere against a half-space, a sphere against a sphere, a sphere against a static
-box. Per-vertex gaps (not coal's pair distance, which is the minimum over corners and stays 0
-while a block pivots) make each corner of a rocking block its own event. Other pair types raise
-:class:`UnsupportedModel` naming the pair.
+box; and for two boxes (either moving, docs/theory.md §7.1), computed per pair in numpy:
+  - "vertex_box": each box's vertices p in the other, g = max_f (n_f' p - d_f) over the other's
+    face planes (zero set: its surface), n the arg-max face's normal (at ties, the face the
+    vertex's own edges face), drift n'(abar_A(p) - abar_B(p)) + 2 (w_face x n)' dv;
+  - "edge_edge": each of the 12 x 12 edge pairs, g = d = n'(a0 - b0) along n = +-(e_A x e_B)/|.|
+    (outward of B's edge) while active (n in both edges' normal cones, the lines' closest points
+    inside both edges, d >= -smallest half side), else a positive stand-in; rows at the closest
+    points, drift n'(abar_A - abar_B) + 2 n_dot' dv - d |n_dot|^2;
+  - while the pair's bounding spheres are apart, all its features report the spheres' gap.
+Per-vertex gaps (not coal's pair distance, which is the minimum over corners and stays 0
+while a block pivots) make each corner of a rocking block its own event. Other pair types
+(cylinders, meshes) raise :class:`UnsupportedModel` naming the pair.
 
 :class:`FeatureContacts` holds what the event-driven integrator (event_driven.py, docs/theory.md
 §7) and the adaptive one (adaptive.py, §8) share: the features' kinematics, the constrained
@@ -51,7 +60,8 @@ class UnsupportedModel(MoreauSimError, ValueError):
 class Feature:
     """One gap function. kind "point_plane": point `p` (joint frame of joint_a) above the plane
     n' x = d (world); "sphere_sphere": centres p (joint_a) and p_b (joint_b), radii r, r_b;
-    "sphere_box": centre p (joint_a), radius r, static box (rotation R, centre c, half sides h)."""
+    "sphere_box": centre p (joint_a), radius r, static box (rotation R, centre c, half sides h);
+    "vertex_box", "edge_edge": feature `feature` of the box pair `box` (:class:`BoxPair`)."""
 
     kind: str
     pair: int

@@ -198,7 +198,7 @@ def test_box_stacks_stay_at_rest(name, T):
 
 def tilted_drop(e: float, dt: float) -> ms.Model:
     """A cube (0.1 m, 1 kg) released at rest tilted, its lowest vertex over a static box's top face (z = 0)."""
-    b = ms.SceneBuilder("tilted_drop", restitution=e, duration=0.35, dt=dt, folder=ROOT)
+    b = ms.SceneBuilder("tilted_drop", restitution=e, duration=0.29, dt=dt, folder=ROOT)
     b.add_body("cube", "models/cube.urdf", position=(0.01, -0.02, 0.3), rpy=TILT)
     b.add_box("table", (1.0, 1.0, 0.2), position=(0.0, 0.0, -0.1))
     return ms.build_model(b.build())
