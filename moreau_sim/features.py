@@ -138,6 +138,13 @@ class BoxPair:
     b: _Box
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a x b of (k, 3) arrays (broadcasting; np.cross's axis handling costs ~30 us a call)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
+
+
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a x b for 3-vectors (in Python floats: the same IEEE operations, without numpy's per-element cost)."""
     a0, a1, a2 = a.tolist()
@@ -220,7 +227,7 @@ class FeatureContacts:
         self.impacts = self.nfev = 0
         self.t = float("nan")  # [s] where the run is (errors name it): a step's or phase's start, an event
         self._redundant: dict = {}  # persistent set C -> its rows are linearly dependent
-        self.edge_active: dict = {}  # pair -> (12, 12) edge pairs whose gap was d at the last call (tests)
+        self.edge_active: dict = {}  # pair -> (edge features, gap was d: not a stand-in) at the last call
 
     # ---- kinematics of the features -------------------------------------------------------
     def _point(self, j: int, p_local: np.ndarray, rows: bool):
@@ -305,11 +312,10 @@ class FeatureContacts:
                 drift[col] = n @ arel + curv
                 W[:, col] = n @ Jrel
         for bp, cols, which in boxes.values():
-            gb, Wb, db = self._box_pair(bp, rows)
-            g[cols] = gb[which]
+            g[cols], Wb, db = self._box_pair(bp, np.array(which), rows)
             if rows:
-                W[:, cols] = Wb[:, which]
-                drift[cols] = db[which]
+                W[:, cols] = Wb
+                drift[cols] = db
         gamma = W.T @ u if rows else np.zeros(k)
         return FeatureState(g, W, drift, gamma)
 
@@ -330,9 +336,9 @@ class FeatureContacts:
             return z, z, np.zeros(3), None
         R, t, w, v_lin, a_ang, a_lin = self._frame(j)
         Pl = (P - t) @ R
-        vl = v_lin + np.cross(w, Pl)
+        vl = v_lin + _cross(w[None], Pl)
         vel = vl @ R.T
-        acc = (a_lin + np.cross(a_ang, Pl) + np.cross(w, vl)) @ R.T
+        acc = (a_lin + _cross(a_ang[None], Pl) + _cross(w[None], vl)) @ R.T
         J = None
         if rows:
             if self._J is None:
@@ -346,19 +352,20 @@ class FeatureContacts:
         W = np.zeros((self.nv, len(n)))
         for J, P, sign in ((JA, PA, 1.0), (JB, PB, -1.0)):
             if J is not None:  # n' J_p = n' J_lin + (p x n)' J_ang
-                W += sign * (J[0].T @ n.T + J[1].T @ np.cross(P, n).T)
+                W += sign * (J[0].T @ n.T + J[1].T @ _cross(P, n).T)
         return W
 
-    def _box_pair(self, bp: BoxPair, rows: bool):
-        """(g, W, drift) of all BOX_FEATURES features of box pair bp (docs/theory.md §7.1)."""
+    def _box_pair(self, bp: BoxPair, which: np.ndarray, rows: bool):
+        """(g, W, drift) of box pair bp's features `which` (indices in the pair; docs/theory.md §7.1)."""
         A, B = bp.a, bp.b
         RA, tA = self._frame(A.joint)[:2] if A.joint else (np.eye(3), np.zeros(3))
         RB, tB = self._frame(B.joint)[:2] if B.joint else (np.eye(3), np.zeros(3))
         cA, cB = RA @ A.c + tA, RB @ B.c + tB
         dc = cA - cB
         dist = float(np.sqrt(dc @ dc))
+        k = len(which)
         if dist > A.r + B.r:  # bounding spheres apart: every feature is open; their gap stands in
-            g = np.full(BOX_FEATURES, dist - A.r - B.r)
+            g = np.full(k, dist - A.r - B.r)
             if not rows:
                 return g, None, None
             n = dc / dist
@@ -367,70 +374,78 @@ class FeatureContacts:
             dv = (vA - vB)[0]
             drift = n @ (aA - aB)[0] + (dv @ dv - (n @ dv) ** 2) / dist  # as sphere_sphere
             w = self._rows(JA, JB, cA[None], cB[None], n[None])
-            return g, np.repeat(w, BOX_FEATURES, axis=1), np.full(BOX_FEATURES, drift)
-        # vertices in the other box: s(p) = max_f (n_f' p - d_f); at ties (within gap_tol) the face
-        # whose normal the vertex's own cone faces (a vertex on a vertex: the face it rests on)
-        NA, NB = A.fn @ RA.T, B.fn @ RB.T
-        DA, DB = A.fd + NA @ tA, B.fd + NB @ tB
-        PA, PB = A.v @ RA.T + tA, B.v @ RB.T + tB
-        gv, nv_ = [], []
-        for P, E, N, D, sign in ((PA, A.ve @ RA.T, NB, DB, 1.0), (PB, B.ve @ RB.T, NA, DA, -1.0)):
-            S = P @ N.T - D
+            return g, np.repeat(w, k, axis=1), np.full(k, drift)
+        g = np.empty(k)
+        P_a, P_b, nn = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
+        extra = np.zeros(k)  # drift terms of the turning normal, per feature
+        v_sel = which < 16
+        e_sel = ~v_sel
+        if v_sel.any():
+            # vertices in the other box: s(p) = max_f (n_f' p - d_f); at ties (within gap_tol) the face
+            # whose normal the vertex's own cone faces (a vertex on a vertex: the face it rests on)
+            NA, NB = A.fn @ RA.T, B.fn @ RB.T
+            P = np.concatenate((A.v @ RA.T + tA, B.v @ RB.T + tB))
+            E = np.concatenate((A.ve @ RA.T, B.ve @ RB.T))
+            wv = which[v_sel]
+            P, E = P[wv], E[wv]
+            ina = wv < 8  # A's vertex in B (else B's in A)
+            N = np.where(ina[:, None, None], NB[None], NA[None])  # (kv, 6, 3) the other box's faces
+            D = np.where(ina[:, None], (B.fd + NB @ tB)[None], (A.fd + NA @ tA)[None])
+            S = np.einsum("vfe,ve->vf", N, P) - D
             smax = S.max(axis=1)
-            score = np.einsum("vke,fe->vkf", E, N).min(axis=1)
+            score = np.einsum("vke,vfe->vkf", E, N).min(axis=1)
             f = np.where(S >= smax[:, None] - self.gap_tol, score, -np.inf).argmax(axis=1)
-            gv.append(smax)
-            nv_.append(sign * N[f])  # from B to A
-        # edge pairs: d = n'(a0 - b0) along n = +-(e_A x e_B)/|.| (outward of B's edge)
-        a0, ea, fa = A.e0 @ RA.T + tA, A.ed @ RA.T, A.ef @ RA.T
-        b0, eb, fb = B.e0 @ RB.T + tB, B.ed @ RB.T, B.ef @ RB.T
-        c = np.cross(ea[:, None, :], eb[None, :, :])  # (12, 12, 3)
-        cn = np.sqrt((c * c).sum(axis=2))
-        ok = cn > PARALLEL
-        cn = np.where(ok, cn, 1.0)
-        n = c / cn[..., None]
-        sigma = np.where(np.einsum("kle,le->kl", n, fb.sum(axis=1)) < 0.0, -1.0, 1.0)
-        n = n * sigma[..., None]
-        arcs = ((np.einsum("kle,lje->klj", n, fb) >= -ARC_TOL).all(axis=2)
-                & (np.einsum("kle,kje->klj", n, fa) <= ARC_TOL).all(axis=2))
-        r = a0[:, None, :] - b0[None, :, :]
-        d = (n * r).sum(axis=2)
-        bb = ea @ eb.T
-        ra, rb = np.einsum("kle,ke->kl", r, ea), np.einsum("kle,le->kl", r, eb)
-        s = (bb * rb - ra) / cn ** 2  # the lines' closest points a0 + s e_A, b0 + t e_B
-        t = (rb - bb * ra) / cn ** 2
-        # within both edges, EDGE_END (relative) from their ends: a crossing at an end is a vertex's
-        # contact (vertex_box); there the stand-in is >= EDGE_END * length, never closed
-        mA, mB = EDGE_END * A.el[:, None], EDGE_END * B.el[None, :]
-        ex_s = np.maximum(np.maximum(mA - s, s - A.el[:, None] + mA), 0.0)
-        ex_t = np.maximum(np.maximum(mB - t, t - B.el[None, :] + mB), 0.0)
-        active = ok & arcs & (ex_s == 0.0) & (ex_t == 0.0) & (d >= -min(A.half, B.half))
-        self.edge_active[bp.pair] = active  # which edge pairs' gap is d (the others are stand-ins)
-        ge = np.where(active, d, np.where(ok, np.sqrt(d * d + ex_s * ex_s + ex_t * ex_t), A.r + B.r))
-        g = np.concatenate((gv[0], gv[1], ge.ravel()))
+            g[v_sel] = smax
+            if rows:
+                n = N[np.arange(len(wv)), f] * np.where(ina, 1.0, -1.0)[:, None]  # from B to A
+                P_a[v_sel] = P_b[v_sel] = P
+                nn[v_sel] = n
+        if e_sel.any():
+            # edge pairs: d = n'(a0 - b0) along n = +-(e_A x e_B)/|.| (outward of B's edge)
+            ka, kb = np.divmod(which[e_sel] - 16, 12)
+            a0, ea, fa = A.e0[ka] @ RA.T + tA, A.ed[ka] @ RA.T, A.ef[ka] @ RA.T
+            b0, eb, fb = B.e0[kb] @ RB.T + tB, B.ed[kb] @ RB.T, B.ef[kb] @ RB.T
+            c = _cross(ea, eb)
+            cn = np.sqrt((c * c).sum(axis=1))
+            ok = cn > PARALLEL
+            cn = np.where(ok, cn, 1.0)
+            n = c / cn[:, None]
+            sigma = np.where((n * fb.sum(axis=1)).sum(axis=1) < 0.0, -1.0, 1.0)
+            n = n * sigma[:, None]
+            arcs = ((np.einsum("ke,kje->kj", n, fb) >= -ARC_TOL).all(axis=1)
+                    & (np.einsum("ke,kje->kj", n, fa) <= ARC_TOL).all(axis=1))
+            r = a0 - b0
+            d = (n * r).sum(axis=1)
+            bb = (ea * eb).sum(axis=1)
+            ra, rb = (r * ea).sum(axis=1), (r * eb).sum(axis=1)
+            s = (bb * rb - ra) / cn ** 2  # the lines' closest points a0 + s e_A, b0 + t e_B
+            t = (rb - bb * ra) / cn ** 2
+            # within both edges, EDGE_END (relative) from their ends: a crossing at an end is a vertex's
+            # contact (vertex_box); there the stand-in is >= EDGE_END * length, never closed
+            la, lb = A.el[ka], B.el[kb]
+            ex_s = np.maximum(np.maximum(EDGE_END * la - s, s - (1.0 - EDGE_END) * la), 0.0)
+            ex_t = np.maximum(np.maximum(EDGE_END * lb - t, t - (1.0 - EDGE_END) * lb), 0.0)
+            active = ok & arcs & (ex_s == 0.0) & (ex_t == 0.0) & (d >= -min(A.half, B.half))
+            self.edge_active[bp.pair] = (which[e_sel], active)  # for tests
+            g[e_sel] = np.where(active, d, np.where(ok, np.sqrt(d * d + ex_s * ex_s + ex_t * ex_t), A.r + B.r))
+            if rows:
+                P_a[e_sel] = a0 + s[:, None] * ea
+                P_b[e_sel] = b0 + t[:, None] * eb
+                nn[e_sel] = np.where(ok[:, None], n, 0.0)
         if not rows:
             return g, None, None
-        # rows and drift (docs/theory.md §7.1): vertices, then edge pairs at the lines' closest points
-        pe_a = (a0[:, None, :] + s[..., None] * ea[:, None, :]).reshape(-1, 3)
-        pe_b = (b0[None, :, :] + t[..., None] * eb[None, :, :]).reshape(-1, 3)
-        nE = np.where(ok[..., None], n, 0.0).reshape(-1, 3)
-        P_a = np.concatenate((PA, PB, pe_a))
-        P_b = np.concatenate((PA, PB, pe_b))
-        nn = np.concatenate((nv_[0], nv_[1], nE))
         vA, aA, wA, JA = self._motion(A.joint, P_a, True)
         vB, aB, wB, JB = self._motion(B.joint, P_b, True)
         dv, da = vA - vB, aA - aB
-        drift = (nn * da).sum(axis=1)
-        # vertex in a face that turns with its box: + 2 (w_face x n)' dv
-        drift[:8] += 2.0 * (np.cross(wB, nv_[0]) * dv[:8]).sum(axis=1)
-        drift[8:16] += 2.0 * (np.cross(wA, nv_[1]) * dv[8:16]).sum(axis=1)
-        # edge pair: + 2 n' dv - d |n'|^2, n' the rate of the normal of e_A x e_B
-        cdot = (np.cross(np.cross(wA, ea)[:, None, :], eb[None, :, :])
-                + np.cross(ea[:, None, :], np.cross(wB, eb)[None, :, :])) * sigma[..., None]
-        ndot = (cdot - n * (n * cdot).sum(axis=2)[..., None]) / cn[..., None]
-        ndot = np.where(ok[..., None], ndot, 0.0).reshape(-1, 3)
-        drift[16:] += 2.0 * (ndot * dv[16:]).sum(axis=1) - np.where(ok, d, 0.0).ravel() * (ndot * ndot).sum(axis=1)
-        return g, self._rows(JA, JB, P_a, P_b, nn), drift
+        if v_sel.any():  # a vertex in a face that turns with its box: + 2 (w_face x n)' dv
+            w_face = np.where(ina[:, None], wB, wA)
+            extra[v_sel] = 2.0 * (_cross(w_face, nn[v_sel]) * dv[v_sel]).sum(axis=1)
+        if e_sel.any():  # an edge pair: + 2 n' dv - d |n'|^2, n' the rate of the normal of e_A x e_B
+            cdot = (_cross(_cross(wA[None], ea), eb) + _cross(ea, _cross(wB[None], eb))) * sigma[:, None]
+            ndot = (cdot - n * (n * cdot).sum(axis=1)[:, None]) / cn[:, None]
+            ndot = np.where(ok[:, None], ndot, 0.0)
+            extra[e_sel] = 2.0 * (ndot * dv[e_sel]).sum(axis=1) - np.where(ok, d, 0.0) * (ndot * ndot).sum(axis=1)
+        return g, self._rows(JA, JB, P_a, P_b, nn), (nn * da).sum(axis=1) + extra
 
 
     # ---- dynamics --------------------------------------------------------------------------

@@ -35,7 +35,10 @@ def active_now(fc: FeatureContacts, f) -> bool:
     (or the bounding spheres' gap, smooth too), an edge pair when active (not a stand-in)."""
     if f.kind != "edge_edge":
         return f.kind == "vertex_box"
-    return f.pair in fc.edge_active and bool(fc.edge_active[f.pair][divmod(f.feature - 16, 12)])
+    if f.pair not in fc.edge_active:
+        return False
+    feats, active = fc.edge_active[f.pair]
+    return bool(active[feats == f.feature].any())
 
 
 @pytest.mark.parametrize("case", ["moving", "static", "crossed"])
