@@ -395,7 +395,9 @@ class FeatureContacts:
             smax = S.max(axis=1)
             score = np.einsum("vke,vfe->vkf", E, N).min(axis=1)
             f = np.where(S >= smax[:, None] - self.gap_tol, score, -np.inf).argmax(axis=1)
-            g[v_sel] = smax
+            # the chosen face's value (= smax but at ties): a vertex sliding down along the edge of
+            # an aligned box (side faces coplanar) has smax = 0 throughout, its top face's value not
+            g[v_sel] = S[np.arange(len(wv)), f]
             if rows:
                 n = N[np.arange(len(wv)), f] * np.where(ina, 1.0, -1.0)[:, None]  # from B to A
                 P_a[v_sel] = P_b[v_sel] = P
