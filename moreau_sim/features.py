@@ -34,7 +34,7 @@ import numpy as np
 import pinocchio as pin
 
 from .constraints import assemble_constraints
-from .contacts import detect
+from .contacts import FeatureKind, detect, from_rows
 from .data import Data
 from .errors import MoreauSimError, SimulationError, named_stops
 from .law import impact, project
@@ -226,6 +226,9 @@ class FeatureContacts:
         self.last_impact = -np.inf
         self.impacts = self.nfev = 0
         self.t = float("nan")  # [s] where the run is (errors name it): a step's or phase's start, an event
+        self.box_points: dict = {}  # pair -> (features, points on A, on B, normals) at the last call with rows
+        # pair -> the column of its feature 0 in feats (box pairs' features are consecutive)
+        self.box_index = {f.pair: i for i, f in reversed(list(enumerate(self.feats))) if f.box is not None}
         self._redundant: dict = {}  # persistent set C -> its rows are linearly dependent
         self.edge_active: dict = {}  # pair -> (edge features, gap was d: not a stand-in) at the last call
 
@@ -259,6 +262,8 @@ class FeatureContacts:
             pin.computeJointJacobians(pm, pd, q)
         pin.forwardKinematics(pm, pd, q, u, self.zero)
         self._frames, self._J = {}, None
+        self.box_points.clear()
+        self.edge_active.clear()
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
@@ -447,6 +452,7 @@ class FeatureContacts:
             ndot = (cdot - n * (n * cdot).sum(axis=1)[:, None]) / cn[:, None]
             ndot = np.where(ok[:, None], ndot, 0.0)
             extra[e_sel] = 2.0 * (ndot * dv[e_sel]).sum(axis=1) - np.where(ok, d, 0.0) * (ndot * ndot).sum(axis=1)
+        self.box_points[bp.pair] = (which, P_a, P_b, nn)  # contact points and normals (_missed_features)
         return g, self._rows(JA, JB, P_a, P_b, nn), (nn * da).sum(axis=1) + extra
 
 
@@ -508,14 +514,48 @@ class FeatureContacts:
         shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in C))
         return u, C, shadow
 
+    def _missed_features(self, fs: FeatureState, W: np.ndarray) -> list:
+        """Contact rows (as contacts.from_rows takes them) of the closed, approaching box-box features
+        (vertices, active edge pairs) whose row is not in the span of coal's rows W: an edge lying
+        across a face meets the face's edges at points coal's one witness of that segment contact
+        does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
+        an arbitrary normal (docs/theory.md §7.1). Needs fs = self.features(q, u) of all features."""
+        out = []
+        for pair, (which, P_a, P_b, nn) in self.box_points.items():
+            e_which, active = self.edge_active.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
+            for i, k in enumerate(which.tolist()):
+                if k >= 16 and not active[np.searchsorted(e_which, k)]:
+                    continue
+                col = self.box_index[pair] + k
+                if fs.g[col] > self.gap_tol or fs.gamma[col] >= -V_TOL:
+                    continue
+                w = fs.W[:, col]
+                if W.shape[1]:
+                    r = w - W @ np.linalg.lstsq(W, w, rcond=1e-12)[0]
+                    if np.abs(r).max() <= 1e-9 * np.abs(w).max():
+                        continue
+                out.append((float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
+                            FeatureKind.VERTEX if k < 16 else FeatureKind.WITNESS, k))
+                W = np.column_stack((W, w))
+        return out
+
     def _impact(self, t, q, u, fs: FeatureState) -> np.ndarray:
         """The impact law (law.impact, docs/theory.md §1) on the contacts detect() closes at q."""
         pm, pd, model = self.pm, self.pd, self.model
+        # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
+        # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
+        self.data.warm_start_pairs = set(self.data.warm_start_pairs) | {
+            self.feats[i].pair for i in np.flatnonzero(fs.g <= self.gap_tol)}
         c = detect(model, self.data, q)
         if c.corners:
             raise CornerImpact(f"a corner impact at t = {t:.12g} s (docs/theory.md §3); the event-driven "
                                   "reference handles smooth contacts only", t=t)
         cs = assemble_constraints(model, self.data, q, c)
+        missed = self._missed_features(fs, cs.W)
+        if missed:  # they replace coal's contacts of the same vertices
+            keys = {(m[4], int(m[5]), m[6]) for m in missed}
+            keep = np.array([k not in keys for k in zip(c.pair.tolist(), c.kind.tolist(), c.feature.tolist())], bool)
+            cs = assemble_constraints(model, self.data, q, c.select(keep).concat(from_rows(model, missed)))
         c, M, W = cs.contacts, cs.M, cs.W
         if c.m == 0:
             raise SimulationError(f"a gap event at t = {t:.12g} s but coal finds no closed contact")
