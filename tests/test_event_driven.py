@@ -196,6 +196,29 @@ def test_box_stacks_stay_at_rest(name, T):
     assert (E - E[0]).max() <= 1e-12 * abs(E[0])
 
 
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("case, rpy, z_rest", [("flat", (0.0, 0.0, 0.0), 0.15),
+                                               ("edge", (np.pi / 4, 0.0, 0.6), 0.1 + 0.05 * np.sqrt(2))])
+def test_cube_dropped_on_a_cube(case, rpy, z_rest, e):
+    """A cube dropped 5 cm onto a cube resting on the ground, face down and aligned (corners on
+    corners, the first impact 4 corners at once) or edge down across the lower cube's top face
+    (an edge-on-face segment contact whose ends are edge crossings): T + V never rises, e = 1
+    keeps it, e < 1 ends at rest in the closed-form equilibrium (z = 0.15 m, or 0.1 + 0.05 sqrt(2)
+    m balanced on the edge: frictionless and symmetric) after the Zeno rule ends the bounces."""
+    b = ms.SceneBuilder("cube_on_cube", restitution=e, duration=0.5, folder=ROOT)
+    b.add_body("low", "models/cube.urdf", position=(0.0, 0.0, 0.05))
+    b.add_body("top", "models/cube.urdf", position=(0.01, 0.003, z_rest + 0.05), rpy=rpy)
+    b.add_halfspace("ground")
+    tr = simulate_event_driven(ms.build_model(b.build()))
+    E = tr.total_energy
+    assert (E - E[0]).max() <= 1e-12 * E[0]
+    if e == 1.0:
+        assert E[-1] == pytest.approx(E[0], rel=1e-12)
+    else:
+        assert E[-1] == pytest.approx(G * (0.05 + z_rest), rel=1e-12)  # 1 kg each, at rest
+        assert np.abs(tr.u[-1]).max() <= 1e-9
+
+
 def tilted_drop(e: float, dt: float) -> ms.Model:
     """A cube (0.1 m, 1 kg) released at rest tilted, its lowest vertex over a static box's top face (z = 0)."""
     b = ms.SceneBuilder("tilted_drop", restitution=e, duration=0.29, dt=dt, folder=ROOT)
