@@ -29,7 +29,9 @@ ODE steps stay below half its time to apex, so that no rise-and-fall hides insid
 At every event (and at the start) :func:`EventDrivenRun.resolve` applies, in order:
   1. Impact: if a closed feature (g <= the scene's contact_tolerance, 1e-9 m by default)
      approaches (gamma < -V_TOL), the SAME law as the stepper, ``law.impact`` (docs/theory.md §1)
-     on the contacts ``contacts.detect`` closes at q (coal, tolerance 1e-9 m), with the scene's e.
+     on the contacts ``contacts.detect`` closes at q (coal, tolerance 1e-9 m), with the scene's e
+     (between boxes, plus the closed approaching box features whose rows coal's contacts miss:
+     features.FeatureContacts._missed_features, docs/theory.md §7.1).
   2. Zeno rule (accumulation points): the impact is plastic (e = 0) if, for every approaching
      contact, its rebound would rise less than G_ZENO = 1e-12 m, (e gamma-)^2 < 2 |a_n| G_ZENO
      with a_n its free normal acceleration, or it is slower than V_ZENO = 1e-8 m/s; or if the
