@@ -145,6 +145,12 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
 
 
+def _skew(w: np.ndarray) -> np.ndarray:
+    """The matrix of w x . (3, 3)."""
+    w0, w1, w2 = w.tolist()
+    return np.array([[0.0, -w2, w1], [w2, 0.0, -w0], [-w1, w0, 0.0]])
+
+
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a x b for 3-vectors (in Python floats: the same IEEE operations, without numpy's per-element cost)."""
     a0, a1, a2 = a.tolist()
@@ -341,9 +347,10 @@ class FeatureContacts:
             return z, z, np.zeros(3), None
         R, t, w, v_lin, a_ang, a_lin = self._frame(j)
         Pl = (P - t) @ R
-        vl = v_lin + _cross(w[None], Pl)
+        Sw = _skew(w)  # w x p = p @ Sw.T for the rows p of Pl
+        vl = v_lin + Pl @ Sw.T
         vel = vl @ R.T
-        acc = (a_lin + _cross(a_ang[None], Pl) + _cross(w[None], vl)) @ R.T
+        acc = (a_lin + Pl @ _skew(a_ang).T + vl @ Sw.T) @ R.T
         J = None
         if rows:
             if self._J is None:
