@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import piqp
 import scipy.linalg.lapack
+import scipy.sparse
+import scipy.sparse.linalg
 
 from .options import QPForm
 
@@ -70,6 +72,25 @@ def _gesv_ok(A, rhs):
     return x if info == 0 and np.isfinite(x).all() else None
 
 
+def _solve(A, rhs):
+    """x = A^-1 rhs: dgesv for a dense A (_gesv_ok), SuperLU (scipy's splu, sequential: the same bits run to
+    run) for a sparse one; None when singular or not finite."""
+    if not scipy.sparse.issparse(A):
+        return _gesv_ok(A, rhs)
+    if A.shape[0] == 0:
+        return np.zeros(0)
+    try:
+        x = scipy.sparse.linalg.splu(A.tocsc()).solve(np.asarray(rhs, float))
+    except RuntimeError:  # "Factor is exactly singular"
+        return None
+    return x if np.isfinite(x).all() else None
+
+
+def _sparse_mul(A, x):
+    """A @ x for a scipy.sparse A (the products of the sparse path: sums over the nonzeros only)."""
+    return A @ x
+
+
 def _ordered(A, x):
     """A @ x (A 1-d or 2-d, x 1-d or 2-d) summed over the inner index in order from its first product, one
     rounding per product and per sum (no BLAS kernel, no FMA): the same bits on every CPU, and the same as
@@ -96,37 +117,44 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
     operation with scipy's own dgesv, so both steps decide alike)."""
     m = r.shape[0]
     lam = np.zeros(m)
+    sparse = scipy.sparse.issparse(G)
+    if sparse:  # the sparse path (solve): G in CSC and CSR for its columns and rows, each O(its nonzeros)
+        Gc, Gr, diag = G.tocsc(), G.tocsr(), G.diagonal()
     if act is None:
         act = np.zeros(m, bool)
     else:
         idx = np.flatnonzero(act)
-        x = _gesv_ok(G[idx][:, idx], r[idx])
+        x = _solve(G[idx][:, idx], r[idx])
         if x is None or x.min(initial=0.0) < 0.0:
             act = np.zeros(m, bool)  # not a valid start: from nothing
         else:
             act = act.copy()
             lam[idx] = x
-    moves, gmax = 0, np.abs(G).max()
+    moves, gmax = 0, (np.abs(G.data).max(initial=0.0) if sparse else np.abs(G).max())
     while True:
         s = mul(G, lam) - r
         s[act] = np.inf
         p = int(np.argmin(s))
         if s[p] >= -tol:
             return act, lam, moves
+        if sparse:
+            col, row, gpp = Gc[:, [p]].toarray().ravel(), Gr[[p]].toarray().ravel(), diag[p]
+        else:
+            col, row, gpp = G[:, p], G[p], G[p, p]
         while True:  # add p, dropping the rows whose multipliers reach zero on the way
             moves += 1
             if moves > 5 * m + 10:
                 return None
             idx = np.flatnonzero(act)
             if idx.size:
-                d = _gesv_ok(G[idx][:, idx], -G[idx, p])
+                d = _solve(G[idx][:, idx], -col[idx])
                 if d is None:
                     return None
-                z = G[p, p] + mul(G[p, idx], d)
+                z = gpp + (row[idx] @ d if sparse else mul(G[p, idx], d))
             else:
-                d, z = _EMPTY, G[p, p]
-            sp = mul(G[p], lam) - r[p]  # row p's slack now
-            t1 = -sp / z if z > 1e-12 * G[p, p] else np.inf  # row p tight (inf: p depends on A)
+                d, z = _EMPTY, gpp
+            sp = (row @ lam if sparse else mul(G[p], lam)) - r[p]  # row p's slack now
+            t1 = -sp / z if z > 1e-12 * gpp else np.inf  # row p tight (inf: p depends on A)
             neg = d < 0.0
             t2, k = np.inf, -1
             if neg.any():
@@ -154,7 +182,8 @@ def _polish(W, v0, b, Minv, act=None):
     its final set A: G_AA lam_A = b_A - W_A'v0 (dgesv), v = v0 + M^-1 W_A lam_A. Kept only if lam_A >= 0
     and W'v >= b to round-off (the KKT conditions; M (v - v0) = W lam holds by construction); else None."""
     m = W.shape[1]
-    mul = _ordered if act is None else np.matmul
+    sparse = scipy.sparse.issparse(W)
+    mul = _sparse_mul if sparse else _ordered if act is None else np.matmul
     if m == 1:  # one contact: the projection in closed form
         w = W[:, 0]
         Miw = mul(Minv, w)
@@ -163,6 +192,8 @@ def _polish(W, v0, b, Minv, act=None):
     scale = 1.0 + np.abs(v0).max(initial=0.0)
     MiW = mul(Minv, W)
     G = mul(W.T, MiW)
+    if sparse:
+        MiW, G = MiW.tocsc(), G.tocsc()
     r = b - mul(W.T, v0)
     sol = _active_set(G, r, 1e-13 * scale, act, mul)
     if sol is None:
@@ -173,7 +204,7 @@ def _polish(W, v0, b, Minv, act=None):
     if not idx.size:
         vp = v0.copy()
     else:
-        lamA = _gesv_ok(G[idx][:, idx], r[idx])
+        lamA = _solve(G[idx][:, idx], r[idx])
         if lamA is None or lamA.min() < -1e-12 * max(1.0, lamA.max()):
             return None
         np.maximum(lamA, 0.0, out=lamA)
@@ -185,7 +216,7 @@ def _polish(W, v0, b, Minv, act=None):
         P = lamA > 0.0
         if P.any():
             iP = idx[P]
-            dP = _gesv_ok(G[iP][:, iP], b[iP] - mul(W[:, iP].T, vp))
+            dP = _solve(G[iP][:, iP], b[iP] - mul(W[:, iP].T, vp))
             if dP is not None and np.abs(dP).max() <= 1e-8 * (1.0 + lamA.max()):
                 lamA[P] = np.maximum(lamA[P] + dP, 0.0)
                 vp = vp + mul(MiW[:, iP], dP)
@@ -194,7 +225,8 @@ def _polish(W, v0, b, Minv, act=None):
         # first pass left violated at the round-off of lam (a resting 1:10,000 stack's other corners) are
         # met to that accuracy (tol2); kept when it violates no row more than before
         r2 = b - mul(W.T, vp)
-        tol2 = 1e-15 * (np.abs(b).max() + np.abs(W).max() * np.abs(vp).max())
+        wmax = np.abs(W.data).max(initial=0.0) if sparse else np.abs(W).max()
+        tol2 = 1e-15 * (np.abs(b).max() + wmax * np.abs(vp).max())
         sol = _active_set(G, r2, tol2, None, mul)
         if sol is not None and sol[0].any():
             i2 = np.flatnonzero(sol[0])
@@ -233,6 +265,8 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if not np.isfinite(v0).all():  # an overflow upstream: no projection of it is meaningful
         return QPResult("NON_FINITE_INPUT", False, 0, False, v0.copy(), np.zeros(m))
     cold = polish is Polish.ACTIVE_SET and m <= COLD_START_ROWS
+    if polish is Polish.ACTIVE_SET and not cold:
+        return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
     mul = _ordered if cold else np.matmul
     if screen and (mul(W.T, v0) - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
@@ -273,6 +307,51 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if p is not None:
         v, lam = p[:2]
     return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, (M, W, v0, b))
+
+
+def _csc(A) -> scipy.sparse.csc_matrix:
+    """A dense matrix as CSC, its exact zeros dropped (the tree's pattern of M and M^-1: bodies on separate root
+    joints give block-diagonal ones; the rows W touch the joints that move their two bodies)."""
+    return A.tocsc() if scipy.sparse.issparse(A) else scipy.sparse.csc_matrix(A)
+
+
+def _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen) -> QPResult:
+    """The large-problem path of solve (Polish.ACTIVE_SET above COLD_START_ROWS rows; docs/theory.md §1.3): the
+    same method as the dense one on sparse matrices - piqp's SparseSolver gives the start, _polish's active set
+    on G = W'M^-1 W in CSC (SuperLU for its solves) re-solves it and accepts it by the same KKT test - so the
+    cost follows the nonzeros (a column of N beads: M diagonal, G tridiagonal, O(N)) instead of m^2 or m^3."""
+    m = W.shape[1]
+    Ms, Ws, Mis = _csc(M), _csc(W), _csc(Minv)
+    problem = (Ms, Ws, v0, b)
+    if screen and (Ws.T @ v0 - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
+        return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), problem)
+    s = piqp.SparseSolver()
+    st = s.settings
+    st.verbose = False
+    st.eps_abs = st.eps_rel = eps
+    st.eps_duality_gap_abs = st.eps_duality_gap_rel = eps
+    st.max_iter = max_iter
+    if form is QPForm.PRIMAL:
+        s.setup(scipy.sparse.triu(Ms, format="csc"), -(Ms @ v0), None, None, Ws.T.tocsc(), b, None)
+        status = s.solve()
+        v, lam = s.result.x.copy(), s.result.z_l.copy()
+    else:
+        MiW = (Mis @ Ws).tocsc()
+        s.setup(scipy.sparse.triu(Ws.T @ MiW, format="csc"), Ws.T @ v0 - b, None, None, None, None, None,
+                np.zeros(m), None)
+        status = s.solve()
+        lam = s.result.x.copy()
+        v = v0 + MiW @ lam
+    iters = s.result.info.iter
+    if status != piqp.PIQP_SOLVED:
+        return QPResult(_STATUS.get(status, str(status)), False, iters, False, v, lam)
+    if not (np.isfinite(v).all() and np.isfinite(lam).all()):
+        return QPResult("NON_FINITE_SOLUTION", False, iters, False, v, lam)
+    np.maximum(lam, 0.0, out=lam)
+    p = _polish(Ws, v0, b, Mis, lam > 1e-7 * max(1.0, lam.max()))
+    if p is not None:
+        v, lam = p[:2]
+    return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, problem)
 
 
 def _polish_least_squares(M, W, v0, lam, tol):
