@@ -348,7 +348,11 @@ def _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen) -> QPResult:
     if not (np.isfinite(v).all() and np.isfinite(lam).all()):
         return QPResult("NON_FINITE_SOLUTION", False, iters, False, v, lam)
     np.maximum(lam, 0.0, out=lam)
-    p = _polish(Ws, v0, b, Mis, lam > 1e-7 * max(1.0, lam.max()))
+    act = lam > 1e-7 * max(1.0, lam.max())
+    p = _polish(Ws, v0, b, Mis, act)
+    if p is None:  # degenerate rows (dependent ones the sparse round-off took in): the dense polish, as before
+        dense = [A.toarray() if scipy.sparse.issparse(A) else A for A in (W, Minv)]
+        p = _polish(dense[0], v0, b, dense[1], act)
     if p is not None:
         v, lam = p[:2]
     return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, problem)
