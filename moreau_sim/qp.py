@@ -8,7 +8,9 @@ restitution rules shift b, docs/theory.md §2.7). With Polish.ACTIVE_SET (the la
 solved exactly by a dual active-set method (Goldfarb-Idnani) in contact space, re-solved on its
 final active set: from nothing up to COLD_START_ROWS rows (piqp then runs only when the active set
 fails), from piqp's active set above. The compiled step (src/step.cpp) mirrors the cold start
-operation for operation, so both steps take the same decisions, ties included.
+operation for operation, so both steps take the same decisions, ties included. Above SPARSE_ROWS rows
+the same method runs on sparse matrices (_solve_sparse: piqp's SparseSolver, the active set on a CSC
+Delassus matrix with SuperLU), its cost following the nonzeros (docs/theory.md §1.3).
 """
 
 from __future__ import annotations
@@ -64,6 +66,7 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
 
 
 COLD_START_ROWS = 12  # up to this many rows the active set starts from nothing, and piqp is only its fallback
+SPARSE_ROWS = 100  # above this many rows the sparse path (_solve_sparse) solves; below it dense is cheaper
 
 
 def _gesv_ok(A, rhs):
@@ -84,6 +87,33 @@ def _solve(A, rhs):
     except RuntimeError:  # "Factor is exactly singular"
         return None
     return x if np.isfinite(x).all() else None
+
+
+def _sub(G, idx):
+    """G[idx][:, idx]; for a CSC G (sorted indices, idx increasing) by gathering its columns idx and renumbering
+    their rows, O(their nonzeros) (scipy's fancy indexing costs ~50 us a call)."""
+    if not scipy.sparse.issparse(G):
+        return G[idx][:, idx]
+    k = len(idx)
+    if k == G.shape[0]:
+        return G
+    pos = np.full(G.shape[0], -1)
+    pos[idx] = np.arange(k)
+    start, cnt = G.indptr[idx], G.indptr[idx + 1] - G.indptr[idx]
+    sel = np.repeat(start - np.cumsum(cnt) + cnt, cnt) + np.arange(int(cnt.sum()))
+    rows = pos[G.indices[sel]]
+    keep = rows >= 0
+    col = np.repeat(np.arange(k), cnt)[keep]
+    return scipy.sparse.csc_matrix((G.data[sel][keep], rows[keep], np.searchsorted(col, np.arange(k + 1))),
+                                   shape=(k, k))
+
+
+def _line(A, p, m):
+    """Column p of a CSC A (or row p of a CSR A) as a dense vector of length m."""
+    out = np.zeros(m)
+    a, b = A.indptr[p], A.indptr[p + 1]
+    out[A.indices[a:b]] = A.data[a:b]
+    return out
 
 
 def _sparse_mul(A, x):
@@ -119,12 +149,14 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
     lam = np.zeros(m)
     sparse = scipy.sparse.issparse(G)
     if sparse:  # the sparse path (solve): G in CSC and CSR for its columns and rows, each O(its nonzeros)
-        Gc, Gr, diag = G.tocsc(), G.tocsr(), G.diagonal()
+        G = G.tocsc()
+        G.sort_indices()
+        Gr, diag = G.tocsr(), G.diagonal()
     if act is None:
         act = np.zeros(m, bool)
     else:
         idx = np.flatnonzero(act)
-        x = _solve(G[idx][:, idx], r[idx])
+        x = _solve(_sub(G, idx), r[idx])
         if x is None or x.min(initial=0.0) < 0.0:
             act = np.zeros(m, bool)  # not a valid start: from nothing
         else:
@@ -138,7 +170,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
         if s[p] >= -tol:
             return act, lam, moves
         if sparse:
-            col, row, gpp = Gc[:, [p]].toarray().ravel(), Gr[[p]].toarray().ravel(), diag[p]
+            col, row, gpp = _line(G, p, m), _line(Gr, p, m), diag[p]
         else:
             col, row, gpp = G[:, p], G[p], G[p, p]
         while True:  # add p, dropping the rows whose multipliers reach zero on the way
@@ -147,7 +179,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
                 return None
             idx = np.flatnonzero(act)
             if idx.size:
-                d = _solve(G[idx][:, idx], -col[idx])
+                d = _solve(_sub(G, idx), -col[idx])
                 if d is None:
                     return None
                 z = gpp + (row[idx] @ d if sparse else mul(G[p, idx], d))
@@ -194,6 +226,7 @@ def _polish(W, v0, b, Minv, act=None):
     G = mul(W.T, MiW)
     if sparse:
         MiW, G = MiW.tocsc(), G.tocsc()
+        G.sort_indices()
     r = b - mul(W.T, v0)
     sol = _active_set(G, r, 1e-13 * scale, act, mul)
     if sol is None:
@@ -204,7 +237,7 @@ def _polish(W, v0, b, Minv, act=None):
     if not idx.size:
         vp = v0.copy()
     else:
-        lamA = _solve(G[idx][:, idx], r[idx])
+        lamA = _solve(_sub(G, idx), r[idx])
         if lamA is None or lamA.min() < -1e-12 * max(1.0, lamA.max()):
             return None
         np.maximum(lamA, 0.0, out=lamA)
@@ -216,7 +249,7 @@ def _polish(W, v0, b, Minv, act=None):
         P = lamA > 0.0
         if P.any():
             iP = idx[P]
-            dP = _solve(G[iP][:, iP], b[iP] - mul(W[:, iP].T, vp))
+            dP = _solve(_sub(G, iP), b[iP] - mul(W[:, iP].T, vp))
             if dP is not None and np.abs(dP).max() <= 1e-8 * (1.0 + lamA.max()):
                 lamA[P] = np.maximum(lamA[P] + dP, 0.0)
                 vp = vp + mul(MiW[:, iP], dP)
@@ -265,7 +298,7 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if not np.isfinite(v0).all():  # an overflow upstream: no projection of it is meaningful
         return QPResult("NON_FINITE_INPUT", False, 0, False, v0.copy(), np.zeros(m))
     cold = polish is Polish.ACTIVE_SET and m <= COLD_START_ROWS
-    if polish is Polish.ACTIVE_SET and not cold:
+    if polish is Polish.ACTIVE_SET and m > SPARSE_ROWS:
         return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
     mul = _ordered if cold else np.matmul
     if screen and (mul(W.T, v0) - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):

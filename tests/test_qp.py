@@ -256,10 +256,10 @@ def _column_problem(n):
 
 
 @pytest.mark.parametrize("form", list(QPForm))
-@pytest.mark.parametrize("n", [13, 50, 400])
+@pytest.mark.parametrize("n", [13, 50, 101, 400])
 def test_sparse_path_solves_a_resting_column_exactly(n, form):
-    """Above COLD_START_ROWS rows the sparse path (piqp's SparseSolver, the active set on CSC matrices)
-    gives the closed form to round-off, polished, with a KKT residual at round-off."""
+    """Above SPARSE_ROWS rows the sparse path (piqp's SparseSolver, the active set on CSC matrices), and the
+    dense one below, give the closed form to round-off, polished, with a KKT residual at round-off."""
     M, W, v0, gh = _column_problem(n)
     res = qp.solve(M, W, v0, Minv=M, form=form)
     assert res.ok and res.polished and res.status == "PIQP_SOLVED"
@@ -270,10 +270,11 @@ def test_sparse_path_solves_a_resting_column_exactly(n, form):
 
 @pytest.mark.parametrize("bounds", [False, True])
 @pytest.mark.parametrize("seed", range(6))
-def test_sparse_path_is_the_projection_the_cold_active_set_gives(seed, bounds):
-    """Random block-diagonal problems (bodies on separate root joints) of 13 to nv rows: the sparse path's answer
-    equals the dense cold active set's (qp._polish on the dense matrices, the small-problem method) to
-    round-off, and is repeatable bit for bit."""
+def test_sparse_path_is_the_projection_the_cold_active_set_gives(seed, bounds, monkeypatch):
+    """Random block-diagonal problems (bodies on separate root joints) of 13 to nv rows, on the sparse path
+    (its threshold lowered to COLD_START_ROWS): the answer equals the dense cold active set's (qp._polish on
+    the dense matrices, the small-problem method) to round-off, and is repeatable bit for bit."""
+    monkeypatch.setattr(qp, "SPARSE_ROWS", qp.COLD_START_ROWS)
     rng = np.random.default_rng(seed)
     blocks = [rng.standard_normal((k, k)) for k in rng.integers(1, 4, 12)]
     M = np.zeros((sum(len(B) for B in blocks),) * 2)
