@@ -33,7 +33,7 @@ import numpy as np
 import pinocchio as pin
 
 import moreau_sim as ms
-from moreau_sim import compiled
+from moreau_sim import compiled, qp
 from moreau_sim.recording import versions
 from moreau_sim.scene import Collisions
 
@@ -125,6 +125,7 @@ def bench_size(n: int, repeat: int, n_states: int) -> dict:
            "contacts": statistics.median(m for _, m in states), "states": len(states), "build_s": build}
     for impl in IMPLS:
         model = models[impl]
+        ms.step(model, data, states[0][0])  # the compiled stepper is set up at its first step: not timed
         times = [best(lambda st=st, model=model: ms.step(model, data, st), repeat) for st, _ in states]
         paths = dict(compiled.counts(data)) if impl == "compiled" else {"python": repeat * len(states)}
         out[impl] = {"us": statistics.median(times), "paths": paths}
@@ -133,10 +134,28 @@ def bench_size(n: int, repeat: int, n_states: int) -> dict:
 
 
 def fit_slope(rows: list, impl: str) -> float:
-    """Least-squares slope of log(us per step) against log(contacts)."""
+    """Least-squares slope of log(us per step) against log(contacts) (nan with fewer than 2 sizes)."""
+    if len(rows) < 2:
+        return float("nan")
     m = np.log([r["contacts"] for r in rows])
     t = np.log([r[impl]["us"] for r in rows])
     return float(np.polyfit(m, t, 1)[0])
+
+
+def data_bytes(n: int) -> int:
+    """What one Pinocchio Data of an n-velocity model allocates, about: four nv^3 tensors of second-order
+    derivatives, whatever the algorithms used (stack-of-tasks/pinocchio#2949; measured 9 GB RSS at nv = 500)."""
+    return 4 * 8 * n ** 3
+
+
+def too_big(n: int) -> str | None:
+    """Why a column of n beads is not built here (its Data would take over half the free memory), or None."""
+    free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    need = data_bytes(n)
+    if need > free / 2:
+        return (f"a Pinocchio Data of nv = {n} allocates ~{need / 1e9:.0f} GB (four nv^3 tensors, "
+                f"stack-of-tasks/pinocchio#2949), over half of the {free / 1e9:.0f} GB free")
+    return None
 
 
 def plot(data: dict, png: Path) -> None:
@@ -147,19 +166,29 @@ def plot(data: dict, png: Path) -> None:
 
     rows = data["sizes"]
     m = np.array([r["contacts"] for r in rows], float)
-    fig, ax = plt.subplots(figsize=(7, 5), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(8, 5.5), constrained_layout=True)
     for impl, mark in zip(IMPLS, ("o", "s")):
         t = np.array([r[impl]["us"] for r in rows]) * 1e-3
         c, t0 = np.polyfit(np.log(m), np.log(t), 1)
         line, = ax.loglog(m, t, mark, label=f"step_impl = {impl}")
         ax.loglog(m, np.exp(t0) * m ** c, "-", color=line.get_color(), lw=1, label=f"fit: slope {c:.2f}")
+    before = data.get("before")
+    if before:
+        for impl, mark in zip(IMPLS, ("o", "s")):
+            pts = sorted((int(n), v[impl] * 1e-3) for n, v in before["sizes"].items())
+            ax.loglog(*zip(*pts), mark, mfc="none", color="grey", ms=7,
+                      label=f"before ({impl}): slope {before['slopes'][impl]:.2f}")
     ref = np.array([r["python"]["us"] for r in rows]) * 1e-3
     ax.loglog(m, ref[0] * m / m[0], "k:", lw=1, label="slope 1 (from the first point)")
+    ax.axvline(data["compiled_limit"] + 0.5, color="grey", lw=0.8, ls="--")
+    ax.axvline(data["sparse_rows"] + 0.5, color="grey", lw=0.8, ls="-.")
+    ax.text(data["compiled_limit"] + 0.5, ax.get_ylim()[1], " compiled step's limit", fontsize=7, va="top")
+    ax.text(data["sparse_rows"] + 0.5, ax.get_ylim()[1], " sparse QP above", fontsize=7, va="top")
     ax.set_xlabel("contacts m (= beads N)")
     ax.set_ylabel("ms per step (median over states)")
-    ax.set_title(f"moreau-sim: a column of N touching beads, cost of one step (target slope <= {TARGET_SLOPE})")
+    ax.set_title(f"a column of N touching beads: cost of one step (target slope <= {TARGET_SLOPE})")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize=8)
     fig.savefig(png, dpi=110)
 
 
@@ -167,21 +196,38 @@ def markdown_table(data: dict) -> str:
     """The scaling table of docs/benchmarks.md from a scaling.json."""
     rows = data["sizes"]
     stages = [s for s, _, _ in STAGES if s != "step"]
-    out = [f"Run of {data['meta']['date']} (git `{data['meta']['commit']}`): median over {rows[0]['states']} "
-           f"states of the best of {data['meta']['repeat']} timings; stages: cProfile's cumulative times "
-           "of the Python step (profiled, so inflated), per step.", "",
-           "| beads | contacts | compiled [ms] | paths (compiled) | python [ms] | "
-           + " | ".join(stages) + " |", "|---:|---:|---:|---|---:|" + "---:|" * len(stages)]
+    before = data.get("before")
+    threads = data["meta"].get("OPENBLAS_NUM_THREADS")
+    out = [f"Run of {data['meta']['date']} (git `{data['meta']['commit']}`"
+           + (f", OPENBLAS_NUM_THREADS={threads}" if threads else "") + f"): ms per step, median over "
+           f"{rows[0]['states']} states of the best of {data['meta']['repeat']} timings"
+           + (f"; *before*: the same benchmark on the code of git `{before['commit']}` (dense QP path, "
+              "all-pairs distinct)" if before else "")
+           + "; stages: cProfile's cumulative times in the Python step (profiled, so inflated; CRBA and "
+           "M⁻¹ timed apart).", "",
+           "| beads | contacts | compiled | paths (compiled) | python | "
+           + ("before: compiled / python | " if before else "") + " | ".join(stages) + " |",
+           "|---:|---:|---:|---|---:|" + ("---:|" if before else "") + "---:|" * len(stages)]
     for r in rows:
         paths = ", ".join(f"{k}: {v}" for k, v in sorted(r["compiled"]["paths"].items()))
         st = " | ".join(f"{r['stages_python'][s] * 1e-3:.3f}" for s in stages)
+        b = before["sizes"].get(str(r["beads"])) if before else None
+        was = "" if not before else ("– | " if b is None else
+                                     f"{b['compiled'] * 1e-3:.3f} / {b['python'] * 1e-3:.3f} | ")
         out.append(f"| {r['beads']} | {r['contacts']:.0f} | {r['compiled']['us'] * 1e-3:.3f} | {paths} | "
-                   f"{r['python']['us'] * 1e-3:.3f} | {st} |")
-    s = data["slopes"]
+                   f"{r['python']['us'] * 1e-3:.3f} | {was}{st} |")
+    s, s2 = data["slopes"], data["slopes_above_compiled_limit"]
     met = {k: "met" if v <= TARGET_SLOPE else "missed" for k, v in s.items()}
     out += ["", f"Fitted log-log slope of the cost against the contacts ({rows[0]['contacts']:.0f} to "
-            f"{rows[-1]['contacts']:.0f}): compiled {s['compiled']:.2f} ({met['compiled']}), python "
-            f"{s['python']:.2f} ({met['python']}); target <= {TARGET_SLOPE}."]
+            f"{rows[-1]['contacts']:.0f}): step_impl = compiled {s['compiled']:.2f} ({met['compiled']}), "
+            f"python {s['python']:.2f} ({met['python']}); target ≤ {TARGET_SLOPE}. Above "
+            f"{data['compiled_limit']} contacts, where every step is the Python step: {s2['compiled']:.2f} and "
+            f"{s2['python']:.2f}. The QP runs on sparse matrices above {data['sparse_rows']} rows."]
+    if before:
+        out.append(f"Before: slopes {before['slopes']['compiled']:.2f} (compiled) and "
+                   f"{before['slopes']['python']:.2f} (python) over the sizes it measured.")
+    for n, why in data.get("skipped", {}).items():
+        out.append(f"Not measured: {n} beads ({why}).")
     return "\n".join(out)
 
 
@@ -204,14 +250,20 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", type=int, nargs="*", default=list(SIZES), help="numbers of beads")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--states", type=int, default=10, help="contact states per size (a run of that many steps)")
+    ap.add_argument("--before", type=Path, help="a scaling.json of earlier code, quoted beside this run's figures")
     a = ap.parse_args(argv)
     if rewrite_tables(a, doc_tables):
         return 0
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = []
+    rows, skipped = [], {}
     print(f"{'beads':>6s} {'m':>6s} {'compiled ms':>12s} {'python ms':>10s}  paths (compiled)")
     for n in a.sizes:
+        why = too_big(n)
+        if why is not None:
+            skipped[str(n)] = why
+            print(f"{n:6d} skipped: {why}", flush=True)
+            continue
         r = bench_size(n, a.repeat, a.states)
         rows.append(r)
         print(f"{n:6d} {r['contacts']:6.0f} {r['compiled']['us'] * 1e-3:12.3f} {r['python']['us'] * 1e-3:10.3f}  "
@@ -219,11 +271,22 @@ def main(argv=None) -> int:
         print("       stages (python, profiled, ms): "
               + ", ".join(f"{k} {v * 1e-3:.3f}" for k, v in r["stages_python"].items()), flush=True)
     slopes = {impl: fit_slope(rows, impl) for impl in IMPLS}
-    print("slopes:", {k: round(v, 3) for k, v in slopes.items()}, f"(target <= {TARGET_SLOPE})")
+    above = [r for r in rows if r["contacts"] > compiled.MAX_CONTACTS]  # every step in the Python step
+    slopes_python_only = {impl: fit_slope(above, impl) for impl in IMPLS}
+    print("slopes:", {k: round(v, 3) for k, v in slopes.items()}, f"(target <= {TARGET_SLOPE}); above "
+          f"{compiled.MAX_CONTACTS} contacts:", {k: round(v, 3) for k, v in slopes_python_only.items()})
     meta = {"date": time.strftime("%Y-%m-%d", time.gmtime()), "commit": _commit(), "machine": platform.machine(),
             "cpus": os.cpu_count(), "load": os.getloadavg()[0], "versions": versions(), "repeat": a.repeat,
+            "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"),
             "note": "us per step: median over the states of a short run of the best of `repeat` timings"}
-    data = {"meta": meta, "sizes": rows, "slopes": slopes, "target_slope": TARGET_SLOPE}
+    data = {"meta": meta, "sizes": rows, "skipped": skipped, "slopes": slopes,
+            "slopes_above_compiled_limit": slopes_python_only, "compiled_limit": compiled.MAX_CONTACTS,
+            "sparse_rows": qp.SPARSE_ROWS, "target_slope": TARGET_SLOPE}
+    if a.before:
+        prev = json.loads(a.before.read_text(encoding="utf-8"))
+        data["before"] = {"commit": prev["meta"]["commit"], "note": prev["meta"].get("label", ""),
+                          "slopes": prev["slopes"],
+                          "sizes": {str(r["beads"]): {impl: r[impl]["us"] for impl in IMPLS} for r in prev["sizes"]}}
     (out / "scaling.json").write_text(json.dumps(data, indent=2))
     plot(data, out / "scaling.png")
     print(f"wrote {out / 'scaling.json'} and {out / 'scaling.png'}")
