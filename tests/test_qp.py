@@ -300,3 +300,24 @@ def test_sparse_path_is_the_projection_the_cold_active_set_gives(seed, bounds, m
     np.testing.assert_allclose(res.v, ref[0], rtol=0, atol=1e-12 * scale)
     np.testing.assert_array_equal(res.v, again.v)
     np.testing.assert_array_equal(res.lam, again.lam)
+
+
+@pytest.mark.parametrize("e", [0.0, 0.9])
+def test_a_resting_column_of_120_beads_takes_the_sparse_path_exactly(e):
+    """A column of 120 touching 1 kg beads (bench.scaling.column) stepped from rest with the Python step: every
+    step's QP (120 rows) goes the sparse way, polished, and the column stays at rest with the closed-form
+    percussions: contact k (under bead k) carries the 120 - k beads above it, P_k = (120 - k) m g h."""
+    from moreau_sim.bench.scaling import column
+
+    n = 120
+    model = ms.build_model(column(n, step_impl="python").with_options(restitution=e))
+    data = ms.make_data(model)
+    h, g = model.options.dt, 9.81
+    st = ms.initial_state(model)
+    for _ in range(3):
+        r = ms.step(model, data, st)
+        assert r.qp.status == "PIQP_SOLVED" and r.qp.polished and r.contacts.m == n > qp.SPARSE_ROWS
+        order = np.argsort(r.contacts.joint_a)  # contact k: bead k's joint (k + 1) over bead k - 1 or the ground
+        np.testing.assert_allclose(r.P[order], (n - np.arange(n)) * g * h, rtol=1e-12, atol=0)
+        assert np.abs(r.state.u).max() <= 1e-15 and np.abs(r.state.q - st.q).max() <= 1e-15
+        st = r.state
