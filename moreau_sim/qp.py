@@ -361,13 +361,13 @@ def _csc(A) -> scipy.sparse.csc_matrix:
 
 
 def _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen) -> QPResult:
-    """The large-problem path of solve (Polish.ACTIVE_SET above COLD_START_ROWS rows; docs/theory.md §1.3): the
+    """The large-problem path of solve (Polish.ACTIVE_SET above SPARSE_ROWS rows; docs/theory.md §1.3): the
     same method as the dense one on sparse matrices - piqp's SparseSolver gives the start, _polish's active set
     on G = W'M^-1 W in CSC (SuperLU for its solves) re-solves it and accepts it by the same KKT test - so the
     cost follows the nonzeros (a column of N beads: M diagonal, G tridiagonal, O(N)) instead of m^2 or m^3."""
     m = W.shape[1]
     Ms, Ws, Mis = _csc(M), _csc(W), _csc(Minv)
-    problem = (Ms, Ws, v0, b)
+    problem = (M, W, v0, b)  # as given, as the dense path keeps them (the residual, the recorder)
     if screen and (Ws.T @ v0 - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
         return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), problem)
     s = piqp.SparseSolver()

@@ -321,3 +321,15 @@ def test_a_resting_column_of_120_beads_takes_the_sparse_path_exactly(e):
         np.testing.assert_allclose(r.P[order], (n - np.arange(n)) * g * h, rtol=1e-12, atol=0)
         assert np.abs(r.state.u).max() <= 1e-15 and np.abs(r.state.q - st.q).max() <= 1e-15
         st = r.state
+
+
+def test_a_run_of_a_resting_column_of_120_beads_keeps_its_energy():
+    """simulate() through the sparse path, recorder and ledger included: a resting column gains no energy and
+    its energy budget closes (translations under gravity: exact to round-off)."""
+    from moreau_sim.bench.scaling import column
+    from moreau_sim.testing import assert_budget_closes, assert_no_energy_gain
+
+    model = ms.build_model(column(120, step_impl="python").with_options(duration=4e-3))
+    traj = ms.simulate(model, progress=False)
+    assert_no_energy_gain(traj, rtol=1e-12)
+    assert_budget_closes(traj, rtol=1e-12)
