@@ -77,3 +77,16 @@ def test_a_rerun_without_mujoco_still_renders():
     assert "MuJoCo not installed in that run" in table
     rows = [ln for ln in table.splitlines() if ln.startswith("| `")]
     assert len(rows) == len(data["cases"]) and all(ln.endswith("| – | – |") for ln in rows)
+
+
+def test_a_rerun_without_siconos_renders_its_targets_as_not_measured():
+    """compiled_costs.json of a run where Debian's python3-siconos was missing: the Siconos columns
+    are dashes and the targets against Siconos are "not measured", never a verdict."""
+    from moreau_sim.bench import compiled_costs
+
+    data = json.loads((REPO / "docs/bench/compiled_costs.json").read_text(encoding="utf-8"))
+    data["siconos"] = None
+    assert "Siconos not installed in that run" in compiled_costs.markdown_table(data)
+    rows = [ln for ln in compiled_costs.targets_table(data).splitlines() if "Siconos" in ln]
+    assert len(rows) == sum("siconos" in kind for _, kind, _, _ in compiled_costs.TARGETS) > 0
+    assert all(ln.endswith("| not measured | – |") for ln in rows)

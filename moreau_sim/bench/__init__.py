@@ -15,7 +15,8 @@ Modules:
   (scripts/work_precision.py).
 - stability: the stress suite side by side (scripts/stability.py).
 - step_costs: the cost of one step split into dynamics, collision, QP and glue (scripts/bench_step.py).
-- compiled_costs: the compiled step against the Python step (and MuJoCo's mj_step), one run.
+- compiled_costs: the compiled step against the Python step, Siconos's Moreau-Jean step and MuJoCo's
+  mj_step per step, whole runs per step, and the issue-12 targets' verdicts, one run.
 - adaptive_costs: the adaptive integrator against the event-driven one and the fixed step.
 - scaling: the cost of one step against the number of contacts (columns of 10 to 1000 beads).
 - robots_table: the bundled robot scenes' figures (scripts/robots_table.py).
@@ -46,7 +47,9 @@ Peer settings (each runner's module doc has the details and why):
   slide joints (gaps exactly as the floating-point positions give them, or exact_gaps=True), and
   one free box over the ground through its Bullet mechanics (NewtonImpactFrictionNSL with mu = 0).
 CPU time is time.process_time() around each peer's stepping loop only (MuJoCo a C rollout,
-PyBullet and Siconos through their Python bindings: not apples to apples).
+PyBullet and Siconos through their Python bindings: not apples to apples). Siconos and MuJoCo also
+take timing_repeats=R: R whole runs' wall time, and per step the best of R runs with a timer around
+each step and its contact count (the result's "timing"; compiled_costs reads it).
 """
 
 from __future__ import annotations

@@ -35,6 +35,9 @@ DEFAULTS = {
     "iterations": 100,
     "tolerance": 1e-10,
     "use_rollout": True,  # mujoco.rollout (a C loop) instead of a Python mj_step loop
+    # > 0: also time the steps (`timing` in the result): the whole run by mujoco.rollout, and a Python
+    # mj_step loop with a timer around each step, each that many times; the best of them per step
+    "timing_repeats": 0,
 }
 
 
@@ -150,34 +153,11 @@ def run(spec: dict, **params) -> dict:
     mjcf = xml(spec, P, cs)
     model = mujoco.MjModel.from_xml_string(mjcf)
     data = mujoco.MjData(model)
-    adr = []
-    for i, b in enumerate(spec["bodies"]):
-        j = model.body_jntadr[i + 1]
-        qa, va = model.jnt_qposadr[j], model.jnt_dofadr[j]
-        adr.append((qa, va))
-        if b["joint"] == "free":
-            data.qvel[va:va + 3] = b["v"]
-            data.qvel[va + 3:va + 6] = b["w"]  # a free joint's angular velocity is in the body frame
-        else:
-            data.qpos[qa] = b["q0"]
-            data.qvel[va] = b["u0"]
-    mujoco.mj_forward(model, data)
+    adr = _initial_state(spec, model, data)
     N = n_steps(h, T)
     nq, nv = model.nq, model.nv
     if P["use_rollout"]:
-        from mujoco import rollout
-
-        kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
-        init = np.empty(mujoco.mj_stateSize(model, kind))
-        mujoco.mj_getState(model, data, init, kind)
-        rollout.rollout(model, data, init[None], nstep=1)  # warm-up: one-time initialisation is not timed
-        out = np.empty((1, N, len(init)))
-        c0 = time.process_time()
-        rollout.rollout(model, data, init[None], nstep=N, state=out)
-        cpu = time.process_time() - c0
-        # the FULLPHYSICS state starts with time, qpos, qvel
-        qpos = np.vstack([init[1:1 + nq][None], out[0, :, 1:1 + nq]])
-        qvel = np.vstack([init[1 + nq:1 + nq + nv][None], out[0, :, 1 + nq:1 + nq + nv]])
+        qpos, qvel, cpu = _rollout(model, data, N)
     else:
         qpos, qvel = np.empty((N + 1, nq)), np.empty((N + 1, nv))
         qpos[0], qvel[0] = data.qpos, data.qvel
@@ -204,5 +184,80 @@ def run(spec: dict, **params) -> dict:
                 "solver": P["solver"], "iterations": int(P["iterations"]), "tolerance": P["tolerance"], "condim": 1,
                 "margin": 0.0, "penetration_estimate_per_mps": 1.0 / cs["omega"],
                 "loop": "mujoco.rollout" if P["use_rollout"] else "python mj_step loop", "xml": mjcf}
-    return {"peer": "mujoco", "scene": spec["name"], "t": (np.arange(N + 1) * h)[sl], "bodies": bodies,
-            "cpu_seconds": cpu, "settings": settings, "version": mujoco.__version__}
+    res = {"peer": "mujoco", "scene": spec["name"], "t": (np.arange(N + 1) * h)[sl], "bodies": bodies,
+           "cpu_seconds": cpu, "settings": settings, "version": mujoco.__version__}
+    if int(P["timing_repeats"]) > 0:
+        res["timing"] = _timed(spec, model, data, N, int(P["timing_repeats"]))
+    return res
+
+
+def _initial_state(spec, model, data) -> list:
+    """Set the spec's initial state in `data` (forward kinematics done); each body's (qpos, qvel) address."""
+    import mujoco
+
+    adr = []
+    for i, b in enumerate(spec["bodies"]):
+        j = model.body_jntadr[i + 1]
+        qa, va = model.jnt_qposadr[j], model.jnt_dofadr[j]
+        adr.append((qa, va))
+        if b["joint"] == "free":
+            data.qvel[va:va + 3] = b["v"]
+            data.qvel[va + 3:va + 6] = b["w"]  # a free joint's angular velocity is in the body frame
+        else:
+            data.qpos[qa] = b["q0"]
+            data.qvel[va] = b["u0"]
+    mujoco.mj_forward(model, data)
+    return adr
+
+
+def _rollout(model, data, N):
+    """N steps from `data`'s state by mujoco.rollout (a C loop): qpos, qvel (N + 1 rows), CPU seconds."""
+    import mujoco
+    from mujoco import rollout
+
+    nq, nv = model.nq, model.nv
+    kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    init = np.empty(mujoco.mj_stateSize(model, kind))
+    mujoco.mj_getState(model, data, init, kind)
+    rollout.rollout(model, data, init[None], nstep=1)  # warm-up: one-time initialisation is not timed
+    out = np.empty((1, N, len(init)))
+    c0 = time.process_time()
+    rollout.rollout(model, data, init[None], nstep=N, state=out)
+    cpu = time.process_time() - c0
+    # the FULLPHYSICS state starts with time, qpos, qvel
+    qpos = np.vstack([init[1:1 + nq][None], out[0, :, 1:1 + nq]])
+    qvel = np.vstack([init[1 + nq:1 + nq + nv][None], out[0, :, 1 + nq:1 + nq + nv]])
+    return qpos, qvel, cpu
+
+
+def _timed(spec, model, data, N, repeats) -> dict:
+    """The whole run's wall time by mujoco.rollout (best of `repeats`, s), and per step the best of
+    `repeats` Python mj_step loops (us) with the number of contacts mj_step found at its start."""
+    import mujoco
+    from mujoco import rollout
+
+    kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    mujoco.mj_resetData(model, data)
+    _initial_state(spec, model, data)
+    init = np.empty(mujoco.mj_stateSize(model, kind))
+    mujoco.mj_getState(model, data, init, kind)
+    out = np.empty((1, N, len(init)))
+    walls = []
+    for _ in range(repeats + 1):  # the first: warm-up
+        w0 = time.perf_counter()
+        rollout.rollout(model, data, init[None], nstep=N, state=out)
+        walls.append(time.perf_counter() - w0)
+    best, ncon = np.full(N, np.inf), np.zeros(N, dtype=np.int64)
+    step, clock = mujoco.mj_step, time.perf_counter
+    for _ in range(repeats):
+        mujoco.mj_resetData(model, data)
+        _initial_state(spec, model, data)
+        us = np.empty(N)
+        for k in range(N):
+            t0 = clock()
+            step(model, data)
+            us[k] = clock() - t0
+            ncon[k] = data.ncon  # the contacts of this step's collision (at the state it started from)
+        best = np.minimum(best, us * 1e6)
+    return {"repeats": repeats, "wall_seconds": min(walls[1:]), "step_us": best, "contacts": ncon,
+            "timer": "whole run: mujoco.rollout; per step: time.perf_counter around mj_step in a Python loop"}

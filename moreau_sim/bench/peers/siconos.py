@@ -50,6 +50,9 @@ DEFAULTS = {
     "contact_breaking_threshold": 0.02,
     "perturbation_iterations": 3,
     "inside_margin": 0.0,
+    # > 0: also time the stepping loop (time stepping only; `timing` in the result): that many whole
+    # runs as they are, and as many with a timer around each step; the best of them per step
+    "timing_repeats": 0,
 }
 
 
@@ -83,14 +86,24 @@ def _lcp(P):
     return lcp
 
 
-def _simulate(sim, record, N, h=None):
+def _simulate(sim, record, N, h=None, step_us=None, active=None):
     """Step N times (time stepping), or with h go event by event to the end (event-driven);
     `record(k)` stores the state after step k, or at the time event k h (impacts are events too,
-    not recorded). Returns CPU seconds."""
-    c0 = time.process_time()
+    not recorded). Returns CPU and wall seconds of the loop. With arrays `step_us` and `active` (time stepping only) it
+    also stores each step's wall time (perf_counter around computeOneStep + nextStep, us) and the
+    number of interactions in the step's index set 1 (the contacts its LCP carries)."""
+    c0, w0 = time.process_time(), time.perf_counter()
     k = 0
     while (h is not None or k < N) and sim.hasNextEvent():
-        if h is None:
+        if h is None and step_us is not None:
+            t0 = time.perf_counter()
+            sim.computeOneStep()
+            t1 = time.perf_counter()
+            active[k] = len(sim.indexSet(1).interactions())
+            t2 = time.perf_counter()
+            sim.nextStep()
+            step_us[k] = (t1 - t0 + time.perf_counter() - t2) * 1e6
+        elif h is None:
             sim.computeOneStep()
             sim.nextStep()
         else:
@@ -100,10 +113,10 @@ def _simulate(sim, record, N, h=None):
                 continue
         k += 1
         record(k)
-    cpu = time.process_time() - c0
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     if k != N:
         raise RuntimeError(f"simulation stopped after {k} of {N} steps or time events")
-    return cpu
+    return cpu, wall
 
 
 def run(spec: dict, **params) -> dict:
@@ -115,13 +128,42 @@ def run(spec: dict, **params) -> dict:
         raise ValueError(f"simulation must be 'time-stepping' or 'event-driven', got {P['simulation']!r}")
     bodies = spec["bodies"]
     if all(b["joint"] == "slide" and b["shape"] == "sphere" for b in bodies):
-        return _spheres(spec, P)
-    if len(bodies) == 1 and bodies[0]["joint"] == "free" and bodies[0]["shape"] == "box":
+        sim = _spheres
+    elif len(bodies) == 1 and bodies[0]["joint"] == "free" and bodies[0]["shape"] == "box":
         if P["simulation"] == "event-driven":
             raise NotExpressible("the Siconos runner's event-driven simulation takes spheres only")
-        return _box(spec, P)
-    raise NotExpressible("the Siconos runner takes spheres on collinear slide joints, or one free box over a "
-                         "half-space")
+        sim = _box
+    else:
+        raise NotExpressible("the Siconos runner takes spheres on collinear slide joints, or one free box over a "
+                             "half-space")
+    repeats = int(P["timing_repeats"])
+    if repeats <= 0:
+        return sim(spec, P)
+    if P["simulation"] != "time-stepping":
+        raise ValueError("timing_repeats times the time-stepping loop only")
+    return _timed(sim, spec, P, repeats)
+
+
+def _timed(sim, spec, P, repeats):
+    """`sim`'s result with `timing`: the whole run's wall time (the loop with its recording, best of
+    `repeats` runs, s) and per step the best of `repeats` timed runs (us) with the number of
+    contacts in its LCP. Each run builds the simulation anew, after one untimed run; the timed runs
+    are separate so that the per-step timer does not weigh on the whole-run figure."""
+    N = n_steps(float(spec["h"]), float(spec["T"]))
+    sim(spec, P)  # warm-up: the process's first run pays for first calls and allocations
+    walls = []
+    for _ in range(repeats):
+        res = sim(spec, P)
+        walls.append(res["wall_seconds"])
+    best = np.full(N, np.inf)
+    active = np.zeros(N, dtype=np.int64)
+    for _ in range(repeats):
+        step_us = np.empty(N)
+        sim(spec, P, (step_us, active))
+        best = np.minimum(best, step_us)
+    res["timing"] = {"repeats": repeats, "wall_seconds": min(walls), "step_us": best, "contacts": active,
+                     "timer": "time.perf_counter around computeOneStep + nextStep (the runner's Python loop)"}
+    return res
 
 
 def _settings_ed(P, e, h):
@@ -138,7 +180,7 @@ def _settings(P, e, h):
             "lcp_tolerance": P["lcp_tolerance"], "lcp_max_iterations": P["lcp_max_iterations"], "timestep": h}
 
 
-def _spheres(spec, P):
+def _spheres(spec, P, timing=()):
     import siconos.kernel as sk
 
     e, h, T = float(spec["e"]), float(spec["h"]), float(spec["T"])
@@ -200,7 +242,7 @@ def _spheres(spec, P):
             v[k, j] = ds.velocity()[0]
 
     record(0)
-    cpu = _simulate(sim, record, N, h if event_driven else None)
+    cpu, wall = _simulate(sim, record, N, h if event_driven else None, *timing)
     if P["exact_gaps"]:
         q += np.array([float(b["q0"]) for b in bodies])
     sl = slice(None, None, max(1, int(spec.get("stride", 1))))
@@ -211,10 +253,11 @@ def _spheres(spec, P):
                                      "exact_gaps": bool(P["exact_gaps"]), "relations": len(relations)}
     return {"peer": "siconos", "scene": spec["name"], "t": (np.arange(N + 1) * h)[sl],
             "bodies": [{"q": q[sl, j], "u": v[sl, j]} for j in range(len(dss))], "cpu_seconds": cpu,
+            "wall_seconds": wall,
             "settings": settings, "version": version()}
 
 
-def _box(spec, P):
+def _box(spec, P, timing=()):
     import siconos.kernel as sk
     import siconos.numerics as sn
     from siconos.mechanics.collision import (RigidBodyDS, SiconosBox, SiconosContactor, SiconosContactorSet,
@@ -272,7 +315,7 @@ def _box(spec, P):
         qq[k] = body.q()
         vv[k] = body.twist()
 
-    cpu = _simulate(sim, record, N)
+    cpu, wall = _simulate(sim, record, N, None, *timing)
     sl = slice(None, None, max(1, int(spec.get("stride", 1))))
     omega_world = np.einsum("nij,nj->ni", quat_to_mats(qq[:, 3:7]), vv[:, 3:6])  # the twist's omega: body frame
     settings = _settings(P, e, h) | {
@@ -285,4 +328,4 @@ def _box(spec, P):
         "min_corner_z_final": float(min_corner_height(qq[-1:, 0:3], qq[-1:, 3:7], (hx, hy, hz))[0])}
     return {"peer": "siconos", "scene": spec["name"], "t": (np.arange(N + 1) * h)[sl],
             "bodies": [{"pos": qq[sl, 0:3], "quat": qq[sl, 3:7], "vel": vv[sl, 0:3], "omega_world": omega_world[sl]}],
-            "cpu_seconds": cpu, "settings": settings, "version": version()}
+            "cpu_seconds": cpu, "wall_seconds": wall, "settings": settings, "version": version()}
