@@ -48,7 +48,6 @@ import time
 
 import numpy as np
 import pinocchio as pin
-from scipy.optimize import brentq
 
 from .data import Data, make_data
 from .errors import SimulationError
@@ -103,6 +102,14 @@ def _polyslope(p: np.ndarray, x: float):
     for k in range(4, 0, -1):
         y = y * x + k * p[k]
     return y
+
+
+def brentq(f, a: float, b: float, **kwargs) -> float:
+    """scipy.optimize.brentq, imported on first use: scipy.optimize is ~40 MB of RSS that a
+    time-stepping run never needs (the fault tests patch this name)."""
+    from scipy.optimize import brentq as root
+
+    return root(f, a, b, **kwargs)
 
 
 def _root(f, lo: float, hi: float, xtol: float) -> float:

@@ -27,7 +27,7 @@ from .errors import SceneError
 from .model import Model
 from .recording import Recorder
 from .state import State
-from .trajectory import load_trajectory
+from .trajectory import read_npz, verify_checksum
 
 KEY = "checkpoint"
 
@@ -90,20 +90,25 @@ def save(path: Path, rec: Recorder, meta: dict, *, steps: int, t0: float, state:
 
 
 def load(path: Path, model: Model, rec: Recorder, data: Data) -> Resumed:
-    """Restore `rec` and `data` from the checkpoint at `path`; SceneError naming the file when it
-    is damaged or belongs to another run."""
+    """Restore `rec` and `data` from the checkpoint at `path`, one array at a time (a spilling
+    recorder writes each to its file: a resumed run needs no more memory than the first);
+    SceneError naming the file when it is damaged or belongs to another run."""
     try:
-        traj = load_trajectory(path)
+        with read_npz(path) as z:
+            meta = json.loads(str(z["meta"]))
+            verify_checksum(path, meta, z)
+            ck = meta.get(KEY)
+            if not isinstance(ck, dict):
+                raise SceneError(f"{path}: not a checkpoint (no meta.{KEY})")
+            if ck.get("identity") != identity(model):
+                raise SceneError(f"{path}: a checkpoint of another run (its scene, URDFs or options differ); "
+                                 "delete it or resume with the same settings")
+            state = State(float(ck["t"]), np.array(ck["q"], float), np.array(ck["u"], float))
+            rec.restore(z, ck["recorder"], state)
+    except SceneError:
+        raise
     except ValueError as exc:
         raise SceneError(f"{exc}; delete it to start again") from None
-    ck = traj.meta.get(KEY)
-    if not isinstance(ck, dict):
-        raise SceneError(f"{path}: not a checkpoint (no meta.{KEY})")
-    if ck.get("identity") != identity(model):
-        raise SceneError(f"{path}: a checkpoint of another run (its scene, URDFs or options differ); "
-                         "delete it or resume with the same settings")
-    state = State(float(ck["t"]), np.array(ck["q"], float), np.array(ck["u"], float))
-    rec.restore(traj.arrays, ck["recorder"], state)
     data.restore_warm_start(ck["warm_start"])
     return Resumed(int(ck["steps"]), float(ck["t0"]), state, float(ck["work"]), float(ck["corr"]),
-                   {tuple(p) for p in ck["previous"]}, float(traj.meta.get("run", {}).get("wall_seconds") or 0.0))
+                   {tuple(p) for p in ck["previous"]}, float(meta.get("run", {}).get("wall_seconds") or 0.0))

@@ -81,6 +81,29 @@ def _show_progress(flag: bool | None, as_json: bool) -> bool:
     return (sys.stderr.isatty() if flag is None else flag) and not as_json
 
 
+def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
+    """simulate() for `run`, its recorded rows waiting in unnamed files beside the output instead of
+    in memory (docs/output.md); a stop saves the samples so far as FILE.partial.npz and exits."""
+    try:
+        return simulate(model, progress=progress, checkpoint=ck, spill=out.parent)
+    except SceneError as exc:  # a damaged checkpoint, or one of another run
+        _fail(str(exc))
+    except SimulationInterrupted as exc:
+        partial = out.with_name(out.stem + ".partial.npz")
+        exc.trajectory.save(partial)
+        again = (f"; --resume continues from the last checkpoint {ck.path}" if ck is not None and ck.path.exists()
+                 else "")
+        click.echo(f"moreau-sim: {exc}; the samples so far are in {partial} (meta status 'failed'){again}", err=True)
+        sys.exit(130)
+    except SimulationError as exc:
+        partial = out.with_name(out.stem + ".partial.npz")
+        if exc.trajectory is not None:
+            exc.trajectory.save(partial)
+            _fail(f"{exc}\n  nothing written to {out}; the samples up to the failure are in {partial} "
+                  "(meta status 'failed')")
+        _fail(str(exc))
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="moreau-sim")
 def main():
@@ -126,26 +149,12 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
             click.echo(f"moreau-sim: no checkpoint {ck.path}: starting from the beginning", err=True)
     previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM as Ctrl-C: the samples so far are kept
     try:
-        traj = simulate(model, progress=_show_progress(progress, as_json), checkpoint=ck)
-    except SceneError as exc:  # a damaged checkpoint, or one of another run
-        _fail(str(exc))
-    except SimulationInterrupted as exc:
-        partial = out.with_name(out.stem + ".partial.npz")
-        exc.trajectory.save(partial)
-        again = (f"; --resume continues from the last checkpoint {ck.path}" if ck is not None and ck.path.exists()
-                 else "")
-        click.echo(f"moreau-sim: {exc}; the samples so far are in {partial} (meta status 'failed'){again}", err=True)
-        sys.exit(130)
-    except SimulationError as exc:
-        partial = out.with_name(out.stem + ".partial.npz")
-        if exc.trajectory is not None:
-            exc.trajectory.save(partial)
-            _fail(f"{exc}\n  nothing written to {out}; the samples up to the failure are in {partial} "
-                  "(meta status 'failed')")
-        _fail(str(exc))
+        traj = _simulate(model, out, ck, _show_progress(progress, as_json))
+        traj.save(out)
+    except OSError as exc:  # the output's folder filled up (the run's spill files, a partial file, the output)
+        _fail(f"{out.parent}: cannot write there ({exc.strerror or exc}); nothing written to {out}")
     finally:
         signal.signal(signal.SIGTERM, previous)
-    traj.save(out)
     if ck is not None:
         ck.path.unlink(missing_ok=True)  # the run is complete and saved
     s = summary(traj)

@@ -45,7 +45,6 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linprog, nnls
 
 from . import qp
 from .law import outcome
@@ -241,6 +240,8 @@ def _has_interior(R, tau, lp) -> bool:
     """max s s.t. R z >= s, |z| <= 1: does the cone {R z >= 0} have an interior point?"""
     if R.shape[0] == 0:
         return True
+    from scipy.optimize import linprog  # here: corners only (~40 MB of RSS a run without corners never loads)
+
     k = R.shape[1]
     lp[0] += 1
     res = linprog(np.r_[np.zeros(k), -1.0], A_ub=np.hstack([-R, np.ones((R.shape[0], 1))]),
@@ -250,6 +251,8 @@ def _has_interior(R, tau, lp) -> bool:
 
 def _implicit_equalities(A, lp) -> np.ndarray:
     """Rows of {A x >= 0} that vanish on the whole cone: max sum t, A x >= t, 0 <= t <= 1."""
+    from scipy.optimize import linprog
+
     k, n = A.shape
     lp[0] += 1
     res = linprog(np.r_[np.zeros(n), -np.ones(k)], A_ub=np.hstack([-A, np.eye(k)]), b_ub=np.zeros(k),
@@ -280,6 +283,8 @@ def _in_cone(x, gens, tau) -> bool:
     """x ∈ cone{rows of gens} (NNLS residual <= tau |x|); b ∈ cone{rows of L_k} iff L_k ⊆ {b x >= 0}."""
     if gens.shape[0] == 0:
         return float(np.linalg.norm(x)) <= tau
+    from scipy.optimize import nnls
+
     _, res = nnls(gens.T, x)
     return res <= tau * max(1.0, float(np.linalg.norm(x)))
 

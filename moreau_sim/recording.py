@@ -2,12 +2,17 @@
 ledger (docs/theory.md §5), filling the arrays of trajectory.py's schema; and the run metadata every
 trajectory file carries.
 
-Columns grow in place by at most BLOCK_ROWS rows (compact: memory is proportional to what was recorded)."""
+Columns grow in place by at most BLOCK_ROWS rows (compact: memory is proportional to what was recorded),
+or, spilling, keep SPILL_BYTES of rows in memory and the rest in unnamed temporary files."""
 
 from __future__ import annotations
 
 import datetime
+import math
+import mmap
 import platform
+import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -25,6 +30,7 @@ from .state import State
 from .trajectory import Trajectory
 
 BLOCK_ROWS = 1 << 14  # the most rows a full column grows by at a time (see _Columns)
+SPILL_BYTES = 8 << 20  # [bytes] the rows a spilling group of columns keeps in memory before it writes them out
 LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) of its step (and > 0)
 
 
@@ -84,53 +90,128 @@ class PercussionRow:
 
 
 class _Columns:
-    """Arrays of one schema group, `n` rows used. A full column grows in place (ndarray.resize:
+    """Arrays of one schema group, `n` rows recorded. A full column grows in place (ndarray.resize:
     realloc, which for large arrays remaps pages instead of copying them) by as many rows as it
     has, at most BLOCK_ROWS at a time, and is cut to its n rows when the recording ends (fit):
     the memory stays ~ the rows recorded, with no copy and at most BLOCK_ROWS rows to spare. A row
-    counts (commit) only once written: an interrupt never leaves a half-written row."""
+    counts (commit) only once written: an interrupt never leaves a half-written row.
 
-    def __init__(self, schema: dict, sizes: dict, capacity: int):
+    With `spill` (a folder), every SPILL_BYTES of rows the columns move their rows to one unnamed
+    temporary file each there (rows [0, spilled); the columns in memory hold the rest) and
+    arrays() returns read-only maps of those files: the memory is one block of rows, the files
+    vanish with the last map or on any exit of the process (they have no name)."""
+
+    def __init__(self, schema: dict, sizes: dict, capacity: int, spill: str | Path | None = None):
         self.shapes = {k: tuple(sizes.get(d, d) for d in shape) for k, (_, shape) in schema.items()}
+        self.dtypes = {k: np.dtype(dtype) for k, (dtype, _) in schema.items()}
+        # spilling: the rows of one block (at least one)
+        self.block = max(1, SPILL_BYTES // sum(self._row_bytes(k) for k in schema))
+        if spill is not None:
+            capacity = min(capacity, self.block)
         self.cols = {k: np.empty((max(capacity, 1),) + self.shapes[k], dtype) for k, (dtype, _) in schema.items()}
         self.n = 0
+        self.spilled = 0  # rows in the spill files (rows [0, spilled); cols[k][i] is row spilled + i)
+        self._files = None if spill is None else {k: tempfile.TemporaryFile(dir=spill) for k in schema}
+        self._closed: dict | None = None  # the arrays once the spill files are closed
 
     def free(self) -> int:
-        """Index of the next row (growing the columns if full); call commit() once it is written."""
-        i = self.n
+        """Index in cols of the next row (growing or spilling the columns if full); call commit() once
+        it is written."""
+        i = self.n - self.spilled
         if i == len(next(iter(self.cols.values()))):
+            if self._files is not None and i >= self.block:
+                self._spill()
+                return 0
             self._resize(i + min(max(i, 64), BLOCK_ROWS))
         return i
 
     def commit(self) -> None:
         self.n += 1
 
+    @property
+    def last(self) -> int:
+        """Index in cols of the last row recorded."""
+        return self.n - 1 - self.spilled
+
     def _resize(self, rows: int) -> None:
+        m = self.n - self.spilled
         for k in self.cols:
             try:  # in place; refused (ValueError) while a view of the array is alive: then copied
                 self.cols[k].resize((rows,) + self.cols[k].shape[1:])
             except ValueError:
                 a = self.cols[k]
                 b = np.empty((rows,) + a.shape[1:], a.dtype)
-                b[:min(rows, self.n)] = a[:min(rows, self.n)]
+                b[:min(rows, m)] = a[:min(rows, m)]
                 self.cols[k] = b
 
-    def fit(self) -> None:
-        """Release the rows not used (at the end of a recording)."""
-        if len(next(iter(self.cols.values()))) > max(self.n, 1):
-            self._resize(max(self.n, 1))
-
-    def load(self, arrays: dict[str, np.ndarray]) -> None:
-        """Start from rows recorded earlier (a checkpoint's arrays)."""
-        n = len(arrays[next(iter(self.cols))])
-        if n > len(next(iter(self.cols.values()))):
-            self._resize(n)
+    def _spill(self) -> None:
+        """Write the rows in memory to the spill files, at their place (an interrupted spill is
+        simply redone: `spilled` moves only once every column is written)."""
+        m = self.n - self.spilled
+        if m == 0:
+            return
         for k, a in self.cols.items():
-            a[:n] = arrays[k]
+            _write_at(self._files[k], a[:m], self.spilled * self._row_bytes(k))
+        self.spilled = self.n
+
+    def _row_bytes(self, k: str) -> int:
+        return self.dtypes[k].itemsize * math.prod(self.shapes[k])
+
+    def fit(self) -> None:
+        """Release the rows not used (at the end of a recording); spilling: all rows go to the files."""
+        if self._files is not None:
+            self._spill()
+        if len(next(iter(self.cols.values()))) > max(self.n - self.spilled, 1):
+            self._resize(max(self.n - self.spilled, 1))
+
+    def load(self, arrays: Mapping[str, np.ndarray]) -> None:
+        """Start from rows recorded earlier (a checkpoint's arrays: a dict, or an open NPZ whose
+        arrays are read one at a time; spilling, each goes to its file)."""
+        for k in self.cols:
+            a = np.ascontiguousarray(arrays[k], self.dtypes[k])
+            n = len(a)
+            if self._files is not None:
+                _write_at(self._files[k], a, 0)
+                continue
+            if n > len(self.cols[k]):
+                self._resize(n)
+            self.cols[k][:n] = a
         self.n = n
+        if self._files is not None:
+            self.spilled = n
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {k: a[:self.n] for k, a in self.cols.items()}
+        if self._files is None:
+            return {k: a[:self.n] for k, a in self.cols.items()}
+        if self._closed is not None:
+            return self._closed
+        self._spill()
+        return {k: _file_rows(self._files[k], self.n, self.dtypes[k], self.shapes[k]) for k in self.cols}
+
+    def close(self) -> None:
+        """Close the spill files (the end of a recording; maps of them stay valid: a map keeps its file)."""
+        if self._files is not None and self._closed is None:
+            self._closed = self.arrays()
+            for f in self._files.values():
+                f.close()
+
+
+def _write_at(f, a: np.ndarray, offset: int) -> None:
+    """The bytes of the C-contiguous array `a` into the file `f` at byte `offset`, flushed (a map
+    of the file then reads them)."""
+    f.seek(offset)
+    f.write(memoryview(a.reshape(-1).view(np.uint8)))
+    f.flush()
+
+
+def _file_rows(f, n: int, dtype: np.dtype, shape: tuple) -> np.ndarray:
+    """The first n rows of a spill file, as a read-only array over a map of it."""
+    size = dtype.itemsize * math.prod(shape) * n
+    if size == 0:
+        a = np.empty((n,) + shape, dtype)
+        a.flags.writeable = False  # read-only as every spilled array
+        return a
+    return np.frombuffer(mmap.mmap(f.fileno(), size, access=mmap.ACCESS_READ), dtype).reshape((n,) + shape)
 
 
 class Recorder:
@@ -140,16 +221,20 @@ class Recorder:
     The ledger (docs/theory.md §5, ledger.py): the integrator reports each fixed step
     (account_step) and each impact located in time (account_impact); the energy change between
     the states they leave and the next reported or sampled state is contact-free motion and counts
-    as smooth error."""
+    as smooth error.
 
-    def __init__(self, model: Model, data: Data, n_samples: int = 1):
+    spill: a folder for temporary files that hold all but the last SPILL_BYTES of rows of each group
+    (_Columns): memory for one block of rows instead of the whole record, and the trajectory's
+    arrays are read-only maps of those files."""
+
+    def __init__(self, model: Model, data: Data, n_samples: int = 1, *, spill: str | Path | None = None):
         self.model, self.data = model, data
         sizes = {"nq": model.nq, "nv": model.nv, "pairs": len(model.pairs)}
-        self._samples = _Columns(trajectory.SAMPLES, sizes, n_samples)
-        self._log = _Columns(trajectory.LOG, sizes, 64)
-        self._branches = _Columns(trajectory.BRANCHES, sizes, 4)
-        self._candidates = _Columns(trajectory.CANDIDATES, sizes, 8)
-        self._impacts = _Columns(trajectory.IMPACTS, sizes, 16)
+        self._samples = _Columns(trajectory.SAMPLES, sizes, n_samples, spill)
+        self._log = _Columns(trajectory.LOG, sizes, 64, spill)
+        self._branches = _Columns(trajectory.BRANCHES, sizes, 4, spill)
+        self._candidates = _Columns(trajectory.CANDIDATES, sizes, 8, spill)
+        self._impacts = _Columns(trajectory.IMPACTS, sizes, 16, spill)
         self._smooth = self._diss = self._law = 0.0  # ledger terms since the previous sample [J]
         self._E: float | None = None  # T + V at the last state the ledger accounted [J]
         self._at: tuple | None = None  # that state's (q, u) arrays (a step starting there reuses _E)
@@ -262,7 +347,7 @@ class Recorder:
 
     def finite(self) -> bool:
         """Whether the last sample's energies and gaps are finite (an overflow shows there first)."""
-        i, c = self._samples.n - 1, self._samples.cols
+        i, c = self._samples.last, self._samples.cols
         return bool(np.isfinite(c["kinetic_energy"][i]) and np.isfinite(c["potential_energy"][i])
                     and np.isfinite(c["gap"][i]).all())
 
@@ -317,8 +402,9 @@ class Recorder:
                 "law_difference": [None if np.isnan(x) else x for x in self._law_difference],
                 "contact_steps": self._contact_steps}
 
-    def restore(self, arrays: dict[str, np.ndarray], carried: dict, state: State) -> None:
-        """Continue a recording from its arrays and carried() (a checkpoint's) at `state`."""
+    def restore(self, arrays: Mapping[str, np.ndarray], carried: dict, state: State) -> None:
+        """Continue a recording from its arrays (a dict or an open NPZ) and carried() (a
+        checkpoint's) at `state`."""
         for g in self._groups():
             g.load(arrays)
         c = carried
@@ -341,4 +427,8 @@ class Recorder:
         if final:
             for g in self._groups():
                 g.fit()
-        return Trajectory(self.arrays(), {**meta, "ledger": self.ledger_meta()})
+        traj = Trajectory(self.arrays(), {**meta, "ledger": self.ledger_meta()})
+        if final:
+            for g in self._groups():
+                g.close()
+        return traj

@@ -29,7 +29,8 @@ _PROGRESS_DELAY = float(os.environ.get("MOREAU_SIM_PROGRESS_DELAY", "2.0"))
 
 
 def simulate(model: Model, *, data: Data | None = None, state: State | None = None,
-             progress: bool = True, checkpoint: Checkpoint | None = None) -> Trajectory:
+             progress: bool = True, checkpoint: Checkpoint | None = None,
+             spill: str | Path | None = None) -> Trajectory:
     """Run the scene's options (restitution, dt, duration) from `state` (default: the scene's
     initial state). Returns a complete :class:`Trajectory` or raises :class:`SimulationError`
     (naming the step and time) whose ``.trajectory`` holds the samples up to the failure,
@@ -38,7 +39,12 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     checkpoint: save a checkpoint every so often and/or resume from one (time-stepping only;
     :class:`~moreau_sim.checkpoint.Checkpoint`); a resumed run gives the same arrays, bit for
     bit, as an uninterrupted one. The checkpoint file is removed when the run completes unless
-    ``checkpoint.keep``."""
+    ``checkpoint.keep``.
+
+    spill: a folder where a time-stepping run keeps all but the last block of its recorded rows, in
+    unnamed temporary files (recording.Recorder): the memory of a long run stays that of the
+    libraries and one block, and the returned arrays are read-only maps of those files (they
+    disappear with the arrays)."""
     data = data or make_data(model)
     state = state or initial_state(model)
     opts = model.options
@@ -50,7 +56,7 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     if opts.integrator is Integrator.ADAPTIVE:
         return simulate_adaptive(model, data=data, state=state)
     h, e, n, every = opts.dt, opts.restitution, opts.n_steps, opts.save_every
-    rec = Recorder(model, data, min(1 + n // every + 1, 1 << 16))  # columns grow beyond this
+    rec = Recorder(model, data, min(1 + n // every + 1, 1 << 16), spill=spill)  # columns grow beyond this
     t0, k0, previous, work, corr, wall_before = state.t, 0, set(), 0.0, 0.0, 0.0
     if checkpoint is not None and checkpoint.resume and Path(checkpoint.path).exists():
         r = ckpt.load(Path(checkpoint.path), model, rec, data)
@@ -117,18 +123,19 @@ def _meta(model: Model, status: str, steps: int, wall: float) -> dict:
 
 def run(scene: Scene | str | Path, *, dt: float | None = None, duration: float | None = None,
         restitution: float | None = None, progress: bool = False, checkpoint: str | Path | None = None,
-        checkpoint_every: float | None = None, resume: bool = False, **options) -> Trajectory:
+        checkpoint_every: float | None = None, resume: bool = False, spill: str | Path | None = None,
+        **options) -> Trajectory:
     """Load (if a path), override options (dt [s], duration [s], restitution, any other
     :class:`~moreau_sim.options.Options` field, e.g. integrator="adaptive", rtol=1e-10,
     atol=1e-12), build and simulate. Returns the Trajectory.
 
     checkpoint: a checkpoint file, written every `checkpoint_every` seconds of simulated time
     (rounded to whole steps) and removed when the run completes; resume: continue from it when
-    it exists (checkpoint.py)."""
+    it exists (checkpoint.py); spill: a folder for the recorded rows instead of memory (simulate)."""
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     sc = sc.with_options(dt=dt, duration=duration, restitution=restitution, **options)
     ck = None if checkpoint is None else Checkpoint(path=Path(checkpoint), every=checkpoint_every, resume=resume)
-    return simulate(build_model(sc), progress=progress, checkpoint=ck)
+    return simulate(build_model(sc), progress=progress, checkpoint=ck, spill=spill)
 
 
 def summary(traj: Trajectory) -> dict:

@@ -28,8 +28,10 @@ Arrays (n = saved samples, k = logged contact percussions):
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import mmap
 import os
 import tempfile
 import zipfile
@@ -163,12 +165,36 @@ def _write_npz(fh, arrays: dict[str, np.ndarray]) -> None:
             a = a if a.flags.c_contiguous else np.ascontiguousarray(a)  # (ascontiguousarray makes 0-d 1-d)
             with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
                 np.lib.format.write_array_header_1_0(f, np.lib.format.header_data_from_array_1_0(a))
-                if a.nbytes <= _PIECE:
-                    f.write(a.tobytes())
-                    continue
-                data = memoryview(a).cast("B")
-                for i in range(0, len(data), _PIECE):
-                    f.write(data[i:i + _PIECE])
+                for piece in _pieces(a):
+                    f.write(piece)
+
+
+def _pieces(a: np.ndarray):
+    """The bytes of a C-contiguous array in _PIECE-byte memoryviews, without a copy. Pages of a
+    read-only file map under `a` (a spilling recording's arrays, recording._Columns) are handed
+    back once read, so streaming such an array through costs no memory."""
+    data = memoryview(a.reshape(-1).view(np.uint8))
+    mm = _read_only_map(a)
+    start = 0
+    if mm is not None:
+        start = a.__array_interface__["data"][0] - np.frombuffer(mm, np.uint8).__array_interface__["data"][0]
+    for i in range(0, len(data), _PIECE):
+        yield data[i:i + _PIECE]
+        if mm is not None and hasattr(mmap, "MADV_DONTNEED"):  # page-aligned from below; the kernel rounds up
+            lo = (start + i) // mmap.PAGESIZE * mmap.PAGESIZE
+            mm.madvise(mmap.MADV_DONTNEED, lo, start + i + _PIECE - lo)
+
+
+def _read_only_map(a: np.ndarray) -> mmap.mmap | None:
+    """The mmap under `a` when `a` reads a shared read-only file map (np.frombuffer of an
+    ACCESS_READ mmap), else None. MADV_DONTNEED on such a map only drops pages that the file
+    holds: on any other memory it would lose data."""
+    b = a
+    while isinstance(b, np.ndarray):
+        b = b.base
+    if isinstance(b, memoryview) and b.readonly and isinstance(b.obj, mmap.mmap):
+        return b.obj
+    return None
 
 
 def _remove_orphans(path: Path) -> None:
@@ -193,8 +219,8 @@ def checksum(arrays: dict[str, np.ndarray]) -> str:
         if k in arrays:
             a = np.ascontiguousarray(arrays[k])
             h.update(f"{k}|{a.dtype.str}|{a.shape}|".encode())
-            if a.size:
-                h.update(memoryview(a).cast("B"))  # the bytes of tobytes(), without a copy
+            for piece in _pieces(a):  # the bytes of tobytes(), without a copy
+                h.update(piece)
     return h.hexdigest()
 
 
@@ -202,24 +228,39 @@ def load_trajectory(path: str | Path, *, verify: bool = True) -> Trajectory:
     """Read an NPZ written by :meth:`Trajectory.save`. Raises ValueError naming the file, also
     when `verify` and its arrays do not match the checksum recorded at save (damaged data)."""
     path = Path(path)
+    with read_npz(path) as z:
+        old = "log_kind" not in z.files
+        optional = LEDGER_ARRAYS + (("log_kind",) if old else ())
+        missing = [k for k in ARRAYS + ("meta",) if k not in z.files and k not in optional]
+        if missing:
+            raise ValueError(f"{path}: not a moreau-sim trajectory (missing {missing})")
+        meta = json.loads(str(z["meta"]))
+        arrays = {k: z[k] for k in ARRAYS if k in z.files}
+        if verify:
+            verify_checksum(path, meta, arrays)
+        if old:
+            _from_format1(arrays)
+        _without_ledger(arrays)
+    return Trajectory(arrays, meta)
+
+
+def verify_checksum(path: Path, meta: dict, arrays) -> None:
+    """ValueError naming `path` when `arrays` (a dict, or an open NPZ) do not match the checksum
+    in `meta` (damaged data; a file without one passes)."""
+    if "checksum" in meta and checksum(arrays) != meta["checksum"]:
+        raise ValueError(f"{path}: damaged: its arrays do not match the checksum written with them")
+
+
+@contextlib.contextmanager
+def read_npz(path: Path):
+    """A trajectory NPZ open (np.load: each array read when asked for, so one at a time can be in
+    memory); any error reading it, also inside the with block, a ValueError naming the file."""
     try:
         with np.load(path, allow_pickle=False) as z:
-            old = "log_kind" not in z.files
-            optional = LEDGER_ARRAYS + (("log_kind",) if old else ())
-            missing = [k for k in ARRAYS + ("meta",) if k not in z.files and k not in optional]
-            if missing:
-                raise ValueError(f"{path}: not a moreau-sim trajectory (missing {missing})")
-            meta = json.loads(str(z["meta"]))
-            arrays = {k: z[k] for k in ARRAYS if k in z.files}
-            if verify and "checksum" in meta and checksum(arrays) != meta["checksum"]:
-                raise ValueError(f"{path}: damaged: its arrays do not match the checksum written with them")
-            if old:
-                _from_format1(arrays)
-            _without_ledger(arrays)
+            yield z
     except ValueError as exc:
         if str(path) in str(exc):
             raise
         raise ValueError(f"{path}: not a moreau-sim trajectory NPZ ({exc})") from None
     except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError) as exc:  # truncated or corrupted
         raise ValueError(f"{path}: cannot read trajectory: {type(exc).__name__}: {exc}") from None
-    return Trajectory(arrays, meta)
