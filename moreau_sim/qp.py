@@ -22,7 +22,6 @@ import numpy as np
 import piqp
 import scipy.linalg.lapack
 import scipy.sparse
-import scipy.sparse.linalg
 
 from .options import QPForm
 
@@ -82,8 +81,10 @@ def _solve(A, rhs):
         return _gesv_ok(A, rhs)
     if A.shape[0] == 0:
         return np.zeros(0)
+    from scipy.sparse.linalg import splu  # here: the sparse path only (issue 14: no RSS a small run never uses)
+
     try:
-        x = scipy.sparse.linalg.splu(A.tocsc()).solve(np.asarray(rhs, float))
+        x = splu(A.tocsc()).solve(np.asarray(rhs, float))
     except RuntimeError:  # "Factor is exactly singular"
         return None
     return x if np.isfinite(x).all() else None
