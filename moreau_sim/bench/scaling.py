@@ -40,6 +40,7 @@ from moreau_sim.scene import Collisions
 from . import OUT, REPO, add_table_option, rewrite_tables
 
 SIZES = (10, 20, 50, 100, 200, 500, 1000)
+QP_SIZES = (100, 300, 1000, 3000)
 TARGET_SLOPE = 1.1
 IMPLS = ("compiled", "python")
 # the stages of a Python step: (label, module file, function) for cProfile's cumulative times (file "~": a
@@ -133,6 +134,20 @@ def bench_size(n: int, repeat: int, n_states: int) -> dict:
     return out
 
 
+def qp_alone(n: int, repeat: int) -> dict:
+    """The impact QP of a resting column of n unit beads built without a model (M = I, the column's rows, every
+    bead at -g h): qp.solve as the stepper calls it, best of `repeat`. It reaches sizes whose Pinocchio Data
+    cannot be built (too_big); its inputs are still dense (M, M^-1, W: n^2 each)."""
+    W = np.zeros((n, n), order="F")
+    W[0, 0] = 1.0
+    k = np.arange(1, n)
+    W[k, k], W[k - 1, k] = 1.0, -1.0
+    M, v0 = np.eye(n), np.full(n, -9.81 * 5e-4)
+    r = qp.solve(M, W, v0, Minv=M)
+    return {"beads": n, "us": best(lambda: qp.solve(M, W, v0, Minv=M), repeat), "status": r.status,
+            "polished": bool(r.polished), "max_abs_v": float(np.abs(r.v).max())}
+
+
 def fit_slope(rows: list, impl: str) -> float:
     """Least-squares slope of log(us per step) against log(contacts) (nan with fewer than 2 sizes)."""
     if len(rows) < 2:
@@ -223,6 +238,18 @@ def markdown_table(data: dict) -> str:
             f"python {s['python']:.2f} ({met['python']}); target ≤ {TARGET_SLOPE}. Above "
             f"{data['compiled_limit']} contacts, where every step is the Python step: {s2['compiled']:.2f} and "
             f"{s2['python']:.2f}. The QP runs on sparse matrices above {data['sparse_rows']} rows."]
+    if data.get("qp_alone"):
+        bq = before.get("qp_alone", {}) if before else {}
+        out += ["", "The impact QP alone on the same column built without a model (M = I, no Pinocchio Data, so "
+                "beyond what a model can build here), ms per solve:", "",
+                "| beads | QP | " + ("before | " if bq else "") + "status |",
+                "|---:|---:|" + ("---:|" if bq else "") + "---|"]
+        for r in data["qp_alone"]:
+            was = "" if not bq else (f"{bq[str(r['beads'])] * 1e-3:.2f} | " if str(r["beads"]) in bq else "– | ")
+            out.append(f"| {r['beads']} | {r['us'] * 1e-3:.2f} | {was}{r['status']}"
+                       f"{', polished' if r['polished'] else ''} |")
+        out.append("")
+        out.append(f"Slope of the QP alone: {data['qp_alone_slope']:.2f}.")
     if before:
         out.append(f"Before: slopes {before['slopes']['compiled']:.2f} (compiled) and "
                    f"{before['slopes']['python']:.2f} (python) over the sizes it measured.")
@@ -251,6 +278,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--states", type=int, default=10, help="contact states per size (a run of that many steps)")
     ap.add_argument("--before", type=Path, help="a scaling.json of earlier code, quoted beside this run's figures")
+    ap.add_argument("--qp-sizes", type=int, nargs="*", default=list(QP_SIZES),
+                    help="numbers of beads of the QP alone (no Pinocchio Data: beyond what a model can build)")
     a = ap.parse_args(argv)
     if rewrite_tables(a, doc_tables):
         return 0
@@ -270,6 +299,10 @@ def main(argv=None) -> int:
               f"{r['compiled']['paths']}", flush=True)
         print("       stages (python, profiled, ms): "
               + ", ".join(f"{k} {v * 1e-3:.3f}" for k, v in r["stages_python"].items()), flush=True)
+    qp_rows = []
+    for n in a.qp_sizes:
+        qp_rows.append(qp_alone(n, a.repeat))
+        print(f"QP alone, {n} beads: {qp_rows[-1]['us'] * 1e-3:.3f} ms ({qp_rows[-1]['status']})", flush=True)
     slopes = {impl: fit_slope(rows, impl) for impl in IMPLS}
     above = [r for r in rows if r["contacts"] > compiled.MAX_CONTACTS]  # every step in the Python step
     slopes_python_only = {impl: fit_slope(above, impl) for impl in IMPLS}
@@ -281,15 +314,18 @@ def main(argv=None) -> int:
             "note": "us per step: median over the states of a short run of the best of `repeat` timings"}
     data = {"meta": meta, "sizes": rows, "skipped": skipped, "slopes": slopes,
             "slopes_above_compiled_limit": slopes_python_only, "compiled_limit": compiled.MAX_CONTACTS,
-            "sparse_rows": qp.SPARSE_ROWS, "target_slope": TARGET_SLOPE}
+            "sparse_rows": getattr(qp, "SPARSE_ROWS", None), "target_slope": TARGET_SLOPE, "qp_alone": qp_rows,
+            "qp_alone_slope": fit_slope([{"contacts": r["beads"], "qp": r} for r in qp_rows], "qp")}
     if a.before:
         prev = json.loads(a.before.read_text(encoding="utf-8"))
         data["before"] = {"commit": prev["meta"]["commit"], "note": prev["meta"].get("label", ""),
                           "slopes": prev["slopes"],
-                          "sizes": {str(r["beads"]): {impl: r[impl]["us"] for impl in IMPLS} for r in prev["sizes"]}}
+                          "sizes": {str(r["beads"]): {impl: r[impl]["us"] for impl in IMPLS} for r in prev["sizes"]},
+                          "qp_alone": {str(r["beads"]): r["us"] for r in prev.get("qp_alone", [])}}
     (out / "scaling.json").write_text(json.dumps(data, indent=2))
-    plot(data, out / "scaling.png")
-    print(f"wrote {out / 'scaling.json'} and {out / 'scaling.png'}")
+    if len(rows) >= 2:
+        plot(data, out / "scaling.png")
+    print(f"wrote {out / 'scaling.json'}" + (f" and {out / 'scaling.png'}" if len(rows) >= 2 else ""))
     return 0
 
 
