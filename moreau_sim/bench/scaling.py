@@ -193,6 +193,13 @@ def plot(data: dict, png: Path) -> None:
             pts = sorted((int(n), v[impl] * 1e-3) for n, v in before["sizes"].items())
             ax.loglog(*zip(*pts), mark, mfc="none", color="grey", ms=7,
                       label=f"before ({impl}): slope {before['slopes'][impl]:.2f}")
+    qa = data.get("qp_alone") or []
+    if qa:
+        ax.loglog([r["beads"] for r in qa], [r["us"] * 1e-3 for r in qa], "^-", color="tab:green", lw=0.8,
+                  label=f"impact QP alone, no model (M = I): slope {data['qp_alone_slope']:.2f}")
+        bq = sorted((int(n), v * 1e-3) for n, v in (before or {}).get("qp_alone", {}).items())
+        if bq:
+            ax.loglog(*zip(*bq), "^", mfc="none", color="grey", ms=7, label="before: QP alone")
     ref = np.array([r["python"]["us"] for r in rows]) * 1e-3
     ax.loglog(m, ref[0] * m / m[0], "k:", lw=1, label="slope 1 (from the first point)")
     ax.axvline(data["compiled_limit"] + 0.5, color="grey", lw=0.8, ls="--")
@@ -200,7 +207,7 @@ def plot(data: dict, png: Path) -> None:
     ax.text(data["compiled_limit"] + 0.5, ax.get_ylim()[1], " compiled step's limit", fontsize=7, va="top")
     ax.text(data["sparse_rows"] + 0.5, ax.get_ylim()[1], " sparse QP above", fontsize=7, va="top")
     ax.set_xlabel("contacts m (= beads N)")
-    ax.set_ylabel("ms per step (median over states)")
+    ax.set_ylabel("ms per step (median over states); ms per solve (QP alone)")
     ax.set_title(f"a column of N touching beads: cost of one step (target slope <= {TARGET_SLOPE})")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
