@@ -451,7 +451,7 @@ class AdaptiveRun(FeatureContacts):
             r = step(model, self.data, State(t, q, u), h=h, e=self.e, t_next=t1)
             if r.qp is not None and not r.qp.ok:
                 raise SimulationError(f"a fixed step's impact QP failed with status {r.qp.status}")
-            if not (np.isfinite(r.state.q).all() and np.isfinite(r.state.u).all()):
+            if not r.state.finite():
                 raise SimulationError("a fixed step's state became non-finite (NaN or inf)")
             self.fixed += 1
             self.work += r.contact_work

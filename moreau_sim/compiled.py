@@ -112,10 +112,12 @@ def unsupported(model) -> str | None:
 class _Context:
     """The compiled stepper of one (model, data) and the count of steps by the way they went."""
 
-    __slots__ = ("model", "stepper", "counts", "why")
+    __slots__ = ("model", "stepper", "counts", "why", "nq", "nv", "_slices")
 
     def __init__(self, model, data):
         self.model = model
+        self.nq, self.nv = model.nq, model.nv
+        self._slices: dict[int, tuple] = {}  # m -> the slices of step()'s returned array (layout below)
         self.counts: Counter = Counter()
         self.why = unsupported(model)
         self.stepper = None
@@ -133,6 +135,18 @@ class _Context:
                 o.slow_impacts is SlowImpacts.PLASTIC, o.bias is Bias.MIDPOINT, bool(model.velocity_bias),
                 o.position_correction is PositionCorrection.PROJECTION, MAX_CONTACTS, _dgesv_pointer())
 
+    def slices(self, m: int) -> tuple:
+        """The slices of a contact step's returned array with m contacts (src/step.cpp: its layout):
+        q_next, u_next, g, pa, pb, nrm, P, gm, gp, v, lam, M, W, v_free, b."""
+        s = self._slices.get(m)
+        if s is None:
+            nq, nv, a, out = self.nq, self.nv, 0, []
+            for n in (nq, nv, m, 3 * m, 3 * m, 3 * m, m, m, m, nv, m, nv * nv, nv * m, nv, m):
+                out.append(slice(a, a + n))
+                a += n
+            s = self._slices[m] = tuple(out)
+        return s
+
 
 def _context(model, data) -> _Context:
     ctx = getattr(data, "_compiled_step", None)
@@ -148,15 +162,6 @@ def counts(data) -> Counter:
     return Counter() if ctx is None else ctx.counts
 
 
-def _split(x: np.ndarray, sizes) -> list:
-    """Consecutive views of x of these sizes (np.split costs ~10 us at this size)."""
-    out, a = [], 0
-    for n in sizes:
-        out.append(x[a:a + n])
-        a += n
-    return out
-
-
 def step(model, data, state: State, h: float, e: float, t1: float, StepResult):
     """stepper.step in C++ as a StepResult (the class stepper passes), or None where the Python step
     must take it (counted in counts(data))."""
@@ -168,17 +173,16 @@ def step(model, data, state: State, h: float, e: float, t1: float, StepResult):
     if r[0] == _module.FALLBACK:
         ctx.counts[f"python: {r[1]}"] += 1
         return None
-    nq, nv = model.nq, model.nv
     if r[0] == _module.FLIGHT:
         ctx.counts["flight"] += 1
-        x = r[1]
+        x, nq = r[1], ctx.nq
         return StepResult(State(t1, x[:nq], x[nq:]), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None)
     ctx.counts["contact"] += 1
     _, x, ints, m, work, status, corr = r  # src/step.cpp: the layout of x and ints
-    q_next, u_next, g, pa, pb, nrm, P, gm, gp, v, lam, M, W, v_free, b = _split(
-        x, (nq, nv, m, 3 * m, 3 * m, 3 * m, m, m, m, nv, m, nv * nv, nv * m, nv, m))
+    q_next, u_next, g, pa, pb, nrm, P, gm, gp, v, lam, M, W, v_free, b = [x[s] for s in ctx.slices(m)]
     pa, pb, nrm = pa.reshape(m, 3), pb.reshape(m, 3), nrm.reshape(m, 3)
     contacts = Contacts(g, pa, pb, nrm, ints[:m], ints[m:2 * m], ints[2 * m:3 * m], ints[3 * m:4 * m], ints[4 * m:])
+    nv = ctx.nv
     M = M.reshape(nv, nv)
     W = W.reshape(m, nv).T  # Fortran-ordered (nv, m), as constraints.contact_rows makes it
     qp = QPResult("ADMISSIBLE" if status == 0 else "ACTIVE_SET", True, 0, status == 1, v, lam, (M, W, v_free, b))

@@ -394,4 +394,4 @@ def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
     if not model.pairs:
         return np.zeros(0)
     pin.computeDistances(model.pin, data.pin, model.geom, data.geom, q)
-    return np.array([r.min_distance for r in data.geom.distanceResults])
+    return np.array([r.min_distance for r in data.distance_results])

@@ -46,6 +46,9 @@ class Data:
         self.pin = model.pin.createData()
         # GeometryData must be created after every geometry and pair exists (segfault otherwise).
         self.geom = pin.GeometryData(model.geom)
+        # proxies of the pairs' distance results, made once: they read the live results after each
+        # computeDistances (contacts.pair_distances), where indexing the vector anew costs ~1 us a pair
+        self.distance_results = list(self.geom.distanceResults)
         tol = model.options.contact_tolerance
         for req in self.geom.collisionRequests:
             # gate of the active set: a pair is examined when coal puts it within GATE_MARGIN (its

@@ -89,6 +89,9 @@ class PercussionRow:
     impact: bool
 
 
+_LOG_COLUMNS = tuple((f"log_{name}", name) for name in PercussionRow.__slots__)  # (column, field)
+
+
 class _Columns:
     """Arrays of one schema group, `n` rows recorded. A full column grows in place (ndarray.resize:
     realloc, which for large arrays remaps pages instead of copying them) by as many rows as it
@@ -348,14 +351,15 @@ class Recorder:
     def finite(self) -> bool:
         """Whether the last sample's energies and gaps are finite (an overflow shows there first)."""
         i, c = self._samples.last, self._samples.cols
-        return bool(np.isfinite(c["kinetic_energy"][i]) and np.isfinite(c["potential_energy"][i])
-                    and np.isfinite(c["gap"][i]).all())
+        g = c["gap"][i]
+        return (math.isfinite(c["kinetic_energy"][i]) and math.isfinite(c["potential_energy"][i])
+                and all(map(math.isfinite, g.tolist())))
 
     def log(self, row: PercussionRow) -> None:
         i = self._log.free()
         c = self._log.cols
-        for name in PercussionRow.__slots__:
-            c[f"log_{name}"][i] = getattr(row, name)
+        for column, name in _LOG_COLUMNS:
+            c[column][i] = getattr(row, name)
         self._log.commit()
 
     def log_percussions(self, step: int, t: float, contacts: Contacts, P: np.ndarray, gamma_minus: np.ndarray,
@@ -365,13 +369,16 @@ class Recorder:
         self._new_impact = False
         if not contacts.m:
             return set()
-        cut = LOG_RELATIVE * float(P.max())
-        for i in np.flatnonzero((P > cut) & (P > 0)):
-            key = (int(contacts.pair[i]), int(contacts.kind[i]), int(contacts.feature[i]))
-            self._new_impact |= key not in previous
-            self.log(PercussionRow(step, t, *key, float(contacts.g[i]), float(P[i]), float(gamma_minus[i]),
-                                   float(gamma_plus[i]), contacts.point_a[i], contacts.normal[i], key not in previous))
-        return contacts.keys()
+        cut = max(LOG_RELATIVE * float(P.max()), 0.0)
+        keys = list(zip(contacts.pair.tolist(), contacts.kind.tolist(), contacts.feature.tolist()))
+        for i, p in enumerate(P.tolist()):
+            if p > cut:
+                key = keys[i]
+                self._new_impact |= key not in previous
+                self.log(PercussionRow(step, t, *key, float(contacts.g[i]), p, float(gamma_minus[i]),
+                                       float(gamma_plus[i]), contacts.point_a[i], contacts.normal[i],
+                                       key not in previous))
+        return set(keys)
 
     def branch(self, step: int, t: float, chosen: int, candidates: list[tuple]) -> None:
         """A step with several admissible corner outcomes: candidates [(u_plus, distance, global_min)]."""

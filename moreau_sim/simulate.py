@@ -6,7 +6,6 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
 from tqdm import tqdm
 
 from .adaptive import simulate_adaptive
@@ -83,7 +82,7 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
                     raise SimulationError(f"step {k + 1} (t = {state.t:.6g} s -> {r.state.t:.6g} s): the impact QP "
                                           f"failed with status {r.qp.status} after {r.qp.iterations} iterations "
                                           f"({r.contacts.m} closed contacts)", step=k + 1, t=state.t)
-                if not (np.isfinite(r.state.q).all() and np.isfinite(r.state.u).all()):
+                if not r.state.finite():
                     raise SimulationError(f"step {k + 1} (t = {state.t:.6g} s -> {r.state.t:.6g} s): the state "
                                           "became non-finite (NaN or inf)", step=k + 1, t=state.t)
                 work += r.contact_work
