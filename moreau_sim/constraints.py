@@ -49,6 +49,32 @@ def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
 
 
 _UPPER: dict[int, np.ndarray] = {}
+_WEIGHTS: dict[int, np.ndarray] = {}
+SCREEN_ROWS = 12  # above this many rows distinct screens the pairs by a sort (O(m log m)) instead of comparing all
+
+
+def _duplicates_screened(W: np.ndarray, tol: float) -> np.ndarray:
+    """The mask of distinct's all-pairs test (row j repeats an earlier row i: max_k |W_kj - W_ki| <= tol), found
+    by a screen: two such rows have keys k = c'w (c a fixed weight vector, c_k in [1, 2]) within
+    |c|_1 tol plus the keys' round-off, so after sorting the keys only neighbours within that window are
+    compared, exactly as the all-pairs test does. O(m log m) plus the candidates (docs/theory.md §6.4)."""
+    nv, m = W.shape
+    c = _WEIGHTS.get(nv)
+    if c is None:  # fixed (seeded) and irregular: the rows e_j - e_i of a column must not share a key
+        c = _WEIGHTS[nv] = np.random.default_rng(0).uniform(1.0, 2.0, nv)
+    key = c @ W
+    scale = float(np.abs(c).sum())
+    window = scale * tol + 4.0 * np.finfo(float).eps * nv * scale * (float(np.abs(W).max()) + tol)
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    hi = np.searchsorted(ks, ks + window, side="right")  # candidates of sorted position a: a+1 .. hi[a]-1
+    dup = np.zeros(m, bool)
+    for a in np.flatnonzero(hi > np.arange(m) + 1):
+        i = order[a]
+        for j in order[a + 1:hi[a]]:
+            if np.abs(W[:, i] - W[:, j]).max() <= tol:
+                dup[max(i, j)] = True  # the later of the two repeats the earlier
+    return dup
 
 
 def distinct(contacts: Contacts, W: np.ndarray) -> tuple[Contacts, np.ndarray]:
@@ -57,11 +83,15 @@ def distinct(contacts: Contacts, W: np.ndarray) -> tuple[Contacts, np.ndarray]:
     m = W.shape[1]
     if m < 2:
         return contacts, W
-    upper = _UPPER.get(m)
-    if upper is None:
-        upper = _UPPER[m] = np.triu(np.ones((m, m), bool), 1)
-    same = np.abs(W[:, :, None] - W[:, None, :]).max(axis=0) <= 1e-12 * (1.0 + np.abs(W).max())
-    dup = (same & upper).any(axis=0)
+    tol = 1e-12 * (1.0 + np.abs(W).max())
+    if m > SCREEN_ROWS:
+        dup = _duplicates_screened(W, tol)
+    else:
+        upper = _UPPER.get(m)
+        if upper is None:
+            upper = _UPPER[m] = np.triu(np.ones((m, m), bool), 1)
+        same = np.abs(W[:, :, None] - W[:, None, :]).max(axis=0) <= tol
+        dup = (same & upper).any(axis=0)
     if not dup.any():
         return contacts, W
     keep = ~dup

@@ -207,10 +207,6 @@ class Model:
         }
 
 
-def _matches(name: str, gname: str, body: str, link: str) -> bool:
-    return name in (gname, body, link)
-
-
 def build_model(scene: Scene) -> Model:
     """Build the immutable :class:`Model` of `scene`. Raises :class:`SceneError`."""
     where = str(scene.path) if scene.path else "<scene>"
@@ -246,9 +242,13 @@ def build_model(scene: Scene) -> Model:
     # --- collision pairs: different joints, not both static, not a link and its parent
     gobs = list(geom.geometryObjects)
     links = [model.frames[go.parentFrame].name if go.parentFrame < model.nframes else go.name for go in gobs]
+    named: dict[str, list[int]] = {}  # a name (geometry, body or link) -> its geometries: one look-up per rule
+    for k, go in enumerate(gobs):
+        for name in dict.fromkeys((go.name, geometry_body[k], links[k])):
+            named.setdefault(name, []).append(k)
+
     def pairs_matching(a: str, b: str, key: str) -> list[tuple[int, int]]:
-        ia = [k for k, go in enumerate(gobs) if _matches(a, go.name, geometry_body[k], links[k])]
-        ib = [k for k, go in enumerate(gobs) if _matches(b, go.name, geometry_body[k], links[k])]
+        ia, ib = named.get(a, []), named.get(b, [])
         for name, found in ((a, ia), (b, ib)):
             if not found:
                 raise SceneError(f"{where} [collisions] {key}: '{name}' names no body, static, link or geometry")

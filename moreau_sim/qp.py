@@ -8,7 +8,9 @@ restitution rules shift b, docs/theory.md §2.7). With Polish.ACTIVE_SET (the la
 solved exactly by a dual active-set method (Goldfarb-Idnani) in contact space, re-solved on its
 final active set: from nothing up to COLD_START_ROWS rows (piqp then runs only when the active set
 fails), from piqp's active set above. The compiled step (src/step.cpp) mirrors the cold start
-operation for operation, so both steps take the same decisions, ties included.
+operation for operation, so both steps take the same decisions, ties included. Above SPARSE_ROWS rows
+the same method runs on sparse matrices (_solve_sparse: piqp's SparseSolver, the active set on a CSC
+Delassus matrix with SuperLU), its cost following the nonzeros (docs/theory.md §1.3).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import piqp
 import scipy.linalg.lapack
+import scipy.sparse
 
 from .options import QPForm
 
@@ -62,12 +65,61 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
 
 
 COLD_START_ROWS = 12  # up to this many rows the active set starts from nothing, and piqp is only its fallback
+SPARSE_ROWS = 100  # above this many rows the sparse path (_solve_sparse) solves; below it dense is cheaper
 
 
 def _gesv_ok(A, rhs):
     """x = A^-1 rhs by LAPACK's dgesv (np.linalg.solve costs ~20 us here), or None when singular or not finite."""
     x, info = _gesv(A, rhs)[2:]
     return x if info == 0 and np.isfinite(x).all() else None
+
+
+def _solve(A, rhs):
+    """x = A^-1 rhs: dgesv for a dense A (_gesv_ok), SuperLU (scipy's splu, sequential: the same bits run to
+    run) for a sparse one; None when singular or not finite."""
+    if not scipy.sparse.issparse(A):
+        return _gesv_ok(A, rhs)
+    if A.shape[0] == 0:
+        return np.zeros(0)
+    from scipy.sparse.linalg import splu  # here: the sparse path only (issue 14: no RSS a small run never uses)
+
+    try:
+        x = splu(A.tocsc()).solve(np.asarray(rhs, float))
+    except RuntimeError:  # "Factor is exactly singular"
+        return None
+    return x if np.isfinite(x).all() else None
+
+
+def _sub(G, idx):
+    """G[idx][:, idx]; for a CSC G (sorted indices, idx increasing) by gathering its columns idx and renumbering
+    their rows, O(their nonzeros) (scipy's fancy indexing costs ~50 us a call)."""
+    if not scipy.sparse.issparse(G):
+        return G[idx][:, idx]
+    k = len(idx)
+    if k == G.shape[0]:
+        return G
+    pos = np.full(G.shape[0], -1)
+    pos[idx] = np.arange(k)
+    start, cnt = G.indptr[idx], G.indptr[idx + 1] - G.indptr[idx]
+    sel = np.repeat(start - np.cumsum(cnt) + cnt, cnt) + np.arange(int(cnt.sum()))
+    rows = pos[G.indices[sel]]
+    keep = rows >= 0
+    col = np.repeat(np.arange(k), cnt)[keep]
+    return scipy.sparse.csc_matrix((G.data[sel][keep], rows[keep], np.searchsorted(col, np.arange(k + 1))),
+                                   shape=(k, k))
+
+
+def _line(A, p, m):
+    """Column p of a CSC A (or row p of a CSR A) as a dense vector of length m."""
+    out = np.zeros(m)
+    a, b = A.indptr[p], A.indptr[p + 1]
+    out[A.indices[a:b]] = A.data[a:b]
+    return out
+
+
+def _sparse_mul(A, x):
+    """A @ x for a scipy.sparse A (the products of the sparse path: sums over the nonzeros only)."""
+    return A @ x
 
 
 def _ordered(A, x):
@@ -96,37 +148,46 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
     operation with scipy's own dgesv, so both steps decide alike)."""
     m = r.shape[0]
     lam = np.zeros(m)
+    sparse = scipy.sparse.issparse(G)
+    if sparse:  # the sparse path (solve): G in CSC and CSR for its columns and rows, each O(its nonzeros)
+        G = G.tocsc()
+        G.sort_indices()
+        Gr, diag = G.tocsr(), G.diagonal()
     if act is None:
         act = np.zeros(m, bool)
     else:
         idx = np.flatnonzero(act)
-        x = _gesv_ok(G[idx][:, idx], r[idx])
+        x = _solve(_sub(G, idx), r[idx])
         if x is None or x.min(initial=0.0) < 0.0:
             act = np.zeros(m, bool)  # not a valid start: from nothing
         else:
             act = act.copy()
             lam[idx] = x
-    moves, gmax = 0, np.abs(G).max()
+    moves, gmax = 0, (np.abs(G.data).max(initial=0.0) if sparse else np.abs(G).max())
     while True:
         s = mul(G, lam) - r
         s[act] = np.inf
         p = int(np.argmin(s))
         if s[p] >= -tol:
             return act, lam, moves
+        if sparse:
+            col, row, gpp = _line(G, p, m), _line(Gr, p, m), diag[p]
+        else:
+            col, row, gpp = G[:, p], G[p], G[p, p]
         while True:  # add p, dropping the rows whose multipliers reach zero on the way
             moves += 1
             if moves > 5 * m + 10:
                 return None
             idx = np.flatnonzero(act)
             if idx.size:
-                d = _gesv_ok(G[idx][:, idx], -G[idx, p])
+                d = _solve(_sub(G, idx), -col[idx])
                 if d is None:
                     return None
-                z = G[p, p] + mul(G[p, idx], d)
+                z = gpp + (row[idx] @ d if sparse else mul(G[p, idx], d))
             else:
-                d, z = _EMPTY, G[p, p]
-            sp = mul(G[p], lam) - r[p]  # row p's slack now
-            t1 = -sp / z if z > 1e-12 * G[p, p] else np.inf  # row p tight (inf: p depends on A)
+                d, z = _EMPTY, gpp
+            sp = (row @ lam if sparse else mul(G[p], lam)) - r[p]  # row p's slack now
+            t1 = -sp / z if z > 1e-12 * gpp else np.inf  # row p tight (inf: p depends on A)
             neg = d < 0.0
             t2, k = np.inf, -1
             if neg.any():
@@ -154,7 +215,8 @@ def _polish(W, v0, b, Minv, act=None):
     its final set A: G_AA lam_A = b_A - W_A'v0 (dgesv), v = v0 + M^-1 W_A lam_A. Kept only if lam_A >= 0
     and W'v >= b to round-off (the KKT conditions; M (v - v0) = W lam holds by construction); else None."""
     m = W.shape[1]
-    mul = _ordered if act is None else np.matmul
+    sparse = scipy.sparse.issparse(W)
+    mul = _sparse_mul if sparse else _ordered if act is None else np.matmul
     if m == 1:  # one contact: the projection in closed form
         w = W[:, 0]
         Miw = mul(Minv, w)
@@ -163,6 +225,9 @@ def _polish(W, v0, b, Minv, act=None):
     scale = 1.0 + np.abs(v0).max(initial=0.0)
     MiW = mul(Minv, W)
     G = mul(W.T, MiW)
+    if sparse:
+        MiW, G = MiW.tocsc(), G.tocsc()
+        G.sort_indices()
     r = b - mul(W.T, v0)
     sol = _active_set(G, r, 1e-13 * scale, act, mul)
     if sol is None:
@@ -173,7 +238,7 @@ def _polish(W, v0, b, Minv, act=None):
     if not idx.size:
         vp = v0.copy()
     else:
-        lamA = _gesv_ok(G[idx][:, idx], r[idx])
+        lamA = _solve(_sub(G, idx), r[idx])
         if lamA is None or lamA.min() < -1e-12 * max(1.0, lamA.max()):
             return None
         np.maximum(lamA, 0.0, out=lamA)
@@ -185,7 +250,7 @@ def _polish(W, v0, b, Minv, act=None):
         P = lamA > 0.0
         if P.any():
             iP = idx[P]
-            dP = _gesv_ok(G[iP][:, iP], b[iP] - mul(W[:, iP].T, vp))
+            dP = _solve(_sub(G, iP), b[iP] - mul(W[:, iP].T, vp))
             if dP is not None and np.abs(dP).max() <= 1e-8 * (1.0 + lamA.max()):
                 lamA[P] = np.maximum(lamA[P] + dP, 0.0)
                 vp = vp + mul(MiW[:, iP], dP)
@@ -194,7 +259,8 @@ def _polish(W, v0, b, Minv, act=None):
         # first pass left violated at the round-off of lam (a resting 1:10,000 stack's other corners) are
         # met to that accuracy (tol2); kept when it violates no row more than before
         r2 = b - mul(W.T, vp)
-        tol2 = 1e-15 * (np.abs(b).max() + np.abs(W).max() * np.abs(vp).max())
+        wmax = np.abs(W.data).max(initial=0.0) if sparse else np.abs(W).max()
+        tol2 = 1e-15 * (np.abs(b).max() + wmax * np.abs(vp).max())
         sol = _active_set(G, r2, tol2, None, mul)
         if sol is not None and sol[0].any():
             i2 = np.flatnonzero(sol[0])
@@ -233,6 +299,8 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if not np.isfinite(v0).all():  # an overflow upstream: no projection of it is meaningful
         return QPResult("NON_FINITE_INPUT", False, 0, False, v0.copy(), np.zeros(m))
     cold = polish is Polish.ACTIVE_SET and m <= COLD_START_ROWS
+    if polish is Polish.ACTIVE_SET and m > SPARSE_ROWS:
+        return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
     mul = _ordered if cold else np.matmul
     if screen and (mul(W.T, v0) - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
@@ -273,6 +341,67 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if p is not None:
         v, lam = p[:2]
     return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, (M, W, v0, b))
+
+
+def _csc(A) -> scipy.sparse.csc_matrix:
+    """A dense matrix as CSC, its exact zeros dropped (the tree's pattern of M and M^-1: bodies on separate root
+    joints give block-diagonal ones; the rows W touch the joints that move their two bodies)."""
+    if scipy.sparse.issparse(A):
+        return A.tocsc()
+    A = np.asarray(A, float)
+    n, k = A.shape
+    if A.flags.f_contiguous:  # CSC from column-major memory: one pass for the nonzeros (scipy's path takes ~4)
+        flat = A.ravel(order="F")
+        nz = np.flatnonzero(flat != 0.0)  # on a bool mask: ~30x faster than on the floats
+        indptr = np.searchsorted(nz, np.arange(0, n * k + 1, n) if n else np.zeros(k + 1, int))
+        return scipy.sparse.csc_matrix((flat[nz], nz % max(n, 1), indptr), shape=(n, k))
+    flat = np.ascontiguousarray(A).ravel()
+    nz = np.flatnonzero(flat != 0.0)
+    indptr = np.searchsorted(nz, np.arange(0, n * k + 1, k) if k else np.zeros(n + 1, int))
+    return scipy.sparse.csr_matrix((flat[nz], nz % max(k, 1), indptr), shape=(n, k)).tocsc()
+
+
+def _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen) -> QPResult:
+    """The large-problem path of solve (Polish.ACTIVE_SET above SPARSE_ROWS rows; docs/theory.md §1.3): the
+    same method as the dense one on sparse matrices - piqp's SparseSolver gives the start, _polish's active set
+    on G = W'M^-1 W in CSC (SuperLU for its solves) re-solves it and accepts it by the same KKT test - so the
+    cost follows the nonzeros (a column of N beads: M diagonal, G tridiagonal, O(N)) instead of m^2 or m^3."""
+    m = W.shape[1]
+    Ms, Ws, Mis = _csc(M), _csc(W), _csc(Minv)
+    problem = (M, W, v0, b)  # as given, as the dense path keeps them (the residual, the recorder)
+    if screen and (Ws.T @ v0 - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
+        return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), problem)
+    s = piqp.SparseSolver()
+    st = s.settings
+    st.verbose = False
+    st.eps_abs = st.eps_rel = eps
+    st.eps_duality_gap_abs = st.eps_duality_gap_rel = eps
+    st.max_iter = max_iter
+    if form is QPForm.PRIMAL:
+        s.setup(scipy.sparse.triu(Ms, format="csc"), -(Ms @ v0), None, None, Ws.T.tocsc(), b, None)
+        status = s.solve()
+        v, lam = s.result.x.copy(), s.result.z_l.copy()
+    else:
+        MiW = (Mis @ Ws).tocsc()
+        s.setup(scipy.sparse.triu(Ws.T @ MiW, format="csc"), Ws.T @ v0 - b, None, None, None, None, None,
+                np.zeros(m), None)
+        status = s.solve()
+        lam = s.result.x.copy()
+        v = v0 + MiW @ lam
+    iters = s.result.info.iter
+    if status != piqp.PIQP_SOLVED:
+        return QPResult(_STATUS.get(status, str(status)), False, iters, False, v, lam)
+    if not (np.isfinite(v).all() and np.isfinite(lam).all()):
+        return QPResult("NON_FINITE_SOLUTION", False, iters, False, v, lam)
+    np.maximum(lam, 0.0, out=lam)
+    act = lam > 1e-7 * max(1.0, lam.max())
+    p = _polish(Ws, v0, b, Mis, act)
+    if p is None:  # degenerate rows (dependent ones the sparse round-off took in): the dense polish, as before
+        dense = [A.toarray() if scipy.sparse.issparse(A) else A for A in (W, Minv)]
+        p = _polish(dense[0], v0, b, dense[1], act)
+    if p is not None:
+        v, lam = p[:2]
+    return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, problem)
 
 
 def _polish_least_squares(M, W, v0, lam, tol):

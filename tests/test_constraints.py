@@ -138,3 +138,22 @@ def test_corner_pieces_of_two_squares_vertex_to_vertex():
     contacts, W, pieces = corner_pieces(model, data, c, np.zeros((3, 0)))
     assert len(pieces.corners) == 1 and W.shape == (3, 0)
     np.testing.assert_allclose(np.concatenate(pieces.pieces), [[1.0, 0.0, 0.5], [0.0, 1.0, -0.5]], atol=1e-15)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_distinct_screen_finds_the_pairs_the_all_pairs_test_finds(seed):
+    """Above SCREEN_ROWS rows distinct sorts by a key instead of comparing all pairs: the same rows are
+    dropped as by the all-pairs test (repeats, near-repeats within and just beyond the tolerance, zero rows)."""
+    from moreau_sim.constraints import SCREEN_ROWS, _duplicates_screened
+
+    rng = np.random.default_rng(seed)
+    nv, m = int(rng.integers(1, 20)), int(rng.integers(SCREEN_ROWS + 1, 80))
+    W = rng.standard_normal((nv, m)) * rng.choice([1e-3, 1.0, 1e3])
+    W[:, rng.integers(0, m, m // 4)] = 0.0
+    src, dst = rng.integers(0, m, m // 2), rng.integers(0, m, m // 2)
+    W[:, dst] = W[:, src]
+    tol = 1e-12 * (1.0 + np.abs(W).max())
+    W[:, dst[:4]] += rng.choice([0.5, 2.0]) * tol * rng.uniform(-1, 1, (nv, min(4, len(dst))))
+    same = np.abs(W[:, :, None] - W[:, None, :]).max(axis=0) <= tol
+    expect = (same & np.triu(np.ones((m, m), bool), 1)).any(axis=0)
+    np.testing.assert_array_equal(_duplicates_screened(W, tol), expect)

@@ -241,3 +241,95 @@ def test_column_of_beads_correction_at_step_1292_is_exact():
     M, W, v0, b, r = corr[0]
     raw = qp.solve(M, W, v0, b=b, polish=qp.Polish.NONE)
     assert raw.residual > 1e-12 > r.residual  # piqp alone is not exact here
+
+
+def _column_problem(n):
+    """A resting column of n unit beads on prismatic joints (M = I, rows e_0 and e_k - e_{k-1}: the
+    Delassus matrix tridiagonal), every bead at v0 = -g h: the exact projection is v = 0 with the
+    multiplier of contact k (under bead k) carrying the n - k beads above it, lam_k = (n - k) g h."""
+    W = np.zeros((n, n))
+    W[0, 0] = 1.0
+    for k in range(1, n):
+        W[k, k], W[k - 1, k] = 1.0, -1.0
+    gh = 9.81 * 5e-4
+    return np.eye(n), W, np.full(n, -gh), gh
+
+
+@pytest.mark.parametrize("form", list(QPForm))
+@pytest.mark.parametrize("n", [13, 50, 101, 400])
+def test_sparse_path_solves_a_resting_column_exactly(n, form):
+    """Above SPARSE_ROWS rows the sparse path (piqp's SparseSolver, the active set on CSC matrices), and the
+    dense one below, give the closed form to round-off, polished, with a KKT residual at round-off."""
+    M, W, v0, gh = _column_problem(n)
+    res = qp.solve(M, W, v0, Minv=M, form=form)
+    assert res.ok and res.polished and res.status == "PIQP_SOLVED"
+    np.testing.assert_allclose(res.v, 0.0, rtol=0, atol=1e-15 * n)
+    np.testing.assert_allclose(res.lam, gh * (n - np.arange(n)), rtol=1e-13, atol=0)
+    assert res.residual <= 1e-15 * n
+
+
+@pytest.mark.parametrize("bounds", [False, True])
+@pytest.mark.parametrize("seed", range(6))
+def test_sparse_path_is_the_projection_the_cold_active_set_gives(seed, bounds, monkeypatch):
+    """Random block-diagonal problems (bodies on separate root joints) of 13 to nv rows, on the sparse path
+    (its threshold lowered to COLD_START_ROWS): the answer equals the dense cold active set's (qp._polish on
+    the dense matrices, the small-problem method) to round-off, and is repeatable bit for bit."""
+    monkeypatch.setattr(qp, "SPARSE_ROWS", qp.COLD_START_ROWS)
+    rng = np.random.default_rng(seed)
+    blocks = [rng.standard_normal((k, k)) for k in rng.integers(1, 4, 12)]
+    M = np.zeros((sum(len(B) for B in blocks),) * 2)
+    a = 0
+    for B in blocks:
+        M[a:a + len(B), a:a + len(B)] = B @ B.T + len(B) * np.eye(len(B))
+        a += len(B)
+    nv = M.shape[0]
+    m = int(rng.integers(13, nv + 1))  # independent rows (generically): dependent ones are the dense polish's
+    W = np.zeros((nv, m))
+    for j in range(m):  # each row touches two bodies' velocities, like a contact between two bodies
+        cols = rng.choice(nv, 2, replace=False)
+        W[cols, j] = rng.standard_normal(2)
+    v0 = rng.standard_normal(nv) - 2.0 * np.linalg.solve(M, W @ np.ones(m))
+    b = 0.1 * rng.standard_normal(m) if bounds else np.zeros(m)
+    Minv = np.linalg.inv(M)
+    res = qp.solve(M, W, v0, b=b, Minv=Minv)
+    again = qp.solve(M, W, v0, b=b, Minv=Minv)
+    ref = qp._polish(W, v0, b, Minv)
+    assert res.ok and res.polished and ref is not None
+    scale = 1.0 + np.abs(v0).max() + np.abs(res.lam).max() * np.abs(W).max()
+    assert res.residual <= 1e-13 * scale
+    np.testing.assert_allclose(res.v, ref[0], rtol=0, atol=1e-12 * scale)
+    np.testing.assert_array_equal(res.v, again.v)
+    np.testing.assert_array_equal(res.lam, again.lam)
+
+
+@pytest.mark.parametrize("e", [0.0, 0.9])
+def test_a_resting_column_of_120_beads_takes_the_sparse_path_exactly(e):
+    """A column of 120 touching 1 kg beads (bench.scaling.column) stepped from rest with the Python step: every
+    step's QP (120 rows) goes the sparse way, polished, and the column stays at rest with the closed-form
+    percussions: contact k (under bead k) carries the 120 - k beads above it, P_k = (120 - k) m g h."""
+    from moreau_sim.bench.scaling import column
+
+    n = 120
+    model = ms.build_model(column(n, step_impl="python").with_options(restitution=e))
+    data = ms.make_data(model)
+    h, g = model.options.dt, 9.81
+    st = ms.initial_state(model)
+    for _ in range(3):
+        r = ms.step(model, data, st)
+        assert r.qp.status == "PIQP_SOLVED" and r.qp.polished and r.contacts.m == n > qp.SPARSE_ROWS
+        order = np.argsort(r.contacts.joint_a)  # contact k: bead k's joint (k + 1) over bead k - 1 or the ground
+        np.testing.assert_allclose(r.P[order], (n - np.arange(n)) * g * h, rtol=1e-12, atol=0)
+        assert np.abs(r.state.u).max() <= 1e-15 and np.abs(r.state.q - st.q).max() <= 1e-15
+        st = r.state
+
+
+def test_a_run_of_a_resting_column_of_120_beads_keeps_its_energy():
+    """simulate() through the sparse path, recorder and ledger included: a resting column gains no energy and
+    its energy budget closes (translations under gravity: exact to round-off)."""
+    from moreau_sim.bench.scaling import column
+    from moreau_sim.testing import assert_budget_closes, assert_no_energy_gain
+
+    model = ms.build_model(column(120, step_impl="python").with_options(duration=4e-3))
+    traj = ms.simulate(model, progress=False)
+    assert_no_energy_gain(traj, rtol=1e-12)
+    assert_budget_closes(traj, rtol=1e-12)

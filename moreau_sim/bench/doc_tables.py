@@ -12,7 +12,7 @@ import argparse
 import json
 from pathlib import Path
 
-from . import (REPO, adaptive_costs, compiled_costs, robots_table, splice_table, stability, step_costs,
+from . import (REPO, adaptive_costs, compiled_costs, robots_table, scaling, splice_table, stability, step_costs,
                work_precision)
 
 # (document, JSON, the driver's doc_tables(data) -> {marker name: Markdown}), paths relative to the repository
@@ -20,6 +20,7 @@ TABLES = (("docs/benchmarks.md", "docs/bench/work_precision.json", work_precisio
           ("docs/benchmarks.md", "docs/bench/step_costs.json", step_costs.doc_tables),
           ("docs/benchmarks.md", "docs/bench/compiled_costs.json", compiled_costs.doc_tables),
           ("docs/benchmarks.md", "docs/bench/adaptive_costs.json", adaptive_costs.doc_tables),
+          ("docs/benchmarks.md", "docs/bench/scaling.json", scaling.doc_tables),
           ("docs/robots.md", "docs/bench/robots.json", robots_table.doc_tables),
           ("docs/stability.md", "docs/bench/stability.json", stability.doc_tables))
 
