@@ -232,6 +232,8 @@ class FeatureContacts:
         self.last_impact = -np.inf
         self.impacts = self.nfev = 0
         self.t = float("nan")  # [s] where the run is (errors name it): a step's or phase's start, an event
+        self.box_faces: dict = {}  # pair -> (vertex features, their faces) at the last call
+        self.faces: dict = {}  # (pair, vertex feature) -> its face, for the persistent vertices of a phase
         self.box_points: dict = {}  # pair -> (features, points on A, on B, normals) at the last call with rows
         # pair -> the column of its feature 0 in feats (box pairs' features are consecutive)
         self.box_index = {f.pair: i for i, f in reversed(list(enumerate(self.feats))) if f.box is not None}
@@ -269,6 +271,7 @@ class FeatureContacts:
         pin.forwardKinematics(pm, pd, q, u, self.zero)
         self._frames, self._J = {}, None
         self.box_points.clear()
+        self.box_faces.clear()
         self.edge_active.clear()
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
@@ -393,8 +396,8 @@ class FeatureContacts:
         v_sel = which < 16
         e_sel = ~v_sel
         if v_sel.any():
-            # vertices in the other box: s(p) = max_f (n_f' p - d_f); at ties (within gap_tol) the face
-            # whose normal the vertex's own cone faces (a vertex on a vertex: the face it rests on)
+            # vertices in the other box: s(p) = max_f (n_f' p - d_f); at ties (within gap_tol) the nearest
+            # face whose plane leaves the vertex's own cone outside (a vertex on a vertex: the face it rests on)
             NA, NB = A.fn @ RA.T, B.fn @ RB.T
             P = np.concatenate((A.v @ RA.T + tA, B.v @ RB.T + tB))
             E = np.concatenate((A.ve @ RA.T, B.ve @ RB.T))
@@ -405,8 +408,13 @@ class FeatureContacts:
             D = np.where(ina[:, None], (B.fd + NB @ tB)[None], (A.fd + NA @ tA)[None])
             S = np.einsum("vfe,ve->vf", N, P) - D
             smax = S.max(axis=1)
-            score = np.einsum("vke,vfe->vkf", E, N).min(axis=1)
-            f = np.where(S >= smax[:, None] - self.gap_tol, score, -np.inf).argmax(axis=1)
+            # faces tied (within gap_tol) whose plane leaves the vertex's own cone outside
+            tied = S >= smax[:, None] - self.gap_tol
+            valid = tied & (np.einsum("vke,vfe->vkf", E, N).min(axis=1) >= -ARC_TOL)
+            f = np.where(np.where(valid.any(axis=1)[:, None], valid, tied), S, -np.inf).argmax(axis=1)
+            if self.faces:  # persistent vertices: the face chosen at the phase's start
+                f = np.array([self.faces.get((bp.pair, k), fk) for k, fk in zip(wv.tolist(), f.tolist())])
+            self.box_faces[bp.pair] = (wv, f)
             # the chosen face's value (= smax but at ties): a vertex sliding down along the edge of
             # an aligned box (side faces coplanar) has smax = 0 throughout, its top face's value not
             g[v_sel] = S[np.arange(len(wv)), f]
@@ -491,6 +499,7 @@ class FeatureContacts:
         """Impact (with the Zeno rule), then the persistent set C at (t, q, u) (module doc).
         Returns (u, C, shadow): C persistent features, shadow: duplicates of C's rows."""
         self.t = t
+        self.faces = {}  # chosen afresh at an event
         fs = self.features(q, u)
         closed = fs.g <= self.gap_tol
         if (closed & (fs.gamma < -V_TOL)).any():
@@ -513,6 +522,11 @@ class FeatureContacts:
         rel = Wk.T @ res.v + dk
         tol = ACC_TOL * (1.0 + np.abs(dk).max() + np.abs(Wk.T @ a_free).max())
         C = tuple(int(i) for i, r in zip(keep, rel) if r <= tol)
+        for i in C:  # a persistent vertex keeps its face through the phase (its row may not flip at a tie)
+            f = self.feats[i]
+            if f.kind == "vertex_box":
+                wv, faces = self.box_faces[f.pair]
+                self.faces[(f.pair, f.feature)] = int(faces[np.searchsorted(wv, f.feature)])
         if C:  # remove the residual normal velocity of the persistent contacts (~1e-16)
             Minv = pin.computeMinverse(self.pm, self.pd, q)
             W = fs.W[:, list(C)]
