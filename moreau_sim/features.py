@@ -396,8 +396,8 @@ class FeatureContacts:
         v_sel = which < 16
         e_sel = ~v_sel
         if v_sel.any():
-            # vertices in the other box: s(p) = max_f (n_f' p - d_f); at ties (within gap_tol) the nearest
-            # face whose plane leaves the vertex's own cone outside (a vertex on a vertex: the face it rests on)
+            # vertices in the other box: s(p) = max_f (n_f' p - d_f) over the faces that count (below: a
+            # vertex sliding exactly along an aligned box's edge line keeps seeing the face it meets)
             NA, NB = A.fn @ RA.T, B.fn @ RB.T
             P = np.concatenate((A.v @ RA.T + tA, B.v @ RB.T + tB))
             E = np.concatenate((A.ve @ RA.T, B.ve @ RB.T))
@@ -407,16 +407,15 @@ class FeatureContacts:
             N = np.where(ina[:, None, None], NB[None], NA[None])  # (kv, 6, 3) the other box's faces
             D = np.where(ina[:, None], (B.fd + NB @ tB)[None], (A.fd + NA @ tA)[None])
             S = np.einsum("vfe,ve->vf", N, P) - D
-            smax = S.max(axis=1)
-            # faces tied (within gap_tol) whose plane leaves the vertex's own cone outside
-            tied = S >= smax[:, None] - self.gap_tol
-            valid = tied & (np.einsum("vke,vfe->vkf", E, N).min(axis=1) >= -ARC_TOL)
-            f = np.where(np.where(valid.any(axis=1)[:, None], valid, tied), S, -np.inf).argmax(axis=1)
+            # a face counts if its plane leaves the vertex's own cone outside (the vertex can touch it
+            # first), or if the vertex is clearly outside it (S > gap_tol: the vertex is out of the box)
+            valid = np.einsum("vke,vfe->vkf", E, N).min(axis=1) >= -ARC_TOL
+            count = valid | (S > self.gap_tol)
+            count[~count.any(axis=1)] = True
+            f = np.where(count, S, -np.inf).argmax(axis=1)
             if self.faces:  # persistent vertices: the face chosen at the phase's start
                 f = np.array([self.faces.get((bp.pair, k), fk) for k, fk in zip(wv.tolist(), f.tolist())])
             self.box_faces[bp.pair] = (wv, f)
-            # the chosen face's value (= smax but at ties): a vertex sliding down along the edge of
-            # an aligned box (side faces coplanar) has smax = 0 throughout, its top face's value not
             g[v_sel] = S[np.arange(len(wv)), f]
             if rows:
                 n = N[np.arange(len(wv)), f] * np.where(ina, 1.0, -1.0)[:, None]  # from B to A
