@@ -5,8 +5,9 @@ A *feature* is one gap function of a collision pair, with its row w, the drift t
 half-space, a sphere against a half-space, a sphere against a sphere, a sphere against a static
 box; and for two boxes (either moving, docs/theory.md §7.1), computed per pair in numpy:
   - "vertex_box": each box's vertices p in the other, g = max_f (n_f' p - d_f) over the other's
-    face planes (zero set: its surface), n the arg-max face's normal (at ties, the face the
-    vertex's own edges face), drift n'(abar_A(p) - abar_B(p)) + 2 (w_face x n)' dv;
+    face planes that count (those the vertex's own cone can touch first, and those p is clearly
+    outside of), n the arg-max face's normal (kept through a phase while persistent), drift
+    n'(abar_A(p) - abar_B(p)) + 2 (w_face x n)' dv;
   - "edge_edge": each of the 12 x 12 edge pairs, g = d = n'(a0 - b0) along n = +-(e_A x e_B)/|.|
     (outward of B's edge) while active (n in both edges' normal cones, the lines' closest points
     inside both edges, d >= -smallest half side), else a positive stand-in; rows at the closest
