@@ -64,7 +64,7 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
     return float(max(r, -slack.min(initial=0.0), -lam.min(initial=0.0), abs(lam @ slack)))
 
 
-COLD_START_ROWS = 12  # up to this many rows the active set starts from nothing, and piqp is only its fallback
+COLD_START_ROWS = 100  # up to this many rows the active set starts from nothing, and piqp is only its fallback
 SPARSE_ROWS = 100  # above this many rows the sparse path (_solve_sparse) solves; below it dense is cheaper
 
 
