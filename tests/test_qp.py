@@ -259,10 +259,12 @@ def _column_problem(n):
 @pytest.mark.parametrize("n", [13, 50, 101, 400])
 def test_sparse_path_solves_a_resting_column_exactly(n, form):
     """Above SPARSE_ROWS rows the sparse path (piqp's SparseSolver, the active set on CSC matrices), and the
-    dense one below, give the closed form to round-off, polished, with a KKT residual at round-off."""
+    dense one below (the cold active set), give the closed form to round-off, polished, with a KKT residual at
+    round-off."""
     M, W, v0, gh = _column_problem(n)
     res = qp.solve(M, W, v0, Minv=M, form=form)
-    assert res.ok and res.polished and res.status == "PIQP_SOLVED"
+    cold = n <= qp.COLD_START_ROWS  # the dense cold active set (either form), no piqp
+    assert res.ok and res.polished and res.status == ("ACTIVE_SET" if cold else "PIQP_SOLVED")
     np.testing.assert_allclose(res.v, 0.0, rtol=0, atol=1e-15 * n)
     np.testing.assert_allclose(res.lam, gh * (n - np.arange(n)), rtol=1e-13, atol=0)
     assert res.residual <= 1e-15 * n
@@ -272,9 +274,9 @@ def test_sparse_path_solves_a_resting_column_exactly(n, form):
 @pytest.mark.parametrize("seed", range(6))
 def test_sparse_path_is_the_projection_the_cold_active_set_gives(seed, bounds, monkeypatch):
     """Random block-diagonal problems (bodies on separate root joints) of 13 to nv rows, on the sparse path
-    (its threshold lowered to COLD_START_ROWS): the answer equals the dense cold active set's (qp._polish on
+    (its threshold lowered to 12 rows): the answer equals the dense cold active set's (qp._polish on
     the dense matrices, the small-problem method) to round-off, and is repeatable bit for bit."""
-    monkeypatch.setattr(qp, "SPARSE_ROWS", qp.COLD_START_ROWS)
+    monkeypatch.setattr(qp, "SPARSE_ROWS", 12)
     rng = np.random.default_rng(seed)
     blocks = [rng.standard_normal((k, k)) for k in rng.integers(1, 4, 12)]
     M = np.zeros((sum(len(B) for B in blocks),) * 2)
@@ -333,3 +335,28 @@ def test_a_run_of_a_resting_column_of_120_beads_keeps_its_energy():
     traj = ms.simulate(model, progress=False)
     assert_no_energy_gain(traj, rtol=1e-12)
     assert_budget_closes(traj, rtol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_ordered_sums_in_index_order_at_any_size_and_alignment(seed):
+    """qp.ordered, the one product of the step's stages: every entry is sum_k a_k x_k added left to right from
+    the first product, one rounding each (a Python float loop is the reference), whatever the size (numpy's own
+    products change their order with it) and wherever the arrays start in memory (misaligned views)."""
+    rng = np.random.default_rng(seed)
+
+    def ref(a, x):
+        s = a[0] * x[0]
+        for k in range(1, len(a)):
+            s = s + a[k] * x[k]
+        return s
+
+    for n in (1, 2, 3, 5, 16, 17, 40, 101):
+        r, c = int(rng.integers(1, 9)), int(rng.integers(1, 5))
+        buf = rng.standard_normal(r * n + 1) * 10.0 ** rng.integers(-8, 8, r * n + 1)
+        A = buf[1:].reshape(r, n)  # 8 bytes off the buffer's start
+        x = rng.standard_normal(n + 1)[1:]
+        X = np.asfortranarray(rng.standard_normal((n, c)))
+        assert qp.ordered(A[0], x) == ref(A[0], x)
+        assert qp.ordered(A, x).tolist() == [ref(a, x) for a in A]
+        assert qp.ordered(A.T.T, X).tolist() == [[ref(a, X[:, j]) for j in range(c)] for a in A]
+        assert qp.ordered(np.zeros((r, 0)), np.zeros(0)).tolist() == [0.0] * r
