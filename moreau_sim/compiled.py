@@ -7,9 +7,9 @@ SONAME is unversioned, so a mismatch would load silently and misbehave. Hence pi
 imported first and their versions compared with the ones the build recorded (_step_version.py); on a
 mismatch or any import error the Python step is used, with one warning, never a crash.
 
-The compiled step mirrors stepper.step (the reference) for the contacts of the simple scenes
-(src/step.cpp, top comment); a step it does not cover returns a reason and stepper.step takes it in
-Python. `counts(data)` tells how many steps of a run went which way.
+The compiled step mirrors stepper.step (the reference) for the contacts of coal's closed-form pairs, any
+number of velocities and up to MAX_CONTACTS contacts (src/step.cpp, top comment); a step it does not cover
+returns a reason and stepper.step takes it in Python. `counts(data)` tells how many steps of a run went which way.
 """
 
 from __future__ import annotations

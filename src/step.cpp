@@ -3,14 +3,15 @@
 // boost.python's registry: the same Pinocchio and coal libraries as the Python bindings).
 //
 // It mirrors stepper.step stage by stage and operation by operation (the same products and sums in
-// the same order, no FMA contraction), for the contacts of the simple scenes: polytope vertices against
-// a half-space (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight
-// steps; the restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed
-// form for one contact, else qp._active_set's dual active set, re-solved and checked as qp._polish does);
-// the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with a reason and
-// the Python step (the reference) takes the step: corners, point queries against non-half-spaces,
-// contact patches, swept detection, coal's EPA fallback, more than MAX_CONTACTS contacts, a projection
-// the active set does not settle (where qp.solve turns to piqp).
+// the same order, no FMA contraction: docs/theory.md §2.8), for the contacts of coal's closed-form pairs
+// (moreau_sim/compiled.py _analytic), any number of velocities: polytope vertices against a half-space
+// (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight steps; the
+// restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed form for one
+// contact, else qp._active_set's dual active set from nothing, re-solved and checked as qp._polish does);
+// the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with
+// a reason and the Python step (the reference) takes the step: corners, point queries against
+// non-half-spaces, contact patches, swept detection, coal's EPA fallback, more than max_contacts contacts
+// (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp).
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/stl/string.h>
