@@ -64,7 +64,7 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
     return float(max(r, -slack.min(initial=0.0), -lam.min(initial=0.0), abs(lam @ slack)))
 
 
-COLD_START_ROWS = 100  # up to this many rows the active set starts from nothing, and piqp is only its fallback
+COLD_START_ROWS = 64  # up to this many rows the active set starts from nothing, and piqp is only its fallback
 SPARSE_ROWS = 100  # above this many rows the sparse path (_solve_sparse) solves; below it dense is cheaper
 
 
@@ -136,7 +136,7 @@ def ordered(A, x):
         return np.add.accumulate(A * x)[-1]
     if x.ndim == 1:
         return np.add.accumulate(A * x, axis=1)[:, -1]
-    if n <= 16:
+    if A.shape[0] * n * x.shape[1] <= 4096:
         return np.add.accumulate(A[:, :, None] * x[None, :, :], axis=1)[:, -1, :]
     out = A[:, 0, None] * x[0]  # large: one pass per inner index (no (rows, n, cols) temporary)
     for k in range(1, n):
