@@ -114,11 +114,11 @@ struct Solved {  // a projection: v, lam, status (0 ADMISSIBLE, 1 solved on its 
 namespace {
 
 // qp.ordered: a sum of products in index order from the first product, one rounding each (no FMA: this
-// file is compiled with -ffp-contract=off); n >= 1
+// file is compiled with -ffp-contract=off), then + 0.0 (a -0.0 sum becomes +0.0); n >= 1
 inline double odot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
   double s = a[0] * b[0];
   for (Eigen::Index k = 1; k < n; ++k) s = s + a[k * sa] * b[k * sb];
-  return s;
+  return s + 0.0;
 }
 // qp.ordered(A, X) for matrices A (r, n) and X (n, c) (Eigen, column-major), into Y (r, c): each entry summed
 // as odot does, the loops arranged so that the innermost runs over independent entries (vectorizable)
@@ -139,6 +139,7 @@ void omatmul(const MatrixXd &A, const MatrixXd &X, MatrixXd &Y) {
       const double xk = X(k, j);
       for (Eigen::Index i = 0; i < r; ++i) y[i] = y[i] + a[i] * xk;
     }
+    for (Eigen::Index i = 0; i < r; ++i) y[i] = y[i] + 0.0;
   }
 }
 // qp.ordered(A, x) for a matrix A and a vector x
@@ -514,9 +515,10 @@ class Stepper {
         c[s] = Vec3(p[1] * n[2] - p[2] * n[1], p[2] * n[0] - p[0] * n[2], p[0] * n[1] - p[1] * n[0]);
       }
       for (Eigen::Index v = 0; v < nv; ++v) {
-        const double lin = (n[0] * J(0, v) + n[1] * J(1, v)) + n[2] * J(2, v);
+        const double lin = ((n[0] * J(0, v) + n[1] * J(1, v)) + n[2] * J(2, v)) + 0.0;
         double side[2];
-        for (int s = 0; s < 2; ++s) side[s] = lin + ((c[s][0] * J(3, v) + c[s][1] * J(4, v)) + c[s][2] * J(5, v));
+        for (int s = 0; s < 2; ++s)
+          side[s] = lin + (((c[s][0] * J(3, v) + c[s][1] * J(4, v)) + c[s][2] * J(5, v)) + 0.0);
         W(v, i) = side[0] * mask_(ja, v) - side[1] * mask_(jb, v);
       }
     }

@@ -340,23 +340,30 @@ def test_a_run_of_a_resting_column_of_120_beads_keeps_its_energy():
 @pytest.mark.parametrize("seed", range(4))
 def test_ordered_sums_in_index_order_at_any_size_and_alignment(seed):
     """qp.ordered, the one product of the step's stages: every entry is sum_k a_k x_k added left to right from
-    the first product, one rounding each (a Python float loop is the reference), whatever the size (numpy's own
-    products change their order with it) and wherever the arrays start in memory (misaligned views)."""
+    the first product, one rounding each, then + 0.0 (a Python float loop is the reference), bit for bit, signs
+    of zero included, whatever the size (numpy's own products change their order with it), wherever the arrays
+    start in memory (misaligned views), and for sparse columns (summed over their nonzero entries only)."""
     rng = np.random.default_rng(seed)
 
     def ref(a, x):
         s = a[0] * x[0]
         for k in range(1, len(a)):
             s = s + a[k] * x[k]
-        return s
+        return s + 0.0
+
+    def bits(v):
+        return np.asarray(v, float).view(np.int64).tolist()
 
     for n in (1, 2, 3, 5, 16, 17, 40, 101):
         r, c = (int(rng.integers(1, 9)), int(rng.integers(1, 5))) if n < 40 else (64, 4)  # both ways of 2-d @ 2-d
         buf = rng.standard_normal(r * n + 1) * 10.0 ** rng.integers(-8, 8, r * n + 1)
         A = buf[1:].reshape(r, n)  # 8 bytes off the buffer's start
+        A[:, 0] = -0.0  # -0.0 products first: a sum of zeros must come out +0.0
         x = rng.standard_normal(n + 1)[1:]
-        X = np.asfortranarray(rng.standard_normal((n, c)))
-        assert qp.ordered(A[0], x) == ref(A[0], x)
-        assert qp.ordered(A, x).tolist() == [ref(a, x) for a in A]
-        assert qp.ordered(A.T.T, X).tolist() == [[ref(a, X[:, j]) for j in range(c)] for a in A]
-        assert qp.ordered(np.zeros((r, 0)), np.zeros(0)).tolist() == [0.0] * r
+        for X in (np.asfortranarray(rng.standard_normal((n, c))),
+                  np.where(rng.random((n, c)) < 0.9, 0.0, rng.standard_normal((n, c)))):  # dense, then sparse
+            X[:, -1] = 0.0  # one column of zeros
+            assert bits(qp.ordered(A, X)) == bits([[ref(a, X[:, j]) for j in range(c)] for a in A])
+        assert bits(qp.ordered(A[0], x)) == bits(ref(A[0], x))
+        assert bits(qp.ordered(A, x)) == bits([ref(a, x) for a in A])
+        assert bits(qp.ordered(np.zeros((r, 0)), np.zeros(0))) == bits([0.0] * r)
