@@ -136,7 +136,7 @@ def ordered(A, x):
     if n == 0 or n != x.shape[0]:
         return np.matmul(A, x) + 0.0  # empty sums are zeros (mismatched shapes: numpy's error)
     if A.ndim == 1:
-        return np.add.accumulate(A * x)[-1] + 0.0
+        return np.add.accumulate(A * x)[-1] + 0.0 if x.ndim == 1 else ordered(A[None], x)[0]
     if x.ndim == 1:
         return np.add.accumulate(A * x, axis=1)[:, -1] + 0.0
     if A.shape[0] * n * x.shape[1] <= 4096:

@@ -365,5 +365,6 @@ def test_ordered_sums_in_index_order_at_any_size_and_alignment(seed):
             X[:, -1] = 0.0  # one column of zeros
             assert bits(qp.ordered(A, X)) == bits([[ref(a, X[:, j]) for j in range(c)] for a in A])
         assert bits(qp.ordered(A[0], x)) == bits(ref(A[0], x))
+        assert bits(qp.ordered(A[0], X)) == bits([ref(A[0], X[:, j]) for j in range(c)])
         assert bits(qp.ordered(A, x)) == bits([ref(a, x) for a in A])
         assert bits(qp.ordered(np.zeros((r, 0)), np.zeros(0))) == bits([0.0] * r)
