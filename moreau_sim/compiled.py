@@ -7,9 +7,9 @@ SONAME is unversioned, so a mismatch would load silently and misbehave. Hence pi
 imported first and their versions compared with the ones the build recorded (_step_version.py); on a
 mismatch or any import error the Python step is used, with one warning, never a crash.
 
-The compiled step mirrors stepper.step (the reference) for the contacts of the simple scenes
-(src/step.cpp, top comment); a step it does not cover returns a reason and stepper.step takes it in
-Python. `counts(data)` tells how many steps of a run went which way.
+The compiled step mirrors stepper.step (the reference) for the contacts of coal's closed-form pairs, any
+number of velocities and up to MAX_CONTACTS contacts (src/step.cpp, top comment); a step it does not cover
+returns a reason and stepper.step takes it in Python. `counts(data)` tells how many steps of a run went which way.
 """
 
 from __future__ import annotations
@@ -29,7 +29,6 @@ from .qp import COLD_START_ROWS, QPResult
 from .state import State
 
 MAX_CONTACTS = COLD_START_ROWS  # closed contacts a compiled step takes: those qp.solve solves by the cold active set
-MAX_NV = 12  # likewise for the number of velocities
 _EMPTY = np.zeros(0)
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}
 
@@ -80,23 +79,31 @@ def _dgesv_pointer() -> int:
     return int(api.PyCapsule_GetPointer(cap, api.PyCapsule_GetName(cap)))
 
 
+# coal's closed-form pairs (coal/internal/shape_shape_func.h's specializations, coal 3.0.3): a shape against a
+# half-space or a plane, and a sphere against these
+_HALF = (coal.Halfspace, coal.Plane)
+_AGAINST_HALF = (coal.Sphere, coal.Box, coal.Capsule, coal.Cylinder, coal.Cone, coal.Ellipsoid, coal.ConvexBase,
+                 coal.TriangleP)
+_AGAINST_SPHERE = (coal.Sphere, coal.Capsule, coal.Box, coal.Cylinder, coal.TriangleP)
+
+
 def _analytic(a, b) -> bool:
     """Whether coal resolves this pair of shapes in closed form. Other pairs go through GJK/EPA, whose
     support search is warm-started from the pair's previous call (state kept in the collision functor):
     a step handed back to Python would run it a second time at the same configuration and can get a
-    different contact at the EPA tolerance than the Python-only run."""
-    half = (coal.Halfspace, coal.Plane)
+    different contact at the EPA tolerance than the Python-only run (panda_table's cylinders on boxes do,
+    the hints restored or not)."""
     for x, y in ((a, b), (b, a)):
-        if isinstance(y, half) and isinstance(x, (coal.Sphere, coal.Box, coal.Capsule, coal.Cylinder, coal.Cone)):
+        if isinstance(y, _HALF) and isinstance(x, _AGAINST_HALF):
             return True
-    return isinstance(a, coal.Sphere) and isinstance(b, (coal.Sphere, coal.Capsule, coal.Box))
+        if isinstance(y, coal.Sphere) and isinstance(x, _AGAINST_SPHERE):
+            return True
+    return False
 
 
 def unsupported(model) -> str | None:
     """Why the compiled step never takes this model's steps (None: it takes the ones it covers)."""
     o = model.options
-    if model.nv > MAX_NV:
-        return f"more than {MAX_NV} velocities"
     geoms = model.geom.geometryObjects
     if not all(_analytic(geoms[p.first].geometry, geoms[p.second].geometry) for p in model.pairs):
         return "a pair coal resolves by GJK/EPA (warm-started from its previous call)"

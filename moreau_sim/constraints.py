@@ -20,13 +20,7 @@ import pinocchio as pin
 from .contacts import Contacts, Corner, FeatureKind
 from .data import Data
 from .model import Model
-
-
-# Levi-Civita as a (9, 3) matrix: (p x n) = outer(p, n).reshape(9) @ _EPS9 (np.cross costs ~20 us)
-_EPS9 = np.zeros((3, 3, 3))
-_EPS9[0, 1, 2] = _EPS9[1, 2, 0] = _EPS9[2, 0, 1] = 1.0
-_EPS9[0, 2, 1] = _EPS9[2, 1, 0] = _EPS9[1, 0, 2] = -1.0
-_EPS9 = _EPS9.reshape(3, 9).T.copy()
+from .qp import ordered
 
 
 def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
@@ -43,7 +37,9 @@ def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
     n = contacts.normal
     nn = np.concatenate((n, n))
     p = np.concatenate((contacts.point_a, contacts.point_b))
-    R = nn @ J[:3] + (p[:, :, None] * nn[:, None, :]).reshape(-1, 9) @ (_EPS9 @ J[3:])  # (2m, nv): A, then B
+    c = np.stack((p[:, 1] * nn[:, 2] - p[:, 2] * nn[:, 1], p[:, 2] * nn[:, 0] - p[:, 0] * nn[:, 2],
+                  p[:, 0] * nn[:, 1] - p[:, 1] * nn[:, 0]), axis=1)  # p x n
+    R = ordered(nn, J[:3]) + ordered(c, J[3:])  # (2m, nv): A, then B (src/step.cpp contact_rows: the same sums)
     mask = model.support_mask
     return (R[:m] * mask[contacts.joint_a] - R[m:] * mask[contacts.joint_b]).T
 

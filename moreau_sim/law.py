@@ -55,7 +55,7 @@ def restitution_bounds(W: np.ndarray, u: np.ndarray, u_free: np.ndarray, gamma_m
     if separating is Separating.ELASTIC and e < 1.0 and gamma_minus.max(initial=0.0) > 0.0:
         e_i = np.where(gamma_minus > 0.0, 1.0, e)
     if slow_impacts is SlowImpacts.PLASTIC and e > 0.0 and gamma_minus.min(initial=0.0) < 0.0:
-        slow = (gamma_minus < 0.0) & (gamma_minus >= W.T @ (u_free - u))
+        slow = (gamma_minus < 0.0) & (gamma_minus >= qp.ordered(W.T, u_free - u))
         if slow.any():
             e_i = np.where(slow, 0.0, e if e_i is None else e_i)
     return None if e_i is None else (e - e_i) * gamma_minus / (1.0 + e)

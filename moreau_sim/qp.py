@@ -64,7 +64,7 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
     return float(max(r, -slack.min(initial=0.0), -lam.min(initial=0.0), abs(lam @ slack)))
 
 
-COLD_START_ROWS = 12  # up to this many rows the active set starts from nothing, and piqp is only its fallback
+COLD_START_ROWS = 64  # up to this many rows the active set starts from nothing, and piqp is only its fallback
 SPARSE_ROWS = 100  # above this many rows the sparse path (_solve_sparse) solves; below it dense is cheaper
 
 
@@ -122,16 +122,38 @@ def _sparse_mul(A, x):
     return A @ x
 
 
-def _ordered(A, x):
+def ordered(A, x):
     """A @ x (A 1-d or 2-d, x 1-d or 2-d) summed over the inner index in order from its first product, one
-    rounding per product and per sum (no BLAS kernel, no FMA): the same bits on every CPU, and the same as
-    src/step.cpp's odot. (numpy's own products follow OpenBLAS's kernels, whose order changes with the
-    size and the machine.) np.add.accumulate adds in index order by definition (reductions need not)."""
+    rounding per product and per sum (no BLAS kernel, no FMA), then + 0.0: the same bits on every CPU, at
+    every size and memory alignment, and the same as src/step.cpp's odot / omatmul. The one product of the
+    step's stages (stepper, law, constraints, this module): numpy's own products follow OpenBLAS's kernels,
+    whose order changes with the size, the machine and the arrays' alignment (docs/theory.md §2.8).
+    np.add.accumulate adds in index order by definition (reductions need not). The final + 0.0 turns a -0.0
+    into +0.0 and changes nothing else; after it, leaving out products that are exact zeros (A finite, x_k = 0)
+    cannot change a bit, as adding a signed zero changes at most the sign of a zero sum: the large 2-d
+    products use that, summing over the nonzero entries of each column of x (the sparse rows W)."""
+    n = A.shape[-1]
+    if n == 0 or n != x.shape[0]:
+        return np.matmul(A, x) + 0.0  # empty sums are zeros (mismatched shapes: numpy's error)
     if A.ndim == 1:
-        return np.add.accumulate(A * x)[-1]
+        return np.add.accumulate(A * x)[-1] + 0.0 if x.ndim == 1 else ordered(A[None], x)[0]
     if x.ndim == 1:
-        return np.add.accumulate(A * x, axis=1)[:, -1]
-    return np.add.accumulate(A[:, :, None] * x[None, :, :], axis=1)[:, -1, :]
+        return np.add.accumulate(A * x, axis=1)[:, -1] + 0.0
+    if A.shape[0] * n * x.shape[1] <= 4096:
+        return np.add.accumulate(A[:, :, None] * x[None, :, :], axis=1)[:, -1, :] + 0.0
+    nz = x != 0.0
+    k = int(nz.sum(axis=0).max())
+    if 2 * k <= n and np.isfinite(A).all():  # sparse columns: their nonzero rows in order, then zeros
+        rows = np.argsort(~nz, axis=0, kind="stable")[:max(k, 1)]  # (k, cols): a stable sort keeps the order
+        vals = np.take_along_axis(x, rows, axis=0)
+        out = A[:, rows[0]] * vals[0]
+        for t in range(1, k):
+            out += A[:, rows[t]] * vals[t]
+        return out + 0.0
+    out = A[:, 0, None] * x[0]  # dense and large: one pass per inner index (no (rows, n, cols) temporary)
+    for t in range(1, n):
+        out += A[:, t, None] * x[t]
+    return out + 0.0
 
 
 def _active_set(G, r, tol, act=None, mul=np.matmul):
@@ -144,8 +166,8 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
     a plane) moves only the multipliers; if none can shrink, p counts as met when its violation is within
     the round-off of G lam, else the rows cannot all be met. Returns (act, lam, moves) with every row of
     act tight, or None when the rows are infeasible, a solve is singular or it takes more than 5 m + 10
-    moves. mul: the products (_ordered for the cold start, which src/step.cpp mirrors operation for
-    operation with scipy's own dgesv, so both steps decide alike)."""
+    moves. mul: the products (ordered on dense matrices, which src/step.cpp mirrors operation for
+    operation with scipy's own dgesv, so both steps decide alike; _sparse_mul on the sparse path)."""
     m = r.shape[0]
     lam = np.zeros(m)
     sparse = scipy.sparse.issparse(G)
@@ -210,13 +232,13 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
 
 
 def _polish(W, v0, b, Minv, act=None):
-    """The exact projection by the active set (_active_set, cold with _ordered products, or warm-started from
-    `act` with numpy's), re-solved on
-    its final set A: G_AA lam_A = b_A - W_A'v0 (dgesv), v = v0 + M^-1 W_A lam_A. Kept only if lam_A >= 0
-    and W'v >= b to round-off (the KKT conditions; M (v - v0) = W lam holds by construction); else None."""
+    """The exact projection by the active set (_active_set from nothing, or warm-started from `act`; dense
+    products by `ordered`), re-solved on its final set A: G_AA lam_A = b_A - W_A'v0 (dgesv),
+    v = v0 + M^-1 W_A lam_A. Kept only if lam_A >= 0 and W'v >= b to round-off (the KKT conditions;
+    M (v - v0) = W lam holds by construction); else None."""
     m = W.shape[1]
     sparse = scipy.sparse.issparse(W)
-    mul = _sparse_mul if sparse else _ordered if act is None else np.matmul
+    mul = _sparse_mul if sparse else ordered
     if m == 1:  # one contact: the projection in closed form
         w = W[:, 0]
         Miw = mul(Minv, w)
@@ -301,8 +323,7 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     cold = polish is Polish.ACTIVE_SET and m <= COLD_START_ROWS
     if polish is Polish.ACTIVE_SET and m > SPARSE_ROWS:
         return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
-    mul = _ordered if cold else np.matmul
-    if screen and (mul(W.T, v0) - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
+    if screen and (ordered(W.T, v0) - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
         return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), (M, W, v0, b))
     if cold:
@@ -316,17 +337,17 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     st.eps_duality_gap_abs = st.eps_duality_gap_rel = eps  # default 1e-8 would bound the accuracy
     st.max_iter = max_iter
     if form is QPForm.PRIMAL:
-        s.setup(M, -(M @ v0), None, None, W.T, b, None)
+        s.setup(M, -ordered(M, v0), None, None, W.T, b, None)
         status = s.solve()
         v, lam = s.result.x.copy(), s.result.z_l.copy()
     else:
         if Minv is None:
             Minv = np.linalg.inv(M)
-        MiW = Minv @ W
-        s.setup(W.T @ MiW, W.T @ v0 - b, None, None, None, None, None, np.zeros(m), None)
+        MiW = ordered(Minv, W)
+        s.setup(ordered(W.T, MiW), ordered(W.T, v0) - b, None, None, None, None, None, np.zeros(m), None)
         status = s.solve()
         lam = s.result.x.copy()
-        v = v0 + MiW @ lam
+        v = v0 + ordered(MiW, lam)
     iters = s.result.info.iter
     if status != piqp.PIQP_SOLVED:
         return QPResult(_STATUS.get(status, str(status)), False, iters, False, v, lam)

@@ -33,7 +33,7 @@ from .errors import SimulationError
 from .law import outcome, percussion, project, restitution_bounds
 from .model import Model
 from .options import Bias, Options, PositionCorrection, QPForm, StepImpl, Tunnelling
-from .qp import QPResult
+from .qp import QPResult, ordered
 from .state import State
 from .tunnelling import swept_detect
 
@@ -194,17 +194,17 @@ def solve_impact(pb: ContactProblem, options: Options, *, form: QPForm | None = 
     branch = None
     if pb.pieces is not None:
         res, contacts, W, branch = _corner_law(pb, options, corner_choice)
-        gamma_minus = W.T @ u
+        gamma_minus = ordered(W.T, u)
     else:
-        gamma_minus = W.T @ u
+        gamma_minus = ordered(W.T, u)
         b = restitution_bounds(W, u, pb.u_free, gamma_minus, e, separating=options.separating,
                                slow_impacts=options.slow_impacts)
         res = project(pb.M, W, pb.v_free, b=b, Minv=pb.Minv, form=form or options.qp_form,
                       eps=eps or options.qp_tolerance)
     u_next = outcome(res.v, u, e)
     P = percussion(res.lam, e)
-    gamma_plus = W.T @ u_next
-    work = float(P @ (gamma_plus + gamma_minus)) * 0.5
+    gamma_plus = ordered(W.T, u_next)
+    work = float(ordered(P, gamma_plus + gamma_minus)) * 0.5
     return ImpactSolution(u_next, contacts, W, P, gamma_minus, gamma_plus, work, res, branch)
 
 

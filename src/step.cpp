@@ -3,14 +3,15 @@
 // boost.python's registry: the same Pinocchio and coal libraries as the Python bindings).
 //
 // It mirrors stepper.step stage by stage and operation by operation (the same products and sums in
-// the same order, no FMA contraction), for the contacts of the simple scenes: polytope vertices against
-// a half-space (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight
-// steps; the restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed
-// form for one contact, else qp._active_set's dual active set, re-solved and checked as qp._polish does);
-// the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with a reason and
-// the Python step (the reference) takes the step: corners, point queries against non-half-spaces,
-// contact patches, swept detection, coal's EPA fallback, more than MAX_CONTACTS contacts, a projection
-// the active set does not settle (where qp.solve turns to piqp).
+// the same order, no FMA contraction: docs/theory.md §2.8), for the contacts of coal's closed-form pairs
+// (moreau_sim/compiled.py _analytic), any number of velocities: polytope vertices against a half-space
+// (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight steps; the
+// restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed form for one
+// contact, else qp._active_set's dual active set from nothing, re-solved and checked as qp._polish does);
+// the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with
+// a reason and the Python step (the reference) takes the step: corners, point queries against
+// non-half-spaces, contact patches, swept detection, coal's EPA fallback, more than max_contacts contacts
+// (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp).
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/stl/string.h>
@@ -57,18 +58,14 @@ template <class T> T &extract_ref(nb::handle h, const char *what) {
   return x();
 }
 
-// numpy's small products, operation by operation (measured against numpy 2 with its OpenBLAS on this
-// AVX-512 machine, tests/test_compiled.py; every other sum here is written out in numpy's order):
+// numpy's small products of contacts._vertex_contacts (3-vectors), operation by operation (measured against
+// numpy 2 with its OpenBLAS on this AVX-512 machine, tests/test_compiled.py); every other product of the
+// step is qp.ordered's (odot below: the same bits on any CPU and at any size), every other sum is written
+// out in numpy's order.
 // a 1-d @ 1-d dot (ddot, n < 16): left to right, separate multiply and add
 inline double ddot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
   double s = 0.0;
   for (Eigen::Index k = 0; k < n; ++k) s += a[k * sa] * b[k * sb];
-  return s;
-}
-// an entry of a 2-d @ 2-d product (dgemm): a fused multiply-add chain in k order
-inline double gemm_dot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
-  double s = 0.0;
-  for (Eigen::Index k = 0; k < n; ++k) s = std::fma(a[k * sa], b[k * sb], s);
   return s;
 }
 // an entry of a row-major 2-d @ 1-d product with 2 or more rows (dgemv "t" kernel): four fused lanes
@@ -116,38 +113,45 @@ struct Solved {  // a projection: v, lam, status (0 ADMISSIBLE, 1 solved on its 
 
 namespace {
 
-// numpy's A @ x for a C-ordered A (rows of A: stride `rs` between rows, `cs` along a row)
-VectorXd matvec(const double *A, Eigen::Index rows, Eigen::Index cols, Eigen::Index rs, Eigen::Index cs,
-                       const VectorXd &x) {
-  VectorXd y(rows);
-  for (Eigen::Index i = 0; i < rows; ++i)
-    y[i] = rows == 1 ? ddot(A + i * rs, x.data(), cols, cs, 1) : gemv_dot(A + i * rs, x.data(), cols, cs, 1);
-  return y;
-}
-VectorXd wt_times(const MatrixXd &W, const VectorXd &x) {  // W.T @ x (W Fortran-ordered in numpy)
-  return matvec(W.data(), W.cols(), W.rows(), W.rows(), 1, x);
-}
-VectorXd times(const MatrixXd &A, const VectorXd &x) {  // A @ x (A C-ordered in numpy)
-  return matvec(A.data(), A.rows(), A.cols(), 1, A.rows(), x);
-}
-
-// qp._ordered: a sum of products in index order from the first product, one rounding each (no FMA: this
-// file is compiled with -ffp-contract=off); n >= 1
+// qp.ordered: a sum of products in index order from the first product, one rounding each (no FMA: this
+// file is compiled with -ffp-contract=off), then + 0.0 (a -0.0 sum becomes +0.0); n >= 1
 inline double odot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
   double s = a[0] * b[0];
   for (Eigen::Index k = 1; k < n; ++k) s = s + a[k * sa] * b[k * sb];
-  return s;
+  return s + 0.0;
 }
-// qp._ordered(A, x) for a matrix A (Eigen, column-major) and a vector x
+// qp.ordered(A, X) for matrices A (r, n) and X (n, c) (Eigen, column-major), into Y (r, c): each entry summed
+// as odot does, the loops arranged so that the innermost runs over independent entries (vectorizable)
+void omatmul(const MatrixXd &A, const MatrixXd &X, MatrixXd &Y) {
+  const Eigen::Index r = A.rows(), n = A.cols(), c = X.cols();
+  Y.resize(r, c);
+  if (n == 0) {
+    Y.setZero();
+    return;
+  }
+  for (Eigen::Index j = 0; j < c; ++j) {
+    double *y = Y.col(j).data();
+    const double *a0 = A.col(0).data();
+    const double x0 = X(0, j);
+    for (Eigen::Index i = 0; i < r; ++i) y[i] = a0[i] * x0;
+    for (Eigen::Index k = 1; k < n; ++k) {
+      const double *a = A.col(k).data();
+      const double xk = X(k, j);
+      for (Eigen::Index i = 0; i < r; ++i) y[i] = y[i] + a[i] * xk;
+    }
+    for (Eigen::Index i = 0; i < r; ++i) y[i] = y[i] + 0.0;
+  }
+}
+// qp.ordered(A, x) for a matrix A and a vector x
 VectorXd otimes(const MatrixXd &A, const VectorXd &x) {
-  VectorXd y(A.rows());
-  for (Eigen::Index i = 0; i < A.rows(); ++i) y[i] = odot(A.data() + i, x.data(), A.cols(), A.rows(), 1);
-  return y;
+  MatrixXd Y;
+  omatmul(A, x, Y);
+  return Y.col(0);
 }
-// qp._ordered(W.T, x)
+// qp.ordered(W.T, x)
 VectorXd otimes_t(const MatrixXd &W, const VectorXd &x) {
   VectorXd y(W.cols());
-  for (Eigen::Index i = 0; i < W.cols(); ++i) y[i] = odot(W.col(i).data(), x.data(), W.rows());
+  for (Eigen::Index i = 0; i < W.cols(); ++i) y[i] = W.rows() ? odot(W.col(i).data(), x.data(), W.rows()) : 0.0;
   return y;
 }
 
@@ -243,11 +247,9 @@ Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const M
     return {v, VectorXd::Constant(1, lam1), 1};
   }
   const double scale = 1.0 + v0.cwiseAbs().maxCoeff();
-  MatrixXd MiW(nv, m), G(m, m);  // Minv @ W, W.T @ MiW
-  for (Eigen::Index i = 0; i < nv; ++i)
-    for (Eigen::Index j = 0; j < m; ++j) MiW(i, j) = odot(Minv.data() + i, W.col(j).data(), nv, nv, 1);
-  for (Eigen::Index i = 0; i < m; ++i)
-    for (Eigen::Index j = 0; j < m; ++j) G(i, j) = odot(W.col(i).data(), MiW.col(j).data(), nv);
+  MatrixXd MiW, G;  // Minv @ W, W.T @ MiW
+  omatmul(Minv, W, MiW);
+  omatmul(W.transpose(), MiW, G);
   const VectorXd r = b - otimes_t(W, v0);
   std::vector<char> act;
   VectorXd lam;
@@ -499,7 +501,7 @@ class Stepper {
     return found;
   }
 
-  // constraints.contact_rows: w = mask_a (n'J_lin + (p_a n')·(EPS9 J_ang)) - mask_b (same at p_b)
+  // constraints.contact_rows: w = mask_a (n'J_lin + (p_a x n)'J_ang) - mask_b (same at p_b), summed as qp.ordered
   MatrixXd contact_rows(const std::vector<Found> &f) {
     const Eigen::Index nv = model_.nv, m = (Eigen::Index)f.size();
     const auto &J = data_.J;  // (6, nv) WORLD
@@ -507,18 +509,16 @@ class Stepper {
     for (Eigen::Index i = 0; i < m; ++i) {
       const int ja = (int)pairs_(f[i].pair, 2), jb = (int)pairs_(f[i].pair, 3);
       const Vec3 &n = f[i].n;
+      Vec3 c[2];
+      for (int s = 0; s < 2; ++s) {
+        const Vec3 &p = s == 0 ? f[i].pa : f[i].pb;
+        c[s] = Vec3(p[1] * n[2] - p[2] * n[1], p[2] * n[0] - p[0] * n[2], p[0] * n[1] - p[1] * n[0]);
+      }
       for (Eigen::Index v = 0; v < nv; ++v) {
+        const double lin = ((n[0] * J(0, v) + n[1] * J(1, v)) + n[2] * J(2, v)) + 0.0;
         double side[2];
-        for (int s = 0; s < 2; ++s) {
-          const Vec3 &p = s == 0 ? f[i].pa : f[i].pb;
-          const double lin = std::fma(n[2], J(2, v), std::fma(n[1], J(1, v), n[0] * J(0, v)));
-          // E = EPS9 @ J_ang: E[3a+b] = eps[c, a, b] J_ang[c]
-          const double E[9] = {0.0, J(5, v), -J(4, v), -J(5, v), 0.0, J(3, v), J(4, v), -J(3, v), 0.0};
-          double ang = 0.0;
-          for (int a = 0; a < 3; ++a)
-            for (int b = 0; b < 3; ++b) ang = std::fma(p[a] * n[b], E[3 * a + b], ang);
-          side[s] = lin + ang;
-        }
+        for (int s = 0; s < 2; ++s)
+          side[s] = lin + (((c[s][0] * J(3, v) + c[s][1] * J(4, v)) + c[s][2] * J(5, v)) + 0.0);
         W(v, i) = side[0] * mask_(ja, v) - side[1] * mask_(jb, v);
       }
     }
@@ -573,7 +573,7 @@ class Stepper {
     VectorXd u_free = free_velocity(q_m, u, h);
     VectorXd v_free = (u_free + e * u) / (1.0 + e);
     // solve_impact
-    VectorXd gamma_minus = wt_times(W, u);
+    VectorXd gamma_minus = otimes_t(W, u);
     VectorXd b = VectorXd::Zero(m);  // law.restitution_bounds (None -> b = 0 in qp.solve)
     {
       bool any = false;
@@ -584,7 +584,7 @@ class Stepper {
       }
       if (slow_plastic_ && e > 0.0 && std::min(0.0, gamma_minus.minCoeff()) < 0.0) {
         VectorXd du = u_free - u;
-        VectorXd wdu = wt_times(W, du);
+        VectorXd wdu = otimes_t(W, du);
         bool slow_any = false;
         for (Eigen::Index i = 0; i < m; ++i) {
           if (gamma_minus[i] < 0.0 && gamma_minus[i] >= wdu[i]) slow_any = true, e_i[i] = 0.0;
@@ -597,9 +597,9 @@ class Stepper {
     Solved res = project(W, v_free, b, Minv);
     VectorXd u_next = res.v - e * (u - res.v);
     VectorXd P = (1.0 + e) * res.lam;
-    VectorXd gamma_plus = wt_times(W, u_next);
+    VectorXd gamma_plus = otimes_t(W, u_next);
     VectorXd gsum = gamma_plus + gamma_minus;
-    const double work = ddot(P.data(), gsum.data(), m) * 0.5;
+    const double work = odot(P.data(), gsum.data(), m) * 0.5;
     VectorXd q_next = pinocchio::integrate(model_, q_m, (0.5 * h) * u_next);
     double corr = 0.0;
     VectorXd g(m);

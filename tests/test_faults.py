@@ -119,7 +119,7 @@ FAULTS = [
 def test_a_solver_fault_is_a_named_stop_with_the_samples_so_far(monkeypatch, tmp_path, target, replacement, name,
                                                                  options, words):
     monkeypatch.setattr(*target, replacement)
-    if target == (qp.piqp, "DenseSolver"):  # piqp answers first (up to 12 rows it is only the active set's fallback)
+    if target == (qp.piqp, "DenseSolver"):  # piqp first (below COLD_START_ROWS it only backs up the active set)
         monkeypatch.setattr(qp, "COLD_START_ROWS", 0)
     with pytest.raises(ms.SimulationError) as info:
         run(name, duration=1.0, step_impl="python", **options)

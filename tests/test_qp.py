@@ -259,10 +259,12 @@ def _column_problem(n):
 @pytest.mark.parametrize("n", [13, 50, 101, 400])
 def test_sparse_path_solves_a_resting_column_exactly(n, form):
     """Above SPARSE_ROWS rows the sparse path (piqp's SparseSolver, the active set on CSC matrices), and the
-    dense one below, give the closed form to round-off, polished, with a KKT residual at round-off."""
+    dense one below (the cold active set), give the closed form to round-off, polished, with a KKT residual at
+    round-off."""
     M, W, v0, gh = _column_problem(n)
     res = qp.solve(M, W, v0, Minv=M, form=form)
-    assert res.ok and res.polished and res.status == "PIQP_SOLVED"
+    cold = n <= qp.COLD_START_ROWS  # the dense cold active set (either form), no piqp
+    assert res.ok and res.polished and res.status == ("ACTIVE_SET" if cold else "PIQP_SOLVED")
     np.testing.assert_allclose(res.v, 0.0, rtol=0, atol=1e-15 * n)
     np.testing.assert_allclose(res.lam, gh * (n - np.arange(n)), rtol=1e-13, atol=0)
     assert res.residual <= 1e-15 * n
@@ -272,9 +274,9 @@ def test_sparse_path_solves_a_resting_column_exactly(n, form):
 @pytest.mark.parametrize("seed", range(6))
 def test_sparse_path_is_the_projection_the_cold_active_set_gives(seed, bounds, monkeypatch):
     """Random block-diagonal problems (bodies on separate root joints) of 13 to nv rows, on the sparse path
-    (its threshold lowered to COLD_START_ROWS): the answer equals the dense cold active set's (qp._polish on
+    (its threshold lowered to 12 rows): the answer equals the dense cold active set's (qp._polish on
     the dense matrices, the small-problem method) to round-off, and is repeatable bit for bit."""
-    monkeypatch.setattr(qp, "SPARSE_ROWS", qp.COLD_START_ROWS)
+    monkeypatch.setattr(qp, "SPARSE_ROWS", 12)
     rng = np.random.default_rng(seed)
     blocks = [rng.standard_normal((k, k)) for k in rng.integers(1, 4, 12)]
     M = np.zeros((sum(len(B) for B in blocks),) * 2)
@@ -333,3 +335,36 @@ def test_a_run_of_a_resting_column_of_120_beads_keeps_its_energy():
     traj = ms.simulate(model, progress=False)
     assert_no_energy_gain(traj, rtol=1e-12)
     assert_budget_closes(traj, rtol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_ordered_sums_in_index_order_at_any_size_and_alignment(seed):
+    """qp.ordered, the one product of the step's stages: every entry is sum_k a_k x_k added left to right from
+    the first product, one rounding each, then + 0.0 (a Python float loop is the reference), bit for bit, signs
+    of zero included, whatever the size (numpy's own products change their order with it), wherever the arrays
+    start in memory (misaligned views), and for sparse columns (summed over their nonzero entries only)."""
+    rng = np.random.default_rng(seed)
+
+    def ref(a, x):
+        s = a[0] * x[0]
+        for k in range(1, len(a)):
+            s = s + a[k] * x[k]
+        return s + 0.0
+
+    def bits(v):
+        return np.asarray(v, float).view(np.int64).tolist()
+
+    for n in (1, 2, 3, 5, 16, 17, 40, 101):
+        r, c = (int(rng.integers(1, 9)), int(rng.integers(1, 5))) if n < 40 else (64, 4)  # both ways of 2-d @ 2-d
+        buf = rng.standard_normal(r * n + 1) * 10.0 ** rng.integers(-8, 8, r * n + 1)
+        A = buf[1:].reshape(r, n)  # 8 bytes off the buffer's start
+        A[:, 0] = -0.0  # -0.0 products first: a sum of zeros must come out +0.0
+        x = rng.standard_normal(n + 1)[1:]
+        for X in (np.asfortranarray(rng.standard_normal((n, c))),
+                  np.where(rng.random((n, c)) < 0.9, 0.0, rng.standard_normal((n, c)))):  # dense, then sparse
+            X[:, -1] = 0.0  # one column of zeros
+            assert bits(qp.ordered(A, X)) == bits([[ref(a, X[:, j]) for j in range(c)] for a in A])
+        assert bits(qp.ordered(A[0], x)) == bits(ref(A[0], x))
+        assert bits(qp.ordered(A[0], X)) == bits([ref(A[0], X[:, j]) for j in range(c)])
+        assert bits(qp.ordered(A, x)) == bits([ref(a, x) for a in A])
+        assert bits(qp.ordered(np.zeros((r, 0)), np.zeros(0))) == bits([0.0] * r)
