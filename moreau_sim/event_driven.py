@@ -14,9 +14,11 @@ the set of persistent contacts, held as bilateral constraints W_C' a + Wdot_C' u
 Gaps (event functions): the analytic signed gaps per *feature* of the contact layer
 (features.py, shared with the adaptive integrator), with rows w and the drift term Wdot' u:
 every vertex of a polytope against a half-space, a sphere against a half-space, a sphere
-against a sphere, a sphere against a static box. Other pair types raise
-:class:`UnsupportedModel` naming the pair. The decisions at an event below (impact, Zeno rule,
-persistent set) are features.FeatureContacts.resolve.
+against a sphere, a sphere against a static box, and for two boxes every vertex of each in the
+other and every pair of their edges (docs/theory.md §7.1). Other pair types (cylinders, meshes)
+raise :class:`UnsupportedModel` naming the pair; an impact at a corner (docs/theory.md §3)
+raises features.CornerImpact naming the instant. The decisions at an event below (impact, Zeno
+rule, persistent set) are features.FeatureContacts.resolve.
 
 Events (terminal): a free feature's gap crossing 0 downwards (impact); a persistent
 contact's multiplier crossing -LAM_EPS downwards (release). A free feature that starts a phase
@@ -27,7 +29,9 @@ ODE steps stay below half its time to apex, so that no rise-and-fall hides insid
 At every event (and at the start) :func:`EventDrivenRun.resolve` applies, in order:
   1. Impact: if a closed feature (g <= the scene's contact_tolerance, 1e-9 m by default)
      approaches (gamma < -V_TOL), the SAME law as the stepper, ``law.impact`` (docs/theory.md §1)
-     on the contacts ``contacts.detect`` closes at q (coal, tolerance 1e-9 m), with the scene's e.
+     on the contacts ``contacts.detect`` closes at q (coal, tolerance 1e-9 m), with the scene's e
+     (between boxes, plus the closed approaching box features whose rows coal's contacts miss:
+     features.FeatureContacts._missed_features, docs/theory.md §7.1).
   2. Zeno rule (accumulation points): the impact is plastic (e = 0) if, for every approaching
      contact, its rebound would rise less than G_ZENO = 1e-12 m, (e gamma-)^2 < 2 |a_n| G_ZENO
      with a_n its free normal acceleration, or it is slower than V_ZENO = 1e-8 m/s; or if the
@@ -42,7 +46,8 @@ At every event (and at the start) :func:`EventDrivenRun.resolve` applies, in ord
      W' a >= -Wdot' u (piqp via ``law.project``): those with zero relative acceleration
      (pushing, lam > 0, or neutral, lam = 0 with nothing pulling them apart - the touching
      balls of a cradle) form C; the others separate. A contact released by its multiplier
-     event is not re-admitted at that instant.
+     event is not re-admitted at that instant. When C's rows are linearly dependent (the four
+     corners of a face on a face), its forces are the minimum-norm solution.
 """
 
 from __future__ import annotations

@@ -3,9 +3,19 @@
 A *feature* is one gap function of a collision pair, with its row w, the drift term Wdot' u
 (from Pinocchio's bias accelerations) and gamma = w' u: every vertex of a polytope against a
 half-space, a sphere against a half-space, a sphere against a sphere, a sphere against a static
-box. Per-vertex gaps (not coal's pair distance, which is the minimum over corners and stays 0
-while a block pivots) make each corner of a rocking block its own event. Other pair types raise
-:class:`UnsupportedModel` naming the pair.
+box; and for two boxes (either moving, docs/theory.md §7.1), computed per pair in numpy:
+  - "vertex_box": each box's vertices p in the other, g = max_f (n_f' p - d_f) over the other's
+    face planes that count (those the vertex's own cone can touch first, and those p is clearly
+    outside of), n the arg-max face's normal (kept through a phase while persistent), drift
+    n'(abar_A(p) - abar_B(p)) + 2 (w_face x n)' dv;
+  - "edge_edge": each of the 12 x 12 edge pairs, g = d = n'(a0 - b0) along n = +-(e_A x e_B)/|.|
+    (outward of B's edge) while active (n in both edges' normal cones, the lines' closest points
+    inside both edges, d >= -smallest half side), else a positive stand-in; rows at the closest
+    points, drift n'(abar_A - abar_B) + 2 n_dot' dv - d |n_dot|^2;
+  - while the pair's bounding spheres are apart, all its features report the spheres' gap.
+Per-vertex gaps (not coal's pair distance, which is the minimum over corners and stays 0
+while a block pivots) make each corner of a rocking block its own event. Other pair types
+(cylinders, meshes) raise :class:`UnsupportedModel` naming the pair.
 
 :class:`FeatureContacts` holds what the event-driven integrator (event_driven.py, docs/theory.md
 §7) and the adaptive one (adaptive.py, §8) share: the features' kinematics, the constrained
@@ -25,7 +35,7 @@ import numpy as np
 import pinocchio as pin
 
 from .constraints import assemble_constraints
-from .contacts import detect
+from .contacts import FeatureKind, detect, from_rows
 from .data import Data
 from .errors import MoreauSimError, SimulationError, named_stops
 from .law import impact, project
@@ -51,7 +61,8 @@ class UnsupportedModel(MoreauSimError, ValueError):
 class Feature:
     """One gap function. kind "point_plane": point `p` (joint frame of joint_a) above the plane
     n' x = d (world); "sphere_sphere": centres p (joint_a) and p_b (joint_b), radii r, r_b;
-    "sphere_box": centre p (joint_a), radius r, static box (rotation R, centre c, half sides h)."""
+    "sphere_box": centre p (joint_a), radius r, static box (rotation R, centre c, half sides h);
+    "vertex_box", "edge_edge": feature `feature` of the box pair `box` (:class:`BoxPair`)."""
 
     kind: str
     pair: int
@@ -66,6 +77,79 @@ class Feature:
     r_b: float = 0.0
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
     h: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    box: "BoxPair | None" = None  # "vertex_box" / "edge_edge": the pair's geometry (vectorized kinds)
+
+
+ARC_TOL = 1e-9  # an edge pair's normal may leave the edges' normal cones by this (face on face: at their ends)
+EDGE_END = 1e-6  # an edge pair is active only where both closest points are this far (relative) from the ends
+PARALLEL = 1e-9  # |e_A x e_B| below this: parallel edges, no edge-edge gap (the vertices cover faces on faces)
+BOX_FEATURES = 16 + 144  # per box pair: 8 + 8 vertices in the other box, 12 x 12 edge pairs
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class _Box:
+    """One box of a pair, in its joint frame: vertices v (8, 3), the edges leaving each vertex
+    ve (8, 3, 3), face planes (normals fn (6, 3), offsets fd (6,)), edges (starts e0 (12, 3),
+    unit directions ed (12, 3), lengths el (12,), the two adjacent faces' normals ef (12, 2, 3)),
+    bounding sphere (centre c, radius r)."""
+
+    joint: int
+    v: np.ndarray
+    ve: np.ndarray
+    fn: np.ndarray
+    fd: np.ndarray
+    e0: np.ndarray
+    ed: np.ndarray
+    el: np.ndarray
+    ef: np.ndarray
+    c: np.ndarray
+    r: float
+    half: float  # [m] smallest half side
+
+
+def _box(model: Model, g: int, joint: int) -> _Box:
+    go = model.geom.geometryObjects[g]
+    h = np.asarray(go.geometry.halfSide, float)
+    Rg, tg = go.placement.rotation, go.placement.translation
+    e0, ed, el, ef = [], [], [], []
+    for a in range(3):  # the 4 edges along axis a, at the signs (sb, sc) of the other two axes
+        b, c = (a + 1) % 3, (a + 2) % 3
+        for sb in (-1.0, 1.0):
+            for sc in (-1.0, 1.0):
+                x = np.zeros(3)
+                x[a], x[b], x[c] = -h[a], sb * h[b], sc * h[c]
+                e0.append(Rg @ x + tg)
+                ed.append(Rg[:, a].copy())
+                el.append(2.0 * h[a])
+                ef.append([sb * Rg[:, b], sc * Rg[:, c]])
+    fn, fd = model.face_planes[g]
+    return _Box(joint, np.asarray(model.vertices[g]), np.asarray(model.vertex_edges[g]), np.asarray(fn),
+                np.asarray(fd), np.array(e0), np.array(ed), np.array(el), np.array(ef), tg.copy(),
+                float(np.linalg.norm(h)), float(h.min()))
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class BoxPair:
+    """A pair of two boxes A (coal's first shape) and B (second), either moving or static: the
+    geometry of its BOX_FEATURES features (docs/theory.md §7.1): feature i < 8 is A's vertex i in
+    B, 8 <= i < 16 B's vertex i - 8 in A, 16 + 12 k + l the edge pair (A's edge k, B's edge l)."""
+
+    pair: int
+    a: _Box
+    b: _Box
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a x b of (k, 3) arrays (broadcasting; np.cross's axis handling costs ~30 us a call)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """The matrix of w x . (3, 3)."""
+    w0, w1, w2 = w.tolist()
+    return np.array([[0.0, -w2, w1], [w2, 0.0, -w0], [-w1, w0, 0.0]])
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -75,8 +159,9 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
-def feature_list(model: Model) -> tuple[Feature, ...]:
-    """The gap functions of every collision pair (UnsupportedModel for other pair types)."""
+def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]:
+    """The gap functions of every collision pair (UnsupportedModel for other pair types);
+    box_pairs=False: box-box pairs are unsupported too (the adaptive integrator's choice)."""
     out = []
     gobs = model.geom.geometryObjects
     for pair in model.pairs:
@@ -102,9 +187,16 @@ def feature_list(model: Model) -> tuple[Feature, ...]:
                                 R=gb.placement.rotation.copy(), p_b=gb.placement.translation.copy(),
                                 h=np.asarray(sb.halfSide, float).copy()))
             continue
+        if box_pairs and isinstance(sa, coal.Box) and isinstance(sb, coal.Box):
+            bp = BoxPair(pair.index, _box(model, pair.first, ja), _box(model, pair.second, jb))
+            out += [Feature("vertex_box" if i < 16 else "edge_edge", pair.index, i, ja, jb,
+                            (bp.a.v[i] if i < 8 else bp.b.v[i - 8]) if i < 16 else np.zeros(3), box=bp)
+                    for i in range(BOX_FEATURES)]
+            continue
         raise UnsupportedModel(f"{model.scene.name}: pair '{pair.name}' ({type(sa).__name__} vs "
                                f"{type(sb).__name__}): the event-driven reference has gaps for polytope or "
-                               "sphere vs half-space, sphere vs sphere and sphere vs static box only")
+                               "sphere vs half-space, sphere vs sphere, sphere vs static box and box vs box only"
+                               + ("" if box_pairs else " (box vs box: event-driven only)"))
     return tuple(out)
 
 
@@ -141,6 +233,13 @@ class FeatureContacts:
         self.last_impact = -np.inf
         self.impacts = self.nfev = 0
         self.t = float("nan")  # [s] where the run is (errors name it): a step's or phase's start, an event
+        self.box_faces: dict = {}  # pair -> (vertex features, their faces) at the last call
+        self.faces: dict = {}  # (pair, vertex feature) -> its face, for the persistent vertices of a phase
+        self.box_points: dict = {}  # pair -> (features, points on A, on B, normals) at the last call with rows
+        # pair -> the column of its feature 0 in feats (box pairs' features are consecutive)
+        self.box_index = {f.pair: i for i, f in reversed(list(enumerate(self.feats))) if f.box is not None}
+        self._redundant: dict = {}  # persistent set C -> its rows are linearly dependent
+        self.edge_active: dict = {}  # pair -> (edge features, gap was d: not a stand-in) at the last call
 
     # ---- kinematics of the features -------------------------------------------------------
     def _point(self, j: int, p_local: np.ndarray, rows: bool):
@@ -172,11 +271,22 @@ class FeatureContacts:
             pin.computeJointJacobians(pm, pd, q)
         pin.forwardKinematics(pm, pd, q, u, self.zero)
         self._frames, self._J = {}, None
+        self.box_points.clear()
+        self.box_faces.clear()
+        self.edge_active.clear()
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
+        boxes: dict = {}
         for col, i in enumerate(idx):
             f = self.feats[i]
+            if f.box is not None:  # box-box kinds: vectorized per pair, below
+                entry = boxes.get(f.pair)
+                if entry is None:
+                    entry = boxes[f.pair] = (f.box, [], [])
+                entry[1].append(col)
+                entry[2].append(f.feature)
+                continue
             pa, va, aa, Ja = self._point(f.joint_a, f.p, rows)
             if f.kind == "point_plane":
                 n, curv = f.n, 0.0
@@ -216,8 +326,149 @@ class FeatureContacts:
             if rows:
                 drift[col] = n @ arel + curv
                 W[:, col] = n @ Jrel
+        for bp, cols, which in boxes.values():
+            g[cols], Wb, db = self._box_pair(bp, np.array(which), rows)
+            if rows:
+                W[:, cols] = Wb
+                drift[cols] = db
         gamma = W.T @ u if rows else np.zeros(k)
         return FeatureState(g, W, drift, gamma)
+
+    # ---- box-box kinds (docs/theory.md §7.1), all BOX_FEATURES of a pair at once ----------------
+    def _frame(self, j: int):
+        """(R, t, w, v, a_ang, a_lin) of joint j (placement; twist and bias acceleration in its frame)."""
+        frame = self._frames.get(j)
+        if frame is None:
+            M, v, a = self.pd.oMi[j], self.pd.v[j], self.pd.a[j]
+            frame = self._frames[j] = (M.rotation, M.translation, v.angular, v.linear, a.angular, a.linear)
+        return frame
+
+    def _motion(self, j: int, P: np.ndarray, rows: bool):
+        """Velocities and bias accelerations (q'' = 0) (k, 3) of joint j's material points at the
+        world points P (k, 3), its angular velocity (world) and its masked (J_lin, J_ang) if rows."""
+        if j == 0:
+            z = np.zeros_like(P)
+            return z, z, np.zeros(3), None
+        R, t, w, v_lin, a_ang, a_lin = self._frame(j)
+        Pl = (P - t) @ R
+        Sw = _skew(w)  # w x p = p @ Sw.T for the rows p of Pl
+        vl = v_lin + Pl @ Sw.T
+        vel = vl @ R.T
+        acc = (a_lin + Pl @ _skew(a_ang).T + vl @ Sw.T) @ R.T
+        J = None
+        if rows:
+            if self._J is None:
+                self._J = self.pd.J.reshape(6, -1)
+            mask = self.model.support_mask[j]
+            J = (self._J[:3] * mask, self._J[3:] * mask)
+        return vel, acc, R @ w, J
+
+    def _rows(self, JA, JB, PA: np.ndarray, PB: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """w = J_A(p_A)' n - J_B(p_B)' n (nv, k) for contact points PA, PB and normals n (k, 3)."""
+        W = np.zeros((self.nv, len(n)))
+        for J, P, sign in ((JA, PA, 1.0), (JB, PB, -1.0)):
+            if J is not None:  # n' J_p = n' J_lin + (p x n)' J_ang
+                W += sign * (J[0].T @ n.T + J[1].T @ _cross(P, n).T)
+        return W
+
+    def _box_pair(self, bp: BoxPair, which: np.ndarray, rows: bool):
+        """(g, W, drift) of box pair bp's features `which` (indices in the pair; docs/theory.md §7.1)."""
+        A, B = bp.a, bp.b
+        RA, tA = self._frame(A.joint)[:2] if A.joint else (np.eye(3), np.zeros(3))
+        RB, tB = self._frame(B.joint)[:2] if B.joint else (np.eye(3), np.zeros(3))
+        cA, cB = RA @ A.c + tA, RB @ B.c + tB
+        dc = cA - cB
+        dist = float(np.sqrt(dc @ dc))
+        k = len(which)
+        if dist > A.r + B.r:  # bounding spheres apart: every feature is open; their gap stands in
+            g = np.full(k, dist - A.r - B.r)
+            if not rows:
+                return g, None, None
+            n = dc / dist
+            vA, aA, _, JA = self._motion(A.joint, cA[None], True)
+            vB, aB, _, JB = self._motion(B.joint, cB[None], True)
+            dv = (vA - vB)[0]
+            drift = n @ (aA - aB)[0] + (dv @ dv - (n @ dv) ** 2) / dist  # as sphere_sphere
+            w = self._rows(JA, JB, cA[None], cB[None], n[None])
+            return g, np.repeat(w, k, axis=1), np.full(k, drift)
+        g = np.empty(k)
+        P_a, P_b, nn = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
+        extra = np.zeros(k)  # drift terms of the turning normal, per feature
+        v_sel = which < 16
+        e_sel = ~v_sel
+        if v_sel.any():
+            # vertices in the other box: s(p) = max_f (n_f' p - d_f) over the faces that count (below: a
+            # vertex sliding exactly along an aligned box's edge line keeps seeing the face it meets)
+            NA, NB = A.fn @ RA.T, B.fn @ RB.T
+            P = np.concatenate((A.v @ RA.T + tA, B.v @ RB.T + tB))
+            E = np.concatenate((A.ve @ RA.T, B.ve @ RB.T))
+            wv = which[v_sel]
+            P, E = P[wv], E[wv]
+            ina = wv < 8  # A's vertex in B (else B's in A)
+            N = np.where(ina[:, None, None], NB[None], NA[None])  # (kv, 6, 3) the other box's faces
+            D = np.where(ina[:, None], (B.fd + NB @ tB)[None], (A.fd + NA @ tA)[None])
+            S = np.einsum("vfe,ve->vf", N, P) - D
+            # a face counts if its plane leaves the vertex's own cone outside (the vertex can touch it
+            # first), or if the vertex is clearly outside it (S > gap_tol: the vertex is out of the box)
+            valid = np.einsum("vke,vfe->vkf", E, N).min(axis=1) >= -ARC_TOL
+            count = valid | (S > self.gap_tol)
+            count[~count.any(axis=1)] = True
+            f = np.where(count, S, -np.inf).argmax(axis=1)
+            if self.faces:  # persistent vertices: the face chosen at the phase's start
+                f = np.array([self.faces.get((bp.pair, k), fk) for k, fk in zip(wv.tolist(), f.tolist())])
+            self.box_faces[bp.pair] = (wv, f)
+            g[v_sel] = S[np.arange(len(wv)), f]
+            if rows:
+                n = N[np.arange(len(wv)), f] * np.where(ina, 1.0, -1.0)[:, None]  # from B to A
+                P_a[v_sel] = P_b[v_sel] = P
+                nn[v_sel] = n
+        if e_sel.any():
+            # edge pairs: d = n'(a0 - b0) along n = +-(e_A x e_B)/|.| (outward of B's edge)
+            ka, kb = np.divmod(which[e_sel] - 16, 12)
+            a0, ea, fa = A.e0[ka] @ RA.T + tA, A.ed[ka] @ RA.T, A.ef[ka] @ RA.T
+            b0, eb, fb = B.e0[kb] @ RB.T + tB, B.ed[kb] @ RB.T, B.ef[kb] @ RB.T
+            c = _cross(ea, eb)
+            cn = np.sqrt((c * c).sum(axis=1))
+            ok = cn > PARALLEL
+            cn = np.where(ok, cn, 1.0)
+            n = c / cn[:, None]
+            sigma = np.where((n * fb.sum(axis=1)).sum(axis=1) < 0.0, -1.0, 1.0)
+            n = n * sigma[:, None]
+            arcs = ((np.einsum("ke,kje->kj", n, fb) >= -ARC_TOL).all(axis=1)
+                    & (np.einsum("ke,kje->kj", n, fa) <= ARC_TOL).all(axis=1))
+            r = a0 - b0
+            d = (n * r).sum(axis=1)
+            bb = (ea * eb).sum(axis=1)
+            ra, rb = (r * ea).sum(axis=1), (r * eb).sum(axis=1)
+            s = (bb * rb - ra) / cn ** 2  # the lines' closest points a0 + s e_A, b0 + t e_B
+            t = (rb - bb * ra) / cn ** 2
+            # within both edges, EDGE_END (relative) from their ends: a crossing at an end is a vertex's
+            # contact (vertex_box); there the stand-in is >= EDGE_END * length, never closed
+            la, lb = A.el[ka], B.el[kb]
+            ex_s = np.maximum(np.maximum(EDGE_END * la - s, s - (1.0 - EDGE_END) * la), 0.0)
+            ex_t = np.maximum(np.maximum(EDGE_END * lb - t, t - (1.0 - EDGE_END) * lb), 0.0)
+            active = ok & arcs & (ex_s == 0.0) & (ex_t == 0.0) & (d >= -min(A.half, B.half))
+            self.edge_active[bp.pair] = (which[e_sel], active)  # for tests
+            g[e_sel] = np.where(active, d, np.where(ok, np.sqrt(d * d + ex_s * ex_s + ex_t * ex_t), A.r + B.r))
+            if rows:
+                P_a[e_sel] = a0 + s[:, None] * ea
+                P_b[e_sel] = b0 + t[:, None] * eb
+                nn[e_sel] = np.where(ok[:, None], n, 0.0)
+        if not rows:
+            return g, None, None
+        vA, aA, wA, JA = self._motion(A.joint, P_a, True)
+        vB, aB, wB, JB = self._motion(B.joint, P_b, True)
+        dv, da = vA - vB, aA - aB
+        if v_sel.any():  # a vertex in a face that turns with its box: + 2 (w_face x n)' dv
+            w_face = np.where(ina[:, None], wB, wA)
+            extra[v_sel] = 2.0 * (_cross(w_face, nn[v_sel]) * dv[v_sel]).sum(axis=1)
+        if e_sel.any():  # an edge pair: + 2 n' dv - d |n'|^2, n' the rate of the normal of e_A x e_B
+            cdot = (_cross(_cross(wA[None], ea), eb) + _cross(ea, _cross(wB[None], eb))) * sigma[:, None]
+            ndot = (cdot - n * (n * cdot).sum(axis=1)[:, None]) / cn[:, None]
+            ndot = np.where(ok[:, None], ndot, 0.0)
+            extra[e_sel] = 2.0 * (ndot * dv[e_sel]).sum(axis=1) - np.where(ok, d, 0.0) * (ndot * ndot).sum(axis=1)
+        self.box_points[bp.pair] = (which, P_a, P_b, nn)  # contact points and normals (_missed_features)
+        return g, self._rows(JA, JB, P_a, P_b, nn), (nn * da).sum(axis=1) + extra
 
 
     # ---- dynamics --------------------------------------------------------------------------
@@ -232,6 +483,11 @@ class FeatureContacts:
         MiW = Minv @ fs.W
         G = fs.W.T @ MiW
         rhs = -(fs.W.T @ a + fs.drift)
+        redundant = self._redundant.get(C)
+        if redundant is None:  # rows of C dependent (4 corners of a face on a face): decided once per set
+            redundant = self._redundant[C] = bool(np.linalg.matrix_rank(fs.W) < len(C))
+        if redundant:
+            return a + MiW @ (lam := np.linalg.lstsq(G, rhs, rcond=1e-12)[0]), lam  # minimum-norm forces
         try:
             lam = np.linalg.solve(G, rhs)
         except np.linalg.LinAlgError:
@@ -243,6 +499,7 @@ class FeatureContacts:
         """Impact (with the Zeno rule), then the persistent set C at (t, q, u) (module doc).
         Returns (u, C, shadow): C persistent features, shadow: duplicates of C's rows."""
         self.t = t
+        self.faces = {}  # chosen afresh at an event
         fs = self.features(q, u)
         closed = fs.g <= self.gap_tol
         if (closed & (fs.gamma < -V_TOL)).any():
@@ -265,6 +522,11 @@ class FeatureContacts:
         rel = Wk.T @ res.v + dk
         tol = ACC_TOL * (1.0 + np.abs(dk).max() + np.abs(Wk.T @ a_free).max())
         C = tuple(int(i) for i, r in zip(keep, rel) if r <= tol)
+        for i in C:  # a persistent vertex keeps its face through the phase (its row may not flip at a tie)
+            f = self.feats[i]
+            if f.kind == "vertex_box":
+                wv, faces = self.box_faces[f.pair]
+                self.faces[(f.pair, f.feature)] = int(faces[np.searchsorted(wv, f.feature)])
         if C:  # remove the residual normal velocity of the persistent contacts (~1e-16)
             Minv = pin.computeMinverse(self.pm, self.pd, q)
             W = fs.W[:, list(C)]
@@ -273,14 +535,48 @@ class FeatureContacts:
         shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in C))
         return u, C, shadow
 
+    def _missed_features(self, fs: FeatureState, W: np.ndarray) -> list:
+        """Contact rows (as contacts.from_rows takes them) of the closed, approaching box-box features
+        (vertices, active edge pairs) whose row is not in the span of coal's rows W: an edge lying
+        across a face meets the face's edges at points coal's one witness of that segment contact
+        does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
+        an arbitrary normal (docs/theory.md §7.1). Needs fs = self.features(q, u) of all features."""
+        out = []
+        for pair, (which, P_a, P_b, nn) in self.box_points.items():
+            e_which, active = self.edge_active.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
+            for i, k in enumerate(which.tolist()):
+                if k >= 16 and not active[np.searchsorted(e_which, k)]:
+                    continue
+                col = self.box_index[pair] + k
+                if fs.g[col] > self.gap_tol or fs.gamma[col] >= -V_TOL:
+                    continue
+                w = fs.W[:, col]
+                if W.shape[1]:
+                    r = w - W @ np.linalg.lstsq(W, w, rcond=1e-12)[0]
+                    if np.abs(r).max() <= 1e-9 * np.abs(w).max():
+                        continue
+                out.append((float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
+                            FeatureKind.VERTEX if k < 16 else FeatureKind.WITNESS, k))
+                W = np.column_stack((W, w))
+        return out
+
     def _impact(self, t, q, u, fs: FeatureState) -> np.ndarray:
         """The impact law (law.impact, docs/theory.md §1) on the contacts detect() closes at q."""
         pm, pd, model = self.pm, self.pd, self.model
+        # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
+        # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
+        self.data.warm_start_pairs = set(self.data.warm_start_pairs) | {
+            self.feats[i].pair for i in np.flatnonzero(fs.g <= self.gap_tol)}
         c = detect(model, self.data, q)
         if c.corners:
             raise CornerImpact(f"a corner impact at t = {t:.12g} s (docs/theory.md §3); the event-driven "
                                   "reference handles smooth contacts only", t=t)
         cs = assemble_constraints(model, self.data, q, c)
+        missed = self._missed_features(fs, cs.W)
+        if missed:  # they replace coal's contacts of the same vertices
+            keys = {(m[4], int(m[5]), m[6]) for m in missed}
+            keep = np.array([k not in keys for k in zip(c.pair.tolist(), c.kind.tolist(), c.feature.tolist())], bool)
+            cs = assemble_constraints(model, self.data, q, c.select(keep).concat(from_rows(model, missed)))
         c, M, W = cs.contacts, cs.M, cs.W
         if c.m == 0:
             raise SimulationError(f"a gap event at t = {t:.12g} s but coal finds no closed contact")
