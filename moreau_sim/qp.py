@@ -304,6 +304,26 @@ class Polish(enum.Enum):
     NONE = "none"  # piqp's answer as it is
 
 
+def _piqp(kind, eps: float, max_iter: int):
+    """piqp's DenseSolver or SparseSolver (`kind`), quiet, with eps on the residuals and the duality gap."""
+    s = kind()
+    st = s.settings
+    st.verbose = False
+    st.eps_abs = st.eps_rel = eps
+    st.eps_duality_gap_abs = st.eps_duality_gap_rel = eps  # default 1e-8 would bound the accuracy
+    st.max_iter = max_iter
+    return s
+
+
+def _no_answer(status, iters: int, v: np.ndarray, lam: np.ndarray) -> QPResult | None:
+    """The failed QPResult when piqp did not solve, or answered "solved" with NaN; None for an answer."""
+    if status != piqp.PIQP_SOLVED:
+        return QPResult(_STATUS.get(status, str(status)), False, iters, False, v, lam)
+    if not (np.isfinite(v).all() and np.isfinite(lam).all()):
+        return QPResult("NON_FINITE_SOLUTION", False, iters, False, v, lam)
+    return None
+
+
 def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None = None,
           Minv: np.ndarray | None = None, form: QPForm = QPForm.PRIMAL, eps: float = 1e-10,
           max_iter: int = 250, polish: Polish = Polish.ACTIVE_SET, screen: bool = True,
@@ -330,12 +350,7 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
         p = _polish(W, v0, b, Minv)
         if p is not None:
             return QPResult("ACTIVE_SET", True, p[2], True, p[0], p[1], (M, W, v0, b))
-    s = piqp.DenseSolver()
-    st = s.settings
-    st.verbose = False
-    st.eps_abs = st.eps_rel = eps
-    st.eps_duality_gap_abs = st.eps_duality_gap_rel = eps  # default 1e-8 would bound the accuracy
-    st.max_iter = max_iter
+    s = _piqp(piqp.DenseSolver, eps, max_iter)
     if form is QPForm.PRIMAL:
         s.setup(M, -ordered(M, v0), None, None, W.T, b, None)
         status = s.solve()
@@ -349,10 +364,9 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
         lam = s.result.x.copy()
         v = v0 + ordered(MiW, lam)
     iters = s.result.info.iter
-    if status != piqp.PIQP_SOLVED:
-        return QPResult(_STATUS.get(status, str(status)), False, iters, False, v, lam)
-    if not (np.isfinite(v).all() and np.isfinite(lam).all()):  # piqp has answered "solved" with NaN
-        return QPResult("NON_FINITE_SOLUTION", False, iters, False, v, lam)
+    failed = _no_answer(status, iters, v, lam)
+    if failed is not None:
+        return failed
     p = None
     if polish is Polish.ACTIVE_SET and not cold:  # warm-started from piqp's active set
         np.maximum(lam, 0.0, out=lam)
@@ -392,12 +406,7 @@ def _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen) -> QPResult:
     problem = (M, W, v0, b)  # as given, as the dense path keeps them (the residual, the recorder)
     if screen and (Ws.T @ v0 - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
         return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), problem)
-    s = piqp.SparseSolver()
-    st = s.settings
-    st.verbose = False
-    st.eps_abs = st.eps_rel = eps
-    st.eps_duality_gap_abs = st.eps_duality_gap_rel = eps
-    st.max_iter = max_iter
+    s = _piqp(piqp.SparseSolver, eps, max_iter)
     if form is QPForm.PRIMAL:
         s.setup(scipy.sparse.triu(Ms, format="csc"), -(Ms @ v0), None, None, Ws.T.tocsc(), b, None)
         status = s.solve()
@@ -410,10 +419,9 @@ def _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen) -> QPResult:
         lam = s.result.x.copy()
         v = v0 + MiW @ lam
     iters = s.result.info.iter
-    if status != piqp.PIQP_SOLVED:
-        return QPResult(_STATUS.get(status, str(status)), False, iters, False, v, lam)
-    if not (np.isfinite(v).all() and np.isfinite(lam).all()):
-        return QPResult("NON_FINITE_SOLUTION", False, iters, False, v, lam)
+    failed = _no_answer(status, iters, v, lam)
+    if failed is not None:
+        return failed
     np.maximum(lam, 0.0, out=lam)
     act = lam > 1e-7 * max(1.0, lam.max())
     p = _polish(Ws, v0, b, Mis, act)
