@@ -618,9 +618,10 @@ class FeatureContacts:
     def sample(self, t: float, q: np.ndarray, u: np.ndarray, n_contacts: int, corr: float = 0.0) -> None:
         """Record a sample with the contact work (and correction energy) since the previous one;
         a non-finite one stops the run (nothing non-finite is ever complete)."""
-        if not (np.isfinite(q).all() and np.isfinite(u).all()):
+        state = State(t, q, u)
+        if not state.finite():
             raise SimulationError(f"the state at t = {t:.6g} s became non-finite (NaN or inf)")
-        self.rec.sample(State(t, q, u), self.work, corr, n_contacts)
+        self.rec.sample(state, self.work, corr, n_contacts)
         self.work = 0.0
         if not self.rec.finite():
             raise SimulationError(f"the energies or gaps at t = {t:.6g} s became non-finite (an overflow: check "
