@@ -78,12 +78,15 @@ class Feature:
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
     h: np.ndarray = field(default_factory=lambda: np.zeros(3))
     box: "BoxPair | None" = None  # "vertex_box" / "edge_edge": the pair's geometry (vectorized kinds)
+    a: np.ndarray = field(default_factory=lambda: np.zeros(3))  # cylinder kinds: unit axis (its joint's frame)
+    hl: float = 0.0  # cylinder kinds: half length [m]
 
 
 ARC_TOL = 1e-9  # an edge pair's normal may leave the edges' normal cones by this (face on face: at their ends)
 EDGE_END = 1e-6  # an edge pair is active only where both closest points are this far (relative) from the ends
 PARALLEL = 1e-9  # |e_A x e_B| below this: parallel edges, no edge-edge gap (the vertices cover faces on faces)
 BOX_FEATURES = 16 + 144  # per box pair: 8 + 8 vertices in the other box, 12 x 12 edge pairs
+SIN_FLAT = 1e-6  # a closed cylinder rim whose cap is within this (sine) of parallel to the plane: refused (§7.2)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -187,6 +190,10 @@ def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]
                                 R=gb.placement.rotation.copy(), p_b=gb.placement.translation.copy(),
                                 h=np.asarray(sb.halfSide, float).copy()))
             continue
+        cyl = _cylinder_features(model, pair) if coal.Cylinder in (type(sa), type(sb)) else None
+        if cyl is not None:
+            out += cyl
+            continue
         if box_pairs and isinstance(sa, coal.Box) and isinstance(sb, coal.Box):
             bp = BoxPair(pair.index, _box(model, pair.first, ja), _box(model, pair.second, jb))
             out += [Feature("vertex_box" if i < 16 else "edge_edge", pair.index, i, ja, jb,
@@ -194,10 +201,48 @@ def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]
                     for i in range(BOX_FEATURES)]
             continue
         raise UnsupportedModel(f"{model.scene.name}: pair '{pair.name}' ({type(sa).__name__} vs "
-                               f"{type(sb).__name__}): the event-driven reference has gaps for polytope or "
-                               "sphere vs half-space, sphere vs sphere, sphere vs static box and box vs box only"
+                               f"{type(sb).__name__}): the event-driven reference has gaps for polytope, sphere or "
+                               "cylinder vs half-space, sphere vs sphere, sphere or cylinder vs static box, sphere "
+                               "vs cylinder and box vs box only"
                                + ("" if box_pairs else " (box vs box: event-driven only)"))
     return tuple(out)
+
+
+CYLINDER_KINDS = ("rim_plane", "rim_box", "sphere_cylinder")
+
+
+def _cylinder_features(model: Model, pair) -> list[Feature] | None:
+    """The features of a pair with a cylinder (docs/theory.md §7.2), or None for a pair type
+    without them: a moving cylinder's two cap rims (feature 0: the cap at +halfLength along its
+    axis, 1: at -halfLength) against a static half-space or box; a sphere against a cylinder
+    (either moving). Gaps and rows do not depend on which shape coal lists first."""
+    gobs = model.geom.geometryObjects
+    ends = [(pair.first, pair.joint_first), (pair.second, pair.joint_second)]
+    if not isinstance(gobs[ends[0][0]].geometry, coal.Cylinder):
+        ends.reverse()
+    (gc, jc), (gx, jx) = ends
+    go, other = gobs[gc], gobs[gx]
+    cyl, shape = go.geometry, other.geometry
+    centre, axis = go.placement.translation.copy(), go.placement.rotation[:, 2].copy()
+    r, hl = float(cyl.radius), float(cyl.halfLength)
+    if isinstance(shape, coal.Halfspace) and jx == 0 and jc != 0:
+        _, n, d = model.bounds[gx]
+        return [Feature("rim_plane", pair.index, k, jc, 0, centre, n, d, r=r, a=axis, hl=hl) for k in (0, 1)]
+    if isinstance(shape, coal.Box) and jx == 0 and jc != 0:
+        return [Feature("rim_box", pair.index, k, jc, 0, centre, r=r, R=other.placement.rotation.copy(),
+                        p_b=other.placement.translation.copy(), h=np.asarray(shape.halfSide, float).copy(),
+                        a=axis, hl=hl) for k in (0, 1)]
+    if isinstance(shape, coal.Sphere) and shape.radius > 0 and (jc != 0 or jx != 0):
+        return [Feature("sphere_cylinder", pair.index, -1, jx, jc, other.placement.translation.copy(),
+                        r=float(shape.radius), p_b=centre, r_b=r, a=axis, hl=hl)]
+    return None
+
+
+def _perp(a: np.ndarray) -> np.ndarray:
+    """A unit vector perpendicular to the unit vector a."""
+    b = np.eye(3)[int(np.argmin(np.abs(a)))]
+    b = b - (b @ a) * a
+    return b / np.sqrt(b @ b)
 
 
 @dataclass(frozen=True, slots=True)
@@ -240,6 +285,7 @@ class FeatureContacts:
         self.box_index = {f.pair: i for i, f in reversed(list(enumerate(self.feats))) if f.box is not None}
         self._redundant: dict = {}  # persistent set C -> its rows are linearly dependent
         self.edge_active: dict = {}  # pair -> (edge features, gap was d: not a stand-in) at the last call
+        self._pair_names = {p.index: p.name for p in model.pairs}
 
     # ---- kinematics of the features -------------------------------------------------------
     def _point(self, j: int, p_local: np.ndarray, rows: bool):
@@ -287,6 +333,11 @@ class FeatureContacts:
                 entry[1].append(col)
                 entry[2].append(f.feature)
                 continue
+            if f.kind in CYLINDER_KINDS:
+                g[col], w, drift[col] = self._cylinder(f, rows)
+                if rows:
+                    W[:, col] = w
+                continue
             pa, va, aa, Ja = self._point(f.joint_a, f.p, rows)
             if f.kind == "point_plane":
                 n, curv = f.n, 0.0
@@ -333,6 +384,108 @@ class FeatureContacts:
                 drift[cols] = db
         gamma = W.T @ u if rows else np.zeros(k)
         return FeatureState(g, W, drift, gamma)
+
+    # ---- cylinder kinds (docs/theory.md §7.2) ---------------------------------------------------
+    def _frame0(self, j: int):
+        """_frame(j), or the world's (at rest) for j = 0."""
+        if j == 0:
+            z = np.zeros(3)
+            return np.eye(3), z, z, z, z, z
+        return self._frame(j)
+
+    def _cylinder(self, f: Feature, rows: bool):
+        """(g, w (nv,) or None, drift) of a cylinder feature (docs/theory.md §7.2)."""
+        if f.kind == "sphere_cylinder":
+            return self._sphere_cylinder(f, rows)
+        if f.kind == "rim_plane":
+            n, d, excess = f.n, f.d, 0.0
+            g, w, drift, sig, p = self._rim(f, n, d, rows)
+        else:  # rim_box: the largest of the rim's gaps to the box's 6 face planes
+            best = None
+            for ax in range(3):
+                for sign in (1.0, -1.0):
+                    n = sign * f.R[:, ax]
+                    d = n @ f.p_b + f.h[ax]
+                    out = self._rim(f, n, d, False)
+                    if best is None or out[0] > best[0][0]:
+                        best = (out, n, d, ax)
+            (g, _, _, sig, p), n, d, ax = best
+            if rows:
+                g, w, drift, sig, p = self._rim(f, n, d, True)
+            pl = np.abs(f.R.T @ (p - f.p_b)) - f.h  # the support point's excess beyond the face's sides
+            pl[ax] = 0.0
+            excess = float(pl.max())
+        if not rows:
+            return g, None, 0.0
+        if g <= self.gap_tol and (sig < SIN_FLAT or excess > self.gap_tol):
+            name = self._pair_names[f.pair]
+            where = ("a cap lies flat on the plane (|sin| = %.3g < %g): the rim's gap is not differentiable there"
+                     % (sig, SIN_FLAT)) if sig < SIN_FLAT else (
+                "the rim touches the box %.3g m beyond the sides of its face: at the box's edge the face-plane gap "
+                "is a lower bound, not the distance" % excess)
+            raise SimulationError(f"pair '{name}': {where} (docs/theory.md §7.2)")
+        return g, w, drift
+
+    def _rim(self, f: Feature, n: np.ndarray, d: float, rows: bool):
+        """Cap f.feature's rim of a cylinder (joint_a) against the static plane n'x = d: its support
+        point p = c - r s toward the plane, s = (n - (n'a) a)/|.|, g = n'c - r sqrt(1 - (n'a)^2) - d;
+        returns (g, w, drift, sqrt(1 - (n'a)^2), p). The row is n'J(p) (the envelope theorem); the
+        drift n'abar(c) + r (c_n c_n''/sigma + c_n'^2/sigma^3) (bias terms, c_n = n'a: §7.2)."""
+        j = f.joint_a
+        R, t, w, _, a_ang, _ = self._frame0(j)
+        c_loc = f.p + (f.hl if f.feature == 0 else -f.hl) * f.a
+        ck, _, ak, _ = self._point(j, c_loc, False)
+        A = R @ f.a
+        cn = float(n @ A)
+        sig = float(np.sqrt(max(1.0 - cn * cn, 0.0)))
+        s = (n - cn * A) / sig if sig > 0.0 else _perp(A)
+        p = ck - f.r * s
+        g = float(n @ ck) - f.r * sig - d
+        if not rows:
+            return g, None, 0.0, sig, p
+        Jp = self._point(j, R.T @ (p - t), True)[3]
+        om, al = R @ w, R @ a_ang
+        oa = cross(om, A)
+        c1 = float(n @ oa)  # (n'a)' and (n'a)'' at q'' = 0
+        c2 = float(n @ (cross(al, A) + cross(om, oa)))
+        curv = f.r * (cn * c2 / sig + c1 * c1 / sig ** 3) if sig > 0.0 else 0.0
+        return g, n @ Jp, float(n @ ak) + curv, sig, p
+
+    def _sphere_cylinder(self, f: Feature, rows: bool):
+        """A sphere (centre p in joint_a, radius r) against a cylinder (centre p_b, axis a in joint_b,
+        radius r_b, half length hl): g = dist(centre, cylinder) - r, the distance of the side (radial
+        distance - r_b), a cap (axial - hl), or a rim, or inside minus the smaller depth. With
+        dv = v_A(x) - v_B(x) at the centre x: gamma = n'dv, drift n'(abar_A - abar_B) + 2 (w_B x n)'dv
+        + dv' K dv, K = dn/dx the normal's gradient (docs/theory.md §7.2)."""
+        pc, va, aa, Ja = self._point(f.joint_a, f.p, rows)
+        R, t, w, _, _, _ = self._frame0(f.joint_b)
+        A = R @ f.a
+        x = pc - (R @ f.p_b + t)
+        z = float(x @ A)
+        y = x - z * A
+        rho = float(np.sqrt(y @ y))
+        e = y / rho if rho > 0.0 else _perp(A)
+        az, sz = abs(z), (1.0 if z >= 0.0 else -1.0)
+        K = np.zeros((3, 3))
+        tt = np.outer(tg := cross(A, e), tg)
+        if az > f.hl and rho > f.r_b:  # rim region
+            dx = x - (sz * f.hl * A + f.r_b * e)
+            dist = float(np.sqrt(dx @ dx))
+            n = dx / dist
+            K = (np.eye(3) - np.outer(n, n) - (f.r_b / rho) * tt) / dist
+        elif az > f.hl or (rho < f.r_b and f.hl - az < f.r_b - rho):  # cap region, or nearer a cap inside
+            n, dist = sz * A, az - f.hl
+        else:  # side region, or nearer the side inside
+            n, dist = e, rho - f.r_b
+            if rho > 0.0:
+                K = tt / rho
+        g = dist - f.r
+        if not rows:
+            return g, None, 0.0
+        _, vb, ab, Jb = self._point(f.joint_b, R.T @ (pc - t), True)
+        dv = va - vb
+        drift = float(n @ (aa - ab) + 2.0 * cross(R @ w, n) @ dv + dv @ K @ dv)
+        return g, n @ (Ja - Jb), drift
 
     # ---- box-box kinds (docs/theory.md §7.1), all BOX_FEATURES of a pair at once ----------------
     def _frame(self, j: int):
