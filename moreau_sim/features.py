@@ -208,7 +208,7 @@ def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]
     return tuple(out)
 
 
-CYLINDER_KINDS = ("rim_plane", "rim_box", "sphere_cylinder")
+CYLINDER_KINDS = ("rim_plane", "rim_box", "side_edge", "sphere_cylinder")
 
 
 def _cylinder_features(model: Model, pair) -> list[Feature] | None:
@@ -229,9 +229,10 @@ def _cylinder_features(model: Model, pair) -> list[Feature] | None:
         _, n, d = model.bounds[gx]
         return [Feature("rim_plane", pair.index, k, jc, 0, centre, n, d, r=r, a=axis, hl=hl) for k in (0, 1)]
     if isinstance(shape, coal.Box) and jx == 0 and jc != 0:
-        return [Feature("rim_box", pair.index, k, jc, 0, centre, r=r, R=other.placement.rotation.copy(),
-                        p_b=other.placement.translation.copy(), h=np.asarray(shape.halfSide, float).copy(),
-                        a=axis, hl=hl) for k in (0, 1)]
+        box = dict(r=r, R=other.placement.rotation.copy(), p_b=other.placement.translation.copy(),
+                   h=np.asarray(shape.halfSide, float).copy(), a=axis, hl=hl)
+        return ([Feature("rim_box", pair.index, k, jc, 0, centre, **box) for k in (0, 1)]
+                + [Feature("side_edge", pair.index, k, jc, 0, centre, **box) for k in range(12)])
     if isinstance(shape, coal.Sphere) and shape.radius > 0 and (jc != 0 or jx != 0):
         return [Feature("sphere_cylinder", pair.index, -1, jx, jc, other.placement.translation.copy(),
                         r=float(shape.radius), p_b=centre, r_b=r, a=axis, hl=hl)]
@@ -286,6 +287,8 @@ class FeatureContacts:
         self._redundant: dict = {}  # persistent set C -> its rows are linearly dependent
         self.edge_active: dict = {}  # pair -> (edge features, gap was d: not a stand-in) at the last call
         self._pair_names = {p.index: p.name for p in model.pairs}
+        self.cyl_exact: dict = {}  # cylinder feature -> its gap was the distance (not a stand-in) at the last call
+        self._exact = True
 
     # ---- kinematics of the features -------------------------------------------------------
     def _point(self, j: int, p_local: np.ndarray, rows: bool):
@@ -320,6 +323,7 @@ class FeatureContacts:
         self.box_points.clear()
         self.box_faces.clear()
         self.edge_active.clear()
+        self.cyl_exact.clear()
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
@@ -335,6 +339,7 @@ class FeatureContacts:
                 continue
             if f.kind in CYLINDER_KINDS:
                 g[col], w, drift[col] = self._cylinder(f, rows)
+                self.cyl_exact[i] = self._exact
                 if rows:
                     W[:, col] = w
                 continue
@@ -394,9 +399,13 @@ class FeatureContacts:
         return self._frame(j)
 
     def _cylinder(self, f: Feature, rows: bool):
-        """(g, w (nv,) or None, drift) of a cylinder feature (docs/theory.md §7.2)."""
+        """(g, w (nv,) or None, drift) of a cylinder feature (docs/theory.md §7.2); self._exact:
+        whether g is the distance there (else a positive stand-in)."""
+        self._exact = True
         if f.kind == "sphere_cylinder":
             return self._sphere_cylinder(f, rows)
+        if f.kind == "side_edge":
+            return self._side_edge(f, rows)
         if f.kind == "rim_plane":
             n, d, excess = f.n, f.d, 0.0
             g, w, drift, sig, p = self._rim(f, n, d, rows)
@@ -412,9 +421,12 @@ class FeatureContacts:
             (g, _, _, sig, p), n, d, ax = best
             if rows:
                 g, w, drift, sig, p = self._rim(f, n, d, True)
-            pl = np.abs(f.R.T @ (p - f.p_b)) - f.h  # the support point's excess beyond the face's sides
+            pl = np.maximum(np.abs(f.R.T @ (p - f.p_b)) - f.h, 0.0)  # the support point beyond the face's sides
             pl[ax] = 0.0
-            excess = float(pl.max())
+            excess = float(np.sqrt(pl @ pl))
+            if excess > 0.0:  # off the face: a positive stand-in, continuous with g on the face's sides
+                self._exact = False
+                g = float(np.sqrt(g * g + excess * excess)) if g >= 0.0 else g + excess
         if not rows:
             return g, None, 0.0
         if g <= self.gap_tol and (sig < SIN_FLAT or excess > self.gap_tol):
@@ -425,6 +437,49 @@ class FeatureContacts:
                 "is a lower bound, not the distance" % excess)
             raise SimulationError(f"pair '{name}': {where} (docs/theory.md §7.2)")
         return g, w, drift
+
+    def _side_edge(self, f: Feature, rows: bool):
+        """The cylinder's side against edge f.feature of a static box (numbered as _box's edges): the
+        axis segment a0 + s a (s in [0, 2 hl]) and the edge b0 + t e_B as edge_edge's pair (§7.1) with
+        g = d - r, d = n'(a0 - b0), n = +-(a x e_B)/|.| outward of the edge; a positive stand-in
+        where that is not the distance (n outside the edge's normal cone, a closest point beyond an
+        end, d < 0, or parallel lines)."""
+        j = f.joint_a
+        RA, tA, w, _, _, _ = self._frame0(j)
+        A = RA @ f.a
+        a0 = RA @ f.p + tA - f.hl * A
+        k = f.feature
+        ax, b, c = k // 4, (k // 4 + 1) % 3, (k // 4 + 2) % 3
+        sb, sc = (-1.0, 1.0)[(k % 4) // 2], (-1.0, 1.0)[k % 2]
+        x = np.zeros(3)
+        x[ax], x[b], x[c] = -f.h[ax], sb * f.h[b], sc * f.h[c]
+        b0, eb = f.R @ x + f.p_b, f.R[:, ax]
+        f1, f2 = sb * f.R[:, b], sc * f.R[:, c]
+        cv = cross(A, eb)
+        cn = float(np.sqrt(cv @ cv))
+        if cn <= PARALLEL:  # the axis along the edge: no crossing of the two (the rims cover the segment's ends)
+            self._exact = False
+            return f.r + float(np.sqrt(f.h @ f.h)), (np.zeros(self.nv) if rows else None), 0.0
+        sigma = -1.0 if cv @ (f1 + f2) < 0.0 else 1.0
+        n = sigma * cv / cn
+        r = a0 - b0
+        d = float(n @ r)
+        bb, ra, rb = float(A @ eb), float(r @ A), float(r @ eb)
+        s = (bb * rb - ra) / cn ** 2  # the lines' closest points a0 + s a, b0 + t e_B
+        t = (rb - bb * ra) / cn ** 2
+        la, lb = 2.0 * f.hl, 2.0 * f.h[ax]
+        ex_s = max(EDGE_END * la - s, s - (1.0 - EDGE_END) * la, 0.0)
+        ex_t = max(EDGE_END * lb - t, t - (1.0 - EDGE_END) * lb, 0.0)
+        active = n @ f1 >= -ARC_TOL and n @ f2 >= -ARC_TOL and ex_s == 0.0 and ex_t == 0.0 and d >= 0.0
+        g = d - f.r if active else float(np.sqrt((d - f.r) ** 2 + ex_s * ex_s + ex_t * ex_t))
+        self._exact = bool(active)
+        if not rows:
+            return g, None, 0.0
+        pa = a0 + s * A
+        _, va, aa, Ja = self._point(j, RA.T @ (pa - tA), True)
+        cdot = sigma * cross(cross(RA @ w, A), eb)
+        ndot = (cdot - n * (n @ cdot)) / cn
+        return g, n @ Ja, float(n @ aa + 2.0 * ndot @ va - d * (ndot @ ndot))
 
     def _rim(self, f: Feature, n: np.ndarray, d: float, rows: bool):
         """Cap f.feature's rim of a cylinder (joint_a) against the static plane n'x = d: its support
