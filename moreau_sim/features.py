@@ -86,6 +86,7 @@ ARC_TOL = 1e-9  # an edge pair's normal may leave the edges' normal cones by thi
 EDGE_END = 1e-6  # an edge pair is active only where both closest points are this far (relative) from the ends
 PARALLEL = 1e-9  # |e_A x e_B| below this: parallel edges, no edge-edge gap (the vertices cover faces on faces)
 BOX_FEATURES = 16 + 144  # per box pair: 8 + 8 vertices in the other box, 12 x 12 edge pairs
+CYL_SCREEN = 0.01  # [m] a cylinder's bounding sphere this far from a box: its features report the sphere's gap
 SIN_FLAT = 1e-6  # a closed cylinder rim whose cap is within this (sine) of parallel to the plane: refused (§7.2)
 
 
@@ -239,6 +240,26 @@ def _cylinder_features(model: Model, pair) -> list[Feature] | None:
     return None
 
 
+def _point_box(cl: np.ndarray, vl: np.ndarray, h: np.ndarray) -> tuple[float, np.ndarray, float]:
+    """(signed distance [m], unit normal, curvature term [m/s^2]) of a point at cl moving with vl
+    (the box's frame) from the box |x_i| <= h_i: face, edge or vertex region outside, the nearest
+    face inside. The curvature term (the velocity across the closest edge/vertex) completes the
+    distance's second derivative: n'(relative acceleration) + curv."""
+    clamp = np.clip(cl, -h, h)
+    out = np.abs(cl) > h
+    if out.any():
+        diff = cl - clamp
+        dist = float(np.sqrt(diff @ diff))
+        nl = diff / dist
+        vp = np.where(out, vl, 0.0)
+        return dist, nl, ((vp @ vp - (nl @ vl) ** 2) / dist if out.sum() > 1 else 0.0)
+    s = h - np.abs(cl)
+    ax = int(np.argmin(s))
+    nl = np.zeros(3)
+    nl[ax] = np.sign(cl[ax]) or 1.0
+    return -float(s[ax]), nl, 0.0
+
+
 def _perp(a: np.ndarray) -> np.ndarray:
     """A unit vector perpendicular to the unit vector a."""
     b = np.eye(3)[int(np.argmin(np.abs(a)))]
@@ -289,6 +310,12 @@ class FeatureContacts:
         self._pair_names = {p.index: p.name for p in model.pairs}
         self.cyl_exact: dict = {}  # cylinder feature -> its gap was the distance (not a stand-in) at the last call
         self._exact = True
+        self._witness: tuple = ()
+        self.cyl_points: dict = {}  # cylinder feature -> (point on A, on B, normal B to A) at the last call with rows
+        # cylinder features whose A (the cylinder of rim/side kinds, the sphere) is coal's second shape
+        first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
+        self._cyl_swapped = {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
+                             for i, f in enumerate(self.feats) if f.kind in CYLINDER_KINDS}
 
     # ---- kinematics of the features -------------------------------------------------------
     def _point(self, j: int, p_local: np.ndarray, rows: bool):
@@ -324,6 +351,8 @@ class FeatureContacts:
         self.box_faces.clear()
         self.edge_active.clear()
         self.cyl_exact.clear()
+        self.cyl_points.clear()
+        self._screens = {}
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
@@ -340,6 +369,8 @@ class FeatureContacts:
             if f.kind in CYLINDER_KINDS:
                 g[col], w, drift[col] = self._cylinder(f, rows)
                 self.cyl_exact[i] = self._exact
+                if rows:
+                    self.cyl_points[i] = self._witness
                 if rows:
                     W[:, col] = w
                 continue
@@ -358,25 +389,8 @@ class FeatureContacts:
                 Jrel = Ja - Jb if rows else None
                 curv = (vrel @ vrel - (n @ vrel) ** 2) / dist
             else:  # sphere_box: distance from the centre to a static box (face, edge or vertex region)
-                cl = f.R.T @ (pa - f.p_b)
-                clamp = np.clip(cl, -f.h, f.h)
-                out = np.abs(cl) > f.h
-                vl = f.R.T @ va
-                if out.any():
-                    diff = cl - clamp
-                    dist = float(np.sqrt(diff @ diff))
-                    nl = diff / dist
-                    g[col] = dist - f.r
-                    # curvature of the distance: the velocity across the closest edge/vertex
-                    vp = np.where(out, vl, 0.0)
-                    curv = (vp @ vp - (nl @ vl) ** 2) / dist if out.sum() > 1 else 0.0
-                else:  # centre inside the box: the nearest face
-                    s = f.h - np.abs(cl)
-                    ax = int(np.argmin(s))
-                    nl = np.zeros(3)
-                    nl[ax] = np.sign(cl[ax]) or 1.0
-                    g[col] = -s[ax] - f.r
-                    curv = 0.0
+                dist, nl, curv = _point_box(f.R.T @ (pa - f.p_b), f.R.T @ va, f.h)
+                g[col] = dist - f.r
                 n = f.R @ nl
                 vrel, arel, Jrel = va, aa, Ja
             if rows:
@@ -404,6 +418,14 @@ class FeatureContacts:
         self._exact = True
         if f.kind == "sphere_cylinder":
             return self._sphere_cylinder(f, rows)
+        if f.kind in ("rim_box", "side_edge"):
+            screen = self._screens.get(f.pair)
+            if screen is None:
+                screen = self._screens[f.pair] = self._screen(f, rows)
+            if screen[0] > CYL_SCREEN:  # the cylinder's bounding sphere is clear of the box: its gap stands in
+                self._exact = False
+                self._witness = screen[3]
+                return screen[:3]
         if f.kind == "side_edge":
             return self._side_edge(f, rows)
         if f.kind == "rim_plane":
@@ -429,6 +451,7 @@ class FeatureContacts:
                 g = float(np.sqrt(g * g + excess * excess)) if g >= 0.0 else g + excess
         if not rows:
             return g, None, 0.0
+        self._witness = (p, p - g * n, n)
         if g <= self.gap_tol and (sig < SIN_FLAT or excess > self.gap_tol):
             name = self._pair_names[f.pair]
             where = ("a cap lies flat on the plane (|sin| = %.3g < %g): the rim's gap is not differentiable there"
@@ -437,6 +460,17 @@ class FeatureContacts:
                 "is a lower bound, not the distance" % excess)
             raise SimulationError(f"pair '{name}': {where} (docs/theory.md §7.2)")
         return g, w, drift
+
+    def _screen(self, f: Feature, rows: bool):
+        """(g, w, drift, witness) of the bounding sphere (the centre, radius sqrt(r^2 + hl^2)) of a
+        cylinder against a static box, as sphere_box."""
+        pc, va, aa, Ja = self._point(f.joint_a, f.p, rows)
+        dist, nl, curv = _point_box(f.R.T @ (pc - f.p_b), f.R.T @ va, f.h)
+        rb = float(np.hypot(f.r, f.hl))
+        n = f.R @ nl
+        if not rows:
+            return dist - rb, None, 0.0, ()
+        return dist - rb, n @ Ja, float(n @ aa + curv), (pc - rb * n, pc - dist * n, n)
 
     def _side_edge(self, f: Feature, rows: bool):
         """The cylinder's side against edge f.feature of a static box (numbered as _box's edges): the
@@ -459,6 +493,7 @@ class FeatureContacts:
         cn = float(np.sqrt(cv @ cv))
         if cn <= PARALLEL:  # the axis along the edge: no crossing of the two (the rims cover the segment's ends)
             self._exact = False
+            self._witness = (a0, b0, eb)
             return f.r + float(np.sqrt(f.h @ f.h)), (np.zeros(self.nv) if rows else None), 0.0
         sigma = -1.0 if cv @ (f1 + f2) < 0.0 else 1.0
         n = sigma * cv / cn
@@ -476,6 +511,7 @@ class FeatureContacts:
         if not rows:
             return g, None, 0.0
         pa = a0 + s * A
+        self._witness = (pa - f.r * n, b0 + t * eb, n)
         _, va, aa, Ja = self._point(j, RA.T @ (pa - tA), True)
         cdot = sigma * cross(cross(RA @ w, A), eb)
         ndot = (cdot - n * (n @ cdot)) / cn
@@ -538,6 +574,7 @@ class FeatureContacts:
         if not rows:
             return g, None, 0.0
         _, vb, ab, Jb = self._point(f.joint_b, R.T @ (pc - t), True)
+        self._witness = (pc - f.r * n, pc - dist * n, n)
         dv = va - vb
         drift = float(n @ (aa - ab) + 2.0 * cross(R @ w, n) @ dv + dv @ K @ dv)
         return g, n @ (Ja - Jb), drift
@@ -766,6 +803,22 @@ class FeatureContacts:
                 out.append((float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
                             FeatureKind.VERTEX if k < 16 else FeatureKind.WITNESS, k))
                 W = np.column_stack((W, w))
+        # cylinder features (§7.2): coal's one witness per pair misses e.g. a cylinder's side on a box's edge
+        for i, (pa, pb, n) in self.cyl_points.items():
+            if fs.g[i] > self.gap_tol or fs.gamma[i] >= -V_TOL or not self.cyl_exact.get(i, False):
+                continue
+            w = fs.W[:, i]
+            if W.shape[1]:
+                r = w - W @ np.linalg.lstsq(W, w, rcond=1e-12)[0]
+                if np.abs(r).max() <= 1e-9 * np.abs(w).max():
+                    continue
+            f = self.feats[i]
+            # WITNESS features 1.. (coal's own witness of the pair is 0): 1 sphere_cylinder, 1-2 rims, 3-14 sides
+            k = 1 + f.feature + (2 if f.kind == "side_edge" else 0) if f.feature >= 0 else 1
+            if self._cyl_swapped[i]:  # coal's A is the feature's B: points swapped, normal reversed
+                pa, pb, n = pb, pa, -n
+            out.append((float(fs.g[i]), pa, pb, n, f.pair, FeatureKind.WITNESS, k))
+            W = np.column_stack((W, w))
         return out
 
     def _impact(self, t, q, u, fs: FeatureState) -> np.ndarray:
