@@ -67,6 +67,7 @@ from .state import State
 from .trajectory import Trajectory
 
 CHART_MAX = 1.0  # [rad or m] re-centre the Lie-group chart when |delta|_inf exceeds this
+G_DIP = 1e-6  # [m] a free feature starting a phase this close also stops it at its gap's minimum (a dip)
 
 
 def solve_ivp(fun, t_span, y0, **kwargs):
@@ -93,12 +94,13 @@ class EventDrivenRun(FeatureContacts):
         return pin.integrate(self.pm, qb, delta) if self.lie else qb + delta
 
     # ---- the run ---------------------------------------------------------------------------
-    def _phase_events(self, qb, C, free, low):
+    def _phase_events(self, qb, C, free, low, near=()):
         """Terminal event functions of one phase and a tag per function (module doc): gaps of the
-        free features, rise and return of those in `low` (within G_RES at the start), the
-        multipliers of C, and the chart's extent."""
+        free features, rise and return of those in `low` (within G_RES at the start), the minima
+        of those in `near` (within G_DIP), the multipliers of C, and the chart's extent."""
         cache: dict = {}
         watch = [i for i in free if i not in low]
+        rows = bool(low) or bool(near)
 
         def evaluate(y):
             key = y.tobytes()
@@ -106,15 +108,21 @@ class EventDrivenRun(FeatureContacts):
                 cache.clear()
                 q, u = self.q_of(qb, y[:self.nv]), y[self.nv:]
                 lam = self.dynamics(q, u, C)[1] if C else np.zeros(0)
-                fs = self.features(q, u, watch + low, rows=bool(low)) if free else None
+                fs = self.features(q, u, watch + low, rows=rows) if free else None
                 cache[key] = (fs, lam)
             return cache[key]
+
+        def dip(fs, k):
+            return fs.gamma[k] + V_TOL if fs.g[k] < G_DIP else 1.0
 
         fns, tags = [], []
         for k, i in enumerate(watch):
             # an exact 0.0 counts as open: scipy takes (0, 0) for a downward crossing
             fns.append((lambda t, y, k=k: evaluate(y)[0].g[k] or 1e-300, -1.0))  # gap closing: an impact
             tags.append(("gap", i))
+            if i in near:  # its approach turning back while within G_DIP: a minimum (a dip below 0 and back)
+                fns.append((lambda t, y, k=k: dip(evaluate(y)[0], k), 1.0))
+                tags.append(("dip", i))
         for k, i in enumerate(low, start=len(watch)):
             fns.append((lambda t, y, k=k: evaluate(y)[0].g[k] - G_RES, 1.0))  # risen: watch its gap
             tags.append(("rise", i))
@@ -155,6 +163,25 @@ class EventDrivenRun(FeatureContacts):
         up = (fs.gamma > V_TOL) & (a_n < 0)
         return float(min(self.max_step, *(0.5 * fs.gamma[up] / -a_n[up]))) if up.any() else self.max_step
 
+    def _crossing(self, sol, qb, t0: float, t1: float, watch: list) -> float | None:
+        """The earliest instant in (t0, t1) where a gap of `watch` (open at t0) crossed 0, if one is
+        below -G_RES at t1 (its crossing and return fell within one ODE step: the gap events,
+        compared at step ends, missed it; the dip event stopped the phase at its minimum)."""
+        nv = self.nv
+
+        def gaps(tau):
+            y = sol.sol(tau)
+            return self.features(self.q_of(qb, y[:nv]), y[nv:], watch, rows=False).g
+
+        g1 = gaps(t1)
+        if not (g1 < -G_RES).any():
+            return None
+        from scipy.optimize import brentq
+
+        eps = 4 * np.finfo(float).eps
+        return min(brentq(lambda tau, k=k: gaps(tau)[k] or 1e-300, t0, t1, xtol=eps, rtol=eps)
+                   for k in np.flatnonzero(g1 < -G_RES))
+
     def run(self, state: State, t_end: float, t_grid: np.ndarray) -> None:
         nv, nf = self.nv, len(self.feats)
         t, q, u = float(state.t), np.array(state.q, float), np.array(state.u, float)
@@ -169,14 +196,20 @@ class EventDrivenRun(FeatureContacts):
             free = [i for i in range(nf) if i not in C and i not in shadow]
             g0 = self.features(q, u, free, rows=False).g if free else np.zeros(0)
             low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES]
+            near = {i for i, g in zip(free, g0) if 0.5 * G_RES <= g < G_DIP}
             qb = q.copy()
-            events, tags = self._phase_events(qb, C, free, low)
+            events, tags = self._phase_events(qb, C, free, low, near)
             sol = solve_ivp(self._rhs(qb, C), (t, t_end), np.concatenate((np.zeros(nv), u)), method=self.method,
                             dense_output=True, events=events or None, rtol=self.rtol, atol=self.atol,
                             max_step=self._max_step(q, u, C, low))
             if sol.status < 0:
                 raise SimulationError(f"solve_ivp failed: {sol.message}")
             t_stop, end = float(sol.t[-1]), sol.status == 0
+            y_stop = sol.y[:, -1]
+            if not end:  # a gap that dipped below 0 within one ODE step: stop where it crossed
+                t_cross = self._crossing(sol, qb, t, t_stop, [i for i in free if i not in low])
+                if t_cross is not None:
+                    t_stop, y_stop = t_cross, sol.sol(t_cross)
             while gi < len(t_grid) and (t_grid[gi] < t_stop or (end and t_grid[gi] <= t_stop)):
                 y = sol.sol(t_grid[gi])
                 self.sample(float(t_grid[gi]), self.q_of(qb, y[:nv]), y[nv:], len(C))
@@ -190,8 +223,7 @@ class EventDrivenRun(FeatureContacts):
             stuck = stuck + 1 if t_stop - t < 1e-13 else 0
             if stuck > 100:
                 raise SimulationError("100 events without time advancing")
-            y = sol.y[:, -1]
-            q, u, t = self.q_of(qb, y[:nv]), y[nv:].copy(), t_stop
+            q, u, t = self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy(), t_stop
             released = frozenset(i for (kind, i), te in zip(tags, sol.t_events)
                                  if kind == "release" and len(te) and abs(te[-1] - t_stop) <= 1e-12)
 
