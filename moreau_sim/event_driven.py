@@ -14,8 +14,10 @@ the set of persistent contacts, held as bilateral constraints W_C' a + Wdot_C' u
 Gaps (event functions): the analytic signed gaps per *feature* of the contact layer
 (features.py, shared with the adaptive integrator), with rows w and the drift term Wdot' u:
 every vertex of a polytope against a half-space, a sphere against a half-space, a sphere
-against a sphere, a sphere against a static box, and for two boxes every vertex of each in the
-other and every pair of their edges (docs/theory.md §7.1). Other pair types (cylinders, meshes)
+against a sphere, a sphere against a static box, for two boxes every vertex of each in the
+other and every pair of their edges (docs/theory.md §7.1), and for cylinders the cap rims
+against a static half-space or box, the side against a static box's edges and a sphere against
+a cylinder (§7.2). Other pair types (meshes, a cylinder against a moving box or a cylinder)
 raise :class:`UnsupportedModel` naming the pair; an impact at a corner (docs/theory.md §3)
 raises features.CornerImpact naming the instant. The decisions at an event below (impact, Zeno
 rule, persistent set) are features.FeatureContacts.resolve.
@@ -26,6 +28,11 @@ within G_RES = 1e-13 m of contact (it just bounced or separated) is watched inst
 to G_RES and by its normal velocity returning below -2 V_TOL: the sign of so small a gap is
 rounding noise, and the root finder would take a noise crossing for an impact (while it rises,
 ODE steps stay below half its time to apex, so that no rise-and-fall hides inside one step).
+A free feature within G_DIP = 1e-6 m at the start of a phase also stops it at a minimum of its
+gap (gamma rising through -V_TOL while g < G_DIP): gaps are compared at ODE step ends only, and
+a slow approach that turns back within one step could dip below 0 and out unseen. After each
+phase, a watched gap below -G_RES moves the event back to where it crossed 0 (root finding on
+the dense output).
 At every event (and at the start) :func:`EventDrivenRun.resolve` applies, in order:
   1. Impact: if a closed feature (g <= the scene's contact_tolerance, 1e-9 m by default)
      approaches (gamma < -V_TOL), the SAME law as the stepper, ``law.impact`` (docs/theory.md §1)

@@ -3,7 +3,16 @@
 A *feature* is one gap function of a collision pair, with its row w, the drift term Wdot' u
 (from Pinocchio's bias accelerations) and gamma = w' u: every vertex of a polytope against a
 half-space, a sphere against a half-space, a sphere against a sphere, a sphere against a static
-box; and for two boxes (either moving, docs/theory.md §7.1), computed per pair in numpy:
+box; for cylinders (docs/theory.md §7.2):
+  - "rim_plane" / "rim_box": each cap rim's support point against a static half-space, or
+    against the face planes of a static box (the arg-max face; a positive stand-in where the
+    support point lies beyond that face's sides), with the rim's curvature term in the drift;
+  - "side_edge": the cylinder's side (its axis segment, minus r) against each edge of a static
+    box, as an edge pair below;
+  - "sphere_cylinder": a sphere against a cylinder (either moving): side, cap or rim distance;
+  - a closed rim whose cap is parallel to the plane (within SIN_FLAT), or beyond its face's
+    sides, stops the run with a SimulationError naming the pair;
+and for two boxes (either moving, docs/theory.md §7.1), computed per pair in numpy:
   - "vertex_box": each box's vertices p in the other, g = max_f (n_f' p - d_f) over the other's
     face planes that count (those the vertex's own cone can touch first, and those p is clearly
     outside of), n the arg-max face's normal (kept through a phase while persistent), drift
@@ -15,7 +24,8 @@ box; and for two boxes (either moving, docs/theory.md §7.1), computed per pair 
   - while the pair's bounding spheres are apart, all its features report the spheres' gap.
 Per-vertex gaps (not coal's pair distance, which is the minimum over corners and stays 0
 while a block pivots) make each corner of a rocking block its own event. Other pair types
-(cylinders, meshes) raise :class:`UnsupportedModel` naming the pair.
+(meshes, a cylinder against a moving box or a cylinder) raise :class:`UnsupportedModel` naming
+the pair.
 
 :class:`FeatureContacts` holds what the event-driven integrator (event_driven.py, docs/theory.md
 §7) and the adaptive one (adaptive.py, §8) share: the features' kinematics, the constrained
@@ -61,8 +71,12 @@ class UnsupportedModel(MoreauSimError, ValueError):
 class Feature:
     """One gap function. kind "point_plane": point `p` (joint frame of joint_a) above the plane
     n' x = d (world); "sphere_sphere": centres p (joint_a) and p_b (joint_b), radii r, r_b;
-    "sphere_box": centre p (joint_a), radius r, static box (rotation R, centre c, half sides h);
-    "vertex_box", "edge_edge": feature `feature` of the box pair `box` (:class:`BoxPair`)."""
+    "sphere_box": centre p (joint_a), radius r, static box (rotation R, centre p_b, half sides h);
+    "rim_plane", "rim_box", "side_edge": a cylinder on joint_a (centre p, axis a, radius r, half
+    length hl) with cap `feature` (0: +hl, 1: -hl) against the plane (n, d) or the static box (R,
+    p_b, h), or with the box's edge `feature`; "sphere_cylinder": the sphere (p on joint_a, r)
+    against the cylinder (p_b, a on joint_b, r_b, hl); "vertex_box", "edge_edge": feature
+    `feature` of the box pair `box` (:class:`BoxPair`)."""
 
     kind: str
     pair: int
@@ -782,7 +796,9 @@ class FeatureContacts:
 
     def _missed_features(self, fs: FeatureState, W: np.ndarray) -> list:
         """Contact rows (as contacts.from_rows takes them) of the closed, approaching box-box features
-        (vertices, active edge pairs) whose row is not in the span of coal's rows W: an edge lying
+        (vertices, active edge pairs) and cylinder features (where their gap is the distance, §7.2:
+        coal's one witness of a cylinder on a box's edge) whose row is not in the span of coal's
+        rows W: an edge lying
         across a face meets the face's edges at points coal's one witness of that segment contact
         does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
         an arbitrary normal (docs/theory.md §7.1). Needs fs = self.features(q, u) of all features."""
