@@ -100,6 +100,9 @@ ARC_TOL = 1e-9  # an edge pair's normal may leave the edges' normal cones by thi
 EDGE_END = 1e-6  # an edge pair is active only where both closest points are this far (relative) from the ends
 PARALLEL = 1e-9  # |e_A x e_B| below this: parallel edges, no edge-edge gap (the vertices cover faces on faces)
 BOX_FEATURES = 16 + 144  # per box pair: 8 + 8 vertices in the other box, 12 x 12 edge pairs
+_K = np.arange(12)  # a box's edges as in _box: along axis k // 4, at the signs of the other two axes
+_EDGES = (_K // 4, (_K // 4 + 1) % 3, (_K // 4 + 2) % 3,
+          np.where((_K % 4) // 2, 1.0, -1.0), np.where(_K % 2, 1.0, -1.0))
 CYL_SCREEN = 0.01  # [m] a cylinder's bounding sphere this far from a box: its features report the sphere's gap
 SIN_FLAT = 1e-6  # a closed cylinder rim whose cap is within this (sine) of parallel to the plane: refused (§7.2)
 
@@ -366,7 +369,7 @@ class FeatureContacts:
         self.edge_active.clear()
         self.cyl_exact.clear()
         self.cyl_points.clear()
-        self._screens = {}
+        self._screens, self._sides = {}, {}
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
@@ -440,23 +443,25 @@ class FeatureContacts:
                 self._exact = False
                 self._witness = screen[3]
                 return screen[:3]
-        if f.kind == "side_edge":
-            return self._side_edge(f, rows)
+        if f.kind == "side_edge":  # all 12 edges of the pair at once, kept for this call
+            sides = self._sides.get(f.pair)
+            if sides is None:
+                sides = self._sides[f.pair] = self._side_edges(f, rows)
+            g, W, drift, exact, witness = sides
+            k = f.feature
+            self._exact, self._witness = bool(exact[k]), (tuple(x[k] for x in witness) if rows else ())
+            return float(g[k]), (W[:, k] if rows else None), float(drift[k]) if rows else 0.0
         if f.kind == "rim_plane":
             n, d, excess = f.n, f.d, 0.0
             g, w, drift, sig, p = self._rim(f, n, d, rows)
         else:  # rim_box: the largest of the rim's gaps to the box's 6 face planes
-            best = None
-            for ax in range(3):
-                for sign in (1.0, -1.0):
-                    n = sign * f.R[:, ax]
-                    d = n @ f.p_b + f.h[ax]
-                    out = self._rim(f, n, d, False)
-                    if best is None or out[0] > best[0][0]:
-                        best = (out, n, d, ax)
-            (g, _, _, sig, p), n, d, ax = best
-            if rows:
-                g, w, drift, sig, p = self._rim(f, n, d, True)
+            RA, tA = self._frame0(f.joint_a)[:2]
+            A, ck = RA @ f.a, RA @ (f.p + (f.hl if f.feature == 0 else -f.hl) * f.a) + tA
+            N = np.concatenate((f.R.T, -f.R.T))  # the 6 outward face normals (rows) and offsets
+            D = N @ f.p_b + np.tile(f.h, 2)
+            best = int(np.argmax(N @ ck - f.r * np.sqrt(np.maximum(1.0 - (N @ A) ** 2, 0.0)) - D))
+            n, d, ax = N[best], float(D[best]), best % 3
+            g, w, drift, sig, p = self._rim(f, n, d, rows)
             pl = np.maximum(np.abs(f.R.T @ (p - f.p_b)) - f.h, 0.0)  # the support point beyond the face's sides
             pl[ax] = 0.0
             excess = float(np.sqrt(pl @ pl))
@@ -486,50 +491,50 @@ class FeatureContacts:
             return dist - rb, None, 0.0, ()
         return dist - rb, n @ Ja, float(n @ aa + curv), (pc - rb * n, pc - dist * n, n)
 
-    def _side_edge(self, f: Feature, rows: bool):
-        """The cylinder's side against edge f.feature of a static box (numbered as _box's edges): the
-        axis segment a0 + s a (s in [0, 2 hl]) and the edge b0 + t e_B as edge_edge's pair (§7.1) with
-        g = d - r, d = n'(a0 - b0), n = +-(a x e_B)/|.| outward of the edge; a positive stand-in
-        where that is not the distance (n outside the edge's normal cone, a closest point beyond an
-        end, d < 0, or parallel lines)."""
+    def _side_edges(self, f: Feature, rows: bool):
+        """The cylinder's side against the 12 edges of a static box (numbered as _box's edges):
+        (g, W (nv, 12), drift, exact, (points on the cylinder, on the edges, normals)). The axis
+        segment a0 + s a (s in [0, 2 hl]) and an edge b0 + t e_B form edge_edge's pair (§7.1)
+        with g = d - r, d = n'(a0 - b0), n = +-(a x e_B)/|.| outward of the edge; a positive
+        stand-in where that is not the distance (n outside the edge's normal cone, a closest
+        point beyond an end, d < 0, or parallel lines: the rims cover that segment's ends)."""
         j = f.joint_a
         RA, tA, w, _, _, _ = self._frame0(j)
         A = RA @ f.a
         a0 = RA @ f.p + tA - f.hl * A
-        k = f.feature
-        ax, b, c = k // 4, (k // 4 + 1) % 3, (k // 4 + 2) % 3
-        sb, sc = (-1.0, 1.0)[(k % 4) // 2], (-1.0, 1.0)[k % 2]
-        x = np.zeros(3)
-        x[ax], x[b], x[c] = -f.h[ax], sb * f.h[b], sc * f.h[c]
-        b0, eb = f.R @ x + f.p_b, f.R[:, ax]
-        f1, f2 = sb * f.R[:, b], sc * f.R[:, c]
-        cv = cross(A, eb)
-        cn = float(np.sqrt(cv @ cv))
-        if cn <= PARALLEL:  # the axis along the edge: no crossing of the two (the rims cover the segment's ends)
-            self._exact = False
-            self._witness = (a0, b0, eb)
-            return f.r + float(np.sqrt(f.h @ f.h)), (np.zeros(self.nv) if rows else None), 0.0
-        sigma = -1.0 if cv @ (f1 + f2) < 0.0 else 1.0
-        n = sigma * cv / cn
-        r = a0 - b0
-        d = float(n @ r)
-        bb, ra, rb = float(A @ eb), float(r @ A), float(r @ eb)
+        ax, b, c, sb, sc = _EDGES
+        X = np.zeros((12, 3))
+        X[_K, ax], X[_K, b], X[_K, c] = -f.h[ax], sb * f.h[b], sc * f.h[c]
+        B0, EB = X @ f.R.T + f.p_b, f.R[:, ax].T
+        F1, F2 = sb[:, None] * f.R[:, b].T, sc[:, None] * f.R[:, c].T
+        CV = _cross(A[None], EB)
+        cn = np.sqrt((CV * CV).sum(axis=1))
+        ok = cn > PARALLEL
+        cn = np.where(ok, cn, 1.0)
+        sigma = np.where((CV * (F1 + F2)).sum(axis=1) < 0.0, -1.0, 1.0)
+        N = CV * (sigma / cn)[:, None]
+        r = a0 - B0
+        d = (N * r).sum(axis=1)
+        bb, ra, rb = EB @ A, r @ A, (r * EB).sum(axis=1)
         s = (bb * rb - ra) / cn ** 2  # the lines' closest points a0 + s a, b0 + t e_B
         t = (rb - bb * ra) / cn ** 2
         la, lb = 2.0 * f.hl, 2.0 * f.h[ax]
-        ex_s = max(EDGE_END * la - s, s - (1.0 - EDGE_END) * la, 0.0)
-        ex_t = max(EDGE_END * lb - t, t - (1.0 - EDGE_END) * lb, 0.0)
-        active = n @ f1 >= -ARC_TOL and n @ f2 >= -ARC_TOL and ex_s == 0.0 and ex_t == 0.0 and d >= 0.0
-        g = d - f.r if active else float(np.sqrt((d - f.r) ** 2 + ex_s * ex_s + ex_t * ex_t))
-        self._exact = bool(active)
+        ex_s = np.maximum(np.maximum(EDGE_END * la - s, s - (1.0 - EDGE_END) * la), 0.0)
+        ex_t = np.maximum(np.maximum(EDGE_END * lb - t, t - (1.0 - EDGE_END) * lb), 0.0)
+        active = (ok & ((N * F1).sum(axis=1) >= -ARC_TOL) & ((N * F2).sum(axis=1) >= -ARC_TOL)
+                  & (ex_s == 0.0) & (ex_t == 0.0) & (d >= 0.0))
+        g = np.where(active, d - f.r, np.where(ok, np.sqrt((d - f.r) ** 2 + ex_s ** 2 + ex_t ** 2),
+                                               f.r + float(np.sqrt(f.h @ f.h))))
         if not rows:
-            return g, None, 0.0
-        pa = a0 + s * A
-        self._witness = (pa - f.r * n, b0 + t * eb, n)
-        _, va, aa, Ja = self._point(j, RA.T @ (pa - tA), True)
-        cdot = sigma * cross(cross(RA @ w, A), eb)
-        ndot = (cdot - n * (n @ cdot)) / cn
-        return g, n @ Ja, float(n @ aa + 2.0 * ndot @ va - d * (ndot @ ndot))
+            return g, None, None, active, ()
+        N = np.where(ok[:, None], N, 0.0)
+        PA = a0 + s[:, None] * A
+        vel, acc, om, J = self._motion(j, PA, True)
+        cdot = _cross(_cross(om[None], A[None]), EB) * sigma[:, None]
+        ndot = (cdot - N * (N * cdot).sum(axis=1)[:, None]) / cn[:, None]
+        drift = np.where(ok, (N * acc).sum(axis=1) + 2.0 * (ndot * vel).sum(axis=1) - d * (ndot * ndot).sum(axis=1),
+                         0.0)
+        return g, self._rows(J, None, PA, PA, N), drift, active, (PA - f.r * N, B0 + t[:, None] * EB, N)
 
     def _rim(self, f: Feature, n: np.ndarray, d: float, rows: bool):
         """Cap f.feature's rim of a cylinder (joint_a) against the static plane n'x = d: its support
