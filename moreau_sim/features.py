@@ -328,6 +328,7 @@ class FeatureContacts:
         self.cyl_exact: dict = {}  # cylinder feature -> its gap was the distance (not a stand-in) at the last call
         self._exact = True
         self._witness: tuple = ()
+        self._u = self.zero
         self.cyl_points: dict = {}  # cylinder feature -> (point on A, on B, normal B to A) at the last call with rows
         # cylinder features whose A (the cylinder of rim/side kinds, the sphere) is coal's second shape
         first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
@@ -370,6 +371,7 @@ class FeatureContacts:
         self.cyl_exact.clear()
         self.cyl_points.clear()
         self._screens, self._sides = {}, {}
+        self._u = u
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
@@ -829,7 +831,9 @@ class FeatureContacts:
             if fs.g[i] > self.gap_tol or fs.gamma[i] >= -V_TOL or not self.cyl_exact.get(i, False):
                 continue
             w = fs.W[:, i]
-            if W.shape[1]:
+            # in the span of rows of which one approaches: covered (near-parallel rows, e.g. a capsule's end
+            # sphere and its side on one edge, can span it with no approaching row: then it joins them)
+            if W.shape[1] and (W.T @ self._u < -V_TOL).any():
                 r = w - W @ np.linalg.lstsq(W, w, rcond=1e-12)[0]
                 if np.abs(r).max() <= 1e-9 * np.abs(w).max():
                     continue
