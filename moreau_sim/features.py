@@ -182,7 +182,8 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]:
     """The gap functions of every collision pair (UnsupportedModel for other pair types);
-    box_pairs=False: box-box pairs are unsupported too (the adaptive integrator's choice)."""
+    box_pairs=False: box-box and cylinder-box pairs are unsupported too (the adaptive
+    integrator's choice: their stand-ins are not smooth)."""
     out = []
     gobs = model.geom.geometryObjects
     for pair in model.pairs:
@@ -208,7 +209,7 @@ def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]
                                 R=gb.placement.rotation.copy(), p_b=gb.placement.translation.copy(),
                                 h=np.asarray(sb.halfSide, float).copy()))
             continue
-        cyl = _cylinder_features(model, pair) if coal.Cylinder in (type(sa), type(sb)) else None
+        cyl = _cylinder_features(model, pair, box_pairs) if coal.Cylinder in (type(sa), type(sb)) else None
         if cyl is not None:
             out += cyl
             continue
@@ -222,17 +223,18 @@ def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]
                                f"{type(sb).__name__}): the event-driven reference has gaps for polytope, sphere or "
                                "cylinder vs half-space, sphere vs sphere, sphere or cylinder vs static box, sphere "
                                "vs cylinder and box vs box only"
-                               + ("" if box_pairs else " (box vs box: event-driven only)"))
+                               + ("" if box_pairs else " (box or cylinder vs box: event-driven only)"))
     return tuple(out)
 
 
 CYLINDER_KINDS = ("rim_plane", "rim_box", "side_edge", "sphere_cylinder")
 
 
-def _cylinder_features(model: Model, pair) -> list[Feature] | None:
+def _cylinder_features(model: Model, pair, box_pairs: bool = True) -> list[Feature] | None:
     """The features of a pair with a cylinder (docs/theory.md §7.2), or None for a pair type
     without them: a moving cylinder's two cap rims (feature 0: the cap at +halfLength along its
-    axis, 1: at -halfLength) against a static half-space or box; a sphere against a cylinder
+    axis, 1: at -halfLength) against a static half-space or box (and its side against the box's
+    edges; not if box_pairs=False: their stand-ins are not smooth); a sphere against a cylinder
     (either moving). Gaps and rows do not depend on which shape coal lists first."""
     gobs = model.geom.geometryObjects
     ends = [(pair.first, pair.joint_first), (pair.second, pair.joint_second)]
@@ -246,7 +248,7 @@ def _cylinder_features(model: Model, pair) -> list[Feature] | None:
     if isinstance(shape, coal.Halfspace) and jx == 0 and jc != 0:
         _, n, d = model.bounds[gx]
         return [Feature("rim_plane", pair.index, k, jc, 0, centre, n, d, r=r, a=axis, hl=hl) for k in (0, 1)]
-    if isinstance(shape, coal.Box) and jx == 0 and jc != 0:
+    if isinstance(shape, coal.Box) and jx == 0 and jc != 0 and box_pairs:
         box = dict(r=r, R=other.placement.rotation.copy(), p_b=other.placement.translation.copy(),
                    h=np.asarray(shape.halfSide, float).copy(), a=axis, hl=hl)
         return ([Feature("rim_box", pair.index, k, jc, 0, centre, **box) for k in (0, 1)]

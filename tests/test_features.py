@@ -286,3 +286,23 @@ def test_cylinder_landing_on_its_cap_is_refused_by_name(tmp_path):
     model = _cylinder_drop(tmp_path, 0.5, (0.0, 0.0, 0.0), 0.2)
     with pytest.raises(SimulationError, match=re.escape("pair 'cyl/cylinder_0|ground': a cap lies flat")):
         simulate_event_driven(model)
+
+
+def test_adaptive_takes_cylinders_on_a_plane_not_on_a_box(tmp_path):
+    """The adaptive integrator uses the rims on a half-space (smooth): a tilted cylinder's
+    impacts over 0.5 s (a rim, the other rim, the first again) are the event-driven ones; a
+    cylinder on a static box is refused by name (UnsupportedModel with box_pairs=False: the
+    stand-ins are not smooth)."""
+    from moreau_sim.event_driven import simulate_event_driven
+
+    model = _cylinder_drop(tmp_path, 0.5, (0.4, 0.3, 0.0), 0.3, duration=0.5)
+    a = ms.run(model.scene, integrator="adaptive", rtol=1e-10, atol=1e-12)
+    ref = simulate_event_driven(model)
+    assert not a.meta["fallbacks"] and len(a.log_t) == len(ref.log_t) >= 3
+    assert np.abs(a.log_t - ref.log_t).max() <= 1e-8
+    (tmp_path / "cylinder.urdf").write_text(CYLINDER_URDF)
+    b = ms.SceneBuilder("cylinder_on_box", restitution=0.5, duration=0.1, folder=tmp_path)
+    b.add_body("cyl", "cylinder.urdf", position=(0.0, 0.0, 0.3))
+    b.add_box("table", (1.0, 1.0, 0.1))
+    with pytest.raises(UnsupportedModel, match=re.escape("(Cylinder vs Box)")):
+        feature_list(ms.build_model(b.build()), box_pairs=False)
