@@ -527,7 +527,9 @@ class FeatureContacts:
         ex_t = np.maximum(np.maximum(EDGE_END * lb - t, t - (1.0 - EDGE_END) * lb), 0.0)
         active = (ok & ((N * F1).sum(axis=1) >= -ARC_TOL) & ((N * F2).sum(axis=1) >= -ARC_TOL)
                   & (ex_s == 0.0) & (ex_t == 0.0) & (d >= 0.0))
-        g = np.where(active, d - f.r, np.where(ok, np.sqrt((d - f.r) ** 2 + ex_s ** 2 + ex_t ** 2),
+        # the stand-in stays above the closing tolerance: at the segment's ends the contact is the rim's
+        # (or the end sphere's), and within EDGE_END of them sqrt(...) alone could close (panda's elbow did)
+        g = np.where(active, d - f.r, np.where(ok, np.sqrt((d - f.r) ** 2 + ex_s ** 2 + ex_t ** 2) + 2.0 * self.gap_tol,
                                                f.r + float(np.sqrt(f.h @ f.h))))
         if not rows:
             return g, None, None, active, ()
