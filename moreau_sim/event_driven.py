@@ -107,7 +107,8 @@ class EventDrivenRun(FeatureContacts):
         of those in `near` (within G_DIP), the multipliers of C, and the chart's extent."""
         cache: dict = {}
         watch = [i for i in free if i not in low]
-        rows = bool(low) or bool(near)
+        rated = list(low) + [i for i in watch if i in near]  # the features whose rates gamma are watched too
+        col = {i: k for k, i in enumerate(rated)}
 
         def evaluate(y):
             key = y.tobytes()
@@ -115,12 +116,13 @@ class EventDrivenRun(FeatureContacts):
                 cache.clear()
                 q, u = self.q_of(qb, y[:self.nv]), y[self.nv:]
                 lam = self.dynamics(q, u, C)[1] if C else np.zeros(0)
-                fs = self.features(q, u, watch + low, rows=rows) if free else None
-                cache[key] = (fs, lam)
+                fs = self.features(q, u, watch, rows=False) if watch else None
+                fr = self.features(q, u, rated) if rated else None  # with rows: gamma
+                cache[key] = (fs, lam, fr)
             return cache[key]
 
-        def dip(fs, k):
-            return fs.gamma[k] + V_TOL if fs.g[k] < G_DIP else 1.0
+        def dip(fr, k):
+            return fr.gamma[k] + V_TOL if fr.g[k] < G_DIP else 1.0
 
         fns, tags = [], []
         for k, i in enumerate(watch):
@@ -128,12 +130,12 @@ class EventDrivenRun(FeatureContacts):
             fns.append((lambda t, y, k=k: evaluate(y)[0].g[k] or 1e-300, -1.0))  # gap closing: an impact
             tags.append(("gap", i))
             if i in near:  # its approach turning back while within G_DIP: a minimum (a dip below 0 and back)
-                fns.append((lambda t, y, k=k: dip(evaluate(y)[0], k), 1.0))
+                fns.append((lambda t, y, k=col[i]: dip(evaluate(y)[2], k), 1.0))
                 tags.append(("dip", i))
-        for k, i in enumerate(low, start=len(watch)):
-            fns.append((lambda t, y, k=k: evaluate(y)[0].g[k] - G_RES, 1.0))  # risen: watch its gap
+        for i in low:
+            fns.append((lambda t, y, k=col[i]: evaluate(y)[2].g[k] - G_RES, 1.0))  # risen: watch its gap
             tags.append(("rise", i))
-            fns.append((lambda t, y, k=k: evaluate(y)[0].gamma[k] + 2.0 * V_TOL, -1.0))  # coming back
+            fns.append((lambda t, y, k=col[i]: evaluate(y)[2].gamma[k] + 2.0 * V_TOL, -1.0))  # coming back
             tags.append(("return", i))
         for k, i in enumerate(C):
             fns.append((lambda t, y, k=k: evaluate(y)[1][k] + LAM_EPS, -1.0))  # contact force vanishing
