@@ -392,7 +392,6 @@ class FeatureContacts:
                 self.cyl_exact[i] = self._exact
                 if rows:
                     self.cyl_points[i] = self._witness
-                if rows:
                     W[:, col] = w
                 continue
             pa, va, aa, Ja = self._point(f.joint_a, f.p, rows)
