@@ -23,7 +23,10 @@ raises features.CornerImpact naming the instant. The decisions at an event below
 rule, persistent set) are features.FeatureContacts.resolve.
 
 Events (terminal): a free feature's gap crossing 0 downwards (impact); a persistent
-contact's multiplier crossing -LAM_EPS downwards (release). A free feature that starts a phase
+contact's multiplier crossing -LAM_EPS downwards (release), or its gap rising above the
+contact tolerance (open: where a gap stops being the distance, e.g. a cylinder's side leaving
+its segment's end, the stand-in jumps up and the constraint would otherwise hold a phantom
+contact; such a feature is then watched by its gap, not as one within G_RES). A free feature that starts a phase
 within G_RES = 1e-13 m of contact (it just bounced or separated) is watched instead by its rise
 to G_RES and by its normal velocity returning below -2 V_TOL: the sign of so small a gap is
 rounding noise, and the root finder would take a noise crossing for an impact (while it rises,
@@ -116,9 +119,10 @@ class EventDrivenRun(FeatureContacts):
                 cache.clear()
                 q, u = self.q_of(qb, y[:self.nv]), y[self.nv:]
                 lam = self.dynamics(q, u, C)[1] if C else np.zeros(0)
+                gc = self.c_gaps if C else None
                 fs = self.features(q, u, watch, rows=False) if watch else None
                 fr = self.features(q, u, rated) if rated else None  # with rows: gamma
-                cache[key] = (fs, lam, fr)
+                cache[key] = (fs, lam, fr, gc)
             return cache[key]
 
         def dip(fr, k):
@@ -140,6 +144,10 @@ class EventDrivenRun(FeatureContacts):
         for k, i in enumerate(C):
             fns.append((lambda t, y, k=k: evaluate(y)[1][k] + LAM_EPS, -1.0))  # contact force vanishing
             tags.append(("release", i))
+            # its gap opening: where a gap stops being the distance (a cylinder's side leaving the segment's
+            # end, its stand-in jumping above contact_tolerance) its constraint would hold a phantom contact
+            fns.append((lambda t, y, k=k: evaluate(y)[3][k] - self.gap_tol, 1.0))
+            tags.append(("open", i))
         if self.lie:
             fns.append((lambda t, y: np.abs(y[:self.nv]).max() - CHART_MAX, 1.0))  # re-centre the chart
             tags.append(("chart", -1))
@@ -199,12 +207,14 @@ class EventDrivenRun(FeatureContacts):
             self.sample(t, q, u, 0)
             gi += 1
         released: frozenset = frozenset()
+        opened: frozenset = frozenset()
         stuck = 0
         while True:
             u, C, shadow = self.resolve(t, q, u, released)
             free = [i for i in range(nf) if i not in C and i not in shadow]
             g0 = self.features(q, u, free, rows=False).g if free else np.zeros(0)
-            low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES]
+            # (a feature whose gap just jumped open is watched by its gap: it is at the jump, not near 0)
+            low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES and i not in opened]
             near = {i for i, g in zip(free, g0) if 0.5 * G_RES <= g < G_DIP}
             qb = q.copy()
             events, tags = self._phase_events(qb, C, free, low, near)
@@ -233,8 +243,10 @@ class EventDrivenRun(FeatureContacts):
             if stuck > 100:
                 raise SimulationError("100 events without time advancing")
             q, u, t = self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy(), t_stop
-            released = frozenset(i for (kind, i), te in zip(tags, sol.t_events)
-                                 if kind == "release" and len(te) and abs(te[-1] - t_stop) <= 1e-12)
+            stopped = [(kind, i) for (kind, i), te in zip(tags, sol.t_events)
+                       if len(te) and abs(te[-1] - t_stop) <= 1e-12]
+            released = frozenset(i for kind, i in stopped if kind in ("release", "open"))
+            opened = frozenset(i for kind, i in stopped if kind == "open")
 
 
 def simulate_event_driven(model: Model, *, state: State | None = None, t_end: float | None = None,

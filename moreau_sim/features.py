@@ -748,6 +748,7 @@ class FeatureContacts:
         if not C:
             return a, np.zeros(0)
         fs = self.features(q, u, C)
+        self.c_gaps = fs.g  # the persistent features' gaps (event_driven watches them open)
         Minv = pin.computeMinverse(self.pm, self.pd, q)
         MiW = Minv @ fs.W
         G = fs.W.T @ MiW
