@@ -32,8 +32,7 @@ then the acceleration-level problem that decides the persistent set C.
 
 Fixed steps (stepper.step at the scene's dt, the percussion log as ms.simulate's): the whole
 run when a pair has no per-feature gap (features.UnsupportedModel) or there are more than
-MAX_FEATURES features (very many contacts); from the instant of a
-corner impact (features.CornerImpact); and when events accumulate (BURST_EVENTS events within
+MAX_FEATURES features (very many contacts); and when events accumulate (BURST_EVENTS events within
 one dt, or no progress in time). Back to extrapolated steps after BACK_STEPS consecutive fixed
 steps with no closed contact, or whose closed contacts all move slower than V_BACK (at rest);
 FeatureContacts.resolve then takes over at that state (the Zeno rule ends what is left of an
@@ -51,7 +50,7 @@ import pinocchio as pin
 
 from .data import Data, make_data
 from .errors import SimulationError
-from .features import (G_RES, LAM_EPS, V_TOL, CornerImpact, FeatureContacts, UnsupportedModel,
+from .features import (G_RES, LAM_EPS, V_TOL, FeatureContacts, UnsupportedModel,
                        feature_list, run_recorded, sample_grid)
 from .model import Model, initial_state
 from .options import Bias
@@ -351,11 +350,7 @@ class AdaptiveRun(FeatureContacts):
                 fixed, t_back, stuck = False, t, 0
                 self.burst.clear()
                 continue
-            try:
-                u, C, shadow = self.resolve(t, q, u, released)
-            except CornerImpact as exc:
-                fixed = self._fall(t, t_back, f"corner impact: {exc}")
-                continue
+            u, C, shadow = self.resolve(t, q, u, released)
             released = frozenset()
             nf = len(self.feats)
             free = [i for i in range(nf) if i not in C and i not in shadow]

@@ -16,12 +16,12 @@ Gaps (event functions): the analytic signed gaps per *feature* of the contact la
 every vertex of a polytope against a half-space, a sphere against a half-space, a sphere
 against a sphere, a sphere against a static box, and for two boxes every vertex of each in the
 other and every pair of their edges (docs/theory.md §7.1). Other pair types (cylinders, meshes)
-raise :class:`UnsupportedModel` naming the pair; an impact at a corner (docs/theory.md §3)
-raises features.CornerImpact naming the instant. The decisions at an event below (impact, Zeno
+raise :class:`UnsupportedModel` naming the pair. The decisions at an event below (impact, Zeno
 rule, persistent set) are features.FeatureContacts.resolve.
 
 Events (terminal): a free feature's gap crossing 0 downwards (impact); a persistent
-contact's multiplier crossing -LAM_EPS downwards (release). A free feature that starts a phase
+contact's multiplier crossing -LAM_EPS downwards, or a persistent box feature reaching the end
+of its region (a vertex its face's edges, an edge pair its edges' ends: release). A free feature that starts a phase
 within G_RES = 1e-13 m of contact (it just bounced or separated) is watched instead by its rise
 to G_RES and by its normal velocity returning below -2 V_TOL: the sign of so small a gap is
 rounding noise, and the root finder would take a noise crossing for an impact (while it rises,
@@ -30,8 +30,10 @@ At every event (and at the start) :func:`EventDrivenRun.resolve` applies, in ord
   1. Impact: if a closed feature (g <= the scene's contact_tolerance, 1e-9 m by default)
      approaches (gamma < -V_TOL), the SAME law as the stepper, ``law.impact`` (docs/theory.md §1)
      on the contacts ``contacts.detect`` closes at q (coal, tolerance 1e-9 m), with the scene's e
-     (between boxes, plus the closed approaching box features whose rows coal's contacts miss:
-     features.FeatureContacts._missed_features, docs/theory.md §7.1).
+     (between boxes, with the closed box vertices' own rows and the closed approaching edge pairs
+     coal's contacts miss: features.FeatureContacts._missed_features, docs/theory.md §7.1); at a
+     corner (docs/theory.md §3) the fixed step's set-valued law (stepper.solve_impact on a step of
+     zero length, v_free = u-) with the scene's corner_selection, a branch logged as simulate logs it.
   2. Zeno rule (accumulation points): the impact is plastic (e = 0) if, for every approaching
      contact, its rebound would rise less than G_ZENO = 1e-12 m, (e gamma-)^2 < 2 |a_n| G_ZENO
      with a_n its free normal acceleration, or it is slower than V_ZENO = 1e-8 m/s; or if the
@@ -106,8 +108,9 @@ class EventDrivenRun(FeatureContacts):
                 cache.clear()
                 q, u = self.q_of(qb, y[:self.nv]), y[self.nv:]
                 lam = self.dynamics(q, u, C)[1] if C else np.zeros(0)
+                margin = self.margin.copy() if C else np.zeros(0)  # C's, from dynamics' features call
                 fs = self.features(q, u, watch + low, rows=bool(low)) if free else None
-                cache[key] = (fs, lam)
+                cache[key] = (fs, lam, margin)
             return cache[key]
 
         fns, tags = [], []
@@ -123,6 +126,10 @@ class EventDrivenRun(FeatureContacts):
         for k, i in enumerate(C):
             fns.append((lambda t, y, k=k: evaluate(y)[1][k] + LAM_EPS, -1.0))  # contact force vanishing
             tags.append(("release", i))
+            if self.feats[i].box is not None:  # a box feature passing the end of its region (§7.1) by
+                # the contact tolerance: a corner resting on an edge (margin 0 to rounding and drift) stays
+                fns.append((lambda t, y, k=k: evaluate(y)[2][k] + self.gap_tol, -1.0))
+                tags.append(("release", i))
         if self.lie:
             fns.append((lambda t, y: np.abs(y[:self.nv]).max() - CHART_MAX, 1.0))  # re-centre the chart
             tags.append(("chart", -1))
@@ -213,7 +220,8 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     impact instant is the post-impact state, one at t0 the initial state); one log row per
     contact percussion with log_t the exact impact time, log_step the index of the next
     sample, log_impact True; contact_work = -(energy lost in impacts) since the previous
-    sample; branch arrays empty. meta: "integrator": "event-driven", "status", "zeno" (the
+    sample; a branch row per corner impact with several admissible outcomes. meta:
+    "integrator": "event-driven", "status", "zeno" (the
     accumulation points declared: t, t_accumulation, speed, pairs), "reference" (tolerances and
     thresholds), "run" (events, impacts, nfev, wall_seconds). Raises UnsupportedModel for a pair
     without an analytic gap, SimulationError (with .trajectory up to the failure) otherwise."""

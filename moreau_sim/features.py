@@ -5,13 +5,14 @@ A *feature* is one gap function of a collision pair, with its row w, the drift t
 half-space, a sphere against a half-space, a sphere against a sphere, a sphere against a static
 box; and for two boxes (either moving, docs/theory.md §7.1), computed per pair in numpy:
   - "vertex_box": each box's vertices p in the other, g = max_f (n_f' p - d_f) over the other's
-    face planes that count (those the vertex's own cone can touch first, and those p is clearly
-    outside of), n the arg-max face's normal (kept through a phase while persistent), drift
-    n'(abar_A(p) - abar_B(p)) + 2 (w_face x n)' dv;
+    face planes (at a tie within contact_tolerance, the faces the vertex's own cone can touch
+    first), n the arg-max face's normal (kept through a phase while persistent), drift
+    n'(abar_A(p) - abar_B(p)) + 2 (w_face x n)' dv; its region ends at its face's edges;
   - "edge_edge": each of the 12 x 12 edge pairs, g = d = n'(a0 - b0) along n = +-(e_A x e_B)/|.|
     (outward of B's edge) while active (n in both edges' normal cones, the lines' closest points
     inside both edges, d >= -smallest half side), else a positive stand-in; rows at the closest
-    points, drift n'(abar_A - abar_B) + 2 n_dot' dv - d |n_dot|^2;
+    points, drift n'(abar_A - abar_B) + 2 n_dot' dv - d |n_dot|^2; its region ends where the
+    closest points leave the edges (`margin`: the distance to a region's end, an event in a phase);
   - while the pair's bounding spheres are apart, all its features report the spheres' gap.
 Per-vertex gaps (not coal's pair distance, which is the minimum over corners and stays 0
 while a block pivots) make each corner of a rocking block its own event. Other pair types
@@ -21,7 +22,8 @@ while a block pivots) make each corner of a rocking block its own event. Other p
 §7) and the adaptive one (adaptive.py, §8) share: the features' kinematics, the constrained
 accelerations of a persistent set C (a = ABA + M^-1 W_C lam, W_C' a + Wdot_C' u = 0), and
 :meth:`FeatureContacts.resolve` at an event: the impact (law.impact on the contacts
-contacts.detect closes, with the Zeno rule), then the acceleration-level contact problem that
+contacts.detect closes, or at a corner the fixed step's set-valued law, docs/theory.md §3, §7;
+with the Zeno rule), then the acceleration-level contact problem that
 decides which touching contacts persist (event_driven.py's module doc states the rules).
 """
 
@@ -42,6 +44,7 @@ from .law import impact, project
 from .model import Model
 from .recording import LOG_RELATIVE, PercussionRow, Recorder
 from .state import State
+from .stepper import ContactProblem, solve_impact
 from .trajectory import Trajectory
 
 V_TOL = 1e-9  # [m/s] |gamma| <= this on a closed feature: touching, not impacting
@@ -210,10 +213,6 @@ class FeatureState:
     gamma: np.ndarray
 
 
-class CornerImpact(SimulationError):
-    """An impact at a corner (docs/theory.md §3): the feature integrators handle smooth contacts only."""
-
-
 class FeatureContacts:
     """The features of a model and the contact decisions at events (module doc). Mutable
     bookkeeping shared by the event-driven and the adaptive runs: the Recorder `rec` (set by the
@@ -277,6 +276,7 @@ class FeatureContacts:
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
+        self.margin = np.full(k, np.inf)  # [m] each feature's distance to the end of its region (below)
         boxes: dict = {}
         for col, i in enumerate(idx):
             f = self.feats[i]
@@ -328,6 +328,7 @@ class FeatureContacts:
                 W[:, col] = n @ Jrel
         for bp, cols, which in boxes.values():
             g[cols], Wb, db = self._box_pair(bp, np.array(which), rows)
+            self.margin[cols] = self._box_margin
             if rows:
                 W[:, cols] = Wb
                 drift[cols] = db
@@ -380,6 +381,7 @@ class FeatureContacts:
         dc = cA - cB
         dist = float(np.sqrt(dc @ dc))
         k = len(which)
+        self._box_margin = np.full(k, np.inf)
         if dist > A.r + B.r:  # bounding spheres apart: every feature is open; their gap stands in
             g = np.full(k, dist - A.r - B.r)
             if not rows:
@@ -409,15 +411,18 @@ class FeatureContacts:
             D = np.where(ina[:, None], (B.fd + NB @ tB)[None], (A.fd + NA @ tA)[None])
             S = np.einsum("vfe,ve->vf", N, P) - D
             # a face counts if its plane leaves the vertex's own cone outside (the vertex can touch it
-            # first), or if the vertex is clearly outside it (S > gap_tol: the vertex is out of the box)
+            # first), or if the vertex is outside it (S > G_RES: then g > 0 whatever the cone, so a
+            # block pivoting on one bottom corner keeps the other's gap over the face it comes down on)
             valid = np.einsum("vke,vfe->vkf", E, N).min(axis=1) >= -ARC_TOL
-            count = valid | (S > self.gap_tol)
+            count = valid | (S > G_RES)
             count[~count.any(axis=1)] = True
             f = np.where(count, S, -np.inf).argmax(axis=1)
             if self.faces:  # persistent vertices: the face chosen at the phase's start
                 f = np.array([self.faces.get((bp.pair, k), fk) for k, fk in zip(wv.tolist(), f.tolist())])
             self.box_faces[bp.pair] = (wv, f)
             g[v_sel] = S[np.arange(len(wv)), f]
+            # the vertex's distance to its face's edges: -max of the other faces' S (region, §7.1)
+            self._box_margin[v_sel] = -np.where(np.arange(6)[None] == f[:, None], -np.inf, S).max(axis=1)
             if rows:
                 n = N[np.arange(len(wv)), f] * np.where(ina, 1.0, -1.0)[:, None]  # from B to A
                 P_a[v_sel] = P_b[v_sel] = P
@@ -448,6 +453,9 @@ class FeatureContacts:
             ex_s = np.maximum(np.maximum(EDGE_END * la - s, s - (1.0 - EDGE_END) * la), 0.0)
             ex_t = np.maximum(np.maximum(EDGE_END * lb - t, t - (1.0 - EDGE_END) * lb), 0.0)
             active = ok & arcs & (ex_s == 0.0) & (ex_t == 0.0) & (d >= -min(A.half, B.half))
+            # the closest points' distance to the ends of the region where the pair counts (§7.1)
+            self._box_margin[e_sel] = np.where(ok, np.minimum.reduce(
+                [s - EDGE_END * la, (1.0 - EDGE_END) * la - s, t - EDGE_END * lb, (1.0 - EDGE_END) * lb - t]), np.inf)
             self.edge_active[bp.pair] = (which[e_sel], active)  # for tests
             g[e_sel] = np.where(active, d, np.where(ok, np.sqrt(d * d + ex_s * ex_s + ex_t * ex_t), A.r + B.r))
             if rows:
@@ -505,7 +513,10 @@ class FeatureContacts:
         if (closed & (fs.gamma < -V_TOL)).any():
             u = self._impact(t, q, u, fs)
             fs = self.features(q, u)
-        touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL)) if i not in released]
+        # a box feature past the end of its region (margin < -gap_tol/2: a phase ends at -gap_tol, docs/theory.md
+        # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding) does
+        inside = self.margin > -0.5 * self.gap_tol
+        touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL) & inside) if i not in released]
         if not touching:
             return u, (), ()
         # distinct rows only (the front and back corners of a planar block repeat each other)
@@ -536,8 +547,8 @@ class FeatureContacts:
         return u, C, shadow
 
     def _missed_features(self, fs: FeatureState, W: np.ndarray) -> list:
-        """Contact rows (as contacts.from_rows takes them) of the closed, approaching box-box features
-        (vertices, active edge pairs) whose row is not in the span of coal's rows W: an edge lying
+        """Contact rows (as contacts.from_rows takes them) of the closed box-box vertices and of the
+        closed, approaching active edge pairs whose row is not in the span of coal's rows W: an edge lying
         across a face meets the face's edges at points coal's one witness of that segment contact
         does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
         an arbitrary normal (docs/theory.md §7.1). Needs fs = self.features(q, u) of all features."""
@@ -548,10 +559,10 @@ class FeatureContacts:
                 if k >= 16 and not active[np.searchsorted(e_which, k)]:
                     continue
                 col = self.box_index[pair] + k
-                if fs.g[col] > self.gap_tol or fs.gamma[col] >= -V_TOL:
+                if fs.g[col] > self.gap_tol or (k >= 16 and fs.gamma[col] >= -V_TOL):
                     continue
                 w = fs.W[:, col]
-                if W.shape[1]:
+                if k >= 16 and W.shape[1]:  # a closed vertex's own row always replaces coal's
                     r = w - W @ np.linalg.lstsq(W, w, rcond=1e-12)[0]
                     if np.abs(r).max() <= 1e-9 * np.abs(w).max():
                         continue
@@ -561,27 +572,25 @@ class FeatureContacts:
         return out
 
     def _impact(self, t, q, u, fs: FeatureState) -> np.ndarray:
-        """The impact law (law.impact, docs/theory.md §1) on the contacts detect() closes at q."""
+        """The impact law on the contacts detect() closes at q: law.impact (docs/theory.md §1), or at
+        a corner the set-valued law with the scene's selection policy (§3, §7.2)."""
         pm, pd, model = self.pm, self.pd, self.model
         # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
         # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
         self.data.warm_start_pairs = set(self.data.warm_start_pairs) | {
             self.feats[i].pair for i in np.flatnonzero(fs.g <= self.gap_tol)}
         c = detect(model, self.data, q)
-        if c.corners:
-            raise CornerImpact(f"a corner impact at t = {t:.12g} s (docs/theory.md §3); the event-driven "
-                                  "reference handles smooth contacts only", t=t)
         cs = assemble_constraints(model, self.data, q, c)
-        missed = self._missed_features(fs, cs.W)
+        # (at a corner the struck vertex is the corner's: its faces are the pieces, not a feature row)
+        missed = self._missed_features(fs, cs.W) if cs.pieces is None else []
         if missed:  # they replace coal's contacts of the same vertices
             keys = {(m[4], int(m[5]), m[6]) for m in missed}
             keep = np.array([k not in keys for k in zip(c.pair.tolist(), c.kind.tolist(), c.feature.tolist())], bool)
             cs = assemble_constraints(model, self.data, q, c.select(keep).concat(from_rows(model, missed)))
         c, M, W = cs.contacts, cs.M, cs.W
-        if c.m == 0:
+        if c.m == 0 and cs.pieces is None:
             raise SimulationError(f"a gap event at t = {t:.12g} s but coal finds no closed contact")
-        gm = W.T @ u
-        if not (gm < -V_TOL).any():
+        if cs.pieces is None and not (W.T @ u < -V_TOL).any():
             raise SimulationError(f"a feature approaches at t = {t:.12g} s (gamma = {fs.gamma.min():.3g} m/s) but "
                                   "none of coal's closed contacts does")
         # the Zeno rule (module doc) on the approaching features: their free normal accelerations a_n
@@ -590,22 +599,36 @@ class FeatureContacts:
         speed = -fs.gamma[appr]
         low = ((self.e * speed) ** 2 < -2.0 * a_n * G_ZENO) | (speed < V_ZENO)
         zeno = bool(low.all()) or t - self.last_impact < DT_ZENO
-        imp = impact(M, W, u, 0.0 if zeno else self.e)
-        if zeno and self.e < 1.0:
+        e = 0.0 if zeno else self.e
+        if cs.pieces is None:
+            imp = impact(M, W, u, e)
+            P, res, u_plus, gm, gp, loss = imp.P, imp.qp, imp.u_plus, W.T @ u, W.T @ imp.u_plus, imp.energy_loss
+        else:  # the fixed step's corner law on a step of zero length (v_free = u-): one home for it
+            pb = ContactProblem(0.0, e, q, u, q, c, u, u, M, pin.computeMinverse(pm, pd, q), W, cs.pieces)
+            sol = solve_impact(pb, model.options)
+            if not sol.qp.ok:
+                raise SimulationError(f"the corner law failed ({sol.qp.status}) at t = {t:.12g} s")
+            c, P, res, u_plus, gm, gp = sol.contacts, sol.P, sol.qp, sol.u_next, sol.gamma_minus, sol.gamma_plus
+            dv = u - res.v  # the impact's energy identity holds at every stationary point (§3)
+            loss = 0.5 * (1.0 - e * e) * float(dv @ M @ dv)
+            if sol.branch is not None:
+                cand, chosen, ups = sol.branch
+                self.rec.branch(self.rec.n, t, chosen, [(up, k.distance, k.global_min)
+                                                        for up, k in zip(ups, cand.candidates)])
+        if zeno and self.e < 1.0 and len(speed):
             k = int(np.argmax(speed))
             dt = 2.0 * self.e * speed[k] / ((1.0 - self.e) * -a_n[k]) if a_n[k] < 0 else 0.0
             self.zeno.append({"t": t, "t_accumulation": float(t + dt), "speed": float(speed[k]),
                               "pairs": sorted(set(c.pair.tolist()))})
-        gp = W.T @ imp.u_plus
-        cut = LOG_RELATIVE * float(imp.P.max(initial=0.0))
-        for i in np.flatnonzero((imp.P > cut) & (imp.P > 0)):  # step: the index of the next sample
+        cut = LOG_RELATIVE * float(P.max(initial=0.0))
+        for i in np.flatnonzero((P > cut) & (P > 0)):  # step: the index of the next sample
             self.rec.log(PercussionRow(self.rec.n, t, int(c.pair[i]), int(c.kind[i]), int(c.feature[i]), float(c.g[i]),
-                                       float(imp.P[i]), float(gm[i]), float(gp[i]), c.point_a[i], c.normal[i], True))
-        self.rec.account_impact(t, q, u, imp.u_plus, M, imp.qp.v, 0.0 if zeno else self.e, imp.P)
-        self.work -= imp.energy_loss
+                                       float(P[i]), float(gm[i]), float(gp[i]), c.point_a[i], c.normal[i], True))
+        self.rec.account_impact(t, q, u, u_plus, M, res.v, e, P)
+        self.work -= loss
         self.last_impact = t
         self.impacts += 1
-        return imp.u_plus
+        return u_plus
 
 
 

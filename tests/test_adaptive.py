@@ -123,13 +123,22 @@ def test_tolerance_controls_the_pendulum_error():
     assert errs[1] < 1e-8 and errs[1] < errs[0] / 100
 
 
+def test_corner_law_at_the_located_instant():
+    """A corner impact (corner_point_asymmetric, docs/theory.md §3.4) takes the set-valued law
+    at its instant, without fixed steps: u+ = (1, -0.5 e), one branch logged."""
+    for e in (0.0, 0.5, 1.0):
+        tr = adaptive("corner_point_asymmetric", duration=0.2, restitution=e)
+        assert not tr.meta["fallbacks"] and tr.meta["run"]["steps_fixed"] == 0
+        assert np.allclose(tr.u[-1], [1.0, -0.5 * e], rtol=0, atol=1e-12) and len(tr.branch_t) == 1
+
+
 def test_fallback_to_fixed_steps_and_back():
-    """A corner impact (corner_point, docs/theory.md §3) is taken by fixed steps, then the run
-    returns to extrapolated steps; a pair without per-feature gaps is fixed steps throughout,
-    the same steps as time-stepping."""
-    tr = adaptive("corner_point", duration=0.2)
+    """An accumulation of events (the slider-crank's pin rattling in its clearance) is taken by
+    fixed steps, then the run returns to extrapolated steps; a pair without per-feature gaps is
+    fixed steps throughout, the same steps as time-stepping."""
+    tr = adaptive("slider_crank_clearance", duration=0.05)
     reasons = [f["reason"] for f in tr.meta["fallbacks"]]
-    assert reasons[0].startswith("corner impact") and reasons[1] == "back to extrapolated steps"
+    assert reasons[0].startswith("64 events within") and reasons[1] == "back to extrapolated steps"
     assert tr.meta["run"]["steps_fixed"] > 0 and tr.meta["run"]["steps_extrapolated"] > 0
     a = adaptive("box_stack_5", duration=0.1)
     b = ms.simulate(ms.build_model(scene("box_stack_5", duration=0.1)), progress=False)
