@@ -61,7 +61,7 @@ import pinocchio as pin
 
 from .data import Data, make_data
 from .errors import SimulationError
-from .features import (ACC_TOL, DT_ZENO, G_RES, G_ZENO, LAM_EPS, V_TOL, V_ZENO, FeatureContacts,  # noqa: F401
+from .features import (ACC_TOL, DT_ZENO, G_REGION, G_RES, G_ZENO, LAM_EPS, V_TOL, V_ZENO, FeatureContacts,  # noqa: F401
                        UnsupportedModel, run_recorded, sample_grid)
 from .model import Model, initial_state
 from .recording import run_metadata
@@ -126,9 +126,9 @@ class EventDrivenRun(FeatureContacts):
         for k, i in enumerate(C):
             fns.append((lambda t, y, k=k: evaluate(y)[1][k] + LAM_EPS, -1.0))  # contact force vanishing
             tags.append(("release", i))
-            if self.feats[i].box is not None:  # a box feature passing the end of its region (§7.1) by
-                # the contact tolerance: a corner resting on an edge (margin 0 to rounding and drift) stays
-                fns.append((lambda t, y, k=k: evaluate(y)[2][k] + self.gap_tol, -1.0))
+            if self.feats[i].box is not None:  # a box feature passing the end of its region by G_REGION
+                # (§7.1): a corner resting on an edge (margin 0 to rounding and drift) stays
+                fns.append((lambda t, y, k=k: evaluate(y)[2][k] + G_REGION, -1.0))
                 tags.append(("release", i))
         if self.lie:
             fns.append((lambda t, y: np.abs(y[:self.nv]).max() - CHART_MAX, 1.0))  # re-centre the chart

@@ -53,6 +53,7 @@ G_ZENO = 1e-12  # [m] a rebound whose apex would stay below this is not resolved
 V_ZENO = 1e-8  # [m/s] nor an impact slower than this
 DT_ZENO = 1e-12  # [s] nor an impact this soon after the previous one
 LAM_EPS = 1e-9  # [N] a persistent contact is released when its multiplier falls below -LAM_EPS
+G_REGION = 1e-6  # [m] ... or a persistent box feature when it passes its region's end by this (§7.1)
 ACC_TOL = 1e-8  # [m/s^2] relative acceleration below this (scaled): a touching contact persists
 
 
@@ -162,9 +163,8 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
-def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]:
-    """The gap functions of every collision pair (UnsupportedModel for other pair types);
-    box_pairs=False: box-box pairs are unsupported too (the adaptive integrator's choice)."""
+def feature_list(model: Model) -> tuple[Feature, ...]:
+    """The gap functions of every collision pair (UnsupportedModel for other pair types)."""
     out = []
     gobs = model.geom.geometryObjects
     for pair in model.pairs:
@@ -190,16 +190,15 @@ def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]
                                 R=gb.placement.rotation.copy(), p_b=gb.placement.translation.copy(),
                                 h=np.asarray(sb.halfSide, float).copy()))
             continue
-        if box_pairs and isinstance(sa, coal.Box) and isinstance(sb, coal.Box):
+        if isinstance(sa, coal.Box) and isinstance(sb, coal.Box):
             bp = BoxPair(pair.index, _box(model, pair.first, ja), _box(model, pair.second, jb))
             out += [Feature("vertex_box" if i < 16 else "edge_edge", pair.index, i, ja, jb,
                             (bp.a.v[i] if i < 8 else bp.b.v[i - 8]) if i < 16 else np.zeros(3), box=bp)
                     for i in range(BOX_FEATURES)]
             continue
         raise UnsupportedModel(f"{model.scene.name}: pair '{pair.name}' ({type(sa).__name__} vs "
-                               f"{type(sb).__name__}): the event-driven reference has gaps for polytope or "
-                               "sphere vs half-space, sphere vs sphere, sphere vs static box and box vs box only"
-                               + ("" if box_pairs else " (box vs box: event-driven only)"))
+                               f"{type(sb).__name__}): the feature integrators have gaps for polytope or "
+                               "sphere vs half-space, sphere vs sphere, sphere vs static box and box vs box only")
     return tuple(out)
 
 
@@ -277,6 +276,7 @@ class FeatureContacts:
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
         self.margin = np.full(k, np.inf)  # [m] each feature's distance to the end of its region (below)
+        self.smooth = np.ones(k, bool)  # False: an edge pair's stand-in (its rows and drift are the lines')
         boxes: dict = {}
         for col, i in enumerate(idx):
             f = self.feats[i]
@@ -329,6 +329,7 @@ class FeatureContacts:
         for bp, cols, which in boxes.values():
             g[cols], Wb, db = self._box_pair(bp, np.array(which), rows)
             self.margin[cols] = self._box_margin
+            self.smooth[cols] = self._box_smooth
             if rows:
                 W[:, cols] = Wb
                 drift[cols] = db
@@ -382,6 +383,7 @@ class FeatureContacts:
         dist = float(np.sqrt(dc @ dc))
         k = len(which)
         self._box_margin = np.full(k, np.inf)
+        self._box_smooth = np.ones(k, bool)
         if dist > A.r + B.r:  # bounding spheres apart: every feature is open; their gap stands in
             g = np.full(k, dist - A.r - B.r)
             if not rows:
@@ -457,6 +459,7 @@ class FeatureContacts:
             self._box_margin[e_sel] = np.where(ok, np.minimum.reduce(
                 [s - EDGE_END * la, (1.0 - EDGE_END) * la - s, t - EDGE_END * lb, (1.0 - EDGE_END) * lb - t]), np.inf)
             self.edge_active[bp.pair] = (which[e_sel], active)  # for tests
+            self._box_smooth[e_sel] = active
             g[e_sel] = np.where(active, d, np.where(ok, np.sqrt(d * d + ex_s * ex_s + ex_t * ex_t), A.r + B.r))
             if rows:
                 P_a[e_sel] = a0 + s[:, None] * ea
@@ -509,13 +512,13 @@ class FeatureContacts:
         self.t = t
         self.faces = {}  # chosen afresh at an event
         fs = self.features(q, u)
-        closed = fs.g <= self.gap_tol
+        closed = (fs.g <= self.gap_tol) & self.smooth  # an edge pair's stand-in is never a contact (§7.1)
         if (closed & (fs.gamma < -V_TOL)).any():
             u = self._impact(t, q, u, fs)
             fs = self.features(q, u)
-        # a box feature past the end of its region (margin < -gap_tol/2: a phase ends at -gap_tol, docs/theory.md
-        # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding) does
-        inside = self.margin > -0.5 * self.gap_tol
+        # a box feature past the end of its region (margin < -G_REGION/2: a phase ends at -G_REGION, docs/theory.md
+        # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding and drift) does
+        inside = self.margin > -0.5 * G_REGION
         touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL) & inside) if i not in released]
         if not touching:
             return u, (), ()

@@ -8,7 +8,7 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.features import BOX_FEATURES, FeatureContacts, UnsupportedModel, feature_list
+from moreau_sim.features import BOX_FEATURES, FeatureContacts, feature_list
 
 from helpers import ROOT, scene
 
@@ -93,11 +93,8 @@ def test_vertex_gap_is_its_depth_below_the_nearest_face():
     assert np.allclose(fs.W[:3, k], [0, 0, 1], atol=1e-12)  # the free root's translation rows: n
 
 
-def test_feature_count_and_adaptive_refusal():
-    """Each box pair has BOX_FEATURES features; the adaptive integrator keeps refusing box pairs
-    (box_pairs=False), naming the pair."""
+def test_feature_count():
+    """Each box pair has BOX_FEATURES features."""
     model = ms.build_model(scene("heavy_on_light_box_100"))
     feats = feature_list(model)
     assert sum(f.kind in ("vertex_box", "edge_edge") for f in feats) == BOX_FEATURES
-    with pytest.raises(UnsupportedModel, match="Box vs Box"):
-        feature_list(model, box_pairs=False)
