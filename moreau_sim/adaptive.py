@@ -26,20 +26,24 @@ below 0 is located on that polynomial (Brent), the step is re-taken from its sta
 and landed on g = 0 by Newton corrections dt = -g/gamma on the re-taken step (LAND_ITER at
 most; impact times to round-off). A persistent contact's multiplier crossing -LAM_EPS
 (release) and a feature just released (g < G_RES/2) coming back (gamma < -2 V_TOL) are located
-likewise. At every event, features.FeatureContacts.resolve decides as in the event-driven
-integrator: the law (law.impact on the contacts contacts.detect closes, with the Zeno rule),
-then the acceleration-level problem that decides the persistent set C.
+likewise. Box-box gaps (docs/theory.md §7.1: maxima over faces, edge pairs' stand-ins) are not
+smooth enough for the quintic: while two boxes' bounding spheres overlap a step moves no point
+more than BOX_TRAVEL of the smallest half side, and those that could close within the step are
+evaluated on the dense output at the check instants (a persistent one passing its region's end
+by G_REGION is a release, located likewise). At every event, features.FeatureContacts.resolve
+decides as in the event-driven integrator: the law (law.impact on the contacts contacts.detect
+closes, or a corner's set-valued law, with the Zeno rule), then the acceleration-level problem
+that decides the persistent set C.
 
 Fixed steps (stepper.step at the scene's dt, the percussion log as ms.simulate's): the whole
 run when a pair has no per-feature gap (features.UnsupportedModel) or there are more than
-MAX_FEATURES features (very many contacts); from the instant of a
-corner impact (features.CornerImpact); and when events accumulate (BURST_EVENTS events within
-one dt, or no progress in time). Back to extrapolated steps after BACK_STEPS consecutive fixed
-steps with no closed contact, or whose closed contacts all move slower than V_BACK (at rest);
-FeatureContacts.resolve then takes over at that state (the Zeno rule ends what is left of an
-accumulation). The count doubles whenever a fallback follows within 10 BACK_STEPS steps of a
-return (no ping-pong). meta["run"] counts extrapolated, refused and fixed steps and events;
-meta["fallbacks"] lists each switch with its time and reason.
+MAX_FEATURES features besides box pairs' (very many contacts); and when events accumulate
+(BURST_EVENTS events within one dt, or no progress in time). Back to extrapolated steps after
+BACK_STEPS consecutive fixed steps with no closed contact, or whose closed contacts all move
+slower than V_BACK (at rest); FeatureContacts.resolve then takes over at that state (the Zeno
+rule ends what is left of an accumulation). The count doubles whenever a fallback follows
+within 10 BACK_STEPS steps of a return (no ping-pong). meta["run"] counts extrapolated, refused
+and fixed steps and events; meta["fallbacks"] lists each switch with its time and reason.
 """
 
 from __future__ import annotations
@@ -51,7 +55,7 @@ import pinocchio as pin
 
 from .data import Data, make_data
 from .errors import SimulationError
-from .features import (G_RES, LAM_EPS, V_TOL, CornerImpact, FeatureContacts, UnsupportedModel,
+from .features import (G_REGION, G_RES, LAM_EPS, V_TOL, FeatureContacts, UnsupportedModel,
                        feature_list, run_recorded, sample_grid)
 from .model import Model, initial_state
 from .options import Bias
@@ -70,8 +74,9 @@ BURST_EVENTS = 64  # this many events within one fixed step dt: an accumulation,
 BACK_STEPS = 8  # consecutive quiet fixed steps before returning to extrapolated steps
 V_BACK = 1e-6  # [m/s] closed contacts slower than this after a fixed step: at rest
 FIXED_POINT = 1e-3  # the midpoint bias's fixed point is iterated to this fraction of the step tolerance
-MAX_FEATURES = 64  # more features (very many contacts): fixed steps throughout
+MAX_FEATURES = 64  # more features than box pairs' (very many contacts): fixed steps throughout
 H_MIN = 1e-14  # [s] smallest extrapolated step before giving up on a phase (fixed steps then)
+BOX_TRAVEL = 0.25  # a step's travel while boxes are near, in their smallest half side (_box_limit)
 
 
 # The quintic Hermite basis on [0, 1] in powers of tau: row k holds the coefficients of tau^0..tau^5
@@ -126,10 +131,12 @@ class _End:
     """A step end: (t, q, u), the accelerations a, the multipliers of C, and of the watched
     features (watch + low) the gaps g, rates gamma and second derivatives gdd = W'a + drift."""
 
-    __slots__ = ("t", "q", "u", "a", "lam", "g", "gamma", "gdd")
+    __slots__ = ("t", "q", "u", "a", "lam", "g", "gamma", "gdd", "margin", "near")
 
-    def __init__(self, t, q, u, a, lam, g, gamma, gdd):
+    def __init__(self, t, q, u, a, lam, g, gamma, gdd, margin, near):
         self.t, self.q, self.u, self.a, self.lam, self.g, self.gamma, self.gdd = t, q, u, a, lam, g, gamma, gdd
+        self.margin = margin  # C's distances to the ends of their regions [m] (docs/theory.md §7.1)
+        self.near = near  # the watched box features whose pair's bounding spheres overlap
 
 
 class AdaptiveRun(FeatureContacts):
@@ -138,14 +145,19 @@ class AdaptiveRun(FeatureContacts):
     def __init__(self, model: Model, data: Data, e: float, rtol: float, atol: float, order: int,
                  max_step: float, max_events: int):
         try:
-            # box-box kinds (docs/theory.md §7.1) are the event-driven integrator's only: 160 features
-            # a pair exceed MAX_FEATURES, and their edge stand-ins do not suit the quintic checks
-            feats, self.unsupported = feature_list(model, box_pairs=False), None
+            feats, self.unsupported = feature_list(model), None
         except UnsupportedModel as exc:
             feats, self.unsupported = (), str(exc)
-        if len(feats) > MAX_FEATURES:
-            feats, self.unsupported = (), f"{len(feats)} features > MAX_FEATURES = {MAX_FEATURES}"
+        names = {p.index: p.name for p in model.pairs}
+        cyl_box = sorted({names[f.pair] for f in feats if f.kind in ("rim_box", "side_edge")})
+        if cyl_box:  # their stand-ins and screening jump (docs/theory.md §7.2): the event-driven integrator's only
+            feats, self.unsupported = (), f"cylinder vs box pairs ({', '.join(cyl_box[:3])}): event-driven only"
+        n = sum(f.box is None for f in feats)
+        if n > MAX_FEATURES:
+            feats, self.unsupported = (), f"{n} features (not counting box pairs') > MAX_FEATURES = {MAX_FEATURES}"
         super().__init__(model, data, e, feats)
+        self.is_box = np.array([f.box is not None for f in self.feats], bool)
+        self.box_half = min([min(f.box.a.half, f.box.b.half) for f in self.feats if f.box is not None], default=np.inf)
         if order not in ORDERS:
             raise ValueError(f"order must be one of {ORDERS}, got {order!r}")
         self.rtol, self.atol, self.order, self.max_step, self.max_events = rtol, atol, order, max_step, max_events
@@ -212,11 +224,13 @@ class AdaptiveRun(FeatureContacts):
 
     def _end(self, t, q, u, C, idx) -> _End:
         a, lam = self.dynamics(q, u, C)
+        margin = self.margin.copy() if C else np.zeros(0)  # C's, from dynamics' features call
         if idx:
             fs = self.features(q, u, idx)
-            return _End(t, q, u, a, lam, fs.g, fs.gamma, fs.W.T @ a + fs.drift)
+            near = self.is_box[idx] & np.isfinite(self.margin)
+            return _End(t, q, u, a, lam, fs.g, fs.gamma, fs.W.T @ a + fs.drift, margin, near)
         z = np.zeros(0)
-        return _End(t, q, u, a, lam, z, z, z)
+        return _End(t, q, u, a, lam, z, z, z, margin, np.zeros(0, bool))
 
     # ---- dense output ----------------------------------------------------------------------
     def _dense(self, e0: _End, e1: _End):
@@ -270,18 +284,41 @@ class AdaptiveRun(FeatureContacts):
         return self.accepted + self.rejected + self.fixed + 1, self.t
 
     # ---- events ----------------------------------------------------------------------------
-    def _first_event(self, e0: _End, e1: _End, nw: int, C):
-        """The earliest event on the step e0 -> e1 as (tau, kind, index into watch+low / C), or None."""
+    def _first_event(self, e0: _End, e1: _End, nw: int, C, watched):
+        """The earliest event on the step e0 -> e1 as (tau, kind, index into watched = watch+low / C),
+        or None."""
         H = e1.t - e0.t
         best = None
         taus = _CHECK
         if len(e0.g):
             coef = np.array([e0.g, H * e0.gamma, H * H * e0.gdd, e1.g, H * e1.gamma, H * H * e1.gdd])
+            # box-box gaps (docs/theory.md §7.1) are maxima over faces and an edge pair's stand-in: not
+            # smooth enough for the quintic. Where one could close within the step (its gap below how far
+            # a point can travel in it), it is evaluated on the dense output at the check instants
+            travel = H * float(max(np.abs(e0.u).max(), np.abs(e1.u).max())) * self.model.reach + self.gap_tol
+            box = self.is_box[watched]
+            near = np.flatnonzero(box[:nw] & (np.minimum(e0.g, e1.g)[:nw] <= travel))
+            if len(near):
+                at = self._dense(e0, e1)
+                ids = [watched[k] for k in near]
+                Gd = np.array([e0.g[near]] + [self.features(*at(x), ids, rows=False).g for x in taus[1:-1]]
+                              + [e1.g[near]])
+                for col in np.flatnonzero((Gd < 0.0).any(axis=0)):
+                    j, k = int(np.argmax(Gd[:, col] < 0.0)), int(near[col])
+
+                    def fg(x, k=k):
+                        return float(self.features(*at(x), [watched[k]], rows=False).g[0]) if x < 1.0 else e1.g[k]
+                    tau = _root(fg, taus[j - 1], taus[j], 1e-15) if j else 0.0
+                    if best is None or tau < best[0]:
+                        best = (tau, "gap", k)
+            done = box  # located above, or too far to close
             G = _CHECK_BASIS @ coef  # (points, features)
             G[-1] = e1.g
-            crossing = np.flatnonzero((G[:, :nw] < 0.0).any(axis=0))
+            crossing = np.flatnonzero((G[:, :nw] < 0.0).any(axis=0) & ~done[:nw])
             first = {int(k): int(np.argmax(G[:, k] < 0.0)) for k in crossing}
             j_min = min(first.values(), default=0)
+            if best is not None:  # a densely located one: the polynomial's brackets after it do not count
+                j_min = min(j_min, int(np.searchsorted(taus, best[0])))
             for k, j in first.items():
                 if j > j_min:  # a later bracket: its root is later than one of the first bracket's
                     continue
@@ -312,6 +349,15 @@ class AdaptiveRun(FeatureContacts):
                     q, u = at(x)
                     return float(self.dynamics(q, u, C)[1][k]) + LAM_EPS
                 tau = _root(fl, 0.0, 1.0, 1e-13)
+                if best is None or tau < best[0]:
+                    best = (tau, "release", int(k))
+        if len(C) and (e1.margin < -G_REGION).any():  # a box feature passing its region's end (§7.1)
+            at = self._dense(e0, e1)
+            for k in np.flatnonzero(e1.margin < -G_REGION):
+                def fm(x, k=k):
+                    self.dynamics(*at(x), C)
+                    return float(self.margin[k]) + G_REGION
+                tau = _root(fm, 0.0, 1.0, 1e-13)
                 if best is None or tau < best[0]:
                     best = (tau, "release", int(k))
         return best
@@ -351,11 +397,7 @@ class AdaptiveRun(FeatureContacts):
                 fixed, t_back, stuck = False, t, 0
                 self.burst.clear()
                 continue
-            try:
-                u, C, shadow = self.resolve(t, q, u, released)
-            except CornerImpact as exc:
-                fixed = self._fall(t, t_back, f"corner impact: {exc}")
-                continue
+            u, C, shadow = self.resolve(t, q, u, released)
             released = frozenset()
             nf = len(self.feats)
             free = [i for i in range(nf) if i not in C and i not in shadow]
@@ -365,7 +407,7 @@ class AdaptiveRun(FeatureContacts):
             e0 = self._end(t, q, u, C, watch + low)
             while True:  # the phase: steps until an event or t_end
                 self.t = t
-                h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)))
+                h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)), self._box_limit(e0))
                 q1, u1, d = self._step(q, u, h, C)
                 err = self._error(q, u, q1, u1, d)
                 if not np.isfinite(err):  # an overflow (or a failed library call): no step size helps
@@ -379,7 +421,7 @@ class AdaptiveRun(FeatureContacts):
                 last = h >= t_end - t
                 t1 = t_end if last else t + h
                 e1 = self._end(t1, q1, u1, C, watch + low)
-                ev = self._first_event(e0, e1, len(watch), C)
+                ev = self._first_event(e0, e1, len(watch), C, watch + low)
                 grow = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
                 if ev is None:
                     self.accepted += 1
@@ -431,6 +473,15 @@ class AdaptiveRun(FeatureContacts):
         gam, gdd = e0.gamma[nw:], e0.gdd[nw:]
         up = (gam > V_TOL) & (gdd < 0)
         return float(np.min(0.5 * gam[up] / -gdd[up])) if up.any() else np.inf
+
+    def _box_limit(self, e0: _End) -> float:
+        """While two boxes' bounding spheres overlap, no point moves more than BOX_TRAVEL of the
+        smallest half side in a step: the dense checks of their gaps (_first_event) then see a
+        corner's or an edge's passage through a face."""
+        if not e0.near.any():
+            return np.inf
+        v = float(np.abs(e0.u).max()) * self.model.reach
+        return BOX_TRAVEL * self.box_half / v if v > 0.0 else np.inf
 
     def _fall(self, t: float, t_back: float, reason: str) -> bool:
         if t - t_back < 10 * self.back_steps * self.h_fix:

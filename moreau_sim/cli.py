@@ -162,8 +162,14 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
     if as_json:
         click.echo(json.dumps(s, indent=2))
         return
-    click.echo(f"{s['scene']}: {s['steps']} steps of h = {sc.options.dt:g} s to t = {s['t_end']:g} s, "
-               f"e = {sc.options.restitution:g}")
+    if s["integrator"] == "event-driven":
+        how = f"{s['events']} events (event-driven)"
+    elif s["integrator"] == "adaptive":
+        how = (f"{s['steps'] - s['steps_fixed']} extrapolated and {s['steps_fixed']} fixed steps (h = "
+               f"{sc.options.dt:g} s), {s['events']} events (adaptive)")
+    else:
+        how = f"{s['steps']} steps of h = {sc.options.dt:g} s"
+    click.echo(f"{s['scene']}: {how} to t = {s['t_end']:g} s, e = {sc.options.restitution:g}")
     click.echo(f"  impacts {s['impacts']}, percussions logged {s['percussions_logged']}"
                + (f", corner impacts with several outcomes {s['branching_steps']}" if s["branching_steps"] else ""))
     click.echo(f"  energy {s['energy_start']:.6g} J -> {s['energy_end']:.6g} J "

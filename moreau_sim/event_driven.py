@@ -18,15 +18,16 @@ against a sphere, a sphere against a static box, for two boxes every vertex of e
 other and every pair of their edges (docs/theory.md §7.1), and for cylinders the cap rims
 against a static half-space or box, the side against a static box's edges and a sphere against
 a cylinder (§7.2). Other pair types (meshes, a cylinder against a moving box or a cylinder)
-raise :class:`UnsupportedModel` naming the pair; an impact at a corner (docs/theory.md §3)
-raises features.CornerImpact naming the instant. The decisions at an event below (impact, Zeno
+raise :class:`UnsupportedModel` naming the pair. The decisions at an event below (impact, Zeno
 rule, persistent set) are features.FeatureContacts.resolve.
 
 Events (terminal): a free feature's gap crossing 0 downwards (impact); a persistent
-contact's multiplier crossing -LAM_EPS downwards (release), or its gap rising above the
-contact tolerance (open: where a gap stops being the distance, e.g. a cylinder's side leaving
-its segment's end, the stand-in jumps up and the constraint would otherwise hold a phantom
-contact; such a feature is then watched by its gap, not as one within G_RES). A free feature that starts a phase
+contact's multiplier crossing -LAM_EPS downwards, or a persistent box feature reaching the end
+of its region (a vertex its face's edges, an edge pair its edges' ends: release), or a
+persistent feature's gap rising above the contact tolerance (open: where a gap stops being the
+distance, e.g. a cylinder's side leaving its segment's end, the stand-in jumps up and the
+constraint would otherwise hold a phantom contact; such a feature is then watched by its gap,
+not as one within G_RES). A free feature that starts a phase
 within G_RES = 1e-13 m of contact (it just bounced or separated) is watched instead by its rise
 to G_RES and by its normal velocity returning below -2 V_TOL: the sign of so small a gap is
 rounding noise, and the root finder would take a noise crossing for an impact (while it rises,
@@ -40,8 +41,10 @@ At every event (and at the start) :func:`EventDrivenRun.resolve` applies, in ord
   1. Impact: if a closed feature (g <= the scene's contact_tolerance, 1e-9 m by default)
      approaches (gamma < -V_TOL), the SAME law as the stepper, ``law.impact`` (docs/theory.md §1)
      on the contacts ``contacts.detect`` closes at q (coal, tolerance 1e-9 m), with the scene's e
-     (between boxes, plus the closed approaching box features whose rows coal's contacts miss:
-     features.FeatureContacts._missed_features, docs/theory.md §7.1).
+     (between boxes, with the closed box vertices' own rows and the closed approaching edge pairs
+     coal's contacts miss: features.FeatureContacts._missed_features, docs/theory.md §7.1); at a
+     corner (docs/theory.md §3) the fixed step's set-valued law (stepper.solve_impact on a step of
+     zero length, v_free = u-) with the scene's corner_selection, a branch logged as simulate logs it.
   2. Zeno rule (accumulation points): the impact is plastic (e = 0) if, for every approaching
      contact, its rebound would rise less than G_ZENO = 1e-12 m, (e gamma-)^2 < 2 |a_n| G_ZENO
      with a_n its free normal acceleration, or it is slower than V_ZENO = 1e-8 m/s; or if the
@@ -69,8 +72,8 @@ import pinocchio as pin
 
 from .data import Data, make_data
 from .errors import SimulationError
-from .features import (ACC_TOL, DT_ZENO, G_RES, G_ZENO, LAM_EPS, V_TOL, V_ZENO, FeatureContacts,  # noqa: F401
-                       UnsupportedModel, run_recorded, sample_grid)
+from .features import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_ZENO, LAM_EPS, V_TOL,  # noqa: F401
+                       V_ZENO, FeatureContacts, UnsupportedModel, run_recorded, sample_grid)
 from .model import Model, initial_state
 from .recording import run_metadata
 from .state import State
@@ -119,10 +122,11 @@ class EventDrivenRun(FeatureContacts):
                 cache.clear()
                 q, u = self.q_of(qb, y[:self.nv]), y[self.nv:]
                 lam = self.dynamics(q, u, C)[1] if C else np.zeros(0)
+                margin = self.margin.copy() if C else np.zeros(0)  # C's, from dynamics' features call
                 gc = self.c_gaps if C else None
                 fs = self.features(q, u, watch, rows=False) if watch else None
                 fr = self.features(q, u, rated) if rated else None  # with rows: gamma
-                cache[key] = (fs, lam, fr, gc)
+                cache[key] = (fs, lam, margin, fr, gc)
             return cache[key]
 
         def dip(fr, k):
@@ -134,20 +138,25 @@ class EventDrivenRun(FeatureContacts):
             fns.append((lambda t, y, k=k: evaluate(y)[0].g[k] or 1e-300, -1.0))  # gap closing: an impact
             tags.append(("gap", i))
             if i in near:  # its approach turning back while within G_DIP: a minimum (a dip below 0 and back)
-                fns.append((lambda t, y, k=col[i]: dip(evaluate(y)[2], k), 1.0))
+                fns.append((lambda t, y, k=col[i]: dip(evaluate(y)[3], k), 1.0))
                 tags.append(("dip", i))
         for i in low:
-            fns.append((lambda t, y, k=col[i]: evaluate(y)[2].g[k] - G_RES, 1.0))  # risen: watch its gap
+            fns.append((lambda t, y, k=col[i]: evaluate(y)[3].g[k] - G_RES, 1.0))  # risen: watch its gap
             tags.append(("rise", i))
-            fns.append((lambda t, y, k=col[i]: evaluate(y)[2].gamma[k] + 2.0 * V_TOL, -1.0))  # coming back
+            fns.append((lambda t, y, k=col[i]: evaluate(y)[3].gamma[k] + 2.0 * V_TOL, -1.0))  # coming back
             tags.append(("return", i))
         for k, i in enumerate(C):
             fns.append((lambda t, y, k=k: evaluate(y)[1][k] + LAM_EPS, -1.0))  # contact force vanishing
             tags.append(("release", i))
-            # its gap opening: where a gap stops being the distance (a cylinder's side leaving the segment's
-            # end, its stand-in jumping above contact_tolerance) its constraint would hold a phantom contact
-            fns.append((lambda t, y, k=k: evaluate(y)[3][k] - self.gap_tol, 1.0))
-            tags.append(("open", i))
+            if self.feats[i].box is not None:  # a box feature passing the end of its region by G_REGION
+                # (§7.1): a corner resting on an edge (margin 0 to rounding and drift) stays
+                fns.append((lambda t, y, k=k: evaluate(y)[2][k] + G_REGION, -1.0))
+                tags.append(("release", i))
+            if self.feats[i].kind in CYLINDER_KINDS:  # its gap opening: where it stops being the distance (a
+                # cylinder's side leaving the segment's end: the stand-in jumps above contact_tolerance) its
+                # constraint would hold a phantom contact
+                fns.append((lambda t, y, k=k: evaluate(y)[4][k] - self.gap_tol, 1.0))
+                tags.append(("open", i))
         if self.lie:
             fns.append((lambda t, y: np.abs(y[:self.nv]).max() - CHART_MAX, 1.0))  # re-centre the chart
             tags.append(("chart", -1))
@@ -266,7 +275,8 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     impact instant is the post-impact state, one at t0 the initial state); one log row per
     contact percussion with log_t the exact impact time, log_step the index of the next
     sample, log_impact True; contact_work = -(energy lost in impacts) since the previous
-    sample; branch arrays empty. meta: "integrator": "event-driven", "status", "zeno" (the
+    sample; a branch row per corner impact with several admissible outcomes. meta:
+    "integrator": "event-driven", "status", "zeno" (the
     accumulation points declared: t, t_accumulation, speed, pairs), "reference" (tolerances and
     thresholds), "run" (events, impacts, nfev, wall_seconds). Raises UnsupportedModel for a pair
     without an analytic gap, SimulationError (with .trajectory up to the failure) otherwise."""

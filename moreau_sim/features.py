@@ -14,13 +14,14 @@ box; for cylinders (docs/theory.md §7.2):
     sides, stops the run with a SimulationError naming the pair;
 and for two boxes (either moving, docs/theory.md §7.1), computed per pair in numpy:
   - "vertex_box": each box's vertices p in the other, g = max_f (n_f' p - d_f) over the other's
-    face planes that count (those the vertex's own cone can touch first, and those p is clearly
-    outside of), n the arg-max face's normal (kept through a phase while persistent), drift
-    n'(abar_A(p) - abar_B(p)) + 2 (w_face x n)' dv;
+    face planes (at a tie within contact_tolerance, the faces the vertex's own cone can touch
+    first), n the arg-max face's normal (kept through a phase while persistent), drift
+    n'(abar_A(p) - abar_B(p)) + 2 (w_face x n)' dv; its region ends at its face's edges;
   - "edge_edge": each of the 12 x 12 edge pairs, g = d = n'(a0 - b0) along n = +-(e_A x e_B)/|.|
     (outward of B's edge) while active (n in both edges' normal cones, the lines' closest points
     inside both edges, d >= -smallest half side), else a positive stand-in; rows at the closest
-    points, drift n'(abar_A - abar_B) + 2 n_dot' dv - d |n_dot|^2;
+    points, drift n'(abar_A - abar_B) + 2 n_dot' dv - d |n_dot|^2; its region ends where the
+    closest points leave the edges (`margin`: the distance to a region's end, an event in a phase);
   - while the pair's bounding spheres are apart, all its features report the spheres' gap.
 Per-vertex gaps (not coal's pair distance, which is the minimum over corners and stays 0
 while a block pivots) make each corner of a rocking block its own event. Other pair types
@@ -31,7 +32,8 @@ the pair.
 §7) and the adaptive one (adaptive.py, §8) share: the features' kinematics, the constrained
 accelerations of a persistent set C (a = ABA + M^-1 W_C lam, W_C' a + Wdot_C' u = 0), and
 :meth:`FeatureContacts.resolve` at an event: the impact (law.impact on the contacts
-contacts.detect closes, with the Zeno rule), then the acceleration-level contact problem that
+contacts.detect closes, or at a corner the fixed step's set-valued law, docs/theory.md §3, §7;
+with the Zeno rule), then the acceleration-level contact problem that
 decides which touching contacts persist (event_driven.py's module doc states the rules).
 """
 
@@ -52,6 +54,7 @@ from .law import impact, project
 from .model import Model
 from .recording import LOG_RELATIVE, PercussionRow, Recorder
 from .state import State
+from .stepper import ContactProblem, solve_impact
 from .trajectory import Trajectory
 
 V_TOL = 1e-9  # [m/s] |gamma| <= this on a closed feature: touching, not impacting
@@ -60,6 +63,7 @@ G_ZENO = 1e-12  # [m] a rebound whose apex would stay below this is not resolved
 V_ZENO = 1e-8  # [m/s] nor an impact slower than this
 DT_ZENO = 1e-12  # [s] nor an impact this soon after the previous one
 LAM_EPS = 1e-9  # [N] a persistent contact is released when its multiplier falls below -LAM_EPS
+G_REGION = 1e-6  # [m] ... or a persistent box feature when it passes its region's end by this (§7.1)
 ACC_TOL = 1e-8  # [m/s^2] relative acceleration below this (scaled): a touching contact persists
 
 
@@ -180,10 +184,8 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
-def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]:
-    """The gap functions of every collision pair (UnsupportedModel for other pair types);
-    box_pairs=False: box-box and cylinder-box pairs are unsupported too (the adaptive
-    integrator's choice: their stand-ins are not smooth)."""
+def feature_list(model: Model) -> tuple[Feature, ...]:
+    """The gap functions of every collision pair (UnsupportedModel for other pair types)."""
     out = []
     gobs = model.geom.geometryObjects
     for pair in model.pairs:
@@ -209,33 +211,31 @@ def feature_list(model: Model, *, box_pairs: bool = True) -> tuple[Feature, ...]
                                 R=gb.placement.rotation.copy(), p_b=gb.placement.translation.copy(),
                                 h=np.asarray(sb.halfSide, float).copy()))
             continue
-        cyl = _cylinder_features(model, pair, box_pairs) if coal.Cylinder in (type(sa), type(sb)) else None
+        cyl = _cylinder_features(model, pair) if coal.Cylinder in (type(sa), type(sb)) else None
         if cyl is not None:
             out += cyl
             continue
-        if box_pairs and isinstance(sa, coal.Box) and isinstance(sb, coal.Box):
+        if isinstance(sa, coal.Box) and isinstance(sb, coal.Box):
             bp = BoxPair(pair.index, _box(model, pair.first, ja), _box(model, pair.second, jb))
             out += [Feature("vertex_box" if i < 16 else "edge_edge", pair.index, i, ja, jb,
                             (bp.a.v[i] if i < 8 else bp.b.v[i - 8]) if i < 16 else np.zeros(3), box=bp)
                     for i in range(BOX_FEATURES)]
             continue
         raise UnsupportedModel(f"{model.scene.name}: pair '{pair.name}' ({type(sa).__name__} vs "
-                               f"{type(sb).__name__}): the event-driven reference has gaps for polytope, sphere or "
+                               f"{type(sb).__name__}): the feature integrators have gaps for polytope, sphere or "
                                "cylinder vs half-space, sphere vs sphere, sphere or cylinder vs static box, sphere "
-                               "vs cylinder and box vs box only"
-                               + ("" if box_pairs else " (box or cylinder vs box: event-driven only)"))
+                               "vs cylinder and box vs box only")
     return tuple(out)
 
 
 CYLINDER_KINDS = ("rim_plane", "rim_box", "side_edge", "sphere_cylinder")
 
 
-def _cylinder_features(model: Model, pair, box_pairs: bool = True) -> list[Feature] | None:
+def _cylinder_features(model: Model, pair) -> list[Feature] | None:
     """The features of a pair with a cylinder (docs/theory.md §7.2), or None for a pair type
     without them: a moving cylinder's two cap rims (feature 0: the cap at +halfLength along its
     axis, 1: at -halfLength) against a static half-space or box (and its side against the box's
-    edges; not if box_pairs=False: their stand-ins are not smooth); a sphere against a cylinder
-    (either moving). Gaps and rows do not depend on which shape coal lists first."""
+    edges); a sphere against a cylinder (either moving). Gaps and rows do not depend on which shape coal lists first."""
     gobs = model.geom.geometryObjects
     ends = [(pair.first, pair.joint_first), (pair.second, pair.joint_second)]
     if not isinstance(gobs[ends[0][0]].geometry, coal.Cylinder):
@@ -248,7 +248,7 @@ def _cylinder_features(model: Model, pair, box_pairs: bool = True) -> list[Featu
     if isinstance(shape, coal.Halfspace) and jx == 0 and jc != 0:
         _, n, d = model.bounds[gx]
         return [Feature("rim_plane", pair.index, k, jc, 0, centre, n, d, r=r, a=axis, hl=hl) for k in (0, 1)]
-    if isinstance(shape, coal.Box) and jx == 0 and jc != 0 and box_pairs:
+    if isinstance(shape, coal.Box) and jx == 0 and jc != 0:
         box = dict(r=r, R=other.placement.rotation.copy(), p_b=other.placement.translation.copy(),
                    h=np.asarray(shape.halfSide, float).copy(), a=axis, hl=hl)
         return ([Feature("rim_box", pair.index, k, jc, 0, centre, **box) for k in (0, 1)]
@@ -294,10 +294,6 @@ class FeatureState:
     W: np.ndarray
     drift: np.ndarray
     gamma: np.ndarray
-
-
-class CornerImpact(SimulationError):
-    """An impact at a corner (docs/theory.md §3): the feature integrators handle smooth contacts only."""
 
 
 class FeatureContacts:
@@ -377,6 +373,8 @@ class FeatureContacts:
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
+        self.margin = np.full(k, np.inf)  # [m] each feature's distance to the end of its region (below)
+        self.smooth = np.ones(k, bool)  # False: an edge pair's stand-in (its rows and drift are the lines')
         boxes: dict = {}
         for col, i in enumerate(idx):
             f = self.feats[i]
@@ -418,6 +416,8 @@ class FeatureContacts:
                 W[:, col] = n @ Jrel
         for bp, cols, which in boxes.values():
             g[cols], Wb, db = self._box_pair(bp, np.array(which), rows)
+            self.margin[cols] = self._box_margin
+            self.smooth[cols] = self._box_smooth
             if rows:
                 W[:, cols] = Wb
                 drift[cols] = db
@@ -649,6 +649,8 @@ class FeatureContacts:
         dc = cA - cB
         dist = float(np.sqrt(dc @ dc))
         k = len(which)
+        self._box_margin = np.full(k, np.inf)
+        self._box_smooth = np.ones(k, bool)
         if dist > A.r + B.r:  # bounding spheres apart: every feature is open; their gap stands in
             g = np.full(k, dist - A.r - B.r)
             if not rows:
@@ -678,15 +680,18 @@ class FeatureContacts:
             D = np.where(ina[:, None], (B.fd + NB @ tB)[None], (A.fd + NA @ tA)[None])
             S = np.einsum("vfe,ve->vf", N, P) - D
             # a face counts if its plane leaves the vertex's own cone outside (the vertex can touch it
-            # first), or if the vertex is clearly outside it (S > gap_tol: the vertex is out of the box)
+            # first), or if the vertex is outside it (S > G_RES: then g > 0 whatever the cone, so a
+            # block pivoting on one bottom corner keeps the other's gap over the face it comes down on)
             valid = np.einsum("vke,vfe->vkf", E, N).min(axis=1) >= -ARC_TOL
-            count = valid | (S > self.gap_tol)
+            count = valid | (S > G_RES)
             count[~count.any(axis=1)] = True
             f = np.where(count, S, -np.inf).argmax(axis=1)
             if self.faces:  # persistent vertices: the face chosen at the phase's start
                 f = np.array([self.faces.get((bp.pair, k), fk) for k, fk in zip(wv.tolist(), f.tolist())])
             self.box_faces[bp.pair] = (wv, f)
             g[v_sel] = S[np.arange(len(wv)), f]
+            # the vertex's distance to its face's edges: -max of the other faces' S (region, §7.1)
+            self._box_margin[v_sel] = -np.where(np.arange(6)[None] == f[:, None], -np.inf, S).max(axis=1)
             if rows:
                 n = N[np.arange(len(wv)), f] * np.where(ina, 1.0, -1.0)[:, None]  # from B to A
                 P_a[v_sel] = P_b[v_sel] = P
@@ -717,7 +722,11 @@ class FeatureContacts:
             ex_s = np.maximum(np.maximum(EDGE_END * la - s, s - (1.0 - EDGE_END) * la), 0.0)
             ex_t = np.maximum(np.maximum(EDGE_END * lb - t, t - (1.0 - EDGE_END) * lb), 0.0)
             active = ok & arcs & (ex_s == 0.0) & (ex_t == 0.0) & (d >= -min(A.half, B.half))
+            # the closest points' distance to the ends of the region where the pair counts (§7.1)
+            self._box_margin[e_sel] = np.where(ok, np.minimum.reduce(
+                [s - EDGE_END * la, (1.0 - EDGE_END) * la - s, t - EDGE_END * lb, (1.0 - EDGE_END) * lb - t]), np.inf)
             self.edge_active[bp.pair] = (which[e_sel], active)  # for tests
+            self._box_smooth[e_sel] = active
             g[e_sel] = np.where(active, d, np.where(ok, np.sqrt(d * d + ex_s * ex_s + ex_t * ex_t), A.r + B.r))
             if rows:
                 P_a[e_sel] = a0 + s[:, None] * ea
@@ -771,11 +780,14 @@ class FeatureContacts:
         self.t = t
         self.faces = {}  # chosen afresh at an event
         fs = self.features(q, u)
-        closed = fs.g <= self.gap_tol
+        closed = (fs.g <= self.gap_tol) & self.smooth  # an edge pair's stand-in is never a contact (§7.1)
         if (closed & (fs.gamma < -V_TOL)).any():
             u = self._impact(t, q, u, fs)
             fs = self.features(q, u)
-        touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL)) if i not in released]
+        # a box feature past the end of its region (margin < -G_REGION/2: a phase ends at -G_REGION, docs/theory.md
+        # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding and drift) does
+        inside = self.margin > -0.5 * G_REGION
+        touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL) & inside) if i not in released]
         if not touching:
             return u, (), ()
         # distinct rows only (the front and back corners of a planar block repeat each other)
@@ -806,10 +818,10 @@ class FeatureContacts:
         return u, C, shadow
 
     def _missed_features(self, fs: FeatureState, W: np.ndarray) -> list:
-        """Contact rows (as contacts.from_rows takes them) of the closed, approaching box-box features
-        (vertices, active edge pairs) whose row is not in the span of coal's rows W, and of the
-        closed, not separating cylinder features where their gap is the distance (§7.2: coal's one
-        witness of a cylinder on a box's edge) that are not one of those rows: an edge lying
+        """Contact rows (as contacts.from_rows takes them) of the closed box-box vertices and of the
+        closed, approaching active edge pairs whose row is not in the span of coal's rows W, and of
+        the closed, not separating cylinder features where their gap is the distance (§7.2: coal's
+        one witness of a cylinder on a box's edge) that are not one of those rows: an edge lying
         across a face meets the face's edges at points coal's one witness of that segment contact
         does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
         an arbitrary normal (docs/theory.md §7.1). Needs fs = self.features(q, u) of all features."""
@@ -820,10 +832,10 @@ class FeatureContacts:
                 if k >= 16 and not active[np.searchsorted(e_which, k)]:
                     continue
                 col = self.box_index[pair] + k
-                if fs.g[col] > self.gap_tol or fs.gamma[col] >= -V_TOL:
+                if fs.g[col] > self.gap_tol or (k >= 16 and fs.gamma[col] >= -V_TOL):
                     continue
                 w = fs.W[:, col]
-                if W.shape[1]:
+                if k >= 16 and W.shape[1]:  # a closed vertex's own row always replaces coal's
                     r = w - W @ np.linalg.lstsq(W, w, rcond=1e-12)[0]
                     if np.abs(r).max() <= 1e-9 * np.abs(w).max():
                         continue
@@ -849,27 +861,25 @@ class FeatureContacts:
         return out
 
     def _impact(self, t, q, u, fs: FeatureState) -> np.ndarray:
-        """The impact law (law.impact, docs/theory.md §1) on the contacts detect() closes at q."""
+        """The impact law on the contacts detect() closes at q: law.impact (docs/theory.md §1), or at
+        a corner the set-valued law with the scene's selection policy (§3, §7.2)."""
         pm, pd, model = self.pm, self.pd, self.model
         # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
         # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
         self.data.warm_start_pairs = set(self.data.warm_start_pairs) | {
             self.feats[i].pair for i in np.flatnonzero(fs.g <= self.gap_tol)}
         c = detect(model, self.data, q)
-        if c.corners:
-            raise CornerImpact(f"a corner impact at t = {t:.12g} s (docs/theory.md §3); the event-driven "
-                                  "reference handles smooth contacts only", t=t)
         cs = assemble_constraints(model, self.data, q, c)
-        missed = self._missed_features(fs, cs.W)
+        # (at a corner the struck vertex is the corner's: its faces are the pieces, not a feature row)
+        missed = self._missed_features(fs, cs.W) if cs.pieces is None else []
         if missed:  # they replace coal's contacts of the same vertices
             keys = {(m[4], int(m[5]), m[6]) for m in missed}
             keep = np.array([k not in keys for k in zip(c.pair.tolist(), c.kind.tolist(), c.feature.tolist())], bool)
             cs = assemble_constraints(model, self.data, q, c.select(keep).concat(from_rows(model, missed)))
         c, M, W = cs.contacts, cs.M, cs.W
-        if c.m == 0:
+        if c.m == 0 and cs.pieces is None:
             raise SimulationError(f"a gap event at t = {t:.12g} s but coal finds no closed contact")
-        gm = W.T @ u
-        if not (gm < -V_TOL).any():
+        if cs.pieces is None and not (W.T @ u < -V_TOL).any():
             raise SimulationError(f"a feature approaches at t = {t:.12g} s (gamma = {fs.gamma.min():.3g} m/s) but "
                                   "none of coal's closed contacts does")
         # the Zeno rule (module doc) on the approaching features: their free normal accelerations a_n
@@ -878,22 +888,36 @@ class FeatureContacts:
         speed = -fs.gamma[appr]
         low = ((self.e * speed) ** 2 < -2.0 * a_n * G_ZENO) | (speed < V_ZENO)
         zeno = bool(low.all()) or t - self.last_impact < DT_ZENO
-        imp = impact(M, W, u, 0.0 if zeno else self.e)
-        if zeno and self.e < 1.0:
+        e = 0.0 if zeno else self.e
+        if cs.pieces is None:
+            imp = impact(M, W, u, e)
+            P, res, u_plus, gm, gp, loss = imp.P, imp.qp, imp.u_plus, W.T @ u, W.T @ imp.u_plus, imp.energy_loss
+        else:  # the fixed step's corner law on a step of zero length (v_free = u-): one home for it
+            pb = ContactProblem(0.0, e, q, u, q, c, u, u, M, pin.computeMinverse(pm, pd, q), W, cs.pieces)
+            sol = solve_impact(pb, model.options)
+            if not sol.qp.ok:
+                raise SimulationError(f"the corner law failed ({sol.qp.status}) at t = {t:.12g} s")
+            c, P, res, u_plus, gm, gp = sol.contacts, sol.P, sol.qp, sol.u_next, sol.gamma_minus, sol.gamma_plus
+            dv = u - res.v  # the impact's energy identity holds at every stationary point (§3)
+            loss = 0.5 * (1.0 - e * e) * float(dv @ M @ dv)
+            if sol.branch is not None:
+                cand, chosen, ups = sol.branch
+                self.rec.branch(self.rec.n, t, chosen, [(up, k.distance, k.global_min)
+                                                        for up, k in zip(ups, cand.candidates)])
+        if zeno and self.e < 1.0 and len(speed):
             k = int(np.argmax(speed))
             dt = 2.0 * self.e * speed[k] / ((1.0 - self.e) * -a_n[k]) if a_n[k] < 0 else 0.0
             self.zeno.append({"t": t, "t_accumulation": float(t + dt), "speed": float(speed[k]),
                               "pairs": sorted(set(c.pair.tolist()))})
-        gp = W.T @ imp.u_plus
-        cut = LOG_RELATIVE * float(imp.P.max(initial=0.0))
-        for i in np.flatnonzero((imp.P > cut) & (imp.P > 0)):  # step: the index of the next sample
+        cut = LOG_RELATIVE * float(P.max(initial=0.0))
+        for i in np.flatnonzero((P > cut) & (P > 0)):  # step: the index of the next sample
             self.rec.log(PercussionRow(self.rec.n, t, int(c.pair[i]), int(c.kind[i]), int(c.feature[i]), float(c.g[i]),
-                                       float(imp.P[i]), float(gm[i]), float(gp[i]), c.point_a[i], c.normal[i], True))
-        self.rec.account_impact(t, q, u, imp.u_plus, M, imp.qp.v, 0.0 if zeno else self.e, imp.P)
-        self.work -= imp.energy_loss
+                                       float(P[i]), float(gm[i]), float(gp[i]), c.point_a[i], c.normal[i], True))
+        self.rec.account_impact(t, q, u, u_plus, M, res.v, e, P)
+        self.work -= loss
         self.last_impact = t
         self.impacts += 1
-        return imp.u_plus
+        return u_plus
 
 
 

@@ -145,7 +145,10 @@ def summary(traj: Trajectory) -> dict:
     return {
         "scene": traj.meta.get("scene", {}).get("name"),
         "status": traj.meta.get("status"),
-        "steps": run_.get("steps"),
+        "integrator": traj.meta.get("integrator", "time-stepping"),
+        "steps": run_.get("steps"),  # None for the event-driven integrator
+        "steps_fixed": run_.get("steps_fixed"),  # the adaptive integrator's fixed steps
+        "events": run_.get("events"),  # the event-driven and adaptive integrators' events
         "samples": int(len(a["t"])),
         "t_end": float(a["t"][-1]) if len(a["t"]) else None,
         "impacts": traj.impacts,

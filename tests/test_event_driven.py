@@ -17,7 +17,6 @@ from moreau_sim.bench.references import (
     zeno_time,
 )
 from moreau_sim.event_driven import EventDrivenRun, UnsupportedModel, simulate_event_driven
-from moreau_sim.features import CornerImpact
 from moreau_sim.trajectory import ARRAYS
 
 from helpers import BUNDLED, ROOT, lowest_corner_height, scene
@@ -164,18 +163,13 @@ def test_unsupported_pair_is_named():
 
 
 # The bundled scenes the event-driven integrator refuses, and what it says (everything else runs).
-REFUSED = {
-    "block_on_step": (CornerImpact, "a corner impact at t = 0 s"),
-    "blocks_corner": (CornerImpact, "a corner impact at t = 0 s"),
-    "corner_point": (CornerImpact, "a corner impact at t = 0 s"),
-    "corner_point_asymmetric": (CornerImpact, "a corner impact at t = 0 s"),
-}
+REFUSED: dict = {}
 
 
 @pytest.mark.parametrize("name", BUNDLED)
 def test_every_bundled_scene_runs_or_is_refused_by_name(name):
     """Each bundled scene runs 10 ms event-driven without energy gain, or is refused with
-    CornerImpact naming the instant / UnsupportedModel naming the pair (REFUSED, precisely)."""
+    UnsupportedModel naming the pair (REFUSED, precisely)."""
     model = ms.build_model(scene(name))
     if name in REFUSED:
         exc, message = REFUSED[name]
@@ -285,3 +279,50 @@ def test_feature_gaps_rows_and_drift_against_finite_differences(name):
     g = [integ.features(pin.integrate(model.pin, q, s * u + 0.5 * s * s * a), u, rows=False).g for s in (-eps, eps)]
     assert np.allclose((g[1] - g[0]) / (2 * eps), fs.gamma, rtol=0, atol=1e-7)
     assert np.allclose((g[1] - 2 * fs.g + g[0]) / eps ** 2, fs.W.T @ a + fs.drift, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+def test_corner_point_takes_the_set_valued_law(e):
+    """The point mass striking a convex corner (docs/theory.md §3.4, §4.4) at t = 0: with
+    u- = (1, 0.5) the stationary points are v in {(1, 0), (0, 0.5), (0, 0)}, (1, 0) the unique
+    global minimizer, u+ = (1, -0.5 e); with u- = (1, 1) two tie, (0, 1) and (1, 0)."""
+    tr = ref("corner_point_asymmetric", restitution=e, duration=0.1)
+    assert tr.log_t.tolist() == [0.0] and np.allclose(tr.u[-1], [1.0, -0.5 * e], rtol=0, atol=1e-12)
+    v = (np.asarray(tr.candidate_u_plus) + e * np.array([1.0, 0.5])) / (1.0 + e)
+    assert sorted(map(tuple, np.round(v, 9).tolist())) == [(0.0, 0.0), (0.0, 0.5), (1.0, 0.0)]
+    assert tr.candidate_global_min.tolist().count(True) == 1 and tr.branch_chosen.tolist() == [0]
+    loss = 0.5 * (1 - e * e) * 0.5 ** 2  # (1 - e^2)/2 |u- - v|_M^2
+    assert tr.total_energy[-1] == pytest.approx(tr.total_energy[0] - loss, abs=1e-14)
+    tr = ref("corner_point", restitution=e, duration=0.1)
+    v = (np.asarray(tr.candidate_u_plus) + e) / (1.0 + e)
+    assert sorted(map(tuple, np.round(v, 9).tolist())) == [(0.0, 0.0), (0.0, 1.0), (1.0, 0.0)]
+    assert tr.candidate_global_min.tolist().count(True) == 2
+
+
+def test_blocks_corner_outcomes():
+    """The paper's two blocks meeting vertex to vertex (e = 1, docs/theory.md §4.4): the outcomes
+    u+ in {(-0.2, -1, 2.4), (-1, -0.2, -2.4), (1, 1, 0)}, the first two the global minimizers; the
+    run goes on with the first, keeps its energy, and agrees with the fixed step's limit."""
+    tr = ref("blocks_corner")
+    cands = np.round(np.asarray(tr.candidate_u_plus), 9) + 0.0
+    assert sorted(map(tuple, cands.tolist())) == [(-1.0, -0.2, -2.4), (-0.2, -1.0, 2.4), (1.0, 1.0, 0.0)]
+    assert tr.candidate_global_min.tolist() == [True, True, False]
+    assert np.allclose(tr.u[1], [-0.2, -1.0, 2.4], rtol=0, atol=1e-12)
+    E = tr.total_energy
+    assert np.abs(E - E[0]).max() <= 1e-13
+    errs = [np.abs(ms.simulate(ms.build_model(scene("blocks_corner", dt=h)), progress=False).q[-1] - tr.q[-1]).max()
+            for h in (1e-3, 1e-4)]
+    assert errs[1] < errs[0] / 5 and errs[1] < 2e-4  # first order in h towards the located impacts
+
+
+def test_block_on_step_is_the_fixed_steps_limit():
+    """A block landing with a corner on a step's edge (docs/theory.md §3, §7): the corner law at
+    t = 0, then rocking, tipping and sliding on the step's top face (box features ending at their
+    regions' ends, §7.1). The fixed step's error shrinks in proportion to h towards this run."""
+    tr = ref("block_on_step", duration=0.6)
+    assert tr.complete and len(tr.branch_t) == 1 and tr.branch_t[0] == 0.0
+    errs = [np.abs(ms.simulate(ms.build_model(scene("block_on_step", duration=0.6, dt=h)), progress=False).q[-1]
+                   - tr.q[-1]).max() for h in (1e-3, 1e-4)]
+    assert errs[1] < errs[0] / 5 and errs[1] < 2e-4
+    E = tr.total_energy
+    assert (np.diff(E) <= 1e-12).all()  # never a gain

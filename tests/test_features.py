@@ -10,7 +10,7 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.features import BOX_FEATURES, Feature, FeatureContacts, UnsupportedModel, feature_list
+from moreau_sim.features import BOX_FEATURES, Feature, FeatureContacts, feature_list
 
 from helpers import ROOT, scene
 
@@ -95,14 +95,11 @@ def test_vertex_gap_is_its_depth_below_the_nearest_face():
     assert np.allclose(fs.W[:3, k], [0, 0, 1], atol=1e-12)  # the free root's translation rows: n
 
 
-def test_feature_count_and_adaptive_refusal():
-    """Each box pair has BOX_FEATURES features; the adaptive integrator keeps refusing box pairs
-    (box_pairs=False), naming the pair."""
+def test_feature_count():
+    """Each box pair has BOX_FEATURES features."""
     model = ms.build_model(scene("heavy_on_light_box_100"))
     feats = feature_list(model)
     assert sum(f.kind in ("vertex_box", "edge_edge") for f in feats) == BOX_FEATURES
-    with pytest.raises(UnsupportedModel, match="Box vs Box"):
-        feature_list(model, box_pairs=False)
 
 
 # ---- cylinder kinds (docs/theory.md §7.2) ---------------------------------------------------------
@@ -291,8 +288,8 @@ def test_cylinder_landing_on_its_cap_is_refused_by_name(tmp_path):
 def test_adaptive_takes_cylinders_on_a_plane_not_on_a_box(tmp_path):
     """The adaptive integrator uses the rims on a half-space (smooth): a tilted cylinder's
     impacts over 0.5 s (a rim, the other rim, the first again) are the event-driven ones; a
-    cylinder on a static box is refused by name (UnsupportedModel with box_pairs=False: the
-    stand-ins are not smooth)."""
+    cylinder on a static box runs on fixed steps, the reason naming the kinds (their stand-ins
+    jump)."""
     from moreau_sim.event_driven import simulate_event_driven
 
     model = _cylinder_drop(tmp_path, 0.5, (0.4, 0.3, 0.0), 0.3, duration=0.5)
@@ -304,5 +301,5 @@ def test_adaptive_takes_cylinders_on_a_plane_not_on_a_box(tmp_path):
     b = ms.SceneBuilder("cylinder_on_box", restitution=0.5, duration=0.1, folder=tmp_path)
     b.add_body("cyl", "cylinder.urdf", position=(0.0, 0.0, 0.3))
     b.add_box("table", (1.0, 1.0, 0.1))
-    with pytest.raises(UnsupportedModel, match=re.escape("(Cylinder vs Box)")):
-        feature_list(ms.build_model(b.build()), box_pairs=False)
+    tr = ms.run(b.build(), integrator="adaptive")
+    assert "cylinder vs box" in tr.meta["fallbacks"][0]["reason"] and tr.meta["run"]["steps_extrapolated"] == 0
