@@ -179,15 +179,17 @@ class EventDrivenRun(FeatureContacts):
         return f
 
     def _max_step(self, q, u, C, low) -> float:
-        """max_step, or less while a feature that just bounced rises: its rise to G_RES and
-        its fall back must not fit in one ODE step (a double crossing is invisible), so steps
+        """max_step, or less where a body could pass through a thin obstacle within one ODE step
+        (FeatureContacts.thin_limit), or while a feature that just bounced rises: its rise to G_RES
+        and its fall back must not fit in one ODE step (a double crossing is invisible), so steps
         stay below half its time to apex gamma / |a_n|."""
+        limit = min(self.max_step, self.thin_limit(u, self.dynamics(q, u, C)[0], self.max_step))
         if not low:
-            return self.max_step
+            return limit
         fs = self.features(q, u, low)
         a_n = fs.W.T @ self.dynamics(q, u, C)[0] + fs.drift
         up = (fs.gamma > V_TOL) & (a_n < 0)
-        return float(min(self.max_step, *(0.5 * fs.gamma[up] / -a_n[up]))) if up.any() else self.max_step
+        return float(min(limit, *(0.5 * fs.gamma[up] / -a_n[up]))) if up.any() else limit
 
     def _crossing(self, sol, qb, t0: float, t1: float, watch: list) -> float | None:
         """The earliest instant in (t0, t1) where a gap of `watch` (open at t0) crossed 0, if one is

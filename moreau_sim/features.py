@@ -749,6 +749,17 @@ class FeatureContacts:
         return g, self._rows(JA, JB, P_a, P_b, nn), (nn * da).sum(axis=1) + extra
 
 
+    def thin_limit(self, u: np.ndarray, a: np.ndarray, h: float) -> float:
+        """The longest step [s] over which no point can travel half the thinnest pair's extent
+        (Model.thinnest_pair) from velocities u at accelerations a (those of the phase's persistent
+        set) over a step of up to h: a gap cannot then go from one side of a thin obstacle to the
+        other between two checks."""
+        thin = self.model.thinnest_pair
+        if not np.isfinite(thin):
+            return np.inf
+        v = (float(np.abs(u).max()) + float(np.abs(a).max()) * h) * self.model.reach
+        return 0.5 * thin / v if v > 0.0 else np.inf
+
     # ---- dynamics --------------------------------------------------------------------------
     def dynamics(self, q, u, C):
         """(a, lam): free accelerations (ABA) plus the bilateral forces of the persistent set C."""

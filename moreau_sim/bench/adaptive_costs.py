@@ -62,7 +62,8 @@ CASES = (("ball e = 0.5", "bouncing_ball", 0.5, _ball_T(0.5), "ball"),
          ("box_drop", "box_drop", None, 0.6, "state"),
          ("pendulum_wall", "pendulum_wall", None, 2.0, "state"),
          ("rocking_block", "rocking_block", None, 0.4, "state"),
-         ("box_drop to rest", "box_drop", None, 1.5, "state"))
+         ("box_drop to rest", "box_drop", None, 1.5, "state"),
+         ("block_on_step (a corner, box on box)", "block_on_step", None, 1.0, "state"))
 
 
 class Case:
