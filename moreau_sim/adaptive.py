@@ -408,7 +408,7 @@ class AdaptiveRun(FeatureContacts):
             while True:  # the phase: steps until an event or t_end
                 self.t = t
                 h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)), self._box_limit(e0),
-                        self.thin_limit(u, e0.a, H))
+                        self.thin_limit(u, e0.a))
                 q1, u1, d = self._step(q, u, h, C)
                 err = self._error(q, u, q1, u1, d)
                 if not np.isfinite(err):  # an overflow (or a failed library call): no step size helps

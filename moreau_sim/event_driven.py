@@ -183,7 +183,7 @@ class EventDrivenRun(FeatureContacts):
         (FeatureContacts.thin_limit), or while a feature that just bounced rises: its rise to G_RES
         and its fall back must not fit in one ODE step (a double crossing is invisible), so steps
         stay below half its time to apex gamma / |a_n|."""
-        limit = min(self.max_step, self.thin_limit(u, self.dynamics(q, u, C)[0], self.max_step))
+        limit = min(self.max_step, self.thin_limit(u, self.dynamics(q, u, C)[0]))
         if not low:
             return limit
         fs = self.features(q, u, low)

@@ -749,16 +749,19 @@ class FeatureContacts:
         return g, self._rows(JA, JB, P_a, P_b, nn), (nn * da).sum(axis=1) + extra
 
 
-    def thin_limit(self, u: np.ndarray, a: np.ndarray, h: float) -> float:
-        """The longest step [s] over which no point can travel half the thinnest pair's extent
-        (Model.thinnest_pair) from velocities u at accelerations a (those of the phase's persistent
-        set) over a step of up to h: a gap cannot then go from one side of a thin obstacle to the
+    def thin_limit(self, u: np.ndarray, a: np.ndarray) -> float:
+        """The longest step h [s] over which no point can travel the thinnest pair's extent
+        (Model.thinnest_pair, the stepper's tunnelling bound) from velocities u at accelerations a
+        (those of the phase's persistent set): reach (|u| h + |a| h^2 / 2) <= thinnest_pair, reach
+        the model's largest lever arm. A gap then cannot go from one side of a thin obstacle to the
         other between two checks."""
         thin = self.model.thinnest_pair
         if not np.isfinite(thin):
             return np.inf
-        v = (float(np.abs(u).max()) + float(np.abs(a).max()) * h) * self.model.reach
-        return 0.5 * thin / v if v > 0.0 else np.inf
+        v, acc, x = float(np.abs(u).max()), float(np.abs(a).max()), thin / self.model.reach
+        if acc > 0.0:
+            return (np.sqrt(v * v + 2.0 * acc * x) - v) / acc
+        return x / v if v > 0.0 else np.inf
 
     # ---- dynamics --------------------------------------------------------------------------
     def dynamics(self, q, u, C):
