@@ -759,9 +759,8 @@ class FeatureContacts:
         if not np.isfinite(thin):
             return np.inf
         v, acc, x = float(np.abs(u).max()), float(np.abs(a).max()), thin / self.model.reach
-        if acc > 0.0:
-            return (np.sqrt(v * v + 2.0 * acc * x) - v) / acc
-        return x / v if v > 0.0 else np.inf
+        s = v + np.sqrt(v * v + 2.0 * acc * x)  # the root of the quadratic, without cancellation
+        return 2.0 * x / s if s > 0.0 else np.inf
 
     # ---- dynamics --------------------------------------------------------------------------
     def dynamics(self, q, u, C):
