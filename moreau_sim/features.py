@@ -14,8 +14,8 @@ box; for cylinders (docs/theory.md §7.2):
     sides, stops the run with a SimulationError naming the pair;
 and for two boxes (either moving, docs/theory.md §7.1), computed per pair in numpy:
   - "vertex_box": each box's vertices p in the other, g = max_f (n_f' p - d_f) over the other's
-    face planes (at a tie within contact_tolerance, the faces the vertex's own cone can touch
-    first), n the arg-max face's normal (kept through a phase while persistent), drift
+    face planes that count (those the vertex's own cone can touch first, and those p is outside
+    of by more than G_RES), n the arg-max face's normal (kept through a phase while persistent), drift
     n'(abar_A(p) - abar_B(p)) + 2 (w_face x n)' dv; its region ends at its face's edges;
   - "edge_edge": each of the 12 x 12 edge pairs, g = d = n'(a0 - b0) along n = +-(e_A x e_B)/|.|
     (outward of B's edge) while active (n in both edges' normal cones, the lines' closest points
