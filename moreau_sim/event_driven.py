@@ -65,16 +65,19 @@ At every event (and at the start) :func:`EventDrivenRun.resolve` applies, in ord
 
 from __future__ import annotations
 
-import time
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from .data import Data, make_data
 from .errors import SimulationError
+from .checkpoint import Checkpoint
+from .driver import Check, drive
 from .features import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_ZENO, LAM_EPS, V_TOL,  # noqa: F401
-                       V_ZENO, FeatureContacts, UnsupportedModel, run_recorded, sample_grid)
+                       V_ZENO, FeatureContacts, UnsupportedModel, sample_grid)
 from .model import Model, initial_state
+from .protocol import Report, Segment, Status
 from .recording import run_metadata
 from .state import State
 from .trajectory import Trajectory
@@ -93,14 +96,23 @@ def solve_ivp(fun, t_span, y0, **kwargs):
 
 
 class EventDrivenRun(FeatureContacts):
-    """One event-driven run (mutable bookkeeping; the public API is simulate_event_driven)."""
+    """The event-driven integrator behind the step protocol (protocol.py; the public API is
+    simulate_event_driven): a step is the decisions at an event and the smooth phase after it."""
+
+    unit = "phase"  # what position() counts, in error messages
+    grid = True
 
     def __init__(self, model: Model, data: Data, e: float, rtol: float, atol: float, method: str,
-                 max_step: float, max_events: int):
+                 max_step: float, max_events: int, *, state: State | None = None, t_end: float = np.inf):
         super().__init__(model, data, e)
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         self.rtol, self.atol, self.method, self.max_step, self.max_events = rtol, atol, method, max_step, max_events
-        self.events = 0
+        self.events = self.stuck = 0
+        state = state or initial_state(model)
+        self.state = State(float(state.t), np.array(state.q, float), np.array(state.u, float))
+        self.t0, self.t_end, self.t = self.state.t, float(t_end), self.state.t
+        self.released: frozenset = frozenset()  # released at the current event: not re-admitted there
+        self.opened: frozenset = frozenset()  # whose gap jumped open there
 
     # ---- dynamics --------------------------------------------------------------------------
     def q_of(self, qb: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -121,9 +133,9 @@ class EventDrivenRun(FeatureContacts):
             if key not in cache:
                 cache.clear()
                 q, u = self.q_of(qb, y[:self.nv]), y[self.nv:]
-                lam = self.dynamics(q, u, C)[1] if C else np.zeros(0)
-                margin = self.margin.copy() if C else np.zeros(0)  # C's, from dynamics' features call
-                gc = self.c_gaps if C else None
+                _, lam, fc = self.dynamics(q, u, C)
+                margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
+                gc = fc.g if C else None  # C's gaps
                 fs = self.features(q, u, watch, rows=False) if watch else None
                 fr = self.features(q, u, rated) if rated else None  # with rows: gamma
                 cache[key] = (fs, lam, margin, fr, gc)
@@ -211,60 +223,81 @@ class EventDrivenRun(FeatureContacts):
         return min(brentq(lambda tau, k=k: gaps(tau)[k] or 1e-300, t0, t1, xtol=eps, rtol=eps, maxiter=200,
                           disp=False) for k in np.flatnonzero(g1 < -G_RES))
 
-    def run(self, state: State, t_end: float, t_grid: np.ndarray) -> None:
+    def step(self, t_sample: float = np.inf) -> Report:
+        """The decisions at the current point (FeatureContacts.resolve: impact, persistent set),
+        then the smooth phase to its first event or t_end (module doc)."""
         nv, nf = self.nv, len(self.feats)
-        t, q, u = float(state.t), np.array(state.q, float), np.array(state.u, float)
-        gi = 0
-        while gi < len(t_grid) and t_grid[gi] <= t:  # the initial state, before any impact (as simulate)
-            self.sample(t, q, u, 0)
-            gi += 1
-        released: frozenset = frozenset()
-        opened: frozenset = frozenset()
-        stuck = 0
-        while True:
-            u, C, shadow = self.resolve(t, q, u, released)
-            free = [i for i in range(nf) if i not in C and i not in shadow]
-            g0 = self.features(q, u, free, rows=False).g if free else np.zeros(0)
-            # (a feature whose gap just jumped open is watched by its gap: it is at the jump, not near 0)
-            low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES and i not in opened]
-            near = {i for i, g in zip(free, g0) if 0.5 * G_RES <= g < G_DIP}
-            qb = q.copy()
-            events, tags = self._phase_events(qb, C, free, low, near)
-            sol = solve_ivp(self._rhs(qb, C), (t, t_end), np.concatenate((np.zeros(nv), u)), method=self.method,
-                            dense_output=True, events=events or None, rtol=self.rtol, atol=self.atol,
-                            max_step=self._max_step(q, u, C, low))
-            if sol.status < 0:
-                raise SimulationError(f"solve_ivp failed: {sol.message}")
-            t_stop, end = float(sol.t[-1]), sol.status == 0
-            y_stop = sol.y[:, -1]
-            if not end:  # a gap that dipped below 0 within one ODE step: stop where it crossed
-                t_cross = self._crossing(sol, qb, t, t_stop, [i for i in free if i not in low])
-                if t_cross is not None:
-                    t_stop, y_stop = t_cross, sol.sol(t_cross)
-            while gi < len(t_grid) and (t_grid[gi] < t_stop or (end and t_grid[gi] <= t_stop)):
-                y = sol.sol(t_grid[gi])
-                self.sample(float(t_grid[gi]), self.q_of(qb, y[:nv]), y[nv:], len(C))
-                gi += 1
-            if end:
-                return
-            self.t = t_stop
-            self.events += 1
-            if self.events > self.max_events:
-                raise SimulationError(f"more than {self.max_events} events")
-            stuck = stuck + 1 if t_stop - t < 1e-13 else 0
-            if stuck > 100:
-                raise SimulationError("100 events without time advancing")
-            q, u, t = self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy(), t_stop
-            stopped = [(kind, i) for (kind, i), te in zip(tags, sol.t_events)
-                       if len(te) and abs(te[-1] - t_stop) <= 1e-12]
-            released = frozenset(i for kind, i in stopped if kind in ("release", "open"))
-            opened = frozenset(i for kind, i in stopped if kind == "open")
+        t, q, u = self.state.t, self.state.q, self.state.u
+        self.t = t
+        u, C, shadow, records, work = self.resolve(t, q, u, self.released)
+        free = [i for i in range(nf) if i not in C and i not in shadow]
+        g0 = self.features(q, u, free, rows=False).g if free else np.zeros(0)
+        # (a feature whose gap just jumped open is watched by its gap: it is at the jump, not near 0)
+        low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES and i not in self.opened]
+        near = {i for i, g in zip(free, g0) if 0.5 * G_RES <= g < G_DIP}
+        qb = q.copy()
+        events, tags = self._phase_events(qb, C, free, low, near)
+        sol = solve_ivp(self._rhs(qb, C), (t, self.t_end), np.concatenate((np.zeros(nv), u)), method=self.method,
+                        dense_output=True, events=events or None, rtol=self.rtol, atol=self.atol,
+                        max_step=self._max_step(q, u, C, low))
+        if sol.status < 0:
+            raise SimulationError(f"solve_ivp failed: {sol.message}")
+        t_stop, end = float(sol.t[-1]), sol.status == 0
+        y_stop = sol.y[:, -1]
+        if not end:  # a gap that dipped below 0 within one ODE step: stop where it crossed
+            t_cross = self._crossing(sol, qb, t, t_stop, [i for i in free if i not in low])
+            if t_cross is not None:
+                t_stop, y_stop = t_cross, sol.sol(t_cross)
+
+        def dense(tg: float):
+            y = sol.sol(tg)
+            return self.q_of(qb, y[:nv]), y[nv:]
+        samples = (Segment(dense, t_stop, end, len(C)),)
+        if end:
+            self.state = State(t_stop, self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy())
+            return Report(Status.FINISHED, t_stop, self.state, records, work, segments=samples)
+        self.t = t_stop
+        self.events += 1
+        if self.events > self.max_events:
+            raise SimulationError(f"more than {self.max_events} events")
+        self.stuck = self.stuck + 1 if t_stop - t < 1e-13 else 0
+        if self.stuck > 100:
+            raise SimulationError("100 events without time advancing")
+        self.state = State(t_stop, self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy())
+        stopped = [(kind, i) for (kind, i), te in zip(tags, sol.t_events) if len(te) and abs(te[-1] - t_stop) <= 1e-12]
+        self.released = frozenset(i for kind, i in stopped if kind in ("release", "open"))
+        self.opened = frozenset(i for kind, i in stopped if kind == "open")
+        return Report(Status.RUNNING, t_stop, self.state, records, work, segments=samples)
+
+    def position(self) -> tuple[int, float]:
+        return self.events + 1, self.t
+
+    def progress(self) -> tuple[float, float, str]:
+        return self.state.t - self.t0, self.t_end - self.t0, "s"
+
+    def state_dict(self) -> dict:
+        return {**self.contact_state(), "released": sorted(self.released), "opened": sorted(self.opened),
+                "stuck": self.stuck, "events": self.events}
+
+    def load_state_dict(self, d: dict) -> None:
+        self.load_contact_state(d)
+        self.released, self.opened = frozenset(d["released"]), frozenset(d["opened"])
+        self.stuck, self.events = int(d["stuck"]), int(d["events"])
+
+    def meta(self, status: str, wall: float) -> dict:
+        reference = {"method": self.method, "rtol": self.rtol, "atol": self.atol, "max_step": self.max_step,
+                     "gap_tol": self.gap_tol, "v_tol": V_TOL, "g_res": G_RES, "g_zeno": G_ZENO, "v_zeno": V_ZENO,
+                     "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "lie_group_chart": self.lie}
+        run = {"steps": None, "events": self.events, "impacts": self.impacts, "nfev": self.nfev,
+               "wall_seconds": wall}
+        return run_metadata(self.model, status, run, integrator="event-driven", reference=reference, zeno=self.zeno)
 
 
 def simulate_event_driven(model: Model, *, state: State | None = None, t_end: float | None = None,
                           rtol: float = 1e-12, atol: float = 1e-12, method: str = "DOP853",
                           t_eval=None, max_step: float = 1e-2, max_events: int = 100_000,
-                          data: Data | None = None) -> Trajectory:
+                          data: Data | None = None, progress: bool = False, checkpoint: Checkpoint | None = None,
+                          spill: str | Path | None = None, check: Check | None = None) -> Trajectory:
     """Integrate `model` event by event (module doc) from `state` (default: the scene's initial
     state) to `t_end` [s] (default: state.t + the scene's duration), restitution = the scene's e.
 
@@ -272,7 +305,8 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     explicit solve_ivp method; max_step [s]: bound on an ODE step (no gap dips below 0 and back
     unseen within one step); t_eval: sample instants [s] in [t0, t_end] (default: every
     save_every * dt of the scene's options, the instants ms.simulate records);
-    max_events: give up beyond this many events.
+    max_events: give up beyond this many events; progress, checkpoint, spill, check: as
+    ms.simulate (driver.drive).
 
     Returns a :class:`Trajectory` with ms.simulate's arrays: samples at t_eval (a sample at an
     impact instant is the post-impact state, one at t0 the initial state); one log row per
@@ -286,14 +320,7 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     data = data or make_data(model)
     state = state or initial_state(model)
     t_end, t_grid = sample_grid(model, state, t_end, t_eval)
-    integ = EventDrivenRun(model, data, model.options.restitution, rtol, atol, method, max_step, max_events)
-    return run_recorded(integ, state, t_end, t_grid, _meta)
-
-
-def _meta(model: Model, integ: EventDrivenRun, status: str, wall0: float) -> dict:
-    reference = {"method": integ.method, "rtol": integ.rtol, "atol": integ.atol, "max_step": integ.max_step,
-                 "gap_tol": integ.gap_tol, "v_tol": V_TOL, "g_res": G_RES, "g_zeno": G_ZENO, "v_zeno": V_ZENO,
-                 "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "lie_group_chart": integ.lie}
-    run = {"steps": None, "events": integ.events, "impacts": integ.impacts, "nfev": integ.nfev,
-           "wall_seconds": time.perf_counter() - wall0}
-    return run_metadata(model, status, run, integrator="event-driven", reference=reference, zeno=integ.zeno)
+    integ = EventDrivenRun(model, data, model.options.restitution, rtol, atol, method, max_step, max_events,
+                           state=state, t_end=t_end)
+    return drive(integ, model, data, grid=t_grid, progress=progress, checkpoint=checkpoint, spill=spill, check=check,
+                 capacity=len(t_grid))

@@ -39,7 +39,6 @@ decides which touching contacts persist (event_driven.py's module doc states the
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import coal
@@ -49,13 +48,12 @@ import pinocchio as pin
 from .constraints import assemble_constraints
 from .contacts import FeatureKind, detect, from_rows
 from .data import Data
-from .errors import MoreauSimError, SimulationError, named_stops
+from .errors import MoreauSimError, SimulationError
 from .law import impact, project
 from .model import Model
-from .recording import LOG_RELATIVE, PercussionRow, Recorder
+from .protocol import Impact
 from .state import State
 from .stepper import ContactProblem, solve_impact
-from .trajectory import Trajectory
 
 V_TOL = 1e-9  # [m/s] |gamma| <= this on a closed feature: touching, not impacting
 G_RES = 1e-13  # [m] smallest gap whose sign is trusted (~3000x the rounding of positions ~ 1 m)
@@ -288,12 +286,25 @@ def _perp(a: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, slots=True)
 class FeatureState:
-    """Gaps g [m], rows W (nv, k), drift Wdot' u [m/s^2] and gamma = W' u [m/s] of features."""
+    """Gaps g [m], rows W (nv, k), drift Wdot' u [m/s^2] and gamma = W' u [m/s] of features; margin
+    [m]: each one's distance to the end of its region (inf: none, docs/theory.md §7.1); smooth:
+    False for an edge pair's stand-in; of the box pairs and cylinder features computed: faces
+    (pair -> (vertex features, their faces)), points (pair -> (features, points on A, on B,
+    normals), with rows), edges (pair -> (edge features, active: the gap is d, not a stand-in)),
+    exact (cylinder feature -> its gap is the distance), witness (cylinder feature -> (point on
+    A, on B, normal B to A), with rows)."""
 
     g: np.ndarray
     W: np.ndarray
     drift: np.ndarray
     gamma: np.ndarray
+    margin: np.ndarray
+    smooth: np.ndarray
+    faces: dict
+    points: dict
+    edges: dict
+    exact: dict
+    witness: dict
 
 
 class FeatureContacts:
@@ -309,29 +320,40 @@ class FeatureContacts:
         self.nv = model.nv
         self.feats = feature_list(model) if feats is None else feats
         self.zero = np.zeros(self.nv)
-        self.rec: Recorder | None = None
         self.zeno: list[dict] = []
-        self.work = 0.0  # contact work since the last sample [J] (= -energy lost in impacts)
         self.last_impact = -np.inf
         self.impacts = self.nfev = 0
         self.t = float("nan")  # [s] where the run is (errors name it): a step's or phase's start, an event
-        self.box_faces: dict = {}  # pair -> (vertex features, their faces) at the last call
         self.faces: dict = {}  # (pair, vertex feature) -> its face, for the persistent vertices of a phase
-        self.box_points: dict = {}  # pair -> (features, points on A, on B, normals) at the last call with rows
         # pair -> the column of its feature 0 in feats (box pairs' features are consecutive)
         self.box_index = {f.pair: i for i, f in reversed(list(enumerate(self.feats))) if f.box is not None}
         self._redundant: dict = {}  # persistent set C -> its rows are linearly dependent
-        self.edge_active: dict = {}  # pair -> (edge features, gap was d: not a stand-in) at the last call
         self._pair_names = {p.index: p.name for p in model.pairs}
-        self.cyl_exact: dict = {}  # cylinder feature -> its gap was the distance (not a stand-in) at the last call
         self._exact = True
         self._witness: tuple = ()
         self._u = self.zero
-        self.cyl_points: dict = {}  # cylinder feature -> (point on A, on B, normal B to A) at the last call with rows
         # cylinder features whose A (the cylinder of rim/side kinds, the sphere) is coal's second shape
         first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
         self._cyl_swapped = {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
                              for i, f in enumerate(self.feats) if f.kind in CYLINDER_KINDS}
+
+    # ---- checkpoints (protocol.Integrator.state_dict) -----------------------------------------
+    def contact_state(self) -> dict:
+        """What the contact decisions carry between accepted points, and the current state, as JSON."""
+        s = self.state
+        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "zeno": self.zeno,
+                "last_impact": None if self.last_impact == -np.inf else self.last_impact,
+                "impacts": self.impacts, "nfev": self.nfev,
+                "redundant": [[list(C), r] for C, r in self._redundant.items()],
+                "faces": [[p, k, f] for (p, k), f in self.faces.items()]}
+
+    def load_contact_state(self, d: dict) -> None:
+        self.state = State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float))
+        self.t, self.zeno = float(d["t_now"]), list(d["zeno"])
+        self.last_impact = -np.inf if d["last_impact"] is None else float(d["last_impact"])
+        self.impacts, self.nfev = int(d["impacts"]), int(d["nfev"])
+        self._redundant = {tuple(C): bool(r) for C, r in d["redundant"]}
+        self.faces = {(int(p), int(k)): int(f) for p, k, f in d["faces"]}
 
     # ---- kinematics of the features -------------------------------------------------------
     def _point(self, j: int, p_local: np.ndarray, rows: bool):
@@ -363,18 +385,15 @@ class FeatureContacts:
             pin.computeJointJacobians(pm, pd, q)
         pin.forwardKinematics(pm, pd, q, u, self.zero)
         self._frames, self._J = {}, None
-        self.box_points.clear()
-        self.box_faces.clear()
-        self.edge_active.clear()
-        self.cyl_exact.clear()
-        self.cyl_points.clear()
+        # this call's scratch (FeatureState's dicts), filled by the kinds' helpers
+        self.box_points, self.box_faces, self.edge_active, self.cyl_exact, self.cyl_points = {}, {}, {}, {}, {}
         self._screens, self._sides = {}, {}
         self._u = u
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
-        self.margin = np.full(k, np.inf)  # [m] each feature's distance to the end of its region (below)
-        self.smooth = np.ones(k, bool)  # False: an edge pair's stand-in (its rows and drift are the lines')
+        margin = np.full(k, np.inf)  # [m] each feature's distance to the end of its region (below)
+        smooth = np.ones(k, bool)  # False: an edge pair's stand-in (its rows and drift are the lines')
         boxes: dict = {}
         for col, i in enumerate(idx):
             f = self.feats[i]
@@ -416,13 +435,14 @@ class FeatureContacts:
                 W[:, col] = n @ Jrel
         for bp, cols, which in boxes.values():
             g[cols], Wb, db = self._box_pair(bp, np.array(which), rows)
-            self.margin[cols] = self._box_margin
-            self.smooth[cols] = self._box_smooth
+            margin[cols] = self._box_margin
+            smooth[cols] = self._box_smooth
             if rows:
                 W[:, cols] = Wb
                 drift[cols] = db
         gamma = W.T @ u if rows else np.zeros(k)
-        return FeatureState(g, W, drift, gamma)
+        return FeatureState(g, W, drift, gamma, margin, smooth, self.box_faces, self.box_points, self.edge_active,
+                            self.cyl_exact, self.cyl_points)
 
     # ---- cylinder kinds (docs/theory.md §7.2) ---------------------------------------------------
     def _frame0(self, j: int):
@@ -764,13 +784,13 @@ class FeatureContacts:
 
     # ---- dynamics --------------------------------------------------------------------------
     def dynamics(self, q, u, C):
-        """(a, lam): free accelerations (ABA) plus the bilateral forces of the persistent set C."""
+        """(a, lam, fs): free accelerations (ABA) plus the bilateral forces of the persistent set C,
+        their multipliers, and C's FeatureState (None without C)."""
         self.nfev += 1
         a = pin.aba(self.pm, self.pd, q, u, self.zero).copy()
         if not C:
-            return a, np.zeros(0)
+            return a, np.zeros(0), None
         fs = self.features(q, u, C)
-        self.c_gaps = fs.g  # the persistent features' gaps (event_driven watches them open)
         Minv = pin.computeMinverse(self.pm, self.pd, q)
         MiW = Minv @ fs.W
         G = fs.W.T @ MiW
@@ -779,30 +799,33 @@ class FeatureContacts:
         if redundant is None:  # rows of C dependent (4 corners of a face on a face): decided once per set
             redundant = self._redundant[C] = bool(np.linalg.matrix_rank(fs.W) < len(C))
         if redundant:
-            return a + MiW @ (lam := np.linalg.lstsq(G, rhs, rcond=1e-12)[0]), lam  # minimum-norm forces
+            return a + MiW @ (lam := np.linalg.lstsq(G, rhs, rcond=1e-12)[0]), lam, fs  # minimum-norm forces
         try:
             lam = np.linalg.solve(G, rhs)
         except np.linalg.LinAlgError:
             lam = np.linalg.lstsq(G, rhs, rcond=1e-12)[0]  # redundant rows: minimum-norm forces
-        return a + MiW @ lam, lam
+        return a + MiW @ lam, lam, fs
 
     # ---- events ----------------------------------------------------------------------------
     def resolve(self, t: float, q: np.ndarray, u: np.ndarray, released: frozenset):
         """Impact (with the Zeno rule), then the persistent set C at (t, q, u) (module doc).
-        Returns (u, C, shadow): C persistent features, shadow: duplicates of C's rows."""
+        Returns (u, C, shadow, records, work): C persistent features, shadow: duplicates of C's
+        rows; records: the impact to record (protocol.Impact) if any, work: its contact work [J]."""
         self.t = t
         self.faces = {}  # chosen afresh at an event
         fs = self.features(q, u)
-        closed = (fs.g <= self.gap_tol) & self.smooth  # an edge pair's stand-in is never a contact (§7.1)
+        closed = (fs.g <= self.gap_tol) & fs.smooth  # an edge pair's stand-in is never a contact (§7.1)
+        records, work = (), 0.0
         if (closed & (fs.gamma < -V_TOL)).any():
-            u = self._impact(t, q, u, fs)
+            u, imp, work = self._impact(t, q, u, fs)
+            records = (imp,)
             fs = self.features(q, u)
         # a box feature past the end of its region (margin < -G_REGION/2: a phase ends at -G_REGION, docs/theory.md
         # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding and drift) does
-        inside = self.margin > -0.5 * G_REGION
+        inside = fs.margin > -0.5 * G_REGION
         touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL) & inside) if i not in released]
         if not touching:
-            return u, (), ()
+            return u, (), (), records, work
         # distinct rows only (the front and back corners of a planar block repeat each other)
         keep, shadow = [], []
         scale = 1e-12 * (1.0 + np.abs(fs.W).max())
@@ -820,7 +843,7 @@ class FeatureContacts:
         for i in C:  # a persistent vertex keeps its face through the phase (its row may not flip at a tie)
             f = self.feats[i]
             if f.kind == "vertex_box":
-                wv, faces = self.box_faces[f.pair]
+                wv, faces = fs.faces[f.pair]
                 self.faces[(f.pair, f.feature)] = int(faces[np.searchsorted(wv, f.feature)])
         if C:  # remove the residual normal velocity of the persistent contacts (~1e-16)
             Minv = pin.computeMinverse(self.pm, self.pd, q)
@@ -828,7 +851,7 @@ class FeatureContacts:
             MiW = Minv @ W
             u = u - MiW @ np.linalg.lstsq(W.T @ MiW, W.T @ u, rcond=1e-12)[0]
         shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in C))
-        return u, C, shadow
+        return u, C, shadow, records, work
 
     def _missed_features(self, fs: FeatureState, W: np.ndarray) -> list:
         """Contact rows (as contacts.from_rows takes them) of the closed box-box vertices and of the
@@ -839,8 +862,8 @@ class FeatureContacts:
         does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
         an arbitrary normal (docs/theory.md §7.1). Needs fs = self.features(q, u) of all features."""
         out = []
-        for pair, (which, P_a, P_b, nn) in self.box_points.items():
-            e_which, active = self.edge_active.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
+        for pair, (which, P_a, P_b, nn) in fs.points.items():
+            e_which, active = fs.edges.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
             for i, k in enumerate(which.tolist()):
                 if k >= 16 and not active[np.searchsorted(e_which, k)]:
                     continue
@@ -858,8 +881,8 @@ class FeatureContacts:
         # cylinder features (§7.2): coal's one witness per pair misses e.g. a cylinder's side on a box's edge
         # touching ones too: coal's witness normal of a cylinder on an edge is off by ~1e-6, and an impact
         # elsewhere then left the exact feature approaching at 2e-7 m/s, neither impacted nor persistent
-        for i, (pa, pb, n) in self.cyl_points.items():
-            if fs.g[i] > self.gap_tol or fs.gamma[i] > V_TOL or not self.cyl_exact.get(i, False):
+        for i, (pa, pb, n) in fs.witness.items():
+            if fs.g[i] > self.gap_tol or fs.gamma[i] > V_TOL or not fs.exact.get(i, False):
                 continue
             w = fs.W[:, i]
             if W.shape[1] and (np.abs(W - w[:, None]).max(axis=0) <= 1e-9 * np.abs(w).max()).any():
@@ -873,9 +896,10 @@ class FeatureContacts:
             W = np.column_stack((W, w))
         return out
 
-    def _impact(self, t, q, u, fs: FeatureState) -> np.ndarray:
+    def _impact(self, t, q, u, fs: FeatureState) -> tuple[np.ndarray, Impact, float]:
         """The impact law on the contacts detect() closes at q: law.impact (docs/theory.md §1), or at
-        a corner the set-valued law with the scene's selection policy (§3, §7.2)."""
+        a corner the set-valued law with the scene's selection policy (§3, §7.2). Returns (u+, the
+        impact to record, the contact work -(energy lost) [J])."""
         pm, pd, model = self.pm, self.pd, self.model
         # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
         # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
@@ -905,6 +929,7 @@ class FeatureContacts:
         if cs.pieces is None:
             imp = impact(M, W, u, e)
             P, res, u_plus, gm, gp, loss = imp.P, imp.qp, imp.u_plus, W.T @ u, W.T @ imp.u_plus, imp.energy_loss
+            branch = None
         else:  # the fixed step's corner law on a step of zero length (v_free = u-): one home for it
             pb = ContactProblem(0.0, e, q, u, q, c, u, u, M, pin.computeMinverse(pm, pd, q), W, cs.pieces)
             sol = solve_impact(pb, model.options)
@@ -913,44 +938,17 @@ class FeatureContacts:
             c, P, res, u_plus, gm, gp = sol.contacts, sol.P, sol.qp, sol.u_next, sol.gamma_minus, sol.gamma_plus
             dv = u - res.v  # the impact's energy identity holds at every stationary point (§3)
             loss = 0.5 * (1.0 - e * e) * float(dv @ M @ dv)
-            if sol.branch is not None:
-                cand, chosen, ups = sol.branch
-                self.rec.branch(self.rec.n, t, chosen, [(up, k.distance, k.global_min)
-                                                        for up, k in zip(ups, cand.candidates)])
+            branch = sol.branch
         if zeno and self.e < 1.0 and len(speed):
             k = int(np.argmax(speed))
             dt = 2.0 * self.e * speed[k] / ((1.0 - self.e) * -a_n[k]) if a_n[k] < 0 else 0.0
             self.zeno.append({"t": t, "t_accumulation": float(t + dt), "speed": float(speed[k]),
                               "pairs": sorted(set(c.pair.tolist()))})
-        cut = LOG_RELATIVE * float(P.max(initial=0.0))
-        for i in np.flatnonzero((P > cut) & (P > 0)):  # step: the index of the next sample
-            self.rec.log(PercussionRow(self.rec.n, t, int(c.pair[i]), int(c.kind[i]), int(c.feature[i]), float(c.g[i]),
-                                       float(P[i]), float(gm[i]), float(gp[i]), c.point_a[i], c.normal[i], True))
-        self.rec.account_impact(t, q, u, u_plus, M, res.v, e, P)
-        self.work -= loss
         self.last_impact = t
         self.impacts += 1
-        return u_plus
+        return u_plus, Impact(t, q, u, u_plus, M, res.v, e, c, P, gm, gp, branch), -loss
 
 
-
-    unit = "phase"  # what position() counts, in error messages
-
-    def position(self) -> tuple[int, float]:
-        """(the number of the step or phase under way, its time [s]): what an error names."""
-        return self.events + 1, self.t
-
-    def sample(self, t: float, q: np.ndarray, u: np.ndarray, n_contacts: int, corr: float = 0.0) -> None:
-        """Record a sample with the contact work (and correction energy) since the previous one;
-        a non-finite one stops the run (nothing non-finite is ever complete)."""
-        state = State(t, q, u)
-        if not state.finite():
-            raise SimulationError(f"the state at t = {t:.6g} s became non-finite (NaN or inf)")
-        self.rec.sample(state, self.work, corr, n_contacts)
-        self.work = 0.0
-        if not self.rec.finite():
-            raise SimulationError(f"the energies or gaps at t = {t:.6g} s became non-finite (an overflow: check "
-                                  "gravity, masses and initial velocities)")
 
 
 def sample_grid(model: Model, state: State, t_end: float | None, t_eval) -> tuple[float, np.ndarray]:
@@ -968,19 +966,3 @@ def sample_grid(model: Model, state: State, t_end: float | None, t_eval) -> tupl
     if t_grid.ndim != 1 or np.any(np.diff(t_grid) <= 0) or t_grid[0] < state.t or t_grid[-1] > t_end:
         raise ValueError(f"t_eval must increase strictly within [{state.t}, {t_end}] s")
     return t_end, t_grid
-
-
-def run_recorded(integ: FeatureContacts, state: State, t_end: float, t_grid: np.ndarray, meta) -> Trajectory:
-    """integ.run(state, t_end, t_grid) into a new Recorder; the Trajectory with meta(model, integ,
-    status, wall0), or (errors.named_stops) SimulationError naming integ.position() with
-    .trajectory up to the failure, SimulationInterrupted on Ctrl-C."""
-    integ.rec = Recorder(integ.model, integ.data, len(t_grid))
-    integ.t = float(state.t)
-    wall0 = time.perf_counter()
-
-    def partial(status: str) -> Trajectory:
-        return integ.rec.trajectory(meta(integ.model, integ, status, wall0))
-
-    with named_stops(integ.position, partial, unit=integ.unit):
-        integ.run(state, t_end, t_grid)
-    return integ.rec.trajectory(meta(integ.model, integ, "complete", wall0))
