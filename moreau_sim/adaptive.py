@@ -58,14 +58,14 @@ from .data import Data, make_data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
 from .driver import Check, drive
-from .features import (G_REGION, G_RES, LAM_EPS, V_TOL, FeatureContacts, UnsupportedModel,
-                       feature_list, sample_grid)
+from .event_rules import G_REGION, G_RES, LAM_EPS, V_TOL, FeatureContacts, sample_grid
+from .gaps import UnsupportedModel, feature_list
 from .model import Model, initial_state
 from .options import Bias
 from .protocol import FixedStep, Report, Segment, Status
 from .recording import run_metadata
 from .state import State
-from .stepper import MIDPOINT_ITERATIONS, free_velocity, step
+from .stepper import free_velocity, midpoint_fixed_point, step
 from .trajectory import Trajectory
 
 ORDERS = (4, 6, 8)  # n = 1..order/2 midpoint steps of H/n, extrapolated in h^2
@@ -212,14 +212,8 @@ class AdaptiveRun(FeatureContacts):
         else:
             def acc(v):
                 return self.dynamics(q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
-            u1 = u + h * acc(u)
             tol = FIXED_POINT * (self.atol + self.rtol * float(np.abs(u).max()))
-            for _ in range(MIDPOINT_ITERATIONS):
-                nxt = u + h * acc(0.5 * (u + u1))
-                done = float(np.abs(nxt - u1).max()) <= tol
-                u1 = nxt
-                if done:
-                    break
+            u1 = midpoint_fixed_point(acc, u, h, u + h * acc(u), tol)
         return pin.integrate(pm, q_m, 0.5 * h * u1), u1
 
     def _delta(self, q0, q):

@@ -52,7 +52,8 @@ from .options import Selection, check_restitution
 
 MAX_PIECES = 6  # 2^6 - 1 = 63 QPs; more pieces means the contact model is wrong, not big.
 
-__all__ = ["MAX_PIECES", "Candidate", "CornerSolution", "impact_outcomes", "select", "stationary_points"]
+__all__ = ["MAX_PIECES", "Candidate", "CornerLaw", "CornerSolution", "corner_law", "impact_outcomes", "select",
+           "stationary_points"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -186,6 +187,42 @@ def select(solution: CornerSolution, policy: Selection | str = Selection.GLOBAL_
             if union <= set(c.pieces):
                 return i
     return 0
+
+
+@dataclass(frozen=True, eq=False)
+class CornerLaw:
+    """The set-valued law applied (docs/theory.md §3): v the chosen stationary point; W (nv, m + k)
+    the smooth rows then the rows of the chosen piece(s)' faces, `faces` [(corner, face)] (k);
+    lam their multipliers in that order (M (v - v0) = W lam); solution, chosen: all stationary
+    points and the index of the one taken; u_plus: each candidate's outcome when there are
+    several (a branch), else None."""
+
+    v: np.ndarray
+    W: np.ndarray
+    faces: list
+    lam: np.ndarray
+    solution: CornerSolution
+    chosen: int
+    u_plus: tuple | None
+
+
+def corner_law(M, v0, u_minus, e, W, pieces, rows, choice, *, selection: Selection | str = Selection.GLOBAL_MIN,
+               pick: int | None = None) -> CornerLaw | None:
+    """The corner law of a step (v0 = v_free) or of an impact at one instant (v0 = u_minus): the
+    stationary points over the union of `pieces` with the smooth rows W (nv, m), the one
+    `selection` picks (or candidate `pick`); rows[c]: corner c's face rows (k_c, nv); choice[j]:
+    the face per corner of piece j. None when there are more than MAX_PIECES pieces."""
+    if len(pieces) > MAX_PIECES:
+        return None
+    sol = stationary_points(M, v0, list(pieces), W if W.shape[1] else None)
+    k = select(sol, selection) if pick is None else min(pick, len(sol.candidates) - 1)
+    cand = sol.candidates[k]
+    faces = [(c, choice[j][c]) for j in cand.pieces for c in range(len(rows))]
+    face_rows = np.array([rows[c][f] for c, f in faces]).reshape(len(faces), -1).T
+    lam = np.asarray(cand.multipliers, float)
+    u_plus = None if sol.unique else tuple(outcome(np.asarray(c.v), u_minus, e) for c in sol.candidates)
+    return CornerLaw(np.array(cand.v), np.concatenate((W, face_rows), axis=1), faces,
+                     np.concatenate((lam[len(faces):], lam[:len(faces)])), sol, k, u_plus)
 
 
 # --- internals ---------------------------------------------------------------------------------

@@ -74,8 +74,8 @@ from .data import Data, make_data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
 from .driver import Check, drive
-from .features import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_ZENO, LAM_EPS, V_TOL,  # noqa: F401
-                       V_ZENO, FeatureContacts, UnsupportedModel, sample_grid)
+from .event_rules import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_ZENO, LAM_EPS, V_TOL,  # noqa: F401
+                          V_ZENO, FeatureContacts, UnsupportedModel, sample_grid)
 from .model import Model, initial_state
 from .protocol import Report, Segment, Status
 from .recording import run_metadata

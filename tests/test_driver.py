@@ -19,7 +19,8 @@ INTEGRATORS = ["time-stepping", "adaptive", "event-driven"]
 @pytest.mark.parametrize("integrator", INTEGRATORS)
 @pytest.mark.parametrize("e", [0.0, 0.5, 0.9])
 def test_the_invariant_hook_sees_every_point_and_records_violations(integrator, e):
-    """A hook that flags nothing leaves meta alone (and the ball gains no energy); one that wants the ball never below its initial height flags every sample
+    """A hook that flags nothing leaves meta alone (and the ball gains no energy); one that wants
+    the ball never below its initial height flags every sample
     after the start, in meta["invariants"], and the run still completes with the same arrays."""
     model = ms.build_model(scene("bouncing_ball", duration=0.6, restitution=e, integrator=integrator))
     seen = {"start": 0, "point": 0, "sample": 0}

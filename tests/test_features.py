@@ -10,7 +10,8 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.features import BOX_FEATURES, Feature, FeatureContacts, feature_list
+from moreau_sim.event_rules import FeatureContacts
+from moreau_sim.gaps import BOX_FEATURES, Feature, feature_list
 
 from helpers import ROOT, scene
 
@@ -185,7 +186,7 @@ def test_cylinder_gaps_rows_and_drift_against_finite_differences(case, seed):
     rng = np.random.default_rng(seed)
     model, feats, q, exact = _cylinder_case(case, rng)
     fc = FeatureContacts(model, ms.make_data(model), 0.5, tuple(feats))
-    fc.gap_tol = -1.0  # closed-contact checks off: gaps are evaluated anywhere here
+    fc.gaps.gap_tol = -1.0  # closed-contact checks off: gaps are evaluated anywhere here
     # slow motions: the differences' truncation error (third derivative, ~|v|^3 / rho^2) stays << 1e-7
     u, a = 0.3 * rng.standard_normal(model.nv), 0.3 * rng.standard_normal(model.nv)
     fs = fc.features(q, u)
