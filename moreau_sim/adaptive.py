@@ -1,49 +1,9 @@
 """The adaptive integrator (docs/theory.md §8): extrapolated symmetric midpoint steps with error
-control between events, impacts located on the per-feature gaps, fixed Moreau steps where that
-does not apply.
+control and a quintic Hermite dense output between events, impacts located on the per-feature
+gaps (gaps.py) and resolved by event_rules.FeatureContacts.resolve, fixed Moreau steps where
+those do not apply; the loop is driver.drive (§9).
 
     traj = simulate_adaptive(model)          # or ms.run(path, integrator="adaptive", rtol=..., atol=...)
-
-Smooth phases. The base step is the contact-free midpoint step with the midpoint bias
-(stepper.free_velocity, Bias.MIDPOINT), or, with a persistent set C, the same step on the
-constrained accelerations a_C(q, u) of features.FeatureContacts.dynamics:
-
-    q_m = q (+) h/2 u,   u1 = u + h a(q_m, (u + u1)/2),   q1 = q_m (+) h/2 u1
-
-It is symmetric, so its error expands in h^2: n = 1, 2 (, 3, 4) steps of H/n extrapolated to
-h -> 0 (Aitken-Neville in h^2) give orders 4, 6, 8. q is extrapolated in the tangent space
-about the step's start (pin.difference / pin.integrate). The difference of the last two
-columns is the error estimate, in scipy solve_ivp's RMS norm with scale atol + rtol max(|y0|,
-|y1|), y = (pin.difference(neutral, q), u); a step with error norm > 1 is refused; the next
-step is H * min(MAX_FACTOR, max(MIN_FACTOR, SAFETY err^(-1/(order-1)))).
-
-Dense output: a quintic Hermite interpolant in the tangent space from (q, u, a) at both ends of
-an accepted step gives the samples and the event functions between step ends.
-
-Events. The gaps of the free features are checked on the quintic Hermite of g (from g, gamma,
-W'a + drift at both ends) at CHECK_POINTS instants of each accepted step; the first crossing
-below 0 is located on that polynomial (Brent), the step is re-taken from its start to the root
-and landed on g = 0 by Newton corrections dt = -g/gamma on the re-taken step (LAND_ITER at
-most; impact times to round-off). A persistent contact's multiplier crossing -LAM_EPS
-(release) and a feature just released (g < G_RES/2) coming back (gamma < -2 V_TOL) are located
-likewise. Box-box gaps (docs/theory.md §7.1: maxima over faces, edge pairs' stand-ins) are not
-smooth enough for the quintic: while two boxes' bounding spheres overlap a step moves no point
-more than BOX_TRAVEL of the smallest half side, and those that could close within the step are
-evaluated on the dense output at the check instants (a persistent one passing its region's end
-by G_REGION is a release, located likewise). At every event, features.FeatureContacts.resolve
-decides as in the event-driven integrator: the law (law.impact on the contacts contacts.detect
-closes, or a corner's set-valued law, with the Zeno rule), then the acceleration-level problem
-that decides the persistent set C.
-
-Fixed steps (stepper.step at the scene's dt, the percussion log as ms.simulate's): the whole
-run when a pair has no per-feature gap (features.UnsupportedModel) or there are more than
-MAX_FEATURES features besides box pairs' (very many contacts); and when events accumulate
-(BURST_EVENTS events within one dt, or no progress in time). Back to extrapolated steps after
-BACK_STEPS consecutive fixed steps with no closed contact, or whose closed contacts all move
-slower than V_BACK (at rest); FeatureContacts.resolve then takes over at that state (the Zeno
-rule ends what is left of an accumulation). The count doubles whenever a fallback follows
-within 10 BACK_STEPS steps of a return (no ping-pong). meta["run"] counts extrapolated, refused
-and fixed steps and events; meta["fallbacks"] lists each switch with its time and reason.
 """
 
 from __future__ import annotations

@@ -1,42 +1,10 @@
-"""The set-valued Newton impact law at re-entrant corners (docs/theory.md §3; Glocker 2000, §3.4).
-
-The admissible velocities form a finite union of polyhedral convex cones (the contingent cone)
-
-    K = ∪_j K_j,   K_j = T_j ∩ S,   T_j = {v : A_j v >= 0},   S = {v : W' v >= 0},
-
-one piece per way of staying apart, S the smooth contacts of the step. The law keeps every
-stationary point of Phi(v) = 1/2 |v - v0|_M^2 + I_K(v) in Clarke's sense,
-
-    0 ∈ M (v - v0) + N^C_K(v),        u+ = (1 + e) v - e u-      (v0 = u-, or v_free in a step).
-
-Clarke normal cone used (exact when the pieces active at v share one linear span - always for
-full-dimensional pieces; otherwise the outer bound below is used. Derivation: docs/corner-law.md):
-
-    N^C_K(v) = cone{ -b : b an *exposed facet* row of the local cone L = ∪_{j∈J(v)} L_j } + V⊥,
-
-J(v) the pieces containing v, L_j = {x : b x >= 0, b the rows of piece j active at v}, V the common
-span of the L_j. A facet row b of L_j is exposed if L lies on the side b x >= 0 near some relative-
-interior point of the facet L_j ∩ b⊥, i.e. that facet is not covered by pieces reaching across b⊥.
-Why: near v, K - v = L (polyhedral, hence locally conic), so N^C_K(v) = N^C_L(0) = (T^C)° with
-T^C = {w : L + w ⊆ L}; a generic ray x + t w leaves L only through the relative interior of an
-exposed facet, hence T^C = {w : b w >= 0 for every exposed b}. The familiar "sum of the normal
-cones of the pieces containing v" (= normal cone of ∩_{J(v)} K_j) is an outer bound that is exact
-when no facet is covered, as at the corner of the note's point mass: (0, 0) is stationary for
-u- = (1, 1) because (1, 1) ∈ cone{(1, 0), (0, 1)}. It over-counts for convex or nested unions
-(it would keep (0, 0) for {x<=0, y<=0} ∪ {y<=0}), which this formula does not.
-
-Algorithm: every stationary v is the M-projection of v0 onto ∩_{j∈J(v)} K_j (since N^C ⊆ that
-intersection's normal cone), so projecting onto the intersection of each non-empty subset of pieces
-(2^p - 1 QPs, piqp) and keeping the stationary results finds all of them. Global minimizers are
-stationary by definition and are not re-checked.
-
-Tolerances (tol, default 1e-9; the problem is first scaled to |v0|_2 = 1, max diag M = 1 and unit
-rows): QPs to eps = tol/10 (duality gap included), then polished on their strictly active rows
-by one direct KKT solve; every decision (row active, v in a piece, duplicate v, cone membership
-residual, facet interior, distance tie relative to 1/2 |v0|_M^2) uses tau = sqrt(tol).
-Units: velocities in generalized units (m/s, rad/s), M in kg and kg m^2, distance in J; the
-multipliers lam satisfy M (v - v0) = [A_j; ...; W']' lam (N s for gap rows in m); the percussion
-of an impact or step is P = (1 + e) lam (docs/theory.md §2).
+"""The set-valued Newton impact law at re-entrant corners (docs/theory.md §3; Glocker 2000, §3.4):
+every Clarke-stationary point of 1/2 |v - v0|_M^2 over a union of polyhedral cones, the selection
+among them, and corner_law, the law as a step (v0 = v_free) and an impact at one instant
+(v0 = u-) apply it. The exposed-facet normal cone, the algorithm (one projection per non-empty
+subset of pieces) and the scaling and tolerances (tol = 1e-9, tau = sqrt(tol)) are derived in
+docs/corner-law.md. Units: velocities in generalized units, M in kg and kg m^2, distances in J;
+M (v - v0) = [A_j; ...; W']' lam, the percussion P = (1 + e) lam.
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
-"""The one loop over time of every integrator (protocol.py): sampling, recording and the energy
-ledger (recording.py, docs/theory.md §5), progress, Ctrl-C/SIGTERM (errors.named_stops),
-checkpoints and resume (checkpoint.py), spilling to disk, and the invariant hook."""
+"""The one loop over time of every integrator (docs/theory.md §9; protocol.py): sampling,
+recording and the energy ledger (recording.py, §5), progress, Ctrl-C/SIGTERM
+(errors.named_stops), checkpoints and resume (checkpoint.py), spilling to disk, the invariant hook.
+"""
 
 from __future__ import annotations
 

@@ -1,66 +1,8 @@
-"""The event-driven integrator (docs/theory.md §7): smooth phases to tolerance, impacts at
-located instants.
+"""The event-driven integrator (docs/theory.md §7): smooth phases integrated to tolerance by
+scipy's solve_ivp (a Lie-group chart for a free body's quaternion), impacts at located instants;
+the decisions at an event are event_rules.FeatureContacts.resolve, the loop driver.drive (§9).
 
     traj = simulate_event_driven(model)            # same Trajectory arrays as ms.simulate
-
-Between events the motion is an ODE integrated by scipy's ``solve_ivp`` (DOP853 by default,
-rtol = atol = 1e-12): u' = a, q' = u. Euclidean q (prismatic, revolute, planar/translation
-composites) is integrated directly; a Lie-group q (the free root's quaternion) in a local chart
-q = q_b (+) delta, delta' = dIntegrate(q_b, delta)^-1 u, with the chart re-centred at every
-event and whenever |delta|_inf > 1. Accelerations: a = ABA(q, u, 0) + M^-1 W_C lam, where C is
-the set of persistent contacts, held as bilateral constraints W_C' a + Wdot_C' u = 0
-(lam from the Delassus system G lam = -(W_C' a_free + Wdot_C' u), G = W_C' M^-1 W_C).
-
-Gaps (event functions): the analytic signed gaps per *feature* of the contact layer
-(features.py, shared with the adaptive integrator), with rows w and the drift term Wdot' u:
-every vertex of a polytope against a half-space, a sphere against a half-space, a sphere
-against a sphere, a sphere against a static box, for two boxes every vertex of each in the
-other and every pair of their edges (docs/theory.md §7.1), and for cylinders the cap rims
-against a static half-space or box, the side against a static box's edges and a sphere against
-a cylinder (§7.2). Other pair types (meshes, a cylinder against a moving box or a cylinder)
-raise :class:`UnsupportedModel` naming the pair. The decisions at an event below (impact, Zeno
-rule, persistent set) are features.FeatureContacts.resolve.
-
-Events (terminal): a free feature's gap crossing 0 downwards (impact); a persistent
-contact's multiplier crossing -LAM_EPS downwards, or a persistent box feature reaching the end
-of its region (a vertex its face's edges, an edge pair its edges' ends: release), or a
-persistent feature's gap rising above the contact tolerance (open: where a gap stops being the
-distance, e.g. a cylinder's side leaving its segment's end, the stand-in jumps up and the
-constraint would otherwise hold a phantom contact; such a feature is then watched by its gap,
-not as one within G_RES). A free feature that starts a phase
-within G_RES = 1e-13 m of contact (it just bounced or separated) is watched instead by its rise
-to G_RES and by its normal velocity returning below -2 V_TOL: the sign of so small a gap is
-rounding noise, and the root finder would take a noise crossing for an impact (while it rises,
-ODE steps stay below half its time to apex, so that no rise-and-fall hides inside one step).
-A free feature within G_DIP = 1e-6 m at the start of a phase also stops it at a minimum of its
-gap (gamma rising through -V_TOL while g < G_DIP): gaps are compared at ODE step ends only, and
-a slow approach that turns back within one step could dip below 0 and out unseen. After each
-phase, a watched gap below -G_RES moves the event back to where it crossed 0 (root finding on
-the dense output).
-At every event (and at the start) :func:`EventDrivenRun.resolve` applies, in order:
-  1. Impact: if a closed feature (g <= the scene's contact_tolerance, 1e-9 m by default)
-     approaches (gamma < -V_TOL), the SAME law as the stepper, ``law.impact`` (docs/theory.md §1)
-     on the contacts ``contacts.detect`` closes at q (coal, tolerance 1e-9 m), with the scene's e
-     (between boxes, with the closed box vertices' own rows and the closed approaching edge pairs
-     coal's contacts miss: features.FeatureContacts._missed_features, docs/theory.md §7.1); at a
-     corner (docs/theory.md §3) the fixed step's set-valued law (stepper.solve_impact on a step of
-     zero length, v_free = u-) with the scene's corner_selection, a branch logged as simulate logs it.
-  2. Zeno rule (accumulation points): the impact is plastic (e = 0) if, for every approaching
-     contact, its rebound would rise less than G_ZENO = 1e-12 m, (e gamma-)^2 < 2 |a_n| G_ZENO
-     with a_n its free normal acceleration, or it is slower than V_ZENO = 1e-8 m/s; or if the
-     last impact was less than DT_ZENO = 1e-12 s ago. The rest of the infinite bounce sequence
-     is skipped and the contact becomes persistent. (Gaps are computed from positions of order
-     1 m, with a rounding of ~3e-17 m: lower bounces cannot be located reliably.) Under a locally
-     constant a_n < 0 the skipped bounces last 2 e |gamma-| / ((1 - e) |a_n|) (a geometric
-     series, ~1e-6 s at most for the ball); that is added to the declaration time and recorded
-     in meta["zeno"] as "t_accumulation".
-  3. Persistent contacts: the closed features with |gamma| <= V_TOL go through the
-     acceleration-level contact problem, min 1/2 (a - a_free)' M (a - a_free) s.t.
-     W' a >= -Wdot' u (piqp via ``law.project``): those with zero relative acceleration
-     (pushing, lam > 0, or neutral, lam = 0 with nothing pulling them apart - the touching
-     balls of a cradle) form C; the others separate. A contact released by its multiplier
-     event is not re-admitted at that instant. When C's rows are linearly dependent (the four
-     corners of a face on a face), its forces are the minimum-norm solution.
 """
 
 from __future__ import annotations

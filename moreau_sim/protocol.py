@@ -1,6 +1,7 @@
-"""The step protocol every integrator follows (docs/theory.md §6), modelled on scipy's OdeSolver:
-``step()`` advances to the next accepted point (a fixed step, an event, a phase end) and returns a
-:class:`Report` of what happened there; the driver (driver.py) does everything else."""
+"""The step protocol every integrator follows (docs/theory.md §9), modelled on scipy's OdeSolver:
+``step()`` advances to the next accepted point (a fixed step, an event, a phase's step) and
+returns a :class:`Report` of what happened there; the driver (driver.py) does everything else.
+"""
 
 from __future__ import annotations
 

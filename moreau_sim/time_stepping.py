@@ -1,5 +1,6 @@
 """The time-stepping integrator: fixed midpoint Moreau steps (stepper.step, docs/theory.md §2)
-behind the step protocol (protocol.py); the driver (driver.py) records, samples and checkpoints."""
+behind the step protocol (protocol.py, §9); the driver (driver.py) records, samples and checkpoints.
+"""
 
 from __future__ import annotations
 
