@@ -24,7 +24,7 @@ class Status(Enum):
     FAILED = "failed"
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class FixedStep:
     """A midpoint Moreau step to record (docs/theory.md §2, §5): its percussions, its ledger
     (Recorder.account_step) and its branch. index: the log's step number (None: the index of the
@@ -40,7 +40,7 @@ class FixedStep:
     fresh: bool = False
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class Impact:
     """An impact located in time (docs/theory.md §1, §3, §7) to record: at t [s] and q, u- -> u+;
     M = M(q), v the law's projection, restitution e; per contact P [N s], gamma- and gamma+ [m/s];
@@ -60,7 +60,7 @@ class Impact:
     branch: tuple | None = None
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class Segment:
     """Samples of the output grid that fall in a step: the grid instants t < until (<= if closed)
     are sampled at dense(t) -> (q, u), with n_contacts closed contacts."""
@@ -71,7 +71,7 @@ class Segment:
     n_contacts: int
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class Report:
     """What one step() did. status, message (FAILED: naming the step); t [s] and state: the accepted
     point; records: FixedStep / Impact to record, in order, before the samples; work, corr [J]: the
