@@ -60,3 +60,33 @@ def test_progress_moves_with_wall_time(monkeypatch, capsys, integrator):
     err = capsys.readouterr().err
     total = f"/{model.options.n_steps} step" if integrator == "time-stepping" else "/0.5 s"
     assert total in err and "100%" in err
+
+
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+def test_state_dict_round_trips_through_json(integrator):
+    """Every integrator's state after some steps survives JSON and load_state_dict unchanged (what a
+    checkpoint stores; the bit-identical resume itself is tests/test_checkpoint.py's)."""
+    import json
+
+    from moreau_sim.adaptive import AdaptiveRun
+    from moreau_sim.event_driven import EventDrivenRun
+    from moreau_sim.time_stepping import TimeStepping
+
+    model = ms.build_model(scene("rocking_block", duration=0.3, restitution=0.5, integrator=integrator))
+
+    def make():
+        data, st = ms.make_data(model), ms.initial_state(model)
+        if integrator == "time-stepping":
+            return TimeStepping(model, data, st)
+        if integrator == "adaptive":
+            return AdaptiveRun(model, data, 0.5, 1e-8, 1e-10, 6, 1.0, 10 ** 6, state=st, t_end=0.3)
+        return EventDrivenRun(model, data, 0.5, 1e-12, 1e-12, "DOP853", 1e-2, 10 ** 5, state=st, t_end=0.3)
+
+    a = make()
+    for _ in range(5):
+        a.step()
+    d = json.loads(json.dumps(a.state_dict()))
+    b = make()
+    b.load_state_dict(d)
+    assert b.state_dict() == a.state_dict() and b.position() == a.position()
+    assert np.array_equal(b.state.q, a.state.q) and np.array_equal(b.state.u, a.state.u)
