@@ -531,7 +531,7 @@ class AdaptiveRun(FeatureContacts):
             self._phase(tuple(d["C"]), tuple(d["shadow"]), d["low"], d["watch"])
             self.nfev = nfev
 
-    def meta(self, status: str, wall: float) -> dict:
+    def meta(self, status: str, wall: float, points: int) -> dict:
         settings = {"rtol": self.rtol, "atol": self.atol, "order": self.order, "max_step": self.max_step,
                     "features": len(self.feats), "unsupported": self.unsupported, "lie_group": self.lie}
         run = {"steps": self.accepted + self.fixed, "steps_extrapolated": self.accepted,

@@ -46,11 +46,10 @@ def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | Non
     rec = Recorder(model, data, capacity, spill=spill)
     loop = _Loop(integ, rec, grid, check)
     wall_before = 0.0
-    if checkpoint is not None and checkpoint.resume and Path(checkpoint.path).exists():
+    resume = checkpoint is not None and checkpoint.resume and Path(checkpoint.path).exists()
+    if resume:
         loop_state, wall_before = ckpt.load(Path(checkpoint.path), model, rec, data, integ)
         loop.load(loop_state)
-    else:
-        loop.start(integ.state)
     wall0 = time.perf_counter()
 
     def wall() -> float:
@@ -65,13 +64,19 @@ def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | Non
     bar = tqdm(total=total, initial=done, delay=_PROGRESS_DELAY, disable=not progress, unit=unit, leave=False,
                bar_format=_BAR, mininterval=PROGRESS_EVERY)
     refresh = time.perf_counter() + PROGRESS_EVERY if progress else np.inf
-    with named_stops(integ.position, partial, unit=integ.unit):
+    at: list = [None]  # while a step's report is recorded: the position of that step (errors name it)
+    with named_stops(lambda: at[0] or integ.position(), partial, unit=integ.unit):
         try:
+            if not resume:
+                loop.start(integ.state)
             while True:
+                before = integ.position()
                 rep = integ.step(grid[loop.gi] if grid is not None and loop.gi < len(grid) else np.inf)
                 if rep.status is Status.FAILED:
-                    raise SimulationError(rep.message, step=integ.position()[0], t=rep.t)
+                    raise SimulationError(rep.message, step=before[0], t=rep.t)
+                at[0] = before
                 loop.account(rep)
+                at[0] = None
                 if rep.status is Status.FINISHED:
                     _show(bar, integ, wall0)
                     break
@@ -110,6 +115,7 @@ class _Loop:
         self.previous: set = set()
         self.violations: list[dict] = []
         self.t_ck = integ.t0  # [s] the last checkpoint (or the start)
+        self.points = 0  # the accepted points recorded
 
     def start(self, state: State) -> None:
         """The initial sample(s) (before any impact)."""
@@ -151,6 +157,7 @@ class _Loop:
                 self.gi += 1
         if self.check is not None and rep.state is not None:
             self._check("point", rep.state, rep)
+        self.points += 1
 
     def _impact(self, r: Impact) -> None:
         rec = self.rec
@@ -184,14 +191,14 @@ class _Loop:
                 self.violations.append(v)
 
     def meta(self, status: str, wall: float) -> dict:
-        meta = self.integ.meta(status, wall)
+        meta = self.integ.meta(status, wall, self.points)
         return {**meta, "invariants": self.violations} if self.violations else meta
 
     def state_dict(self) -> dict:
         return {"work": self.work, "corr": self.corr, "gi": self.gi, "previous": sorted(self.previous),
-                "violations": self.violations, "t_ck": self.t_ck}
+                "violations": self.violations, "t_ck": self.t_ck, "points": self.points}
 
     def load(self, d: dict) -> None:
         self.work, self.corr, self.gi = float(d["work"]), float(d["corr"]), int(d["gi"])
         self.previous = {tuple(p) for p in d["previous"]}
-        self.violations, self.t_ck = list(d["violations"]), float(d["t_ck"])
+        self.violations, self.t_ck, self.points = list(d["violations"]), float(d["t_ck"]), int(d["points"])

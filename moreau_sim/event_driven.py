@@ -226,7 +226,7 @@ class EventDrivenRun(FeatureContacts):
         self.released, self.opened = frozenset(d["released"]), frozenset(d["opened"])
         self.stuck, self.events = int(d["stuck"]), int(d["events"])
 
-    def meta(self, status: str, wall: float) -> dict:
+    def meta(self, status: str, wall: float, points: int) -> dict:
         reference = {"method": self.method, "rtol": self.rtol, "atol": self.atol, "max_step": self.max_step,
                      "gap_tol": self.gap_tol, "v_tol": V_TOL, "g_res": G_RES, "g_zeno": G_ZENO, "v_zeno": V_ZENO,
                      "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "lie_group_chart": self.lie}

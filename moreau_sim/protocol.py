@@ -119,5 +119,6 @@ class Integrator(Protocol):
     def load_state_dict(self, d: dict) -> None:
         """Continue from state_dict()'s output, bit for bit."""
 
-    def meta(self, status: str, wall: float) -> dict:
-        """The trajectory's meta (recording.run_metadata) with `status` after `wall` [s]."""
+    def meta(self, status: str, wall: float, points: int) -> dict:
+        """The trajectory's meta (recording.run_metadata) with `status` after `wall` [s] and `points`
+        accepted points recorded (an error while recording one names the step that produced it)."""

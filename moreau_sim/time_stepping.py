@@ -60,6 +60,7 @@ class TimeStepping:
         self.k, self.t0 = int(d["steps"]), float(d["t0"])
         self.state = State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float))
 
-    def meta(self, status: str, wall: float) -> dict:
-        return run_metadata(self.model, status, {"steps": self.k, "wall_seconds": wall,
-                                                 "us_per_step": 1e6 * wall / self.k if self.k else None})
+    def meta(self, status: str, wall: float, points: int) -> dict:
+        """meta["run"]["steps"]: the steps recorded (a step whose sample failed is not one)."""
+        return run_metadata(self.model, status, {"steps": points, "wall_seconds": wall,
+                                                 "us_per_step": 1e6 * wall / points if points else None})
