@@ -111,7 +111,7 @@ class _Mode(Enum):
     FIXED = "fixed"
 
 
-class AdaptiveRun(FeatureContacts):
+class AdaptiveRun:
     """The adaptive integrator behind the step protocol (protocol.py; the public API is
     simulate_adaptive): a step is an accepted extrapolated step, a landing on an event, or a
     fixed step."""
@@ -131,7 +131,9 @@ class AdaptiveRun(FeatureContacts):
         n = sum(f.box is None for f in feats)
         if n > MAX_FEATURES:
             feats, self.unsupported = (), f"{n} features (not counting box pairs') > MAX_FEATURES = {MAX_FEATURES}"
-        super().__init__(model, data, e, feats)
+        self.rules = FeatureContacts(model, data, e, feats)  # the contact decisions at events (event_rules.py)
+        self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
+        self.pm, self.pd, self.nv, self.zero = model.pin, data.pin, model.nv, np.zeros(model.nv)
         self.is_box = np.array([f.box is not None for f in self.feats], bool)
         self.box_half = min([min(f.box.a.half, f.box.b.half) for f in self.feats if f.box is not None], default=np.inf)
         if order not in ORDERS:
@@ -171,7 +173,7 @@ class AdaptiveRun(FeatureContacts):
             u1 = free_velocity(self.model, self.data, q_m, u, h, Bias.MIDPOINT)
         else:
             def acc(v):
-                return self.dynamics(q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
+                return self.rules.dynamics(q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
             tol = FIXED_POINT * (self.atol + self.rtol * float(np.abs(u).max()))
             u1 = midpoint_fixed_point(acc, u, h, u + h * acc(u), tol)
         return pin.integrate(pm, q_m, 0.5 * h * u1), u1
@@ -204,10 +206,10 @@ class AdaptiveRun(FeatureContacts):
         return float(np.sqrt(np.mean((d / sc) ** 2)))
 
     def _end(self, t, q, u, C, idx) -> _End:
-        a, lam, fc = self.dynamics(q, u, C)
+        a, lam, fc = self.rules.dynamics(q, u, C)
         margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
         if idx:
-            fs = self.features(q, u, idx)
+            fs = self.rules.features(q, u, idx)
             near = self.is_box[idx] & np.isfinite(fs.margin)
             return _End(t, q, u, a, lam, fs.g, fs.gamma, fs.W.T @ a + fs.drift, margin, near)
         z = np.zeros(0)
@@ -276,13 +278,13 @@ class AdaptiveRun(FeatureContacts):
             if len(near):
                 at = self._dense(e0, e1)
                 ids = [watched[k] for k in near]
-                Gd = np.array([e0.g[near]] + [self.features(*at(x), ids, rows=False).g for x in taus[1:-1]]
+                Gd = np.array([e0.g[near]] + [self.rules.features(*at(x), ids, rows=False).g for x in taus[1:-1]]
                               + [e1.g[near]])
                 for col in np.flatnonzero((Gd < 0.0).any(axis=0)):
                     j, k = int(np.argmax(Gd[:, col] < 0.0)), int(near[col])
 
                     def fg(x, k=k):
-                        return float(self.features(*at(x), [watched[k]], rows=False).g[0]) if x < 1.0 else e1.g[k]
+                        return float(self.rules.features(*at(x), [watched[k]], rows=False).g[0]) if x < 1.0 else e1.g[k]
                     tau = _root(fg, taus[j - 1], taus[j], 1e-15) if j else 0.0
                     if best is None or tau < best[0]:
                         best = (tau, "gap", k)
@@ -322,7 +324,7 @@ class AdaptiveRun(FeatureContacts):
             for k in np.flatnonzero(e1.lam < -LAM_EPS):
                 def fl(x, k=k):
                     q, u = at(x)
-                    return float(self.dynamics(q, u, C)[1][k]) + LAM_EPS
+                    return float(self.rules.dynamics(q, u, C)[1][k]) + LAM_EPS
                 tau = _root(fl, 0.0, 1.0, 1e-13)
                 if best is None or tau < best[0]:
                     best = (tau, "release", int(k))
@@ -330,7 +332,7 @@ class AdaptiveRun(FeatureContacts):
             at = self._dense(e0, e1)
             for k in np.flatnonzero(e1.margin < -G_REGION):
                 def fm(x, k=k):
-                    return float(self.dynamics(*at(x), C)[2].margin[k]) + G_REGION
+                    return float(self.rules.dynamics(*at(x), C)[2].margin[k]) + G_REGION
                 tau = _root(fm, 0.0, 1.0, 1e-13)
                 if best is None or tau < best[0]:
                     best = (tau, "release", int(k))
@@ -346,7 +348,7 @@ class AdaptiveRun(FeatureContacts):
             self.landings += 1
             if feature is None:
                 break
-            fs = self.features(q1, u1, [feature])
+            fs = self.rules.features(q1, u1, [feature])
             g, gam = float(fs.g[0]), float(fs.gamma[0])
             if abs(g) <= G_LAND or gam >= 0.0:
                 break
@@ -369,7 +371,7 @@ class AdaptiveRun(FeatureContacts):
         while True:
             self.t = t
             h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)), self._box_limit(e0),
-                    self.thin_limit(u, e0.a))
+                    self.rules.thin_limit(u, e0.a))
             q1, u1, d = self._step(q, u, h, C)
             err = self._error(q, u, q1, u1, d)
             if not np.isfinite(err):  # an overflow (or a failed library call): no step size helps
@@ -428,7 +430,8 @@ class AdaptiveRun(FeatureContacts):
     def _start_phase(self) -> tuple[tuple, float]:
         """The decisions at an event (or the start, or back from fixed steps); the phase's sets."""
         t, q, u = self.state.t, self.state.q, self.state.u
-        u, C, shadow, records, work = self.resolve(t, q, u, self.released)
+        self.t = t
+        u, C, shadow, records, work = self.rules.resolve(t, q, u, self.released)
         self.state = State(t, q, u)
         self.released = frozenset()
         self._phase(C, shadow)
@@ -441,7 +444,7 @@ class AdaptiveRun(FeatureContacts):
         t, q, u = self.state.t, self.state.q, self.state.u
         if low is None:
             free = [i for i in range(len(self.feats)) if i not in C and i not in shadow]
-            g0 = self.features(q, u, free, rows=False).g if free else np.zeros(0)
+            g0 = self.rules.features(q, u, free, rows=False).g if free else np.zeros(0)
             low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES]
             watch = [i for i in free if i not in low]
         self.C, self.shadow, self.low, self.watch = tuple(C), tuple(shadow), list(low), list(watch)
@@ -512,14 +515,18 @@ class AdaptiveRun(FeatureContacts):
         return self.state.t - self.t0, self.t_end - self.t0, "s"
 
     def state_dict(self) -> dict:
-        return {**self.contact_state(), "mode": self.mode.value, "H": self.H, "t_back": _json(self.t_back),
+        s = self.state
+        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "rules": self.rules.state_dict(),
+                "mode": self.mode.value, "H": self.H, "t_back": _json(self.t_back),
                 "stuck": self.stuck, "released": sorted(self.released), "burst": self.burst,
                 "back_steps": self.back_steps, "fallbacks": self.fallbacks, "previous_fresh": self.previous_fresh,
                 "quiet": self.quiet, "counts": [self.events, self.accepted, self.rejected, self.fixed, self.landings],
                 "C": list(self.C), "shadow": list(self.shadow), "low": list(self.low), "watch": list(self.watch)}
 
     def load_state_dict(self, d: dict) -> None:
-        self.load_contact_state(d)
+        self.state = State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float))
+        self.t = float(d["t_now"])
+        self.rules.load_state_dict(d["rules"])
         self.mode, self.H = _Mode(d["mode"]), float(d["H"])
         self.t_back = -np.inf if d["t_back"] is None else float(d["t_back"])
         self.stuck, self.released, self.burst = int(d["stuck"]), frozenset(d["released"]), list(d["burst"])
@@ -527,17 +534,17 @@ class AdaptiveRun(FeatureContacts):
         self.previous_fresh, self.quiet = bool(d["previous_fresh"]), int(d["quiet"])
         self.events, self.accepted, self.rejected, self.fixed, self.landings = d["counts"]
         if self.mode is _Mode.PHASE:  # the step end e0 is a function of the state and the sets
-            nfev = self.nfev
+            nfev = self.rules.nfev
             self._phase(tuple(d["C"]), tuple(d["shadow"]), d["low"], d["watch"])
-            self.nfev = nfev
+            self.rules.nfev = nfev
 
     def meta(self, status: str, wall: float, points: int) -> dict:
         settings = {"rtol": self.rtol, "atol": self.atol, "order": self.order, "max_step": self.max_step,
                     "features": len(self.feats), "unsupported": self.unsupported, "lie_group": self.lie}
         run = {"steps": self.accepted + self.fixed, "steps_extrapolated": self.accepted,
                "steps_refused": self.rejected, "steps_landed": self.landings, "steps_fixed": self.fixed,
-               "events": self.events, "impacts": self.impacts, "nfev": self.nfev, "wall_seconds": wall}
-        return run_metadata(self.model, status, run, integrator="adaptive", adaptive=settings, zeno=self.zeno,
+               "events": self.events, "impacts": self.rules.impacts, "nfev": self.rules.nfev, "wall_seconds": wall}
+        return run_metadata(self.model, status, run, integrator="adaptive", adaptive=settings, zeno=self.rules.zeno,
                             fallbacks=self.fallbacks)
 
 

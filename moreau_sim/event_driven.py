@@ -37,7 +37,7 @@ def solve_ivp(fun, t_span, y0, **kwargs):
     return ivp(fun, t_span, y0, **kwargs)
 
 
-class EventDrivenRun(FeatureContacts):
+class EventDrivenRun:
     """The event-driven integrator behind the step protocol (protocol.py; the public API is
     simulate_event_driven): a step is the decisions at an event and the smooth phase after it."""
 
@@ -46,7 +46,9 @@ class EventDrivenRun(FeatureContacts):
 
     def __init__(self, model: Model, data: Data, e: float, rtol: float, atol: float, method: str,
                  max_step: float, max_events: int, *, state: State | None = None, t_end: float = np.inf):
-        super().__init__(model, data, e)
+        self.rules = FeatureContacts(model, data, e)  # the contact decisions at events (event_rules.py)
+        self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
+        self.pm, self.pd, self.nv = model.pin, data.pin, model.nv
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         self.rtol, self.atol, self.method, self.max_step, self.max_events = rtol, atol, method, max_step, max_events
         self.events = self.stuck = 0
@@ -75,11 +77,11 @@ class EventDrivenRun(FeatureContacts):
             if key not in cache:
                 cache.clear()
                 q, u = self.q_of(qb, y[:self.nv]), y[self.nv:]
-                _, lam, fc = self.dynamics(q, u, C)
+                _, lam, fc = self.rules.dynamics(q, u, C)
                 margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
                 gc = fc.g if C else None  # C's gaps
-                fs = self.features(q, u, watch, rows=False) if watch else None
-                fr = self.features(q, u, rated) if rated else None  # with rows: gamma
+                fs = self.rules.features(q, u, watch, rows=False) if watch else None
+                fr = self.rules.features(q, u, rated) if rated else None  # with rows: gamma
                 cache[key] = (fs, lam, margin, fr, gc)
             return cache[key]
 
@@ -124,7 +126,7 @@ class EventDrivenRun(FeatureContacts):
         def f(t, y):
             delta, u = y[:nv], y[nv:]
             q = self.q_of(qb, delta)
-            a = self.dynamics(q, u, C)[0]
+            a = self.rules.dynamics(q, u, C)[0]
             if self.lie:
                 dq = np.linalg.solve(pin.dIntegrate(self.pm, qb, delta, pin.ArgumentPosition.ARG1), u)
             else:
@@ -137,11 +139,11 @@ class EventDrivenRun(FeatureContacts):
         (FeatureContacts.thin_limit), or while a feature that just bounced rises: its rise to G_RES
         and its fall back must not fit in one ODE step (a double crossing is invisible), so steps
         stay below half its time to apex gamma / |a_n|."""
-        limit = min(self.max_step, self.thin_limit(u, self.dynamics(q, u, C)[0]))
+        limit = min(self.max_step, self.rules.thin_limit(u, self.rules.dynamics(q, u, C)[0]))
         if not low:
             return limit
-        fs = self.features(q, u, low)
-        a_n = fs.W.T @ self.dynamics(q, u, C)[0] + fs.drift
+        fs = self.rules.features(q, u, low)
+        a_n = fs.W.T @ self.rules.dynamics(q, u, C)[0] + fs.drift
         up = (fs.gamma > V_TOL) & (a_n < 0)
         return float(min(limit, *(0.5 * fs.gamma[up] / -a_n[up]))) if up.any() else limit
 
@@ -153,7 +155,7 @@ class EventDrivenRun(FeatureContacts):
 
         def gaps(tau):
             y = sol.sol(tau)
-            return self.features(self.q_of(qb, y[:nv]), y[nv:], watch, rows=False).g
+            return self.rules.features(self.q_of(qb, y[:nv]), y[nv:], watch, rows=False).g
 
         g1 = gaps(t1)
         if not (g1 < -G_RES).any():
@@ -171,9 +173,9 @@ class EventDrivenRun(FeatureContacts):
         nv, nf = self.nv, len(self.feats)
         t, q, u = self.state.t, self.state.q, self.state.u
         self.t = t
-        u, C, shadow, records, work = self.resolve(t, q, u, self.released)
+        u, C, shadow, records, work = self.rules.resolve(t, q, u, self.released)
         free = [i for i in range(nf) if i not in C and i not in shadow]
-        g0 = self.features(q, u, free, rows=False).g if free else np.zeros(0)
+        g0 = self.rules.features(q, u, free, rows=False).g if free else np.zeros(0)
         # (a feature whose gap just jumped open is watched by its gap: it is at the jump, not near 0)
         low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES and i not in self.opened]
         near = {i for i, g in zip(free, g0) if 0.5 * G_RES <= g < G_DIP}
@@ -218,11 +220,15 @@ class EventDrivenRun(FeatureContacts):
         return self.state.t - self.t0, self.t_end - self.t0, "s"
 
     def state_dict(self) -> dict:
-        return {**self.contact_state(), "released": sorted(self.released), "opened": sorted(self.opened),
+        s = self.state
+        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "rules": self.rules.state_dict(),
+                "released": sorted(self.released), "opened": sorted(self.opened),
                 "stuck": self.stuck, "events": self.events}
 
     def load_state_dict(self, d: dict) -> None:
-        self.load_contact_state(d)
+        self.state = State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float))
+        self.t = float(d["t_now"])
+        self.rules.load_state_dict(d["rules"])
         self.released, self.opened = frozenset(d["released"]), frozenset(d["opened"])
         self.stuck, self.events = int(d["stuck"]), int(d["events"])
 
@@ -230,9 +236,10 @@ class EventDrivenRun(FeatureContacts):
         reference = {"method": self.method, "rtol": self.rtol, "atol": self.atol, "max_step": self.max_step,
                      "gap_tol": self.gap_tol, "v_tol": V_TOL, "g_res": G_RES, "g_zeno": G_ZENO, "v_zeno": V_ZENO,
                      "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "lie_group_chart": self.lie}
-        run = {"steps": None, "events": self.events, "impacts": self.impacts, "nfev": self.nfev,
+        run = {"steps": None, "events": self.events, "impacts": self.rules.impacts, "nfev": self.rules.nfev,
                "wall_seconds": wall}
-        return run_metadata(self.model, status, run, integrator="event-driven", reference=reference, zeno=self.zeno)
+        return run_metadata(self.model, status, run, integrator="event-driven", reference=reference,
+                            zeno=self.rules.zeno)
 
 
 def simulate_event_driven(model: Model, *, state: State | None = None, t_end: float | None = None,

@@ -33,7 +33,7 @@ ACC_TOL = 1e-8  # [m/s^2] relative acceleration below this (scaled): a touching 
 class FeatureContacts:
     """The contact decisions at events (module doc) on a model's features (gaps.Gaps), and what
     they carry from one event to the next: the Zeno declarations, the last impact, the faces of
-    the persistent vertices, counters (contact_state() for checkpoints)."""
+    the persistent vertices, counters (state_dict() for checkpoints). The integrators hold one each."""
 
     def __init__(self, model: Model, data: Data, e: float, feats: tuple[Feature, ...] | None = None):
         self.model, self.data, self.e = model, data, e
@@ -46,7 +46,6 @@ class FeatureContacts:
         self.zeno: list[dict] = []
         self.last_impact = -np.inf
         self.impacts = self.nfev = 0
-        self.t = float("nan")  # [s] where the run is (errors name it): a step's or phase's start, an event
         self.faces: dict = {}  # (pair, vertex feature) -> its face, for the persistent vertices of a phase
         # pair -> the column of its feature 0 in feats (box pairs' features are consecutive)
         self.box_index = {f.pair: i for i, f in reversed(list(enumerate(self.feats))) if f.box is not None}
@@ -58,18 +57,16 @@ class FeatureContacts:
                              for i, f in enumerate(self.feats) if f.kind in CYLINDER_KINDS}
 
     # ---- checkpoints (protocol.Integrator.state_dict) -----------------------------------------
-    def contact_state(self) -> dict:
-        """What the contact decisions carry between accepted points, and the current state, as JSON."""
-        s = self.state
-        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "zeno": self.zeno,
+    def state_dict(self) -> dict:
+        """What the contact decisions carry between accepted points, as JSON."""
+        return {"zeno": self.zeno,
                 "last_impact": None if self.last_impact == -np.inf else self.last_impact,
                 "impacts": self.impacts, "nfev": self.nfev,
                 "redundant": [[list(C), r] for C, r in self._redundant.items()],
                 "faces": [[p, k, f] for (p, k), f in self.faces.items()]}
 
-    def load_contact_state(self, d: dict) -> None:
-        self.state = State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float))
-        self.t, self.zeno = float(d["t_now"]), list(d["zeno"])
+    def load_state_dict(self, d: dict) -> None:
+        self.zeno = list(d["zeno"])
         self.last_impact = -np.inf if d["last_impact"] is None else float(d["last_impact"])
         self.impacts, self.nfev = int(d["impacts"]), int(d["nfev"])
         self._redundant = {tuple(C): bool(r) for C, r in d["redundant"]}
@@ -110,7 +107,6 @@ class FeatureContacts:
         """Impact (with the Zeno rule), then the persistent set C at (t, q, u) (module doc).
         Returns (u, C, shadow, records, work): C persistent features, shadow: duplicates of C's
         rows; records: the impact to record (protocol.Impact) if any, work: its contact work [J]."""
-        self.t = t
         self.faces = {}  # chosen afresh at an event
         fs = self.features(q, u)
         closed = (fs.g <= self.gap_tol) & fs.smooth  # an edge pair's stand-in is never a contact (§7.1)
