@@ -14,8 +14,8 @@ of the same scene and step size (their loop with its recording), wall time per s
 `repeat` rounds that run every side in turn. The issue-12 targets (TARGETS) get their verdicts from
 these figures. Writes compiled_costs.json and compiled_costs.png to out/ (or --out).
 
-    python -m moreau_sim.bench.compiled_costs [--out docs/bench] [--repeat 7] [--states 200]
-    python -m moreau_sim.bench.compiled_costs --table docs/bench/compiled_costs.json docs/benchmarks.md
+    python -m benchmarks.compiled_costs [--out docs/bench] [--repeat 7] [--states 200]
+    python -m benchmarks.compiled_costs --table docs/bench/compiled_costs.json docs/benchmarks.md
 """
 
 from __future__ import annotations

@@ -18,8 +18,8 @@ references that are not the method under test:
 Writes adaptive_costs.json to out/ (--out docs/bench: the committed file); --table rewrites the
 tables of docs/benchmarks.md from it.
 
-    python -m moreau_sim.bench.adaptive_costs [--out docs/bench] [--repeat 3]
-    python -m moreau_sim.bench.adaptive_costs --table docs/bench/adaptive_costs.json docs/benchmarks.md
+    python -m benchmarks.adaptive_costs [--out docs/bench] [--repeat 3]
+    python -m benchmarks.adaptive_costs --table docs/bench/adaptive_costs.json docs/benchmarks.md
 """
 
 from __future__ import annotations
@@ -37,9 +37,10 @@ import moreau_sim as ms
 from moreau_sim.adaptive import DEFAULT_ORDER, AdaptiveRun, simulate_adaptive
 from moreau_sim.event_driven import EventDrivenRun, simulate_event_driven
 from moreau_sim.recording import versions
+from moreau_sim.testing import metrics
+from moreau_sim.testing.references import ball_apex_gaps, ball_impact_times, cradle_simultaneous
 
-from . import OUT, metrics, add_table_option, rewrite_tables, scene_path
-from .references import ball_apex_gaps, ball_impact_times, cradle_simultaneous
+from . import OUT, add_table_option, rewrite_tables, scene_path
 from .work_precision import run_moreau
 
 RTOLS = (1e-4, 1e-6, 1e-8, 1e-10, 1e-12)

@@ -12,7 +12,7 @@ and the QP in both forms (primal M-metric vs dual Delassus) on the contact state
 Medians over states of the best of `repeat` timings (us). Writes step_costs.json and
 step_costs.png to out/ (--out docs/bench: the committed files).
 
-    python scripts/bench_step.py [--out docs/bench] [--repeat 5] [--states 300]
+    python -m benchmarks.step_costs [--out docs/bench] [--repeat 5] [--states 300]
 """
 
 from __future__ import annotations
@@ -193,3 +193,7 @@ def main():
     (out / "step_costs.json").write_text(json.dumps({"meta": meta, "scenes": results}, indent=2))
     plot(results, out / "step_costs.png")
     print(f"wrote {out / 'step_costs.json'} and {out / 'step_costs.png'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -11,8 +11,8 @@ and the stages of the step are split by cProfile (cumulative time of the stage f
 slope of log(cost) against log(m) is fitted by least squares (target <= 1.1: cost linear in m).
 Writes scaling.json and scaling.png to out/ (--out docs/bench: the committed files).
 
-    python -m moreau_sim.bench.scaling [--out docs/bench] [--sizes 10 20 50 100 200 500 1000]
-    python -m moreau_sim.bench.scaling --table docs/bench/scaling.json docs/benchmarks.md
+    python -m benchmarks.scaling [--out docs/bench] [--sizes 10 20 50 100 200 500 1000]
+    python -m benchmarks.scaling --table docs/bench/scaling.json docs/benchmarks.md
 """
 
 from __future__ import annotations
