@@ -104,3 +104,28 @@ def rewrite_tables(args, render) -> bool:
     print(f"wrote {', '.join(names)} into {args.table[1]}")
     return True
 
+
+def add_plot_option(ap, json_name: str) -> None:
+    """The --plot JSON option of the benchmarks that draw a chart (argparse parser `ap`)."""
+    ap.add_argument("--plot", type=Path, metavar="JSON",
+                    help=f"only redraw the chart from a saved {json_name} (the PNG beside it: "
+                         f"{json_name.replace('.json', '.png')}), and exit")
+
+
+def redraw(args, plot, *, select=lambda data: data) -> bool:
+    """With --plot given, draw `plot(select(data), png)` from the saved JSON into the PNG of the same
+    name beside it, and say so; whether it was given (the caller then exits). SystemExit with one
+    line naming the file on bad input."""
+    import json
+
+    if not args.plot:
+        return False
+    png = Path(args.plot).with_suffix(".png")
+    try:
+        plot(select(json.loads(Path(args.plot).read_text(encoding="utf-8"))), png)
+    except (OSError, ValueError) as err:
+        raise SystemExit(f"error: {err}") from None
+    except (KeyError, TypeError) as err:
+        raise SystemExit(f"error: {args.plot}: missing or malformed entry {err}") from None
+    print(f"wrote {png}")
+    return True

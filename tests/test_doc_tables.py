@@ -91,3 +91,17 @@ def test_a_rerun_without_siconos_renders_its_targets_as_not_measured():
     assert len(rows) == sum("siconos" in kind for _, kind, _, _ in compiled_costs.TARGETS) > 0
     assert all(ln.endswith("| not measured | – |") for ln in rows)
 
+
+@pytest.mark.parametrize("module", ["step_costs", "compiled_costs", "scaling"])
+def test_each_chart_is_drawn_from_its_json_alone(module, tmp_path):
+    """`--plot JSON` redraws a benchmark's chart from the saved figures, without measuring again."""
+    saved = tmp_path / f"{module}.json"
+    saved.write_bytes((REPO / "docs/bench" / saved.name).read_bytes())
+    r = subprocess.run([sys.executable, "-m", f"benchmarks.{module}", "--plot", str(saved)], capture_output=True,
+                       text=True, cwd=REPO)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert saved.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    saved.write_text("{}")
+    r = subprocess.run([sys.executable, "-m", f"benchmarks.{module}", "--plot", str(saved)], capture_output=True,
+                       text=True, cwd=REPO)
+    assert r.returncode != 0 and "Traceback" not in r.stderr and str(saved) in r.stderr
