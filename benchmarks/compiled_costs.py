@@ -11,11 +11,12 @@ inside its own stepping loop; per step the best of those runs, median over the s
 phase (the phase rule `phase` applied to the peer's own contact count per step). Whole runs: the
 scene by ms.simulate (recording included, compiled and Python step) against the peers' whole runs
 of the same scene and step size (their loop with its recording), wall time per step, the best of
-`repeat` rounds that run every side in turn. The issue-12 targets (TARGETS) get their verdicts from
+`repeat` rounds that run every side in turn. The cost targets (TARGETS) get their verdicts from
 these figures. Writes compiled_costs.json and compiled_costs.png to out/ (or --out).
 
-    python -m moreau_sim.bench.compiled_costs [--out docs/bench] [--repeat 7] [--states 200]
-    python -m moreau_sim.bench.compiled_costs --table docs/bench/compiled_costs.json docs/benchmarks.md
+    python -m benchmarks.compiled_costs [--out docs/bench] [--repeat 7] [--states 200]
+    python -m benchmarks.compiled_costs --table docs/bench/compiled_costs.json docs/benchmarks.md
+    python -m benchmarks.compiled_costs --plot docs/bench/compiled_costs.json   # redraw the chart from the JSON
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import moreau_sim as ms
 from moreau_sim import compiled
 from moreau_sim.recording import versions
 
-from . import OUT, add_table_option, rewrite_tables, scene_path
+from . import OUT, add_plot_option, add_table_option, redraw, rewrite_tables, scene_path
 from .step_costs import best  # best of `repeat` timings, us
 
 # (label, scene, phase: "flight", "contact", or "late-contact" = the last third of the run's contact states)
@@ -47,7 +48,7 @@ CASES = (("ball, flight", "bouncing_ball", "flight"),
 WHOLE_RUNS = ("bouncing_ball", "zeno_ball")  # ms.simulate, recording included
 PEERS = ("siconos", "mujoco")
 PEER_NAMES = {"siconos": "Siconos", "mujoco": "MuJoCo"}
-# The issue-12 targets: (what, kind, case or scene, bound). kind "us": the compiled step's median
+# The cost targets: (what, kind, case or scene, bound). kind "us": the compiled step's median
 # (us) <= bound; "x siconos": the compiled step over Siconos's per step <= bound; "run x siconos":
 # ms.simulate's wall per step (compiled) over Siconos's whole run per step <= bound.
 TARGETS = (("ball contact step <= 1.5x Siconos", "x siconos", "zeno_ball", 1.5),
@@ -241,8 +242,8 @@ def whole_run_table(res: dict) -> str:
 
 
 def targets_table(res: dict) -> str:
-    """The issue-12 targets with the figures of this run and their verdicts."""
-    out = ["| issue-12 target | measured (compiled step) | verdict |", "|---|---|---|"]
+    """The cost targets with the figures of this run and their verdicts."""
+    out = ["| target | measured (compiled step) | verdict |", "|---|---|---|"]
     for v in verdicts(res):
         verdict = "–" if v["met"] is None else ("met" if v["met"] else "**missed**")
         out.append(f"| {v['target']} | {v['shown']} | {verdict} |")
@@ -257,13 +258,13 @@ def doc_tables(res: dict) -> dict[str, str]:
 
 def plot(res: dict, path: Path) -> None:
     """Bars per case (log scale): Python step, compiled step, Siconos, MuJoCo; the whole runs last;
-    the issue-12 targets as red marks over their case."""
+    the cost targets as red marks over their case."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     groups = [(f"{c['scene']}\n{c['label'].split(', ', 1)[-1]}"
-               + ("" if c["compiled_share"] == 1 else f"\n({100 * c['compiled_share']:.0f} % compiled)"),
+               + ("" if c["compiled_share"] == 1 else f"\n({100 * c['compiled_share']:.0f} % in C++)"),
                c["python"], c["compiled"],
                (c.get("siconos") or {}).get("us"), (c.get("mujoco") or {}).get("us")) for c in res["cases"]]
     groups += [(f"{w['scene']}\nwhole run", w["python"], w["compiled"], w["siconos"], w["mujoco"])
@@ -279,11 +280,11 @@ def plot(res: dict, path: Path) -> None:
         ax.bar(xs, ys, w, label=name, color=color)
     ext = [(x[i] - 0.1, c["extension"]) for i, c in enumerate(res["cases"]) if c.get("extension")]
     if ext:
-        ax.plot(*zip(*ext), "k_", ms=14, mew=2, label="compiled: its extension call alone")
+        ax.plot(*zip(*ext), "k_", ms=14, mew=2, label="compiled step: the C++ call alone, no Python around it")
     bare = [(x[len(res["cases"]) + i] - 0.1, w["step_loop"]) for i, w in enumerate(res.get("whole_runs", []))
             if w.get("step_loop")]
     if bare:
-        ax.plot(*zip(*bare), "kv", ms=6, label="compiled: a bare ms.step loop (nothing recorded)")
+        ax.plot(*zip(*bare), "kv", ms=6, label="compiled step: a plain loop of ms.step, nothing recorded")
     where = {c["scene"]: i for i, c in enumerate(res["cases"])}
     where_run = {wr["scene"]: len(res["cases"]) + i for i, wr in enumerate(res.get("whole_runs", []))}
     labelled = False
@@ -294,7 +295,7 @@ def plot(res: dict, path: Path) -> None:
         g = groups[i]
         y = bound if kind == "us" else bound * g[3]
         ax.plot([x[i] - 0.45, x[i] + 0.45], [y, y], color="red", lw=1.5,
-                label=None if labelled else "issue-12 target (compiled step at or below)")
+                label=None if labelled else "target: the compiled step at or below the red line")
         labelled = True
     ax.set_xticks(x, [g[0] for g in groups], fontsize=7)
     ax.set_yscale("log")
@@ -321,8 +322,9 @@ def main(argv=None) -> None:
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--states", type=int, default=200)
     add_table_option(ap, "compiled_costs.json", "docs/benchmarks.md")
+    add_plot_option(ap, "compiled_costs.json")
     a = ap.parse_args(argv)
-    if rewrite_tables(a, doc_tables):
+    if rewrite_tables(a, doc_tables) or redraw(a, plot):
         return
     if not compiled.available():
         raise SystemExit(f"the compiled step is unavailable: {compiled.unavailable_reason()}")

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .ledger import Ledger, compare, drift_table, ledger
-from .regress import baseline_path, read_baseline, write_baseline
-from .trajectory import Trajectory
+from ..ledger import Ledger, compare, drift_table, ledger
+from ..regress import baseline_path, read_baseline, write_baseline
+from ..trajectory import Trajectory
 
 __all__ = ["assert_budget_closes", "assert_dissipation_follows_law", "assert_matches_baseline",
            "assert_no_energy_gain"]

@@ -12,7 +12,8 @@ and the QP in both forms (primal M-metric vs dual Delassus) on the contact state
 Medians over states of the best of `repeat` timings (us). Writes step_costs.json and
 step_costs.png to out/ (--out docs/bench: the committed files).
 
-    python scripts/bench_step.py [--out docs/bench] [--repeat 5] [--states 300]
+    python -m benchmarks.step_costs [--out docs/bench] [--repeat 5] [--states 300]
+    python -m benchmarks.step_costs --plot docs/bench/step_costs.json   # redraw the chart from the JSON
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from moreau_sim.options import QPForm
 from moreau_sim.recording import versions
 from moreau_sim.stepper import assemble, free_velocity
 
-from . import OUT, SCENES, add_table_option, rewrite_tables, scene_path
+from . import OUT, SCENES, add_plot_option, add_table_option, redraw, rewrite_tables, scene_path
 
 TARGETS = {"bouncing_ball": {"flight": 10, "contact": 40}, "newton_cradle_5": {"contact": 150},
            "box_drop": {"contact": 80}}
@@ -103,30 +104,48 @@ def bench_scene(name: str, repeat: int, n_states: int) -> dict:
     return out
 
 
+# The parts of a step as the chart names them (the JSON's keys: dyn, coll, qp, glue).
+PARTS = (("dyn", "dynamics (Pinocchio)", "tab:blue"), ("coll", "collision detection (coal)", "tab:orange"),
+         ("qp", "impact QP (piqp)", "tab:green"),
+         ("glue", "the rest: Python and numpy (contacts, rows W, bookkeeping)", "tab:red"))
+
+
 def plot(results: dict, png: Path) -> None:
+    """One row per scene and state (a step in flight, a step with contacts): left, the time of one
+    step (log scale); right, the share of each part of it. `results`: a step_costs.json's "scenes"."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    labels, parts = [], {k: [] for k in ("dyn", "coll", "qp", "glue")}
-    for name, r in results.items():
-        for kind in ("flight", "contact"):
-            if kind in r:
-                labels.append(f"{name}\n{kind} (m={r[kind]['m']:.0f})")
-                for k in parts:
-                    parts[k].append(r[kind][k])
-    fig, ax = plt.subplots(figsize=(11, 4.5), constrained_layout=True)
-    x = np.arange(len(labels))
-    bottom = np.zeros(len(labels))
-    for k, vals in parts.items():
-        ax.bar(x, vals, bottom=bottom, label=k)
-        bottom += np.array(vals)
-    ax.set_xticks(x, labels, fontsize=7)
-    ax.set_ylabel("us per step (median)")
-    ax.set_title("moreau-sim: cost of one midpoint Moreau step")
-    ax.legend()
+    def state(kind: str, m: float) -> str:
+        return "in flight" if kind == "flight" else f"{m:.0f} contact" + ("" if m == 1 else "s")
+
+    rows = [(f"{name}, {state(kind, r[kind]['m'])}", r[kind])
+            for name, r in sorted(results.items()) for kind in ("flight", "contact") if kind in r]
+    rows.reverse()  # the first scene at the top
+    y = np.arange(len(rows))
+    fig, (ax_t, ax_s) = plt.subplots(1, 2, figsize=(11, 0.22 * len(rows) + 1.6), sharey=True,
+                                     gridspec_kw={"width_ratios": [1, 1.3]}, layout="constrained")
+    ax_t.barh(y, [r["total"] for _, r in rows], color="0.45", height=0.7)
+    ax_t.set_xscale("log")
+    ax_t.set_xlabel("µs per step (median over states, log scale)")
+    ax_t.set_yticks(y, [label for label, _ in rows], fontsize=8)
+    ax_t.set_ylim(-0.6, len(rows) - 0.4)
+    ax_t.grid(axis="x", which="both", alpha=0.3)
+    ax_t.set_title("time of one step", fontsize=10)
+    left = np.zeros(len(rows))
+    for key, name, color in PARTS:
+        share = np.array([100 * r[key] / r["total"] if r["total"] else 0.0 for _, r in rows])
+        ax_s.barh(y, share, left=left, color=color, height=0.7, label=name)
+        left += share
+    ax_s.set_xlim(0, 100)
+    ax_s.set_xlabel("share of the step [%]")
+    ax_s.set_title("where the time goes", fontsize=10)
+    fig.suptitle("moreau-sim: cost of one time step, per bundled scene (Python step)", fontsize=11)
+    fig.legend(*ax_s.get_legend_handles_labels(), fontsize=8, loc="outside lower center", ncol=2, frameon=False)
     fig.savefig(png, dpi=110)
+    plt.close(fig)
 
 
 # The rows of the table in docs/benchmarks.md: (scene, state, label); the contact target of the
@@ -167,11 +186,12 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(OUT), help="output folder (docs/bench: the committed files)")
     add_table_option(ap, "step_costs.json", "docs/benchmarks.md")
+    add_plot_option(ap, "step_costs.json")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--states", type=int, default=300)
     ap.add_argument("--scenes", nargs="*", default=sorted(p.stem for p in SCENES.glob("*.toml")))
     a = ap.parse_args()
-    if rewrite_tables(a, doc_tables):
+    if rewrite_tables(a, doc_tables) or redraw(a, plot, select=lambda data: data["scenes"]):
         return
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -193,3 +213,7 @@ def main():
     (out / "step_costs.json").write_text(json.dumps({"meta": meta, "scenes": results}, indent=2))
     plot(results, out / "step_costs.png")
     print(f"wrote {out / 'step_costs.json'} and {out / 'step_costs.png'}")
+
+
+if __name__ == "__main__":
+    main()

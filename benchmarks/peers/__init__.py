@@ -1,10 +1,10 @@
 """Peer simulators (MuJoCo, PyBullet, Siconos) on moreau-sim's scenes: one runner per peer, each
-reading the neutral spec of moreau_sim.bench.spec, with one set of documented defaults per peer
-(`DEFAULTS` in moreau_sim.bench.peers.mujoco / .pybullet / .siconos).
+reading the neutral spec of benchmarks.spec, with one set of documented defaults per peer
+(`DEFAULTS` in benchmarks.peers.mujoco / .pybullet / .siconos).
 
-    from moreau_sim.bench.peers import available, run, run_model
+    from benchmarks.peers import available, run, run_model
     available()                                   # {peer: None if usable, else why not and how to install}
-    res = run("mujoco", spec)                     # spec = moreau_sim.bench.spec.make_spec(model)
+    res = run("mujoco", spec)                     # spec = benchmarks.spec.make_spec(model)
     res = run("pybullet", spec, config="tuned")   # peer parameters as keywords (unknown names: an error)
     t, q, u, res = run_model("siconos", model, e=0.5, h=1e-3, T=1.5)   # the same in model coordinates
 
@@ -40,17 +40,18 @@ SICONOS_PYTHON = os.environ.get("SICONOS_PYTHON") or (
 _IMPORT = {"mujoco": "mujoco", "pybullet": "pybullet", "siconos": "siconos.kernel"}
 _INSTALL = {"mujoco": "pip install mujoco", "pybullet": "pip install pybullet",
             "siconos": f"apt-get install -y python3-siconos (Debian; used from {SICONOS_PYTHON})"}
-_PACKAGE_ROOT = Path(__file__).resolve().parents[2]  # moreau_sim/
-# The subprocess: stubs for the packages moreau_sim and moreau_sim.bench(.peers) (their __init__
-# needs Pinocchio, which Debian's Python lacks), then spec.child_main. Run with -P: the current
-# directory is not searched, so a module named like a peer (peers/mujoco.py) cannot shadow it.
+_PACKAGE_ROOT = Path(__file__).resolve().parents[1]  # benchmarks/
+# The subprocess: stubs for the packages benchmarks and benchmarks.peers (so that nothing but
+# spec.py and the peer's module is loaded: no moreau_sim, no Pinocchio, which Debian's Python
+# lacks), then spec.child_main. Run with -P: the current directory is not searched, so a module
+# named like a peer (peers/mujoco.py) cannot shadow it.
 _CHILD = """import sys, types
 root = sys.argv[1]
-for name, sub in (("moreau_sim", ""), ("moreau_sim.bench", "/bench"), ("moreau_sim.bench.peers", "/bench/peers")):
+for name, sub in (("benchmarks", ""), ("benchmarks.peers", "/peers")):
     mod = types.ModuleType(name)
     mod.__path__ = [root + sub]
     sys.modules[name] = mod
-from moreau_sim.bench.spec import child_main
+from benchmarks.spec import child_main
 sys.exit(child_main(sys.argv[2:]))
 """
 

@@ -11,8 +11,9 @@ and the stages of the step are split by cProfile (cumulative time of the stage f
 slope of log(cost) against log(m) is fitted by least squares (target <= 1.1: cost linear in m).
 Writes scaling.json and scaling.png to out/ (--out docs/bench: the committed files).
 
-    python -m moreau_sim.bench.scaling [--out docs/bench] [--sizes 10 20 50 100 200 500 1000]
-    python -m moreau_sim.bench.scaling --table docs/bench/scaling.json docs/benchmarks.md
+    python -m benchmarks.scaling [--out docs/bench] [--sizes 10 20 50 100 200 500 1000]
+    python -m benchmarks.scaling --table docs/bench/scaling.json docs/benchmarks.md
+    python -m benchmarks.scaling --plot docs/bench/scaling.json   # redraw the chart from the JSON
 """
 
 from __future__ import annotations
@@ -37,13 +38,14 @@ from moreau_sim import compiled, qp
 from moreau_sim.recording import versions
 from moreau_sim.scene import Collisions
 
-from . import OUT, REPO, add_table_option, rewrite_tables
+from . import OUT, REPO, add_plot_option, add_table_option, redraw, rewrite_tables
 from .step_costs import best  # best of `repeat` timings, us
 
 SIZES = (10, 20, 50, 100, 200, 500, 1000)
 QP_SIZES = (100, 300, 1000, 3000)
 TARGET_SLOPE = 1.1
 IMPLS = ("compiled", "python")
+NAMES = {"compiled": "compiled", "python": "Python"}  # the step implementations as the chart names them
 # the stages of a Python step: (label, module file, function) for cProfile's cumulative times (file "~": a
 # built-in, matched by the end of its name; no file: Pinocchio's, which cProfile does not see, timed apart)
 STAGES = (("detect", "contacts.py", "detect"), ("CRBA", "", ""), ("rows W", "constraints.py", "contact_rows"),
@@ -173,36 +175,40 @@ def plot(data: dict, png: Path) -> None:
 
     rows = data["sizes"]
     m = np.array([r["contacts"] for r in rows], float)
-    fig, ax = plt.subplots(figsize=(8, 5.5), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(8.5, 7.5), layout="constrained")
     for impl, mark, size in zip(IMPLS, ("o", "s"), (9, 5)):  # the python squares inside the compiled discs
         t = np.array([r[impl]["us"] for r in rows]) * 1e-3
         c, t0 = np.polyfit(np.log(m), np.log(t), 1)
-        line, = ax.loglog(m, t, mark, ms=size, label=f"step_impl = {impl}")
+        line, = ax.loglog(m, t, mark, ms=size, label=f"{NAMES[impl]} step")
         ax.loglog(m, np.exp(t0) * m ** c, "-", color=line.get_color(), lw=1, label=f"fit: slope {c:.2f}")
     before = data.get("before")
     if before:
         for impl, mark in zip(IMPLS, ("o", "s")):
             pts = sorted((int(n), v[impl] * 1e-3) for n, v in before["sizes"].items())
             ax.loglog(*zip(*pts), mark, mfc="none", color="grey", ms=7,
-                      label=f"before ({impl}): slope {before['slopes'][impl]:.2f}")
+                      label=f"{NAMES[impl]} step, older code with a dense QP (git {before['commit']}): "
+                            f"slope {before['slopes'][impl]:.2f}")
     qa = data.get("qp_alone") or []
     if qa:
         ax.loglog([r["beads"] for r in qa], [r["us"] * 1e-3 for r in qa], "^-", color="tab:green", lw=0.8,
                   label=f"impact QP alone, no model (M = I): slope {data['qp_alone_slope']:.2f}")
         bq = sorted((int(n), v * 1e-3) for n, v in (before or {}).get("qp_alone", {}).items())
         if bq:
-            ax.loglog(*zip(*bq), "^", mfc="none", color="grey", ms=7, label="before: QP alone")
+            ax.loglog(*zip(*bq), "^", mfc="none", color="grey", ms=7,
+                      label=f"impact QP alone, older code (git {before['commit']})")
     ref = np.array([r["python"]["us"] for r in rows]) * 1e-3
     ax.loglog(m, ref[0] * m / m[0], "k:", lw=1, label="slope 1 (from the first point)")
     ax.axvline(data["compiled_limit"] + 0.5, color="grey", lw=0.8, ls="--")
     ax.axvline(data["sparse_rows"] + 0.5, color="grey", lw=0.8, ls="-.")
-    ax.text(data["compiled_limit"] + 0.5, ax.get_ylim()[1], " compiled step's limit", fontsize=7, va="top")
-    ax.text(data["sparse_rows"] + 0.5, ax.get_ylim()[1] / 4, " sparse QP above", fontsize=7, va="top")  # under
+    top = ax.get_ylim()[1]
+    ax.text(data["compiled_limit"] + 0.5, top, f"compiled step: up to {data['compiled_limit']} contacts ", fontsize=7,
+            va="top", ha="right")
+    ax.text(data["sparse_rows"] + 0.5, top, f" sparse QP above {data['sparse_rows']} rows", fontsize=7, va="top")
     ax.set_xlabel("contacts m (= beads N)")
     ax.set_ylabel("ms per step (median over states); ms per solve (QP alone)")
-    ax.set_title(f"a column of N touching beads: cost of one step (target slope <= {TARGET_SLOPE})")
+    ax.set_title(f"a column of N touching beads: cost of one step (target: fitted slope ≤ {TARGET_SLOPE})")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    fig.legend(*ax.get_legend_handles_labels(), fontsize=8, loc="outside lower center", ncol=2, frameon=False)
     fig.savefig(png, dpi=110)
 
 
@@ -273,6 +279,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(OUT), help="output folder (docs/bench: the committed files)")
     add_table_option(ap, "scaling.json", "docs/benchmarks.md")
+    add_plot_option(ap, "scaling.json")
     ap.add_argument("--sizes", type=int, nargs="*", default=list(SIZES), help="numbers of beads")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--states", type=int, default=10, help="contact states per size (a run of that many steps)")
@@ -280,7 +287,7 @@ def main(argv=None) -> int:
     ap.add_argument("--qp-sizes", type=int, nargs="*", default=list(QP_SIZES),
                     help="numbers of beads of the QP alone (no Pinocchio Data: beyond what a model can build)")
     a = ap.parse_args(argv)
-    if rewrite_tables(a, doc_tables):
+    if rewrite_tables(a, doc_tables) or redraw(a, plot):
         return 0
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

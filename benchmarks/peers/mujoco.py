@@ -1,4 +1,4 @@
-"""MuJoCo runner of the neutral spec (moreau_sim.bench.spec).
+"""MuJoCo runner of the neutral spec (benchmarks.spec).
 
 MuJoCo has no restitution coefficient: every contact is a soft spring-damper. With the direct
 solref format solref="-k -b" and a constant impedance d (solimp dmin = dmax) the normal motion

@@ -9,11 +9,11 @@
 - box_drop, e = 0.5, h = 1e-3, T = 1.5 s: deepest penetration, where the box comes to rest
   (no exact reference: frictionless tumbling is sensitive; this shows resting-contact health).
 
-Every peer runs the neutral spec of the bundled scene (moreau_sim.bench.spec) with its runner's
+Every peer runs the neutral spec of the bundled scene (benchmarks.spec) with its runner's
 defaults; apexes are found by metrics.apexes. This is a measurement, not a test: it never fails
 on a bad number.
 
-    python scripts/check_peers.py --out out/peers.json [--md out/peers.md]
+    python -m benchmarks.check_peers --out out/peers.json [--md out/peers.md]
 """
 from __future__ import annotations
 
@@ -25,10 +25,10 @@ import time
 import numpy as np
 
 import moreau_sim as ms
+from moreau_sim.testing.metrics import apexes
+from moreau_sim.testing.references import BALL_GAP as D0, ball_reference, cradle_sequential, cradle_simultaneous
 
 from . import peers, scene_path
-from .metrics import apexes
-from .references import BALL_GAP as D0, ball_reference, cradle_sequential, cradle_simultaneous
 from .spec import min_corner_height, quat_to_mats, to_jsonable
 
 R = 0.1  # ball radius [m]
@@ -255,3 +255,7 @@ def main(argv=None):
                 f.write(f"\n### MuJoCo omega_h scan\n\n{ball_table(scan, True)}\n")
         print(f"saved {a.md}")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

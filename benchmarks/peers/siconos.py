@@ -1,8 +1,8 @@
-"""Siconos runner of the neutral spec (moreau_sim.bench.spec); runs in Debian's Python.
+"""Siconos runner of the neutral spec (benchmarks.spec); runs in Debian's Python.
 
 Siconos (Debian `python3-siconos`) is importable only from Debian's own interpreter, so the host
-(moreau_sim.bench.peers.run) always runs this module in a subprocess of SICONOS_PYTHON; this module
-imports nothing but numpy and moreau_sim.bench.spec.
+(benchmarks.peers.run) always runs this module in a subprocess of SICONOS_PYTHON; this module
+imports nothing but numpy and benchmarks.spec.
 
 Method: the same class as moreau-sim - Moreau-Jean time stepping, MoreauJeanOSI(theta = 1/2), the
 Newton impact law NewtonImpactNSL(e) per contact, one LCP per step (Lemke by default). Two spec
@@ -260,8 +260,7 @@ def _spheres(spec, P, timing=()):
 def _box(spec, P, timing=()):
     import siconos.kernel as sk
     import siconos.numerics as sn
-    from siconos.mechanics.collision import (RigidBodyDS, SiconosBox, SiconosContactor, SiconosContactorSet,
-                                             SiconosPlane)
+    from siconos.mechanics.collision import RigidBodyDS, SiconosBox, SiconosContactor, SiconosContactorSet, SiconosPlane
     from siconos.mechanics.collision.bullet import SiconosBulletCollisionManager, SiconosBulletOptions
 
     e, h, T = float(spec["e"]), float(spec["h"]), float(spec["T"])

@@ -1,4 +1,4 @@
-"""PyBullet runner of the neutral spec (moreau_sim.bench.spec).
+"""PyBullet runner of the neutral spec (benchmarks.spec).
 
 PyBullet's restitution is per body and a contact multiplies the two values: every body and every
 static gets sqrt(e), so that every pair's product is e (body-body and body-ground alike).

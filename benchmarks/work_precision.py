@@ -2,10 +2,10 @@
 second, for moreau-sim and the peers (MuJoCo, PyBullet default/tuned, Siconos), over step sizes.
 
     pip install -e '.[peers]'; apt-get install -y python3-siconos   # the peers (optional)
-    python scripts/work_precision.py                  # writes out/
-    python scripts/work_precision.py --out docs/bench # regenerates the committed tables and figures
-    python scripts/work_precision.py --quick --out /tmp/wp        # tiny sweep (smoke test)
-    python scripts/work_precision.py --table docs/bench/work_precision.json docs/benchmarks.md  # its tables
+    python -m benchmarks.work_precision                  # writes out/
+    python -m benchmarks.work_precision --out docs/bench # regenerates the committed tables and figures
+    python -m benchmarks.work_precision --quick --out /tmp/wp        # tiny sweep (smoke test)
+    python -m benchmarks.work_precision --table docs/bench/work_precision.json docs/benchmarks.md  # its tables
 
 Errors (docs/benchmarks.md): bouncing ball - the first three rebound heights against e^(2n) d0;
 touching cradle - the final velocities against Moreau's simultaneous result (docs/theory.md §4);
@@ -13,8 +13,8 @@ rocking block, pendulum into a wall, box drop - the configuration at fixed insta
 event-driven reference (moreau_sim.event_driven). CPU time: time.process_time() around the stepping
 loop only (moreau-sim: ms.step in a loop storing q, u; peers: their runners' own loops), median
 over repeats, all methods interleaved in each repeat so machine drift hits all alike. The peers
-run the neutral spec of each bundled scene (moreau_sim.bench.spec) with their runners' defaults
-(moreau_sim.bench.peers), the touching cradle with Siconos' exact_gaps. Plus a micro-benchmark of
+run the neutral spec of each bundled scene (benchmarks.spec) with their runners' defaults
+(benchmarks.peers), the touching cradle with Siconos' exact_gaps. Plus a micro-benchmark of
 the impact solver inside our step: piqp (primal, dual), the closed form for one contact,
 Pinocchio's ADMM and PGS, on contact problems of our scenes (stepper.assemble: the step's own
 free velocity, i.e. the scene's bias).
@@ -47,9 +47,10 @@ from moreau_sim.event_driven import simulate_event_driven
 from moreau_sim.options import Options, QPForm
 from moreau_sim.recording import versions
 from moreau_sim.stepper import assemble
+from moreau_sim.testing import metrics
+from moreau_sim.testing.references import ball_apex_gaps, cradle_simultaneous
 
-from . import OUT, REPO, metrics, peers, add_table_option, rewrite_tables, scene_path
-from .references import ball_apex_gaps, cradle_simultaneous
+from . import OUT, REPO, add_table_option, peers, rewrite_tables, scene_path
 from .spec import min_corner_height, to_jsonable
 
 STEPS = (1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5, 1e-5)
@@ -343,7 +344,7 @@ def summarize(points: list, cases, peer_names) -> list[dict]:
             reached = {m: c for m, c in peers.items() if c is not None}
             best = min(reached, key=reached.get) if reached else None
             if case.peer_scene is None:
-                ratio, note = None, "no peer can express this scene (moreau_sim.bench.spec cannot carry it)"
+                ratio, note = None, "no peer can express this scene (benchmarks.spec cannot carry it)"
             elif best is None:
                 ratio, note = None, "no peer reaches this accuracy"
             elif mine is None:
@@ -658,3 +659,7 @@ def main(argv=None) -> int:
     print(table_md(summary))
     print(f"wrote {out / 'work_precision.json'} and {len(cases)} PNGs ({time.time() - wall0:.0f} s wall)")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,16 +1,8 @@
-"""Exact references of the bundled benchmark scenes (docs/theory.md §4), the one home of each formula.
+"""Exact references of the bundled scenes, the one home of each formula in code: the bouncing
+ball (impact times, apexes, Zeno time and rest bound; docs/theory.md §4.1), the touching and the
+gapped Newton cradle (§4.2, §4.3) and the corner point's admissible outcomes (§3.4, §4.4).
 
-Pure Python (math only): imported by the benchmarks, the peer runners and the tests. Units SI.
-
-- Bouncing ball dropped from rest with gap d0 [m] under gravity g [m/s^2], restitution e:
-  first impact t0 = sqrt(2 d0 / g); impact k (k = 0, 1, ...) at t_k = t0 (1 + 2 e + ... + 2 e^k);
-  apex gap after bounce n: e^(2n) d0, reached at t_(n-1) + e^n t0; Zeno time (accumulation of
-  the impacts) t_inf = t0 (1 + 2 e / (1 - e)) for e < 1.
-- Touching Newton cradle of N equal balls, the first at v0 (Glocker's simultaneous result, the
-  M-projection onto non-decreasing velocities): u+_1 = ((1 + e)/N - e) v0, u+_(i>1) = (1 + e)/N v0.
-- Gapped cradle: left-to-right binary Newton impacts of equal masses until no pair approaches.
-- corner_point (a point mass striking the corner of two perpendicular walls at u- = (1, 1)):
-  the admissible outcomes of the corner law (-e, 1), (1, -e), (-e, -e).
+Pure Python (math only): imported by the tests, the benchmarks and the peer runners. Units SI.
 """
 
 from __future__ import annotations

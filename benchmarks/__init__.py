@@ -1,30 +1,25 @@
-"""Benchmarks of moreau-sim: exact references, error metrics, the peer simulators, and the
-benchmark drivers behind scripts/*.py. Benchmarks are measurements, not tests: they never fail on
-a bad number, and nothing here asserts a time.
+"""Benchmarks of moreau-sim (docs/benchmarks.md): not part of the installed package; run from the
+source tree's root as `python -m benchmarks.NAME [--help]`. Benchmarks are measurements, not tests:
+they never fail on a bad number, and nothing here asserts a time. The exact references and error
+metrics they measure against are moreau_sim.testing.references and moreau_sim.testing.metrics.
 
 Modules:
-- references: the exact references of the bundled scenes (ball impact times / apexes / Zeno time
-  and rest bound, touching and gapped cradle, corner point outcomes) - the one home of each formula.
-- metrics: error metrics between a trajectory and a reference (impact times, apexes, state, energy,
-  penetration).
 - spec: the neutral scene spec every peer runner reads (spheres and boxes on free or slide joints,
   half-space and box statics), built from a moreau-sim model, and the way back to its coordinates.
 - peers: MuJoCo, PyBullet and Siconos, one runner each (peers.mujoco / .pybullet / .siconos, each
   with its documented DEFAULTS), `available()` and `run()` / `run_model()`.
-- work_precision: error against exact references vs CPU time, for moreau-sim and the peers
-  (scripts/work_precision.py).
-- stability: the stress suite side by side (scripts/stability.py).
-- step_costs: the cost of one step split into dynamics, collision, QP and glue (scripts/bench_step.py).
+- work_precision: error against exact references vs CPU time, for moreau-sim and the peers.
+- stability: the stress suite side by side.
+- step_costs: the cost of one step split into dynamics, collision, QP and the rest of the step.
 - compiled_costs: the compiled step against the Python step, Siconos's Moreau-Jean step and MuJoCo's
-  mj_step per step, whole runs per step, and the issue-12 targets' verdicts, one run.
+  mj_step per step, whole runs per step, and the cost targets' verdicts, one run.
 - adaptive_costs: the adaptive integrator against the event-driven one and the fixed step.
 - scaling: the cost of one step against the number of contacts (columns of 10 to 1000 beads).
-- robots_table: the bundled robot scenes' figures (scripts/robots_table.py).
+- robots_table: the bundled robot scenes' figures (docs/robots.md).
 - doc_tables: every table of docs/*.md generated from the committed JSON, and the drift check.
-- check_peers: every available peer against the exact references (scripts/check_peers.py).
-- corner_branches, plot_sweep: figures (scripts/corner_branches.py, scripts/plot_sweep.py).
+- check_peers: every available peer against the exact references.
 
-Every driver writes to out/ by default; `--out docs/bench` (work_precision, bench_step,
+Every driver writes to out/ by default; `--out docs/bench` (work_precision, step_costs,
 compiled_costs, adaptive_costs, robots_table, stability) regenerates the committed files. The
 tables of figures in docs/*.md are generated from the committed JSON, never typed: each sits
 between the markers of `splice_table`, and each driver's `--table JSON DOC` rewrites its own
@@ -57,7 +52,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]  # the source tree (editable install): scenes/, docs/
+REPO = Path(__file__).resolve().parents[1]  # the source tree: scenes/, docs/
 SCENES = REPO / "scenes"
 OUT = Path("out")  # default output folder of every driver, relative to the current directory
 
@@ -107,4 +102,30 @@ def rewrite_tables(args, render) -> bool:
         return False
     names = write_tables(args.table[0], args.table[1], render)
     print(f"wrote {', '.join(names)} into {args.table[1]}")
+    return True
+
+
+def add_plot_option(ap, json_name: str) -> None:
+    """The --plot JSON option of the benchmarks that draw a chart (argparse parser `ap`)."""
+    ap.add_argument("--plot", type=Path, metavar="JSON",
+                    help=f"only redraw the chart from a saved {json_name} (the PNG beside it: "
+                         f"{json_name.replace('.json', '.png')}), and exit")
+
+
+def redraw(args, plot, *, select=lambda data: data) -> bool:
+    """With --plot given, draw `plot(select(data), png)` from the saved JSON into the PNG of the same
+    name beside it, and say so; whether it was given (the caller then exits). SystemExit with one
+    line naming the file on bad input."""
+    import json
+
+    if not args.plot:
+        return False
+    png = Path(args.plot).with_suffix(".png")
+    try:
+        plot(select(json.loads(Path(args.plot).read_text(encoding="utf-8"))), png)
+    except (OSError, ValueError) as err:
+        raise SystemExit(f"error: {err}") from None
+    except (KeyError, TypeError) as err:
+        raise SystemExit(f"error: {args.plot}: missing or malformed entry {err}") from None
+    print(f"wrote {png}")
     return True

@@ -245,7 +245,7 @@ def child_main(argv=None) -> int:
     json_fd = os.dup(1)
     os.dup2(2, 1)
     try:
-        res = importlib.import_module(f"moreau_sim.bench.peers.{peer}").run(spec, **json.loads(params))
+        res = importlib.import_module(f"benchmarks.peers.{peer}").run(spec, **json.loads(params))
     except Exception as exc:  # noqa: BLE001 - reported to the caller
         traceback.print_exc(file=sys.stderr)
         kind = "NOT-EXPRESSIBLE" if isinstance(exc, NotExpressible) else "PEER-ERROR"

@@ -1,7 +1,7 @@
 """The tables of docs/robots.md (bundled robot scenes, the `meshes` modes), measured, not typed.
 
-    python scripts/robots_table.py [--out docs/bench]   # run the scenes, write robots.json, print the table
-    python scripts/robots_table.py --table docs/bench/robots.json docs/robots.md  # rewrite it from the JSON
+    python -m benchmarks.robots_table [--out docs/bench]   # run the scenes, write robots.json, print the table
+    python -m benchmarks.robots_table --table docs/bench/robots.json docs/robots.md  # rewrite it from the JSON
 
 Each robot scene runs with its own options; the row gives its size, the wall time per step of the
 run (this machine, whatever its load: a figure for scale, not a benchmark), the impacts, the
@@ -123,3 +123,7 @@ def main(argv=None) -> int:
     print(mesh_table(meshes))
     print(f"wrote {a.out / 'robots.json'}")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

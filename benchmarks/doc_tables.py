@@ -1,7 +1,7 @@
 """Every table of figures in docs/*.md, generated from the committed JSON in docs/bench/.
 
-    python -m moreau_sim.bench.doc_tables          # rewrite every table from the committed JSON
-    python -m moreau_sim.bench.doc_tables --check  # exit 1 naming each table that differs (tests do this)
+    python -m benchmarks.doc_tables          # rewrite every table from the committed JSON
+    python -m benchmarks.doc_tables --check  # exit 1 naming each table that differs (tests do this)
 
 Each benchmark driver saves its JSON (`--out docs/bench`) and rewrites its own tables with
 `--table JSON DOC`; this module lists them all (TABLES) so that none can drift from its JSON."""
@@ -12,8 +12,17 @@ import argparse
 import json
 from pathlib import Path
 
-from . import (REPO, adaptive_costs, compiled_costs, robots_table, scaling, splice_table, stability, step_costs,
-               work_precision)
+from . import (
+    REPO,
+    adaptive_costs,
+    compiled_costs,
+    robots_table,
+    scaling,
+    splice_table,
+    stability,
+    step_costs,
+    work_precision,
+)
 
 # (document, JSON, the driver's doc_tables(data) -> {marker name: Markdown}), paths relative to the repository
 TABLES = (("docs/benchmarks.md", "docs/bench/work_precision.json", work_precision.doc_tables),

@@ -6,7 +6,7 @@ A benchmark, not a test. Per case (a bundled scene at a restitution, over T [s])
   event-driven  the event-driven integrator (docs/theory.md §7), DOP853, its default tolerances
   fixed step    the midpoint Moreau step at h = 1e-3 and 1e-4 (ms.simulate)
 CPU time: time.process_time() around the integration loop alone (AdaptiveRun.run, EventDrivenRun.run
-recording t = 0 and T; the fixed step: ms.step in a loop storing q and u, bench.work_precision.run_moreau),
+recording t = 0 and T; the fixed step: ms.step in a loop storing q and u, benchmarks.work_precision.run_moreau),
 best of `repeat` (the fixed step at h = 1e-4: once), per simulated second. The error comes from
 the same integrator recorded where the error is read (the samples of the adaptive and event-driven
 integrators come from their dense output: their steps do not depend on the sample instants), against
@@ -18,8 +18,8 @@ references that are not the method under test:
 Writes adaptive_costs.json to out/ (--out docs/bench: the committed file); --table rewrites the
 tables of docs/benchmarks.md from it.
 
-    python -m moreau_sim.bench.adaptive_costs [--out docs/bench] [--repeat 3]
-    python -m moreau_sim.bench.adaptive_costs --table docs/bench/adaptive_costs.json docs/benchmarks.md
+    python -m benchmarks.adaptive_costs [--out docs/bench] [--repeat 3]
+    python -m benchmarks.adaptive_costs --table docs/bench/adaptive_costs.json docs/benchmarks.md
 """
 
 from __future__ import annotations
@@ -37,9 +37,10 @@ import moreau_sim as ms
 from moreau_sim.adaptive import DEFAULT_ORDER, AdaptiveRun, simulate_adaptive
 from moreau_sim.event_driven import EventDrivenRun, simulate_event_driven
 from moreau_sim.recording import versions
+from moreau_sim.testing import metrics
+from moreau_sim.testing.references import ball_apex_gaps, ball_impact_times, cradle_simultaneous
 
-from . import OUT, metrics, add_table_option, rewrite_tables, scene_path
-from .references import ball_apex_gaps, ball_impact_times, cradle_simultaneous
+from . import OUT, add_table_option, rewrite_tables, scene_path
 from .work_precision import run_moreau
 
 RTOLS = (1e-4, 1e-6, 1e-8, 1e-10, 1e-12)
@@ -187,7 +188,7 @@ def _reach(points: list, level: float, bound: float) -> str:
 
 
 def targets_table(res: dict) -> str:
-    """The targets of issue 11 that this benchmark measures, and whether they are met."""
+    """The adaptive integrator's cost targets that this benchmark measures, and whether they are met."""
     cases = {c["label"]: c for c in res["cases"]}
     rows = ["| target | case | measured | |", "|---|---|---|---|"]
     for label in ("ball e = 0.5", "ball e = 0.8", "ball e = 1", "touching cradle, e = 1"):
