@@ -29,8 +29,8 @@ from click.testing import CliRunner
 
 import moreau_sim as ms
 from moreau_sim import viewer
+from moreau_sim.cli.viewer import view
 from moreau_sim.errors import SceneError
-from moreau_sim.viewer_cli import view
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "out" / "viewer"
@@ -233,7 +233,7 @@ def test_pinocchio_viser_visualizer_draws_the_helper_geometry(traj):
 
 
 def test_served_page(npz):
-    proc = subprocess.Popen([sys.executable, "-u", "-m", "moreau_sim.viewer_cli", str(npz), "--port", "0",
+    proc = subprocess.Popen([sys.executable, "-u", "-m", "moreau_sim.cli", "view", str(npz), "--port", "0",
                              "--no-browser"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         line = proc.stdout.readline()
