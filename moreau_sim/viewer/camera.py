@@ -1,10 +1,22 @@
-"""Where the replay's camera stands: it frames the scene from a side no static obstacle hides."""
+"""Where the replay's camera stands: it frames every moving body over the whole replay, from a
+side no static obstacle hides (docs/viewer.md)."""
 
 from __future__ import annotations
 
 import math
 
 import numpy as np
+
+FOV = math.radians(50)  # the replay camera's vertical field of view [rad]
+FILL = 0.8  # the framed sphere spans this fraction of the field of view (room for the plot and the playback bar)
+
+
+def corners(vertices: np.ndarray, placements: np.ndarray) -> np.ndarray:
+    """(frames, 8, 3): the world corners of the box that bounds `vertices` (in their own frame),
+    at each of `placements` (frames, 4, 4): the mesh lies inside them at every frame."""
+    lo, hi = vertices.min(0).astype(float), vertices.max(0).astype(float)
+    box = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    return box @ placements[:, :3, :3].transpose(0, 2, 1) + placements[:, None, :3, 3]
 
 
 def _segment_hits_box(a, b, lo, hi) -> bool:
@@ -22,15 +34,17 @@ def _segment_hits_box(a, b, lo, hi) -> bool:
     return True
 
 
-def camera(center, radius: float, up, obstacles=(), halfspaces=(), fov: float = math.radians(50)):
-    """(position, look_at) of a camera that frames a sphere (center, radius): from 25 degrees above
-    the horizon (`up` from gravity), at the first of 12 azimuths whose line of sight misses every
-    static obstacle (world AABBs (lo, hi)) and lies on the free side of every half-space (n, d)."""
+def camera(center, radius: float, up, obstacles=(), halfspaces=(), fov: float = FOV):
+    """(position, look_at) of a camera with vertical field of view `fov` [rad] that sees the sphere
+    (center, radius) within FILL of that field, whatever the window's aspect (wider than tall):
+    from 25 degrees above the horizon (`up` from gravity), at the first of 12 azimuths whose line
+    of sight misses every static obstacle (world AABBs (lo, hi)) and lies on the free side of
+    every half-space (n, d); higher (45, then 70 degrees) where none does."""
     c, up = np.asarray(center, float), np.asarray(up, float) / np.linalg.norm(up)
     e1 = np.cross(up, [0.0, 1.0, 0.0] if abs(up[1]) < 0.9 else [1.0, 0.0, 0.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(up, e1)
-    dist = 0.7 * max(radius, 0.05) / math.sin(fov / 2)
+    dist = max(radius, 0.05) / math.sin(FILL * fov / 2)
     best = None
     for k in range(12):
         az = math.radians(-60 + 30 * k)

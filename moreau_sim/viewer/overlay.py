@@ -4,6 +4,35 @@ and the escaping of the data it is given."""
 from __future__ import annotations
 
 import json
+import re
+
+import numpy as np
+
+
+def label(x: float, digits: int = 3) -> str:
+    """An axis label: `digits` significant digits, in exponent form below 1e-2 and from 1e3."""
+    if x != 0 and (abs(x) < 1e-2 or abs(x) >= 1e3):
+        return re.sub(r"e([+-])0*(\d)", r"e\1\2", f"{x:.{max(digits - 2, 1)}e}")
+    return f"{x:.{digits}g}"
+
+
+def axis(values, *, min_span: float, zero: bool = False) -> tuple[float, float, str, str]:
+    """(lo, hi, label of lo, label of hi) of a plot axis over the finite `values` (and 0 if
+    `zero`), widened about its middle to at least `min_span` > 0: never a degenerate axis, and
+    its labels given the fewest significant digits (at least 3) that tell them apart."""
+    v = np.asarray(values, float).ravel()
+    v = v[np.isfinite(v)]
+    lo, hi = (float(v.min()), float(v.max())) if v.size else (0.0, 0.0)
+    if zero:
+        lo, hi = min(lo, 0.0), max(hi, 0.0)
+    if not hi - lo >= min_span:
+        mid = 0.5 * (lo + hi)
+        lo, hi = mid - 0.5 * min_span, mid + 0.5 * min_span
+    for digits in range(3, 18):
+        a, b = label(lo, digits), label(hi, digits)
+        if a != b:
+            break
+    return lo, hi, a, b
 
 
 def js_string(value) -> str:
@@ -28,7 +57,6 @@ border-radius:6px;padding:6px 8px;font:12px system-ui,sans-serif;color:#222;box-
 (function(){
 const D = __MS_DATA__;
 window.moreauReplay = {ready:false, t:0, frame:0, error:null};
-function fmt(x){return Math.abs(x)>=1e3||Math.abs(x)<1e-2&&x!==0?x.toExponential(1):x.toPrecision(3);}
 function start(){
   document.title = D.scene + " - moreau-sim replay";
   document.getElementById("ms-title").textContent = D.scene + "  (e = " + D.restitution + ", dt = " + D.dt + " s)";
@@ -38,18 +66,16 @@ function start(){
   const t = D.t, t0 = t[0], t1 = t[t.length-1] > t0 ? t[t.length-1] : t0 + 1;
   const X = x => L + (W-L-R)*(x-t0)/(t1-t0);
   const ser = [["E = T + V", D.energy, "#222"], ["T", D.kinetic, "#3b82c4"], ["V", D.potential, "#4caf6a"]];
-  let lo = Infinity, hi = -Infinity;
-  for (const s of ser) for (const v of s[1]) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
-  if (!(hi > lo)) { hi = lo + 1; }
+  const [lo, hi] = D.energy_axis, [glo, ghi] = D.gap_axis;  // limits and labels made by overlay.axis
   const YE = y => top + hE*(1-(y-lo)/(hi-lo));
-  let glo = Math.min(0, ...D.gap), ghi = Math.max(...D.gap);
-  if (!(ghi > glo)) ghi = glo + 1e-3;
   const YG = y => gTop + hG*(1-(y-glo)/(ghi-glo));
   function draw(tc){
     g.clearRect(0,0,W,H); g.font = "10px system-ui,sans-serif"; g.lineWidth = 1;
     g.strokeStyle = "#ccc"; g.strokeRect(L, top, W-L-R, hE); g.strokeRect(L, gTop, W-L-R, hG);
-    g.fillStyle = "#555"; g.fillText(fmt(hi), 2, top+8); g.fillText(fmt(lo), 2, top+hE); g.fillText("J", 2, top+hE/2+4);
-    g.fillText(fmt(ghi), 2, gTop+8); g.fillText(fmt(glo), 2, gTop+hG); g.fillText("gap m", 2, gTop+hG/2+4);
+    g.fillStyle = "#555"; g.fillText(D.energy_labels[1], 2, top+8); g.fillText(D.energy_labels[0], 2, top+hE);
+    g.fillText("J", 2, top+hE/2+4);
+    g.fillText(D.gap_labels[1], 2, gTop+8); g.fillText(D.gap_labels[0], 2, gTop+hG);
+    g.fillText("gap m", 2, gTop+hG/2+4);
     g.fillText(t0.toFixed(2)+" s", L, H-2); g.fillText(t1.toFixed(2)+" s", W-R-36, H-2);
     if (glo < 0 && ghi > 0) {
       g.strokeStyle = "#e0a0a0"; g.beginPath(); g.moveTo(L, YG(0)); g.lineTo(W-R, YG(0)); g.stroke();

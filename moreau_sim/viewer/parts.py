@@ -57,8 +57,10 @@ def frames(traj: Trajectory | str | Path, model: Model | None = None,
 
 def rods(traj: Trajectory | str | Path, model: Model, index: np.ndarray | None = None) -> np.ndarray | None:
     """(frames, segments, 2, 3): the segments that show the links of articulated bodies whose
-    collision geometry may be just their bobs (the double pendulum): each joint's origin to its
-    child joints' origins and to its offset geometries' centres. None when there are none."""
+    collision geometry leaves them unseen (the double pendulum, just its bobs): each joint's
+    origin to its child joints' origins and to its offset geometries' centres, kept where most of
+    the segment lies outside the bodies' geometry (a robot drawn by its collision shapes, whose
+    joints those shapes cover, gets none). None when there are none."""
     traj = as_trajectory(traj)
     pm, gm = model.pin, model.geom
     pairs = [(pm.parents[j], j, None) for j in range(1, pm.njoints) if pm.parents[j] > 0]
@@ -68,12 +70,37 @@ def rods(traj: Trajectory | str | Path, model: Model, index: np.ndarray | None =
         return None
     data, gdata = pm.createData(), pin.GeometryData(gm)
     q = traj.q if index is None else traj.q[index]
+
+    def segments(qk):
+        pin.updateGeometryPlacements(pm, data, gm, gdata, qk)
+        return [(data.oMi[a].translation.copy(), (data.oMi[j] if g is None else gdata.oMg[g]).translation.copy())
+                for a, j, g in pairs]
+
+    shown = _outside(model, gdata, segments(traj.q[0]))
+    pairs = [p for p, keep in zip(pairs, shown) if keep]
+    if not pairs:
+        return None
     out = np.empty((len(q), len(pairs), 2, 3))
     for k, qk in enumerate(q):
-        pin.updateGeometryPlacements(pm, data, gm, gdata, qk)
-        for i, (a, j, g) in enumerate(pairs):
-            out[k, i, 0] = data.oMi[a].translation
-            out[k, i, 1] = data.oMi[j].translation if g is None else gdata.oMg[g].translation
+        out[k] = segments(qk)
+    return out
+
+
+def _outside(model: Model, gdata: pin.GeometryData, segments) -> list[bool]:
+    """For each segment (a, b): do most of 9 points inside it lie outside every geometry of the
+    scene's bodies (placements in `gdata`)? coal's distance from each point to each shape."""
+    bodies = {b.name for b in model.scene.bodies}
+    shapes = [(go.geometry, gdata.oMg[g]) for g, go in enumerate(model.geom.geometryObjects)
+              if model.geometry_body[g] in bodies and not isinstance(go.geometry, (coal.Halfspace, coal.Plane))]
+    point, req = coal.Sphere(1e-9), coal.DistanceRequest()
+    out = []
+    for a, b in segments:
+        outside = 0
+        for s in np.linspace(0.1, 0.9, 9):
+            x = coal.Transform3s(np.eye(3), (1 - s) * a + s * b)
+            outside += all(coal.distance(point, x, shape, coal.Transform3s(M.rotation, M.translation), req,
+                                         coal.DistanceResult()) > 0 for shape, M in shapes)
+        out.append(outside > 4)
     return out
 
 
@@ -138,7 +165,7 @@ def parts(traj: Trajectory | str | Path, model: Model | None = None, *, colors: 
     for g, go in enumerate(gm.geometryObjects):
         static = go.parentJoint == 0
         link = model.geometry_body[g] if static else pm.frames[go.parentFrame].name
-        if link in done:
+        if link in done or pm.frames[go.parentFrame].name in done:  # (a fixed root's link is a static)
             continue
         mesh = shape_mesh(go.geometry)
         if mesh is None:

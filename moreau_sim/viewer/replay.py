@@ -17,9 +17,9 @@ import pinocchio as pin
 
 from ..model import Model
 from ..trajectory import Trajectory
-from .camera import camera
+from .camera import FOV, camera, corners
 from .meshes import ground_box
-from .overlay import OVERLAY, js_string
+from .overlay import OVERLAY, axis, js_string
 from .parts import STATIC_COLOR, frame_placements, parts, rods
 from .stored import as_trajectory, model_from_trajectory
 
@@ -62,28 +62,12 @@ def contacts_per_frame(traj: Trajectory, ft: np.ndarray) -> list[list[list[float
     return [list(d.values()) for d in out]
 
 
-def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: float,
-            shadows: bool = False) -> tuple[str, dict]:
-    """viser's standalone page with the replay recorded in it, and the data of the plot."""
-    import trimesh
-    import viser
-
-    idx = frame_indices(traj.t, fps)
-    ft = np.asarray(traj.t)[idx]
-    drawn = parts(traj, model, colors=colors)
-    moving = [p for p in drawn if not p.static]
-    fids = sorted({p.frame for p in moving})
-    W = frame_placements(model, traj.q[idx], fids)  # (frames, frame ids, 4, 4)
-    col = {f: j for j, f in enumerate(fids)}
-    # what the camera frames: every moving mesh's vertices' bounding box over the replay
-    pts = []
-    for p in moving:
-        Mv = p.vertices[:: max(1, len(p.vertices) // 64)].astype(float)
-        loc = Mv @ p.placement.rotation.T + p.placement.translation
-        for k in np.unique(np.linspace(0, len(idx) - 1, 12).astype(int)):
-            T = W[k, col[p.frame]]
-            pts.append(loc @ T[:3, :3].T + T[:3, 3])
-    pts = np.concatenate(pts) if pts else np.zeros((1, 3))
+def _view(model: Model, drawn: list, W: np.ndarray, col: dict):
+    """(camera position, look_at, center, radius, up, half-spaces): the camera frames the sphere
+    around the box that bounds every moving part at every frame of the replay (W: the frames'
+    placements, col: frame id -> column of W)."""
+    boxes = [corners(p.vertices, W[:, col[p.frame]] @ p.placement.homogeneous) for p in drawn if not p.static]
+    pts = np.concatenate([b.reshape(-1, 3) for b in boxes]) if boxes else np.zeros((1, 3))
     lo, hi = pts.min(0), pts.max(0)
     center, radius = (lo + hi) / 2, max(0.5 * float(np.linalg.norm(hi - lo)), 0.05)
     g = np.asarray(model.options.gravity, float)
@@ -98,6 +82,35 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
             v = p.vertices.astype(float) @ p.placement.rotation.T + p.placement.translation
             obstacles.append((v.min(0), v.max(0)))
     cam, look = camera(center, radius, up, obstacles, halfspaces)
+    return cam, look, center, radius, up, halfspaces
+
+
+def view(traj: Trajectory | str | Path, model: Model | None = None, fps: float = DEFAULT_FPS, *,
+         colors: str = "link") -> dict:
+    """The replay's initial camera: position and look_at [m], up, vertical fov [rad]."""
+    traj = as_trajectory(traj)
+    model = model or model_from_trajectory(traj)
+    drawn = parts(traj, model, colors=colors)
+    fids = sorted({p.frame for p in drawn if not p.static})
+    W = frame_placements(model, traj.q[frame_indices(traj.t, fps)], fids)
+    cam, look, _, _, up, _ = _view(model, drawn, W, {f: j for j, f in enumerate(fids)})
+    return {"position": cam, "look_at": look, "up": up, "fov": FOV}
+
+
+def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: float,
+            shadows: bool = False) -> tuple[str, dict]:
+    """viser's standalone page with the replay recorded in it, and the data of the plot."""
+    import trimesh
+    import viser
+
+    idx = frame_indices(traj.t, fps)
+    ft = np.asarray(traj.t)[idx]
+    drawn = parts(traj, model, colors=colors)
+    moving = [p for p in drawn if not p.static]
+    fids = sorted({p.frame for p in moving})
+    W = frame_placements(model, traj.q[idx], fids)  # (frames, frame ids, 4, 4)
+    col = {f: j for j, f in enumerate(fids)}
+    cam, look, center, radius, up, halfspaces = _view(model, drawn, W, col)
 
     with contextlib.redirect_stdout(io.StringIO()):
         server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
@@ -111,7 +124,7 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
         sc.add_light_hemisphere("/lights/hemisphere", sky_color=(255, 255, 255), ground_color=(120, 120, 130),
                                 intensity=1.6)
         ic = server.initial_camera
-        ic.position, ic.look_at = tuple(map(float, cam)), tuple(map(float, look))
+        ic.position, ic.look_at, ic.fov = tuple(map(float, cam)), tuple(map(float, look)), FOV
         size = max(4 * radius, 2.0)
         for k, (n, d) in enumerate(halfspaces):
             M, half = ground_box(n, d, center, size)
@@ -190,6 +203,12 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
             "description": str((meta.get("scene") or {}).get("description") or ""),
             "restitution": model.options.restitution, "dt": model.options.dt,
             "t": r(ft), "kinetic": r(T), "potential": r(V), "energy": r(T + V), "gap": r(gmin)}
+    E = np.concatenate([data["kinetic"], data["potential"], data["energy"]])
+    scale = float(np.max(np.abs(E))) if E.size else 0.0
+    for key, values, span, zero in (("energy", E, max(1e-3 * scale, 1e-9), False),
+                                    ("gap", data["gap"], 0.02 * radius, True)):  # radius >= 5 cm: span >= 1 mm
+        lo, hi, a, b = axis(values, min_span=span, zero=zero)
+        data[f"{key}_axis"], data[f"{key}_labels"] = [lo, hi], [a, b]
     return page, data
 
 
