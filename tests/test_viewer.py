@@ -191,7 +191,7 @@ def test_camera_frames_every_body_over_the_run(name, request):
     tall): box_stack_5's top cube included."""
     t = request.getfixturevalue(name)
     model = viewer.model_from_trajectory(t)
-    cam = viewer.view(t, model)
+    cam = viewer.initial_camera(t, model)
     assert cam["fov"] == viewer.camera_fov
     axis = (cam["look_at"] - cam["position"]) / np.linalg.norm(cam["look_at"] - cam["position"])
     data = model.pin.createData()

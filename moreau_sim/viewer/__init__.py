@@ -6,11 +6,11 @@ from . import overlay
 from .camera import FILL as camera_fill, FOV as camera_fov, camera
 from .meshes import MESH_SUFFIXES, ground_box, shape_mesh
 from .parts import Part, drawable_geometry, frames, parts, rods
-from .replay import DEFAULT_FPS, contacts_per_frame, frame_indices, page, view
+from .replay import DEFAULT_FPS, contacts_per_frame, frame_indices, initial_camera, page
 from .server import export_html, make_server, serve, url_of
 from .stored import check_named_files, model_from_trajectory
 
 __all__ = ["DEFAULT_FPS", "MESH_SUFFIXES", "Part", "camera", "camera_fill", "camera_fov", "check_named_files",
            "contacts_per_frame", "drawable_geometry", "export_html", "frame_indices", "frames", "ground_box",
-           "make_server", "model_from_trajectory", "overlay", "page", "parts", "rods", "serve", "shape_mesh",
-           "url_of", "view"]
+           "initial_camera", "make_server", "model_from_trajectory", "overlay", "page", "parts", "rods", "serve",
+           "shape_mesh", "url_of"]

@@ -85,8 +85,8 @@ def _view(model: Model, drawn: list, W: np.ndarray, col: dict):
     return cam, look, center, radius, up, halfspaces
 
 
-def view(traj: Trajectory | str | Path, model: Model | None = None, fps: float = DEFAULT_FPS, *,
-         colors: str = "link") -> dict:
+def initial_camera(traj: Trajectory | str | Path, model: Model | None = None, fps: float = DEFAULT_FPS, *,
+                   colors: str = "link") -> dict:
     """The replay's initial camera: position and look_at [m], up, vertical fov [rad]."""
     traj = as_trajectory(traj)
     model = model or model_from_trajectory(traj)
