@@ -1,4 +1,4 @@
-"""`moreau-sim regress`: the command over :mod:`moreau_sim.regress` (registered in cli.py).
+"""`moreau-sim regress`: the command over :mod:`moreau_sim.regress` (docs/regression.md).
 
 Exit status: 0 every scene within tolerance (or recorded), 1 a ledger drifted or a run failed,
 2 bad input (scene, option, tolerance, a missing or unreadable baseline)."""
@@ -10,15 +10,11 @@ from pathlib import Path
 
 import click
 
-from .errors import MoreauSimError
-from .ledger import DEFAULT_TOLERANCE, QUANTITIES
-from .regress import Result, check_scene, junit
-from .sweep import parse_settings
-
-
-def _fail(msg: str) -> None:
-    click.echo(f"moreau-sim: error: {msg}", err=True)
-    sys.exit(2)
+from ..errors import MoreauSimError
+from ..ledger import DEFAULT_TOLERANCE, QUANTITIES
+from ..regress import Result, check_scene, junit
+from ..sweep import parse_settings
+from .common import fail
 
 
 def _tolerances(rtol, atol, specs) -> dict | None:
@@ -32,11 +28,11 @@ def _tolerances(rtol, atol, specs) -> dict | None:
         try:
             r, a = (float(x) for x in value.split(","))
         except ValueError:
-            _fail(f"command line: --tol {spec}: expected NAME=RTOL,ATOL (e.g. energy_end=1e-6,1e-9)")
+            fail(f"command line: --tol {spec}: expected NAME=RTOL,ATOL (e.g. energy_end=1e-6,1e-9)")
         if name not in QUANTITIES:
-            _fail(f"command line: --tol {spec}: unknown quantity {name!r}; one of {', '.join(QUANTITIES)}")
+            fail(f"command line: --tol {spec}: unknown quantity {name!r}; one of {', '.join(QUANTITIES)}")
         if r < 0 or a < 0:
-            _fail(f"command line: --tol {spec}: expected NAME=RTOL,ATOL with RTOL, ATOL >= 0")
+            fail(f"command line: --tol {spec}: expected NAME=RTOL,ATOL with RTOL, ATOL >= 0")
         out[name] = (r, a)
     return out or None
 
@@ -63,7 +59,7 @@ def regress(scenes, directory, update, settings, rtol, atol, tol_specs, junit_fi
     try:
         overrides = parse_settings(settings)
     except MoreauSimError as exc:
-        _fail(f"command line: {exc}")
+        fail(f"command line: {exc}")
     results, errors = [], 0
     for scene in scenes:
         try:
@@ -79,7 +75,7 @@ def regress(scenes, directory, update, settings, rtol, atol, tol_specs, junit_fi
         try:
             junit(results, junit_file)
         except OSError as exc:
-            _fail(f"{junit_file}: cannot write the JUnit report ({exc.strerror or exc})")
+            fail(f"{junit_file}: cannot write the JUnit report ({exc.strerror or exc})")
     bad = [r for r in results if r.status in ("drift", "failed")]
     click.echo(f"{len(results)} scene{'' if len(results) == 1 else 's'}: {len(results) - len(bad) - errors} within "
                "tolerance"

@@ -1,4 +1,4 @@
-"""`moreau-sim sweep`: the command over :func:`moreau_sim.sweep.run_sweep` (registered in cli.py)."""
+"""`moreau-sim sweep`: a grid of options over one scene (moreau_sim.sweep, docs/sweeps.md)."""
 
 from __future__ import annotations
 
@@ -8,13 +8,9 @@ from pathlib import Path
 
 import click
 
-from .errors import MoreauSimError
-from .sweep import SWEEPABLE, parse_param, run_sweep
-
-
-def _fail(msg: str, code: int = 2) -> None:
-    click.echo(f"moreau-sim: error: {msg}", err=True)
-    sys.exit(code)
+from ..errors import MoreauSimError
+from ..sweep import SWEEPABLE, parse_param, run_sweep
+from .common import fail
 
 
 @click.command()
@@ -41,9 +37,9 @@ def sweep(scene, params, out_dir, workers, dask_address, progress, as_json):
         res = run_sweep(scene, parsed, out_dir, workers=workers, dask_address=dask_address,
                         progress=(sys.stderr.isatty() if progress is None else progress) and not as_json)
     except MoreauSimError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     except KeyboardInterrupt:
-        _fail(f"interrupted; finished runs are kept in {out_dir}: run the same command again to resume", 130)
+        fail(f"interrupted; finished runs are kept in {out_dir}: run the same command again to resume", 130)
     if as_json:
         click.echo(json.dumps({"table": str(res.table), "parquet": str(res.parquet) if res.parquet else None,
                                "points": len(res.rows), "computed": res.computed, "skipped": res.skipped,

@@ -1,4 +1,4 @@
-"""`moreau-sim`: thin command line over the public API (run, info, outcomes, plot, sweep, view)."""
+"""`moreau-sim run`, `info`, `outcomes` and `plot`: the commands over a scene or a trajectory (docs/cli.md)."""
 
 from __future__ import annotations
 
@@ -11,41 +11,37 @@ from pathlib import Path
 import click
 import numpy as np
 
-from .checkpoint import Checkpoint
-from .errors import MoreauSimError, SceneError, SimulationError, SimulationInterrupted
-from .model import build_model
-from .scene import load_scene
-from .simulate import simulate, summary
-
-
-def _fail(msg: str) -> None:
-    click.echo(f"moreau-sim: error: {msg}", err=True)
-    sys.exit(2)
+from ..checkpoint import Checkpoint
+from ..errors import MoreauSimError, SceneError, SimulationError, SimulationInterrupted
+from ..model import build_model
+from ..scene import load_scene
+from ..simulate import simulate, summary
+from .common import fail
 
 
 def _load(scene: str, **overrides):
     try:
         sc = load_scene(scene)
     except MoreauSimError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     try:
         sc = sc.with_options(**overrides)
     except MoreauSimError as exc:  # "options: restitution: ..." -> "--restitution: ..."
-        _fail(f"command line: {str(exc).replace('options: ', '--', 1).replace('_', '-')}")
+        fail(f"command line: {str(exc).replace('options: ', '--', 1).replace('_', '-')}")
     try:
         return sc, build_model(sc)
     except MoreauSimError as exc:
-        _fail(str(exc))
+        fail(str(exc))
 
 
 def _settings(settings) -> dict:
     """--set NAME=VALUE pairs -> option overrides, parsed as a sweep's one-value --param."""
-    from .sweep import parse_settings
+    from ..sweep import parse_settings
 
     try:
         return parse_settings(settings)
     except MoreauSimError as exc:
-        _fail(f"command line: {exc}")
+        fail(f"command line: {exc}")
 
 
 def _interrupt(signum, frame):
@@ -61,7 +57,7 @@ def _output(out: str | None, sc) -> Path:
         base = (sc.path.parent if sc.path else Path.cwd()).resolve()
         path, where = (base / sc.output).resolve(), f"{sc.path} [output] file = {sc.output!r}"
         if not path.is_relative_to(base):
-            _fail(f"{where}: must stay inside the scene's folder {base}; give -o/--out to write elsewhere")
+            fail(f"{where}: must stay inside the scene's folder {base}; give -o/--out to write elsewhere")
     else:
         path, where = Path(f"{sc.name}.npz"), "output"
     try:
@@ -69,9 +65,9 @@ def _output(out: str | None, sc) -> Path:
         with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".check"):
             pass
     except OSError as exc:
-        _fail(f"{where}: cannot write there ({exc.strerror or exc}); nothing was simulated")
+        fail(f"{where}: cannot write there ({exc.strerror or exc}); nothing was simulated")
     if path.is_dir():
-        _fail(f"{where}: is a folder; give a file name")
+        fail(f"{where}: is a folder; give a file name")
     return path
 
 
@@ -87,7 +83,7 @@ def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
     try:
         return simulate(model, progress=progress, checkpoint=ck, spill=out.parent)
     except SceneError as exc:  # a damaged checkpoint, or one of another run
-        _fail(str(exc))
+        fail(str(exc))
     except SimulationInterrupted as exc:
         partial = out.with_name(out.stem + ".partial.npz")
         exc.trajectory.save(partial)
@@ -99,18 +95,12 @@ def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
         partial = out.with_name(out.stem + ".partial.npz")
         if exc.trajectory is not None:
             exc.trajectory.save(partial)
-            _fail(f"{exc}\n  nothing written to {out}; the samples up to the failure are in {partial} "
+            fail(f"{exc}\n  nothing written to {out}; the samples up to the failure are in {partial} "
                   "(meta status 'failed')")
-        _fail(str(exc))
+        fail(str(exc))
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="moreau-sim")
-def main():
-    """Rigid multibody impacts: Glocker's impact law in a midpoint Moreau time-stepper."""
-
-
-@main.command()
+@click.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("--dt", type=float, help="Time step h [s] (overrides the scene).")
 @click.option("--duration", type=float, help="Simulated time [s].")
@@ -140,7 +130,7 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
     sc, model = _load(scene, **overrides)
     out = _output(out, sc)
     if checkpoint_every is not None and not (checkpoint_every > 0 and np.isfinite(checkpoint_every)):
-        _fail(f"command line: --checkpoint-every: must be a finite time > 0 s, got {checkpoint_every!r}")
+        fail(f"command line: --checkpoint-every: must be a finite time > 0 s, got {checkpoint_every!r}")
     ck = None
     if checkpoint_every is not None or resume:
         ck = Checkpoint(path=out.with_name(out.stem + ".checkpoint.npz"), every=checkpoint_every, resume=resume,
@@ -152,7 +142,7 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
         traj = _simulate(model, out, ck, _show_progress(progress, as_json))
         traj.save(out)
     except OSError as exc:  # the output's folder filled up (the run's spill files, a partial file, the output)
-        _fail(f"{out.parent}: cannot write there ({exc.strerror or exc}); nothing written to {out}")
+        fail(f"{out.parent}: cannot write there ({exc.strerror or exc}); nothing written to {out}")
     finally:
         signal.signal(signal.SIGTERM, previous)
     if ck is not None:
@@ -183,7 +173,7 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
     click.echo(f"  wall {s['wall_seconds']:.3f} s{per_step}  -> {out}")
 
 
-@main.command()
+@click.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print as JSON.")
 def info(scene, as_json):
@@ -202,7 +192,7 @@ def info(scene, as_json):
         click.echo(f"    {p}")
 
 
-@main.command()
+@click.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("--trajectory", "npz", type=click.Path(dir_okay=False),
               help="Take the state from this trajectory NPZ (the sample nearest --time).")
@@ -215,9 +205,9 @@ def outcomes(scene, npz, t, restitution, as_json):
     At a corner (a vertex at an edge or vertex of a box) the law has several stationary points:
     all are listed with their distance 1/2 |v - u-|_M^2, the global minimizers marked, and the one
     the scene's corner_selection policy picks."""
-    from .outcomes import impact_outcomes
-    from .state import State
-    from .trajectory import load_trajectory
+    from ..outcomes import impact_outcomes
+    from ..state import State
+    from ..trajectory import load_trajectory
 
     sc, model = _load(scene, restitution=restitution)
     state = None
@@ -225,13 +215,13 @@ def outcomes(scene, npz, t, restitution, as_json):
         try:
             traj = load_trajectory(npz)
         except ValueError as exc:
-            _fail(str(exc))
+            fail(str(exc))
         i = int(abs(traj.t - t).argmin())
         if traj.q.shape[1] != model.nq:
-            _fail(f"{npz}: its q has {traj.q.shape[1]} coordinates, scene {scene} has nq = {model.nq}")
+            fail(f"{npz}: its q has {traj.q.shape[1]} coordinates, scene {scene} has nq = {model.nq}")
         state = State(float(traj.t[i]), traj.q[i], traj.u[i])
     else:
-        from .model import initial_state
+        from ..model import initial_state
         state = initial_state(model)
     res = impact_outcomes(model, state)
     if as_json:
@@ -249,7 +239,7 @@ def outcomes(scene, npz, t, restitution, as_json):
                    f"energy loss {o.energy_loss:.6g} J  ({flags})  {o.pieces}")
 
 
-@main.command()
+@click.command()
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--out", "-o", "png", type=click.Path(dir_okay=False), help="PNG to write (default: FILE with .png).")
 @click.option("--save", "png", type=click.Path(dir_okay=False), hidden=True)  # the old name of --out
@@ -257,22 +247,10 @@ def outcomes(scene, npz, t, restitution, as_json):
               help="Comma-separated panels among energy, gap, percussion, q, u.")
 def plot(file, png, panels):
     """Energy, gaps, percussions (and q, u) against time from a trajectory FILE."""
-    from .plot import save
+    from ..plot import save
 
     try:
         path = save(file, png or Path(file).with_suffix(".png"), [p.strip() for p in panels.split(",") if p.strip()])
     except ValueError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     click.echo(f"wrote {path}")
-
-
-from .sweep_cli import sweep  # noqa: E402  (thin commands in their own modules)
-from .viewer_cli import view  # noqa: E402
-from .regress_cli import regress  # noqa: E402
-
-main.add_command(sweep)
-main.add_command(view)
-main.add_command(regress)
-
-if __name__ == "__main__":
-    main()

@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from .errors import MoreauSimError
+from ..errors import MoreauSimError
 
 
 @click.command()
@@ -25,8 +25,8 @@ def view(file, port, host, html, html_alias, fps, colors, no_browser):
     """3D replay of a trajectory FILE in the browser (viser): the models' meshes, play/pause, time
     slider, contact arrows, energy and gap plot. Serves on 127.0.0.1 until Ctrl-C, or writes one
     HTML file with -o/--out."""
-    from . import viewer
-    from .trajectory import load_trajectory
+    from .. import viewer
+    from ..trajectory import load_trajectory
 
     try:
         traj = load_trajectory(file)
@@ -40,6 +40,3 @@ def view(file, port, host, html, html_alias, fps, colors, no_browser):
         click.echo(f"moreau-sim: error: {exc}", err=True)
         sys.exit(2)
 
-
-if __name__ == "__main__":
-    view()
