@@ -171,8 +171,8 @@ def check_scene(scene: str | Path, directory: str | Path, *, update: bool = Fals
                       seconds=time.perf_counter() - t0)
     tol = tolerances or {k: tuple(v) for k, v in doc.get("tolerances", {}).items()} or None
     drifts = compare(ledger(traj).record(), doc["ledger"], tol)
-    return Result(sc.name, str(scene), "drift" if drifts else "ok", drifts, differences(doc, traj, path) if drifts else [],
-                  seconds=time.perf_counter() - t0)
+    notes = differences(doc, traj, path) if drifts else []
+    return Result(sc.name, str(scene), "drift" if drifts else "ok", drifts, notes, seconds=time.perf_counter() - t0)
 
 
 def junit(results: list[Result], path: str | Path) -> Path:
