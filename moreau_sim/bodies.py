@@ -140,17 +140,18 @@ def check_inertias(m: pin.Model, path: Path, where: str, kind: str) -> None:
     """Every moving rigid body's rotational inertia about its centre of mass (a link and the links
     welded to it: Pinocchio merges them, and only the sum moves) must be one that a mass
     distribution can have: principal moments I1 <= I2 <= I3 with I1 >= 0 and I3 <= I1 + I2, to
-    INERTIA_RTOL * I3 (values written with 4-5 digits) plus 1e-12 of the model's largest moment
+    INERTIA_RTOL * max|I| (values written with 4-5 digits) plus 1e-12 of the model's largest moment
     (a point mass's round-off). Raises SceneError naming the file, the
     link, its joint and the three moments."""
     moments = [np.linalg.eigvalsh(0.5 * (m.inertias[j].inertia + m.inertias[j].inertia.T))
                for j in range(m.njoints)]
-    floor = 1e-12 * max([float(w[2]) for w in moments if np.isfinite(w).all()] + [0.0])
+    floor = 1e-12 * max([float(np.abs(w).max()) for w in moments if np.isfinite(w).all()] + [0.0])
     for j in range(1, m.njoints):
         w = moments[j]
-        if not np.isfinite(w).all() or w[2] <= floor:
+        scale = float(np.abs(w).max())
+        if not np.isfinite(w).all() or scale <= floor:
             continue  # no rotational inertia (a point mass; 1e-18 of round-off): the mass-matrix check names it
-        tol = INERTIA_RTOL * w[2] + floor
+        tol = INERTIA_RTOL * scale + floor
         if w[0] >= -tol and w[2] - w[0] - w[1] <= tol:
             continue
         links = [f.name for f in m.frames if f.type == pin.FrameType.BODY and f.parentJoint == j]
