@@ -382,9 +382,10 @@ def load_mjcf(path: Path, root, where: str,
     tree = _mjcf_expanded(path, where)
     ignored = check_mjcf(tree, path, where)
     if ignored and kind == pin.GeometryType.COLLISION:
-        warnings.warn(f"{path}: MJCF element(s) {', '.join(f'<{t}>' for t in ignored)} ignored: they do not "
-                      "change the motion (drawing, sensors, MuJoCo's own settings; the scene sets q0, the step "
-                      "and gravity)", stacklevel=2)
+        # attributed to the MJCF file (line 0: no source line under it), one line wherever it is shown
+        warnings.warn_explicit(f"MJCF element(s) {', '.join(f'<{t}>' for t in ignored)} ignored: they do not "
+                               "change the motion (drawing, sensors, MuJoCo's own settings; the scene sets q0, "
+                               f"the step and gravity) [{where} mjcf]", UserWarning, str(path), 0)
     with contextlib.ExitStack() as stack:
         read_from = path
         if any(True for _ in ET.parse(path).getroot().iter("include")):

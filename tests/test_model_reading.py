@@ -249,8 +249,10 @@ def test_ignored_elements_warn_once_and_do_not_change_the_run(tmp_path):
     s = mjcf(tmp_path, before=extra, inside='<camera name="c"/><light name="l"/>', name="b.xml")
     with pytest.warns(UserWarning) as record:
         model = ms.build_model(ms.load_scene(s))
-    msgs = [str(w.message) for w in record if "ignored" in str(w.message)]
-    assert len(msgs) == 1 and "\n" not in msgs[0]
+    ours = [w for w in record if "ignored" in str(w.message)]
+    msgs = [str(w.message) for w in ours]
+    assert len(msgs) == 1 and "\n" not in msgs[0] and ours[0].filename == str(tmp_path / "b.xml")
+    assert ours[0].lineno == 0  # shown as one line: "b.xml:0: UserWarning: MJCF element(s) ..."
     for tag in ("visual", "option", "texture", "sensor", "keyframe", "camera", "light"):
         assert f"<{tag}>" in msgs[0], (tag, msgs[0])
     other = ms.simulate(model, progress=False)
