@@ -1,4 +1,5 @@
-"""Robot descriptions: ``package://`` resolution, URDF meshes, MJCF, mesh collision modes.
+"""Robot descriptions: ``package://`` resolution, URDF meshes, MJCF (its elements read, ignored
+or refused by name; ``<include>`` inside the model's folder), mesh collision modes.
 
 Search order for a ``package://PKG/rel/path`` URI (docs/robots.md):
 
