@@ -243,6 +243,11 @@ def build_model(scene: Scene) -> Model:
         geom.addGeometryObject(pin.GeometryObject(s.name, 0, 0, placement, shape))
         geometry_body.append(s.name)
     model.gravity.linear = np.array(scene.options.gravity, float)
+    if model.nv == 0:
+        raise SceneError(f"{where} [[bodies]]: nothing moves (every body has a fixed root and no joints)")
+    # the one Data of model building, allocated (or refused by size) before any O(nv^2) work
+    body, info = max(zip(scene.bodies, infos), key=lambda bi: bi[1].v_slice.stop - bi[1].v_slice.start)
+    d = new_data(model, f"{where} (largest body: {body.urdf}, nv = {info.v_slice.stop - info.v_slice.start})")
 
     # --- collision pairs: different joints, not both static, not a link and its parent
     gobs = list(geom.geometryObjects)
@@ -303,11 +308,7 @@ def build_model(scene: Scene) -> Model:
             mask[j, jm.idx_v:jm.idx_v + jm.nv] = 1.0
     mask.setflags(write=False)
 
-    if model.nv == 0:
-        raise SceneError(f"{where} [[bodies]]: nothing moves (every body has a fixed root and no joints)")
     q0, u0 = _initial(scene, model, infos, where)
-    body, info = max(zip(scene.bodies, infos), key=lambda bi: bi[1].v_slice.stop - bi[1].v_slice.start)
-    d = new_data(model, f"{where} (largest body: {body.urdf}, nv = {info.v_slice.stop - info.v_slice.start})")
     _check_mass_matrix(model, d, q0, where)
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, scratch=d)
