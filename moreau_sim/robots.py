@@ -394,8 +394,9 @@ def load_mjcf(path: Path, root, where: str,
             if compiler is None:
                 compiler = ET.Element("compiler")
                 tree.insert(0, compiler)
+            asset = compiler.get("assetdir", "")  # MuJoCo: the default of meshdir and texturedir
             for key in ("meshdir", "texturedir", "assetdir"):
-                compiler.set(key, str(path.parent / compiler.get(key, "")) + os.sep)
+                compiler.set(key, str(path.parent / compiler.get(key, asset)) + os.sep)
             folder = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="moreau-sim-mjcf-")))
             read_from = folder / path.name
             ET.ElementTree(tree).write(read_from, encoding="unicode")

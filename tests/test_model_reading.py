@@ -273,14 +273,15 @@ def test_several_top_level_bodies_are_refused(tmp_path):
     refused(scene(tmp_path, 'mjcf = "two.xml"\nroot_joint = "fixed"'), "2 top-level bodies (b, c)")
 
 
-def test_include_inside_the_folder_is_read_as_if_inlined(tmp_path):
+@pytest.mark.parametrize("folder_key", ["meshdir", "assetdir"])
+def test_include_inside_the_folder_is_read_as_if_inlined(tmp_path, folder_key):
     """<include> (which Pinocchio's reader skips) is expanded: the same model and run as the file
-    with the included body written inline, meshes found through <compiler meshdir>."""
+    with the included body written inline, meshes found through <compiler meshdir> or assetdir."""
     (tmp_path / "meshes").mkdir()
     (tmp_path / "meshes" / "box.obj").write_text((MODELS / "box_mesh.obj").read_text())
     lower = ('<body name="c" pos="0 0 -0.3"><joint name="h2" type="hinge" axis="0 1 0"/>'
              '<geom type="mesh" mesh="bm" mass="1"/></body>')
-    head = '<compiler meshdir="meshes"/><asset><mesh name="bm" file="box.obj" scale="0.5 0.5 0.5"/></asset>'
+    head = f'<compiler {folder_key}="meshes"/><asset><mesh name="bm" file="box.obj" scale="0.5 0.5 0.5"/></asset>'
     (tmp_path / "parts").mkdir()
     (tmp_path / "parts" / "lower.xml").write_text(f"<mujoco>{lower}</mujoco>")
     a = mjcf(tmp_path, before=head, inside=lower, name="inline.xml")
