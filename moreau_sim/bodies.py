@@ -4,10 +4,7 @@ coexist (model.build_model appends them into one model)."""
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
-import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -164,24 +161,6 @@ def check_inertias(m: pin.Model, path: Path, where: str, kind: str) -> None:
                          f"{w[2]:.6g} kg m^2 are physically impossible: {what} [{where} {kind}]")
 
 
-@contextlib.contextmanager
-def quiet_stderr():
-    """Silence the C/C++ libraries' own writes to stderr (file descriptor 2) for the block."""
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError):  # no real stderr (embedded interpreters): nothing to silence
-        yield
-        return
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
 def _short(value, n: int = 40) -> str:
     """repr of a value, cut to n characters (an error message never repeats a huge input)."""
     text = repr(value)
@@ -200,7 +179,7 @@ def load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str
         counts = _check_urdf(path, where)
         xml = robots.urdf_with_resolved_meshes(path, body.package_dirs, where)
         try:
-            with quiet_stderr():  # urdfdom and assimp print their own lines; the error below says what failed
+            with robots.quiet_output(2):  # urdfdom and assimp print their own lines; the error below says what failed
                 if root is None:
                     m = pin.buildModelFromUrdf(str(path))
                 else:

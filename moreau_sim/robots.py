@@ -33,6 +33,7 @@ import functools
 import importlib.metadata
 import os
 import re
+import sys
 import tempfile
 import warnings
 import xml.etree.ElementTree as ET
@@ -86,6 +87,32 @@ def _quiet_resolve(p: Path) -> Path:
         return Path(p).expanduser().resolve()
     except (RuntimeError, OSError):
         return Path(p).expanduser().absolute()
+
+
+@contextlib.contextmanager
+def quiet_output(*fds: int):
+    """Silence the C/C++ libraries' own writes to the file descriptors `fds` (2: stderr, 1: stdout)
+    for the block; errors they raise still reach the caller, who says what failed."""
+    saved = {}
+    try:
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        for fd in fds:
+            saved[fd] = os.dup(fd)
+    except (OSError, ValueError, AttributeError):  # no real descriptors (embedded interpreters): nothing to silence
+        for fd in saved.values():
+            os.close(fd)
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            for fd in fds:
+                os.dup2(null.fileno(), fd)
+            yield
+    finally:
+        for fd, copy in saved.items():
+            os.dup2(copy, fd)
+            os.close(copy)
 
 
 def env_package_dirs() -> list[Path]:
@@ -321,8 +348,10 @@ def _mjcf_expanded(path: Path, where: str, _seen: tuple[Path, ...] = ()) -> ET.E
             if child.tag != "include":
                 continue
             name = child.get("file", "")
-            inc = real_path(top / name, f"{path}: <include file=\"{name}\"> [{where} mjcf]") if name else None
-            if inc is None or not inc.is_relative_to(top.resolve()):
+            if not name.strip():
+                raise SceneError(f"{path}: an <include> without a file=\"...\" [{where} mjcf]")
+            inc = real_path(top / name, f"{path}: <include file=\"{name}\"> [{where} mjcf]")
+            if not inc.is_relative_to(top.resolve()):
                 raise SceneError(f"{path}: <include file=\"{name}\">: only files inside the model's folder "
                                  f"{top} may be included [{where} mjcf]")
             if inc in _seen or inc == path:
@@ -378,8 +407,9 @@ def load_mjcf(path: Path, root, where: str,
     cases alike (inertias of bodies welded to the world body move onto the root).
 
     Elements are checked first (:func:`check_mjcf`: refused by name, or ignored with one warning);
-    a file with ``<include>`` is read from an expanded copy in a temporary folder, its mesh,
-    texture and asset folders made absolute (Pinocchio's reader skips ``<include>``)."""
+    a file with ``<include>`` or ignored elements is read from a copy in a temporary folder (the
+    includes expanded, the ignored elements removed, its mesh, texture and asset folders made
+    absolute): Pinocchio's reader skips ``<include>`` and would still parse what is ignored."""
     tree = _mjcf_expanded(path, where)
     ignored = check_mjcf(tree, path, where)
     if ignored and kind == pin.GeometryType.COLLISION:
@@ -389,7 +419,10 @@ def load_mjcf(path: Path, root, where: str,
                                f"the step and gravity) [{where} mjcf]", UserWarning, str(path), 0)
     with contextlib.ExitStack() as stack:
         read_from = path
-        if any(True for _ in ET.parse(path).getroot().iter("include")):
+        if ignored or any(True for _ in ET.parse(path).getroot().iter("include")):
+            for parent in [tree, *(el for el in tree.iter() if el.tag not in ("default", *MJCF_IGNORED))]:
+                for child in [c for c in parent if c.tag in MJCF_IGNORED]:
+                    parent.remove(child)  # ignored means not read by Pinocchio either
             compiler = tree.find("compiler")
             if compiler is None:
                 compiler = ET.Element("compiler")
@@ -401,8 +434,9 @@ def load_mjcf(path: Path, root, where: str,
             read_from = folder / path.name
             ET.ElementTree(tree).write(read_from, encoding="unicode")
         try:
-            m = pin.buildModelFromMJCF(str(read_from))
-            g = pin.buildGeomFromMJCF(m, str(read_from), kind)
+            with quiet_output(1, 2):  # Pinocchio prints its own "Warning - ..." lines to stdout
+                m = pin.buildModelFromMJCF(str(read_from))
+                g = pin.buildGeomFromMJCF(m, str(read_from), kind)
         except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with C++ text
             raise SceneError(f"{path}: Pinocchio cannot load this MJCF: {one_line(exc)} [{where} mjcf]") from None
     if root is None:

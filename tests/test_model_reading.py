@@ -305,3 +305,16 @@ def test_include_outside_the_folder_is_refused(tmp_path, target):
 
 def test_include_of_itself_is_refused(tmp_path):
     refused(mjcf(tmp_path, inside='<include file="m.xml"/>'), "includes itself")
+
+
+def test_pinocchios_own_prints_do_not_reach_the_output(tmp_path, capfd):
+    """Pinocchio's MJCF reader prints "Warning - Only texture with files are supported" to stdout
+    and refuses a nameless texture: an ignored element is not handed to it (one warning, the run);
+    what Pinocchio itself refuses is one line, without its prints."""
+    with pytest.warns(UserWarning, match="<texture>"):
+        assert ms.build_model(ms.load_scene(mjcf(tmp_path, before="<asset><texture/></asset>"))).nv == 1
+    s = mjcf(tmp_path, before='<asset><mesh name="m" file="missing.obj"/></asset>', name="mesh.xml",
+             inside='<geom type="mesh" mesh="m"/>')
+    refused(s, "Pinocchio cannot load this MJCF")
+    out, err = capfd.readouterr()
+    assert "Warning - " not in out + err
