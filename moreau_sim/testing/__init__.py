@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..ledger import Ledger, compare, drift_table, ledger
-from ..regress import baseline_path, read_baseline, write_baseline
+from ..regress import baseline_path, differences, read_baseline, write_baseline
 from ..trajectory import Trajectory
 
 __all__ = ["assert_budget_closes", "assert_dissipation_follows_law", "assert_matches_baseline",
@@ -31,12 +31,14 @@ def _ledger(x: Trajectory | Ledger) -> Ledger:
 
 
 def _fail(title: str, header: str, rows: list[str]) -> None:
+    __tracebackhide__ = True  # pytest shows the caller's line and this message, not this module's source
     raise AssertionError("\n".join([title, header, *rows]))
 
 
 def assert_no_energy_gain(traj: Trajectory | Ledger, *, rtol: float = 1e-9, atol: float = 0.0) -> None:
     """No step raises T + V by more than atol + rtol * scale [J], and no sample lies above E_0 by
     more than that. For passive scenes (no motors, no external work)."""
+    __tracebackhide__ = True
     L = _ledger(traj)
     tol = atol + rtol * L.scale
     rows = []
@@ -53,6 +55,7 @@ def assert_no_energy_gain(traj: Trajectory | Ledger, *, rtol: float = 1e-9, atol
 def assert_dissipation_follows_law(traj: Trajectory | Ledger, *, rtol: float = 1e-9, atol: float = 0.0) -> None:
     """Every contact step dissipates what the law says, (1 - e^2)/2 |u- - v|_M^2 (with the
     per-contact bounds of docs/theory.md §2.7), to atol + rtol * scale [J]; and no impact gains energy."""
+    __tracebackhide__ = True
     L = _ledger(traj)
     tol = atol + rtol * L.scale
     bad = [r for r in L.impacts if abs(r.difference) > tol or r.dissipated < -tol]
@@ -69,6 +72,7 @@ def assert_budget_closes(traj: Trajectory | Ledger, *, rtol: float = 1e-9, atol:
     """E_end - E_0 = contact work + correction + smooth error, to atol + rtol * scale [J] (the
     residual, docs/theory.md §5: the contact steps' own error, round-off where the smooth motion
     is exact, first order in h in rotating and revolute scenes)."""
+    __tracebackhide__ = True
     L = _ledger(traj)
     tol = atol + rtol * L.scale
     if abs(L.residual) <= tol:
@@ -87,7 +91,9 @@ def assert_matches_baseline(traj: Trajectory | Ledger, baseline: str | Path | di
     .json; any other path is a folder holding SCENE_NAME.json) or its dict, within tolerances
     {quantity: (rtol, atol [J])} ("default" for the rest; docs/regression.md).
     update: write the baseline from this run instead (also when the file does not exist yet)."""
+    __tracebackhide__ = True
     L = _ledger(traj)
+    path = None
     if not isinstance(baseline, dict):
         path = Path(baseline)
         if path.suffix != ".json":
@@ -100,4 +106,9 @@ def assert_matches_baseline(traj: Trajectory | Ledger, baseline: str | Path | di
         baseline = read_baseline(path)
     drifts = compare(L.record(), baseline["ledger"], tolerances or baseline.get("tolerances"))
     if drifts:
-        raise AssertionError(drift_table(drifts, f"{L.scene}: the energy ledger moved from its baseline"))
+        notes = differences(baseline, traj, path) if isinstance(traj, Trajectory) else []
+        why = [f"  note: {n}" for n in notes] or ["  note: same scene file, options and library versions as the "
+                                                  "baseline (a change in the code or the machine moved it)"]
+        raise AssertionError("\n".join([f"{L.scene}: the energy ledger moved from its baseline"
+                                         + (f" ({path})" if path else ""), *why,
+                                         drift_table(drifts)]))
