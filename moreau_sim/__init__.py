@@ -24,7 +24,8 @@ from .recording import Recorder
 from .scene import Scene, load_scene, parse_scene
 from .simulate import run, simulate, summary
 from .state import State
-from .stepper import ContactProblem, ImpactSolution, StepResult, assemble, correct_positions, solve_impact, step
+from .results import StepResult
+from .stepper import ContactProblem, ImpactSolution, assemble, correct_positions, solve_impact, step
 from .trajectory import Trajectory, load_trajectory
 
 __version__ = "0.1.0"

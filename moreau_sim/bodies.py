@@ -4,10 +4,7 @@ coexist (model.build_model appends them into one model)."""
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
-import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -133,22 +130,35 @@ def _check_inertial(link, where: str, urdf_where: str) -> None:
                                  f"[kg m^2] [{urdf_where} urdf]")
 
 
-@contextlib.contextmanager
-def quiet_stderr():
-    """Silence the C/C++ libraries' own writes to stderr (file descriptor 2) for the block."""
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError):  # no real stderr (embedded interpreters): nothing to silence
-        yield
-        return
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
+INERTIA_RTOL = 1e-4  # round-off allowed in the triangle inequality, relative to the largest principal moment
+
+
+def check_inertias(m: pin.Model, path: Path, where: str, kind: str) -> None:
+    """Every moving rigid body's rotational inertia about its centre of mass (a link and the links
+    welded to it: Pinocchio merges them, and only the sum moves) must be one that a mass
+    distribution can have: principal moments I1 <= I2 <= I3 with I1 >= 0 and I3 <= I1 + I2, to
+    INERTIA_RTOL * max|I| (values written with 4-5 digits) plus 1e-12 of the model's largest moment
+    (a point mass's round-off). Raises SceneError naming the file, the
+    link, its joint and the three moments."""
+    moments = [np.linalg.eigvalsh(0.5 * (m.inertias[j].inertia + m.inertias[j].inertia.T))
+               for j in range(m.njoints)]
+    floor = 1e-12 * max([float(np.abs(w).max()) for w in moments if np.isfinite(w).all()] + [0.0])
+    for j in range(1, m.njoints):
+        w = moments[j]
+        scale = float(np.abs(w).max())
+        if not np.isfinite(w).all() or scale <= floor:
+            continue  # no rotational inertia (a point mass; 1e-18 of round-off): the mass-matrix check names it
+        tol = INERTIA_RTOL * scale + floor
+        if w[0] >= -tol and w[2] - w[0] - w[1] <= tol:
+            continue
+        links = [f.name for f in m.frames if f.type == pin.FrameType.BODY and f.parentJoint == j]
+        what = (f"a negative principal moment ({w[0]:.6g} kg m^2)" if w[0] < -tol else
+                f"I3 - I1 - I2 = {w[2] - w[0] - w[1]:.3g} kg m^2 > {INERTIA_RTOL:g} I3 "
+                "(the triangle inequality I3 <= I1 + I2)")
+        welded = f" with the links welded to it ({', '.join(links[1:])})" if len(links) > 1 else ""
+        raise SceneError(f"{path}: {'link' if kind == 'urdf' else 'body'} '{links[0] if links else m.names[j]}'"
+                         f"{welded} (joint '{m.names[j]}'): principal moments of inertia {w[0]:.6g}, {w[1]:.6g}, "
+                         f"{w[2]:.6g} kg m^2 are physically impossible: {what} [{where} {kind}]")
 
 
 def _short(value, n: int = 40) -> str:
@@ -169,7 +179,7 @@ def load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str
         counts = _check_urdf(path, where)
         xml = robots.urdf_with_resolved_meshes(path, body.package_dirs, where)
         try:
-            with quiet_stderr():  # urdfdom and assimp print their own lines; the error below says what failed
+            with robots.quiet_output(2):  # urdfdom and assimp print their own lines; the error below says what failed
                 if root is None:
                     m = pin.buildModelFromUrdf(str(path))
                 else:
@@ -186,6 +196,7 @@ def load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str
             if loaded.get(link, 0) != n:
                 raise SceneError(f"{path}: link '{link}' has {n} <collision> element(s) but Pinocchio loaded "
                                  f"{loaded.get(link, 0)} [{where} urdf]")
+    check_inertias(m, path, where, "mjcf" if body.mjcf else "urdf")
     robots.apply_mesh_mode(g, body.meshes, f"{path} [{where}]")
     robots.unique_frame_names(m)  # a link and a joint of one name: appendModel would refuse the model
     # prefix every name with the body name so several instances of one URDF can coexist

@@ -102,8 +102,10 @@ class SceneBuilder:
         return parse_scene(self.toml(), path=self.folder / f"{self.name}.toml")
 
     def save(self, path: str | Path) -> Path:
-        """Write the scene file (paths in it are absolute)."""
+        """Write the scene file (paths in it are absolute), making its folder if needed (as
+        ``Trajectory.save`` and ``run -o`` do)."""
         path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(self.toml(), encoding="utf-8")
         return path
 

@@ -1,16 +1,7 @@
-"""The compiled contact step (moreau_sim._step, src/step.cpp) and its guard.
-
-The extension borrows the pin.Model / pin.Data / GeometryModel / GeometryData built in Python (through
-boost.python's registry) and calls the same libpinocchio and libcoal as the Python bindings, so it
-must have been built against exactly the versions loaded: Pinocchio promises no ABI stability and its
-SONAME is unversioned, so a mismatch would load silently and misbehave. Hence pinocchio and coal are
-imported first and their versions compared with the ones the build recorded (_step_version.py); on a
-mismatch or any import error the Python step is used, with one warning, never a crash.
-
-The compiled step mirrors stepper.step (the reference) for the contacts of coal's closed-form pairs, any
-number of velocities and up to MAX_CONTACTS contacts (src/step.cpp, top comment); a step it does not cover
-returns a reason and stepper.step takes it in Python. `counts(data)` tells how many steps of a run went which way.
-"""
+"""The compiled contact step (moreau_sim._step, src/step.cpp): its guard, its constants, and its typed result
+made a results.StepResult. It must load against exactly the Pinocchio and coal it was built with (else the
+Python step runs, with one warning); it mirrors stepper.step for coal's closed-form pairs and up to
+MAX_CONTACTS contacts, and hands any other step back (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
@@ -23,12 +14,23 @@ import coal
 import numpy as np
 import pinocchio
 
-from .contacts import NO_CONTACTS, Contacts
+from . import constraints, qp
+from .contacts import NO_CONTACTS, Contacts, FeatureKind
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts
-from .qp import COLD_START_ROWS, QPResult
+from .qp import QPResult
+from .results import MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
 from .state import State
 
-MAX_CONTACTS = COLD_START_ROWS  # closed contacts a compiled step takes: those qp.solve solves by the cold active set
+MAX_CONTACTS = qp.COLD_START_ROWS  # closed contacts a compiled step takes: those qp.solve solves by the cold active set
+# Every constant the two steps share, from its one home, as src/step.cpp's Constants reads them (by name: a
+# missing or an unknown one is an error there; tests/test_compiled.py compares them read back)
+CONSTANTS = {
+    "midpoint_iterations": MIDPOINT_ITERATIONS, "midpoint_tolerance": MIDPOINT_TOLERANCE, "resting": RESTING,
+    "vertex": int(FeatureKind.VERTEX), "witness": int(FeatureKind.WITNESS), "max_contacts": MAX_CONTACTS,
+    "screen": qp.SCREEN, "dependent": qp.DEPENDENT, "met": qp.MET, "accept": qp.ACCEPT, "refine": qp.REFINE,
+    "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA,
+    "distinct": constraints.DISTINCT,
+}
 _EMPTY = np.zeros(0)
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}
 
@@ -119,12 +121,11 @@ def unsupported(model) -> str | None:
 class _Context:
     """The compiled stepper of one (model, data) and the count of steps by the way they went."""
 
-    __slots__ = ("model", "stepper", "counts", "why", "nq", "nv", "_slices")
+    __slots__ = ("model", "stepper", "counts", "why", "_layouts")
 
     def __init__(self, model, data):
         self.model = model
-        self.nq, self.nv = model.nq, model.nv
-        self._slices: dict[int, tuple] = {}  # m -> the slices of step()'s returned array (layout below)
+        self._layouts: dict[tuple, list] = {}  # (outcome, m) -> the step's named arrays in its two buffers
         self.counts: Counter = Counter()
         self.why = unsupported(model)
         self.stepper = None
@@ -140,19 +141,20 @@ class _Context:
                 np.asarray(model.support_mask, float), float(model.reach), float(model.thinnest_pair),
                 float(o.contact_tolerance), _TUNNELLING[o.tunnelling], o.separating is Separating.ELASTIC,
                 o.slow_impacts is SlowImpacts.PLASTIC, o.bias is Bias.MIDPOINT, bool(model.velocity_bias),
-                o.position_correction is PositionCorrection.PROJECTION, MAX_CONTACTS, _dgesv_pointer())
+                o.position_correction is PositionCorrection.PROJECTION, CONSTANTS, _dgesv_pointer())
 
-    def slices(self, m: int) -> tuple:
-        """The slices of a contact step's returned array with m contacts (src/step.cpp: its layout):
-        q_next, u_next, g, pa, pb, nrm, P, gm, gp, v, lam, M, W, v_free, b."""
-        s = self._slices.get(m)
-        if s is None:
-            nq, nv, a, out = self.nq, self.nv, 0, []
-            for n in (nq, nv, m, 3 * m, 3 * m, 3 * m, m, m, m, nv, m, nv * nv, nv * m, nv, m):
-                out.append(slice(a, a + n))
-                a += n
-            s = self._slices[m] = tuple(out)
-        return s
+    def arrays(self, r) -> dict:
+        """The named arrays of the extension's StepOut r: views of its two buffers, laid out as r.layout()
+        says (src/step.cpp StepOut::visit, the one definition of the layout)."""
+        key = (r.outcome, r.m)
+        lay = self._layouts.get(key)
+        if lay is None:
+            lay = self._layouts[key] = [
+                (name, ints, slice(a, a + rows * (cols or 1)), (rows, cols) if cols else None, order)
+                for name, ints, a, rows, cols, order in r.layout()]
+        buffers = (r.floats, r.ints if r.outcome is _module.Outcome.CONTACT else None)
+        return {name: buffers[i][s] if shape is None else buffers[i][s].reshape(shape, order=order)
+                for name, i, s, shape, order in lay}
 
 
 def _context(model, data) -> _Context:
@@ -169,28 +171,25 @@ def counts(data) -> Counter:
     return Counter() if ctx is None else ctx.counts
 
 
-def step(model, data, state: State, h: float, e: float, t1: float, StepResult):
-    """stepper.step in C++ as a StepResult (the class stepper passes), or None where the Python step
-    must take it (counted in counts(data))."""
+def step(model, data, state: State, h: float, e: float, t1: float) -> StepResult | None:
+    """stepper.step in C++, or None where the Python step must take it (counted in counts(data))."""
     ctx = _context(model, data)
     if ctx.stepper is None:
         ctx.counts[f"python: {ctx.why}"] += 1
         return None
     r = ctx.stepper.step(state.q, state.u, h, e)
-    if r[0] == _module.FALLBACK:
-        ctx.counts[f"python: {r[1]}"] += 1
+    Outcome = _module.Outcome
+    if r.outcome is Outcome.FALLBACK:
+        ctx.counts[f"python: {r.reason}"] += 1
         return None
-    if r[0] == _module.FLIGHT:
+    f = ctx.arrays(r)
+    if r.outcome is Outcome.FLIGHT:
         ctx.counts["flight"] += 1
-        x, nq = r[1], ctx.nq
-        return StepResult(State(t1, x[:nq], x[nq:]), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None)
+        u = f["u_next"]
+        return StepResult(State(t1, f["q_next"], u), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None, u_free=u)
     ctx.counts["contact"] += 1
-    _, x, ints, m, work, status, corr = r  # src/step.cpp: the layout of x and ints
-    q_next, u_next, g, pa, pb, nrm, P, gm, gp, v, lam, M, W, v_free, b = [x[s] for s in ctx.slices(m)]
-    pa, pb, nrm = pa.reshape(m, 3), pb.reshape(m, 3), nrm.reshape(m, 3)
-    contacts = Contacts(g, pa, pb, nrm, ints[:m], ints[m:2 * m], ints[2 * m:3 * m], ints[3 * m:4 * m], ints[4 * m:])
-    nv = ctx.nv
-    M = M.reshape(nv, nv)
-    W = W.reshape(m, nv).T  # Fortran-ordered (nv, m), as constraints.contact_rows makes it
-    qp = QPResult("ADMISSIBLE" if status == 0 else "ACTIVE_SET", True, 0, status == 1, v, lam, (M, W, v_free, b))
-    return StepResult(State(t1, q_next, u_next), contacts, P, gm, gp, work, qp, None, corr)
+    contacts = Contacts(*(f[k] for k in Contacts.ARRAYS))
+    admissible = r.projection is _module.Projection.ADMISSIBLE
+    res = QPResult(r.projection.name, True, 0, not admissible, f["v"], f["lam"], f["M"], f["W"], f["v_free"], f["b"])
+    return StepResult(State(t1, f["q_next"], f["u_next"]), contacts, f["P"], f["gamma_minus"], f["gamma_plus"],
+                      r.contact_work, res, None, r.correction_energy, u_free=f["u_free"])

@@ -46,6 +46,7 @@ def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
 
 _UPPER: dict[int, np.ndarray] = {}
 _WEIGHTS: dict[int, np.ndarray] = {}
+DISTINCT = 1e-12  # two rows are the same contact when they differ by at most this, relative to 1 + max|W|
 SCREEN_ROWS = 12  # above this many rows distinct screens the pairs by a sort (O(m log m)) instead of comparing all
 
 
@@ -79,7 +80,7 @@ def distinct(contacts: Contacts, W: np.ndarray) -> tuple[Contacts, np.ndarray]:
     m = W.shape[1]
     if m < 2:
         return contacts, W
-    tol = 1e-12 * (1.0 + np.abs(W).max())
+    tol = DISTINCT * (1.0 + np.abs(W).max())
     if m > SCREEN_ROWS:
         dup = _duplicates_screened(W, tol)
     else:

@@ -6,7 +6,8 @@ geometry with the statics, collision pairs, per-shape features (shapes.py), and 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import os
+from dataclasses import InitVar, dataclass
 from pathlib import Path
 
 import coal
@@ -76,8 +77,9 @@ class Model:
     geometry_body: tuple[str, ...]
     q0: np.ndarray
     u0: np.ndarray
+    scratch: InitVar[pin.Data | None] = None  # a Data of `pin` to reuse for the checks below
 
-    def __post_init__(self):
+    def __post_init__(self, scratch):
         pj = np.array([(p.joint_first, p.joint_second) for p in self.pairs], dtype=np.int64).reshape(-1, 2)
         pj.setflags(write=False)
         object.__setattr__(self, "_pair_joints", pj)
@@ -102,7 +104,7 @@ class Model:
         # does h(q, u) depend on u (Coriolis, gyroscopic)? A random state tells (structurally zero
         # for translations and prismatic chains); stepper.free_velocity skips the midpoint iteration.
         rng = np.random.default_rng(0)
-        d = self.pin.createData()
+        d = scratch if scratch is not None else new_data(self.pin, self.scene.name)
         qr = pin.randomConfiguration(self.pin, -np.ones(self.nq), np.ones(self.nq))
         ur = rng.standard_normal(self.nv)
         c = pin.nonLinearEffects(self.pin, d, qr, ur) - pin.nonLinearEffects(self.pin, d, qr, np.zeros(self.nv))
@@ -222,7 +224,10 @@ def build_model(scene: Scene) -> Model:
         if body.root_joint is RootJoint.FREE:
             placement = pin.SE3.Identity()  # a free body's pose is its q (world frame): see _initial
         nj0 = model.njoints
-        model, geom = pin.appendModel(model, m, geom, g, 0, placement)
+        try:
+            model, geom = pin.appendModel(model, m, geom, g, 0, placement)
+        except ValueError as exc:  # Pinocchio: "The two models have conflicting joint names." and the like
+            raise SceneError(f"{w}: Pinocchio cannot add this body to the scene's model: {exc}") from None
         joints = tuple(range(nj0, model.njoints))
         for j in joints:
             body_of_joint[j] = body.name
@@ -238,6 +243,11 @@ def build_model(scene: Scene) -> Model:
         geom.addGeometryObject(pin.GeometryObject(s.name, 0, 0, placement, shape))
         geometry_body.append(s.name)
     model.gravity.linear = np.array(scene.options.gravity, float)
+    if model.nv == 0:
+        raise SceneError(f"{where} [[bodies]]: nothing moves (every body has a fixed root and no joints)")
+    # the one Data of model building, allocated (or refused by size) before any O(nv^2) work
+    body, info = max(zip(scene.bodies, infos), key=lambda bi: bi[1].v_slice.stop - bi[1].v_slice.start)
+    d = new_data(model, f"{where} (largest body: {body.urdf}, nv = {info.v_slice.stop - info.v_slice.start})")
 
     # --- collision pairs: different joints, not both static, not a link and its parent
     gobs = list(geom.geometryObjects)
@@ -298,18 +308,59 @@ def build_model(scene: Scene) -> Model:
             mask[j, jm.idx_v:jm.idx_v + jm.nv] = 1.0
     mask.setflags(write=False)
 
-    if model.nv == 0:
-        raise SceneError(f"{where} [[bodies]]: nothing moves (every body has a fixed root and no joints)")
     q0, u0 = _initial(scene, model, infos, where)
-    _check_mass_matrix(model, q0, where)
+    _check_mass_matrix(model, d, q0, where)
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
-                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0)
+                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, scratch=d)
 
 
-def _check_mass_matrix(model: pin.Model, q0: np.ndarray, where: str) -> None:
+DATA_BYTES_PER_NV3 = 32  # Pinocchio 4.1's Data: four nv x nv x nv tensors of doubles (second-order derivatives)
+
+
+def available_memory() -> int | None:
+    """Bytes of memory this process may still allocate: Linux MemAvailable, or less under a
+    cgroup v2 memory limit (a container's memory.max minus memory.current); None if unknown."""
+    avail = None
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            avail = next((int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:")), None)
+    except (OSError, ValueError, IndexError):
+        pass
+    if avail is None:
+        try:
+            avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (OSError, ValueError, AttributeError):
+            return None
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit != "max":
+            used = int(Path("/sys/fs/cgroup/memory.current").read_text().strip())
+            avail = min(avail, max(int(limit) - used, 0))
+    except (OSError, ValueError):
+        pass
+    return avail
+
+
+def new_data(model: pin.Model, where: str) -> pin.Data:
+    """``model.createData()``, or a SceneError naming `where`, the size and what needs it when the
+    Data cannot be allocated: Pinocchio 4.1 allocates DATA_BYTES_PER_NV3 * nv^3 bytes in every Data
+    whatever algorithms run (upstream stack-of-tasks/pinocchio#2949), 32 GB at nv = 1000."""
+    need, avail = DATA_BYTES_PER_NV3 * model.nv ** 3, available_memory()
+    msg = (f"{where}: the model has nv = {model.nv} degrees of freedom and Pinocchio 4.1's Data allocates four "
+           f"nv x nv x nv tensors, {need / 2 ** 30:.3g} GiB")
+    if avail is not None and need > avail:
+        raise SceneError(f"{msg}, more than the {avail / 2 ** 30:.3g} GiB of memory available")
+    try:
+        return model.createData()
+    except MemoryError:
+        raise SceneError(f"{msg}, which could not be allocated") from None
+
+
+def _check_mass_matrix(model: pin.Model, data: pin.Data, q0: np.ndarray, where: str) -> None:
     """M(q0) must be positive definite: every moving dof must carry mass or inertia (a zero mass
-    or inertia otherwise surfaces as a failed QP or a NaN state at the first step)."""
-    M = pin.crba(model, model.createData(), q0)
+    or inertia otherwise surfaces as a failed QP or a NaN state at the first step). Uses the
+    model's one Data (`data`): no second nv^3-sized allocation."""
+    M = pin.crba(model, data, q0)
     if np.isfinite(M).all():
         try:
             np.linalg.cholesky(0.5 * (M + M.T))

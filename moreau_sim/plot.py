@@ -1,8 +1,6 @@
 """Figures from a Trajectory (or its NPZ file): energy, gaps, percussions, coordinates and
-velocities against time, readable for a ball and for a robot with dozens of pairs alike.
-
-Each collision pair keeps one colour in every panel; panels with many pairs show the pairs that
-matter most (the closest gaps, the largest percussions) with a legend outside the data.
+velocities against time, one colour per collision pair in every panel, the pairs that matter
+most named in a legend outside the data, curves that coincide named together (docs/cli.md).
 """
 
 from __future__ import annotations
@@ -16,6 +14,7 @@ from .trajectory import Trajectory, load_trajectory
 PANELS = ("energy", "gap", "percussion", "q", "u")
 DEFAULT_PANELS = ("energy", "gap", "percussion")
 TOP = 8  # pairs (or coordinates) named in a legend; the others are drawn thin and grey
+SAME = 3e-3  # curves closer than this fraction of their panel's range everywhere are drawn once, named together
 
 
 def figure(traj: Trajectory | str | Path, panels: tuple[str, ...] | list[str] = DEFAULT_PANELS):
@@ -60,9 +59,9 @@ def _legend(ax, title=None):
 def _energy(ax, _, a, meta, pairs, colour):
     t = a["t"]
     E = a["kinetic_energy"] + a["potential_energy"]
-    ax.plot(t, a["kinetic_energy"], lw=1, label="kinetic T")
-    ax.plot(t, a["potential_energy"], lw=1, label="potential V")
-    ax.plot(t, E, lw=2, color="k", label="total T + V")
+    _curves(ax, t, [(a["kinetic_energy"], dict(lw=1, color="C0", label="kinetic T")),
+                    (a["potential_energy"], dict(lw=1, color="C1", label="potential V")),
+                    (E, dict(lw=2, color="k", label="total T + V"))])
     smooth = a.get("smooth_error")
     if smooth is not None and len(smooth) and np.isfinite(smooth).all():  # files before format 3 have none
         ledger, label = np.cumsum(a["contact_work"] + a["correction_energy"] + smooth), "Σ(W_c + corr. + smooth)"
@@ -104,8 +103,8 @@ def _gaps(ax, _, a, meta, pairs, colour):
     for k in range(gaps.shape[1]):
         if k not in shown:
             ax.plot(t, gaps[:, k], lw=0.5, color="0.75")
-    for k in sorted(shown, key=lambda k: np.nanmin(gaps[:, k])):
-        ax.plot(t, gaps[:, k], lw=1.2, color=colour.get(k, "0.4"), label=pairs[k])
+    _curves(ax, t, [(gaps[:, k], dict(lw=1.2, color=colour.get(k, "0.4"), label=pairs[k]))
+                    for k in sorted(shown, key=lambda k: np.nanmin(gaps[:, k]))])
     ax.axhline(0.0, color="k", lw=0.6)
     g = gaps[np.isfinite(gaps)]
     if g.size and g.max() > 0:
@@ -127,10 +126,15 @@ def _percussions(ax, _, a, meta, pairs, colour):
     shown = {int(ids[i]) for i in _top(total)}
     # one dot per logged percussion (a resting contact draws its weight x h as a line of dots)
     for k in sorted(ids, key=lambda k: int(k) in shown):
+        if int(k) not in shown:
+            ax.plot(lt[lp == k], P[lp == k], ".", ms=1.5, color="0.75")
+    dots = []
+    for k in sorted(shown):
         sel = lp == k
-        named = int(k) in shown
-        ax.plot(lt[sel], P[sel], ".", ms=2.5 if named else 1.5, color=colour.get(int(k), "0.75") if named else "0.75",
-                label=pairs[int(k)] if named and int(k) < len(pairs) else None)
+        dots.append((lt[sel], P[sel], dict(marker=".", ls="none", ms=2.5, color=colour.get(k, "0.4"),
+                                           label=pairs[k] if k < len(pairs) else f"pair {k}")))
+    for x, y, style in _together(dots, _span(P)):
+        ax.plot(x, y, **style)
     imp = a["log_impact"]
     ax.plot(lt[imp], P[imp], "o", ms=5, mfc="none", mec="k", mew=0.8, label="new impact")
     positive = P[P > 0]
@@ -151,11 +155,50 @@ def _coordinates(ax, panel, a, meta, pairs, colour):
     for i in range(x.shape[1]):
         if i not in shown:
             ax.plot(a["t"], x[:, i], lw=0.5, color="0.75")
-    for c, i in zip(cmap_colours, sorted(shown)):
-        ax.plot(a["t"], x[:, i], lw=1.0, color=c, label=names[i] if i < len(names) else f"{panel}[{i}]")
-    ax.set_ylabel("q (coordinates)" if panel == "q" else "u (velocities)")
+    units = list(meta.get(f"{panel}_units", []))
+    unit = [units[i] if i < len(units) and units[i] != "?" else None for i in range(x.shape[1])]
+    label = [(names[i] if i < len(names) else f"{panel}[{i}]") + (f" [{unit[i]}]" if unit[i] else "")
+             for i in range(x.shape[1])]
+    _curves(ax, a["t"], [(x[:, i], dict(lw=1.0, color=c, label=label[i])) for c, i in zip(cmap_colours, sorted(shown))])
+    drawn = list(dict.fromkeys(unit[i] for i in sorted(shown) if unit[i]))  # the units of the named curves
+    word = "q (coordinates)" if panel == "q" else "u (velocities)"
+    ax.set_ylabel(f"{word} [{', '.join(drawn)}]" if drawn else word)
     more = x.shape[1] - len(shown)
     _legend(ax, f"{len(shown)} of {x.shape[1]} that move most" if more else None)
+
+
+def _span(*ys) -> float:
+    """The range of the finite values of `ys` (1 if none or all equal)."""
+    v = np.concatenate([np.ravel(y) for y in ys]) if ys else np.zeros(0)
+    v = v[np.isfinite(v)]
+    return float(np.ptp(v)) if v.size and np.ptp(v) > 0 else 1.0
+
+
+def _together(series, span: float):
+    """[(x, y, style)] with the curves that coincide (same x, y within SAME * span everywhere)
+    merged into one, drawn in the style of its widest member and labelled with every member's
+    name, so that no legend entry names a curve hidden under another."""
+    groups: list[list] = []
+    for x, y, style in series:
+        for g in groups:
+            x0, y0, _ = g[0]
+            if len(x0) == len(x) and np.array_equal(x0, x) and \
+                    np.allclose(y0, y, rtol=0, atol=SAME * span, equal_nan=True):
+                g.append((x, y, style))
+                break
+        else:
+            groups.append([(x, y, style)])
+    out = []
+    for g in groups:
+        x, y, style = max(g, key=lambda m: m[2].get("lw", 1.0))
+        out.append((x, y, {**style, "label": "\n= ".join(m[2]["label"] for m in g)}))
+    return out
+
+
+def _curves(ax, t, series) -> None:
+    """Plot [(y, style)] against t, coinciding curves drawn once under all their names (:func:`_together`)."""
+    for x, y, style in _together([(t, y, style) for y, style in series], _span(*[y for y, _ in series])):
+        ax.plot(x, y, **style)
 
 
 def save(traj: Trajectory | str | Path, png: str | Path, panels=DEFAULT_PANELS) -> Path:

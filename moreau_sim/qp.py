@@ -1,17 +1,7 @@
-"""The one QP projection of the package (piqp), serving the impact law and the corner law.
-
-primal (velocity space):  v = argmin 1/2 (v - v0)' M (v - v0)  s.t.  W' v >= b
-dual   (contact space):   lam = argmin 1/2 lam' G lam + lam' (W' v0 - b),  lam >= 0,
-                          G = W' M^-1 W (Delassus),  v = v0 + M^-1 W lam
-Both return (v, lam) with M (v - v0) = W lam (docs/theory.md §1; b = 0 there, the per-contact
-restitution rules shift b, docs/theory.md §2.7). With Polish.ACTIVE_SET (the law's) the problem is
-solved exactly by a dual active-set method (Goldfarb-Idnani) in contact space, re-solved on its
-final active set: from nothing up to COLD_START_ROWS rows (piqp then runs only when the active set
-fails), from piqp's active set above. The compiled step (src/step.cpp) mirrors the cold start
-operation for operation, so both steps take the same decisions, ties included. Above SPARSE_ROWS rows
-the same method runs on sparse matrices (_solve_sparse: piqp's SparseSolver, the active set on a CSC
-Delassus matrix with SuperLU), its cost following the nonzeros (docs/theory.md §1.3).
-"""
+"""The one QP projection of the package: v = argmin 1/2 (v - v0)'M(v - v0) s.t. W'v >= b, by a dual active
+set (from nothing up to COLD_START_ROWS rows, from piqp's answer above, on sparse matrices above SPARSE_ROWS),
+re-solved on its final active set (docs/theory.md §1.3, §1.5); its floating-point order, shared with
+src/step.cpp: §2.8."""
 
 from __future__ import annotations
 
@@ -32,6 +22,7 @@ class QPResult:
     without piqp, or "ADMISSIBLE" when v0 already satisfies every constraint (no QP to solve); ok:
     solved and usable; iterations: piqp's interior-point iterations, or the active set's moves;
     polished: the answer is the active set's exact one (Polish.ACTIVE_SET) or the least-squares one; v (nv,), lam (m,);
+    the problem it solved, where it solved one: M, W (nv, m), v0 (nv,), b (m,) (None otherwise);
     residual (property): the KKT residual of (v, lam), computed when asked (it costs ~5 us)."""
 
     status: str
@@ -40,16 +31,19 @@ class QPResult:
     polished: bool
     v: np.ndarray
     lam: np.ndarray
-    problem: tuple = field(default=(), repr=False, compare=False)  # (M, W, v0, b), for the residual
+    M: np.ndarray | None = field(default=None, repr=False, compare=False)
+    W: np.ndarray | None = field(default=None, repr=False, compare=False)
+    v0: np.ndarray | None = field(default=None, repr=False, compare=False)
+    b: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def residual(self) -> float:
         """max(|M(v - v0) - W lam|, max(0, b - W'v), max(0, -lam), |lam . (W'v - b)|)."""
         if not self.ok:
             return float("inf")
-        if not self.problem:
+        if self.M is None:
             return 0.0
-        return kkt_residual(*self.problem[:3], self.v, self.lam, self.problem[3])
+        return kkt_residual(self.M, self.W, self.v0, self.v, self.lam, self.b)
 
 
 _STATUS = {getattr(piqp, n): n for n in dir(piqp) if n.startswith("PIQP_")}
@@ -66,6 +60,14 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
 
 COLD_START_ROWS = 64  # up to this many rows the active set starts from nothing, and piqp is only its fallback
 SPARSE_ROWS = 100  # above this many rows the sparse path (_solve_sparse) solves; below it dense is cheaper
+# The active set's tolerances (src/step.cpp receives them from compiled.CONSTANTS):
+SCREEN = 1e-13  # v0 is admissible, and a row of the active set met, when W'v - b >= -SCREEN (1 + max|v0|)
+DEPENDENT = 1e-12  # row p depends on the active rows when z = G_pp + G_pA d <= DEPENDENT G_pp
+MET = 1e-14  # a dependent row is met within MET m max|G| max(lam) (the round-off of G lam)
+ACCEPT = 1e-12  # the answer is kept when lam_A >= -ACCEPT max(1, lam_A) and W'v - b >= -ACCEPT (1 + max|v0|)
+REFINE = 1e-8  # the refinement step is taken when it moves lam_A by at most REFINE (1 + max(lam_A))
+SECOND_PASS = 1e-15  # the second pass's tolerance, relative to max|b| + max|W| max|v|
+MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_ROW m + MOVES_EXTRA moves
 
 
 def _gesv_ok(A, rhs):
@@ -198,7 +200,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
             col, row, gpp = G[:, p], G[p], G[p, p]
         while True:  # add p, dropping the rows whose multipliers reach zero on the way
             moves += 1
-            if moves > 5 * m + 10:
+            if moves > MOVES_PER_ROW * m + MOVES_EXTRA:
                 return None
             idx = np.flatnonzero(act)
             if idx.size:
@@ -209,7 +211,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
             else:
                 d, z = _EMPTY, gpp
             sp = (row @ lam if sparse else mul(G[p], lam)) - r[p]  # row p's slack now
-            t1 = -sp / z if z > 1e-12 * gpp else np.inf  # row p tight (inf: p depends on A)
+            t1 = -sp / z if z > DEPENDENT * gpp else np.inf  # row p tight (inf: p depends on A)
             neg = d < 0.0
             t2, k = np.inf, -1
             if neg.any():
@@ -217,7 +219,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
                 j = int(np.argmin(ratio))
                 t2, k = ratio[j], int(idx[neg][j])
             if t1 == np.inf and t2 == np.inf:  # p depends on A and no multiplier of A can shrink
-                if lam[p] == 0.0 and sp >= -(tol + 1e-14 * m * gmax * lam.max()):
+                if lam[p] == 0.0 and sp >= -(tol + MET * m * gmax * lam.max()):
                     return act, lam, moves  # p is met to the round-off of G lam (lam large): as met as it can be
                 return None  # the rows cannot all be met (or z is NaN)
             t = t1 if t1 <= t2 else t2
@@ -251,7 +253,7 @@ def _polish(W, v0, b, Minv, act=None):
         MiW, G = MiW.tocsc(), G.tocsc()
         G.sort_indices()
     r = b - mul(W.T, v0)
-    sol = _active_set(G, r, 1e-13 * scale, act, mul)
+    sol = _active_set(G, r, SCREEN * scale, act, mul)
     if sol is None:
         return None
     act, lam, moves = sol
@@ -261,7 +263,7 @@ def _polish(W, v0, b, Minv, act=None):
         vp = v0.copy()
     else:
         lamA = _solve(_sub(G, idx), r[idx])
-        if lamA is None or lamA.min() < -1e-12 * max(1.0, lamA.max()):
+        if lamA is None or lamA.min() < -ACCEPT * max(1.0, lamA.max()):
             return None
         np.maximum(lamA, 0.0, out=lamA)
         vp = v0 + mul(MiW[:, idx], lamA)
@@ -273,7 +275,7 @@ def _polish(W, v0, b, Minv, act=None):
         if P.any():
             iP = idx[P]
             dP = _solve(_sub(G, iP), b[iP] - mul(W[:, iP].T, vp))
-            if dP is not None and np.abs(dP).max() <= 1e-8 * (1.0 + lamA.max()):
+            if dP is not None and np.abs(dP).max() <= REFINE * (1.0 + lamA.max()):
                 lamA[P] = np.maximum(lamA[P] + dP, 0.0)
                 vp = vp + mul(MiW[:, iP], dP)
         lp[idx] = lamA
@@ -282,7 +284,7 @@ def _polish(W, v0, b, Minv, act=None):
         # met to that accuracy (tol2); kept when it violates no row more than before
         r2 = b - mul(W.T, vp)
         wmax = np.abs(W.data).max(initial=0.0) if sparse else np.abs(W).max()
-        tol2 = 1e-15 * (np.abs(b).max() + wmax * np.abs(vp).max())
+        tol2 = SECOND_PASS * (np.abs(b).max() + wmax * np.abs(vp).max())
         sol = _active_set(G, r2, tol2, None, mul)
         if sol is not None and sol[0].any():
             i2 = np.flatnonzero(sol[0])
@@ -291,7 +293,7 @@ def _polish(W, v0, b, Minv, act=None):
                 vp = v2
                 lp[i2] += sol[1][i2]
                 moves += sol[2]
-    if (mul(W.T, vp) - b).min() < -1e-12 * scale:
+    if (mul(W.T, vp) - b).min() < -ACCEPT * scale:
         return None
     return vp, lp, moves
 
@@ -343,13 +345,13 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     cold = polish is Polish.ACTIVE_SET and m <= COLD_START_ROWS
     if polish is Polish.ACTIVE_SET and m > SPARSE_ROWS:
         return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
-    if screen and (ordered(W.T, v0) - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
+    if screen and (ordered(W.T, v0) - b).min() >= -SCREEN * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
-        return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), (M, W, v0, b))
+        return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), M, W, v0, b)
     if cold:
         p = _polish(W, v0, b, Minv)
         if p is not None:
-            return QPResult("ACTIVE_SET", True, p[2], True, p[0], p[1], (M, W, v0, b))
+            return QPResult("ACTIVE_SET", True, p[2], True, p[0], p[1], M, W, v0, b)
     s = _piqp(piqp.DenseSolver, eps, max_iter)
     if form is QPForm.PRIMAL:
         s.setup(M, -ordered(M, v0), None, None, W.T, b, None)
@@ -375,7 +377,7 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
         p = _polish_least_squares(M, W, v0, lam, polish_tol)
     if p is not None:
         v, lam = p[:2]
-    return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, (M, W, v0, b))
+    return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, M, W, v0, b)
 
 
 def _csc(A) -> scipy.sparse.csc_matrix:
@@ -404,8 +406,8 @@ def _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen) -> QPResult:
     m = W.shape[1]
     Ms, Ws, Mis = _csc(M), _csc(W), _csc(Minv)
     problem = (M, W, v0, b)  # as given, as the dense path keeps them (the residual, the recorder)
-    if screen and (Ws.T @ v0 - b).min() >= -1e-13 * (1.0 + np.abs(v0).max()):
-        return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), problem)
+    if screen and (Ws.T @ v0 - b).min() >= -SCREEN * (1.0 + np.abs(v0).max()):
+        return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), *problem)
     s = _piqp(piqp.SparseSolver, eps, max_iter)
     if form is QPForm.PRIMAL:
         s.setup(scipy.sparse.triu(Ms, format="csc"), -(Ms @ v0), None, None, Ws.T.tocsc(), b, None)
@@ -430,7 +432,7 @@ def _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen) -> QPResult:
         p = _polish(dense[0], v0, b, dense[1], act)
     if p is not None:
         v, lam = p[:2]
-    return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, problem)
+    return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, *problem)
 
 
 def _polish_least_squares(M, W, v0, lam, tol):

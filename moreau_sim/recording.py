@@ -301,12 +301,12 @@ class Recorder:
         rise = E1 - E0 - max(r.correction_energy, 0.0)
         if rise > self._rise[0]:
             self._rise = (rise, float(r.state.t))
-        if r.qp is None or not r.qp.problem:
+        res = r.qp
+        if res is None or res.M is None:
             self._smooth += E1 - E0  # a contact-free step is smooth motion only
-        else:
-            M, _, v_free, b = r.qp.problem
-            T_minus, T_plus, law = impact_terms(M, v_free, r.qp.v, u0, u1, e, r.P, b)
-            u_free = v_free + e * (v_free - u0)  # inverts v_free = (u_free + e u_k)/(1 + e)
+        else:  # the projection's problem: M, v_free = v0, b; and the step's own u_free
+            T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u1, e, r.P, res.b)
+            u_free = res.v0 + e * (res.v0 - u0)  # inverts v_free = (u_free + e u_k)/(1 + e)
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * u_free)
             self._smooth += total(m, d, q_free, u_free) - E0
             self._add_impact(step, t, T_minus, T_plus, law, int(np.count_nonzero(r.P > 0)), self._new_impact)

@@ -1,7 +1,8 @@
 """Energy-ledger baselines (docs/regression.md): run scenes, record their ledgers as readable JSON
 files, compare later runs with them, and report (text, JUnit XML for CI systems).
 
-A baseline file DIR/SCENE.json holds the scene's name, path and hash (of its TOML and URDF texts),
+A baseline file DIR/SCENE.json holds the scene's name, path (relative to DIR; absolute in files
+written before, both read) and hash (of its TOML and URDF texts),
 the option overrides it was run with, its options, the library versions, the tolerances (if
 given) and the ledger record (ledger.Ledger.record: totals, every impact, E(t) at <= 100 samples).
 """
@@ -11,6 +12,7 @@ from __future__ import annotations
 import datetime
 import hashlib
 import json
+import os
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -44,7 +46,13 @@ def write_baseline(path: str | Path, traj: Trajectory, *, overrides: dict | None
     """Write the baseline of a trajectory (readable JSON, keys sorted; atomic)."""
     path = Path(path)
     m = traj.meta
-    doc = {"format": FORMAT, "scene": m.get("scene", {}).get("name"), "scene_path": m.get("scene", {}).get("path"),
+    scene = m.get("scene", {}).get("path")
+    if scene:  # relative to the baseline's folder: a checkout moved elsewhere still names it
+        try:
+            scene = Path(os.path.relpath(Path(scene).resolve(), path.resolve().parent)).as_posix()
+        except ValueError:  # another drive (Windows): keep it absolute
+            pass
+    doc = {"format": FORMAT, "scene": m.get("scene", {}).get("name"), "scene_path": scene,
            "scene_hash": scene_hash(traj), "overrides": overrides or {}, "options": m.get("options", {}),
            "versions": m.get("versions", {}),
            "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
@@ -53,6 +61,15 @@ def write_baseline(path: str | Path, traj: Trajectory, *, overrides: dict | None
         doc["tolerances"] = {k: list(v) for k, v in tolerances.items()}
     return atomic_write(path, lambda tmp: tmp.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n",
                                                          encoding="utf-8"))
+
+
+def baseline_scene(doc: dict, path: str | Path) -> Path | None:
+    """The scene file a baseline `doc` (read from `path`) was recorded from: its ``scene_path``
+    relative to the baseline's folder, or absolute (files written before); None if not recorded."""
+    value = doc.get("scene_path")
+    if not isinstance(value, str) or not value:
+        return None
+    return Path(os.path.normpath(Path(path).resolve().parent / value))
 
 
 def read_baseline(path: str | Path) -> dict:
@@ -99,9 +116,14 @@ class Result:
         return "\n".join(lines)
 
 
-def _differences(doc: dict, traj: Trajectory) -> list[str]:
-    """What differs between the baseline's run and this one, besides the ledger."""
+def differences(doc: dict, traj: Trajectory, path: str | Path | None = None) -> list[str]:
+    """What differs between the baseline `doc` (read from `path`) and the run `traj`, besides the
+    ledger: the scene file's path and text, the options, the library versions."""
     notes = []
+    old = baseline_scene(doc, path) if path is not None else None
+    new = traj.meta.get("scene", {}).get("path")
+    if old is not None and new and old != Path(new).resolve():
+        notes.append(f"scene file: {old} -> {new}")
     if doc.get("scene_hash") != scene_hash(traj):
         notes.append("the scene file (TOML or URDF) changed since the baseline")
     for key, show in (("options", repr), ("versions", str)):
@@ -149,8 +171,8 @@ def check_scene(scene: str | Path, directory: str | Path, *, update: bool = Fals
                       seconds=time.perf_counter() - t0)
     tol = tolerances or {k: tuple(v) for k, v in doc.get("tolerances", {}).items()} or None
     drifts = compare(ledger(traj).record(), doc["ledger"], tol)
-    return Result(sc.name, str(scene), "drift" if drifts else "ok", drifts, _differences(doc, traj) if drifts else [],
-                  seconds=time.perf_counter() - t0)
+    notes = differences(doc, traj, path) if drifts else []
+    return Result(sc.name, str(scene), "drift" if drifts else "ok", drifts, notes, seconds=time.perf_counter() - t0)
 
 
 def junit(results: list[Result], path: str | Path) -> Path:

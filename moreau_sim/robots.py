@@ -1,4 +1,5 @@
-"""Robot descriptions: ``package://`` resolution, URDF meshes, MJCF, mesh collision modes.
+"""Robot descriptions: ``package://`` resolution, URDF meshes, MJCF (its elements read, ignored
+or refused by name; ``<include>`` inside the model's folder), mesh collision modes.
 
 Search order for a ``package://PKG/rel/path`` URI (docs/robots.md):
 
@@ -27,10 +28,14 @@ as vertices and to snap patch normals); ``bvh`` keeps the triangle soup Pinocchi
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib.metadata
 import os
 import re
+import sys
+import tempfile
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from xml.sax.saxutils import escape, unescape
@@ -39,7 +44,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from .errors import SceneError
+from .errors import SceneError, one_line
 from .options import MeshMode
 
 ENV_PACKAGE_PATH = "MOREAU_SIM_PACKAGE_PATH"
@@ -66,10 +71,54 @@ def example_robot_data_share() -> Path | None:
     return None
 
 
+def real_path(p: Path, where: str) -> Path:
+    """``p.resolve()``, or a SceneError naming `where` and the file for a symbolic-link loop
+    (pathlib raises RuntimeError, or OSError ELOOP, for one)."""
+    try:
+        return Path(p).expanduser().resolve()
+    except (RuntimeError, OSError) as exc:
+        raise SceneError(f"{where}: {p}: cannot be resolved: a symbolic-link loop "
+                         f"({getattr(exc, 'strerror', None) or exc})") from None
+
+
+def _quiet_resolve(p: Path) -> Path:
+    """``p.resolve()``, or ``p.absolute()`` for a folder behind a symbolic-link loop (searched, never found)."""
+    try:
+        return Path(p).expanduser().resolve()
+    except (RuntimeError, OSError):
+        return Path(p).expanduser().absolute()
+
+
+@contextlib.contextmanager
+def quiet_output(*fds: int):
+    """Silence the C/C++ libraries' own writes to the file descriptors `fds` (2: stderr, 1: stdout)
+    for the block; errors they raise still reach the caller, who says what failed."""
+    saved = {}
+    try:
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        for fd in fds:
+            saved[fd] = os.dup(fd)
+    except (OSError, ValueError, AttributeError):  # no real descriptors (embedded interpreters): nothing to silence
+        for fd in saved.values():
+            os.close(fd)
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            for fd in fds:
+                os.dup2(null.fileno(), fd)
+            yield
+    finally:
+        for fd, copy in saved.items():
+            os.dup2(copy, fd)
+            os.close(copy)
+
+
 def env_package_dirs() -> list[Path]:
     """The folders of ``MOREAU_SIM_PACKAGE_PATH`` (read at each call, so tests may set it)."""
     value = os.environ.get(ENV_PACKAGE_PATH, "")
-    return [Path(p).expanduser().resolve() for p in value.split(os.pathsep) if p.strip()]
+    return [_quiet_resolve(Path(p)) for p in value.split(os.pathsep) if p.strip()]
 
 
 PARENT_LEVELS = 2  # folders above the naming file's own that package:// may search
@@ -82,7 +131,7 @@ def search_dirs(package_dirs, folder: Path) -> list[Path]:
     share/PKG/urdf/x.urdf finds share/PKG/meshes/...), never further up. Duplicates are dropped."""
     out: list[Path] = []
     share = example_robot_data_share()
-    folder = Path(folder).resolve()
+    folder = _quiet_resolve(Path(folder))
     near = [folder, *list(folder.parents)[:PARENT_LEVELS]]
     for d in [*map(Path, package_dirs), *env_package_dirs(), *([share] if share else []), *near]:
         if d not in out:
@@ -137,9 +186,12 @@ def resolve_model_file(value: str, base: Path, package_dirs, where: str) -> Path
     folder `base` (nothing else is searched); a URI goes through :func:`search_dirs` with the
     scene file's folders last. `where` names the scene, the body and the key."""
     if not is_uri(value):
-        p = (base / value).resolve()
+        p = real_path(base / value, where)
         if not p.is_file():
-            raise SceneError(f"{where}: file not found: {p}")
+            what = "not a file" if p.exists() else "file not found"
+            if (base / value).is_symlink():
+                what += f" (the symbolic link {base / value} points there)"
+            raise SceneError(f"{where}: {what}: {p}")
         return p
     dirs = search_dirs(package_dirs, base)
     try:
@@ -260,25 +312,133 @@ def unique_frame_names(model: pin.Model) -> None:
             taken.add(new)
 
 
+# MJCF elements by what the reader does with them (docs/robots.md). READ: Pinocchio 4.1's MJCF
+# reader builds them into the model (materials colour the replay); <include> is expanded here.
+# IGNORED: ignoring them cannot change the motion (drawing, sensors, MuJoCo's own solver settings
+# and memory sizes, named poses: the scene gives q0, the step, gravity and the contact law): one
+# warning names them. Any other element is refused by name: it would change the motion (tendons,
+# equality constraints, actuators, explicit contacts, composites, height fields) and would be dropped.
+MJCF_READ = frozenset({"mujoco", "compiler", "default", "asset", "mesh", "material", "worldbody", "body", "joint",
+                       "freejoint", "geom", "site", "inertial", "include"})
+MJCF_IGNORED = frozenset({"visual", "statistic", "light", "camera", "texture", "skin", "sensor", "keyframe",
+                          "custom", "size", "option"})  # (their children are not looked at)
+MJCF_WHY = {"equality": "equality constraints", "tendon": "tendons",
+            "actuator": "actuators: robots have no actuation yet",
+            "contact": "explicit contact pairs and exclusions: give them in the scene's [collisions]",
+            "composite": "composite bodies", "flexcomp": "flexible bodies", "deformable": "deformable bodies",
+            "hfield": "height fields", "plugin": "plugins", "extension": "plugins"}
+
+
+def _mjcf_expanded(path: Path, where: str, _seen: tuple[Path, ...] = ()) -> ET.Element:
+    """The MJCF tree of `path` with every ``<include file=...>`` replaced by the children of the
+    included file's root (MuJoCo's rule), each resolved against the model's folder and refused
+    when it lies outside it (symbolic links followed) or includes itself."""
+    top = _seen[0].parent if _seen else path.parent
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise SceneError(f"{path}: malformed MJCF (XML error: {exc}) [{where} mjcf]") from None
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read this MJCF ({exc.strerror or exc}) [{where} mjcf]") from None
+    if root.tag != "mujoco":
+        raise SceneError(f"{path}: not an MJCF file: root element is <{root.tag}>, expected <mujoco> "
+                         f"[{where} mjcf]")
+    for parent in list(root.iter()):
+        for k, child in enumerate(list(parent)):
+            if child.tag != "include":
+                continue
+            name = child.get("file", "")
+            if not name.strip():
+                raise SceneError(f"{path}: an <include> without a file=\"...\" [{where} mjcf]")
+            inc = real_path(top / name, f"{path}: <include file=\"{name}\"> [{where} mjcf]")
+            if not inc.is_relative_to(top.resolve()):
+                raise SceneError(f"{path}: <include file=\"{name}\">: only files inside the model's folder "
+                                 f"{top} may be included [{where} mjcf]")
+            if inc in _seen or inc == path:
+                raise SceneError(f"{path}: <include file=\"{name}\"> includes itself [{where} mjcf]")
+            if not inc.is_file():
+                raise SceneError(f"{path}: <include file=\"{name}\">: file not found: {inc} [{where} mjcf]")
+            sub = _mjcf_expanded(inc, where, (*(_seen or (path,)), inc))
+            parent.remove(child)
+            for i, c in enumerate(list(sub)):
+                parent.insert(k + i, c)
+    return root
+
+
+def check_mjcf(root: ET.Element, path: Path, where: str) -> list[str]:
+    """Refuse (SceneError) any element the reader would drop and that can change the motion, and
+    a geom of a type it cannot collide; return the ignored elements' names (module note above)."""
+    ignored: list[str] = []
+
+    def visit(el: ET.Element) -> None:
+        for child in el:
+            tag = child.tag if isinstance(child.tag, str) else ""
+            if not tag:
+                continue  # a comment
+            if tag in MJCF_IGNORED:
+                if tag not in ignored:
+                    ignored.append(tag)
+                continue
+            if tag not in MJCF_READ:
+                why = MJCF_WHY.get(tag, "an element moreau-sim's MJCF reader does not read")
+                raise SceneError(f"{path}: <{tag}> is not supported ({why}); remove it [{where} mjcf]")
+            if tag == "geom" and child.get("type") in ("hfield", "sdf"):
+                raise SceneError(f"{path}: <geom type=\"{child.get('type')}\"> is not supported "
+                                 f"({MJCF_WHY['hfield'] if child.get('type') == 'hfield' else 'SDF geoms'}) "
+                                 f"[{where} mjcf]")
+            if tag != "default":
+                visit(child)
+
+    visit(root)
+    tops = [b.get("name", "?") for w in root.findall("worldbody") for b in w.findall("body")]
+    if len(tops) > 1:  # Pinocchio 4.1's reader reads the first and drops the others without a word
+        raise SceneError(f"{path}: <worldbody> has {len(tops)} top-level bodies ({', '.join(tops[:5])}"
+                         f"{', ...' if len(tops) > 5 else ''}); the MJCF reader reads one tree: give each its own "
+                         f"[[bodies]] entry (one file each) [{where} mjcf]")
+    return ignored
+
+
 def load_mjcf(path: Path, root, where: str,
               kind: pin.GeometryType = pin.GeometryType.COLLISION) -> tuple[pin.Model, pin.GeometryModel]:
     """Model and collision geometry (or `kind`: VISUAL, what the replay draws) of an MJCF file.
     `root` (a JointModel or None) attaches the MJCF's world body to the world: Pinocchio 4.1's
     MJCF reader silently ignores a root joint when the top body has a joint of its own, so the
     root is built here (a one-joint model) and the MJCF model appended to it, which treats both
-    cases alike (inertias of bodies welded to the world body move onto the root)."""
-    try:
-        root_el = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise SceneError(f"{path}: malformed MJCF (XML error: {exc}) [{where} mjcf]") from None
-    if root_el.tag != "mujoco":
-        raise SceneError(f"{path}: not an MJCF file: root element is <{root_el.tag}>, expected <mujoco> "
-                         f"[{where} mjcf]")
-    try:
-        m = pin.buildModelFromMJCF(str(path))
-        g = pin.buildGeomFromMJCF(m, str(path), kind)
-    except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with C++ text
-        raise SceneError(f"{path}: Pinocchio cannot load this MJCF: {exc} [{where} mjcf]") from None
+    cases alike (inertias of bodies welded to the world body move onto the root).
+
+    Elements are checked first (:func:`check_mjcf`: refused by name, or ignored with one warning);
+    a file with ``<include>`` or ignored elements is read from a copy in a temporary folder (the
+    includes expanded, the ignored elements removed, its mesh, texture and asset folders made
+    absolute): Pinocchio's reader skips ``<include>`` and would still parse what is ignored."""
+    tree = _mjcf_expanded(path, where)
+    ignored = check_mjcf(tree, path, where)
+    if ignored and kind == pin.GeometryType.COLLISION:
+        # attributed to the MJCF file (line 0: no source line under it), one line wherever it is shown
+        warnings.warn_explicit(f"MJCF element(s) {', '.join(f'<{t}>' for t in ignored)} ignored: they do not "
+                               "change the motion (drawing, sensors, MuJoCo's own settings; the scene sets q0, "
+                               f"the step and gravity) [{where} mjcf]", UserWarning, str(path), 0)
+    with contextlib.ExitStack() as stack:
+        read_from = path
+        if ignored or any(True for _ in ET.parse(path).getroot().iter("include")):
+            for parent in [tree, *(el for el in tree.iter() if el.tag not in ("default", *MJCF_IGNORED))]:
+                for child in [c for c in parent if c.tag in MJCF_IGNORED]:
+                    parent.remove(child)  # ignored means not read by Pinocchio either
+            compiler = tree.find("compiler")
+            if compiler is None:
+                compiler = ET.Element("compiler")
+                tree.insert(0, compiler)
+            asset = compiler.get("assetdir", "")  # MuJoCo: the default of meshdir and texturedir
+            for key in ("meshdir", "texturedir", "assetdir"):
+                compiler.set(key, str(path.parent / compiler.get(key, asset)) + os.sep)
+            folder = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="moreau-sim-mjcf-")))
+            read_from = folder / path.name
+            ET.ElementTree(tree).write(read_from, encoding="unicode")
+        try:
+            with quiet_output(1, 2):  # Pinocchio prints its own "Warning - ..." lines to stdout
+                m = pin.buildModelFromMJCF(str(read_from))
+                g = pin.buildGeomFromMJCF(m, str(read_from), kind)
+        except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with C++ text
+            raise SceneError(f"{path}: Pinocchio cannot load this MJCF: {one_line(exc)} [{where} mjcf]") from None
     if root is None:
         return m, g
     rm = pin.Model()

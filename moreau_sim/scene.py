@@ -17,7 +17,7 @@ from typing import Any
 from .errors import SceneError
 from .options import (CHOICES, MeshMode, Options, RootJoint, StaticShape, choice, finite_number, finite_vector,
                       require)
-from .robots import resolve_model_file
+from .robots import real_path, resolve_model_file
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -143,7 +143,7 @@ def _parse_body(t: dict, where: str, base: Path) -> Body:
                f"{w} package_dirs", f"must be a list of folder paths, got {t['package_dirs']!r}")
         # a folder that does not exist is kept (and listed when a URI resolves nowhere), as in
         # $MOREAU_SIM_PACKAGE_PATH: a scene rebuilt elsewhere (viewer) may find its files otherwise
-        dirs = [(base / d).resolve() for d in t["package_dirs"]]
+        dirs = [real_path(base / d, f"{w} package_dirs") for d in t["package_dirs"]]
     key = "mjcf" if "mjcf" in t else "urdf"
     require(isinstance(t[key], str) and t[key] != "", f"{w} {key}", "must be a path string or a package:// URI")
     urdf = resolve_model_file(t[key], base, dirs, f"{w} {key}")
@@ -213,7 +213,7 @@ def _parse_pairs(value, where: str) -> tuple[tuple[str, str], ...]:
 def parse_scene(text: str, *, path: Path | str | None = None) -> Scene:
     """Parse scene TOML `text`; relative URDF paths resolve against `path`'s folder."""
     where = str(path) if path is not None else "<scene>"
-    base = Path(path).resolve().parent if path is not None else Path.cwd()
+    base = real_path(Path(path), where).parent if path is not None else Path.cwd()
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -244,14 +244,17 @@ def parse_scene(text: str, *, path: Path | str | None = None) -> Scene:
     collisions = Collisions(include=_parse_pairs(col.get("include", []), f"{where} [collisions] include"),
                             exclude=_parse_pairs(col.get("exclude", []), f"{where} [collisions] exclude"))
     return Scene(name=name, description=description, options=options, bodies=bodies, statics=statics,
-                 collisions=collisions, output=output, path=Path(path).resolve() if path else None, source=text)
+                 collisions=collisions, output=output, path=real_path(Path(path), where) if path else None, source=text)
 
 
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file. Raises :class:`SceneError` naming the file and field."""
     p = Path(path)
     if not p.is_file():
-        raise SceneError(f"{p}: scene file not found")
+        if p.is_symlink():
+            real_path(p, str(p))  # a loop: named as one
+            raise SceneError(f"{p}: scene file not found (a symbolic link to {p.readlink()}, which does not exist)")
+        raise SceneError(f"{p}: {'not a file' if p.exists() else 'scene file not found'}")
     try:
         text = p.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:

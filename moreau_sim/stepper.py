@@ -1,20 +1,7 @@
-"""The midpoint Moreau step (docs/theory.md §2) as a short sequence of named stages.
-
-    q_m     = q_k (+) h/2 u_k                 (pinocchio.integrate: Lie group)
-    H       = {i : g_i(q_m) <= tol},  W = [w_i], M = M(q_m), f = -h(q_m, u)
-    u_free  = u_k + h M^-1 f
-    v_free  = (u_free + e u_k) / (1 + e)
-    v       = argmin_{W' v >= b} 1/2 (v - v_free)' M (v - v_free)     (law.project, piqp)
-    u_{k+1} = (1 + e) v - e u_k,    P = (1 + e) lam
-    q_{k+1} = q_m (+) h/2 u_{k+1}
-
-    step = assemble -> solve_impact -> q_{k+1} -> correct_positions
-
-With no closed contact u_{k+1} = u_free exactly (ABA, no QP). The model's options select the
-rules on top of the plain step (docs/theory.md §2.2-2.7): Separating and SlowImpacts (the QP's
-bound, law.restitution_bounds), Bias (free_velocity), PositionCorrection (correct_positions),
-Tunnelling (tunnelling.swept_detect); a corner contact takes the set-valued law (§3).
-"""
+"""The midpoint Moreau step (docs/theory.md §2.1) as named stages: assemble (q_m, the closed contacts, M, W,
+u_free, v_free) -> solve_impact (the law, §1.3 and §2.7; a corner's set-valued law, §3) -> q_{k+1} ->
+correct_positions (§2.5). The options' rules on top of the plain step: §2.2-2.7. The compiled step
+(compiled.py) takes the steps it covers first."""
 
 from __future__ import annotations
 
@@ -34,12 +21,11 @@ from .law import outcome, percussion, project, restitution_bounds
 from .model import Model
 from .options import Bias, Options, PositionCorrection, QPForm, StepImpl, Tunnelling
 from .qp import QPResult, ordered
+from .results import MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
 from .state import State
 from .tunnelling import swept_detect
 
 _EMPTY = np.zeros(0)
-RESTING = 1e-9  # bodies end a step at rest when their speeds are below this fraction of one step's (_resting)
-MIDPOINT_ITERATIONS = 8  # fixed-point sweeps of Bias.MIDPOINT (contraction factor ~ h |omega|)
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,29 +73,6 @@ class ImpactSolution:
     branch: tuple | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class StepResult:
-    """One step: the new state; the closed contacts H at q_m; percussions P [N s] (m,);
-    gamma_minus = W' u_k and gamma_plus = W' u_{k+1} [m/s]; contact_work
-    W_c = sum_i P_i (gamma_plus_i + gamma_minus_i) / 2 [J] (docs/theory.md §5);
-    qp: the QP result (None when no contact was closed); branch: at a corner impact with
-    several admissible outcomes (docs/theory.md §3), (solution, chosen index, u_plus of each
-    candidate), else None. At a corner, `contacts` lists the smooth contacts and then one entry
-    per face of the chosen piece(s) (kind CORNER, feature = face), aligned with P. correction_energy:
-    the change of T + V made by the position correction [J] (0 without; never more than the
-    step dissipated), so that E_{k+1} - E_k = W_c + correction_energy where the smooth motion is exact."""
-
-    state: State
-    contacts: Contacts
-    P: np.ndarray
-    gamma_minus: np.ndarray
-    gamma_plus: np.ndarray
-    contact_work: float
-    qp: QPResult | None
-    branch: tuple | None = None
-    correction_energy: float = 0.0
-
-
 def step(model: Model, data: Data, state: State, *, h: float | None = None, e: float | None = None,
          t_next: float | None = None, form: QPForm | None = None, eps: float | None = None,
          corner_choice: int | None = None) -> StepResult:
@@ -127,20 +90,21 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     t1 = state.t + h if t_next is None else t_next
     if (opts.step_impl is StepImpl.COMPILED and form is None and eps is None and corner_choice is None
             and compiled.available()):
-        r = compiled.step(model, data, state, h, e, t1, StepResult)  # None: a step the compiled one does not cover
+        r = compiled.step(model, data, state, h, e, t1)  # None: a step the compiled one does not cover
         if r is not None:
             return r
     pb = assemble(model, data, state, h=h, e=e)
     if not pb.closed:
         q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * pb.u_free)
-        return StepResult(State(t1, q_next, pb.u_free), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None)
+        return StepResult(State(t1, q_next, pb.u_free), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None,
+                          u_free=pb.u_free)
     imp = solve_impact(pb, opts, form=form, eps=eps, corner_choice=corner_choice)
     q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
     corr = 0.0
     if opts.position_correction is PositionCorrection.PROJECTION and imp.qp.ok:  # a failed QP: simulate names it
         q_next, corr = correct_positions(model, data, pb, imp, q_next)
     return StepResult(State(t1, q_next, imp.u_next), imp.contacts, imp.P, imp.gamma_minus, imp.gamma_plus,
-                      imp.contact_work, imp.qp, imp.branch, corr)
+                      imp.contact_work, imp.qp, imp.branch, corr, u_free=pb.u_free)
 
 
 def assemble(model: Model, data: Data, state: State, *, h: float, e: float) -> ContactProblem:
@@ -175,7 +139,7 @@ def free_velocity(model: Model, data: Data, q_m: np.ndarray, u: np.ndarray, h: f
     u_free = u + h * pin.aba(pm, pd, q_m, u, zero)
     if bias is Bias.EXPLICIT or not model.velocity_bias:
         return u_free
-    scale = 1e-15 * (1.0 + float(np.abs(u).max()))
+    scale = MIDPOINT_TOLERANCE * (1.0 + float(np.abs(u).max()))
     return midpoint_fixed_point(lambda v: pin.aba(pm, pd, q_m, v, zero), u, h, u_free, scale)
 
 
@@ -280,6 +244,6 @@ def _corner_law(pb: ContactProblem, options: Options, choice: int | None):
     # the chosen candidate's active rows: the smooth contacts, then the faces of its pieces
     merged = contacts.concat(*[corner_faces(cp.corners[c], np.array([f])) for c, f in law.faces], corners=())
     res = QPResult("CORNER_LAW", True, law.solution.qp_solves, False, law.v, law.lam,
-                   (pb.M, law.W, pb.v_free, np.zeros(law.W.shape[1])))
+                   pb.M, law.W, pb.v_free, np.zeros(law.W.shape[1]))
     branch = None if law.u_plus is None else (law.solution, law.chosen, law.u_plus)
     return res, merged, law.W, branch

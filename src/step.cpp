@@ -14,7 +14,9 @@
 // (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp).
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
+#include <nanobind/stl/map.h>
 #include <nanobind/stl/string.h>
+#include <nanobind/stl/tuple.h>
 #include <nanobind/stl/vector.h>
 
 #include <boost/python.hpp>
@@ -30,9 +32,13 @@
 #include <pinocchio/collision/collision.hpp>
 #include <pinocchio/collision/distance.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <string>
+#include <tuple>
+#include <type_traits>
 #include <vector>
 
 namespace nb = nanobind;
@@ -44,10 +50,59 @@ using VectorXl = Eigen::Matrix<int64_t, Eigen::Dynamic, 1>;
 
 namespace {
 
-constexpr int FLIGHT = 0, CONTACT = 1, FALLBACK = 2;
-constexpr int VERTEX = 0, WITNESS = 1;  // contacts.FeatureKind
-constexpr int MIDPOINT_ITERATIONS = 8;  // stepper.MIDPOINT_ITERATIONS
-constexpr double RESTING = 1e-9;  // stepper.RESTING
+// What a step did (bound as moreau_sim._step.Outcome); how its projection was solved (Projection)
+enum class Outcome { FLIGHT, CONTACT, FALLBACK };
+enum class Projection { ADMISSIBLE, ACTIVE_SET };
+
+// The constants the step shares with the Python step, each passed from its one home in Python
+// (moreau_sim/compiled.py CONSTANTS); none has a value of its own here.
+struct Constants {
+  int midpoint_iterations;  // stepper.MIDPOINT_ITERATIONS
+  double midpoint_tolerance;  // stepper.MIDPOINT_TOLERANCE
+  double resting;  // stepper.RESTING
+  int vertex, witness;  // contacts.FeatureKind.VERTEX, .WITNESS
+  int max_contacts;  // qp.COLD_START_ROWS
+  double screen, dependent, met, accept, refine, second_pass;  // qp.SCREEN, DEPENDENT, MET, ACCEPT, REFINE, SECOND_PASS
+  int moves_per_row, moves_extra;  // qp.MOVES_PER_ROW, MOVES_EXTRA
+  double distinct;  // constraints.distinct's relative tolerance
+
+  static const std::vector<std::string> &keys() {
+    static const std::vector<std::string> k = {
+        "midpoint_iterations", "midpoint_tolerance", "resting", "vertex", "witness", "max_contacts", "screen",
+        "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct"};
+    return k;
+  }
+  // from a dict holding exactly keys() (a missing or an unknown name is an error: nothing is left to a default)
+  static Constants from(const std::map<std::string, double> &d) {
+    for (const auto &kv : d)
+      if (std::find(keys().begin(), keys().end(), kv.first) == keys().end())
+        throw nb::value_error(("unknown constant " + kv.first).c_str());
+    auto get = [&](const char *k) {
+      auto it = d.find(k);
+      if (it == d.end()) throw nb::value_error((std::string("constant missing: ") + k).c_str());
+      return it->second;
+    };
+    auto geti = [&](const char *k) {
+      const double v = get(k);
+      if (v != std::floor(v)) throw nb::value_error((std::string("constant not an integer: ") + k).c_str());
+      return (int)v;
+    };
+    Constants c;
+    c.midpoint_iterations = geti("midpoint_iterations"), c.midpoint_tolerance = get("midpoint_tolerance");
+    c.resting = get("resting"), c.vertex = geti("vertex"), c.witness = geti("witness");
+    c.max_contacts = geti("max_contacts"), c.screen = get("screen"), c.dependent = get("dependent");
+    c.met = get("met"), c.accept = get("accept"), c.refine = get("refine"), c.second_pass = get("second_pass");
+    c.moves_per_row = geti("moves_per_row"), c.moves_extra = geti("moves_extra"), c.distinct = get("distinct");
+    return c;
+  }
+  std::map<std::string, double> as_dict() const {
+    return {{"midpoint_iterations", midpoint_iterations}, {"midpoint_tolerance", midpoint_tolerance},
+            {"resting", resting}, {"vertex", vertex}, {"witness", witness}, {"max_contacts", max_contacts},
+            {"screen", screen}, {"dependent", dependent}, {"met", met}, {"accept", accept}, {"refine", refine},
+            {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra},
+            {"distinct", distinct}};
+  }
+};
 
 typedef void (*dgesv_t)(int *, int *, double *, int *, int *, double *, int *, int *);
 
@@ -104,9 +159,86 @@ struct Fallback {
   std::string why;
 };
 
-struct Solved {  // a projection: v, lam, status (0 ADMISSIBLE, 1 solved on its active set)
+struct Solved {  // a projection: v, lam, how it was solved
   VectorXd v, lam;
-  int status;
+  Projection status;
+};
+
+// One step as it crosses to Python (bound as moreau_sim._step.StepOut; moreau_sim/compiled.py makes it a
+// results.StepResult). Its outcome, reason (FALLBACK), m, the projection's status and two scalars are
+// attributes; its arrays, named below, cross in two buffers (floats, ints: two numpy arrays per step, each
+// made costs ~1 us) laid out by visit(), the one definition of the layout, which layout() gives Python.
+// FLIGHT: q_next, u_next (= u_free); CONTACT: all.
+struct StepOut {
+  Outcome outcome = Outcome::FALLBACK;
+  std::string reason;
+  Eigen::Index m = 0;
+  VectorXd q_next, u_next, u_free;
+  // CONTACT: the m closed contacts (contacts.Contacts), the impact and the projection (qp.QPResult)
+  VectorXd g;
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> point_a, point_b, normal;
+  VectorXl pair, kind, feature, joint_a, joint_b;
+  VectorXd P, gamma_minus, gamma_plus, v_free, b, v, lam;
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> M;
+  MatrixXd W;  // (nv, m), column-major as constraints.contact_rows makes it
+  Projection projection = Projection::ADMISSIBLE;
+  double contact_work = 0.0, correction_energy = 0.0;
+  VectorXd floats;  // the arrays that cross, laid out by visit()
+  VectorXl ints;
+
+  // every array that crosses, in order: f(name, data, rows, cols, order) (cols 0: a vector; order 'C' or 'F')
+  template <class F> void visit(F &&f) {
+    f("q_next", q_next.data(), q_next.size(), 0, 'C');
+    f("u_next", u_next.data(), u_next.size(), 0, 'C');
+    if (outcome != Outcome::CONTACT) return;
+    const Eigen::Index nv = u_next.size();
+    f("u_free", u_free.data(), nv, 0, 'C');
+    f("g", g.data(), m, 0, 'C');
+    f("point_a", point_a.data(), m, 3, 'C');
+    f("point_b", point_b.data(), m, 3, 'C');
+    f("normal", normal.data(), m, 3, 'C');
+    f("P", P.data(), m, 0, 'C');
+    f("gamma_minus", gamma_minus.data(), m, 0, 'C');
+    f("gamma_plus", gamma_plus.data(), m, 0, 'C');
+    f("v_free", v_free.data(), nv, 0, 'C');
+    f("b", b.data(), m, 0, 'C');
+    f("v", v.data(), nv, 0, 'C');
+    f("lam", lam.data(), m, 0, 'C');
+    f("M", M.data(), nv, nv, 'C');
+    f("W", W.data(), nv, m, 'F');
+    f("pair", pair.data(), m, 0, 'C');
+    f("kind", kind.data(), m, 0, 'C');
+    f("feature", feature.data(), m, 0, 'C');
+    f("joint_a", joint_a.data(), m, 0, 'C');
+    f("joint_b", joint_b.data(), m, 0, 'C');
+  }
+  template <class T> static constexpr bool is_int = std::is_same_v<std::remove_const_t<T>, int64_t>;
+  void pack() {
+    Eigen::Index nf = 0, ni = 0;
+    visit([&](const char *, auto *p, Eigen::Index r, Eigen::Index c, char) {
+      (is_int<std::remove_pointer_t<decltype(p)>> ? ni : nf) += r * (c ? c : 1);
+    });
+    floats.resize(nf), ints.resize(ni);
+    nf = ni = 0;
+    visit([&](const char *, auto *p, Eigen::Index r, Eigen::Index c, char) {
+      const Eigen::Index n = r * (c ? c : 1);
+      if constexpr (is_int<std::remove_pointer_t<decltype(p)>>)
+        std::copy(p, p + n, ints.data() + ni), ni += n;
+      else
+        std::copy(p, p + n, floats.data() + nf), nf += n;
+    });
+  }
+  // (name, in ints, offset, rows, cols, order) of each array, in order
+  std::vector<std::tuple<std::string, bool, Eigen::Index, Eigen::Index, Eigen::Index, char>> layout() {
+    std::vector<std::tuple<std::string, bool, Eigen::Index, Eigen::Index, Eigen::Index, char>> out;
+    Eigen::Index nf = 0, ni = 0;
+    visit([&](const char *name, auto *p, Eigen::Index r, Eigen::Index c, char order) {
+      const bool i = is_int<std::remove_pointer_t<decltype(p)>>;
+      out.emplace_back(name, i, i ? ni : nf, r, c, order);
+      (i ? ni : nf) += r * (c ? c : 1);
+    });
+    return out;
+  }
 };
 
 }  // namespace
@@ -168,7 +300,7 @@ bool gesv(dgesv_t dgesv, const MatrixXd &A, const VectorXd &rhs, VectorXd &x) {
 
 // qp._active_set cold (Goldfarb-Idnani's dual active set on min 1/2 lam'G lam - r'lam, lam >= 0), operation
 // for operation; false where qp._active_set returns None (the Python step then takes it, and piqp)
-bool active_set(dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol, std::vector<char> &act,
+bool active_set(const Constants &C, dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol, std::vector<char> &act,
                 VectorXd &lam) {
   const Eigen::Index m = r.size();
   const double inf = std::numeric_limits<double>::infinity();
@@ -189,7 +321,7 @@ bool active_set(dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol,
     }
     if (best >= -tol) return true;
     while (true) {  // add p, dropping the rows whose multipliers reach zero on the way
-      if (++moves > 5 * m + 10) return false;
+      if (++moves > C.moves_per_row * m + C.moves_extra) return false;
       idx.clear();
       for (Eigen::Index i = 0; i < m; ++i)
         if (act[i]) idx.push_back(i);
@@ -208,7 +340,7 @@ bool active_set(dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol,
         z = G(p, p);
       }
       const double sp = odot(&G(p, 0), lam.data(), m, m, 1) - r[p];  // G[p] @ lam - r[p]
-      const double t1 = z > 1e-12 * G(p, p) ? -sp / z : inf;
+      const double t1 = z > C.dependent * G(p, p) ? -sp / z : inf;
       double t2 = inf;
       Eigen::Index kk = -1;
       for (Eigen::Index j = 0; j < k; ++j) {
@@ -217,7 +349,7 @@ bool active_set(dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol,
         if (kk < 0 || ratio < t2) t2 = ratio, kk = idx[j];
       }
       if (t1 == inf && t2 == inf)  // p depends on A and no multiplier of A can shrink: met to round-off, or not
-        return lam[p] == 0.0 && sp >= -(tol + 1e-14 * (double)m * gmax * lam.maxCoeff());
+        return lam[p] == 0.0 && sp >= -(tol + C.met * (double)m * gmax * lam.maxCoeff());
       const double t = t1 <= t2 ? t1 : t2;
       for (Eigen::Index j = 0; j < k; ++j) lam[idx[j]] = lam[idx[j]] + t * d[j];
       lam[p] = lam[p] + t;
@@ -235,16 +367,17 @@ bool active_set(dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol,
 // qp.solve (primal form, Polish.ACTIVE_SET, at most qp.COLD_START_ROWS rows): the screen, the closed form for
 // one row, else qp._polish cold: the active set, re-solved on its final set and checked. Throws Fallback where
 // qp.solve would go on to piqp.
-Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv, dgesv_t dgesv) {
+Solved project(const Constants &C, dgesv_t dgesv, const MatrixXd &W, const VectorXd &v0, const VectorXd &b,
+               const MatrixXd &Minv) {
   const Eigen::Index m = W.cols(), nv = W.rows();
   const VectorXd slack0 = otimes_t(W, v0) - b;
-  if (slack0.minCoeff() >= -1e-13 * (1.0 + v0.cwiseAbs().maxCoeff())) return {v0, VectorXd::Zero(m), 0};
+  if (slack0.minCoeff() >= -C.screen * (1.0 + v0.cwiseAbs().maxCoeff())) return {v0, VectorXd::Zero(m), Projection::ADMISSIBLE};
   if (m == 1) {
     const VectorXd w = W.col(0);
     const VectorXd Miw = otimes(Minv, w);
     const double lam1 = std::max(0.0, (b[0] - odot(w.data(), v0.data(), nv)) / odot(w.data(), Miw.data(), nv));
     VectorXd v = v0 + lam1 * Miw;
-    return {v, VectorXd::Constant(1, lam1), 1};
+    return {v, VectorXd::Constant(1, lam1), Projection::ACTIVE_SET};
   }
   const double scale = 1.0 + v0.cwiseAbs().maxCoeff();
   MatrixXd MiW, G;  // Minv @ W, W.T @ MiW
@@ -253,7 +386,7 @@ Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const M
   const VectorXd r = b - otimes_t(W, v0);
   std::vector<char> act;
   VectorXd lam;
-  if (!active_set(dgesv, G, r, 1e-13 * scale, act, lam)) throw Fallback{"active set did not settle"};
+  if (!active_set(C, dgesv, G, r, C.screen * scale, act, lam)) throw Fallback{"active set did not settle"};
   std::vector<Eigen::Index> idx;
   for (Eigen::Index i = 0; i < m; ++i)
     if (act[i]) idx.push_back(i);
@@ -269,7 +402,7 @@ Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const M
       MiWA.col(i) = MiW.col(idx[i]);
       for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
     }
-    if (!gesv(dgesv, GA, rA, lamA) || lamA.minCoeff() < -1e-12 * std::max(1.0, lamA.maxCoeff()))
+    if (!gesv(dgesv, GA, rA, lamA) || lamA.minCoeff() < -C.accept * std::max(1.0, lamA.maxCoeff()))
       throw Fallback{"active set's final solve rejected"};
     for (Eigen::Index i = 0; i < k; ++i) lamA[i] = std::max(lamA[i], 0.0);
     vp = v0 + otimes(MiWA, lamA);
@@ -287,7 +420,7 @@ Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const M
       const VectorXd WPv = otimes_t(WP, vp);
       VectorXd rP(kp), dP;
       for (Eigen::Index i = 0; i < kp; ++i) rP[i] = b[iP[i]] - WPv[i];
-      if (gesv(dgesv, GP, rP, dP) && dP.cwiseAbs().maxCoeff() <= 1e-8 * (1.0 + lamA.maxCoeff())) {
+      if (gesv(dgesv, GP, rP, dP) && dP.cwiseAbs().maxCoeff() <= C.refine * (1.0 + lamA.maxCoeff())) {
         for (Eigen::Index i = 0; i < kp; ++i) lamA[pi[i]] = std::max(lamA[pi[i]] + dP[i], 0.0);
         vp = vp + otimes(MiWP, dP);
       }
@@ -295,10 +428,10 @@ Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const M
     for (Eigen::Index i = 0; i < k; ++i) lp[idx[i]] = lamA[i];
     // qp._polish's second pass: the active set on the answer's own residual
     const VectorXd r2 = b - otimes_t(W, vp);
-    const double tol2 = 1e-15 * (b.cwiseAbs().maxCoeff() + W.cwiseAbs().maxCoeff() * vp.cwiseAbs().maxCoeff());
+    const double tol2 = C.second_pass * (b.cwiseAbs().maxCoeff() + W.cwiseAbs().maxCoeff() * vp.cwiseAbs().maxCoeff());
     std::vector<char> act2;
     VectorXd dl;
-    if (active_set(dgesv, G, r2, tol2, act2, dl)) {
+    if (active_set(C, dgesv, G, r2, tol2, act2, dl)) {
       std::vector<Eigen::Index> i2;
       for (Eigen::Index i = 0; i < m; ++i)
         if (act2[i]) i2.push_back(i);
@@ -315,8 +448,8 @@ Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const M
       }
     }
   }
-  if ((otimes_t(W, vp) - b).minCoeff() < -1e-12 * scale) throw Fallback{"active set's answer rejected"};
-  return {vp, lp, 1};
+  if ((otimes_t(W, vp) - b).minCoeff() < -C.accept * scale) throw Fallback{"active set's answer rejected"};
+  return {vp, lp, Projection::ACTIVE_SET};
 }
 
 }  // namespace
@@ -327,8 +460,8 @@ class Stepper {
           std::vector<MatrixXd> vertices, std::vector<int> bound_kind, std::vector<Vec3> bound_a,
           std::vector<double> bound_b, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic> pairs, MatrixXd mask,
           double reach, double thinnest_pair, double tol, int tunnelling, bool separating_elastic,
-          bool slow_plastic, bool bias_midpoint, bool velocity_bias, bool projection, int max_contacts,
-          uintptr_t dgesv)
+          bool slow_plastic, bool bias_midpoint, bool velocity_bias, bool projection,
+          const std::map<std::string, double> &constants, uintptr_t dgesv)
       : py_{model, data, geom_model, geom_data},
         model_(extract_ref<pinocchio::Model>(model, "pinocchio.Model")),
         data_(extract_ref<pinocchio::Data>(data, "pinocchio.Data")),
@@ -338,20 +471,26 @@ class Stepper {
         bound_b_(std::move(bound_b)), pairs_(std::move(pairs)), mask_(std::move(mask)), reach_(reach),
         thinnest_(thinnest_pair), tol_(tol), tunnelling_(tunnelling), sep_elastic_(separating_elastic),
         slow_plastic_(slow_plastic), bias_midpoint_(bias_midpoint), velocity_bias_(velocity_bias),
-        projection_(projection), max_contacts_(max_contacts), dgesv_(reinterpret_cast<dgesv_t>(dgesv)) {
+        projection_(projection), C_(Constants::from(constants)),
+        dgesv_(reinterpret_cast<dgesv_t>(dgesv)) {
     if (pairs_.cols() != 5 || (Eigen::Index)gm_.collisionPairs.size() != pairs_.rows())
       throw nb::value_error("pairs: (number of collision pairs, 5) expected");
     if (mask_.rows() != model_.njoints || mask_.cols() != model_.nv) throw nb::value_error("mask: (njoints, nv)");
   }
 
-  nb::tuple step(const VectorXd &q, const VectorXd &u, double h, double e) {
+  StepOut step(const VectorXd &q, const VectorXd &u, double h, double e) {
+    StepOut out;
     try {
-      return step_(q, u, h, e);
+      step_(q, u, h, e, out);
     } catch (const Fallback &f) {
       restore_guesses();
-      return nb::make_tuple(FALLBACK, f.why);
+      out = StepOut();
+      out.outcome = Outcome::FALLBACK, out.reason = f.why;
     }
+    return out;
   }
+
+  std::map<std::string, double> constants() const { return C_.as_dict(); }
 
  private:
   nb::object py_[4];  // keeps the Python objects (and so the C++ ones) alive
@@ -368,7 +507,7 @@ class Stepper {
   double reach_, thinnest_, tol_;
   int tunnelling_;  // 0 swept, 1 none, 2 always
   bool sep_elastic_, slow_plastic_, bias_midpoint_, velocity_bias_, projection_;
-  int max_contacts_;
+  Constants C_;
   dgesv_t dgesv_;
 
   // ---- pinocchio calls as the Python bindings make them (crba and Minv symmetrized)
@@ -419,8 +558,8 @@ class Stepper {
     VectorXd a = pinocchio::aba(model_, data_, q_m, u, zero);
     VectorXd u_free = u + h * a;
     if (!bias_midpoint_ || !velocity_bias_) return u_free;
-    const double scale = 1e-15 * (1.0 + u.cwiseAbs().maxCoeff());
-    for (int it = 0; it < MIDPOINT_ITERATIONS; ++it) {
+    const double scale = C_.midpoint_tolerance * (1.0 + u.cwiseAbs().maxCoeff());
+    for (int it = 0; it < C_.midpoint_iterations; ++it) {
       VectorXd ubar = 0.5 * (u + u_free);
       a = pinocchio::aba(model_, data_, q_m, ubar, zero);
       VectorXd nxt = u + h * a;
@@ -458,9 +597,9 @@ class Stepper {
         Vec3 p = Vw.row(i).transpose();
         Vec3 dn = d * n;
         if (v_is_a)
-          out.push_back({d, p, p - dn, n, pair, VERTEX, offset + (int)i});
+          out.push_back({d, p, p - dn, n, pair, C_.vertex, offset + (int)i});
         else
-          out.push_back({d, p - dn, p, -n, pair, VERTEX, offset + (int)i});
+          out.push_back({d, p - dn, p, -n, pair, C_.vertex, offset + (int)i});
       }
       return;
     }
@@ -496,7 +635,7 @@ class Stepper {
       if (!(std::abs(depth) < 1e100 && std::isfinite(n.dot(n)))) throw Fallback{"coal's contact needs the EPA fallback"};
       if (patch && depth <= tol_) throw Fallback{"contact patch"};
       if (found.size() == start && depth <= tol_)
-        found.push_back({depth, c.nearest_points[0], c.nearest_points[1], n, (int)k, WITNESS, 0});
+        found.push_back({depth, c.nearest_points[0], c.nearest_points[1], n, (int)k, C_.witness, 0});
     }
     return found;
   }
@@ -525,15 +664,15 @@ class Stepper {
     return W;
   }
 
-  // constraints.distinct: drop a contact whose row repeats an earlier one (to 1e-12 relative)
-  static std::vector<int> distinct(const MatrixXd &W) {
+  // constraints.distinct: drop a contact whose row repeats an earlier one (to C_.distinct relative)
+  std::vector<int> distinct(const MatrixXd &W) const {
     const Eigen::Index m = W.cols();
     std::vector<int> keep;
     if (m < 2) {
       for (int i = 0; i < m; ++i) keep.push_back(i);
       return keep;
     }
-    const double thr = 1e-12 * (1.0 + W.cwiseAbs().maxCoeff());
+    const double thr = C_.distinct * (1.0 + W.cwiseAbs().maxCoeff());
     for (Eigen::Index j = 0; j < m; ++j) {
       bool dup = false;
       for (Eigen::Index i = 0; i < j && !dup; ++i) dup = (W.col(i) - W.col(j)).cwiseAbs().maxCoeff() <= thr;
@@ -543,10 +682,10 @@ class Stepper {
   }
 
   Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv) {
-    return ::project(W, v0, b, Minv, dgesv_);
+    return ::project(C_, dgesv_, W, v0, b, Minv);
   }
 
-  nb::tuple step_(const VectorXd &q, const VectorXd &u, double h, double e) {
+  void step_(const VectorXd &q, const VectorXd &u, double h, double e, StepOut &out) {
     const Eigen::Index nv = model_.nv;
     if (q.size() != model_.nq || u.size() != nv) throw nb::value_error("q, u: sizes nq, nv expected");
     VectorXd q_m = pinocchio::integrate(model_, q, (0.5 * h) * u);
@@ -555,12 +694,14 @@ class Stepper {
     if (tunnelling_ == 2 || (tunnelling_ == 0 && travel > thinnest_)) throw Fallback{"swept detection"};
     if (found.empty()) {
       VectorXd u_free = free_velocity(q_m, u, h);
-      VectorXd q_next = pinocchio::integrate(model_, q_m, (0.5 * h) * u_free);
-      VectorXd out(q_next.size() + nv);  // one array crosses (each numpy array made costs ~1 us)
-      out << q_next, u_free;
-      return nb::make_tuple(FLIGHT, out);
+      out.q_next = pinocchio::integrate(model_, q_m, (0.5 * h) * u_free);
+      out.u_next = u_free;
+      out.u_free = std::move(u_free);
+      out.outcome = Outcome::FLIGHT;
+      out.pack();
+      return;
     }
-    if ((int)found.size() > max_contacts_) throw Fallback{"more contacts than the compiled step takes"};
+    if ((int)found.size() > C_.max_contacts) throw Fallback{"more contacts than the compiled step takes"};
     // constraints.assemble_constraints: M by CRBA (fills the WORLD Jacobians), rows, distinct rows
     MatrixXd M = crba_world(q_m);
     MatrixXd W0 = contact_rows(found);
@@ -605,27 +746,22 @@ class Stepper {
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
     if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
-    // one float and one int array cross (moreau_sim/compiled.py slices them): q_next, u_next, g, point_a,
-    // point_b, normal (m x 3, row-major), P, gamma_minus, gamma_plus, v, lam, M (nv x nv), W (column-major),
-    // v_free, b; pair, kind, feature, joint_a, joint_b
-    const Eigen::Index nq = q_next.size();
-    VectorXd out(nq + 2 * nv + m + 9 * m + 3 * m + nv + m + nv * nv + nv * m + nv + m);
-    Eigen::Index o = 0;
-    auto put = [&](const double *src, Eigen::Index n) {
-      for (Eigen::Index k = 0; k < n; ++k) out[o++] = src[k];
-    };
-    put(q_next.data(), nq), put(u_next.data(), nv), put(g.data(), m);
-    for (Eigen::Index i = 0; i < m; ++i) put(con[i].pa.data(), 3);
-    for (Eigen::Index i = 0; i < m; ++i) put(con[i].pb.data(), 3);
-    for (Eigen::Index i = 0; i < m; ++i) put(con[i].n.data(), 3);
-    put(P.data(), m), put(gamma_minus.data(), m), put(gamma_plus.data(), m), put(res.v.data(), nv);
-    put(res.lam.data(), m), put(M.data(), nv * nv), put(W.data(), nv * m), put(v_free.data(), nv), put(b.data(), m);
-    VectorXl ints(5 * m);
+    out.outcome = Outcome::CONTACT;
+    out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
+    out.g = std::move(g);
+    out.point_a.resize(m, 3), out.point_b.resize(m, 3), out.normal.resize(m, 3);
+    out.pair.resize(m), out.kind.resize(m), out.feature.resize(m), out.joint_a.resize(m), out.joint_b.resize(m);
     for (Eigen::Index i = 0; i < m; ++i) {
-      ints[i] = con[i].pair, ints[m + i] = con[i].kind, ints[2 * m + i] = con[i].feature;
-      ints[3 * m + i] = pairs_(con[i].pair, 2), ints[4 * m + i] = pairs_(con[i].pair, 3);
+      out.point_a.row(i) = con[i].pa.transpose(), out.point_b.row(i) = con[i].pb.transpose();
+      out.normal.row(i) = con[i].n.transpose();
+      out.pair[i] = con[i].pair, out.kind[i] = con[i].kind, out.feature[i] = con[i].feature;
+      out.joint_a[i] = pairs_(con[i].pair, 2), out.joint_b[i] = pairs_(con[i].pair, 3);
     }
-    return nb::make_tuple(CONTACT, out, ints, (int)m, work, res.status, corr);
+    out.P = std::move(P), out.gamma_minus = std::move(gamma_minus), out.gamma_plus = std::move(gamma_plus);
+    out.v_free = std::move(v_free), out.b = std::move(b), out.v = std::move(res.v), out.lam = std::move(res.lam);
+    out.M = M, out.W = std::move(W), out.projection = res.status;
+    out.contact_work = work, out.correction_energy = corr, out.m = m;
+    out.pack();
   }
 
   // stepper.correct_positions
@@ -640,12 +776,12 @@ class Stepper {
     const double E1 = energy(q_next, u_next);
     const double budget = E0 - E1;
     // stepper._resting: the bodies of every penetrating contact end the step at rest
-    // (|u_next_j| <= RESTING max|u_free - u| wherever a penetrating row has w_ij != 0)
+    // (|u_next_j| <= resting max|u_free - u| wherever a penetrating row has w_ij != 0)
     bool resting = true;
     {
       double dmax = 0.0;
       for (Eigen::Index j = 0; j < u.size(); ++j) dmax = std::max(dmax, std::abs(u_free[j] - u[j]));
-      const double scale = RESTING * dmax;
+      const double scale = C_.resting * dmax;
       for (Eigen::Index j = 0; j < W.rows() && resting; ++j) {
         bool involved = false;
         for (Eigen::Index i = 0; i < m; ++i)
@@ -672,24 +808,46 @@ class Stepper {
 
 NB_MODULE(_step, mod) {
   mod.doc() = "The compiled midpoint Moreau contact step (moreau_sim/compiled.py).";
-  mod.attr("FLIGHT") = FLIGHT;
-  mod.attr("CONTACT") = CONTACT;
-  mod.attr("FALLBACK") = FALLBACK;
+  nb::enum_<Outcome>(mod, "Outcome", "What a compiled step did: FLIGHT, CONTACT, or FALLBACK (the Python step takes it)")
+      .value("FLIGHT", Outcome::FLIGHT)
+      .value("CONTACT", Outcome::CONTACT)
+      .value("FALLBACK", Outcome::FALLBACK);
+  nb::enum_<Projection>(mod, "Projection", "How the projection was solved (qp.QPResult.status)")
+      .value("ADMISSIBLE", Projection::ADMISSIBLE)
+      .value("ACTIVE_SET", Projection::ACTIVE_SET);
+  nb::class_<StepOut>(mod, "StepOut", "One compiled step (src/step.cpp StepOut): its arrays by layout()")
+      .def_ro("outcome", &StepOut::outcome)
+      .def_ro("reason", &StepOut::reason)
+      .def_ro("m", &StepOut::m)
+      .def_prop_ro("floats", [](const StepOut &o) { return o.floats; })
+      .def_prop_ro("ints", [](const StepOut &o) { return o.ints; })
+      .def("layout", &StepOut::layout, "(name, in ints, offset, rows, cols (0: a vector), order 'C'/'F') per array")
+      .def_ro("projection", &StepOut::projection)
+      .def_ro("contact_work", &StepOut::contact_work)
+      .def_ro("correction_energy", &StepOut::correction_energy);
   nb::class_<Stepper>(mod, "Stepper")
       .def(nb::init<nb::object, nb::object, nb::object, nb::object, std::vector<MatrixXd>, std::vector<int>,
                     std::vector<Vec3>, std::vector<double>, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic>,
-                    MatrixXd, double, double, double, int, bool, bool, bool, bool, bool, int, uintptr_t>())
-      .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"));
-  // the projection alone (tests/test_qp.py holds it bit-identical to qp.solve): (status, v, lam), status 0
-  // admissible, 1 solved, FALLBACK where qp.solve goes on to piqp
-  mod.def("project", [](const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv, uintptr_t dgesv) {
+                    MatrixXd, double, double, double, int, bool, bool, bool, bool, bool,
+                    const std::map<std::string, double> &, uintptr_t>())
+      .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"))
+      .def_prop_ro("constants", &Stepper::constants);
+  // the names the constants dict must hold (moreau_sim/compiled.py CONSTANTS), and a dict as the step reads it
+  mod.def("constant_names", []() { return Constants::keys(); });
+  mod.def("read_constants", [](const std::map<std::string, double> &d) { return Constants::from(d).as_dict(); },
+          nb::arg("constants"));
+  // the projection alone (tests/test_compiled.py holds it bit-identical to qp.solve): (Projection, v, lam), or
+  // (None, reason, None) where qp.solve goes on to piqp
+  mod.def("project", [](const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
+                        const std::map<std::string, double> &constants, uintptr_t dgesv) {
     if (W.rows() != v0.size() || b.size() != W.cols() || Minv.rows() != W.rows() || Minv.cols() != W.rows())
       throw nb::value_error("W (nv, m), v0 (nv,), b (m,), Minv (nv, nv) expected");
+    const Constants C = Constants::from(constants);
     try {
-      Solved s = project(W, v0, b, Minv, reinterpret_cast<dgesv_t>(dgesv));
+      Solved s = project(C, reinterpret_cast<dgesv_t>(dgesv), W, v0, b, Minv);
       return nb::make_tuple(s.status, s.v, s.lam);
     } catch (const Fallback &f) {
-      return nb::make_tuple(FALLBACK, f.why, nb::none());
+      return nb::make_tuple(nb::none(), f.why, nb::none());
     }
-  }, nb::arg("W"), nb::arg("v0"), nb::arg("b"), nb::arg("Minv"), nb::arg("dgesv"));
+  }, nb::arg("W"), nb::arg("v0"), nb::arg("b"), nb::arg("Minv"), nb::arg("constants"), nb::arg("dgesv"));
 }

@@ -1,10 +1,10 @@
-"""moreau_sim.bench.references against closed-form values written out here (docs/theory.md §4)."""
+"""moreau_sim.testing.references against closed-form values written out here (docs/theory.md §4)."""
 
 import math
 
 import pytest
 
-from moreau_sim.bench import references as R
+from moreau_sim.testing import references as R
 
 G, D0 = 9.81, 0.9  # the bundled ball: gravity [m/s^2], initial gap [m]
 T0 = math.sqrt(2 * 0.9 / 9.81)  # first impact [s]: d0 = g t0^2 / 2

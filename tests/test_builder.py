@@ -44,3 +44,9 @@ def test_saved_file_loads_back(tmp_path):
     assert sc.options.bias is ms.Bias.EXPLICIT and sc.options.gravity == (0.0, 0.0, -1.62)
     assert sc.options.save_every == 5 and [s.name for s in sc.statics] == ["ground", "step"]
     assert sc.collisions.exclude == (("ball", "step"),)
+
+
+def test_save_makes_the_missing_folder(tmp_path):
+    """docs/scenes.md's `b.save("out/ball_and_box.toml")` in a fresh clone (no out/ yet)."""
+    path = ball_builder().save(tmp_path / "out" / "deeper" / "ball.toml")
+    assert path.is_file() and ms.load_scene(path).options == ball_builder().build().options

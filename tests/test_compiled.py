@@ -13,7 +13,8 @@ memory alignment (docs/theory.md §2.8); what is left of numpy's kernels are the
 contacts._vertex_contacts, reproduced as numpy's OpenBLAS computes them at that size (src/step.cpp,
 measured on this x86-64 AVX-512 machine). Within 1e-12 would not be enough: the correction's energy test
 (dE > budget) and the active set of dependent rows are ties decided at round-off, and one flipped tie
-moves box_drop by 1e-5 m.
+moves box_drop by 1e-5 m. The constants both steps use are passed from Python
+(compiled.CONSTANTS), and the step's result crosses by name (src/step.cpp StepOut).
 
 A scene none of whose steps the compiled step takes (pairs of two polytopes, pairs coal resolves by
 GJK/EPA) runs the Python step both ways; its detection (contacts.py's polytope paths, corners) still has
@@ -29,7 +30,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import moreau_sim as ms
 import moreau_sim.compiled as compiled
+from moreau_sim import qp
+from moreau_sim.contacts import FeatureKind
 from moreau_sim.data import make_data
 from moreau_sim.errors import SceneError
 from moreau_sim.model import build_model
@@ -53,6 +57,12 @@ def _run(scene, impl: StepImpl):
     data = make_data(model)
     traj = simulate(model, data=data, progress=False)
     return traj, compiled.counts(data)
+
+
+def _ext():
+    """The extension module (loaded on first use)."""
+    assert compiled.available(), compiled.unavailable_reason()
+    return compiled._module
 
 
 def test_compiled_step_is_available():
@@ -119,21 +129,83 @@ def test_projection_is_bit_identical_to_qp_solve():
     """The C++ projection (src/step.cpp project: the screen, the closed form, the dual active set) against
     qp.solve on random problems of 1-40 rows in 1-30 velocities, dependent rows and bounds included: the same
     v and multipliers bit for bit, or a hand-back exactly where qp.solve turns to piqp."""
-    from moreau_sim.qp import solve
     dgesv = compiled._dgesv_pointer()
     solved = 0
     for seed in range(300):
         M, W, v0, b = _random_projection(seed)
         Minv = np.linalg.inv(M)
-        ref = solve(M, W, v0, b=b, Minv=Minv)
-        status, v, lam = compiled._module.project(W, v0, b, Minv, dgesv)
-        if status == compiled._module.FALLBACK:
+        ref = qp.solve(M, W, v0, b=b, Minv=Minv)
+        status, v, lam = _ext().project(W, v0, b, Minv, compiled.CONSTANTS, dgesv)
+        if status is None:  # handed back, with its reason in v
             assert ref.status not in ("ACTIVE_SET", "ADMISSIBLE"), (seed, v)
             continue
-        assert ref.status == ("ADMISSIBLE" if status == 0 else "ACTIVE_SET"), seed
+        assert ref.status == status.name, seed
         assert np.array_equal(v, ref.v) and np.array_equal(lam, ref.lam), seed
-        solved += status
+        solved += status is _ext().Projection.ACTIVE_SET
     assert solved >= 200
+
+
+def test_constants_are_passed_from_python():
+    """Every constant the two steps share crosses at construction from its Python home (compiled.CONSTANTS):
+    the extension asks for exactly these names (a missing or an unknown one is an error, so none can be left
+    to a value of its own) and reads back the same values."""
+    from moreau_sim import constraints, results, stepper
+    C = compiled.CONSTANTS
+    assert sorted(_ext().constant_names()) == sorted(C)
+    assert _ext().read_constants(C) == {k: float(v) for k, v in C.items()}
+    for k in C:
+        with pytest.raises(ValueError, match=k):
+            _ext().read_constants({j: v for j, v in C.items() if j != k})
+    with pytest.raises(ValueError, match="unknown"):
+        _ext().read_constants({**C, "spare": 1.0})
+    # their homes, by name
+    assert (C["midpoint_iterations"], C["resting"]) == (stepper.MIDPOINT_ITERATIONS, results.RESTING)
+    assert (C["vertex"], C["witness"]) == (FeatureKind.VERTEX, FeatureKind.WITNESS)
+    assert (C["max_contacts"], C["screen"], C["distinct"]) == (qp.COLD_START_ROWS, qp.SCREEN, constraints.DISTINCT)
+    # and the stepper of a model holds them
+    model = build_model(load_scene(SCENES[0].parent / "box_drop.toml"))
+    data = make_data(model)
+    ctx = compiled._context(model, data)
+    assert ctx.stepper.constants == {k: float(v) for k, v in C.items()}
+
+
+def test_the_result_crosses_by_name():
+    """The compiled step's result is a typed object with an enum outcome whose arrays are named by the
+    extension's own layout (StepOut.layout: no positional slicing in Python): the contact steps of box_drop
+    give the Python step's contacts, impact and projection problem, by name and bit for bit."""
+    scene = load_scene(SCENES[0].parent / "box_drop.toml")
+    assert {m.name for m in _ext().Outcome} == {"FLIGHT", "CONTACT", "FALLBACK"}
+    names = ["q_next", "u_next", "u_free", *ms.Contacts.ARRAYS, "P", "gamma_minus", "gamma_plus", "v_free", "b", "v",
+             "lam", "M", "W"]
+    models = {impl: build_model(scene.with_options(step_impl=impl.value)) for impl in StepImpl}
+    datas = {impl: make_data(m) for impl, m in models.items()}
+    state = {impl: None for impl in StepImpl}
+    contact = 0
+    for _ in range(1200):
+        rs = {}
+        before = state[StepImpl.COMPILED] or ms.initial_state(models[StepImpl.COMPILED])
+        for impl in StepImpl:
+            m = models[impl]
+            s = state[impl] or ms.initial_state(m)
+            rs[impl] = ms.step(m, datas[impl], s)
+            state[impl] = rs[impl].state
+        a, b = rs[StepImpl.PYTHON], rs[StepImpl.COMPILED]
+        if a.qp is not None and not contact:  # the first contact step: the extension's own names
+            ctx = compiled._context(models[StepImpl.COMPILED], datas[StepImpl.COMPILED])
+            o = models[StepImpl.COMPILED].options
+            out = ctx.stepper.step(before.q, before.u, o.dt, o.restitution)
+            assert out.outcome is _ext().Outcome.CONTACT and out.m == a.contacts.m
+            assert sorted(n for n, *_ in out.layout()) == sorted(names)
+        assert np.array_equal(a.u_free, b.u_free)
+        for key in ("g", "point_a", "point_b", "normal", "pair", "kind", "feature", "joint_a", "joint_b"):
+            x, y = getattr(a.contacts, key), getattr(b.contacts, key)
+            assert x.dtype.kind == y.dtype.kind and np.array_equal(x, y), key
+        if a.qp is not None:
+            contact += 1
+            for key in ("M", "W", "v0", "b", "v", "lam"):
+                assert np.array_equal(getattr(a.qp, key), getattr(b.qp, key)), key
+            assert (a.qp.status, a.qp.polished) == (b.qp.status, b.qp.polished)
+    assert contact > 50 and compiled.counts(datas[StepImpl.COMPILED])["contact"] == contact
 
 
 @pytest.mark.parametrize("name", ["column_of_beads_100", "quadruped_drop"])

@@ -9,7 +9,8 @@ import pytest
 
 import moreau_sim as ms
 from moreau_sim.adaptive import simulate_adaptive
-from moreau_sim.bench.references import (
+from moreau_sim.event_driven import EventDrivenRun, UnsupportedModel, simulate_event_driven
+from moreau_sim.testing.references import (
     ball_apex_gaps,
     ball_apex_times,
     ball_first_impact,
@@ -17,7 +18,6 @@ from moreau_sim.bench.references import (
     cradle_sequential,
     zeno_time,
 )
-from moreau_sim.event_driven import EventDrivenRun, UnsupportedModel, simulate_event_driven
 from moreau_sim.trajectory import ARRAYS
 
 from helpers import BUNDLED, ROOT, lowest_corner_height, scene
@@ -79,7 +79,7 @@ def test_gapped_cradle_sequential():
 
 def test_gapped_cradle_e_half_matches_binary_impacts():
     """e = 0.5: repeated binary impacts; the order is fixed by the geometry, so the result is the
-    reference's sweep of left-to-right binary Newton impacts (moreau_sim.bench.references)."""
+    reference's sweep of left-to-right binary Newton impacts (moreau_sim.testing.references)."""
     v = cradle_sequential(0.5)
     tr = ref("newton_cradle_5_gapped", restitution=0.5, duration=0.5)
     assert np.abs(tr.u[-1] - v).max() < 2e-2  # ordering differences only (peers/README.md)

@@ -18,13 +18,13 @@ import pytest
 
 import moreau_sim as ms
 from moreau_sim import trajectory
-from moreau_sim.bench.references import cradle_simultaneous
 from moreau_sim.testing import (
     assert_budget_closes,
     assert_dissipation_follows_law,
     assert_matches_baseline,
     assert_no_energy_gain,
 )
+from moreau_sim.testing.references import cradle_simultaneous
 
 from helpers import ROOT, SCENES, run
 

@@ -5,7 +5,7 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.bench import metrics
+from moreau_sim.testing import metrics
 from moreau_sim.trajectory import ARRAYS
 
 from helpers import scene

@@ -1,4 +1,4 @@
-"""The peers' per-step timers (timing_repeats, what moreau_sim.bench.compiled_costs reads): the timed
+"""The peers' per-step timers (timing_repeats, what benchmarks.compiled_costs reads): the timed
 runs leave the trajectory bit for bit as it is, and each step's contact count is the peer's own
 physics: a step with no contact is free flight (u' = u + h g), a step with one is not. Never timings."""
 
@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.bench import compiled_costs, scene_path
-from moreau_sim.bench.peers import available, run
-from moreau_sim.bench.spec import make_spec
+
+from benchmarks import compiled_costs, scene_path
+from benchmarks.peers import available, run
+from benchmarks.spec import make_spec
 
 PEERS = [pytest.param(p, marks=pytest.mark.skipif(why is not None, reason=str(why)))
          for p, why in available().items() if p in compiled_costs.PEERS]

@@ -306,10 +306,10 @@ def test_sparse_path_is_the_projection_the_cold_active_set_gives(seed, bounds, m
 
 @pytest.mark.parametrize("e", [0.0, 0.9])
 def test_a_resting_column_of_120_beads_takes_the_sparse_path_exactly(e):
-    """A column of 120 touching 1 kg beads (bench.scaling.column) stepped from rest with the Python step: every
+    """A column of 120 touching 1 kg beads (benchmarks.scaling.column) stepped from rest with the Python step: every
     step's QP (120 rows) goes the sparse way, polished, and the column stays at rest with the closed-form
     percussions: contact k (under bead k) carries the 120 - k beads above it, P_k = (120 - k) m g h."""
-    from moreau_sim.bench.scaling import column
+    from benchmarks.scaling import column
 
     n = 120
     model = ms.build_model(column(n, step_impl="python").with_options(restitution=e))
@@ -328,8 +328,9 @@ def test_a_resting_column_of_120_beads_takes_the_sparse_path_exactly(e):
 def test_a_run_of_a_resting_column_of_120_beads_keeps_its_energy():
     """simulate() through the sparse path, recorder and ledger included: a resting column gains no energy and
     its energy budget closes (translations under gravity: exact to round-off)."""
-    from moreau_sim.bench.scaling import column
     from moreau_sim.testing import assert_budget_closes, assert_no_energy_gain
+
+    from benchmarks.scaling import column
 
     model = ms.build_model(column(120, step_impl="python").with_options(duration=4e-3))
     traj = ms.simulate(model, progress=False)

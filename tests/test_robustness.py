@@ -179,7 +179,10 @@ def test_an_interrupted_run_keeps_its_samples(tmp_path, sig, integrator):
     out = tmp_path / "b.npz"
     p = subprocess.Popen([sys.executable, "-m", "moreau_sim", "run", str(BALL), "--duration", "1000", "-o", str(out),
                           "--set", f"integrator={integrator}"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         # the default disposition in the child: under nohup or a CI runner's background
+                         # job SIGINT is ignored, and an ignored disposition is inherited across exec
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(4.0)  # past the model's build, well before the 1e6 steps (or samples) end
     p.send_signal(sig)
     _, err = p.communicate(timeout=120)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.bench.references import (
+from moreau_sim.testing import assert_budget_closes, assert_dissipation_follows_law, assert_no_energy_gain
+from moreau_sim.testing.references import (
     ball_apex_gaps,
     ball_first_impact,
     ball_impact_times,
@@ -12,7 +13,6 @@ from moreau_sim.bench.references import (
     zeno_bounces,
     zeno_time,
 )
-from moreau_sim.testing import assert_budget_closes, assert_dissipation_follows_law, assert_no_energy_gain
 
 from helpers import BUNDLED, SCENES as ROOT_SCENES, run, scene
 

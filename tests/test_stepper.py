@@ -73,6 +73,11 @@ def test_step_is_its_stages(name, duration):
             imp = None
         np.testing.assert_array_equal(r.state.q, q)
         np.testing.assert_array_equal(r.state.u, pb.u_free if imp is None else imp.u_next)
+        np.testing.assert_array_equal(r.u_free, pb.u_free)  # what the ledger reads (recording.account_step)
+        if imp is not None:  # and the projection's problem, by name
+            np.testing.assert_array_equal(r.qp.M, pb.M)
+            np.testing.assert_array_equal(r.qp.v0, pb.v_free)
+            np.testing.assert_array_equal(r.qp.W, imp.W)
         state = r.state
     assert contact_steps > 0
 

@@ -13,7 +13,7 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.bench.references import cradle_simultaneous, zeno_rest_bound, zeno_time
+from moreau_sim.testing.references import cradle_simultaneous, zeno_rest_bound, zeno_time
 from moreau_sim.tunnelling import motion_bounds, pair_distance, swept_contacts
 
 from helpers import SCENES, run, scene

@@ -13,8 +13,8 @@ import pytest
 from click.testing import CliRunner
 
 import moreau_sim as ms
+from moreau_sim.cli.sweep import sweep
 from moreau_sim.sweep import FIELDS, RUNS, WALL_COLUMNS, Kind, Param, SweepError, grid, parse_param, point_id, run_sweep
-from moreau_sim.sweep_cli import sweep
 
 from helpers import SCENES
 

@@ -1,20 +1,19 @@
-"""Smoke test of scripts/work_precision.py (moreau_sim.bench.work_precision): a tiny sweep (--quick:
-2 step sizes, short runs, one repeat) with whichever peers moreau_sim.bench.peers.available()
+"""Smoke test of `python -m benchmarks.work_precision`: a tiny sweep (--quick:
+2 step sizes, short runs, one repeat) with whichever peers benchmarks.peers.available()
 reports; checks the JSON schema and the PNGs, never timings."""
 
 import json
 import subprocess
 import sys
 
-from moreau_sim.bench.peers import available
-
+from benchmarks.peers import available
 from helpers import ROOT
 
 POINT_KEYS = {"case", "scene", "e", "method", "h", "T", "cpu_repeats", "cpu_per_sim_s", "error", "rel_error"}
 
 
 def test_quick_sweep_writes_json_table_and_pngs(tmp_path):
-    cmd = [sys.executable, str(ROOT / "scripts" / "work_precision.py"), "--quick", "--out", str(tmp_path)]
+    cmd = [sys.executable, "-m", "benchmarks.work_precision", "--quick", "--out", str(tmp_path)]
     cp = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert cp.returncode == 0, cp.stdout[-2000:] + cp.stderr[-3000:]
     doc = json.loads((tmp_path / "work_precision.json").read_text())

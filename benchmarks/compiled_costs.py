@@ -1,0 +1,378 @@
+"""Per-step cost of the compiled step against the Python step and the peers, side by side in one run.
+
+A benchmark, not a test. For each case the scene is run once to collect its states; on the same
+states one step is timed with step_impl = "compiled" and with step_impl = "python" (ms.step, best
+of `repeat` per state, median over up to `states` states of the phase, us), with the share of those
+steps the compiled step took itself (the rest it hands back to Python) and, where it took them all,
+the extension's call alone (the C++ step and its crossing, without ms.step's Python around it).
+In the same run each peer that can express the scene (peers.siconos: Moreau-Jean theta 1/2 with its LCP; peers.mujoco:
+mj_step; their runners' settings) runs the whole scene `repeat` times with a timer around each step
+inside its own stepping loop; per step the best of those runs, median over the steps of the same
+phase (the phase rule `phase` applied to the peer's own contact count per step). Whole runs: the
+scene by ms.simulate (recording included, compiled and Python step) against the peers' whole runs
+of the same scene and step size (their loop with its recording), wall time per step, the best of
+`repeat` rounds that run every side in turn. The cost targets (TARGETS) get their verdicts from
+these figures. Writes compiled_costs.json and compiled_costs.png to out/ (or --out).
+
+    python -m benchmarks.compiled_costs [--out docs/bench] [--repeat 7] [--states 200]
+    python -m benchmarks.compiled_costs --table docs/bench/compiled_costs.json docs/benchmarks.md
+    python -m benchmarks.compiled_costs --plot docs/bench/compiled_costs.json   # redraw the chart from the JSON
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+from pathlib import Path
+
+import numpy as np
+
+import moreau_sim as ms
+from moreau_sim import compiled
+from moreau_sim.recording import versions
+
+from . import OUT, add_plot_option, add_table_option, redraw, rewrite_tables, scene_path
+from .step_costs import best  # best of `repeat` timings, us
+
+# (label, scene, phase: "flight", "contact", or "late-contact" = the last third of the run's contact states)
+CASES = (("ball, flight", "bouncing_ball", "flight"),
+         ("ball, in contact (resting)", "zeno_ball", "contact"),
+         ("cradle, contacts closed", "newton_cradle_5", "contact"),
+         ("box, resting", "box_drop", "late-contact"),
+         ("ten boxes, resting", "box_stack_10", "late-contact"),
+         ("100 beads, in contact", "column_of_beads_100", "contact"),
+         ("quadruped, resting", "quadruped_drop", "late-contact"))
+WHOLE_RUNS = ("bouncing_ball", "zeno_ball")  # ms.simulate, recording included
+PEERS = ("siconos", "mujoco")
+PEER_NAMES = {"siconos": "Siconos", "mujoco": "MuJoCo"}
+# The cost targets: (what, kind, case or scene, bound). kind "us": the compiled step's median
+# (us) <= bound; "x siconos": the compiled step over Siconos's per step <= bound; "run x siconos":
+# ms.simulate's wall per step (compiled) over Siconos's whole run per step <= bound.
+TARGETS = (("ball contact step <= 1.5x Siconos", "x siconos", "zeno_ball", 1.5),
+           ("whole run of the ball scene <= 1.5x Siconos per step", "run x siconos", "bouncing_ball", 1.5),
+           ("whole run of the resting ball <= 1.5x Siconos per step", "run x siconos", "zeno_ball", 1.5),
+           ("cradle <= Siconos per step", "x siconos", "newton_cradle_5", 1.0),
+           ("box_drop resting <= 20 µs", "us", "box_drop", 20.0),
+           ("box_stack_10 resting <= 0.5 ms", "us", "box_stack_10", 500.0),
+           ("quadruped resting <= 60 µs", "us", "quadruped_drop", 60.0))
+
+
+def phase(contacts, which: str) -> np.ndarray:
+    """Which steps of a run (their contact counts, in order) belong to the phase `which`."""
+    c = np.asarray(contacts)
+    mask = c == 0 if which == "flight" else c > 0
+    if which.startswith("late-"):
+        idx = np.flatnonzero(mask)
+        mask = np.zeros_like(mask)
+        mask[idx[2 * len(idx) // 3:]] = True
+    return mask
+
+
+def bench_case(label: str, scene: str, which: str, repeat: int, n_states: int) -> dict:
+    sc = ms.load_scene(scene_path(scene))
+    mods = {impl: ms.build_model(sc.with_options(step_impl=impl)) for impl in ("python", "compiled")}
+    datas = {impl: ms.make_data(m) for impl, m in mods.items()}
+    # the states: the scene's run with the compiled step (the same trajectory as the Python step's,
+    # tests/test_compiled.py), each step's contact count from a data of its own (counts untouched)
+    traj = ms.simulate(mods["compiled"], progress=False)
+    h, e = sc.options.dt, sc.options.restitution
+    m, d = mods["compiled"], ms.make_data(mods["compiled"])
+    states = [ms.State(float(traj.t[i]), traj.q[i], traj.u[i]) for i in range(len(traj.t) - 1)]
+    counts = [ms.step(m, d, st, h=h, e=e).contacts.m for st in states]
+    idx = np.flatnonzero(phase(counts, which))
+    idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(n_states, len(idx))).astype(int))]
+    out = {"label": label, "scene": scene, "which": which, "states": len(idx),
+           "contacts": float(np.median([counts[i] for i in idx]))}
+    for impl in ("python", "compiled"):
+        m, d = mods[impl], datas[impl]
+        t = [best(lambda st=states[i], m=m, d=d: ms.step(m, d, st, h=h, e=e), repeat) for i in idx]
+        out[impl] = statistics.median(t)
+    c = compiled.counts(datas["compiled"])  # every timed call of the compiled model's step
+    # the extension's call alone (no ms.step around it, no StepResult), where it takes every step
+    stepper = compiled._context(mods["compiled"], ms.make_data(mods["compiled"])).stepper
+    out["extension"] = None if stepper is None or c["flight"] + c["contact"] < sum(c.values()) else statistics.median(
+        best(lambda st=states[i]: stepper.step(st.q, st.u, h, e), repeat) for i in idx)
+    out["compiled_share"] = (c["flight"] + c["contact"]) / max(1, sum(c.values()))
+    out["handed_back"] = {k.removeprefix("python: "): v for k, v in c.items() if k.startswith("python")}
+    out["ratio"] = out["python"] / out["compiled"]
+    return out
+
+
+def run_peer(peer: str, scene: str, repeat: int) -> dict:
+    """The peer's timed runs of the scene (its runner's `timing`), or {"why": ...} if it cannot run it."""
+    from .peers import run
+    from .spec import PeerError, make_spec
+
+    try:
+        res = run(peer, make_spec(ms.build_model(ms.load_scene(scene_path(scene)))), timing_repeats=repeat)
+    except PeerError as err:  # NotExpressible included
+        return {"why": str(err).splitlines()[0]}
+    tm = res["timing"]
+    return {"version": res["version"], "steps": len(tm["step_us"]), "step_us": np.asarray(tm["step_us"]),
+            "contacts": np.asarray(tm["contacts"]), "wall_seconds": tm["wall_seconds"], "timer": tm["timer"],
+            "settings": {k: v for k, v in res["settings"].items() if k != "xml"}}
+
+
+def peer_phase(run: dict, which: str) -> dict | None:
+    """A peer's figure for one phase: median over the phase's steps of the best-of-repeats step, us."""
+    if "why" in run:
+        return None
+    mask = phase(run["contacts"], which)
+    if not mask.any():
+        return None
+    return {"us": float(np.median(run["step_us"][mask])), "steps": int(mask.sum()),
+            "contacts": float(np.median(run["contacts"][mask]))}
+
+
+def whole_run(scene: str, repeat: int, peers: tuple) -> dict:
+    """ms.simulate of the scene (recording included), wall per step, both steps, and a bare Python
+    loop of the compiled ms.step over the same steps (nothing recorded: the difference is what
+    ms.simulate adds), against each peer's whole run of the same scene per step (`peers`: those
+    available): `repeat` rounds, each running every side once in turn (so that all see the same
+    load), the best round of each side."""
+    sc = ms.load_scene(scene_path(scene))
+    n = int(round(sc.options.duration / sc.options.dt))
+    models = {impl: ms.build_model(sc.with_options(step_impl=impl)) for impl in ("compiled", "python")}
+    walls: dict = {side: [] for side in (*models, "step_loop", *PEERS)}
+    h, e = sc.options.dt, sc.options.restitution
+
+    loop_data = ms.make_data(models["compiled"])
+
+    def step_loop(model=models["compiled"], data=loop_data):
+        st = ms.initial_state(model)
+        for _ in range(n):
+            st = ms.step(model, data, st, h=h, e=e).state
+
+    for _ in range(repeat):
+        for impl, model in models.items():
+            walls[impl].append(best(lambda model=model: ms.simulate(model, progress=False), 1) / n)
+        walls["step_loop"].append(best(step_loop, 1) / n)
+        for peer in peers:
+            r = run_peer(peer, scene, 1)
+            if "why" not in r:
+                walls[peer].append(r["wall_seconds"] * 1e6 / r["steps"])
+    return {"scene": scene, "steps": n, **{side: min(w) if w else None for side, w in walls.items()}}
+
+
+def verdicts(res: dict) -> list[dict]:
+    """Each TARGETS entry with its measured figure and whether it is met (None: not measured)."""
+    cases = {c["scene"]: c for c in res["cases"]}
+    runs = {w["scene"]: w for w in res.get("whole_runs", [])}
+    out = []
+    for what, kind, key, bound in TARGETS:
+        value = None
+        if kind == "us" and key in cases:
+            value, shown = cases[key]["compiled"], f"{cases[key]['compiled']:.2f} µs"
+        elif not res.get("siconos") and "siconos" in kind:  # Siconos not installed in that run
+            pass
+        elif kind == "x siconos" and (cases.get(key) or {}).get("siconos"):
+            c = cases[key]
+            value = c["compiled"] / c["siconos"]["us"]
+            shown = f"{value:.2f}× ({c['compiled']:.1f} against {c['siconos']['us']:.2f} µs)"
+            if c.get("extension"):
+                shown += f"; the extension call alone {c['extension'] / c['siconos']['us']:.2f}×"
+        elif kind == "run x siconos" and (runs.get(key) or {}).get("siconos"):
+            w = runs[key]
+            value = w["compiled"] / w["siconos"]
+            shown = f"{value:.2f}× ({w['compiled']:.1f} against {w['siconos']:.2f} µs per step)"
+        out.append({"target": what, "value": value, "shown": shown if value is not None else "not measured",
+                    "met": None if value is None else bool(value <= bound)})
+    return out
+
+
+def _fmt(x: float | None, digits: int = 1) -> str:
+    return "–" if x is None else f"{x:.{digits}f}"
+
+
+def _ratio(a: float, b: float | None) -> str:
+    return "–" if b is None else f"{a / b:.2f}"
+
+
+def markdown_table(res: dict) -> str:
+    """The compiled-step table of docs/benchmarks.md from a compiled_costs.json (MuJoCo's columns last)."""
+    have = {p: res.get(p) for p in PEERS}
+    reps = f"the best of {res['repeat']}" if "repeat" in res else "the best of several timings"
+    states = sorted({c["states"] for c in res["cases"]})
+    peers = "; ".join(f"{PEER_NAMES[p]} {have[p]['version']}" if have[p]
+                      else f"{PEER_NAMES[p]} not installed in that run" for p in PEERS)
+    out = [f"µs per step. moreau-sim: `ms.step` on {'/'.join(map(str, states))} states of the phase, {reps} "
+           f"per state, median over the states. Peers: the whole scene run {reps.removeprefix('the best of ')} "
+           "times in the peer's own stepping loop with a timer around each step (Siconos: `computeOneStep` + "
+           "`nextStep`; MuJoCo: `mj_step`, both called from Python), per step the best of the runs, median "
+           "over the steps of the same phase by the peer's own contact count (contacts: the median number in the "
+           "step, ours detected, Siconos's in its LCP, MuJoCo's `ncon`). " + peers + ":", "",
+           "| case | contacts (ours / Siconos / MuJoCo) | Python step | compiled step | its extension call alone "
+           "| Python / compiled | steps taken compiled | Siconos | compiled / Siconos | MuJoCo mj_step "
+           "| compiled / MuJoCo |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for c in res["cases"]:
+        sic = c.get("siconos") if have["siconos"] else None
+        mj = c.get("mujoco") if have["mujoco"] else None
+        contacts = " / ".join(f"{x:g}" if x is not None else "–"
+                              for x in (c["contacts"], sic and sic["contacts"], mj and mj["contacts"]))
+        out.append(f"| `{c['scene']}`: {c['label']} | {contacts} | {c['python']:.1f} | {c['compiled']:.1f} | "
+                   f"{_fmt(c.get('extension'))} | {c['python'] / c['compiled']:.1f} | "
+                   f"{100 * c['compiled_share']:.1f} % | "
+                   f"{_fmt(sic and sic['us'], 2)} | {_ratio(c['compiled'], sic and sic['us'])} | "
+                   f"{_fmt(mj and mj['us'], 2)} | {_ratio(c['compiled'], mj and mj['us'])} |")
+    return "\n".join(out)
+
+
+def whole_run_table(res: dict) -> str:
+    """Whole runs, wall per step: ms.simulate (recording included) against the peers' whole runs."""
+    sic, mj = res.get("siconos"), res.get("mujoco")
+    out = [f"Wall time of the whole run over its number of steps, µs, the best of {res.get('repeat', '?')} rounds "
+           "that run every side in turn: "
+           "`ms.simulate` (the `Trajectory` recorded) and a bare Python loop `state = ms.step(...).state` over the "
+           "same steps (nothing recorded), Siconos's stepping loop with its recording of q and v "
+           "(the runner's), MuJoCo's `mujoco.rollout` (a C loop storing the full state):", "",
+           "| scene | steps | compiled `ms.simulate` | Python `ms.simulate` | a bare loop of the compiled `ms.step` "
+           "| Siconos whole run | compiled / Siconos | MuJoCo rollout | compiled / MuJoCo |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for w in res.get("whole_runs", []):
+        s = w["siconos"] if sic else None
+        m = w["mujoco"] if mj else None
+        out.append(f"| `{w['scene']}` | {w['steps']} | {w['compiled']:.2f} | {w['python']:.2f} | "
+                   f"{_fmt(w.get('step_loop'), 2)} | {_fmt(s, 2)} | "
+                   f"{_ratio(w['compiled'], s)} | {_fmt(m, 2)} | {_ratio(w['compiled'], m)} |")
+    return "\n".join(out)
+
+
+def targets_table(res: dict) -> str:
+    """The cost targets with the figures of this run and their verdicts."""
+    out = ["| target | measured (compiled step) | verdict |", "|---|---|---|"]
+    for v in verdicts(res):
+        verdict = "–" if v["met"] is None else ("met" if v["met"] else "**missed**")
+        out.append(f"| {v['target']} | {v['shown']} | {verdict} |")
+    return "\n".join(out)
+
+
+def doc_tables(res: dict) -> dict[str, str]:
+    """The tables of docs/benchmarks.md this benchmark's JSON gives (marker name: Markdown)."""
+    return {"compiled-step table": markdown_table(res), "compiled-step whole runs": whole_run_table(res),
+            "compiled-step targets": targets_table(res)}
+
+
+def plot(res: dict, path: Path) -> None:
+    """Bars per case (log scale): Python step, compiled step, Siconos, MuJoCo; the whole runs last;
+    the cost targets as red marks over their case."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups = [(f"{c['scene']}\n{c['label'].split(', ', 1)[-1]}"
+               + ("" if c["compiled_share"] == 1 else f"\n({100 * c['compiled_share']:.0f} % in C++)"),
+               c["python"], c["compiled"],
+               (c.get("siconos") or {}).get("us"), (c.get("mujoco") or {}).get("us")) for c in res["cases"]]
+    groups += [(f"{w['scene']}\nwhole run", w["python"], w["compiled"], w["siconos"], w["mujoco"])
+               for w in res.get("whole_runs", [])]
+    bars = (("Python step", "tab:blue"), ("compiled step", "tab:orange"), ("Siconos Moreau-Jean", "tab:green"),
+            ("MuJoCo mj_step", "tab:gray"))
+    x = np.arange(len(groups))
+    fig, ax = plt.subplots(figsize=(12, 4.6))
+    w = 0.2
+    for j, (name, color) in enumerate(bars):
+        xs = [x[i] + (j - 1.5) * w for i, g in enumerate(groups) if g[1 + j] is not None]
+        ys = [g[1 + j] for g in groups if g[1 + j] is not None]
+        ax.bar(xs, ys, w, label=name, color=color)
+    ext = [(x[i] - 0.1, c["extension"]) for i, c in enumerate(res["cases"]) if c.get("extension")]
+    if ext:
+        ax.plot(*zip(*ext), "k_", ms=14, mew=2, label="compiled step: the C++ call alone, no Python around it")
+    bare = [(x[len(res["cases"]) + i] - 0.1, w["step_loop"]) for i, w in enumerate(res.get("whole_runs", []))
+            if w.get("step_loop")]
+    if bare:
+        ax.plot(*zip(*bare), "kv", ms=6, label="compiled step: a plain loop of ms.step, nothing recorded")
+    where = {c["scene"]: i for i, c in enumerate(res["cases"])}
+    where_run = {wr["scene"]: len(res["cases"]) + i for i, wr in enumerate(res.get("whole_runs", []))}
+    labelled = False
+    for (_what, kind, key, bound), v in zip(TARGETS, verdicts(res)):
+        i = (where_run if kind.startswith("run") else where).get(key)
+        if i is None or v["value"] is None:
+            continue
+        g = groups[i]
+        y = bound if kind == "us" else bound * g[3]
+        ax.plot([x[i] - 0.45, x[i] + 0.45], [y, y], color="red", lw=1.5,
+                label=None if labelled else "target: the compiled step at or below the red line")
+        labelled = True
+    ax.set_xticks(x, [g[0] for g in groups], fontsize=7)
+    ax.set_yscale("log")
+    ax.set_ylim(top=8 * max(max(v for v in g[1:] if v is not None) for g in groups))  # room for the legend
+    ax.set_ylabel("µs per step (median; whole runs: wall / steps)")
+    ax.set_title(f"One step, side by side in one run ({res['cpus']} cores, load {res['load']:.1f})", fontsize=9)
+    ax.grid(axis="y", which="both", alpha=0.3)
+    ax.legend(fontsize=7, ncol=3, loc="upper center")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _jsonable(x):
+    """numpy arrays and scalars in the peers' settings, for json.dumps."""
+    if isinstance(x, (np.ndarray, np.generic)):
+        return x.tolist()
+    raise TypeError(f"not JSON: {type(x).__name__}")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--states", type=int, default=200)
+    add_table_option(ap, "compiled_costs.json", "docs/benchmarks.md")
+    add_plot_option(ap, "compiled_costs.json")
+    a = ap.parse_args(argv)
+    if rewrite_tables(a, doc_tables) or redraw(a, plot):
+        return
+    if not compiled.available():
+        raise SystemExit(f"the compiled step is unavailable: {compiled.unavailable_reason()}")
+    from .peers import available
+
+    avail = available()
+    for p in PEERS:
+        if avail[p]:
+            print(f"{PEER_NAMES[p]} skipped: {avail[p]}")
+    scenes = dict.fromkeys([s for _, s, _ in CASES] + list(WHOLE_RUNS))
+    peer_runs = {(p, s): run_peer(p, s, a.repeat) if avail[p] is None else {"why": avail[p]}
+                 for p in PEERS for s in scenes}
+    cases = []
+    for label, scene, which in CASES:
+        c = bench_case(label, scene, which, a.repeat, a.states)
+        for p in PEERS:
+            c[p] = peer_phase(peer_runs[p, scene], which)
+        print(f"{label:34s} python {c['python']:8.1f} us  compiled {c['compiled']:7.1f} us  x{c['ratio']:.1f}  "
+              f"({c['states']} states, {c['contacts']:g} contacts, {100 * c['compiled_share']:.0f} % compiled)  "
+              + "  ".join(f"{p} {_fmt(c[p] and c[p]['us'], 2)}" for p in PEERS))
+        cases.append(c)
+    runs = [whole_run(s, a.repeat, tuple(p for p in PEERS if avail[p] is None)) for s in WHOLE_RUNS]
+    for w in runs:
+        print(f"whole run {w['scene']:14s} compiled {w['compiled']:.2f}  python {w['python']:.2f}  "
+              f"siconos {_fmt(w['siconos'], 2)}  mujoco {_fmt(w['mujoco'], 2)} us per step")
+
+    def peer_info(p):
+        done = [r for (q, _), r in peer_runs.items() if q == p and "why" not in r]
+        if not done:
+            return None
+        return {"version": done[0]["version"], "timer": done[0]["timer"],
+                "settings": {s: r["settings"] for (q, s), r in peer_runs.items() if q == p and "why" not in r},
+                "not_expressible": {s: r["why"] for (q, s), r in peer_runs.items() if q == p and "why" in r}}
+
+    res = {"cases": cases, "whole_runs": runs, **{p: peer_info(p) for p in PEERS},
+           "machine": platform.processor() or platform.machine(), "python": platform.python_version(),
+           "cpus": os.cpu_count(), "load": os.getloadavg()[0], "nice": os.nice(0), "repeat": a.repeat,
+           "versions": versions(),
+           "note": "us per step: moreau-sim the median over states of the best of `repeat` timings; peers the "
+                   "median over the phase's steps of the best of `repeat` timed whole runs; whole runs wall / steps"}
+    res["verdicts"] = verdicts(res)
+    for v in res["verdicts"]:
+        print(f"{v['target']:55s} {v['shown']:40s} {'-' if v['met'] is None else ('met' if v['met'] else 'MISSED')}")
+    a.out.mkdir(parents=True, exist_ok=True)
+    (a.out / "compiled_costs.json").write_text(json.dumps(res, indent=1, default=_jsonable))
+    plot(res, a.out / "compiled_costs.png")
+    print(f"wrote {a.out / 'compiled_costs.json'} and .png")
+
+
+if __name__ == "__main__":
+    main()

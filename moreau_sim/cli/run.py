@@ -1,0 +1,256 @@
+"""`moreau-sim run`, `info`, `outcomes` and `plot`: the commands over a scene or a trajectory (docs/cli.md)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import tempfile
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ..checkpoint import Checkpoint
+from ..errors import MoreauSimError, SceneError, SimulationError, SimulationInterrupted
+from ..model import build_model
+from ..scene import load_scene
+from ..simulate import simulate, summary
+from .common import fail
+
+
+def _load(scene: str, **overrides):
+    try:
+        sc = load_scene(scene)
+    except MoreauSimError as exc:
+        fail(str(exc))
+    try:
+        sc = sc.with_options(**overrides)
+    except MoreauSimError as exc:  # "options: restitution: ..." -> "--restitution: ..."
+        fail(f"command line: {str(exc).replace('options: ', '--', 1).replace('_', '-')}")
+    try:
+        return sc, build_model(sc)
+    except MoreauSimError as exc:
+        fail(str(exc))
+
+
+def _settings(settings) -> dict:
+    """--set NAME=VALUE pairs -> option overrides, parsed as a sweep's one-value --param."""
+    from ..sweep import parse_settings
+
+    try:
+        return parse_settings(settings)
+    except MoreauSimError as exc:
+        fail(f"command line: {exc}")
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _output(out: str | None, sc) -> Path:
+    """Where `run` writes: -o/--out as given; else the scene's [output] file, resolved in the
+    scene's folder and never outside it; else NAME.npz here. Checked writable before simulating."""
+    if out:
+        path, where = Path(out), f"--out {out}"
+    elif sc.output:
+        base = (sc.path.parent if sc.path else Path.cwd()).resolve()
+        path, where = (base / sc.output).resolve(), f"{sc.path} [output] file = {sc.output!r}"
+        if not path.is_relative_to(base):
+            fail(f"{where}: must stay inside the scene's folder {base}; give -o/--out to write elsewhere")
+    else:
+        path, where = Path(f"{sc.name}.npz"), "output"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".check"):
+            pass
+    except OSError as exc:
+        fail(f"{where}: cannot write there ({exc.strerror or exc}); nothing was simulated")
+    if path.is_dir():
+        fail(f"{where}: is a folder; give a file name")
+    return path
+
+
+def _show_progress(flag: bool | None, as_json: bool) -> bool:
+    """--progress forces the bar, --no-progress hides it; by default it is drawn on a terminal only
+    (never into a log file or a CI log)."""
+    return (sys.stderr.isatty() if flag is None else flag) and not as_json
+
+
+def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
+    """simulate() for `run`, its recorded rows waiting in unnamed files beside the output instead of
+    in memory (docs/output.md); a stop saves the samples so far as FILE.partial.npz and exits."""
+    try:
+        return simulate(model, progress=progress, checkpoint=ck, spill=out.parent)
+    except SceneError as exc:  # a damaged checkpoint, or one of another run
+        fail(str(exc))
+    except SimulationInterrupted as exc:
+        partial = out.with_name(out.stem + ".partial.npz")
+        exc.trajectory.save(partial)
+        again = (f"; --resume continues from the last checkpoint {ck.path}" if ck is not None and ck.path.exists()
+                 else "")
+        click.echo(f"moreau-sim: {exc}; the samples so far are in {partial} (meta status 'failed'){again}", err=True)
+        sys.exit(130)
+    except SimulationError as exc:
+        partial = out.with_name(out.stem + ".partial.npz")
+        if exc.trajectory is not None:
+            exc.trajectory.save(partial)
+            fail(f"{exc}\n  nothing written to {out}; the samples up to the failure are in {partial} "
+                  "(meta status 'failed')")
+        fail(str(exc))
+
+
+@click.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--dt", type=float, help="Time step h [s] (overrides the scene).")
+@click.option("--duration", type=float, help="Simulated time [s].")
+@click.option("--restitution", "-e", type=float, help="Global restitution e in [0, 1].")
+@click.option("--save-every", type=int, help="Record every N steps.")
+@click.option("--qp-form", type=click.Choice(["primal", "dual"]), help="Form of the impact QP.")
+@click.option("--set", "-s", "settings", multiple=True, metavar="NAME=VALUE",
+              help="Any option of the scene's [simulation] table, by its scene-file name (repeatable), "
+                   "e.g. --set bias=explicit --set gravity=[0,0,-1.62] (docs/scenes.md).")
+@click.option("--out", "-o", type=click.Path(dir_okay=False), help="Output NPZ (default: the scene's [output] file).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.option("--progress/--no-progress", default=None,
+              help="Progress bar on runs longer than 2 s (default: only when stderr is a terminal).")
+@click.option("--checkpoint-every", type=float, metavar="SECONDS",
+              help="Save a checkpoint FILE.checkpoint.npz every SECONDS of simulated time (time-stepping runs).")
+@click.option("--resume", is_flag=True,
+              help="Continue from FILE.checkpoint.npz if it exists; the result is bit-identical to an "
+                   "uninterrupted run.")
+def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as_json, progress, checkpoint_every,
+        resume):
+    """Simulate SCENE and write a self-describing NPZ."""
+    overrides = _settings(settings)
+    for key, value in (("dt", dt), ("duration", duration), ("restitution", restitution), ("save_every", save_every),
+                       ("qp_form", qp_form)):
+        if value is not None:
+            overrides[key] = value
+    sc, model = _load(scene, **overrides)
+    out = _output(out, sc)
+    if checkpoint_every is not None and not (checkpoint_every > 0 and np.isfinite(checkpoint_every)):
+        fail(f"command line: --checkpoint-every: must be a finite time > 0 s, got {checkpoint_every!r}")
+    ck = None
+    if checkpoint_every is not None or resume:
+        ck = Checkpoint(path=out.with_name(out.stem + ".checkpoint.npz"), every=checkpoint_every, resume=resume,
+                        keep=True)
+        if resume and not ck.path.exists():
+            click.echo(f"moreau-sim: no checkpoint {ck.path}: starting from the beginning", err=True)
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM as Ctrl-C: the samples so far are kept
+    try:
+        traj = _simulate(model, out, ck, _show_progress(progress, as_json))
+        traj.save(out)
+    except OSError as exc:  # the output's folder filled up (the run's spill files, a partial file, the output)
+        fail(f"{out.parent}: cannot write there ({exc.strerror or exc}); nothing written to {out}")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    if ck is not None:
+        ck.path.unlink(missing_ok=True)  # the run is complete and saved
+    s = summary(traj)
+    s["output"] = str(out)
+    if as_json:
+        click.echo(json.dumps(s, indent=2))
+        return
+    if s["integrator"] == "event-driven":
+        how = f"{s['events']} events (event-driven)"
+    elif s["integrator"] == "adaptive":
+        how = (f"{s['steps'] - s['steps_fixed']} extrapolated and {s['steps_fixed']} fixed steps (h = "
+               f"{sc.options.dt:g} s), {s['events']} events (adaptive)")
+    else:
+        how = f"{s['steps']} steps of h = {sc.options.dt:g} s"
+    click.echo(f"{s['scene']}: {how} to t = {s['t_end']:g} s, e = {sc.options.restitution:g}")
+    click.echo(f"  impacts {s['impacts']}, percussions logged {s['percussions_logged']}"
+               + (f", corner impacts with several outcomes {s['branching_steps']}" if s["branching_steps"] else ""))
+    click.echo(f"  energy {s['energy_start']:.6g} J -> {s['energy_end']:.6g} J "
+               f"(contact work {s['contact_work_total']:.6g} J, max rise {s['energy_max_increase']:.3g} J)")
+    if s["law_difference_max"] is not None:
+        click.echo(f"  ledger: smooth error {s['smooth_error_total']:.3g} J, impacts against the law within "
+                   f"{s['law_difference_max']:.2g} J (docs/regression.md)")
+    if s["min_gap"] is not None:
+        click.echo(f"  min gap {s['min_gap']:.3g} m")
+    per_step = f", {s['us_per_step']:.1f} us/step" if s["us_per_step"] is not None else ""  # event-driven: no steps
+    click.echo(f"  wall {s['wall_seconds']:.3f} s{per_step}  -> {out}")
+
+
+@click.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print as JSON.")
+def info(scene, as_json):
+    """Dofs, bodies, collision pairs, e and h of SCENE."""
+    sc, model = _load(scene)
+    d = model.describe()
+    if as_json:
+        click.echo(json.dumps(d, indent=2))
+        return
+    click.echo(f"{d['scene']}: nq = {d['nq']}, nv = {d['nv']}, e = {d['restitution']:g}, h = {d['dt']:g} s, "
+               f"duration = {d['duration']:g} s, gravity = {d['gravity']}")
+    for b in d["bodies"]:
+        click.echo(f"  body {b['name']}: root {b['root_joint']}, nq = {b['nq']}, nv = {b['nv']} ({b['urdf']})")
+    click.echo(f"  collision pairs ({len(d['collision_pairs'])}):")
+    for p in d["collision_pairs"]:
+        click.echo(f"    {p}")
+
+
+@click.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--trajectory", "npz", type=click.Path(dir_okay=False),
+              help="Take the state from this trajectory NPZ (the sample nearest --time).")
+@click.option("--time", "t", type=float, default=0.0, show_default=True, help="Sample time [s] in --trajectory.")
+@click.option("--restitution", "-e", type=float, help="Restitution e (default: the scene's).")
+@click.option("--json", "as_json", is_flag=True, help="Print as JSON.")
+def outcomes(scene, npz, t, restitution, as_json):
+    """Every admissible outcome of the impact at a state of SCENE (its initial state by default).
+
+    At a corner (a vertex at an edge or vertex of a box) the law has several stationary points:
+    all are listed with their distance 1/2 |v - u-|_M^2, the global minimizers marked, and the one
+    the scene's corner_selection policy picks."""
+    from ..outcomes import impact_outcomes
+    from ..state import State
+    from ..trajectory import load_trajectory
+
+    sc, model = _load(scene, restitution=restitution)
+    state = None
+    if npz:
+        try:
+            traj = load_trajectory(npz)
+        except ValueError as exc:
+            fail(str(exc))
+        i = int(abs(traj.t - t).argmin())
+        if traj.q.shape[1] != model.nq:
+            fail(f"{npz}: its q has {traj.q.shape[1]} coordinates, scene {scene} has nq = {model.nq}")
+        state = State(float(traj.t[i]), traj.q[i], traj.u[i])
+    else:
+        from ..model import initial_state
+        state = initial_state(model)
+    res = impact_outcomes(model, state)
+    if as_json:
+        click.echo(json.dumps({"scene": sc.name, "t": state.t, "u_minus": state.u.tolist(),
+                               "restitution": sc.options.restitution,
+                               "outcomes": [{"u_plus": o.u_plus.tolist(), "v": o.v.tolist(), "distance": o.distance,
+                                             "energy_loss": o.energy_loss, "global_min": o.global_min,
+                                             "selected": o.selected, "pieces": o.pieces} for o in res]}, indent=2))
+        return
+    click.echo(f"{sc.name} at t = {state.t:g} s, e = {sc.options.restitution:g}, u- = {np.round(state.u, 6).tolist()}:"
+               f" {len(res)} admissible outcome(s)")
+    for k, o in enumerate(res):
+        flags = ("global min" if o.global_min else "stationary") + (", selected" if o.selected else "")
+        click.echo(f"  [{k}] u+ = {np.round(o.u_plus, 6).tolist()}  distance {o.distance:.6g} J  "
+                   f"energy loss {o.energy_loss:.6g} J  ({flags})  {o.pieces}")
+
+
+@click.command()
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--out", "-o", "png", type=click.Path(dir_okay=False), help="PNG to write (default: FILE with .png).")
+@click.option("--save", "png", type=click.Path(dir_okay=False), hidden=True)  # the old name of --out
+@click.option("--panels", default="energy,gap,percussion", show_default=True,
+              help="Comma-separated panels among energy, gap, percussion, q, u.")
+def plot(file, png, panels):
+    """Energy, gaps, percussions (and q, u) against time from a trajectory FILE."""
+    from ..plot import save
+
+    try:
+        path = save(file, png or Path(file).with_suffix(".png"), [p.strip() for p in panels.split(",") if p.strip()])
+    except ValueError as exc:
+        fail(str(exc))
+    click.echo(f"wrote {path}")
