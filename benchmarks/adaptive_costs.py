@@ -5,7 +5,7 @@ A benchmark, not a test. Per case (a bundled scene at a restitution, over T [s])
                 swept over RTOLS
   event-driven  the event-driven integrator (docs/theory.md §7), DOP853, its default tolerances
   fixed step    the midpoint Moreau step at h = 1e-3 and 1e-4 (ms.simulate)
-CPU time: time.process_time() around the integration loop alone (AdaptiveRun.run, EventDrivenRun.run
+CPU time: time.process_time() around the integration loop alone (driver.drive of AdaptiveRun, EventDrivenRun
 recording t = 0 and T; the fixed step: ms.step in a loop storing q and u, benchmarks.work_precision.run_moreau),
 best of `repeat` (the fixed step at h = 1e-4: once), per simulated second. The error comes from
 the same integrator recorded where the error is read (the samples of the adaptive and event-driven
@@ -35,6 +35,7 @@ import numpy as np
 
 import moreau_sim as ms
 from moreau_sim.adaptive import DEFAULT_ORDER, AdaptiveRun, simulate_adaptive
+from moreau_sim.driver import drive
 from moreau_sim.event_driven import EventDrivenRun, simulate_event_driven
 from moreau_sim.recording import versions
 from moreau_sim.testing import metrics
@@ -101,12 +102,11 @@ class Case:
 
 
 def _run_cpu(model: ms.Model, T: float, make) -> float:
-    """CPU seconds of integ.run alone (integ = make(model, data)), recording t = 0 and T only."""
+    """CPU seconds of the driven run alone (integ = make(model, data, T), driver.drive), recording t = 0 and T only."""
     data = ms.make_data(model)
-    integ = make(model, data)
-    integ.rec = ms.Recorder(model, data, 2)
+    integ = make(model, data, T)
     c0 = time.process_time()
-    integ.run(ms.initial_state(model), T, np.array([0.0, T]))
+    drive(integ, model, data, grid=np.array([0.0, T]))
     return time.process_time() - c0
 
 
@@ -114,12 +114,13 @@ def bench_case(case: Case, repeat: int) -> dict:
     m, T, e = case.model, case.T, case.e
     out = {"label": case.label, "scene": case.scene, "e": e, "T": T, "kind": case.kind, "adaptive": [], "fixed": []}
     for rtol in RTOLS:
-        cpu = min(_run_cpu(m, T, lambda mm, d, r=rtol: AdaptiveRun(mm, d, e, r, r / 100, DEFAULT_ORDER, 1.0, 10 ** 6))
+        cpu = min(_run_cpu(m, T, lambda mm, d, T, r=rtol: AdaptiveRun(mm, d, e, r, r / 100, DEFAULT_ORDER, 1.0, 10 ** 6,
+                                                                       t_end=T))
                   for _ in range(repeat))
         tr = simulate_adaptive(m, t_end=T, rtol=rtol, atol=rtol / 100, t_eval=case.grid)
         out["adaptive"].append({"rtol": rtol, "cpu_per_sim_s": cpu / T, "error": case.error(tr),
                                 "impacts": tr.meta["run"]["impacts"], "events": tr.meta["run"]["events"]})
-    cpu = min(_run_cpu(m, T, lambda mm, d: EventDrivenRun(mm, d, e, 1e-12, 1e-12, "DOP853", 1e-2, 100_000))
+    cpu = min(_run_cpu(m, T, lambda mm, d, T: EventDrivenRun(mm, d, e, 1e-12, 1e-12, "DOP853", 1e-2, 100_000, t_end=T))
               for _ in range(repeat))
     tr = simulate_event_driven(m, t_end=T, t_eval=case.grid)
     out["event_driven"] = {"cpu_per_sim_s": cpu / T, "error": case.error(tr), "impacts": tr.meta["run"]["impacts"]}
@@ -249,7 +250,8 @@ def main(argv=None) -> int:
             "wall_seconds": time.time() - wall0, "cpus": os.cpu_count(), "load_start": load0,
             "load_end": os.getloadavg()[0], "repeat": a.repeat, "versions": versions(),
             "cpu_time": "time.process_time() around the integration loop alone, per simulated second "
-                        "(AdaptiveRun.run / EventDrivenRun.run recording t = 0 and T; work_precision.run_moreau)"}
+                        "(driver.drive of AdaptiveRun / EventDrivenRun, recording t = 0 and T; "
+                        "work_precision.run_moreau)"}
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "adaptive_costs.json").write_text(json.dumps({"meta": meta, "cases": cases}, indent=1))
     print(f"wrote {a.out / 'adaptive_costs.json'} ({time.time() - wall0:.0f} s wall)")

@@ -43,6 +43,7 @@ import pinocchio as pin
 
 import moreau_sim as ms
 from moreau_sim.adaptive import AdaptiveRun
+from moreau_sim.driver import drive
 from moreau_sim.event_driven import simulate_event_driven
 from moreau_sim.options import Options, QPForm
 from moreau_sim.recording import versions
@@ -127,19 +128,17 @@ def run_moreau(model: ms.Model, h: float, T: float) -> dict:
 
 
 def run_adaptive(model: ms.Model, rtol: float, T: float, t_eval: np.ndarray) -> dict:
-    """The adaptive integrator at rtol (atol = rtol / 100), default order: AdaptiveRun.run timed with
+    """The adaptive integrator at rtol (atol = rtol / 100), default order: the driver's run (driver.drive) timed with
     process_time on a run that records only t = 0 and T; then the same run (its steps do not depend
     on the sample instants: samples come from the dense output) recorded at t_eval, untimed."""
     def once(grid):
         data = ms.make_data(model)
-        integ = AdaptiveRun(model, data, model.options.restitution, rtol, rtol / 100, 6, 1.0, 10 ** 6)
-        integ.rec = ms.Recorder(model, data, len(grid))
+        integ = AdaptiveRun(model, data, model.options.restitution, rtol, rtol / 100, 6, 1.0, 10 ** 6, t_end=T)
         c0 = time.process_time()
-        integ.run(ms.initial_state(model), T, grid)
-        return time.process_time() - c0, integ
-    cpu, integ = once(np.array([0.0, T]))
-    _, sampled = once(t_eval)
-    a = sampled.rec.arrays()
+        traj = drive(integ, model, data, grid=grid)
+        return time.process_time() - c0, integ, traj
+    cpu, integ, _ = once(np.array([0.0, T]))
+    a = once(t_eval)[2].arrays
     return {"t": a["t"], "q": a["q"], "u": a["u"], "cpu_seconds": cpu, "steps": integ.accepted + integ.fixed,
             "steps_fixed": integ.fixed, "events": integ.events}
 

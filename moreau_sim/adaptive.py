@@ -1,67 +1,31 @@
 """The adaptive integrator (docs/theory.md §8): extrapolated symmetric midpoint steps with error
-control between events, impacts located on the per-feature gaps, fixed Moreau steps where that
-does not apply.
+control and a quintic Hermite dense output between events, impacts located on the per-feature
+gaps (gaps.py) and resolved by event_rules.FeatureContacts.resolve, fixed Moreau steps where
+those do not apply; the loop is driver.drive (§9).
 
     traj = simulate_adaptive(model)          # or ms.run(path, integrator="adaptive", rtol=..., atol=...)
-
-Smooth phases. The base step is the contact-free midpoint step with the midpoint bias
-(stepper.free_velocity, Bias.MIDPOINT), or, with a persistent set C, the same step on the
-constrained accelerations a_C(q, u) of features.FeatureContacts.dynamics:
-
-    q_m = q (+) h/2 u,   u1 = u + h a(q_m, (u + u1)/2),   q1 = q_m (+) h/2 u1
-
-It is symmetric, so its error expands in h^2: n = 1, 2 (, 3, 4) steps of H/n extrapolated to
-h -> 0 (Aitken-Neville in h^2) give orders 4, 6, 8. q is extrapolated in the tangent space
-about the step's start (pin.difference / pin.integrate). The difference of the last two
-columns is the error estimate, in scipy solve_ivp's RMS norm with scale atol + rtol max(|y0|,
-|y1|), y = (pin.difference(neutral, q), u); a step with error norm > 1 is refused; the next
-step is H * min(MAX_FACTOR, max(MIN_FACTOR, SAFETY err^(-1/(order-1)))).
-
-Dense output: a quintic Hermite interpolant in the tangent space from (q, u, a) at both ends of
-an accepted step gives the samples and the event functions between step ends.
-
-Events. The gaps of the free features are checked on the quintic Hermite of g (from g, gamma,
-W'a + drift at both ends) at CHECK_POINTS instants of each accepted step; the first crossing
-below 0 is located on that polynomial (Brent), the step is re-taken from its start to the root
-and landed on g = 0 by Newton corrections dt = -g/gamma on the re-taken step (LAND_ITER at
-most; impact times to round-off). A persistent contact's multiplier crossing -LAM_EPS
-(release) and a feature just released (g < G_RES/2) coming back (gamma < -2 V_TOL) are located
-likewise. Box-box gaps (docs/theory.md §7.1: maxima over faces, edge pairs' stand-ins) are not
-smooth enough for the quintic: while two boxes' bounding spheres overlap a step moves no point
-more than BOX_TRAVEL of the smallest half side, and those that could close within the step are
-evaluated on the dense output at the check instants (a persistent one passing its region's end
-by G_REGION is a release, located likewise). At every event, features.FeatureContacts.resolve
-decides as in the event-driven integrator: the law (law.impact on the contacts contacts.detect
-closes, or a corner's set-valued law, with the Zeno rule), then the acceleration-level problem
-that decides the persistent set C.
-
-Fixed steps (stepper.step at the scene's dt, the percussion log as ms.simulate's): the whole
-run when a pair has no per-feature gap (features.UnsupportedModel) or there are more than
-MAX_FEATURES features besides box pairs' (very many contacts); and when events accumulate
-(BURST_EVENTS events within one dt, or no progress in time). Back to extrapolated steps after
-BACK_STEPS consecutive fixed steps with no closed contact, or whose closed contacts all move
-slower than V_BACK (at rest); FeatureContacts.resolve then takes over at that state (the Zeno
-rule ends what is left of an accumulation). The count doubles whenever a fallback follows
-within 10 BACK_STEPS steps of a return (no ping-pong). meta["run"] counts extrapolated, refused
-and fixed steps and events; meta["fallbacks"] lists each switch with its time and reason.
 """
 
 from __future__ import annotations
 
-import time
+from enum import Enum
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from .data import Data, make_data
 from .errors import SimulationError
-from .features import (G_REGION, G_RES, LAM_EPS, V_TOL, FeatureContacts, UnsupportedModel,
-                       feature_list, run_recorded, sample_grid)
+from .checkpoint import Checkpoint
+from .driver import Check, drive
+from .event_rules import G_REGION, G_RES, LAM_EPS, V_TOL, FeatureContacts, sample_grid
+from .gaps import UnsupportedModel, feature_list
 from .model import Model, initial_state
 from .options import Bias
+from .protocol import FixedStep, Report, Segment, Status
 from .recording import run_metadata
 from .state import State
-from .stepper import MIDPOINT_ITERATIONS, free_velocity, step
+from .stepper import free_velocity, midpoint_fixed_point, step
 from .trajectory import Trajectory
 
 ORDERS = (4, 6, 8)  # n = 1..order/2 midpoint steps of H/n, extrapolated in h^2
@@ -139,11 +103,23 @@ class _End:
         self.near = near  # the watched box features whose pair's bounding spheres overlap
 
 
-class AdaptiveRun(FeatureContacts):
-    """One adaptive run (mutable bookkeeping; the public API is simulate_adaptive)."""
+class _Mode(Enum):
+    """Where an adaptive run is: at an event (the decisions are next), in a phase, in fixed steps."""
+
+    EVENT = "event"
+    PHASE = "phase"
+    FIXED = "fixed"
+
+
+class AdaptiveRun:
+    """The adaptive integrator behind the step protocol (protocol.py; the public API is
+    simulate_adaptive): a step is an accepted extrapolated step, a landing on an event, or a
+    fixed step."""
+
+    grid = True
 
     def __init__(self, model: Model, data: Data, e: float, rtol: float, atol: float, order: int,
-                 max_step: float, max_events: int):
+                 max_step: float, max_events: int, *, state: State | None = None, t_end: float = np.inf):
         try:
             feats, self.unsupported = feature_list(model), None
         except UnsupportedModel as exc:
@@ -155,7 +131,9 @@ class AdaptiveRun(FeatureContacts):
         n = sum(f.box is None for f in feats)
         if n > MAX_FEATURES:
             feats, self.unsupported = (), f"{n} features (not counting box pairs') > MAX_FEATURES = {MAX_FEATURES}"
-        super().__init__(model, data, e, feats)
+        self.rules = FeatureContacts(model, data, e, feats)  # the contact decisions at events (event_rules.py)
+        self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
+        self.pm, self.pd, self.nv, self.zero = model.pin, data.pin, model.nv, np.zeros(model.nv)
         self.is_box = np.array([f.box is not None for f in self.feats], bool)
         self.box_half = min([min(f.box.a.half, f.box.b.half) for f in self.feats if f.box is not None], default=np.inf)
         if order not in ORDERS:
@@ -165,12 +143,23 @@ class AdaptiveRun(FeatureContacts):
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         self.neutral = pin.neutral(model.pin)
         self.h_fix = model.options.dt
-        self.corr = 0.0
         self.events = self.accepted = self.rejected = self.fixed = self.landings = 0
         self.fallbacks: list[dict] = []
         self.back_steps = BACK_STEPS
-        self.burst: list[float] = []
-        self.gi = 0
+        self.burst: list[float] = []  # the times of the events within the last dt
+        state = state or initial_state(model)
+        self.state = State(float(state.t), np.array(state.q, float), np.array(state.u, float))
+        self.t0, self.t_end, self.t = self.state.t, float(t_end), self.state.t
+        self.H = min(self.max_step, 10.0 * self.h_fix)  # [s] the next extrapolated step
+        self.t_back, self.stuck = -np.inf, 0  # the last return from fixed steps; events without progress
+        self.released: frozenset = frozenset()  # released at the current event: not re-admitted there
+        self.C, self.shadow, self.low, self.watch, self.e0 = (), (), [], [], None  # the phase's sets (_phase)
+        self.previous_fresh, self.quiet = False, 0  # fixed steps: the first of a stretch; quiet ones in a row
+        self.mode = _Mode.EVENT
+        if self.unsupported is not None:
+            self.mode = _Mode.FIXED
+            self.previous_fresh = True
+            self.fallbacks.append({"t": self.t, "reason": self.unsupported})
 
     # ---- the extrapolated step -------------------------------------------------------------
     def _midpoint(self, q, u, h, C):
@@ -184,15 +173,9 @@ class AdaptiveRun(FeatureContacts):
             u1 = free_velocity(self.model, self.data, q_m, u, h, Bias.MIDPOINT)
         else:
             def acc(v):
-                return self.dynamics(q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
-            u1 = u + h * acc(u)
+                return self.rules.dynamics(q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
             tol = FIXED_POINT * (self.atol + self.rtol * float(np.abs(u).max()))
-            for _ in range(MIDPOINT_ITERATIONS):
-                nxt = u + h * acc(0.5 * (u + u1))
-                done = float(np.abs(nxt - u1).max()) <= tol
-                u1 = nxt
-                if done:
-                    break
+            u1 = midpoint_fixed_point(acc, u, h, u + h * acc(u), tol)
         return pin.integrate(pm, q_m, 0.5 * h * u1), u1
 
     def _delta(self, q0, q):
@@ -223,11 +206,11 @@ class AdaptiveRun(FeatureContacts):
         return float(np.sqrt(np.mean((d / sc) ** 2)))
 
     def _end(self, t, q, u, C, idx) -> _End:
-        a, lam = self.dynamics(q, u, C)
-        margin = self.margin.copy() if C else np.zeros(0)  # C's, from dynamics' features call
+        a, lam, fc = self.rules.dynamics(q, u, C)
+        margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
         if idx:
-            fs = self.features(q, u, idx)
-            near = self.is_box[idx] & np.isfinite(self.margin)
+            fs = self.rules.features(q, u, idx)
+            near = self.is_box[idx] & np.isfinite(fs.margin)
             return _End(t, q, u, a, lam, fs.g, fs.gamma, fs.W.T @ a + fs.drift, margin, near)
         z = np.zeros(0)
         return _End(t, q, u, a, lam, z, z, z, margin, np.zeros(0, bool))
@@ -257,26 +240,20 @@ class AdaptiveRun(FeatureContacts):
             return pin.integrate(self.pm, e0.q, d), J @ s
         return at
 
-    def _sample_step(self, e0: _End, e1: _End, t_grid, n_contacts: int, last: bool) -> None:
-        """Record the grid instants before e1.t (up to and including it if `last`) on the step."""
-        gi, H = self.gi, e1.t - e0.t
-        if gi < len(t_grid) and (t_grid[gi] < e1.t or (last and t_grid[gi] <= e1.t)):
-            at = self._dense(e0, e1)
-            while gi < len(t_grid) and (t_grid[gi] < e1.t or (last and t_grid[gi] <= e1.t)):
-                tg = float(t_grid[gi])
-                if tg >= e1.t:
-                    q, u = e1.q, e1.u
-                elif H > 0:
-                    q, u = at(min(max((tg - e0.t) / H, 0.0), 1.0))
-                else:
-                    q, u = e0.q, e0.u
-                self.sample(tg, q, u, n_contacts)
-                gi += 1
-        self.gi = gi
+    def _segment(self, e0: _End, e1: _End, n_contacts: int, last: bool) -> Segment:
+        """The grid instants before e1.t (up to and including it if `last`) on the step, sampled on
+        its dense output (built on first use)."""
+        H, at = e1.t - e0.t, []
 
-    def sample(self, t: float, q: np.ndarray, u: np.ndarray, n_contacts: int) -> None:
-        super().sample(t, q, u, n_contacts, self.corr)
-        self.corr = 0.0
+        def dense(tg: float):
+            if tg >= e1.t:
+                return e1.q, e1.u
+            if H > 0:
+                if not at:
+                    at.append(self._dense(e0, e1))
+                return at[0](min(max((tg - e0.t) / H, 0.0), 1.0))
+            return e0.q, e0.u
+        return Segment(dense, e1.t, last, n_contacts)
 
     unit = "step"
 
@@ -301,13 +278,13 @@ class AdaptiveRun(FeatureContacts):
             if len(near):
                 at = self._dense(e0, e1)
                 ids = [watched[k] for k in near]
-                Gd = np.array([e0.g[near]] + [self.features(*at(x), ids, rows=False).g for x in taus[1:-1]]
+                Gd = np.array([e0.g[near]] + [self.rules.features(*at(x), ids, rows=False).g for x in taus[1:-1]]
                               + [e1.g[near]])
                 for col in np.flatnonzero((Gd < 0.0).any(axis=0)):
                     j, k = int(np.argmax(Gd[:, col] < 0.0)), int(near[col])
 
                     def fg(x, k=k):
-                        return float(self.features(*at(x), [watched[k]], rows=False).g[0]) if x < 1.0 else e1.g[k]
+                        return float(self.rules.features(*at(x), [watched[k]], rows=False).g[0]) if x < 1.0 else e1.g[k]
                     tau = _root(fg, taus[j - 1], taus[j], 1e-15) if j else 0.0
                     if best is None or tau < best[0]:
                         best = (tau, "gap", k)
@@ -347,7 +324,7 @@ class AdaptiveRun(FeatureContacts):
             for k in np.flatnonzero(e1.lam < -LAM_EPS):
                 def fl(x, k=k):
                     q, u = at(x)
-                    return float(self.dynamics(q, u, C)[1][k]) + LAM_EPS
+                    return float(self.rules.dynamics(q, u, C)[1][k]) + LAM_EPS
                 tau = _root(fl, 0.0, 1.0, 1e-13)
                 if best is None or tau < best[0]:
                     best = (tau, "release", int(k))
@@ -355,8 +332,7 @@ class AdaptiveRun(FeatureContacts):
             at = self._dense(e0, e1)
             for k in np.flatnonzero(e1.margin < -G_REGION):
                 def fm(x, k=k):
-                    self.dynamics(*at(x), C)
-                    return float(self.margin[k]) + G_REGION
+                    return float(self.rules.dynamics(*at(x), C)[2].margin[k]) + G_REGION
                 tau = _root(fm, 0.0, 1.0, 1e-13)
                 if best is None or tau < best[0]:
                     best = (tau, "release", int(k))
@@ -372,101 +348,112 @@ class AdaptiveRun(FeatureContacts):
             self.landings += 1
             if feature is None:
                 break
-            fs = self.features(q1, u1, [feature])
+            fs = self.rules.features(q1, u1, [feature])
             g, gam = float(fs.g[0]), float(fs.gamma[0])
             if abs(g) <= G_LAND or gam >= 0.0:
                 break
             H -= g / gam
         return hs, q1, u1
 
-    # ---- the run ---------------------------------------------------------------------------
-    def run(self, state: State, t_end: float, t_grid: np.ndarray) -> None:
-        t, q, u = float(state.t), np.array(state.q, float), np.array(state.u, float)
-        while self.gi < len(t_grid) and t_grid[self.gi] <= t:  # the initial state
-            self.sample(t, q, u, 0)
-            self.gi += 1
-        fixed = self.unsupported is not None
-        if fixed:
-            self.fallbacks.append({"t": t, "reason": self.unsupported})
-        released: frozenset = frozenset()
-        H = min(self.max_step, 10.0 * self.h_fix)
-        t_back, stuck = -np.inf, 0
-        while t < t_end:
-            if fixed:
-                t, q, u = self._fixed(t, q, u, t_end, t_grid)
-                fixed, t_back, stuck = False, t, 0
-                self.burst.clear()
-                continue
-            u, C, shadow = self.resolve(t, q, u, released)
-            released = frozenset()
-            nf = len(self.feats)
-            free = [i for i in range(nf) if i not in C and i not in shadow]
-            g0 = self.features(q, u, free, rows=False).g if free else np.zeros(0)
+    # ---- the run: one step() per accepted point ---------------------------------------------
+    def step(self, t_sample: float = np.inf) -> Report:
+        """A fixed step in fixed mode; else, at a phase's start, the decisions there
+        (FeatureContacts.resolve), then extrapolated steps until one is accepted, lands on an event
+        or no step size passes (module doc). t_sample [s]: the next output instant (fixed steps land on it)."""
+        if self.mode is _Mode.FIXED:
+            return self._fixed_step(t_sample)
+        records, work = (), 0.0
+        if self.mode is _Mode.EVENT:
+            records, work = self._start_phase()
+        t, q, u, t_end = self.state.t, self.state.q, self.state.u, self.t_end
+        C, watch, low = self.C, self.watch, self.low
+        e0, H = self.e0, self.H
+        while True:
+            self.t = t
+            h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)), self._box_limit(e0),
+                    self.rules.thin_limit(u, e0.a))
+            q1, u1, d = self._step(q, u, h, C)
+            err = self._error(q, u, q1, u1, d)
+            if not np.isfinite(err):  # an overflow (or a failed library call): no step size helps
+                raise SimulationError(f"the error estimate of an extrapolated step of {h:.3g} s is non-finite")
+            if err <= 1.0:
+                break
+            self.rejected += 1
+            H = h * max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
+            if H < H_MIN:  # no step size passes: fixed steps
+                self.H = min(self.max_step, 10.0 * self.h_fix)
+                self.mode = self._fall(t, self.t_back, "the error test refused every step size")
+                return Report(Status.RUNNING, t, self.state, records, work)
+        last = h >= t_end - t
+        t1 = t_end if last else t + h
+        e1 = self._end(t1, q1, u1, C, watch + low)
+        ev = self._first_event(e0, e1, len(watch), C, watch + low)
+        grow = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
+        if ev is None:
+            self.accepted += 1
+            seg = self._segment(e0, e1, len(C), last)
+            self.state, self.e0 = State(t1, q1, u1), e1
+            self.H = h * grow if h >= H else H
+            if last:
+                return Report(Status.FINISHED, t1, self.state, records, work, segments=(seg,))
+            risen = [i for k, i in enumerate(low) if e1.g[len(watch) + k] >= G_RES]
+            if risen:  # a feature rose above G_RES: its gap is watched from now on
+                self.low = [i for i in low if i not in risen]
+                self.watch = watch + risen
+                self.e0 = self._end(t1, q1, u1, C, self.watch + self.low)
+            return Report(Status.RUNNING, t1, self.state, records, work, segments=(seg,))
+        tau, kind, k = ev
+        feature = (watch + low)[k] if kind == "gap" else None
+        hs, q1, u1 = self._land(e0, tau * h, C, feature)
+        hs = min(hs, t_end - t)
+        e1 = self._end(t + hs, q1, u1, C, watch + low)
+        segs = (self._segment(e0, e1, len(C), False),)
+        self.stuck = self.stuck + 1 if hs < 1e-13 else 0
+        t = t + hs
+        self.state = State(t, q1, u1)
+        self.H = max(h, H_MIN)
+        self.released = frozenset({C[k]}) if kind == "release" else frozenset()
+        self.mode = _Mode.EVENT
+        if not t < t_end:  # (a NaN time too: the samples left then stop the run as non-finite)
+            return Report(Status.FINISHED, t, self.state, records, work, segments=segs + self._rest())
+        self.events += 1
+        if self.events > self.max_events:
+            raise SimulationError(f"more than {self.max_events} events")
+        self.burst.append(t)
+        while self.burst and self.burst[0] < t - self.h_fix:
+            self.burst.pop(0)
+        if len(self.burst) >= BURST_EVENTS or self.stuck > 100:
+            self.mode = self._fall(t, self.t_back, f"{len(self.burst)} events within dt = {self.h_fix:g} s"
+                                   if len(self.burst) >= BURST_EVENTS else "100 events without time advancing")
+        return Report(Status.RUNNING, t, self.state, records, work, segments=segs)
+
+    def _start_phase(self) -> tuple[tuple, float]:
+        """The decisions at an event (or the start, or back from fixed steps); the phase's sets."""
+        t, q, u = self.state.t, self.state.q, self.state.u
+        self.t = t
+        u, C, shadow, records, work = self.rules.resolve(t, q, u, self.released)
+        self.state = State(t, q, u)
+        self.released = frozenset()
+        self._phase(C, shadow)
+        self.mode = _Mode.PHASE
+        return records, work
+
+    def _phase(self, C, shadow, low=None, watch=None) -> None:
+        """The persistent set C, the watched features (watch; low: within G_RES of contact at the
+        phase's start, watched by their rise and return) and the step end e0 at the current state."""
+        t, q, u = self.state.t, self.state.q, self.state.u
+        if low is None:
+            free = [i for i in range(len(self.feats)) if i not in C and i not in shadow]
+            g0 = self.rules.features(q, u, free, rows=False).g if free else np.zeros(0)
             low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES]
             watch = [i for i in free if i not in low]
-            e0 = self._end(t, q, u, C, watch + low)
-            while True:  # the phase: steps until an event or t_end
-                self.t = t
-                h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)), self._box_limit(e0),
-                        self.thin_limit(u, e0.a))
-                q1, u1, d = self._step(q, u, h, C)
-                err = self._error(q, u, q1, u1, d)
-                if not np.isfinite(err):  # an overflow (or a failed library call): no step size helps
-                    raise SimulationError(f"the error estimate of an extrapolated step of {h:.3g} s is non-finite")
-                if err > 1.0:
-                    self.rejected += 1
-                    H = h * max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
-                    if H < H_MIN:
-                        break
-                    continue
-                last = h >= t_end - t
-                t1 = t_end if last else t + h
-                e1 = self._end(t1, q1, u1, C, watch + low)
-                ev = self._first_event(e0, e1, len(watch), C, watch + low)
-                grow = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
-                if ev is None:
-                    self.accepted += 1
-                    self._sample_step(e0, e1, t_grid, len(C), last)
-                    t, q, u, e0 = t1, q1, u1, e1
-                    H = h * grow if h >= H else H
-                    if last:
-                        return
-                    risen = [i for k, i in enumerate(low) if e1.g[len(watch) + k] >= G_RES]
-                    if risen:  # a feature rose above G_RES: its gap is watched from now on
-                        low = [i for i in low if i not in risen]
-                        watch = watch + risen
-                        e0 = self._end(t, q, u, C, watch + low)
-                    continue
-                tau, kind, k = ev
-                feature = (watch + low)[k] if kind == "gap" else None
-                hs, q1, u1 = self._land(e0, tau * h, C, feature)
-                hs = min(hs, t_end - t)
-                e1 = self._end(t + hs, q1, u1, C, watch + low)
-                self._sample_step(e0, e1, t_grid, len(C), False)
-                stuck = stuck + 1 if hs < 1e-13 else 0
-                t, q, u = t + hs, q1, u1
-                H = max(h, H_MIN)
-                if kind == "release":
-                    released = frozenset({C[k]})
-                break
-            if H < H_MIN:
-                fixed = self._fall(t, t_back, "the error test refused every step size")
-                H = min(self.max_step, 10.0 * self.h_fix)
-                continue
-            if t >= t_end:
-                break
-            self.events += 1
-            if self.events > self.max_events:
-                raise SimulationError(f"more than {self.max_events} events")
-            self.burst.append(t)
-            while self.burst and self.burst[0] < t - self.h_fix:
-                self.burst.pop(0)
-            if len(self.burst) >= BURST_EVENTS or stuck > 100:
-                fixed = self._fall(t, t_back, f"{len(self.burst)} events within dt = {self.h_fix:g} s"
-                                   if len(self.burst) >= BURST_EVENTS else "100 events without time advancing")
-        while self.gi < len(t_grid):  # the end instant
-            self.sample(float(t_grid[self.gi]), q, u, 0)
-            self.gi += 1
+        self.C, self.shadow, self.low, self.watch = tuple(C), tuple(shadow), list(low), list(watch)
+        self.e0 = self._end(t, q, u, C, watch + low)
+
+    def _rest(self) -> tuple[Segment, ...]:
+        """The grid instants left at the end (the state there, no contacts)."""
+        q, u = self.state.q, self.state.u
+        return (Segment(lambda tg: (q, u), np.inf, True, 0),)
 
     def _rise_limit(self, e0: _End, nw: int) -> float:
         """While a feature within G_RES of contact rises, steps stay below half its time to apex
@@ -484,63 +471,100 @@ class AdaptiveRun(FeatureContacts):
         v = float(np.abs(e0.u).max()) * self.model.reach
         return BOX_TRAVEL * self.box_half / v if v > 0.0 else np.inf
 
-    def _fall(self, t: float, t_back: float, reason: str) -> bool:
+    def _fall(self, t: float, t_back: float, reason: str) -> "_Mode":
         if t - t_back < 10 * self.back_steps * self.h_fix:
             self.back_steps *= 2
         self.fallbacks.append({"t": t, "reason": reason})
-        return True
+        self.previous_fresh, self.quiet = True, 0
+        return _Mode.FIXED
 
-    def _fixed(self, t, q, u, t_end, t_grid):
-        """Fixed midpoint Moreau steps of the scene's dt (landing on the sample instants) until
-        t_end, or until back_steps quiet steps (module doc) when the model has features."""
-        model, rec = self.model, self.rec
-        previous: set = set()
-        quiet = 0
-        while t < t_end:
-            self.t = t
-            nxt = min(t_grid[self.gi], t_end) if self.gi < len(t_grid) else t_end
-            # a step of dt, or onto the next sample instant when that is at most dt (+ round-off) away
-            t1 = nxt if nxt - t <= self.h_fix * (1.0 + 1e-9) else t + self.h_fix
-            h = t1 - t
-            r = step(model, self.data, State(t, q, u), h=h, e=self.e, t_next=t1)
-            if r.qp is not None and not r.qp.ok:
-                raise SimulationError(f"a fixed step's impact QP failed with status {r.qp.status}")
-            if not r.state.finite():
-                raise SimulationError("a fixed step's state became non-finite (NaN or inf)")
-            self.fixed += 1
-            self.work += r.contact_work
-            self.corr += r.correction_energy
-            previous = rec.log_percussions(rec.n, t + 0.5 * h, r.contacts, r.P, r.gamma_minus, r.gamma_plus, previous)
-            rec.account_step(rec.n, t + 0.5 * h, State(t, q, u), r, h, self.e)
-            if r.branch is not None:
-                sol, chosen, u_plus = r.branch
-                rec.branch(rec.n, t + 0.5 * h, chosen, [(up, c.distance, c.global_min)
-                                                         for up, c in zip(u_plus, sol.candidates)])
-            t, q, u = t1, r.state.q, r.state.u
-            while self.gi < len(t_grid) and t_grid[self.gi] <= t:
-                self.sample(float(t_grid[self.gi]), q, u, r.contacts.m)
-                self.gi += 1
-            if self.unsupported is not None:
-                continue
+    def _fixed_step(self, t_sample: float) -> Report:
+        """A fixed midpoint Moreau step of the scene's dt (landing on the next sample instant);
+        back to extrapolated steps after back_steps quiet ones when the model has features."""
+        t, q, u, t_end = self.state.t, self.state.q, self.state.u, self.t_end
+        self.t = t
+        nxt = min(t_sample, t_end)
+        # a step of dt, or onto the next sample instant when that is at most dt (+ round-off) away
+        t1 = nxt if nxt - t <= self.h_fix * (1.0 + 1e-9) else t + self.h_fix
+        h = t1 - t
+        r = step(self.model, self.data, self.state, h=h, e=self.e, t_next=t1)
+        if r.qp is not None and not r.qp.ok:
+            raise SimulationError(f"a fixed step's impact QP failed with status {r.qp.status}")
+        if not r.state.finite():
+            raise SimulationError("a fixed step's state became non-finite (NaN or inf)")
+        self.fixed += 1
+        rec = FixedStep(None, t + 0.5 * h, self.state, r, h, self.e, self.previous_fresh)
+        self.previous_fresh = False
+        q, u = r.state.q, r.state.u
+        self.state = State(t1, q, u)
+        segs = (Segment(lambda tg: (q, u), t1, True, r.contacts.m),)
+        out = Report(Status.RUNNING, t1, self.state, (rec,), r.contact_work, r.correction_energy, segments=segs)
+        if self.unsupported is None:
             calm = r.branch is None and (r.contacts.m == 0 or float(np.abs(r.gamma_plus).max()) <= V_BACK)
-            quiet = quiet + 1 if calm else 0
-            if quiet >= self.back_steps:
-                self.fallbacks.append({"t": t, "reason": "back to extrapolated steps"})
-                break
-        return t, q, u
+            self.quiet = self.quiet + 1 if calm else 0
+            if self.quiet >= self.back_steps:
+                self.fallbacks.append({"t": t1, "reason": "back to extrapolated steps"})
+                self.mode, self.t_back, self.stuck = _Mode.EVENT, t1, 0
+                self.burst.clear()
+        if not t1 < t_end:
+            return Report(Status.FINISHED, t1, self.state, (rec,), r.contact_work, r.correction_energy,
+                          segments=segs + self._rest())
+        return out
+
+    def progress(self) -> tuple[float, float, str]:
+        return self.state.t - self.t0, self.t_end - self.t0, "s"
+
+    def state_dict(self) -> dict:
+        s = self.state
+        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "rules": self.rules.state_dict(),
+                "mode": self.mode.value, "H": self.H, "t_back": _json(self.t_back),
+                "stuck": self.stuck, "released": sorted(self.released), "burst": self.burst,
+                "back_steps": self.back_steps, "fallbacks": self.fallbacks, "previous_fresh": self.previous_fresh,
+                "quiet": self.quiet, "counts": [self.events, self.accepted, self.rejected, self.fixed, self.landings],
+                "C": list(self.C), "shadow": list(self.shadow), "low": list(self.low), "watch": list(self.watch)}
+
+    def load_state_dict(self, d: dict) -> None:
+        self.state = State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float))
+        self.t = float(d["t_now"])
+        self.rules.load_state_dict(d["rules"])
+        self.mode, self.H = _Mode(d["mode"]), float(d["H"])
+        self.t_back = -np.inf if d["t_back"] is None else float(d["t_back"])
+        self.stuck, self.released, self.burst = int(d["stuck"]), frozenset(d["released"]), list(d["burst"])
+        self.back_steps, self.fallbacks = int(d["back_steps"]), list(d["fallbacks"])
+        self.previous_fresh, self.quiet = bool(d["previous_fresh"]), int(d["quiet"])
+        self.events, self.accepted, self.rejected, self.fixed, self.landings = d["counts"]
+        if self.mode is _Mode.PHASE:  # the step end e0 is a function of the state and the sets
+            nfev = self.rules.nfev
+            self._phase(tuple(d["C"]), tuple(d["shadow"]), d["low"], d["watch"])
+            self.rules.nfev = nfev
+
+    def meta(self, status: str, wall: float, points: int) -> dict:
+        settings = {"rtol": self.rtol, "atol": self.atol, "order": self.order, "max_step": self.max_step,
+                    "features": len(self.feats), "unsupported": self.unsupported, "lie_group": self.lie}
+        run = {"steps": self.accepted + self.fixed, "steps_extrapolated": self.accepted,
+               "steps_refused": self.rejected, "steps_landed": self.landings, "steps_fixed": self.fixed,
+               "events": self.events, "impacts": self.rules.impacts, "nfev": self.rules.nfev, "wall_seconds": wall}
+        return run_metadata(self.model, status, run, integrator="adaptive", adaptive=settings, zeno=self.rules.zeno,
+                            fallbacks=self.fallbacks)
+
+
+def _json(x: float) -> float | None:
+    return None if x == -np.inf else x
 
 
 def simulate_adaptive(model: Model, *, state: State | None = None, t_end: float | None = None,
                       rtol: float | None = None, atol: float | None = None, order: int = DEFAULT_ORDER,
                       t_eval=None, max_step: float = 1.0, max_events: int = 1_000_000,
-                      data: Data | None = None) -> Trajectory:
+                      data: Data | None = None, progress: bool = False, checkpoint: Checkpoint | None = None,
+                      spill: str | Path | None = None, check: Check | None = None) -> Trajectory:
     """Integrate `model` adaptively (module doc) from `state` (default: the scene's initial
     state) to `t_end` [s] (default: state.t + the scene's duration), restitution = the scene's e.
 
     rtol, atol: the error tolerances of the extrapolated steps (default: the scene's options
     rtol, atol); order: 4, 6 or 8; max_step [s]: bound on an extrapolated step; t_eval: sample
     instants [s] in [t0, t_end] (default: every save_every * dt, the instants ms.simulate
-    records); max_events: give up beyond this many events.
+    records); max_events: give up beyond this many events; progress, checkpoint, spill, check: as
+    ms.simulate (driver.drive).
 
     Returns a :class:`Trajectory` with ms.simulate's arrays: samples at t_eval (a sample at an
     impact instant is the post-impact state); one log row per contact percussion (log_t: the
@@ -554,15 +578,7 @@ def simulate_adaptive(model: Model, *, state: State | None = None, t_end: float 
     t_end, t_grid = sample_grid(model, state, t_end, t_eval)
     rtol = opts.rtol if rtol is None else float(rtol)
     atol = opts.atol if atol is None else float(atol)
-    integ = AdaptiveRun(model, data, opts.restitution, rtol, atol, order, max_step, max_events)
-    return run_recorded(integ, state, t_end, t_grid, _meta)
-
-
-def _meta(model: Model, integ: AdaptiveRun, status: str, wall0: float) -> dict:
-    settings = {"rtol": integ.rtol, "atol": integ.atol, "order": integ.order, "max_step": integ.max_step,
-                "features": len(integ.feats), "unsupported": integ.unsupported, "lie_group": integ.lie}
-    run = {"steps": integ.accepted + integ.fixed, "steps_extrapolated": integ.accepted, "steps_refused": integ.rejected,
-           "steps_landed": integ.landings, "steps_fixed": integ.fixed, "events": integ.events,
-           "impacts": integ.impacts, "nfev": integ.nfev, "wall_seconds": time.perf_counter() - wall0}
-    return run_metadata(model, status, run, integrator="adaptive", adaptive=settings, zeno=integ.zeno,
-                        fallbacks=integ.fallbacks)
+    integ = AdaptiveRun(model, data, opts.restitution, rtol, atol, order, max_step, max_events, state=state,
+                        t_end=t_end)
+    return drive(integ, model, data, grid=t_grid, progress=progress, checkpoint=checkpoint, spill=spill, check=check,
+                 capacity=len(t_grid))

@@ -1,14 +1,14 @@
-"""Checkpoints of a time-stepping run, and resuming from one bit-identically (docs/output.md).
+"""Checkpoints of a run (any integrator), and resuming from one bit-identically (docs/output.md).
 
     ms.run("scenes/zeno_ball.toml", duration=1000, checkpoint="ball.checkpoint.npz",
            checkpoint_every=100.0, resume=True)
 
 A checkpoint is a trajectory NPZ (trajectory.py, written atomically) of the samples, percussion
-log and branches so far, whose meta["checkpoint"] holds everything else the loop carries from
-one step to the next: the steps done, t0, the state (t, q, u), the contact work and correction
-energy since the last sample, the recorder's running ledger terms (Recorder.carried), the
-contacts of the last step (the log's new-impact test) and the
-detection's warm start (Data.warm_start: the pairs it examines, coal's cached GJK guesses).
+log and branches so far, whose meta["checkpoint"] holds everything else carried from one
+accepted point to the next: the integrator's state (its state_dict(), protocol.py), the
+driver's (driver.py: the contact work and correction energy since the last sample, the next
+grid instant, the last step's contacts), the recorder's running ledger terms (Recorder.carried)
+and the detection's warm start (Data.warm_start: the pairs it examines, coal's cached GJK guesses).
 JSON keeps floats exactly (shortest repr), so the resumed run takes the same steps on the same
 numbers as an uninterrupted one.
 """
@@ -20,13 +20,11 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
 from .data import Data
 from .errors import SceneError
 from .model import Model
 from .recording import Recorder
-from .state import State
 from .trajectory import read_npz, verify_checksum
 
 KEY = "checkpoint"
@@ -34,10 +32,10 @@ KEY = "checkpoint"
 
 @dataclass(frozen=True, kw_only=True)
 class Checkpoint:
-    """Where and how often a time-stepping run saves its checkpoint.
+    """Where and how often a run saves its checkpoint.
 
-    path: the checkpoint NPZ; every [s of simulated time]: save after every step that completes
-    a multiple of it (rounded to whole steps, at least one), None: never; resume: continue from
+    path: the checkpoint NPZ; every [s of simulated time]: save at the first accepted point (a
+    step, an event) at least this long after the previous checkpoint, None: never; resume: continue from
     `path` when it exists (it must come from the same scene, URDFs and options); keep: leave the
     file when the run completes (the CLI removes it itself once the output is saved)."""
 
@@ -52,24 +50,6 @@ class Checkpoint:
                                   and e > 0):
             raise SceneError(f"checkpoint_every: must be a finite time > 0 s, got {e!r}")
 
-    def steps(self, dt: float) -> int | None:
-        """The interval in steps of dt [s] (None: no checkpoints)."""
-        return None if self.every is None else max(1, int(round(self.every / dt)))
-
-
-@dataclass(frozen=True, slots=True)
-class Resumed:
-    """What a checkpoint restores: the steps done, t0 [s], the state, the accumulators since the
-    last sample, the last step's contacts, the wall time so far [s]."""
-
-    steps: int
-    t0: float
-    state: State
-    work: float
-    corr: float
-    previous: set
-    wall: float
-
 
 def identity(model: Model) -> dict:
     """What must match for a checkpoint to resume this run: the scene's TOML and URDF texts, options."""
@@ -79,20 +59,21 @@ def identity(model: Model) -> dict:
                                   "options": model.options.to_dict()}))
 
 
-def save(path: Path, rec: Recorder, meta: dict, *, steps: int, t0: float, state: State, work: float, corr: float,
-         previous: set, data: Data) -> None:
-    """Write the checkpoint after `steps` steps (atomically: a reader sees the old or the new one)."""
-    meta = {**meta, KEY: {"steps": steps, "t0": t0, "t": state.t, "q": state.q.tolist(), "u": state.u.tolist(),
-                          "work": work, "corr": corr, "previous": sorted(previous),
-                          "warm_start": data.warm_start(), "recorder": rec.carried(state),
+def save(path: Path, rec: Recorder, meta: dict, *, integ, loop: dict, data: Data) -> None:
+    """Write the checkpoint at the integrator's current accepted point (atomically: a reader sees
+    the old or the new one); integ: the integrator (protocol.Integrator), loop: the driver's state."""
+    state = integ.state
+    meta = {**meta, KEY: {"steps": integ.position()[0] - 1, "t": state.t, "integrator": integ.state_dict(),
+                          "loop": loop, "warm_start": data.warm_start(), "recorder": rec.carried(state),
                           "identity": identity(rec.model)}}
     rec.trajectory(meta, final=False).save(path)
 
 
-def load(path: Path, model: Model, rec: Recorder, data: Data) -> Resumed:
-    """Restore `rec` and `data` from the checkpoint at `path`, one array at a time (a spilling
-    recorder writes each to its file: a resumed run needs no more memory than the first);
-    SceneError naming the file when it is damaged or belongs to another run."""
+def load(path: Path, model: Model, rec: Recorder, data: Data, integ) -> tuple[dict, float]:
+    """Restore `integ`, `rec` and `data` from the checkpoint at `path`, the recorder one array at
+    a time (a spilling recorder writes each to its file: a resumed run needs no more memory than
+    the first); returns (the driver's state, the wall time so far [s]). SceneError naming the
+    file when it is damaged or belongs to another run."""
     try:
         with read_npz(path) as z:
             meta = json.loads(str(z["meta"]))
@@ -103,12 +84,11 @@ def load(path: Path, model: Model, rec: Recorder, data: Data) -> Resumed:
             if ck.get("identity") != identity(model):
                 raise SceneError(f"{path}: a checkpoint of another run (its scene, URDFs or options differ); "
                                  "delete it or resume with the same settings")
-            state = State(float(ck["t"]), np.array(ck["q"], float), np.array(ck["u"], float))
-            rec.restore(z, ck["recorder"], state)
+            integ.load_state_dict(ck["integrator"])
+            rec.restore(z, ck["recorder"], integ.state)
     except SceneError:
         raise
     except ValueError as exc:
         raise SceneError(f"{exc}; delete it to start again") from None
     data.restore_warm_start(ck["warm_start"])
-    return Resumed(int(ck["steps"]), float(ck["t0"]), state, float(ck["work"]), float(ck["corr"]),
-                   {tuple(p) for p in ck["previous"]}, float(meta.get("run", {}).get("wall_seconds") or 0.0))
+    return ck["loop"], float(meta.get("run", {}).get("wall_seconds") or 0.0)

@@ -1,42 +1,10 @@
-"""The set-valued Newton impact law at re-entrant corners (docs/theory.md §3; Glocker 2000, §3.4).
-
-The admissible velocities form a finite union of polyhedral convex cones (the contingent cone)
-
-    K = ∪_j K_j,   K_j = T_j ∩ S,   T_j = {v : A_j v >= 0},   S = {v : W' v >= 0},
-
-one piece per way of staying apart, S the smooth contacts of the step. The law keeps every
-stationary point of Phi(v) = 1/2 |v - v0|_M^2 + I_K(v) in Clarke's sense,
-
-    0 ∈ M (v - v0) + N^C_K(v),        u+ = (1 + e) v - e u-      (v0 = u-, or v_free in a step).
-
-Clarke normal cone used (exact when the pieces active at v share one linear span - always for
-full-dimensional pieces; otherwise the outer bound below is used. Derivation: docs/corner-law.md):
-
-    N^C_K(v) = cone{ -b : b an *exposed facet* row of the local cone L = ∪_{j∈J(v)} L_j } + V⊥,
-
-J(v) the pieces containing v, L_j = {x : b x >= 0, b the rows of piece j active at v}, V the common
-span of the L_j. A facet row b of L_j is exposed if L lies on the side b x >= 0 near some relative-
-interior point of the facet L_j ∩ b⊥, i.e. that facet is not covered by pieces reaching across b⊥.
-Why: near v, K - v = L (polyhedral, hence locally conic), so N^C_K(v) = N^C_L(0) = (T^C)° with
-T^C = {w : L + w ⊆ L}; a generic ray x + t w leaves L only through the relative interior of an
-exposed facet, hence T^C = {w : b w >= 0 for every exposed b}. The familiar "sum of the normal
-cones of the pieces containing v" (= normal cone of ∩_{J(v)} K_j) is an outer bound that is exact
-when no facet is covered, as at the corner of the note's point mass: (0, 0) is stationary for
-u- = (1, 1) because (1, 1) ∈ cone{(1, 0), (0, 1)}. It over-counts for convex or nested unions
-(it would keep (0, 0) for {x<=0, y<=0} ∪ {y<=0}), which this formula does not.
-
-Algorithm: every stationary v is the M-projection of v0 onto ∩_{j∈J(v)} K_j (since N^C ⊆ that
-intersection's normal cone), so projecting onto the intersection of each non-empty subset of pieces
-(2^p - 1 QPs, piqp) and keeping the stationary results finds all of them. Global minimizers are
-stationary by definition and are not re-checked.
-
-Tolerances (tol, default 1e-9; the problem is first scaled to |v0|_2 = 1, max diag M = 1 and unit
-rows): QPs to eps = tol/10 (duality gap included), then polished on their strictly active rows
-by one direct KKT solve; every decision (row active, v in a piece, duplicate v, cone membership
-residual, facet interior, distance tie relative to 1/2 |v0|_M^2) uses tau = sqrt(tol).
-Units: velocities in generalized units (m/s, rad/s), M in kg and kg m^2, distance in J; the
-multipliers lam satisfy M (v - v0) = [A_j; ...; W']' lam (N s for gap rows in m); the percussion
-of an impact or step is P = (1 + e) lam (docs/theory.md §2).
+"""The set-valued Newton impact law at re-entrant corners (docs/theory.md §3; Glocker 2000, §3.4):
+every Clarke-stationary point of 1/2 |v - v0|_M^2 over a union of polyhedral cones, the selection
+among them, and corner_law, the law as a step (v0 = v_free) and an impact at one instant
+(v0 = u-) apply it. The exposed-facet normal cone, the algorithm (one projection per non-empty
+subset of pieces) and the scaling and tolerances (tol = 1e-9, tau = sqrt(tol)) are derived in
+docs/corner-law.md. Units: velocities in generalized units, M in kg and kg m^2, distances in J;
+M (v - v0) = [A_j; ...; W']' lam, the percussion P = (1 + e) lam.
 """
 
 from __future__ import annotations
@@ -52,7 +20,8 @@ from .options import Selection, check_restitution
 
 MAX_PIECES = 6  # 2^6 - 1 = 63 QPs; more pieces means the contact model is wrong, not big.
 
-__all__ = ["MAX_PIECES", "Candidate", "CornerSolution", "impact_outcomes", "select", "stationary_points"]
+__all__ = ["MAX_PIECES", "Candidate", "CornerLaw", "CornerSolution", "corner_law", "impact_outcomes", "select",
+           "stationary_points"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -186,6 +155,42 @@ def select(solution: CornerSolution, policy: Selection | str = Selection.GLOBAL_
             if union <= set(c.pieces):
                 return i
     return 0
+
+
+@dataclass(frozen=True, eq=False)
+class CornerLaw:
+    """The set-valued law applied (docs/theory.md §3): v the chosen stationary point; W (nv, m + k)
+    the smooth rows then the rows of the chosen piece(s)' faces, `faces` [(corner, face)] (k);
+    lam their multipliers in that order (M (v - v0) = W lam); solution, chosen: all stationary
+    points and the index of the one taken; u_plus: each candidate's outcome when there are
+    several (a branch), else None."""
+
+    v: np.ndarray
+    W: np.ndarray
+    faces: list
+    lam: np.ndarray
+    solution: CornerSolution
+    chosen: int
+    u_plus: tuple | None
+
+
+def corner_law(M, v0, u_minus, e, W, pieces, rows, choice, *, selection: Selection | str = Selection.GLOBAL_MIN,
+               pick: int | None = None) -> CornerLaw | None:
+    """The corner law of a step (v0 = v_free) or of an impact at one instant (v0 = u_minus): the
+    stationary points over the union of `pieces` with the smooth rows W (nv, m), the one
+    `selection` picks (or candidate `pick`); rows[c]: corner c's face rows (k_c, nv); choice[j]:
+    the face per corner of piece j. None when there are more than MAX_PIECES pieces."""
+    if len(pieces) > MAX_PIECES:
+        return None
+    sol = stationary_points(M, v0, list(pieces), W if W.shape[1] else None)
+    k = select(sol, selection) if pick is None else min(pick, len(sol.candidates) - 1)
+    cand = sol.candidates[k]
+    faces = [(c, choice[j][c]) for j in cand.pieces for c in range(len(rows))]
+    face_rows = np.array([rows[c][f] for c, f in faces]).reshape(len(faces), -1).T
+    lam = np.asarray(cand.multipliers, float)
+    u_plus = None if sol.unique else tuple(outcome(np.asarray(c.v), u_minus, e) for c in sol.candidates)
+    return CornerLaw(np.array(cand.v), np.concatenate((W, face_rows), axis=1), faces,
+                     np.concatenate((lam[len(faces):], lam[:len(faces)])), sol, k, u_plus)
 
 
 # --- internals ---------------------------------------------------------------------------------

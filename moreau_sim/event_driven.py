@@ -1,80 +1,25 @@
-"""The event-driven integrator (docs/theory.md §7): smooth phases to tolerance, impacts at
-located instants.
+"""The event-driven integrator (docs/theory.md §7): smooth phases integrated to tolerance by
+scipy's solve_ivp (a Lie-group chart for a free body's quaternion), impacts at located instants;
+the decisions at an event are event_rules.FeatureContacts.resolve, the loop driver.drive (§9).
 
     traj = simulate_event_driven(model)            # same Trajectory arrays as ms.simulate
-
-Between events the motion is an ODE integrated by scipy's ``solve_ivp`` (DOP853 by default,
-rtol = atol = 1e-12): u' = a, q' = u. Euclidean q (prismatic, revolute, planar/translation
-composites) is integrated directly; a Lie-group q (the free root's quaternion) in a local chart
-q = q_b (+) delta, delta' = dIntegrate(q_b, delta)^-1 u, with the chart re-centred at every
-event and whenever |delta|_inf > 1. Accelerations: a = ABA(q, u, 0) + M^-1 W_C lam, where C is
-the set of persistent contacts, held as bilateral constraints W_C' a + Wdot_C' u = 0
-(lam from the Delassus system G lam = -(W_C' a_free + Wdot_C' u), G = W_C' M^-1 W_C).
-
-Gaps (event functions): the analytic signed gaps per *feature* of the contact layer
-(features.py, shared with the adaptive integrator), with rows w and the drift term Wdot' u:
-every vertex of a polytope against a half-space, a sphere against a half-space, a sphere
-against a sphere, a sphere against a static box, for two boxes every vertex of each in the
-other and every pair of their edges (docs/theory.md §7.1), and for cylinders the cap rims
-against a static half-space or box, the side against a static box's edges and a sphere against
-a cylinder (§7.2). Other pair types (meshes, a cylinder against a moving box or a cylinder)
-raise :class:`UnsupportedModel` naming the pair. The decisions at an event below (impact, Zeno
-rule, persistent set) are features.FeatureContacts.resolve.
-
-Events (terminal): a free feature's gap crossing 0 downwards (impact); a persistent
-contact's multiplier crossing -LAM_EPS downwards, or a persistent box feature reaching the end
-of its region (a vertex its face's edges, an edge pair its edges' ends: release), or a
-persistent feature's gap rising above the contact tolerance (open: where a gap stops being the
-distance, e.g. a cylinder's side leaving its segment's end, the stand-in jumps up and the
-constraint would otherwise hold a phantom contact; such a feature is then watched by its gap,
-not as one within G_RES). A free feature that starts a phase
-within G_RES = 1e-13 m of contact (it just bounced or separated) is watched instead by its rise
-to G_RES and by its normal velocity returning below -2 V_TOL: the sign of so small a gap is
-rounding noise, and the root finder would take a noise crossing for an impact (while it rises,
-ODE steps stay below half its time to apex, so that no rise-and-fall hides inside one step).
-A free feature within G_DIP = 1e-6 m at the start of a phase also stops it at a minimum of its
-gap (gamma rising through -V_TOL while g < G_DIP): gaps are compared at ODE step ends only, and
-a slow approach that turns back within one step could dip below 0 and out unseen. After each
-phase, a watched gap below -G_RES moves the event back to where it crossed 0 (root finding on
-the dense output).
-At every event (and at the start) :func:`EventDrivenRun.resolve` applies, in order:
-  1. Impact: if a closed feature (g <= the scene's contact_tolerance, 1e-9 m by default)
-     approaches (gamma < -V_TOL), the SAME law as the stepper, ``law.impact`` (docs/theory.md §1)
-     on the contacts ``contacts.detect`` closes at q (coal, tolerance 1e-9 m), with the scene's e
-     (between boxes, with the closed box vertices' own rows and the closed approaching edge pairs
-     coal's contacts miss: features.FeatureContacts._missed_features, docs/theory.md §7.1); at a
-     corner (docs/theory.md §3) the fixed step's set-valued law (stepper.solve_impact on a step of
-     zero length, v_free = u-) with the scene's corner_selection, a branch logged as simulate logs it.
-  2. Zeno rule (accumulation points): the impact is plastic (e = 0) if, for every approaching
-     contact, its rebound would rise less than G_ZENO = 1e-12 m, (e gamma-)^2 < 2 |a_n| G_ZENO
-     with a_n its free normal acceleration, or it is slower than V_ZENO = 1e-8 m/s; or if the
-     last impact was less than DT_ZENO = 1e-12 s ago. The rest of the infinite bounce sequence
-     is skipped and the contact becomes persistent. (Gaps are computed from positions of order
-     1 m, with a rounding of ~3e-17 m: lower bounces cannot be located reliably.) Under a locally
-     constant a_n < 0 the skipped bounces last 2 e |gamma-| / ((1 - e) |a_n|) (a geometric
-     series, ~1e-6 s at most for the ball); that is added to the declaration time and recorded
-     in meta["zeno"] as "t_accumulation".
-  3. Persistent contacts: the closed features with |gamma| <= V_TOL go through the
-     acceleration-level contact problem, min 1/2 (a - a_free)' M (a - a_free) s.t.
-     W' a >= -Wdot' u (piqp via ``law.project``): those with zero relative acceleration
-     (pushing, lam > 0, or neutral, lam = 0 with nothing pulling them apart - the touching
-     balls of a cradle) form C; the others separate. A contact released by its multiplier
-     event is not re-admitted at that instant. When C's rows are linearly dependent (the four
-     corners of a face on a face), its forces are the minimum-norm solution.
 """
 
 from __future__ import annotations
 
-import time
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from .data import Data, make_data
 from .errors import SimulationError
-from .features import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_ZENO, LAM_EPS, V_TOL,  # noqa: F401
-                       V_ZENO, FeatureContacts, UnsupportedModel, run_recorded, sample_grid)
+from .checkpoint import Checkpoint
+from .driver import Check, drive
+from .event_rules import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_ZENO, LAM_EPS, V_TOL,  # noqa: F401
+                          V_ZENO, FeatureContacts, UnsupportedModel, sample_grid)
 from .model import Model, initial_state
+from .protocol import Report, Segment, Status
 from .recording import run_metadata
 from .state import State
 from .trajectory import Trajectory
@@ -92,15 +37,26 @@ def solve_ivp(fun, t_span, y0, **kwargs):
     return ivp(fun, t_span, y0, **kwargs)
 
 
-class EventDrivenRun(FeatureContacts):
-    """One event-driven run (mutable bookkeeping; the public API is simulate_event_driven)."""
+class EventDrivenRun:
+    """The event-driven integrator behind the step protocol (protocol.py; the public API is
+    simulate_event_driven): a step is the decisions at an event and the smooth phase after it."""
+
+    unit = "phase"  # what position() counts, in error messages
+    grid = True
 
     def __init__(self, model: Model, data: Data, e: float, rtol: float, atol: float, method: str,
-                 max_step: float, max_events: int):
-        super().__init__(model, data, e)
+                 max_step: float, max_events: int, *, state: State | None = None, t_end: float = np.inf):
+        self.rules = FeatureContacts(model, data, e)  # the contact decisions at events (event_rules.py)
+        self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
+        self.pm, self.pd, self.nv = model.pin, data.pin, model.nv
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         self.rtol, self.atol, self.method, self.max_step, self.max_events = rtol, atol, method, max_step, max_events
-        self.events = 0
+        self.events = self.stuck = 0
+        state = state or initial_state(model)
+        self.state = State(float(state.t), np.array(state.q, float), np.array(state.u, float))
+        self.t0, self.t_end, self.t = self.state.t, float(t_end), self.state.t
+        self.released: frozenset = frozenset()  # released at the current event: not re-admitted there
+        self.opened: frozenset = frozenset()  # whose gap jumped open there
 
     # ---- dynamics --------------------------------------------------------------------------
     def q_of(self, qb: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -121,11 +77,11 @@ class EventDrivenRun(FeatureContacts):
             if key not in cache:
                 cache.clear()
                 q, u = self.q_of(qb, y[:self.nv]), y[self.nv:]
-                lam = self.dynamics(q, u, C)[1] if C else np.zeros(0)
-                margin = self.margin.copy() if C else np.zeros(0)  # C's, from dynamics' features call
-                gc = self.c_gaps if C else None
-                fs = self.features(q, u, watch, rows=False) if watch else None
-                fr = self.features(q, u, rated) if rated else None  # with rows: gamma
+                _, lam, fc = self.rules.dynamics(q, u, C)
+                margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
+                gc = fc.g if C else None  # C's gaps
+                fs = self.rules.features(q, u, watch, rows=False) if watch else None
+                fr = self.rules.features(q, u, rated) if rated else None  # with rows: gamma
                 cache[key] = (fs, lam, margin, fr, gc)
             return cache[key]
 
@@ -170,7 +126,7 @@ class EventDrivenRun(FeatureContacts):
         def f(t, y):
             delta, u = y[:nv], y[nv:]
             q = self.q_of(qb, delta)
-            a = self.dynamics(q, u, C)[0]
+            a = self.rules.dynamics(q, u, C)[0]
             if self.lie:
                 dq = np.linalg.solve(pin.dIntegrate(self.pm, qb, delta, pin.ArgumentPosition.ARG1), u)
             else:
@@ -183,11 +139,11 @@ class EventDrivenRun(FeatureContacts):
         (FeatureContacts.thin_limit), or while a feature that just bounced rises: its rise to G_RES
         and its fall back must not fit in one ODE step (a double crossing is invisible), so steps
         stay below half its time to apex gamma / |a_n|."""
-        limit = min(self.max_step, self.thin_limit(u, self.dynamics(q, u, C)[0]))
+        limit = min(self.max_step, self.rules.thin_limit(u, self.rules.dynamics(q, u, C)[0]))
         if not low:
             return limit
-        fs = self.features(q, u, low)
-        a_n = fs.W.T @ self.dynamics(q, u, C)[0] + fs.drift
+        fs = self.rules.features(q, u, low)
+        a_n = fs.W.T @ self.rules.dynamics(q, u, C)[0] + fs.drift
         up = (fs.gamma > V_TOL) & (a_n < 0)
         return float(min(limit, *(0.5 * fs.gamma[up] / -a_n[up]))) if up.any() else limit
 
@@ -199,7 +155,7 @@ class EventDrivenRun(FeatureContacts):
 
         def gaps(tau):
             y = sol.sol(tau)
-            return self.features(self.q_of(qb, y[:nv]), y[nv:], watch, rows=False).g
+            return self.rules.features(self.q_of(qb, y[:nv]), y[nv:], watch, rows=False).g
 
         g1 = gaps(t1)
         if not (g1 < -G_RES).any():
@@ -211,60 +167,86 @@ class EventDrivenRun(FeatureContacts):
         return min(brentq(lambda tau, k=k: gaps(tau)[k] or 1e-300, t0, t1, xtol=eps, rtol=eps, maxiter=200,
                           disp=False) for k in np.flatnonzero(g1 < -G_RES))
 
-    def run(self, state: State, t_end: float, t_grid: np.ndarray) -> None:
+    def step(self, t_sample: float = np.inf) -> Report:
+        """The decisions at the current point (FeatureContacts.resolve: impact, persistent set),
+        then the smooth phase to its first event or t_end (module doc)."""
         nv, nf = self.nv, len(self.feats)
-        t, q, u = float(state.t), np.array(state.q, float), np.array(state.u, float)
-        gi = 0
-        while gi < len(t_grid) and t_grid[gi] <= t:  # the initial state, before any impact (as simulate)
-            self.sample(t, q, u, 0)
-            gi += 1
-        released: frozenset = frozenset()
-        opened: frozenset = frozenset()
-        stuck = 0
-        while True:
-            u, C, shadow = self.resolve(t, q, u, released)
-            free = [i for i in range(nf) if i not in C and i not in shadow]
-            g0 = self.features(q, u, free, rows=False).g if free else np.zeros(0)
-            # (a feature whose gap just jumped open is watched by its gap: it is at the jump, not near 0)
-            low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES and i not in opened]
-            near = {i for i, g in zip(free, g0) if 0.5 * G_RES <= g < G_DIP}
-            qb = q.copy()
-            events, tags = self._phase_events(qb, C, free, low, near)
-            sol = solve_ivp(self._rhs(qb, C), (t, t_end), np.concatenate((np.zeros(nv), u)), method=self.method,
-                            dense_output=True, events=events or None, rtol=self.rtol, atol=self.atol,
-                            max_step=self._max_step(q, u, C, low))
-            if sol.status < 0:
-                raise SimulationError(f"solve_ivp failed: {sol.message}")
-            t_stop, end = float(sol.t[-1]), sol.status == 0
-            y_stop = sol.y[:, -1]
-            if not end:  # a gap that dipped below 0 within one ODE step: stop where it crossed
-                t_cross = self._crossing(sol, qb, t, t_stop, [i for i in free if i not in low])
-                if t_cross is not None:
-                    t_stop, y_stop = t_cross, sol.sol(t_cross)
-            while gi < len(t_grid) and (t_grid[gi] < t_stop or (end and t_grid[gi] <= t_stop)):
-                y = sol.sol(t_grid[gi])
-                self.sample(float(t_grid[gi]), self.q_of(qb, y[:nv]), y[nv:], len(C))
-                gi += 1
-            if end:
-                return
-            self.t = t_stop
-            self.events += 1
-            if self.events > self.max_events:
-                raise SimulationError(f"more than {self.max_events} events")
-            stuck = stuck + 1 if t_stop - t < 1e-13 else 0
-            if stuck > 100:
-                raise SimulationError("100 events without time advancing")
-            q, u, t = self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy(), t_stop
-            stopped = [(kind, i) for (kind, i), te in zip(tags, sol.t_events)
-                       if len(te) and abs(te[-1] - t_stop) <= 1e-12]
-            released = frozenset(i for kind, i in stopped if kind in ("release", "open"))
-            opened = frozenset(i for kind, i in stopped if kind == "open")
+        t, q, u = self.state.t, self.state.q, self.state.u
+        self.t = t
+        u, C, shadow, records, work = self.rules.resolve(t, q, u, self.released)
+        free = [i for i in range(nf) if i not in C and i not in shadow]
+        g0 = self.rules.features(q, u, free, rows=False).g if free else np.zeros(0)
+        # (a feature whose gap just jumped open is watched by its gap: it is at the jump, not near 0)
+        low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES and i not in self.opened]
+        near = {i for i, g in zip(free, g0) if 0.5 * G_RES <= g < G_DIP}
+        qb = q.copy()
+        events, tags = self._phase_events(qb, C, free, low, near)
+        sol = solve_ivp(self._rhs(qb, C), (t, self.t_end), np.concatenate((np.zeros(nv), u)), method=self.method,
+                        dense_output=True, events=events or None, rtol=self.rtol, atol=self.atol,
+                        max_step=self._max_step(q, u, C, low))
+        if sol.status < 0:
+            raise SimulationError(f"solve_ivp failed: {sol.message}")
+        t_stop, end = float(sol.t[-1]), sol.status == 0
+        y_stop = sol.y[:, -1]
+        if not end:  # a gap that dipped below 0 within one ODE step: stop where it crossed
+            t_cross = self._crossing(sol, qb, t, t_stop, [i for i in free if i not in low])
+            if t_cross is not None:
+                t_stop, y_stop = t_cross, sol.sol(t_cross)
+
+        def dense(tg: float):
+            y = sol.sol(tg)
+            return self.q_of(qb, y[:nv]), y[nv:]
+        samples = (Segment(dense, t_stop, end, len(C)),)
+        if end:
+            self.state = State(t_stop, self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy())
+            return Report(Status.FINISHED, t_stop, self.state, records, work, segments=samples)
+        self.t = t_stop
+        self.events += 1
+        if self.events > self.max_events:
+            raise SimulationError(f"more than {self.max_events} events")
+        self.stuck = self.stuck + 1 if t_stop - t < 1e-13 else 0
+        if self.stuck > 100:
+            raise SimulationError("100 events without time advancing")
+        self.state = State(t_stop, self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy())
+        stopped = [(kind, i) for (kind, i), te in zip(tags, sol.t_events) if len(te) and abs(te[-1] - t_stop) <= 1e-12]
+        self.released = frozenset(i for kind, i in stopped if kind in ("release", "open"))
+        self.opened = frozenset(i for kind, i in stopped if kind == "open")
+        return Report(Status.RUNNING, t_stop, self.state, records, work, segments=samples)
+
+    def position(self) -> tuple[int, float]:
+        return self.events + 1, self.t
+
+    def progress(self) -> tuple[float, float, str]:
+        return self.state.t - self.t0, self.t_end - self.t0, "s"
+
+    def state_dict(self) -> dict:
+        s = self.state
+        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "rules": self.rules.state_dict(),
+                "released": sorted(self.released), "opened": sorted(self.opened),
+                "stuck": self.stuck, "events": self.events}
+
+    def load_state_dict(self, d: dict) -> None:
+        self.state = State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float))
+        self.t = float(d["t_now"])
+        self.rules.load_state_dict(d["rules"])
+        self.released, self.opened = frozenset(d["released"]), frozenset(d["opened"])
+        self.stuck, self.events = int(d["stuck"]), int(d["events"])
+
+    def meta(self, status: str, wall: float, points: int) -> dict:
+        reference = {"method": self.method, "rtol": self.rtol, "atol": self.atol, "max_step": self.max_step,
+                     "gap_tol": self.gap_tol, "v_tol": V_TOL, "g_res": G_RES, "g_zeno": G_ZENO, "v_zeno": V_ZENO,
+                     "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "lie_group_chart": self.lie}
+        run = {"steps": None, "events": self.events, "impacts": self.rules.impacts, "nfev": self.rules.nfev,
+               "wall_seconds": wall}
+        return run_metadata(self.model, status, run, integrator="event-driven", reference=reference,
+                            zeno=self.rules.zeno)
 
 
 def simulate_event_driven(model: Model, *, state: State | None = None, t_end: float | None = None,
                           rtol: float = 1e-12, atol: float = 1e-12, method: str = "DOP853",
                           t_eval=None, max_step: float = 1e-2, max_events: int = 100_000,
-                          data: Data | None = None) -> Trajectory:
+                          data: Data | None = None, progress: bool = False, checkpoint: Checkpoint | None = None,
+                          spill: str | Path | None = None, check: Check | None = None) -> Trajectory:
     """Integrate `model` event by event (module doc) from `state` (default: the scene's initial
     state) to `t_end` [s] (default: state.t + the scene's duration), restitution = the scene's e.
 
@@ -272,7 +254,8 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     explicit solve_ivp method; max_step [s]: bound on an ODE step (no gap dips below 0 and back
     unseen within one step); t_eval: sample instants [s] in [t0, t_end] (default: every
     save_every * dt of the scene's options, the instants ms.simulate records);
-    max_events: give up beyond this many events.
+    max_events: give up beyond this many events; progress, checkpoint, spill, check: as
+    ms.simulate (driver.drive).
 
     Returns a :class:`Trajectory` with ms.simulate's arrays: samples at t_eval (a sample at an
     impact instant is the post-impact state, one at t0 the initial state); one log row per
@@ -286,14 +269,7 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     data = data or make_data(model)
     state = state or initial_state(model)
     t_end, t_grid = sample_grid(model, state, t_end, t_eval)
-    integ = EventDrivenRun(model, data, model.options.restitution, rtol, atol, method, max_step, max_events)
-    return run_recorded(integ, state, t_end, t_grid, _meta)
-
-
-def _meta(model: Model, integ: EventDrivenRun, status: str, wall0: float) -> dict:
-    reference = {"method": integ.method, "rtol": integ.rtol, "atol": integ.atol, "max_step": integ.max_step,
-                 "gap_tol": integ.gap_tol, "v_tol": V_TOL, "g_res": G_RES, "g_zeno": G_ZENO, "v_zeno": V_ZENO,
-                 "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "lie_group_chart": integ.lie}
-    run = {"steps": None, "events": integ.events, "impacts": integ.impacts, "nfev": integ.nfev,
-           "wall_seconds": time.perf_counter() - wall0}
-    return run_metadata(model, status, run, integrator="event-driven", reference=reference, zeno=integ.zeno)
+    integ = EventDrivenRun(model, data, model.options.restitution, rtol, atol, method, max_step, max_events,
+                           state=state, t_end=t_end)
+    return drive(integ, model, data, grid=t_grid, progress=progress, checkpoint=checkpoint, spill=spill, check=check,
+                 capacity=len(t_grid))

@@ -13,7 +13,7 @@ import pinocchio as pin
 from . import compiled, qp
 from .constraints import CornerPieces, assemble_constraints, corner_faces
 from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
-from .corners import MAX_PIECES, select, stationary_points
+from .corners import MAX_PIECES, corner_law
 from .data import Data
 from .energy import kinetic, potential
 from .errors import SimulationError
@@ -140,13 +140,19 @@ def free_velocity(model: Model, data: Data, q_m: np.ndarray, u: np.ndarray, h: f
     if bias is Bias.EXPLICIT or not model.velocity_bias:
         return u_free
     scale = MIDPOINT_TOLERANCE * (1.0 + float(np.abs(u).max()))
+    return midpoint_fixed_point(lambda v: pin.aba(pm, pd, q_m, v, zero), u, h, u_free, scale)
+
+
+def midpoint_fixed_point(acc, u: np.ndarray, h: float, u1: np.ndarray, tol: float) -> np.ndarray:
+    """The midpoint bias's fixed point u1 = u + h acc((u + u1)/2) (docs/theory.md §2.4, §8), swept
+    from u1 until a sweep changes it by at most tol, MIDPOINT_ITERATIONS sweeps at most."""
     for _ in range(MIDPOINT_ITERATIONS):
-        nxt = u + h * pin.aba(pm, pd, q_m, 0.5 * (u + u_free), zero)
-        done = float(np.abs(nxt - u_free).max()) <= scale
-        u_free = nxt
+        nxt = u + h * acc(0.5 * (u + u1))
+        done = float(np.abs(nxt - u1).max()) <= tol
+        u1 = nxt
         if done:
             break
-    return u_free
+    return u1
 
 
 def solve_impact(pb: ContactProblem, options: Options, *, form: QPForm | None = None, eps: float | None = None,
@@ -229,22 +235,15 @@ def _corner_law(pb: ContactProblem, options: Options, choice: int | None):
 
     With corners the Separating rule is not applied (the set-valued law takes no bound shift)."""
     cp, W, contacts = pb.pieces, pb.W, pb.contacts
-    if len(cp.pieces) > MAX_PIECES:
+    law = corner_law(pb.M, pb.v_free, pb.u, pb.e, W, cp.pieces, cp.rows, cp.choice,
+                     selection=options.corner_selection, pick=choice)
+    if law is None:
         res = QPResult(f"TOO_MANY_CORNER_PIECES ({len(cp.pieces)} > {MAX_PIECES})", False, 0, False, pb.v_free,
                        np.zeros(W.shape[1]))
         return res, contacts, W, None
-    sol = stationary_points(pb.M, pb.v_free, list(cp.pieces), W if W.shape[1] else None)
-    k = select(sol, options.corner_selection) if choice is None else min(choice, len(sol.candidates) - 1)
-    cand = sol.candidates[k]
-    # the chosen candidate's active rows: the faces of its pieces, then the smooth contacts
-    faces = [(c, cp.choice[j][c]) for j in cand.pieces for c in range(len(cp.corners))]
-    ext = [corner_faces(cp.corners[c], np.array([f])) for c, f in faces]
-    rows = np.array([cp.rows[c][f] for c, f in faces]).reshape(len(faces), -1).T
-    lam = np.asarray(cand.multipliers, float)
-    W_all = np.concatenate((W, rows), axis=1)
-    lam_all = np.concatenate((lam[len(faces):], lam[:len(faces)]))
-    merged = contacts.concat(*ext, corners=())
-    res = QPResult("CORNER_LAW", True, sol.qp_solves, False, np.array(cand.v), lam_all,
-                   pb.M, W_all, pb.v_free, np.zeros(W_all.shape[1]))
-    branch = None if sol.unique else (sol, k, tuple(outcome(np.asarray(c.v), pb.u, pb.e) for c in sol.candidates))
-    return res, merged, W_all, branch
+    # the chosen candidate's active rows: the smooth contacts, then the faces of its pieces
+    merged = contacts.concat(*[corner_faces(cp.corners[c], np.array([f])) for c, f in law.faces], corners=())
+    res = QPResult("CORNER_LAW", True, law.solution.qp_solves, False, law.v, law.lam,
+                   pb.M, law.W, pb.v_free, np.zeros(law.W.shape[1]))
+    branch = None if law.u_plus is None else (law.solution, law.chosen, law.u_plus)
+    return res, merged, law.W, branch

@@ -10,7 +10,8 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.features import BOX_FEATURES, Feature, FeatureContacts, feature_list
+from moreau_sim.event_rules import FeatureContacts
+from moreau_sim.gaps import BOX_FEATURES, Feature, feature_list
 
 from helpers import ROOT, scene
 
@@ -32,14 +33,14 @@ def two_boxes(moving_b: bool = True, rpy_a=(0.3, 0.2, 0.1), rpy_b=(0.1, -0.2, 0.
     return ms.build_model(b.build())
 
 
-def active_now(fc: FeatureContacts, f) -> bool:
-    """Whether f's gap was its own smooth function at fc's last call: a vertex in a box always
+def active_now(fs, f) -> bool:
+    """Whether f's gap was its own smooth function in the FeatureState fs: a vertex in a box always
     (or the bounding spheres' gap, smooth too), an edge pair when active (not a stand-in)."""
     if f.kind != "edge_edge":
         return f.kind == "vertex_box"
-    if f.pair not in fc.edge_active:
+    if f.pair not in fs.edges:
         return False
-    feats, active = fc.edge_active[f.pair]
+    feats, active = fs.edges[f.pair]
     return bool(active[feats == f.feature].any())
 
 
@@ -58,15 +59,14 @@ def test_box_gaps_rows_and_drift_against_finite_differences(case, seed):
     for _ in range(8):
         q = pin.integrate(model.pin, model.q0, scale * rng.standard_normal(model.nv))
         u, a = rng.standard_normal(model.nv), rng.standard_normal(model.nv)
-        fc.edge_active.clear()
         fs = fc.features(q, u)
-        active = [active_now(fc, f) for f in fc.feats]
+        active = [active_now(fs, f) for f in fc.feats]
         eps = 1e-5
         g = []
         for s in (-eps, eps):
-            fc.edge_active.clear()
-            g.append(fc.features(pin.integrate(model.pin, q, s * u + 0.5 * s * s * a), u, rows=False).g)
-            active = [ok and active_now(fc, f) for ok, f in zip(active, fc.feats)]
+            fe = fc.features(pin.integrate(model.pin, q, s * u + 0.5 * s * s * a), u, rows=False)
+            g.append(fe.g)
+            active = [ok and active_now(fe, f) for ok, f in zip(active, fc.feats)]
         m = np.array(active) & (kinds != "point_plane")
         d1, d2 = (g[1] - g[0]) / (2 * eps), (g[1] - 2 * fs.g + g[0]) / eps ** 2
         assert np.all(np.abs(d1 - fs.gamma)[m] <= 1e-7 * (1 + np.abs(fs.gamma[m])))
@@ -186,13 +186,13 @@ def test_cylinder_gaps_rows_and_drift_against_finite_differences(case, seed):
     rng = np.random.default_rng(seed)
     model, feats, q, exact = _cylinder_case(case, rng)
     fc = FeatureContacts(model, ms.make_data(model), 0.5, tuple(feats))
-    fc.gap_tol = -1.0  # closed-contact checks off: gaps are evaluated anywhere here
+    fc.gaps.gap_tol = -1.0  # closed-contact checks off: gaps are evaluated anywhere here
     # slow motions: the differences' truncation error (third derivative, ~|v|^3 / rho^2) stays << 1e-7
     u, a = 0.3 * rng.standard_normal(model.nv), 0.3 * rng.standard_normal(model.nv)
     fs = fc.features(q, u)
     check = [i for i, x in enumerate(exact) if x is not None]
     assert np.allclose(fs.g[check], [exact[i] for i in check], rtol=0, atol=1e-12)
-    assert all(fc.cyl_exact[i] for i in check)
+    assert all(fs.exact[i] for i in check)
     eps = 1e-5
     g = [fc.features(pin.integrate(model.pin, q, s * u + 0.5 * s * s * a), u, rows=False).g for s in (-eps, eps)]
     d1, d2 = (g[1] - g[0]) / (2 * eps), (g[1] - 2 * fs.g + g[0]) / eps ** 2

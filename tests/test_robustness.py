@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import qp, stepper
+from moreau_sim import corners, qp, stepper
 
 from helpers import MODELS, run
 
@@ -128,7 +128,7 @@ def test_a_corner_law_that_raises_is_a_named_stop(monkeypatch):
     def broken(*args, **kwargs):
         raise IndexError("list index out of range")
 
-    monkeypatch.setattr(stepper, "stationary_points", broken)
+    monkeypatch.setattr(corners, "stationary_points", broken)  # corners.corner_law, every integrator's
     with pytest.raises(ms.SimulationError, match=r"step 1 \(t = 0 s\): IndexError") as info:
         run("corner_point")
     assert info.value.trajectory.meta["status"].startswith("failed: step 1")

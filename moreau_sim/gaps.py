@@ -1,70 +1,21 @@
-"""Per-feature gaps of the contact layer, and what an integrator that locates events does with them.
-
-A *feature* is one gap function of a collision pair, with its row w, the drift term Wdot' u
-(from Pinocchio's bias accelerations) and gamma = w' u: every vertex of a polytope against a
-half-space, a sphere against a half-space, a sphere against a sphere, a sphere against a static
-box; for cylinders (docs/theory.md §7.2):
-  - "rim_plane" / "rim_box": each cap rim's support point against a static half-space, or
-    against the face planes of a static box (the arg-max face; a positive stand-in where the
-    support point lies beyond that face's sides), with the rim's curvature term in the drift;
-  - "side_edge": the cylinder's side (its axis segment, minus r) against each edge of a static
-    box, as an edge pair below;
-  - "sphere_cylinder": a sphere against a cylinder (either moving): side, cap or rim distance;
-  - a closed rim whose cap is parallel to the plane (within SIN_FLAT), or beyond its face's
-    sides, stops the run with a SimulationError naming the pair;
-and for two boxes (either moving, docs/theory.md §7.1), computed per pair in numpy:
-  - "vertex_box": each box's vertices p in the other, g = max_f (n_f' p - d_f) over the other's
-    face planes that count (those the vertex's own cone can touch first, and those p is outside
-    of by more than G_RES), n the arg-max face's normal (kept through a phase while persistent), drift
-    n'(abar_A(p) - abar_B(p)) + 2 (w_face x n)' dv; its region ends at its face's edges;
-  - "edge_edge": each of the 12 x 12 edge pairs, g = d = n'(a0 - b0) along n = +-(e_A x e_B)/|.|
-    (outward of B's edge) while active (n in both edges' normal cones, the lines' closest points
-    inside both edges, d >= -smallest half side), else a positive stand-in; rows at the closest
-    points, drift n'(abar_A - abar_B) + 2 n_dot' dv - d |n_dot|^2; its region ends where the
-    closest points leave the edges (`margin`: the distance to a region's end, an event in a phase);
-  - while the pair's bounding spheres are apart, all its features report the spheres' gap.
-Per-vertex gaps (not coal's pair distance, which is the minimum over corners and stays 0
-while a block pivots) make each corner of a rocking block its own event. Other pair types
-(meshes, a cylinder against a moving box or a cylinder) raise :class:`UnsupportedModel` naming
-the pair.
-
-:class:`FeatureContacts` holds what the event-driven integrator (event_driven.py, docs/theory.md
-§7) and the adaptive one (adaptive.py, §8) share: the features' kinematics, the constrained
-accelerations of a persistent set C (a = ABA + M^-1 W_C lam, W_C' a + Wdot_C' u = 0), and
-:meth:`FeatureContacts.resolve` at an event: the impact (law.impact on the contacts
-contacts.detect closes, or at a corner the fixed step's set-valued law, docs/theory.md §3, §7;
-with the Zeno rule), then the acceleration-level contact problem that
-decides which touching contacts persist (event_driven.py's module doc states the rules).
-"""
+"""The contact layer's per-feature gaps (docs/theory.md §7, §7.1, §7.2): each feature of a
+collision pair with its gap g, row w, drift Wdot' u and gamma = w' u, computed from (q, u) alone:
+:meth:`Gaps.features` returns everything it computes (FeatureState) and keeps nothing between calls.
+The decisions at events that use them are in event_rules.py."""
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import coal
 import numpy as np
 import pinocchio as pin
 
-from .constraints import assemble_constraints
-from .contacts import FeatureKind, detect, from_rows
 from .data import Data
-from .errors import MoreauSimError, SimulationError, named_stops
-from .law import impact, project
+from .errors import MoreauSimError, SimulationError
 from .model import Model
-from .recording import LOG_RELATIVE, PercussionRow, Recorder
-from .state import State
-from .stepper import ContactProblem, solve_impact
-from .trajectory import Trajectory
 
-V_TOL = 1e-9  # [m/s] |gamma| <= this on a closed feature: touching, not impacting
 G_RES = 1e-13  # [m] smallest gap whose sign is trusted (~3000x the rounding of positions ~ 1 m)
-G_ZENO = 1e-12  # [m] a rebound whose apex would stay below this is not resolved (Zeno rule)
-V_ZENO = 1e-8  # [m/s] nor an impact slower than this
-DT_ZENO = 1e-12  # [s] nor an impact this soon after the previous one
-LAM_EPS = 1e-9  # [N] a persistent contact is released when its multiplier falls below -LAM_EPS
-G_REGION = 1e-6  # [m] ... or a persistent box feature when it passes its region's end by this (§7.1)
-ACC_TOL = 1e-8  # [m/s^2] relative acceleration below this (scaled): a touching contact persists
 
 
 class UnsupportedModel(MoreauSimError, ValueError):
@@ -288,50 +239,37 @@ def _perp(a: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, slots=True)
 class FeatureState:
-    """Gaps g [m], rows W (nv, k), drift Wdot' u [m/s^2] and gamma = W' u [m/s] of features."""
+    """Gaps g [m], rows W (nv, k), drift Wdot' u [m/s^2] and gamma = W' u [m/s] of features; margin
+    [m]: each one's distance to the end of its region (inf: none, docs/theory.md §7.1); smooth:
+    False for an edge pair's stand-in; of the box pairs and cylinder features computed: faces
+    (pair -> (vertex features, their faces)), points (pair -> (features, points on A, on B,
+    normals), with rows), edges (pair -> (edge features, active: the gap is d, not a stand-in)),
+    exact (cylinder feature -> its gap is the distance), witness (cylinder feature -> (point on
+    A, on B, normal B to A), with rows)."""
 
     g: np.ndarray
     W: np.ndarray
     drift: np.ndarray
     gamma: np.ndarray
+    margin: np.ndarray
+    smooth: np.ndarray
+    faces: dict
+    points: dict
+    edges: dict
+    exact: dict
+    witness: dict
 
 
-class FeatureContacts:
-    """The features of a model and the contact decisions at events (module doc). Mutable
-    bookkeeping shared by the event-driven and the adaptive runs: the Recorder `rec` (set by the
-    caller), the Zeno declarations, the contact work since the last sample, counters."""
+class Gaps:
+    """The features of a model (feature_list) and their kinematics at any (q, u); gap_tol [m]: a
+    feature at most this far is closed (its rim refusals and side stand-ins use it)."""
 
-    def __init__(self, model: Model, data: Data, e: float, feats: tuple[Feature, ...] | None = None):
-        self.model, self.data, self.e = model, data, e
-        # a feature is closed when its gap is <= this [m]: the tolerance contacts.detect uses
-        self.gap_tol = max(model.options.contact_tolerance, G_RES)
+    def __init__(self, model: Model, data: Data, feats: tuple[Feature, ...], gap_tol: float):
+        self.model, self.data, self.feats, self.gap_tol = model, data, feats, gap_tol
         self.pm, self.pd = model.pin, data.pin
         self.nv = model.nv
-        self.feats = feature_list(model) if feats is None else feats
         self.zero = np.zeros(self.nv)
-        self.rec: Recorder | None = None
-        self.zeno: list[dict] = []
-        self.work = 0.0  # contact work since the last sample [J] (= -energy lost in impacts)
-        self.last_impact = -np.inf
-        self.impacts = self.nfev = 0
-        self.t = float("nan")  # [s] where the run is (errors name it): a step's or phase's start, an event
-        self.box_faces: dict = {}  # pair -> (vertex features, their faces) at the last call
-        self.faces: dict = {}  # (pair, vertex feature) -> its face, for the persistent vertices of a phase
-        self.box_points: dict = {}  # pair -> (features, points on A, on B, normals) at the last call with rows
-        # pair -> the column of its feature 0 in feats (box pairs' features are consecutive)
-        self.box_index = {f.pair: i for i, f in reversed(list(enumerate(self.feats))) if f.box is not None}
-        self._redundant: dict = {}  # persistent set C -> its rows are linearly dependent
-        self.edge_active: dict = {}  # pair -> (edge features, gap was d: not a stand-in) at the last call
         self._pair_names = {p.index: p.name for p in model.pairs}
-        self.cyl_exact: dict = {}  # cylinder feature -> its gap was the distance (not a stand-in) at the last call
-        self._exact = True
-        self._witness: tuple = ()
-        self._u = self.zero
-        self.cyl_points: dict = {}  # cylinder feature -> (point on A, on B, normal B to A) at the last call with rows
-        # cylinder features whose A (the cylinder of rim/side kinds, the sphere) is coal's second shape
-        first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
-        self._cyl_swapped = {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
-                             for i, f in enumerate(self.feats) if f.kind in CYLINDER_KINDS}
 
     # ---- kinematics of the features -------------------------------------------------------
     def _point(self, j: int, p_local: np.ndarray, rows: bool):
@@ -339,11 +277,7 @@ class FeatureContacts:
         point fixed in joint j's frame (needs forwardKinematics(q, u, 0) and, for rows, J)."""
         if j == 0:
             return p_local, np.zeros(3), np.zeros(3), (np.zeros((3, self.nv)) if rows else None)
-        frame = self._frames.get(j)
-        if frame is None:  # the joint's placement, twist and bias acceleration, read once per call
-            M, v, a = self.pd.oMi[j], self.pd.v[j], self.pd.a[j]
-            frame = self._frames[j] = (M.rotation, M.translation, v.angular, v.linear, a.angular, a.linear)
-        R, t, w, v_lin, a_ang, a_lin = frame
+        R, t, w, v_lin, a_ang, a_lin = self._frame(j)  # read once per call
         vl = v_lin + cross(w, p_local)
         p = R @ p_local + t
         vel = R @ vl
@@ -356,25 +290,23 @@ class FeatureContacts:
             Jp = (J[:3] - pin.skew(p) @ J[3:]) * self.model.support_mask[j]
         return p, vel, acc, Jp
 
-    def features(self, q: np.ndarray, u: np.ndarray, idx=None, rows: bool = True) -> FeatureState:
-        """Gaps (and rows, drift, gamma if `rows`) of the features `idx` (default all) at (q, u)."""
+    def features(self, q: np.ndarray, u: np.ndarray, idx=None, rows: bool = True, faces: dict | None = None
+                 ) -> FeatureState:
+        """Gaps (and rows, drift, gamma if `rows`) of the features `idx` (default all) at (q, u);
+        faces: (pair, vertex feature) -> the face a persistent vertex keeps (docs/theory.md §7.1)."""
         pm, pd = self.pm, self.pd
         if rows:
             pin.computeJointJacobians(pm, pd, q)
         pin.forwardKinematics(pm, pd, q, u, self.zero)
-        self._frames, self._J = {}, None
-        self.box_points.clear()
-        self.box_faces.clear()
-        self.edge_active.clear()
-        self.cyl_exact.clear()
-        self.cyl_points.clear()
+        self._frames, self._J, self._faces = {}, None, faces or {}
+        # this call's scratch (FeatureState's dicts), filled by the kinds' helpers
+        self.box_points, self.box_faces, self.edge_active, self.cyl_exact, self.cyl_points = {}, {}, {}, {}, {}
         self._screens, self._sides = {}, {}
-        self._u = u
         idx = range(len(self.feats)) if idx is None else idx
         k = len(idx)
         g, drift, W = np.empty(k), np.zeros(k), np.zeros((self.nv, k))
-        self.margin = np.full(k, np.inf)  # [m] each feature's distance to the end of its region (below)
-        self.smooth = np.ones(k, bool)  # False: an edge pair's stand-in (its rows and drift are the lines')
+        margin = np.full(k, np.inf)  # [m] each feature's distance to the end of its region (below)
+        smooth = np.ones(k, bool)  # False: an edge pair's stand-in (its rows and drift are the lines')
         boxes: dict = {}
         for col, i in enumerate(idx):
             f = self.feats[i]
@@ -416,13 +348,14 @@ class FeatureContacts:
                 W[:, col] = n @ Jrel
         for bp, cols, which in boxes.values():
             g[cols], Wb, db = self._box_pair(bp, np.array(which), rows)
-            self.margin[cols] = self._box_margin
-            self.smooth[cols] = self._box_smooth
+            margin[cols] = self._box_margin
+            smooth[cols] = self._box_smooth
             if rows:
                 W[:, cols] = Wb
                 drift[cols] = db
         gamma = W.T @ u if rows else np.zeros(k)
-        return FeatureState(g, W, drift, gamma)
+        return FeatureState(g, W, drift, gamma, margin, smooth, self.box_faces, self.box_points, self.edge_active,
+                            self.cyl_exact, self.cyl_points)
 
     # ---- cylinder kinds (docs/theory.md §7.2) ---------------------------------------------------
     def _frame0(self, j: int):
@@ -686,8 +619,8 @@ class FeatureContacts:
             count = valid | (S > G_RES)
             count[~count.any(axis=1)] = True
             f = np.where(count, S, -np.inf).argmax(axis=1)
-            if self.faces:  # persistent vertices: the face chosen at the phase's start
-                f = np.array([self.faces.get((bp.pair, k), fk) for k, fk in zip(wv.tolist(), f.tolist())])
+            if self._faces:  # persistent vertices: the face chosen at the phase's start
+                f = np.array([self._faces.get((bp.pair, k), fk) for k, fk in zip(wv.tolist(), f.tolist())])
             self.box_faces[bp.pair] = (wv, f)
             g[v_sel] = S[np.arange(len(wv)), f]
             # the vertex's distance to its face's edges: -max of the other faces' S (region, §7.1)
@@ -763,224 +696,3 @@ class FeatureContacts:
         return 2.0 * x / s if s > 0.0 else np.inf
 
     # ---- dynamics --------------------------------------------------------------------------
-    def dynamics(self, q, u, C):
-        """(a, lam): free accelerations (ABA) plus the bilateral forces of the persistent set C."""
-        self.nfev += 1
-        a = pin.aba(self.pm, self.pd, q, u, self.zero).copy()
-        if not C:
-            return a, np.zeros(0)
-        fs = self.features(q, u, C)
-        self.c_gaps = fs.g  # the persistent features' gaps (event_driven watches them open)
-        Minv = pin.computeMinverse(self.pm, self.pd, q)
-        MiW = Minv @ fs.W
-        G = fs.W.T @ MiW
-        rhs = -(fs.W.T @ a + fs.drift)
-        redundant = self._redundant.get(C)
-        if redundant is None:  # rows of C dependent (4 corners of a face on a face): decided once per set
-            redundant = self._redundant[C] = bool(np.linalg.matrix_rank(fs.W) < len(C))
-        if redundant:
-            return a + MiW @ (lam := np.linalg.lstsq(G, rhs, rcond=1e-12)[0]), lam  # minimum-norm forces
-        try:
-            lam = np.linalg.solve(G, rhs)
-        except np.linalg.LinAlgError:
-            lam = np.linalg.lstsq(G, rhs, rcond=1e-12)[0]  # redundant rows: minimum-norm forces
-        return a + MiW @ lam, lam
-
-    # ---- events ----------------------------------------------------------------------------
-    def resolve(self, t: float, q: np.ndarray, u: np.ndarray, released: frozenset):
-        """Impact (with the Zeno rule), then the persistent set C at (t, q, u) (module doc).
-        Returns (u, C, shadow): C persistent features, shadow: duplicates of C's rows."""
-        self.t = t
-        self.faces = {}  # chosen afresh at an event
-        fs = self.features(q, u)
-        closed = (fs.g <= self.gap_tol) & self.smooth  # an edge pair's stand-in is never a contact (§7.1)
-        if (closed & (fs.gamma < -V_TOL)).any():
-            u = self._impact(t, q, u, fs)
-            fs = self.features(q, u)
-        # a box feature past the end of its region (margin < -G_REGION/2: a phase ends at -G_REGION, docs/theory.md
-        # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding and drift) does
-        inside = self.margin > -0.5 * G_REGION
-        touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL) & inside) if i not in released]
-        if not touching:
-            return u, (), ()
-        # distinct rows only (the front and back corners of a planar block repeat each other)
-        keep, shadow = [], []
-        scale = 1e-12 * (1.0 + np.abs(fs.W).max())
-        for i in touching:
-            (shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in keep) else keep).append(i)
-        a_free = pin.aba(self.pm, self.pd, q, u, self.zero).copy()
-        M = pin.crba(self.pm, self.pd, q)
-        Wk, dk = fs.W[:, keep], fs.drift[keep]
-        res = project(M, Wk, a_free, b=-dk)
-        if not res.ok:
-            raise SimulationError(f"the contact-force QP failed ({res.status}) at t = {t:.12g} s")
-        rel = Wk.T @ res.v + dk
-        tol = ACC_TOL * (1.0 + np.abs(dk).max() + np.abs(Wk.T @ a_free).max())
-        C = tuple(int(i) for i, r in zip(keep, rel) if r <= tol)
-        for i in C:  # a persistent vertex keeps its face through the phase (its row may not flip at a tie)
-            f = self.feats[i]
-            if f.kind == "vertex_box":
-                wv, faces = self.box_faces[f.pair]
-                self.faces[(f.pair, f.feature)] = int(faces[np.searchsorted(wv, f.feature)])
-        if C:  # remove the residual normal velocity of the persistent contacts (~1e-16)
-            Minv = pin.computeMinverse(self.pm, self.pd, q)
-            W = fs.W[:, list(C)]
-            MiW = Minv @ W
-            u = u - MiW @ np.linalg.lstsq(W.T @ MiW, W.T @ u, rcond=1e-12)[0]
-        shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in C))
-        return u, C, shadow
-
-    def _missed_features(self, fs: FeatureState, W: np.ndarray) -> list:
-        """Contact rows (as contacts.from_rows takes them) of the closed box-box vertices and of the
-        closed, approaching active edge pairs whose row is not in the span of coal's rows W, and of
-        the closed, not separating cylinder features where their gap is the distance (§7.2: coal's
-        one witness of a cylinder on a box's edge) that are not one of those rows: an edge lying
-        across a face meets the face's edges at points coal's one witness of that segment contact
-        does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
-        an arbitrary normal (docs/theory.md §7.1). Needs fs = self.features(q, u) of all features."""
-        out = []
-        for pair, (which, P_a, P_b, nn) in self.box_points.items():
-            e_which, active = self.edge_active.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
-            for i, k in enumerate(which.tolist()):
-                if k >= 16 and not active[np.searchsorted(e_which, k)]:
-                    continue
-                col = self.box_index[pair] + k
-                if fs.g[col] > self.gap_tol or (k >= 16 and fs.gamma[col] >= -V_TOL):
-                    continue
-                w = fs.W[:, col]
-                if k >= 16 and W.shape[1]:  # a closed vertex's own row always replaces coal's
-                    r = w - W @ np.linalg.lstsq(W, w, rcond=1e-12)[0]
-                    if np.abs(r).max() <= 1e-9 * np.abs(w).max():
-                        continue
-                out.append((float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
-                            FeatureKind.VERTEX if k < 16 else FeatureKind.WITNESS, k))
-                W = np.column_stack((W, w))
-        # cylinder features (§7.2): coal's one witness per pair misses e.g. a cylinder's side on a box's edge
-        # touching ones too: coal's witness normal of a cylinder on an edge is off by ~1e-6, and an impact
-        # elsewhere then left the exact feature approaching at 2e-7 m/s, neither impacted nor persistent
-        for i, (pa, pb, n) in self.cyl_points.items():
-            if fs.g[i] > self.gap_tol or fs.gamma[i] > V_TOL or not self.cyl_exact.get(i, False):
-                continue
-            w = fs.W[:, i]
-            if W.shape[1] and (np.abs(W - w[:, None]).max(axis=0) <= 1e-9 * np.abs(w).max()).any():
-                continue  # already a row (a combination of rows would not keep it from approaching)
-            f = self.feats[i]
-            # WITNESS features 1.. (coal's own witness of the pair is 0): 1 sphere_cylinder, 1-2 rims, 3-14 sides
-            k = 1 + f.feature + (2 if f.kind == "side_edge" else 0) if f.feature >= 0 else 1
-            if self._cyl_swapped[i]:  # coal's A is the feature's B: points swapped, normal reversed
-                pa, pb, n = pb, pa, -n
-            out.append((float(fs.g[i]), pa, pb, n, f.pair, FeatureKind.WITNESS, k))
-            W = np.column_stack((W, w))
-        return out
-
-    def _impact(self, t, q, u, fs: FeatureState) -> np.ndarray:
-        """The impact law on the contacts detect() closes at q: law.impact (docs/theory.md §1), or at
-        a corner the set-valued law with the scene's selection policy (§3, §7.2)."""
-        pm, pd, model = self.pm, self.pd, self.model
-        # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
-        # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
-        self.data.warm_start_pairs = set(self.data.warm_start_pairs) | {
-            self.feats[i].pair for i in np.flatnonzero(fs.g <= self.gap_tol)}
-        c = detect(model, self.data, q)
-        cs = assemble_constraints(model, self.data, q, c)
-        # (at a corner the struck vertex is the corner's: its faces are the pieces, not a feature row)
-        missed = self._missed_features(fs, cs.W) if cs.pieces is None else []
-        if missed:  # they replace coal's contacts of the same vertices
-            keys = {(m[4], int(m[5]), m[6]) for m in missed}
-            keep = np.array([k not in keys for k in zip(c.pair.tolist(), c.kind.tolist(), c.feature.tolist())], bool)
-            cs = assemble_constraints(model, self.data, q, c.select(keep).concat(from_rows(model, missed)))
-        c, M, W = cs.contacts, cs.M, cs.W
-        if c.m == 0 and cs.pieces is None:
-            raise SimulationError(f"a gap event at t = {t:.12g} s but coal finds no closed contact")
-        if cs.pieces is None and not (W.T @ u < -V_TOL).any():
-            raise SimulationError(f"a feature approaches at t = {t:.12g} s (gamma = {fs.gamma.min():.3g} m/s) but "
-                                  "none of coal's closed contacts does")
-        # the Zeno rule (module doc) on the approaching features: their free normal accelerations a_n
-        appr = np.flatnonzero((fs.g <= self.gap_tol) & (fs.gamma < -V_TOL))
-        a_n = fs.W[:, appr].T @ pin.aba(pm, pd, q, u, self.zero) + fs.drift[appr]
-        speed = -fs.gamma[appr]
-        low = ((self.e * speed) ** 2 < -2.0 * a_n * G_ZENO) | (speed < V_ZENO)
-        zeno = bool(low.all()) or t - self.last_impact < DT_ZENO
-        e = 0.0 if zeno else self.e
-        if cs.pieces is None:
-            imp = impact(M, W, u, e)
-            P, res, u_plus, gm, gp, loss = imp.P, imp.qp, imp.u_plus, W.T @ u, W.T @ imp.u_plus, imp.energy_loss
-        else:  # the fixed step's corner law on a step of zero length (v_free = u-): one home for it
-            pb = ContactProblem(0.0, e, q, u, q, c, u, u, M, pin.computeMinverse(pm, pd, q), W, cs.pieces)
-            sol = solve_impact(pb, model.options)
-            if not sol.qp.ok:
-                raise SimulationError(f"the corner law failed ({sol.qp.status}) at t = {t:.12g} s")
-            c, P, res, u_plus, gm, gp = sol.contacts, sol.P, sol.qp, sol.u_next, sol.gamma_minus, sol.gamma_plus
-            dv = u - res.v  # the impact's energy identity holds at every stationary point (§3)
-            loss = 0.5 * (1.0 - e * e) * float(dv @ M @ dv)
-            if sol.branch is not None:
-                cand, chosen, ups = sol.branch
-                self.rec.branch(self.rec.n, t, chosen, [(up, k.distance, k.global_min)
-                                                        for up, k in zip(ups, cand.candidates)])
-        if zeno and self.e < 1.0 and len(speed):
-            k = int(np.argmax(speed))
-            dt = 2.0 * self.e * speed[k] / ((1.0 - self.e) * -a_n[k]) if a_n[k] < 0 else 0.0
-            self.zeno.append({"t": t, "t_accumulation": float(t + dt), "speed": float(speed[k]),
-                              "pairs": sorted(set(c.pair.tolist()))})
-        cut = LOG_RELATIVE * float(P.max(initial=0.0))
-        for i in np.flatnonzero((P > cut) & (P > 0)):  # step: the index of the next sample
-            self.rec.log(PercussionRow(self.rec.n, t, int(c.pair[i]), int(c.kind[i]), int(c.feature[i]), float(c.g[i]),
-                                       float(P[i]), float(gm[i]), float(gp[i]), c.point_a[i], c.normal[i], True))
-        self.rec.account_impact(t, q, u, u_plus, M, res.v, e, P)
-        self.work -= loss
-        self.last_impact = t
-        self.impacts += 1
-        return u_plus
-
-
-
-    unit = "phase"  # what position() counts, in error messages
-
-    def position(self) -> tuple[int, float]:
-        """(the number of the step or phase under way, its time [s]): what an error names."""
-        return self.events + 1, self.t
-
-    def sample(self, t: float, q: np.ndarray, u: np.ndarray, n_contacts: int, corr: float = 0.0) -> None:
-        """Record a sample with the contact work (and correction energy) since the previous one;
-        a non-finite one stops the run (nothing non-finite is ever complete)."""
-        state = State(t, q, u)
-        if not state.finite():
-            raise SimulationError(f"the state at t = {t:.6g} s became non-finite (NaN or inf)")
-        self.rec.sample(state, self.work, corr, n_contacts)
-        self.work = 0.0
-        if not self.rec.finite():
-            raise SimulationError(f"the energies or gaps at t = {t:.6g} s became non-finite (an overflow: check "
-                                  "gravity, masses and initial velocities)")
-
-
-def sample_grid(model: Model, state: State, t_end: float | None, t_eval) -> tuple[float, np.ndarray]:
-    """t_end [s] (default: state.t + the scene's duration) and the sample instants of a run that
-    locates events: t_eval, checked to increase strictly within [t0, t_end], or by default every
-    save_every * dt of the scene's options (the instants ms.simulate records)."""
-    opts = model.options
-    t_end = state.t + opts.duration if t_end is None else float(t_end)
-    if not t_end > state.t:
-        raise ValueError(f"t_end = {t_end} s must be after the initial time {state.t} s")
-    if t_eval is None:
-        n = max(1, int(round((t_end - state.t) / (opts.dt * opts.save_every))))
-        return t_end, state.t + (t_end - state.t) * np.arange(n + 1) / n
-    t_grid = np.asarray(t_eval, float)
-    if t_grid.ndim != 1 or np.any(np.diff(t_grid) <= 0) or t_grid[0] < state.t or t_grid[-1] > t_end:
-        raise ValueError(f"t_eval must increase strictly within [{state.t}, {t_end}] s")
-    return t_end, t_grid
-
-
-def run_recorded(integ: FeatureContacts, state: State, t_end: float, t_grid: np.ndarray, meta) -> Trajectory:
-    """integ.run(state, t_end, t_grid) into a new Recorder; the Trajectory with meta(model, integ,
-    status, wall0), or (errors.named_stops) SimulationError naming integ.position() with
-    .trajectory up to the failure, SimulationInterrupted on Ctrl-C."""
-    integ.rec = Recorder(integ.model, integ.data, len(t_grid))
-    integ.t = float(state.t)
-    wall0 = time.perf_counter()
-
-    def partial(status: str) -> Trajectory:
-        return integ.rec.trajectory(meta(integ.model, integ, status, wall0))
-
-    with named_stops(integ.position, partial, unit=integ.unit):
-        integ.run(state, t_end, t_grid)
-    return integ.rec.trajectory(meta(integ.model, integ, "complete", wall0))

@@ -1,0 +1,204 @@
+"""The one loop over time of every integrator (docs/theory.md §9; protocol.py): sampling,
+recording and the energy ledger (recording.py, §5), progress, Ctrl-C/SIGTERM
+(errors.named_stops), checkpoints and resume (checkpoint.py), spilling to disk, the invariant hook.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from . import checkpoint as ckpt
+from .checkpoint import Checkpoint
+from .data import Data
+from .errors import SimulationError, named_stops
+from .model import Model
+from .protocol import FixedStep, Impact, Integrator, Report, Status
+from .recording import LOG_RELATIVE, PercussionRow, Recorder
+from .state import State
+from .trajectory import Trajectory
+
+# [s] the progress bar appears on runs longer than this (MOREAU_SIM_PROGRESS_DELAY overrides it)
+_PROGRESS_DELAY = float(os.environ.get("MOREAU_SIM_PROGRESS_DELAY", "2.0"))
+PROGRESS_EVERY = 0.5  # [s of wall time] the bar is refreshed at most this often, whatever a step costs
+_BAR = "{percentage:3.0f}%|{bar}| {n:.6g}/{total:.6g} {unit} [{elapsed}<{remaining}]"
+
+# The invariant hook: check(where, state, report) at the initial state (where "start", report None),
+# at every accepted point ("point") and every sample ("sample"); a dict it returns is a violation,
+# kept in meta["invariants"] (a check that must stop the run raises SimulationError).
+Check = Callable[[str, State, "Report | None"], "dict | None"]
+
+
+def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | None = None,
+          progress: bool = False, checkpoint: Checkpoint | None = None, spill: str | Path | None = None,
+          check: Check | None = None, capacity: int = 1) -> Trajectory:
+    """Run `integ` from its state to its end. grid: the output instants [s] of an
+    integrator that samples through dense output (else it marks its samples, Report.due);
+    checkpoint: save every so often at accepted points and/or resume (bit-identical); spill: a
+    folder for the recorded rows (recording.Recorder); check: the invariant hook (above);
+    capacity: the expected number of samples. Returns the Trajectory, or raises SimulationError
+    (SimulationInterrupted on Ctrl-C) with .trajectory up to the stop."""
+    rec = Recorder(model, data, capacity, spill=spill)
+    loop = _Loop(integ, rec, grid, check)
+    wall_before = 0.0
+    resume = checkpoint is not None and checkpoint.resume and Path(checkpoint.path).exists()
+    if resume:
+        loop_state, wall_before = ckpt.load(Path(checkpoint.path), model, rec, data, integ)
+        loop.load(loop_state)
+    wall0 = time.perf_counter()
+
+    def wall() -> float:
+        return wall_before + time.perf_counter() - wall0
+
+    def partial(status: str) -> Trajectory:
+        return rec.trajectory(loop.meta(status, wall()))
+
+    every = checkpoint.every if checkpoint is not None else None
+    next_ck = np.inf if every is None else loop.t_ck + every
+    done, total, unit = integ.progress()
+    bar = tqdm(total=total, initial=done, delay=_PROGRESS_DELAY, disable=not progress, unit=unit, leave=False,
+               bar_format=_BAR, mininterval=PROGRESS_EVERY)
+    refresh = time.perf_counter() + PROGRESS_EVERY if progress else np.inf
+    at: list = [None]  # while a step's report is recorded: the position of that step (errors name it)
+    with named_stops(lambda: at[0] or integ.position(), partial, unit=integ.unit):
+        try:
+            if not resume:
+                loop.start(integ.state)
+            while True:
+                before = integ.position()
+                rep = integ.step(grid[loop.gi] if grid is not None and loop.gi < len(grid) else np.inf)
+                if rep.status is Status.FAILED:
+                    raise SimulationError(rep.message, step=before[0], t=rep.t)
+                at[0] = before
+                loop.account(rep)
+                at[0] = None
+                if rep.status is Status.FINISHED:
+                    _show(bar, integ, wall0)
+                    break
+                if rep.t >= next_ck:
+                    loop.t_ck = rep.t
+                    next_ck = rep.t + every
+                    ckpt.save(Path(checkpoint.path), rec, loop.meta("checkpoint", wall()), integ=integ,
+                              loop=loop.state_dict(), data=data)
+                if time.perf_counter() >= refresh:  # ~50 ns a step: the bar moves with wall time, not steps
+                    _show(bar, integ, wall0)
+                    refresh = time.perf_counter() + PROGRESS_EVERY
+        finally:
+            bar.close()
+    traj = rec.trajectory(loop.meta("complete", wall()))
+    if checkpoint is not None and not checkpoint.keep:
+        Path(checkpoint.path).unlink(missing_ok=True)
+    return traj
+
+
+def _show(bar: tqdm, integ: Integrator, wall0: float) -> None:
+    """Move the bar to the integrator's progress (once the run has lasted the bar's delay)."""
+    if not bar.disable and time.perf_counter() - wall0 >= _PROGRESS_DELAY:
+        bar.n = integ.progress()[0]
+        bar.refresh()
+
+
+class _Loop:
+    """What the driver carries between accepted points: the contact work and correction energy
+    since the last sample, the next grid instant, the last fixed step's contacts (the log's
+    new-impact test), the invariant violations."""
+
+    def __init__(self, integ: Integrator, rec: Recorder, grid: np.ndarray | None, check: Check | None):
+        self.integ, self.rec, self.grid, self.check = integ, rec, grid, check
+        self.work = self.corr = 0.0
+        self.gi = 0
+        self.previous: set = set()
+        self.violations: list[dict] = []
+        self.t_ck = integ.t0  # [s] the last checkpoint (or the start)
+        self.points = 0  # the accepted points recorded
+
+    def start(self, state: State) -> None:
+        """The initial sample(s) (before any impact)."""
+        if self.grid is None:
+            self._sample(state, 0)
+        while self.grid is not None and self.gi < len(self.grid) and self.grid[self.gi] <= state.t:
+            self._sample(state, 0)
+            self.gi += 1
+        self._check("start", state, None)
+
+    def account(self, rep: Report) -> None:
+        """Record one step's report: its records, work, samples; then the invariant hook."""
+        self.work += rep.work
+        self.corr += rep.corr
+        rec = self.rec
+        for r in rep.records:
+            if type(r) is FixedStep:
+                res = r.result
+                if r.fresh:
+                    self.previous = set()
+                index = rec.n if r.index is None else r.index
+                self.previous = rec.log_percussions(index, r.t, res.contacts, res.P, res.gamma_minus,
+                                                    res.gamma_plus, self.previous)
+                rec.account_step(index, r.t, r.before, res, r.h, r.e)
+                if res.branch is not None:
+                    sol, chosen, u_plus = res.branch
+                    rec.branch(index, r.t, chosen, [(up, c.distance, c.global_min)
+                                                    for up, c in zip(u_plus, sol.candidates)])
+            else:
+                self._impact(r)
+        if rep.due:
+            self._sample(rep.state, rep.n_contacts)
+        grid = self.grid
+        for seg in rep.segments:
+            while self.gi < len(grid) and (grid[self.gi] < seg.until or (seg.closed and grid[self.gi] <= seg.until)):
+                tg = float(grid[self.gi])
+                q, u = seg.dense(tg)
+                self._sample(State(tg, q, u), seg.n_contacts)
+                self.gi += 1
+        if self.check is not None and rep.state is not None:
+            self._check("point", rep.state, rep)
+        self.points += 1
+
+    def _impact(self, r: Impact) -> None:
+        rec = self.rec
+        c, P = r.contacts, r.P
+        if r.branch is not None:
+            cand, chosen, ups = r.branch
+            rec.branch(rec.n, r.t, chosen, [(up, k.distance, k.global_min) for up, k in zip(ups, cand.candidates)])
+        cut = LOG_RELATIVE * float(P.max(initial=0.0))
+        for i in np.flatnonzero((P > cut) & (P > 0)):  # step: the index of the next sample
+            rec.log(PercussionRow(rec.n, r.t, int(c.pair[i]), int(c.kind[i]), int(c.feature[i]), float(c.g[i]),
+                                  float(P[i]), float(r.gamma_minus[i]), float(r.gamma_plus[i]), c.point_a[i],
+                                  c.normal[i], True))
+        rec.account_impact(r.t, r.q, r.u_minus, r.u_plus, r.M, r.v, r.e, P)
+
+    def _sample(self, state: State, n_contacts: int) -> None:
+        """A sample with the work and correction energy since the previous one; nothing non-finite
+        is ever complete."""
+        if not state.finite():
+            raise SimulationError(f"the state at t = {state.t:.6g} s became non-finite (NaN or inf)")
+        self.rec.sample(state, self.work, self.corr, n_contacts)
+        self.work = self.corr = 0.0
+        if not self.rec.finite():
+            raise SimulationError(f"the energies or gaps at t = {state.t:.6g} s became non-finite (an overflow: "
+                                  "check gravity, masses and initial velocities)")
+        self._check("sample", state, None)
+
+    def _check(self, where: str, state: State, rep: Report | None) -> None:
+        if self.check is not None:
+            v = self.check(where, state, rep)
+            if v is not None:
+                self.violations.append(v)
+
+    def meta(self, status: str, wall: float) -> dict:
+        meta = self.integ.meta(status, wall, self.points)
+        return {**meta, "invariants": self.violations} if self.violations else meta
+
+    def state_dict(self) -> dict:
+        return {"work": self.work, "corr": self.corr, "gi": self.gi, "previous": sorted(self.previous),
+                "violations": self.violations, "t_ck": self.t_ck, "points": self.points}
+
+    def load(self, d: dict) -> None:
+        self.work, self.corr, self.gi = float(d["work"]), float(d["corr"]), int(d["gi"])
+        self.previous = {tuple(p) for p in d["previous"]}
+        self.violations, self.t_ck, self.points = list(d["violations"]), float(d["t_ck"]), int(d["points"])

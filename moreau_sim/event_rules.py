@@ -1,0 +1,264 @@
+"""The event rules of the integrators that locate events (docs/theory.md §7, §8): the
+constrained accelerations of a persistent set, and at an event the impact (with the Zeno rule)
+and the persistent set, on the per-feature gaps of gaps.py."""
+
+from __future__ import annotations
+
+import coal
+import numpy as np
+import pinocchio as pin
+
+from .constraints import assemble_constraints, corner_faces
+from .corners import MAX_PIECES, corner_law
+from .contacts import FeatureKind, detect, from_rows
+from .data import Data
+from .errors import SimulationError
+from .gaps import (BOX_FEATURES, CYLINDER_KINDS, G_RES, Feature, FeatureState, Gaps,  # noqa: F401
+                   UnsupportedModel, feature_list)
+from .law import impact, outcome, percussion, project
+from .model import Model
+from .protocol import Impact
+from .state import State
+from .qp import ordered
+
+V_TOL = 1e-9  # [m/s] |gamma| <= this on a closed feature: touching, not impacting
+G_ZENO = 1e-12  # [m] a rebound whose apex would stay below this is not resolved (Zeno rule)
+V_ZENO = 1e-8  # [m/s] nor an impact slower than this
+DT_ZENO = 1e-12  # [s] nor an impact this soon after the previous one
+LAM_EPS = 1e-9  # [N] a persistent contact is released when its multiplier falls below -LAM_EPS
+G_REGION = 1e-6  # [m] ... or a persistent box feature when it passes its region's end by this (§7.1)
+ACC_TOL = 1e-8  # [m/s^2] relative acceleration below this (scaled): a touching contact persists
+
+
+class FeatureContacts:
+    """The contact decisions at events (module doc) on a model's features (gaps.Gaps), and what
+    they carry from one event to the next: the Zeno declarations, the last impact, the faces of
+    the persistent vertices, counters (state_dict() for checkpoints). The integrators hold one each."""
+
+    def __init__(self, model: Model, data: Data, e: float, feats: tuple[Feature, ...] | None = None):
+        self.model, self.data, self.e = model, data, e
+        # a feature is closed when its gap is <= this [m]: the tolerance contacts.detect uses
+        self.gap_tol = max(model.options.contact_tolerance, G_RES)
+        self.pm, self.pd = model.pin, data.pin
+        self.nv = model.nv
+        self.feats = feature_list(model) if feats is None else feats
+        self.zero = np.zeros(self.nv)
+        self.zeno: list[dict] = []
+        self.last_impact = -np.inf
+        self.impacts = self.nfev = 0
+        self.faces: dict = {}  # (pair, vertex feature) -> its face, for the persistent vertices of a phase
+        # pair -> the column of its feature 0 in feats (box pairs' features are consecutive)
+        self.box_index = {f.pair: i for i, f in reversed(list(enumerate(self.feats))) if f.box is not None}
+        self._redundant: dict = {}  # persistent set C -> its rows are linearly dependent
+        self.gaps = Gaps(model, data, self.feats, self.gap_tol)
+        # cylinder features whose A (the cylinder of rim/side kinds, the sphere) is coal's second shape
+        first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
+        self._cyl_swapped = {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
+                             for i, f in enumerate(self.feats) if f.kind in CYLINDER_KINDS}
+
+    # ---- checkpoints (protocol.Integrator.state_dict) -----------------------------------------
+    def state_dict(self) -> dict:
+        """What the contact decisions carry between accepted points, as JSON."""
+        return {"zeno": self.zeno,
+                "last_impact": None if self.last_impact == -np.inf else self.last_impact,
+                "impacts": self.impacts, "nfev": self.nfev,
+                "redundant": [[list(C), r] for C, r in self._redundant.items()],
+                "faces": [[p, k, f] for (p, k), f in self.faces.items()]}
+
+    def load_state_dict(self, d: dict) -> None:
+        self.zeno = list(d["zeno"])
+        self.last_impact = -np.inf if d["last_impact"] is None else float(d["last_impact"])
+        self.impacts, self.nfev = int(d["impacts"]), int(d["nfev"])
+        self._redundant = {tuple(C): bool(r) for C, r in d["redundant"]}
+        self.faces = {(int(p), int(k)): int(f) for p, k, f in d["faces"]}
+
+    def features(self, q: np.ndarray, u: np.ndarray, idx=None, rows: bool = True) -> FeatureState:
+        """Gaps.features with the phase's persistent vertex faces."""
+        return self.gaps.features(q, u, idx, rows, faces=self.faces)
+
+    def thin_limit(self, u: np.ndarray, a: np.ndarray) -> float:
+        return self.gaps.thin_limit(u, a)
+
+    def dynamics(self, q, u, C):
+        """(a, lam, fs): free accelerations (ABA) plus the bilateral forces of the persistent set C,
+        their multipliers, and C's FeatureState (None without C)."""
+        self.nfev += 1
+        a = pin.aba(self.pm, self.pd, q, u, self.zero).copy()
+        if not C:
+            return a, np.zeros(0), None
+        fs = self.features(q, u, C)
+        Minv = pin.computeMinverse(self.pm, self.pd, q)
+        MiW = Minv @ fs.W
+        G = fs.W.T @ MiW
+        rhs = -(fs.W.T @ a + fs.drift)
+        redundant = self._redundant.get(C)
+        if redundant is None:  # rows of C dependent (4 corners of a face on a face): decided once per set
+            redundant = self._redundant[C] = bool(np.linalg.matrix_rank(fs.W) < len(C))
+        if redundant:
+            return a + MiW @ (lam := np.linalg.lstsq(G, rhs, rcond=1e-12)[0]), lam, fs  # minimum-norm forces
+        try:
+            lam = np.linalg.solve(G, rhs)
+        except np.linalg.LinAlgError:
+            lam = np.linalg.lstsq(G, rhs, rcond=1e-12)[0]  # redundant rows: minimum-norm forces
+        return a + MiW @ lam, lam, fs
+
+    # ---- events ----------------------------------------------------------------------------
+    def resolve(self, t: float, q: np.ndarray, u: np.ndarray, released: frozenset):
+        """Impact (with the Zeno rule), then the persistent set C at (t, q, u) (module doc).
+        Returns (u, C, shadow, records, work): C persistent features, shadow: duplicates of C's
+        rows; records: the impact to record (protocol.Impact) if any, work: its contact work [J]."""
+        self.faces = {}  # chosen afresh at an event
+        fs = self.features(q, u)
+        closed = (fs.g <= self.gap_tol) & fs.smooth  # an edge pair's stand-in is never a contact (§7.1)
+        records, work = (), 0.0
+        if (closed & (fs.gamma < -V_TOL)).any():
+            u, imp, work = self._impact(t, q, u, fs)
+            records = (imp,)
+            fs = self.features(q, u)
+        # a box feature past the end of its region (margin < -G_REGION/2: a phase ends at -G_REGION, docs/theory.md
+        # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding and drift) does
+        inside = fs.margin > -0.5 * G_REGION
+        touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL) & inside) if i not in released]
+        if not touching:
+            return u, (), (), records, work
+        # distinct rows only (the front and back corners of a planar block repeat each other)
+        keep, shadow = [], []
+        scale = 1e-12 * (1.0 + np.abs(fs.W).max())
+        for i in touching:
+            (shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in keep) else keep).append(i)
+        a_free = pin.aba(self.pm, self.pd, q, u, self.zero).copy()
+        M = pin.crba(self.pm, self.pd, q)
+        Wk, dk = fs.W[:, keep], fs.drift[keep]
+        res = project(M, Wk, a_free, b=-dk)
+        if not res.ok:
+            raise SimulationError(f"the contact-force QP failed ({res.status}) at t = {t:.12g} s")
+        rel = Wk.T @ res.v + dk
+        tol = ACC_TOL * (1.0 + np.abs(dk).max() + np.abs(Wk.T @ a_free).max())
+        C = tuple(int(i) for i, r in zip(keep, rel) if r <= tol)
+        for i in C:  # a persistent vertex keeps its face through the phase (its row may not flip at a tie)
+            f = self.feats[i]
+            if f.kind == "vertex_box":
+                wv, faces = fs.faces[f.pair]
+                self.faces[(f.pair, f.feature)] = int(faces[np.searchsorted(wv, f.feature)])
+        if C:  # remove the residual normal velocity of the persistent contacts (~1e-16)
+            Minv = pin.computeMinverse(self.pm, self.pd, q)
+            W = fs.W[:, list(C)]
+            MiW = Minv @ W
+            u = u - MiW @ np.linalg.lstsq(W.T @ MiW, W.T @ u, rcond=1e-12)[0]
+        shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in C))
+        return u, C, shadow, records, work
+
+    def _missed_features(self, fs: FeatureState, W: np.ndarray) -> list:
+        """Contact rows (as contacts.from_rows takes them) of the closed box-box vertices and of the
+        closed, approaching active edge pairs whose row is not in the span of coal's rows W, and of
+        the closed, not separating cylinder features where their gap is the distance (§7.2: coal's
+        one witness of a cylinder on a box's edge) that are not one of those rows: an edge lying
+        across a face meets the face's edges at points coal's one witness of that segment contact
+        does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
+        an arbitrary normal (docs/theory.md §7.1). Needs fs = self.features(q, u) of all features."""
+        out = []
+        for pair, (which, P_a, P_b, nn) in fs.points.items():
+            e_which, active = fs.edges.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
+            for i, k in enumerate(which.tolist()):
+                if k >= 16 and not active[np.searchsorted(e_which, k)]:
+                    continue
+                col = self.box_index[pair] + k
+                if fs.g[col] > self.gap_tol or (k >= 16 and fs.gamma[col] >= -V_TOL):
+                    continue
+                w = fs.W[:, col]
+                if k >= 16 and W.shape[1]:  # a closed vertex's own row always replaces coal's
+                    r = w - W @ np.linalg.lstsq(W, w, rcond=1e-12)[0]
+                    if np.abs(r).max() <= 1e-9 * np.abs(w).max():
+                        continue
+                out.append((float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
+                            FeatureKind.VERTEX if k < 16 else FeatureKind.WITNESS, k))
+                W = np.column_stack((W, w))
+        # cylinder features (§7.2): coal's one witness per pair misses e.g. a cylinder's side on a box's edge
+        # touching ones too: coal's witness normal of a cylinder on an edge is off by ~1e-6, and an impact
+        # elsewhere then left the exact feature approaching at 2e-7 m/s, neither impacted nor persistent
+        for i, (pa, pb, n) in fs.witness.items():
+            if fs.g[i] > self.gap_tol or fs.gamma[i] > V_TOL or not fs.exact.get(i, False):
+                continue
+            w = fs.W[:, i]
+            if W.shape[1] and (np.abs(W - w[:, None]).max(axis=0) <= 1e-9 * np.abs(w).max()).any():
+                continue  # already a row (a combination of rows would not keep it from approaching)
+            f = self.feats[i]
+            # WITNESS features 1.. (coal's own witness of the pair is 0): 1 sphere_cylinder, 1-2 rims, 3-14 sides
+            k = 1 + f.feature + (2 if f.kind == "side_edge" else 0) if f.feature >= 0 else 1
+            if self._cyl_swapped[i]:  # coal's A is the feature's B: points swapped, normal reversed
+                pa, pb, n = pb, pa, -n
+            out.append((float(fs.g[i]), pa, pb, n, f.pair, FeatureKind.WITNESS, k))
+            W = np.column_stack((W, w))
+        return out
+
+    def _impact(self, t, q, u, fs: FeatureState) -> tuple[np.ndarray, Impact, float]:
+        """The impact law on the contacts detect() closes at q: law.impact (docs/theory.md §1), or at
+        a corner the set-valued law with the scene's selection policy (§3, §7.2). Returns (u+, the
+        impact to record, the contact work -(energy lost) [J])."""
+        pm, pd, model = self.pm, self.pd, self.model
+        # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
+        # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
+        self.data.warm_start_pairs = set(self.data.warm_start_pairs) | {
+            self.feats[i].pair for i in np.flatnonzero(fs.g <= self.gap_tol)}
+        c = detect(model, self.data, q)
+        cs = assemble_constraints(model, self.data, q, c)
+        # (at a corner the struck vertex is the corner's: its faces are the pieces, not a feature row)
+        missed = self._missed_features(fs, cs.W) if cs.pieces is None else []
+        if missed:  # they replace coal's contacts of the same vertices
+            keys = {(m[4], int(m[5]), m[6]) for m in missed}
+            keep = np.array([k not in keys for k in zip(c.pair.tolist(), c.kind.tolist(), c.feature.tolist())], bool)
+            cs = assemble_constraints(model, self.data, q, c.select(keep).concat(from_rows(model, missed)))
+        c, M, W = cs.contacts, cs.M, cs.W
+        if c.m == 0 and cs.pieces is None:
+            raise SimulationError(f"a gap event at t = {t:.12g} s but coal finds no closed contact")
+        if cs.pieces is None and not (W.T @ u < -V_TOL).any():
+            raise SimulationError(f"a feature approaches at t = {t:.12g} s (gamma = {fs.gamma.min():.3g} m/s) but "
+                                  "none of coal's closed contacts does")
+        # the Zeno rule (module doc) on the approaching features: their free normal accelerations a_n
+        appr = np.flatnonzero((fs.g <= self.gap_tol) & (fs.gamma < -V_TOL))
+        a_n = fs.W[:, appr].T @ pin.aba(pm, pd, q, u, self.zero) + fs.drift[appr]
+        speed = -fs.gamma[appr]
+        low = ((self.e * speed) ** 2 < -2.0 * a_n * G_ZENO) | (speed < V_ZENO)
+        zeno = bool(low.all()) or t - self.last_impact < DT_ZENO
+        e = 0.0 if zeno else self.e
+        if cs.pieces is None:
+            imp = impact(M, W, u, e)
+            P, v, u_plus, gm, gp, loss = imp.P, imp.qp.v, imp.u_plus, W.T @ u, W.T @ imp.u_plus, imp.energy_loss
+            branch = None
+        else:  # the set-valued law at one instant (v0 = u-), the stepper's corners.corner_law
+            cp = cs.pieces
+            law = corner_law(M, u, u, e, W, cp.pieces, cp.rows, cp.choice, selection=model.options.corner_selection)
+            if law is None:
+                raise SimulationError(f"the corner law failed (TOO_MANY_CORNER_PIECES ({len(cp.pieces)} > "
+                                      f"{MAX_PIECES})) at t = {t:.12g} s")
+            c = c.concat(*[corner_faces(cp.corners[i], np.array([f])) for i, f in law.faces], corners=())
+            v, u_plus, P = law.v, outcome(law.v, u, e), percussion(law.lam, e)
+            gm, gp = ordered(law.W.T, u), ordered(law.W.T, u_plus)
+            dv = u - v  # the impact's energy identity holds at every stationary point (§3)
+            loss = 0.5 * (1.0 - e * e) * float(dv @ M @ dv)
+            branch = None if law.u_plus is None else (law.solution, law.chosen, law.u_plus)
+        if zeno and self.e < 1.0 and len(speed):
+            k = int(np.argmax(speed))
+            dt = 2.0 * self.e * speed[k] / ((1.0 - self.e) * -a_n[k]) if a_n[k] < 0 else 0.0
+            self.zeno.append({"t": t, "t_accumulation": float(t + dt), "speed": float(speed[k]),
+                              "pairs": sorted(set(c.pair.tolist()))})
+        self.last_impact = t
+        self.impacts += 1
+        return u_plus, Impact(t, q, u, u_plus, M, v, e, c, P, gm, gp, branch), -loss
+
+
+def sample_grid(model: Model, state: State, t_end: float | None, t_eval) -> tuple[float, np.ndarray]:
+    """t_end [s] (default: state.t + the scene's duration) and the sample instants of a run that
+    locates events: t_eval, checked to increase strictly within [t0, t_end], or by default every
+    save_every * dt of the scene's options (the instants ms.simulate records)."""
+    opts = model.options
+    t_end = state.t + opts.duration if t_end is None else float(t_end)
+    if not t_end > state.t:
+        raise ValueError(f"t_end = {t_end} s must be after the initial time {state.t} s")
+    if t_eval is None:
+        n = max(1, int(round((t_end - state.t) / (opts.dt * opts.save_every))))
+        return t_end, state.t + (t_end - state.t) * np.arange(n + 1) / n
+    t_grid = np.asarray(t_eval, float)
+    if t_grid.ndim != 1 or np.any(np.diff(t_grid) <= 0) or t_grid[0] < state.t or t_grid[-1] > t_end:
+        raise ValueError(f"t_eval must increase strictly within [{state.t}, {t_end}] s")
+    return t_end, t_grid
