@@ -47,7 +47,8 @@ EXCLUDED = {
     ("benchmarks.md", ".venv/bin/python -m benchmarks.work_precision --quick"):
         "the same command is tests/test_work_precision_smoke.py (into its tmp_path)",
     ("benchmarks.md", ".venv/bin/python -m benchmarks.check_peers"): "runs every peer simulator (benchmark, minutes)",
-    ("benchmarks.md", ".venv/bin/python -m benchmarks.step_costs --out"): "long benchmark, rewrites the committed figures",
+    ("benchmarks.md", ".venv/bin/python -m benchmarks.step_costs --out"):
+        "long benchmark, rewrites the committed figures",
     ("benchmarks.md", ".venv/bin/python -m benchmarks.compiled_costs"): "long benchmark",
     ("benchmarks.md", ".venv/bin/python -m benchmarks.adaptive_costs"): "long benchmark",
     ("benchmarks.md", "OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.scaling"):

@@ -115,7 +115,8 @@ def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar on runs longer than 2 s (default: only when stderr is a terminal).")
 @click.option("--checkpoint-every", type=float, metavar="SECONDS",
-              help="Save a checkpoint FILE.checkpoint.npz every SECONDS of simulated time (time-stepping runs).")
+              help="Save a checkpoint FILE.checkpoint.npz every SECONDS of simulated time, at the integrator's "
+                   "accepted points (any integrator; the event-driven one checkpoints at events).")
 @click.option("--resume", is_flag=True,
               help="Continue from FILE.checkpoint.npz if it exists; the result is bit-identical to an "
                    "uninterrupted run.")
