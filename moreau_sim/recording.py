@@ -306,9 +306,8 @@ class Recorder:
             self._smooth += E1 - E0  # a contact-free step is smooth motion only
         else:  # the projection's problem: M, v_free = v0, b; and the step's own u_free
             T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u1, e, r.P, res.b)
-            u_free = res.v0 + e * (res.v0 - u0)  # inverts v_free = (u_free + e u_k)/(1 + e)
-            q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * u_free)
-            self._smooth += total(m, d, q_free, u_free) - E0
+            q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * r.u_free)
+            self._smooth += total(m, d, q_free, r.u_free) - E0
             self._add_impact(step, t, T_minus, T_plus, law, int(np.count_nonzero(r.P > 0)), self._new_impact)
         self._E, self._at, self._TV = E1, (q1, u1), (T1, V1)
 
