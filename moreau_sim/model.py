@@ -310,6 +310,7 @@ def build_model(scene: Scene) -> Model:
 
     q0, u0 = _initial(scene, model, infos, where)
     _check_mass_matrix(model, d, q0, where)
+    check_start(model, geom, d, pairs, q0, where, scene.options.contact_tolerance)
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, scratch=d)
 
@@ -374,6 +375,29 @@ def _check_mass_matrix(model: pin.Model, data: pin.Data, q0: np.ndarray, where: 
             bad.append(model.names[j])
     raise SceneError(f"{where} [[bodies]]: the mass matrix at the initial state is singular: every moving link "
                      f"needs a mass > 0 and a positive-definite inertia (links without: {', '.join(bad) or 'none'})")
+
+
+DISTANCE_FAILED = 1e100  # [m] coal's distance of a failed GJK/EPA query is -DBL_MAX: no distance at all
+
+
+def check_start(model: pin.Model, geom: pin.GeometryModel, data: pin.Data, pairs, q: np.ndarray, where: str,
+                tol: float) -> None:
+    """A start with a pair deeper than `tol` [m] (the contact tolerance) inside another is bad
+    input: no rule removes such a depth honestly (the rest rule of docs/theory.md §2.5 is for the
+    step's own penetration of about h/2 |gamma|: it would lift any depth in one step and book the
+    energy; a moving body keeps it). One SceneError naming the pair and its depth. Called on every
+    model's q0 (build_model); a state given to a run instead must pass it too (docs/scenes.md)."""
+    if not pairs:
+        return
+    gd = pin.GeometryData(geom)  # fresh coal requests: coal's default tolerances, no cached guess
+    pin.computeDistances(model, data, geom, gd, q)
+    g = np.array([r.min_distance for r in gd.distanceResults])
+    g[~(np.abs(g) < DISTANCE_FAILED)] = np.nan  # a failed query proves nothing: the run's records report it
+    deep = np.flatnonzero(g < -tol)
+    if len(deep):
+        k = int(deep[np.argmin(g[deep])])
+        raise SceneError(f"{where}: pair {pairs[k].name} starts {-g[k]:.3g} m inside (more than contact_tolerance "
+                         f"= {tol:g} m); place the bodies apart or touching")
 
 
 def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndarray, np.ndarray]:
