@@ -34,7 +34,7 @@ import numpy as np
 import pinocchio as pin
 
 from .data import Data
-from .model import DISTANCE_FAILED, Model
+from .model import DISTANCE_FAILED, Model, check_start
 
 
 
@@ -421,3 +421,10 @@ def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
     d = np.array([r.min_distance for r in data.distance_results])
     d[~(np.abs(d) < DISTANCE_FAILED)] = np.nan
     return d
+
+
+def check_initial(model: Model, data: Data, q: np.ndarray) -> None:
+    """model.check_start for a configuration q given to a run instead of the scene's q0 (a
+    SceneError if a pair starts deeper than contact_tolerance inside another; docs/theory.md §2.5)."""
+    where = str(model.scene.path) if model.scene.path else "<scene>"
+    check_start(model.pin, model.geom, data.pin, model.pairs, q, where, model.options.contact_tolerance)

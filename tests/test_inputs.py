@@ -166,6 +166,9 @@ def test_start_inside_an_obstacle_is_refused_beyond_the_contact_tolerance(tmp_pa
     model = ms.build_model(ms.load_scene(ok))
     g = ms.pair_distances(model, ms.make_data(model), model.q0)
     assert -tol < g[0] < -0.8 * tol
+    ms.contacts.check_initial(model, ms.make_data(model), model.q0)  # the same rule for a state given to a run
+    with pytest.raises(ms.SceneError, match=r"ball/ball_0\|ground starts .* m inside"):
+        ms.contacts.check_initial(model, ms.make_data(model), model.q0 - 0.2 * tol)
     bad = ball(tmp_path, **{"q0 = [1.0]": f"q0 = [{0.1 - 1.1 * tol!r}]", "dt = 1e-3": opt})
     msg = expect_error(bad, "ball/ball_0|ground", f"{1.1 * tol:.3g} m inside", f"contact_tolerance = {tol:g} m")
     assert "\n" not in msg
