@@ -286,7 +286,8 @@ def _fallback_contact(data: Data, pair):
 # enable_cached_gjk_guess); exactly touching shapes leave one of ~1e-12 m, and from such a guess
 # (anything up to about coal's GJK tolerance) coal 3.0.3 reports a 6-14 mm overlap as no collision
 # and a resting pair's distance as -DBL_MAX. Only its direction is a warm start: longer guesses are
-# left as they are (src/step.cpp's fresh_guesses is the same rule, bit for bit).
+# left as they are (src/step.cpp's fresh_guesses is the same rule, bit for bit). No coal issue reports
+# this one; related: coal-library/coal#325 (a distance of -infinity from a degenerate GJK simplex).
 GUESS_MIN = 1e-3
 
 

@@ -310,7 +310,6 @@ def build_model(scene: Scene) -> Model:
 
     q0, u0 = _initial(scene, model, infos, where)
     _check_mass_matrix(model, d, q0, where)
-    check_start(model, geom, d, pairs, q0, where, scene.options.contact_tolerance)
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, scratch=d)
 
@@ -385,8 +384,8 @@ def check_start(model: pin.Model, geom: pin.GeometryModel, data: pin.Data, pairs
     """A start with a pair deeper than `tol` [m] (the contact tolerance) inside another is bad
     input: no rule removes such a depth honestly (the rest rule of docs/theory.md §2.5 is for the
     step's own penetration of about h/2 |gamma|: it would lift any depth in one step and book the
-    energy; a moving body keeps it). One SceneError naming the pair and its depth. Called on every
-    model's q0 (build_model); a state given to a run instead must pass it too (docs/scenes.md)."""
+    energy; a moving body keeps it). One SceneError naming the pair and its depth. initial_state
+    checks q0 with it; contacts.check_initial is the same rule for a state given to a run."""
     if not pairs:
         return
     gd = pin.GeometryData(geom)  # fresh coal requests: coal's default tolerances, no cached guess
@@ -427,6 +426,11 @@ def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndar
 
 
 def initial_state(model: Model) -> State:
+    """The scene's initial state; a SceneError if it starts a pair deeper than contact_tolerance
+    inside another (check_start: every run from q0 starts here)."""
+    where = str(model.scene.path) if model.scene.path else "<scene>"
+    check_start(model.pin, model.geom, new_data(model.pin, where), model.pairs, model.q0, where,
+                model.options.contact_tolerance)
     return State(0.0, model.q0.copy(), model.u0.copy())
 
 

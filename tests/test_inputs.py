@@ -169,9 +169,17 @@ def test_start_inside_an_obstacle_is_refused_beyond_the_contact_tolerance(tmp_pa
     ms.contacts.check_initial(model, ms.make_data(model), model.q0)  # the same rule for a state given to a run
     with pytest.raises(ms.SceneError, match=r"ball/ball_0\|ground starts .* m inside"):
         ms.contacts.check_initial(model, ms.make_data(model), model.q0 - 0.2 * tol)
+    assert np.array_equal(ms.initial_state(model).q, model.q0)
     bad = ball(tmp_path, **{"q0 = [1.0]": f"q0 = [{0.1 - 1.1 * tol!r}]", "dt = 1e-3": opt})
-    msg = expect_error(bad, "ball/ball_0|ground", f"{1.1 * tol:.3g} m inside", f"contact_tolerance = {tol:g} m")
+    model = ms.build_model(ms.load_scene(bad))  # a model may be built there (to evaluate rows, gaps): not run
+    with pytest.raises(ms.SceneError) as info:
+        ms.initial_state(model)
+    msg = str(info.value)
+    for part in (str(bad), "ball/ball_0|ground", f"{1.1 * tol:.3g} m inside", f"contact_tolerance = {tol:g} m"):
+        assert part in msg, (part, msg)
     assert "\n" not in msg
+    with pytest.raises(ms.SceneError, match="m inside"):
+        ms.simulate(model, progress=False)
 
 
 def test_start_deep_inside_is_refused_by_the_cli(tmp_path):
