@@ -269,7 +269,8 @@ class Recorder:
         c["contact_work"][i] = work
         c["correction_energy"][i] = corr
         g = c["gap"][i] = pair_distances(m, d, q)
-        if np.isnan(g).any() and state.finite():  # coal failed at a finite q: stop, uncommitted (no sentinel as data)
+        # coal failed at a finite state (not an overflow, which finite() reports): stop, uncommitted, no sentinel
+        if np.isnan(g).any() and math.isfinite(T + V) and state.finite():
             k = int(np.flatnonzero(np.isnan(g))[0])
             raise SimulationError(f"the distance of pair {m.pairs[k].name} at t = {state.t:.6g} s is undefined "
                                   "(coal's GJK/EPA query failed)")

@@ -121,7 +121,7 @@ def outcome(scene_path: Path, steps: int = 20) -> str:
 def body_scene(folder: Path, body: str) -> Path:
     p = folder / "s.toml"
     p.write_text(f'[simulation]\ndt = 1e-3\n[[bodies]]\nname = "b"\n{body}\n'
-                 '[[statics]]\nname = "ground"\nshape = "halfspace"\n')
+                 '[[statics]]\nname = "ground"\nshape = "halfspace"\noffset = -1.0\n')  # below the body: a run may start
     return p
 
 
