@@ -15,7 +15,7 @@ import numpy as np
 import pinocchio
 
 from . import constraints, qp
-from .contacts import NO_CONTACTS, Contacts, FeatureKind
+from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, Contacts, FeatureKind
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts
 from .qp import QPResult
 from .results import MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
@@ -29,7 +29,7 @@ CONSTANTS = {
     "vertex": int(FeatureKind.VERTEX), "witness": int(FeatureKind.WITNESS), "max_contacts": MAX_CONTACTS,
     "screen": qp.SCREEN, "dependent": qp.DEPENDENT, "met": qp.MET, "accept": qp.ACCEPT, "refine": qp.REFINE,
     "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA,
-    "distinct": constraints.DISTINCT,
+    "distinct": constraints.DISTINCT, "guess_min": GUESS_MIN, "distance_failed": DISTANCE_FAILED,
 }
 _EMPTY = np.zeros(0)
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}

@@ -34,7 +34,7 @@ import numpy as np
 import pinocchio as pin
 
 from .data import Data
-from .model import Model
+from .model import DISTANCE_FAILED, Model, check_start
 
 
 
@@ -281,6 +281,28 @@ def _fallback_contact(data: Data, pair):
     return c if abs(c.penetration_depth) < 1e100 and np.isfinite(np.asarray(c.normal)).all() else None
 
 
+# A cached GJK guess [m] shorter than this is rescaled to unit length before coal's next call
+# (docs/theory.md §6). coal warm-starts GJK from the request's cached guess (pinocchio enables
+# enable_cached_gjk_guess); exactly touching shapes leave one of ~1e-12 m, and from such a guess
+# (anything up to about coal's GJK tolerance) coal 3.0.3 reports a 6-14 mm overlap as no collision
+# and a resting pair's distance as -DBL_MAX. Only its direction is a warm start: longer guesses are
+# left as they are (src/step.cpp's fresh_guesses is the same rule, bit for bit). No coal issue reports
+# this one; related: coal-library/coal#325 (a distance of -infinity from a degenerate GJK simplex).
+GUESS_MIN = 1e-3
+
+
+def fresh_guesses(requests) -> None:
+    """Rescale each request's cached GJK guess shorter than GUESS_MIN (or non-finite) to unit
+    length, (1, 0, 0) if it has no direction. Requests only: coal overwrites the results' copies."""
+    for req in requests:
+        gg = req.cached_gjk_guess
+        x, y, z = gg.tolist()
+        if max(abs(x), abs(y), abs(z)) >= GUESS_MIN and math.isfinite(x + y + z):
+            continue
+        n = math.sqrt(x * x + y * y + z * z)
+        req.cached_gjk_guess = np.array([x / n, y / n, z / n] if 0.0 < n < math.inf else [1.0, 0.0, 0.0])
+
+
 def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | None = None) -> Contacts:
     """Closed contacts H(q) = {i : g_i(q) <= contact_tolerance} at configuration q.
 
@@ -293,6 +315,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     if not model.pairs:
         return NO_CONTACTS
     tol = model.options.contact_tolerance
+    fresh_guesses(gd.collisionRequests)
     coll = pin.computeCollisions(gm, gd, False)
     near = _near_polytopes(model, data, tol)
     if not coll and not near:
@@ -390,8 +413,19 @@ def _merge_corners(model: Model, items: list, margin: float) -> tuple:
 
 
 def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
-    """Signed distance [m] of every collision pair at q (for records and plots, not the step)."""
+    """Signed distance [m] of every collision pair at q (for records and plots, not the step);
+    NaN where coal's query failed (its -DBL_MAX is never passed on as a distance)."""
     if not model.pairs:
         return np.zeros(0)
+    fresh_guesses(data.geom.distanceRequests)
     pin.computeDistances(model.pin, data.pin, model.geom, data.geom, q)
-    return np.array([r.min_distance for r in data.distance_results])
+    d = np.array([r.min_distance for r in data.distance_results])
+    d[~(np.abs(d) < DISTANCE_FAILED)] = np.nan
+    return d
+
+
+def check_initial(model: Model, data: Data, q: np.ndarray) -> None:
+    """model.check_start for a configuration q given to a run instead of the scene's q0 (a
+    SceneError if a pair starts deeper than contact_tolerance inside another; docs/theory.md §2.5)."""
+    where = str(model.scene.path) if model.scene.path else "<scene>"
+    check_start(model.pin, model.geom, data.pin, model.pairs, q, where, model.options.contact_tolerance)

@@ -376,6 +376,29 @@ def _check_mass_matrix(model: pin.Model, data: pin.Data, q0: np.ndarray, where: 
                      f"needs a mass > 0 and a positive-definite inertia (links without: {', '.join(bad) or 'none'})")
 
 
+DISTANCE_FAILED = 1e100  # [m] coal's distance of a failed GJK/EPA query is -DBL_MAX: no distance at all
+
+
+def check_start(model: pin.Model, geom: pin.GeometryModel, data: pin.Data, pairs, q: np.ndarray, where: str,
+                tol: float) -> None:
+    """A start with a pair deeper than `tol` [m] (the contact tolerance) inside another is bad
+    input: no rule removes such a depth honestly (the rest rule of docs/theory.md §2.5 is for the
+    step's own penetration of about h/2 |gamma|: it would lift any depth in one step and book the
+    energy; a moving body keeps it). One SceneError naming the pair and its depth. initial_state
+    checks q0 with it; contacts.check_initial is the same rule for a state given to a run."""
+    if not pairs:
+        return
+    gd = pin.GeometryData(geom)  # fresh coal requests: coal's default tolerances, no cached guess
+    pin.computeDistances(model, data, geom, gd, q)
+    g = np.array([r.min_distance for r in gd.distanceResults])
+    g[~(np.abs(g) < DISTANCE_FAILED)] = np.nan  # a failed query proves nothing: the run's records report it
+    deep = np.flatnonzero(g < -tol)
+    if len(deep):
+        k = int(deep[np.argmin(g[deep])])
+        raise SceneError(f"{where}: pair {pairs[k].name} starts {-g[k]:.3g} m inside (more than contact_tolerance "
+                         f"= {tol:g} m); place the bodies apart or touching")
+
+
 def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndarray, np.ndarray]:
     q, u = pin.neutral(model), np.zeros(model.nv)
     for i, (body, info) in enumerate(zip(scene.bodies, infos)):
@@ -403,6 +426,11 @@ def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndar
 
 
 def initial_state(model: Model) -> State:
+    """The scene's initial state; a SceneError if it starts a pair deeper than contact_tolerance
+    inside another (check_start: every run from q0 starts here)."""
+    where = str(model.scene.path) if model.scene.path else "<scene>"
+    check_start(model.pin, model.geom, new_data(model.pin, where), model.pairs, model.q0, where,
+                model.options.contact_tolerance)
     return State(0.0, model.q0.copy(), model.u0.copy())
 
 

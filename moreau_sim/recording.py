@@ -24,6 +24,7 @@ from . import trajectory
 from .contacts import Contacts, pair_distances
 from .data import Data
 from .energy import kinetic, potential, total
+from .errors import SimulationError
 from .ledger import impact_terms
 from .model import Model
 from .state import State
@@ -267,7 +268,12 @@ class Recorder:
         c["kinetic_energy"][i], c["potential_energy"][i] = T, V
         c["contact_work"][i] = work
         c["correction_energy"][i] = corr
-        c["gap"][i] = pair_distances(m, d, q)
+        g = c["gap"][i] = pair_distances(m, d, q)
+        # coal failed at a finite state (not an overflow, which finite() reports): stop, uncommitted, no sentinel
+        if np.isnan(g).any() and math.isfinite(T + V) and state.finite():
+            k = int(np.flatnonzero(np.isnan(g))[0])
+            raise SimulationError(f"the distance of pair {m.pairs[k].name} at t = {state.t:.6g} s is undefined "
+                                  "(coal's GJK/EPA query failed)")
         c["n_contacts"][i] = n_contacts
         self._smooth_until(T + V, state.t)  # 0 right after a step
         c["smooth_error"][i], c["dissipation"][i], c["law_dissipation"][i] = self._smooth, self._diss, self._law

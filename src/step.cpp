@@ -65,11 +65,13 @@ struct Constants {
   double screen, dependent, met, accept, refine, second_pass;  // qp.SCREEN, DEPENDENT, MET, ACCEPT, REFINE, SECOND_PASS
   int moves_per_row, moves_extra;  // qp.MOVES_PER_ROW, MOVES_EXTRA
   double distinct;  // constraints.distinct's relative tolerance
+  double guess_min, distance_failed;  // contacts.GUESS_MIN, DISTANCE_FAILED
 
   static const std::vector<std::string> &keys() {
     static const std::vector<std::string> k = {
         "midpoint_iterations", "midpoint_tolerance", "resting", "vertex", "witness", "max_contacts", "screen",
-        "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct"};
+        "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct",
+        "guess_min", "distance_failed"};
     return k;
   }
   // from a dict holding exactly keys() (a missing or an unknown name is an error: nothing is left to a default)
@@ -93,6 +95,7 @@ struct Constants {
     c.max_contacts = geti("max_contacts"), c.screen = get("screen"), c.dependent = get("dependent");
     c.met = get("met"), c.accept = get("accept"), c.refine = get("refine"), c.second_pass = get("second_pass");
     c.moves_per_row = geti("moves_per_row"), c.moves_extra = geti("moves_extra"), c.distinct = get("distinct");
+    c.guess_min = get("guess_min"), c.distance_failed = get("distance_failed");
     return c;
   }
   std::map<std::string, double> as_dict() const {
@@ -100,7 +103,7 @@ struct Constants {
             {"resting", resting}, {"vertex", vertex}, {"witness", witness}, {"max_contacts", max_contacts},
             {"screen", screen}, {"dependent", dependent}, {"met", met}, {"accept", accept}, {"refine", refine},
             {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra},
-            {"distinct", distinct}};
+            {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed}};
   }
 };
 
@@ -526,11 +529,34 @@ class Stepper {
     double V = pinocchio::computePotentialEnergy(model_, data_, q);
     return T + V;
   }
+  // contacts.pair_distances: NaN where coal's query failed (its -DBL_MAX is no distance)
   VectorXd pair_distances(const VectorXd &q) {
+    fresh_guesses(gd_.distanceRequests);
     pinocchio::computeDistances(model_, data_, gm_, gd_, q);
     VectorXd d(gd_.distanceResults.size());
-    for (size_t k = 0; k < gd_.distanceResults.size(); ++k) d[k] = gd_.distanceResults[k].min_distance;
+    for (size_t k = 0; k < gd_.distanceResults.size(); ++k) {
+      const double x = gd_.distanceResults[k].min_distance;
+      d[k] = std::abs(x) < C_.distance_failed ? x : std::numeric_limits<double>::quiet_NaN();
+    }
     return d;
+  }
+
+  // contacts.fresh_guesses, operation by operation: a cached GJK guess shorter than C_.guess_min (or
+  // non-finite) is rescaled to unit length, (1, 0, 0) if it has no direction (coal 3.0.3 fails from a
+  // guess of ~1e-12 m: a deep overlap reported as no collision, a distance of -DBL_MAX)
+  template <typename Requests>
+  void fresh_guesses(Requests &requests) const {
+    for (auto &req : requests) {
+      coal::Vec3s &g = req.cached_gjk_guess;
+      const double x = g[0], y = g[1], z = g[2];
+      if (std::max(std::max(std::abs(x), std::abs(y)), std::abs(z)) >= C_.guess_min && std::isfinite(x + y + z))
+        continue;
+      const double n = std::sqrt(x * x + y * y + z * z);
+      if (0.0 < n && n < std::numeric_limits<double>::infinity())
+        g = coal::Vec3s(x / n, y / n, z / n);
+      else
+        g = coal::Vec3s(1.0, 0.0, 0.0);
+    }
   }
 
   std::vector<coal::Vec3s> saved_guess_;
@@ -618,6 +644,7 @@ class Stepper {
     pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q_m);
     if (pairs_.rows() == 0) return found;
     save_guesses();
+    fresh_guesses(gd_.collisionRequests);
     const bool coll = pinocchio::computeCollisions(gm_, gd_, false);
     if (!coll) return found;
     for (Eigen::Index k = 0; k < pairs_.rows(); ++k) {

@@ -120,8 +120,9 @@ def outcome(scene_path: Path, steps: int = 20) -> str:
 
 def body_scene(folder: Path, body: str) -> Path:
     p = folder / "s.toml"
+    # the ground 1 m below the body at its origin: a run may not start inside an obstacle
     p.write_text(f'[simulation]\ndt = 1e-3\n[[bodies]]\nname = "b"\n{body}\n'
-                 '[[statics]]\nname = "ground"\nshape = "halfspace"\n')
+                 '[[statics]]\nname = "ground"\nshape = "halfspace"\noffset = -1.0\n')
     return p
 
 

@@ -1,5 +1,8 @@
 """Bad input stops with a message naming the file and the field, never a library traceback."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -152,3 +155,41 @@ def test_nan_state_stops_with_step_and_time():
     state = ms.State(0.0, np.array([np.nan]), np.array([0.0]))
     with pytest.raises(ms.SimulationError, match=r"step 1 .*non-finite"):
         ms.simulate(model, state=state, progress=False)
+
+
+@pytest.mark.parametrize("tol", [1e-9, 1e-6])
+def test_start_inside_an_obstacle_is_refused_beyond_the_contact_tolerance(tmp_path, tol):
+    """A ball (r = 0.1 m) started 0.9 tol inside the ground builds; 1.1 tol inside is refused in one line
+    naming the pair and its depth (the rest rule is for a step's own penetration, docs/theory.md §2.5)."""
+    opt = f"dt = 1e-3\ncontact_tolerance = {tol!r}"
+    ok = ball(tmp_path, **{"q0 = [1.0]": f"q0 = [{0.1 - 0.9 * tol!r}]", "dt = 1e-3": opt})
+    model = ms.build_model(ms.load_scene(ok))
+    g = ms.pair_distances(model, ms.make_data(model), model.q0)
+    assert -tol < g[0] < -0.8 * tol
+    ms.contacts.check_initial(model, ms.make_data(model), model.q0)  # the same rule for a state given to a run
+    with pytest.raises(ms.SceneError, match=r"ball/ball_0\|ground starts .* m inside"):
+        ms.contacts.check_initial(model, ms.make_data(model), model.q0 - 0.2 * tol)
+    assert np.array_equal(ms.initial_state(model).q, model.q0)
+    bad = ball(tmp_path, **{"q0 = [1.0]": f"q0 = [{0.1 - 1.1 * tol!r}]", "dt = 1e-3": opt})
+    model = ms.build_model(ms.load_scene(bad))  # a model may be built there (to evaluate rows, gaps): not run
+    with pytest.raises(ms.SceneError) as info:
+        ms.initial_state(model)
+    msg = str(info.value)
+    for part in (str(bad), "ball/ball_0|ground", f"{1.1 * tol:.3g} m inside", f"contact_tolerance = {tol:g} m"):
+        assert part in msg, (part, msg)
+    assert "\n" not in msg
+    with pytest.raises(ms.SceneError, match="m inside"):
+        ms.simulate(model, progress=False)
+
+
+def test_start_deep_inside_is_refused_by_the_cli(tmp_path):
+    """rocking_block with the ground's offset 1.5 m: was lifted 1.5 m in one step (+14.6 J booked); now exit 2."""
+    text = (SCENES / "rocking_block.toml").read_text()
+    text = text.replace('shape = "halfspace"', 'shape = "halfspace"\noffset = 1.5')
+    p = write(tmp_path, text.replace('"../models/', f'"{MODELS}/'))
+    r = subprocess.run([sys.executable, "-m", "moreau_sim.cli", "run", str(p), "--out", str(tmp_path / "x.npz")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    line, = r.stderr.strip().splitlines()
+    assert "block/" in line and "|ground starts 1.5 m inside" in line
+    assert not (tmp_path / "x.npz").exists()

@@ -1,0 +1,113 @@
+"""coal's cached GJK guess (contacts.fresh_guesses, src/step.cpp's mirror; docs/theory.md §6).
+
+Exactly touching shapes leave coal a cached guess of ~5e-12 m; from it coal 3.0.3 reported a
+6-14 mm overlap as no collision (boxes on a slope went 1.4-2.6 cm into it, whatever the step) and a
+resting pair's distance as -DBL_MAX, written into trajectories. Every guess shorter than GUESS_MIN
+is now rescaled to unit length before each call, and a failed distance is NaN, never data.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+import moreau_sim as ms
+from moreau_sim.errors import SimulationError
+
+from helpers import MODELS, scene
+
+# configurations where a pair rests exactly (gap ~ -5e-12 m) and coal's distance, warm-started from the
+# guess the touching start q0 leaves, was -1.8e308 (heavy_on_light_box_10000 adaptive at t = 0.13 s;
+# alternating_stack_10 event-driven at t = 0.49 s, its two lowest cubes, the others at q0)
+RESTING = {
+    "heavy_on_light_box_10000": [
+        -1.149993468083452e-09, -7.247299404420154e-11, 0.05000000000018612, 8.056853766195464e-13,
+        3.599574583477699e-12, 2.046281600181504e-17, 1.0, 1.1499934680834516e-13, 7.247299404420162e-15,
+        0.15000000000006164, -1.2771293041684921e-12, 1.043627704925907e-12, 5.445016822843862e-25, 1.0],
+    "alternating_stack_10": [
+        -7.617580609327788e-10, -1.1472959756756821e-10, 0.050000000000096904, 8.192363629249161e-13,
+        3.0892400600975516e-12, 9.603490252256703e-18, 1.0, 5.667377964323764e-12, 6.0478007281195975e-12,
+        0.15000000000044644, 3.506603220473601e-12, 6.939121940491311e-13, -3.384744432756086e-21, 1.0],
+}
+
+
+@pytest.mark.parametrize("name", sorted(RESTING))
+def test_a_distance_after_touching_shapes_is_the_true_distance(name):
+    """pair_distances at the touching start, then at the resting configuration: every distance is
+    within 1e-10 m of 0 (the pairs touch), as a fresh query gives it; none is a sentinel."""
+    model = ms.build_model(scene(name))
+    q = model.q0.copy()
+    q[:len(RESTING[name])] = RESTING[name]
+    data = ms.make_data(model)
+    ms.pair_distances(model, data, model.q0)  # touching: leaves coal a guess of ~5e-12 m
+    g = ms.pair_distances(model, data, q)
+    fresh = ms.pair_distances(model, ms.make_data(model), q)
+    assert np.isfinite(g).all() and g.min() > -1e100
+    touching = np.abs(fresh) < 1e-9
+    assert touching[0] and np.abs(g[touching]).max() < 1e-10
+    assert np.abs(g[~touching] - fresh[~touching]).max(initial=0.0) < 1e-12
+
+
+@pytest.mark.parametrize("tiny", [0.0, 1e-300, 5e-12, 1e-7, math.nan, math.inf])
+def test_a_degenerate_guess_is_rescaled_before_the_call(tiny):
+    """A guess of length 0, subnormal, tiny, NaN or inf: the distance of a ball 0.25 m above the ground is
+    0.25 m (the guess is reset to its direction, or to (1, 0, 0)), as from a fresh query."""
+    model = ms.build_model(scene("bouncing_ball"))
+    data = ms.make_data(model)
+    q = np.array([0.35])  # the ball's height [m]: 0.25 m above the ground
+    for req in (*data.geom.distanceRequests, *data.geom.collisionRequests):
+        req.cached_gjk_guess = np.array([0.0, 0.0, tiny])
+    expected = ms.pair_distances(model, ms.make_data(model), q)
+    assert np.allclose(expected, [0.25], rtol=0, atol=1e-12)
+    assert np.array_equal(ms.pair_distances(model, data, q), expected)
+    for req in data.geom.distanceRequests:
+        n = float(np.linalg.norm(req.cached_gjk_guess))
+        assert math.isfinite(n) and n > 1e-3
+
+
+def slope(h: float):
+    """Issue 23's scene: three 0.1 m cubes 0.5 m apart at 1.0-1.4 m sliding down a slope of two static
+    boxes 2 x 1 x 0.1 m tilted 0.25 rad, e = 0.3, 1.5 s."""
+    b = ms.SceneBuilder("slope3", restitution=0.3, dt=h, duration=1.5)
+    th = 0.25
+    b.add_box("slope_a", [2.0, 1.0, 0.1], position=[0.0, 0.0, 0.5], rpy=[0.0, th, 0.0])
+    b.add_box("slope_b", [2.0, 1.0, 0.1], position=[-2.0 * np.cos(th), 0.0, 0.5 + 2.0 * np.sin(th)],
+              rpy=[0.0, th, 0.0])
+    for i in range(3):
+        b.add_body(f"box{i}", MODELS / "cube.urdf", root_joint="free", position=[-0.5 * i, 0.0, 1.0 + 0.2 * i])
+    b.add_halfspace("ground")
+    return b.build()
+
+
+def test_penetration_on_the_slope_shrinks_with_the_step():
+    """The deepest gap of the slope scene is the impact transient of one step, h v: below h sqrt(2 g z0)
+    (the fastest a cube released at z0 = 1.4 m can move) and shrinking with h. Before the rescale a
+    missed contact left -1.43 cm at h = 1e-3 and -2.58 cm at 3e-4 (measured -2.0, -0.83, -0.13 mm now)."""
+    v_max = math.sqrt(2 * 9.81 * 1.4)
+    deepest = {}
+    for h in (1e-3, 3e-4, 1e-4):
+        traj = ms.run(slope(h))
+        assert traj.complete
+        deepest[h] = -float(traj.arrays["gap"].min())
+        assert 0.0 < deepest[h] <= h * v_max, (h, deepest[h])
+    assert deepest[1e-3] > deepest[3e-4] > deepest[1e-4]
+
+
+def test_a_failed_distance_stops_the_run_naming_the_pair(monkeypatch):
+    """A distance coal cannot compute is NaN and stops the run (step, time, pair): never a sentinel in
+    the records, never a silent complete run."""
+    import moreau_sim.recording as recording
+    real = recording.pair_distances
+
+    def failing(model, data, q):
+        g = real(model, data, q)
+        if q[-1] < 0.9:
+            g[0] = np.nan
+        return g
+    monkeypatch.setattr(recording, "pair_distances", failing)
+    with pytest.raises(SimulationError) as info:
+        ms.run(scene("bouncing_ball", duration=1.0), progress=False)
+    msg = str(info.value)
+    assert "step " in msg and "ball/ball_0|ground" in msg and "undefined" in msg
+    traj = info.value.trajectory
+    assert not traj.complete and np.isfinite(traj.arrays["gap"]).all()
