@@ -147,7 +147,7 @@ class AdaptiveRun:
         self.fallbacks: list[dict] = []
         self.back_steps = BACK_STEPS
         self.burst: list[float] = []  # the times of the events within the last dt
-        state = state or initial_state(model)
+        state = state or initial_state(model, data)
         self.state = State(float(state.t), np.array(state.q, float), np.array(state.u, float))
         self.t0, self.t_end, self.t = self.state.t, float(t_end), self.state.t
         self.H = min(self.max_step, 10.0 * self.h_fix)  # [s] the next extrapolated step
@@ -573,7 +573,7 @@ def simulate_adaptive(model: Model, *, state: State | None = None, t_end: float 
     "zeno", "fallbacks", "run" (steps extrapolated / refused / fixed, events, impacts,
     wall_seconds). Raises SimulationError (with .trajectory up to the failure)."""
     data = data or make_data(model)
-    state = state or initial_state(model)
+    state = state or initial_state(model, data)
     opts = model.options
     t_end, t_grid = sample_grid(model, state, t_end, t_eval)
     rtol = opts.rtol if rtol is None else float(rtol)

@@ -52,7 +52,7 @@ class EventDrivenRun:
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         self.rtol, self.atol, self.method, self.max_step, self.max_events = rtol, atol, method, max_step, max_events
         self.events = self.stuck = 0
-        state = state or initial_state(model)
+        state = state or initial_state(model, data)
         self.state = State(float(state.t), np.array(state.q, float), np.array(state.u, float))
         self.t0, self.t_end, self.t = self.state.t, float(t_end), self.state.t
         self.released: frozenset = frozenset()  # released at the current event: not re-admitted there
@@ -267,7 +267,7 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     thresholds), "run" (events, impacts, nfev, wall_seconds). Raises UnsupportedModel for a pair
     without an analytic gap, SimulationError (with .trajectory up to the failure) otherwise."""
     data = data or make_data(model)
-    state = state or initial_state(model)
+    state = state or initial_state(model, data)
     t_end, t_grid = sample_grid(model, state, t_end, t_eval)
     integ = EventDrivenRun(model, data, model.options.restitution, rtol, atol, method, max_step, max_events,
                            state=state, t_end=t_end)

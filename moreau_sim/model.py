@@ -425,12 +425,13 @@ def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndar
     return q, u
 
 
-def initial_state(model: Model) -> State:
+def initial_state(model: Model, data=None) -> State:
     """The scene's initial state; a SceneError if it starts a pair deeper than contact_tolerance
-    inside another (check_start: every run from q0 starts here)."""
+    inside another (check_start: every run from q0 starts here). data: the run's Data, whose
+    Pinocchio data the check uses as scratch (default: a new one)."""
     where = str(model.scene.path) if model.scene.path else "<scene>"
-    check_start(model.pin, model.geom, new_data(model.pin, where), model.pairs, model.q0, where,
-                model.options.contact_tolerance)
+    pd = data.pin if data is not None else new_data(model.pin, where)
+    check_start(model.pin, model.geom, pd, model.pairs, model.q0, where, model.options.contact_tolerance)
     return State(0.0, model.q0.copy(), model.u0.copy())
 
 

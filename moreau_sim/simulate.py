@@ -37,7 +37,7 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     one block, and the returned arrays are read-only maps of those files (they disappear with the
     arrays). check: the invariant hook (driver.Check)."""
     data = data or make_data(model)
-    state = state or initial_state(model)
+    state = state or initial_state(model, data)
     opts = model.options
     if opts.integrator is Integrator.EVENT_DRIVEN:
         return simulate_event_driven(model, data=data, state=state, progress=progress, checkpoint=checkpoint,
