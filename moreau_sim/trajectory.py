@@ -261,6 +261,7 @@ def read_npz(path: Path):
     except ValueError as exc:
         if str(path) in str(exc):
             raise
-        raise ValueError(f"{path}: not a moreau-sim trajectory NPZ ({exc})") from None
+        why = "not a NumPy .npz archive" if "pickle" in str(exc) else str(exc)  # np.load's allow_pickle advice
+        raise ValueError(f"{path}: not a moreau-sim trajectory NPZ ({why})") from None
     except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError) as exc:  # truncated or corrupted
         raise ValueError(f"{path}: cannot read trajectory: {type(exc).__name__}: {exc}") from None

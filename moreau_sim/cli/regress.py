@@ -15,6 +15,7 @@ from ..ledger import DEFAULT_TOLERANCE, QUANTITIES
 from ..regress import Result, check_scene, junit
 from ..sweep import parse_settings
 from .common import fail
+from .paths import output_dir, output_path
 
 
 def _tolerances(rtol, atol, specs) -> dict | None:
@@ -60,6 +61,11 @@ def regress(scenes, directory, update, settings, rtol, atol, tol_specs, junit_fi
         overrides = parse_settings(settings)
     except MoreauSimError as exc:
         fail(f"command line: {exc}")
+    if junit_file is not None:
+        junit_file = output_path(junit_file, default=Path("regress.xml"), suffix=".xml", where="--junit",
+                                 inputs=list(scenes), roots=[Path(s).parent for s in scenes])
+    if update:
+        output_dir(directory, default=Path(directory), where="--baseline", roots=[Path(s).parent for s in scenes])
     results, errors = [], 0
     for scene in scenes:
         try:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import signal
 import sys
-import tempfile
 from pathlib import Path
 
 import click
@@ -17,6 +16,7 @@ from ..model import build_model
 from ..scene import load_scene
 from ..simulate import simulate, summary
 from .common import fail
+from .paths import model_inputs, output_path
 
 
 def _load(scene: str, **overrides):
@@ -48,27 +48,27 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
-def _output(out: str | None, sc) -> Path:
+def _output(out: str | None, sc, model) -> Path:
     """Where `run` writes: -o/--out as given; else the scene's [output] file, resolved in the
-    scene's folder and never outside it; else NAME.npz here. Checked writable before simulating."""
-    if out:
-        path, where = Path(out), f"--out {out}"
-    elif sc.output:
+    scene's folder and never outside it; else NAME.npz here. Checked (cli/paths.py: suffix, not an
+    input, folder writable) before simulating."""
+    inputs = model_inputs(sc, model)
+    roots = [sc.path.parent] if sc.path else []
+    default = Path(f"{sc.name}.npz")
+    if out is not None:
+        return output_path(out, default=default, suffix=".npz", where="--out", inputs=inputs, roots=roots)
+    if sc.output is not None:
+        where = f"{sc.path} [output] file" if sc.path else "[output] file"
+        if not sc.output.strip():
+            fail(f"{where}: empty file name; give a file ending in .npz (or remove the field)")
         base = (sc.path.parent if sc.path else Path.cwd()).resolve()
-        path, where = (base / sc.output).resolve(), f"{sc.path} [output] file = {sc.output!r}"
+        path = (base / sc.output).resolve()
         if not path.is_relative_to(base):
-            fail(f"{where}: must stay inside the scene's folder {base}; give -o/--out to write elsewhere")
-    else:
-        path, where = Path(f"{sc.name}.npz"), "output"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".check"):
-            pass
-    except OSError as exc:
-        fail(f"{where}: cannot write there ({exc.strerror or exc}); nothing was simulated")
-    if path.is_dir():
-        fail(f"{where}: is a folder; give a file name")
-    return path
+            fail(f"{where} = {sc.output!r}: must stay inside the scene's folder {base}; give -o/--out to write "
+                 "elsewhere")
+        given = str(path) + ("/" if sc.output.endswith("/") else "")
+        return output_path(given, default=default, suffix=".npz", where=where, inputs=inputs, roots=[base])
+    return output_path(None, default=default, suffix=".npz", where="output", inputs=inputs)
 
 
 def _show_progress(flag: bool | None, as_json: bool) -> bool:
@@ -129,7 +129,7 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
         if value is not None:
             overrides[key] = value
     sc, model = _load(scene, **overrides)
-    out = _output(out, sc)
+    out = _output(out, sc, model)
     if checkpoint_every is not None and not (checkpoint_every > 0 and np.isfinite(checkpoint_every)):
         fail(f"command line: --checkpoint-every: must be a finite time > 0 s, got {checkpoint_every!r}")
     ck = None
@@ -250,8 +250,10 @@ def plot(file, png, panels):
     """Energy, gaps, percussions (and q, u) against time from a trajectory FILE."""
     from ..plot import save
 
+    png = output_path(png, default=Path(file).with_suffix(".png"), suffix=(".png", ".svg", ".pdf"), where="--out",
+                      inputs=[file], roots=[Path(file).parent])
     try:
-        path = save(file, png or Path(file).with_suffix(".png"), [p.strip() for p in panels.split(",") if p.strip()])
+        path = save(file, png, [p.strip() for p in panels.split(",") if p.strip()])
     except ValueError as exc:
         fail(str(exc))
     click.echo(f"wrote {path}")

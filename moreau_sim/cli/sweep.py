@@ -11,6 +11,7 @@ import click
 from ..errors import MoreauSimError
 from ..sweep import SWEEPABLE, parse_param, run_sweep
 from .common import fail
+from .paths import output_dir
 
 
 @click.command()
@@ -33,7 +34,8 @@ def sweep(scene, params, out_dir, workers, dask_address, progress, as_json):
     (sweep.csv) and one NPZ per run (runs/) into the output directory."""
     try:
         parsed = [parse_param(p) for p in params]
-        out_dir = Path(out_dir) if out_dir else Path("sweeps") / Path(scene).stem
+        out_dir = output_dir(out_dir, default=Path("sweeps") / Path(scene).stem, where="--out",
+                             roots=[Path(scene).parent])
         res = run_sweep(scene, parsed, out_dir, workers=workers, dask_address=dask_address,
                         progress=(sys.stderr.isatty() if progress is None else progress) and not as_json)
     except MoreauSimError as exc:

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import click
 
 from ..errors import MoreauSimError
+from .paths import output_path
 
 
 @click.command()
@@ -32,6 +34,8 @@ def view(file, port, host, html, html_alias, fps, colors, no_browser):
         traj = load_trajectory(file)
         html = html or html_alias
         if html:
+            html = output_path(html, default=Path(file).with_suffix(".html"), suffix=(".html", ".htm"),
+                               where="--out", inputs=[file], roots=[Path(file).parent])
             click.echo(f"wrote {viewer.export_html(traj, html, fps=fps, colors=colors)}")
             return
         viewer.serve(traj, port, host, open_browser=not no_browser, fps=fps, colors=colors,
