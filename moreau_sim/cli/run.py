@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-import signal
 import sys
 from pathlib import Path
 
 import click
 import numpy as np
 
+from .. import interrupts
 from ..checkpoint import Checkpoint
 from ..errors import MoreauSimError, SceneError, SimulationError, SimulationInterrupted
 from ..model import build_model
@@ -42,10 +42,6 @@ def _settings(settings) -> dict:
         return parse_settings(settings)
     except MoreauSimError as exc:
         fail(f"command line: {exc}")
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
 
 
 def _output(out: str | None, sc, model) -> Path:
@@ -89,8 +85,9 @@ def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
         exc.trajectory.save(partial)
         again = (f"; --resume continues from the last checkpoint {ck.path}" if ck is not None and ck.path.exists()
                  else "")
-        click.echo(f"moreau-sim: {exc}; the samples so far are in {partial} (meta status 'failed'){again}", err=True)
-        sys.exit(130)
+        click.echo(f"moreau-sim: {exc} ({interrupts.signal_name()}); the samples so far are in {partial} (meta "
+                   f"status 'failed'){again}", err=True)
+        sys.exit(interrupts.exit_status())
     except SimulationError as exc:
         partial = out.with_name(out.stem + ".partial.npz")
         if exc.trajectory is not None:
@@ -138,16 +135,14 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
                         keep=True)
         if resume and not ck.path.exists():
             click.echo(f"moreau-sim: no checkpoint {ck.path}: starting from the beginning", err=True)
-    previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM as Ctrl-C: the samples so far are kept
-    try:
+    try:  # SIGTERM as Ctrl-C (cli/__init__.py): the samples so far are kept
         traj = _simulate(model, out, ck, _show_progress(progress, as_json))
         traj.save(out)
     except OSError as exc:  # the output's folder filled up (the run's spill files, a partial file, the output)
         fail(f"{out.parent}: cannot write there ({exc.strerror or exc}); nothing written to {out}")
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     if ck is not None:
         ck.path.unlink(missing_ok=True)  # the run is complete and saved
+    out.with_name(out.stem + ".partial.npz").unlink(missing_ok=True)  # an interrupted attempt's samples: superseded
     s = summary(traj)
     s["output"] = str(out)
     if as_json:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from .. import interrupts
 from ..errors import MoreauSimError
 from ..sweep import SWEEPABLE, parse_param, run_sweep
 from .common import fail
@@ -41,7 +42,8 @@ def sweep(scene, params, out_dir, workers, dask_address, progress, as_json):
     except MoreauSimError as exc:
         fail(str(exc))
     except KeyboardInterrupt:
-        fail(f"interrupted; finished runs are kept in {out_dir}: run the same command again to resume", 130)
+        fail(f"interrupted by {interrupts.signal_name()}; finished runs are kept in {out_dir}: run the same command "
+             "again to resume", interrupts.exit_status())
     if as_json:
         click.echo(json.dumps({"table": str(res.table), "parquet": str(res.parquet) if res.parquet else None,
                                "points": len(res.rows), "computed": res.computed, "skipped": res.skipped,
