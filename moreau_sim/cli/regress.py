@@ -43,7 +43,7 @@ def _tolerances(rtol, atol, specs) -> dict | None:
 @click.option("--baseline", "-b", "directory", required=True, type=click.Path(file_okay=False),
               help="Folder of the baseline files, one SCENE_NAME.json per scene.")
 @click.option("--update", is_flag=True, help="Run the scenes and (re)write their baselines instead of comparing.")
-@click.option("--set", "settings", multiple=True, metavar="NAME=VALUE",
+@click.option("--set", "-s", "settings", multiple=True, metavar="NAME=VALUE",
               help="Override a [simulation] option (repeatable); a baseline records its overrides and later "
                    "runs reuse them.")
 @click.option("--rtol", type=click.FloatRange(min=0), help="Relative tolerance of every quantity (default 1e-6).")

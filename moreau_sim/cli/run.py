@@ -169,11 +169,16 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
     click.echo(f"  wall {s['wall_seconds']:.3f} s{per_step}  -> {out}")
 
 
+PAIRS_SHOWN = 10  # `info` lists this many collision pairs unless --all-pairs
+
+
 @click.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--json", "as_json", is_flag=True, help="Print as JSON.")
-def info(scene, as_json):
-    """Dofs, bodies, collision pairs, e and h of SCENE."""
+@click.option("--all-pairs", is_flag=True, help=f"List every collision pair (default: the count and the first "
+                                                f"{PAIRS_SHOWN}).")
+@click.option("--json", "as_json", is_flag=True, help="Print as JSON (every pair).")
+def info(scene, all_pairs, as_json):
+    """Dofs, bodies, joints (in the order of q and u), collision pairs, e and h of SCENE."""
     sc, model = _load(scene)
     d = model.describe()
     if as_json:
@@ -183,9 +188,16 @@ def info(scene, as_json):
                f"duration = {d['duration']:g} s, gravity = {d['gravity']}")
     for b in d["bodies"]:
         click.echo(f"  body {b['name']}: root {b['root_joint']}, nq = {b['nq']}, nv = {b['nv']} ({b['urdf']})")
-    click.echo(f"  collision pairs ({len(d['collision_pairs'])}):")
-    for p in d["collision_pairs"]:
+    names = model.coordinates()
+    click.echo(f"  coordinates q ({len(names['q_names'])}): {', '.join(names['q_names'])}")
+    click.echo(f"  velocities u ({len(names['u_names'])}): {', '.join(names['u_names'])}")
+    pairs = d["collision_pairs"]
+    shown = pairs if all_pairs else pairs[:PAIRS_SHOWN]
+    click.echo(f"  collision pairs ({len(pairs)}):")
+    for p in shown:
         click.echo(f"    {p}")
+    if len(shown) < len(pairs):
+        click.echo(f"    ... and {len(pairs) - len(shown)} more (--all-pairs or --json lists them)")
 
 
 @click.command()
