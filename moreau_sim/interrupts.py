@@ -27,10 +27,16 @@ def during_startup() -> None:
         signal.signal(s, _quit)
 
 
-def raising() -> None:
-    """SIGINT and SIGTERM raise KeyboardInterrupt (the commands save what they have and exit)."""
-    for s in EXIT_STATUS:
-        signal.signal(s, _raise)
+def raising() -> dict:
+    """SIGINT and SIGTERM raise KeyboardInterrupt (the commands save what they have and exit);
+    returns the handlers they had, for :func:`restore`."""
+    _received.clear()
+    return {s: signal.signal(s, _raise) for s in EXIT_STATUS}
+
+
+def restore(previous: dict) -> None:
+    for s, handler in previous.items():
+        signal.signal(s, handler)
 
 
 def signal_name() -> str:

@@ -20,11 +20,13 @@ class _Main(click.Group):
     ends in one line and exit status 130 (SIGINT) or 143 (SIGTERM), docs/cli.md."""
 
     def invoke(self, ctx):
-        interrupts.raising()
+        previous = interrupts.raising()
         try:
             return super().invoke(ctx)
         except KeyboardInterrupt:
             fail(f"interrupted by {interrupts.signal_name()}", interrupts.exit_status())
+        finally:
+            interrupts.restore(previous)
 
 
 @click.group(cls=_Main, context_settings={"help_option_names": ["-h", "--help"]})

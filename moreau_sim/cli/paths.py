@@ -50,7 +50,7 @@ def output_path(given: str | os.PathLike | None, *, default: Path, suffix: str |
     for f in inputs:
         if _same(path, f):
             fail(f"{where}: {path} is an input of this command ({f}); choose another output file")
-    if path.suffix.lower() not in suffixes:
+    if path.suffix not in suffixes:
         fail(f"{where}: {path}: the output must end in {suffix}")
     parent = path.parent
     if not parent.exists():

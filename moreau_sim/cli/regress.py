@@ -51,7 +51,7 @@ def _tolerances(rtol, atol, specs) -> dict | None:
 @click.option("--tol", "tol_specs", multiple=True, metavar="NAME=RTOL,ATOL",
               help="Tolerance of one quantity (repeatable): a total (energy_end, dissipation, ...), impact_t, "
                    "impact_dissipated, energy (E(t)) or impacts (the count, exact by default).")
-@click.option("--junit", "-o", "--out", "junit_file", type=click.Path(dir_okay=False),
+@click.option("--junit", "-o", "--out", "junit_file", type=click.Path(),
               help="Also write a JUnit XML report to this file.")
 def regress(scenes, directory, update, settings, rtol, atol, tol_specs, junit_file):
     """Run SCENES and compare their energy ledgers with the baselines in --baseline (docs/regression.md).

@@ -107,7 +107,8 @@ def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
 @click.option("--set", "-s", "settings", multiple=True, metavar="NAME=VALUE",
               help="Any option of the scene's [simulation] table, by its scene-file name (repeatable), "
                    "e.g. --set bias=explicit --set gravity=[0,0,-1.62] (docs/scenes.md).")
-@click.option("--out", "-o", type=click.Path(dir_okay=False), help="Output NPZ (default: the scene's [output] file).")
+@click.option("--out", "-o", type=click.Path(),
+              help="Output NPZ (default: the scene's [output] file); a folder (DIR/) gets SCENE_NAME.npz.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar on runs longer than 2 s (default: only when stderr is a terminal).")
@@ -249,8 +250,9 @@ def outcomes(scene, npz, t, restitution, as_json):
 
 @click.command()
 @click.argument("file", type=click.Path(dir_okay=False))
-@click.option("--out", "-o", "png", type=click.Path(dir_okay=False), help="PNG to write (default: FILE with .png).")
-@click.option("--save", "png", type=click.Path(dir_okay=False), hidden=True)  # the old name of --out
+@click.option("--out", "-o", "png", type=click.Path(),
+              help="PNG (or .svg, .pdf) to write (default: FILE with .png); a folder (DIR/) gets NAME.png.")
+@click.option("--save", "png", type=click.Path(), hidden=True)  # the old name of --out
 @click.option("--panels", default="energy,gap,percussion", show_default=True,
               help="Comma-separated panels among energy, gap, percussion, q, u.")
 def plot(file, png, panels):

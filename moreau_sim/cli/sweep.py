@@ -23,7 +23,7 @@ from .paths import output_dir
                    f"{', '.join(SWEEPABLE)}.")
 @click.option("--set", "-s", "settings", multiple=True, metavar="NAME=VALUE",
               help="A fixed option of every point (repeatable), as in `run --set`: a one-value --param.")
-@click.option("--out", "-o", "out_dir", type=click.Path(file_okay=False),
+@click.option("--out", "-o", "out_dir", type=click.Path(),
               help="Output directory (default: sweeps/ and the scene file's name without .toml). "
                    "Rerunning into it resumes.")
 @click.option("--workers", "-j", type=click.IntRange(min=1), help="Local worker processes (default: cores).")

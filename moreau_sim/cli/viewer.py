@@ -15,9 +15,9 @@ from .paths import output_path
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--port", type=int, default=8765, show_default=True, help="Port to serve on (0: any free port).")
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on.")
-@click.option("-o", "--out", "html", type=click.Path(dir_okay=False),
+@click.option("-o", "--out", "html", type=click.Path(),
               help="Write the replay as one HTML file (opens offline from file://, no server) and exit.")
-@click.option("--export", "html_alias", type=click.Path(dir_okay=False), hidden=True)  # the old name of --out
+@click.option("--export", "html_alias", type=click.Path(), hidden=True)  # the old name of --out
 @click.option("--fps", type=float, default=100.0, show_default=True,
               help="Frames kept per simulated second (0: every sample).")
 @click.option("--colors", type=click.Choice(["link", "model"]), default="link", show_default=True,
