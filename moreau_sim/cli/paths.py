@@ -2,7 +2,8 @@
 
 An output must carry its suffix, must not be one of the files the command read (compared after
 resolving symlinks), a trailing slash or an existing folder means "that folder, default name",
-and a missing folder is created only below the current directory or the scene's folder."""
+and a missing folder is created only below the current directory, the scene's folder or the
+temporary folder."""
 
 from __future__ import annotations
 
@@ -20,6 +21,12 @@ def model_inputs(sc, model=None) -> list[Path]:
     if model is not None:
         files += [Path(go.meshPath) for go in model.geom.geometryObjects if getattr(go, "meshPath", "")]
     return files
+
+
+def _roots(roots) -> list[Path]:
+    """The folders below which a missing output folder is created: the current one, the input's
+    (`roots`) and the temporary folder (scratch space)."""
+    return [Path(r).resolve() for r in (Path.cwd(), *roots, tempfile.gettempdir())]
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -58,10 +65,9 @@ def output_path(given: str | os.PathLike | None, *, default: Path, suffix: str |
             target = parent.resolve()
         except (OSError, RuntimeError) as exc:
             fail(f"{where}: cannot use the folder {parent} ({exc})")
-        allowed = [Path.cwd().resolve()] + [Path(r).resolve() for r in roots]
-        if not any(target.is_relative_to(r) for r in allowed):
+        if not any(target.is_relative_to(r) for r in _roots(roots)):
             fail(f"{where}: the folder {parent} does not exist; create it first (moreau-sim only creates "
-                 "folders below the current directory or the scene's folder)")
+                 "folders below the current directory, the scene's folder or the temporary folder)")
     try:
         parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=parent, prefix=f".{path.name}.", suffix=".check"):
@@ -86,7 +92,7 @@ def output_dir(given: str | None, *, default: Path, where: str, roots=()) -> Pat
             target = path.resolve()
         except (OSError, RuntimeError) as exc:
             fail(f"{where}: cannot use the folder {path} ({exc})")
-        if not any(target.is_relative_to(Path(r).resolve()) for r in [Path.cwd(), *roots]):
-            fail(f"{where}: the folder {path} is outside the current directory and the scene's folder; create "
-                 "it first")
+        if not any(target.is_relative_to(r) for r in _roots(roots)):
+            fail(f"{where}: the folder {path} does not exist and is outside the current directory, the scene's "
+                 "folder and the temporary folder; create it first")
     return path
