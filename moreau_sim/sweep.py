@@ -49,7 +49,7 @@ try:
 except ImportError:  # not POSIX: no lock
     fcntl = None
 
-from .errors import MoreauSimError, SceneError, SimulationError
+from .errors import MoreauSimError, SceneError, SimulationError, SimulationInterrupted
 from .model import build_model
 from .options import Options
 from .scene import Scene, load_scene
@@ -278,6 +278,8 @@ def _simulate_point(scene: Scene) -> _Outcome:
     """The task of a worker: build and simulate; a SimulationError is a result, not an error."""
     try:
         return _Outcome(Status.COMPLETE, None, simulate(build_model(scene), progress=False))
+    except SimulationInterrupted:  # Ctrl-C or SIGTERM stops the sweep, not only this point
+        raise KeyboardInterrupt from None
     except SimulationError as exc:
         return _Outcome(Status.FAILED, str(exc), exc.trajectory)
 

@@ -217,3 +217,21 @@ def test_summary_prints_readably_and_stays_a_dict():
     assert text.startswith("bouncing_ball: complete") and "{" not in text and "impacts 1" in text
     assert {"t", "q", "u", "gap", "log_P"} <= set(dir(traj))
     assert traj.t is traj.arrays["t"] and traj.q.shape == (501, 1) and traj.u.shape == (501, 1)
+
+
+def test_sigterm_stops_a_serial_sweep_without_failing_its_point(repo):
+    """With -j 1 the point runs in the sweep's own process: a stop is a stop, not a failed point."""
+    args = [sys.executable, "-m", "moreau_sim.cli", "sweep", "scenes/box_stack_10.toml", "-p", "duration=1000,1001",
+            "-j", "1", "-o", "sw", "--no-progress"]
+    p = subprocess.Popen(args, cwd=repo, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for _ in range(600):
+        if (repo / "sw" / ".sweep.lock").exists() or p.poll() is not None:
+            break
+        time.sleep(0.1)
+    time.sleep(1.0)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 143 and "SIGTERM" in err and "Traceback" not in err, err
+    assert not list((repo / "sw").rglob("*.failed.npz"))
+    table = (repo / "sw" / "sweep.csv")
+    assert not table.exists() or ",failed," not in table.read_text()
