@@ -37,12 +37,13 @@ def _same(a: Path, b: Path) -> bool:
 
 
 def output_path(given: str | os.PathLike | None, *, default: Path, suffix: str | tuple[str, ...], where: str,
-                inputs=(), roots=()) -> Path:
+                inputs=(), roots=(), then: str = "nothing was written") -> Path:
     """Check an output path and return it (its folder exists and is writable on return).
 
     given: what the user wrote (None: `default`); a trailing slash or an existing folder means
     `folder/default.name`; where: how the message names the option or field; inputs: the files the
-    command read; roots: folders besides the current one below which missing folders may be made."""
+    command read; roots: folders besides the current one below which missing folders may be made;
+    then: what the message says was (not) done."""
     suffixes = (suffix,) if isinstance(suffix, str) else suffix
     suffix = " or ".join(suffixes)
     if given is None:
@@ -73,7 +74,7 @@ def output_path(given: str | os.PathLike | None, *, default: Path, suffix: str |
         with tempfile.NamedTemporaryFile(dir=parent, prefix=f".{path.name}.", suffix=".check"):
             pass
     except OSError as exc:
-        fail(f"{where}: cannot write to {parent} ({exc.strerror or exc})")
+        fail(f"{where}: cannot write to {parent} ({exc.strerror or exc}); {then}")
     if path.is_dir():
         fail(f"{where}: {path} is a folder; give a file name")
     return path

@@ -52,7 +52,8 @@ def _output(out: str | None, sc, model) -> Path:
     roots = [sc.path.parent] if sc.path else []
     default = Path(f"{sc.name}.npz")
     if out is not None:
-        return output_path(out, default=default, suffix=".npz", where="--out", inputs=inputs, roots=roots)
+        return output_path(out, default=default, suffix=".npz", where="--out", inputs=inputs, roots=roots,
+                           then="nothing was simulated")
     if sc.output is not None:
         where = f"{sc.path} [output] file" if sc.path else "[output] file"
         if not sc.output.strip():
@@ -63,8 +64,10 @@ def _output(out: str | None, sc, model) -> Path:
             fail(f"{where} = {sc.output!r}: must stay inside the scene's folder {base}; give -o/--out to write "
                  "elsewhere")
         given = str(path) + ("/" if sc.output.endswith("/") else "")
-        return output_path(given, default=default, suffix=".npz", where=where, inputs=inputs, roots=[base])
-    return output_path(None, default=default, suffix=".npz", where="output", inputs=inputs)
+        return output_path(given, default=default, suffix=".npz", where=where, inputs=inputs, roots=[base],
+                           then="nothing was simulated")
+    return output_path(None, default=default, suffix=".npz", where="output", inputs=inputs,
+                       then="nothing was simulated")
 
 
 def _show_progress(flag: bool | None, as_json: bool) -> bool:
