@@ -7,6 +7,14 @@ restitution e) in a midpoint Moreau time-stepper, on Pinocchio + coal + piqp.
 Each name below has one home (its module); this namespace re-exports the public ones.
 """
 
+import sys as _sys
+
+if _sys.argv[0:1] and _sys.argv[0].endswith("moreau-sim") and "multiprocessing" not in _sys.modules:
+    # the console script (not a sweep's worker): Ctrl-C or SIGTERM during the imports below is one line
+    from .interrupts import during_startup as _during_startup
+
+    _during_startup()
+
 from .builder import SceneBuilder
 from .constraints import Constraints, assemble_constraints, contact_rows
 from .contacts import Contacts, FeatureKind, detect, pair_distances

@@ -107,7 +107,7 @@ class Result:
     seconds: float = 0.0
 
     def report(self) -> str:
-        head = f"{self.status.upper():8} {self.scene}  ({self.path}, {self.seconds:.1f} s)"
+        head = f"{self.status.upper():8} {self.scene}  ({self.path}, wall time {self.seconds:.1f} s)"
         lines = [head] + [f"  note: {n}" for n in self.notes]
         if self.message:
             lines.append(f"  {self.message}")

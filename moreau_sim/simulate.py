@@ -14,7 +14,7 @@ from .options import Integrator
 from .scene import Scene, load_scene
 from .state import State
 from .time_stepping import TimeStepping
-from .trajectory import Trajectory
+from .trajectory import Summary, Trajectory
 
 # An impact ("log_impact") is a logged percussion of a contact that was not closed in the previous step.
 
@@ -67,12 +67,13 @@ def run(scene: Scene | str | Path, *, dt: float | None = None, duration: float |
     return simulate(build_model(sc), progress=progress, checkpoint=ck, spill=spill)
 
 
-def summary(traj: Trajectory) -> dict:
-    """The figures the CLI prints: steps, impacts, energies, penetration, timing."""
+def summary(traj: Trajectory) -> Summary:
+    """The figures the CLI prints: steps, impacts, energies, penetration, timing (a dict that prints
+    readably)."""
     a, run_ = traj.arrays, traj.meta.get("run", {})
     E = a["kinetic_energy"] + a["potential_energy"]
     gaps = a["gap"]
-    return {
+    return Summary({
         "scene": traj.meta.get("scene", {}).get("name"),
         "status": traj.meta.get("status"),
         "integrator": traj.meta.get("integrator", "time-stepping"),
@@ -94,4 +95,4 @@ def summary(traj: Trajectory) -> dict:
         "min_gap": float(gaps.min()) if gaps.size else None,
         "wall_seconds": run_.get("wall_seconds"),
         "us_per_step": run_.get("us_per_step"),
-    }
+    })

@@ -34,6 +34,7 @@ import json
 import math
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from collections.abc import Iterable, Iterator, Sequence
@@ -48,7 +49,7 @@ try:
 except ImportError:  # not POSIX: no lock
     fcntl = None
 
-from .errors import MoreauSimError, SceneError, SimulationError
+from .errors import MoreauSimError, SceneError, SimulationError, SimulationInterrupted
 from .model import build_model
 from .options import Options
 from .scene import Scene, load_scene
@@ -277,6 +278,8 @@ def _simulate_point(scene: Scene) -> _Outcome:
     """The task of a worker: build and simulate; a SimulationError is a result, not an error."""
     try:
         return _Outcome(Status.COMPLETE, None, simulate(build_model(scene), progress=False))
+    except SimulationInterrupted:  # Ctrl-C or SIGTERM stops the sweep, not only this point
+        raise KeyboardInterrupt from None
     except SimulationError as exc:
         return _Outcome(Status.FAILED, str(exc), exc.trajectory)
 
@@ -403,22 +406,39 @@ def _pool(tasks: list[tuple[int, Scene]], workers: int) -> Iterator[tuple[int, _
     method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
     ex = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context(method), initializer=_die_with_parent,
                                 initargs=(os.getpid(),))
+    done = False
     try:
         futs = {ex.submit(_simulate_point, sc): i for i, sc in tasks}
         for f in cf.as_completed(futs):
             yield futs[f], f.result()
+        done = True
     finally:
-        ex.shutdown(wait=False, cancel_futures=True)
+        if done:
+            ex.shutdown(wait=True)
+        else:  # a stop (Ctrl-C, SIGTERM, an error): end the workers now, not after their points (docs/sweeps.md)
+            procs = list((getattr(ex, "_processes", None) or {}).values())  # Python 3.14: ex.terminate_workers()
+            for proc in procs:
+                proc.terminate()
+            for proc in procs:
+                proc.join(5)
+            ex.shutdown(wait=True, cancel_futures=True)  # the pool sees its workers gone and frees its queues
 
 
 def _die_with_parent(parent: int) -> None:
     """Worker initializer: exit as soon as the sweeping process is gone (killed), instead of
-    finishing its point for nobody."""
+    finishing its point for nobody. SIGTERM ends it at once and Ctrl-C is left to the sweeping
+    process, which ends its workers (docs/sweeps.md)."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
     def watch():
         while True:
             time.sleep(0.5)
             try:
                 os.kill(parent, 0)
+                with open(f"/proc/{parent}/stat", "rb") as fh:  # a killed parent not yet reaped is a zombie
+                    if fh.read().rsplit(b")", 1)[-1].split()[0] == b"Z":
+                        os._exit(1)
             except ProcessLookupError:
                 os._exit(1)
             except OSError:

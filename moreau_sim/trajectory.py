@@ -99,6 +99,24 @@ class Trajectory:
             return arrays[name]
         raise AttributeError(name)
 
+    def __dir__(self):  # every array is an attribute (traj.gap, traj.log_P, ...): list them too
+        return sorted(set(super().__dir__()) | set(self.__dict__.get("arrays", {})))
+
+    @property
+    def t(self) -> np.ndarray:
+        """(n,) sample times [s]."""
+        return self.arrays["t"]
+
+    @property
+    def q(self) -> np.ndarray:
+        """(n, nq) generalized coordinates at the samples (Model.coordinate_names gives their order)."""
+        return self.arrays["q"]
+
+    @property
+    def u(self) -> np.ndarray:
+        """(n, nv) generalized velocities at the samples."""
+        return self.arrays["u"]
+
     def __repr__(self) -> str:
         a, m = self.arrays, self.meta
         t = a.get("t", np.zeros(0))
@@ -131,6 +149,33 @@ class Trajectory:
 
         _remove_orphans(path)
         return atomic_write(path, write)
+
+
+class Summary(dict):
+    """The figures of a run (simulate.summary): a dict (its keys as before, JSON-able) that prints
+    as a few readable lines."""
+
+    def __str__(self) -> str:
+        def g(key, fmt=".6g", unit=""):
+            v = self.get(key)
+            return "n/a" if v is None else f"{v:{fmt}}{unit}"
+
+        count = (f"{self['events']} events" if self.get("steps") is None
+                 else f"{self['steps']} steps" + (f", {self['events']} events" if self.get("events") else ""))
+        lines = [f"{self.get('scene')}: {self.get('status')}, {self.get('integrator')}, {count}, "
+                 f"{self.get('samples')} samples to t = {g('t_end', 'g', ' s')}",
+                 f"  impacts {self.get('impacts')}, percussions logged {self.get('percussions_logged')}, "
+                 f"corner impacts with several outcomes {self.get('branching_steps')}",
+                 f"  energy {g('energy_start', unit=' J')} -> {g('energy_end', unit=' J')} (contact work "
+                 f"{g('contact_work_total', unit=' J')}, max rise {g('energy_max_increase', '.3g', ' J')})",
+                 f"  min gap {g('min_gap', '.3g', ' m')}, wall time {g('wall_seconds', '.3f', ' s')}"]
+        return "\n".join(lines + [f"  {k} = {v:.6g}" if isinstance(v, float) else f"  {k} = {v}"
+                                  for k, v in self.items() if k not in _SHOWN and v is not None])
+
+
+_SHOWN = {"scene", "status", "integrator", "steps", "events", "samples", "t_end", "impacts", "percussions_logged",
+          "branching_steps", "energy_start", "energy_end", "contact_work_total", "energy_max_increase", "min_gap",
+          "wall_seconds"}
 
 
 def atomic_write(path: str | Path, write) -> Path:
@@ -261,6 +306,7 @@ def read_npz(path: Path):
     except ValueError as exc:
         if str(path) in str(exc):
             raise
-        raise ValueError(f"{path}: not a moreau-sim trajectory NPZ ({exc})") from None
+        why = "not a NumPy .npz archive" if "pickle" in str(exc) else str(exc)  # np.load's allow_pickle advice
+        raise ValueError(f"{path}: not a moreau-sim trajectory NPZ ({why})") from None
     except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError) as exc:  # truncated or corrupted
         raise ValueError(f"{path}: cannot read trajectory: {type(exc).__name__}: {exc}") from None

@@ -244,3 +244,52 @@ def test_inertias_are_refused_by_name_exactly_when_impossible(moments, angle, ti
         assert "physically impossible" in result and "link 'ball'" in result, result
     elif possible:
         assert result == "ran", result
+
+
+# Output paths (issue 28): every kind of -o/--out a user may give `run`, in a fresh folder holding
+# the scene and its model: an input of the run (directly, through a symlink or a detour), no or
+# another suffix, a trailing slash, an empty or blank name, a folder that does not exist outside
+# the current one, a "folder" that is a file, an unwritable place.
+OUTPUT_KINDS = ["scenes/ball.toml", "models/ball.urdf", "link.toml", "scenes/../scenes/ball.toml", "x", "x.txt",
+                "x.NPZ", "x.npz", "out/", "out/sub/", "", "  ", "/nonexistent_moreau_fuzz/x.npz", "new/x.npz",
+                "file.npz/x.npz", "/proc/x.npz", "scenes", "scenes/"]
+
+
+@settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(st.sampled_from(OUTPUT_KINDS), st.sampled_from(["--out", "-o", "field"]))
+def test_output_paths_are_written_or_refused_by_name(out, how):
+    import os
+
+    from click.testing import CliRunner
+
+    from moreau_sim.cli import main
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        (folder / "scenes").mkdir()
+        (folder / "models").mkdir()
+        (folder / "models" / "ball.urdf").write_bytes((MODELS / "ball.urdf").read_bytes())
+        text = (SCENES / "bouncing_ball.toml").read_text()
+        if how == "field":
+            text = text.replace('file = "bouncing_ball.npz"', f"file = {out!r}".replace("'", '"'))
+        (folder / "scenes" / "ball.toml").write_text(text)
+        (folder / "link.toml").symlink_to(folder / "scenes" / "ball.toml")
+        (folder / "file.npz").write_bytes(b"a file, not a folder")
+        inputs = {p: p.read_bytes() for p in (folder / "scenes" / "ball.toml", folder / "models" / "ball.urdf")}
+        cwd = os.getcwd()
+        os.chdir(folder)
+        try:
+            args = ["run", "scenes/ball.toml", "--duration", "0.01"] + ([] if how == "field" else [how, out])
+            r = CliRunner().invoke(main, args)
+        finally:
+            os.chdir(cwd)
+        assert r.exit_code in (0, 2) and r.exception is None or isinstance(r.exception, SystemExit), r.output
+        assert all(p.read_bytes() == b for p, b in inputs.items()), "an input was overwritten"
+        assert not Path("/nonexistent_moreau_fuzz").exists() and not Path("/proc/x.npz").exists()
+        if r.exit_code == 2:
+            lines = r.output.strip().splitlines()
+            assert len(lines) == 1 and lines[0].startswith("moreau-sim: error:"), r.output
+        else:
+            written = r.output.strip().splitlines()[-1].split("-> ")[-1]
+            path = Path(written) if Path(written).is_absolute() else folder / written
+            assert path.suffix == ".npz" and ms.load_trajectory(path).complete

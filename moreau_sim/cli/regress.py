@@ -15,6 +15,7 @@ from ..ledger import DEFAULT_TOLERANCE, QUANTITIES
 from ..regress import Result, check_scene, junit
 from ..sweep import parse_settings
 from .common import fail
+from .paths import output_dir, output_path
 
 
 def _tolerances(rtol, atol, specs) -> dict | None:
@@ -42,7 +43,7 @@ def _tolerances(rtol, atol, specs) -> dict | None:
 @click.option("--baseline", "-b", "directory", required=True, type=click.Path(file_okay=False),
               help="Folder of the baseline files, one SCENE_NAME.json per scene.")
 @click.option("--update", is_flag=True, help="Run the scenes and (re)write their baselines instead of comparing.")
-@click.option("--set", "settings", multiple=True, metavar="NAME=VALUE",
+@click.option("--set", "-s", "settings", multiple=True, metavar="NAME=VALUE",
               help="Override a [simulation] option (repeatable); a baseline records its overrides and later "
                    "runs reuse them.")
 @click.option("--rtol", type=click.FloatRange(min=0), help="Relative tolerance of every quantity (default 1e-6).")
@@ -50,7 +51,7 @@ def _tolerances(rtol, atol, specs) -> dict | None:
 @click.option("--tol", "tol_specs", multiple=True, metavar="NAME=RTOL,ATOL",
               help="Tolerance of one quantity (repeatable): a total (energy_end, dissipation, ...), impact_t, "
                    "impact_dissipated, energy (E(t)) or impacts (the count, exact by default).")
-@click.option("--junit", "-o", "--out", "junit_file", type=click.Path(dir_okay=False),
+@click.option("--junit", "-o", "--out", "junit_file", type=click.Path(),
               help="Also write a JUnit XML report to this file.")
 def regress(scenes, directory, update, settings, rtol, atol, tol_specs, junit_file):
     """Run SCENES and compare their energy ledgers with the baselines in --baseline (docs/regression.md).
@@ -60,6 +61,11 @@ def regress(scenes, directory, update, settings, rtol, atol, tol_specs, junit_fi
         overrides = parse_settings(settings)
     except MoreauSimError as exc:
         fail(f"command line: {exc}")
+    if junit_file is not None:
+        junit_file = output_path(junit_file, default=Path("regress.xml"), suffix=".xml", where="--junit",
+                                 inputs=list(scenes), roots=[Path(s).parent for s in scenes])
+    if update:
+        output_dir(directory, default=Path(directory), where="--baseline", roots=[Path(s).parent for s in scenes])
     results, errors = [], 0
     for scene in scenes:
         try:

@@ -3,20 +3,20 @@
 from __future__ import annotations
 
 import json
-import signal
 import sys
-import tempfile
 from pathlib import Path
 
 import click
 import numpy as np
 
+from .. import interrupts
 from ..checkpoint import Checkpoint
 from ..errors import MoreauSimError, SceneError, SimulationError, SimulationInterrupted
 from ..model import build_model
 from ..scene import load_scene
 from ..simulate import simulate, summary
 from .common import fail
+from .paths import model_inputs, output_path
 
 
 def _load(scene: str, **overrides):
@@ -44,31 +44,30 @@ def _settings(settings) -> dict:
         fail(f"command line: {exc}")
 
 
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
-
-
-def _output(out: str | None, sc) -> Path:
+def _output(out: str | None, sc, model) -> Path:
     """Where `run` writes: -o/--out as given; else the scene's [output] file, resolved in the
-    scene's folder and never outside it; else NAME.npz here. Checked writable before simulating."""
-    if out:
-        path, where = Path(out), f"--out {out}"
-    elif sc.output:
+    scene's folder and never outside it; else NAME.npz here. Checked (cli/paths.py: suffix, not an
+    input, folder writable) before simulating."""
+    inputs = model_inputs(sc, model)
+    roots = [sc.path.parent] if sc.path else []
+    default = Path(f"{sc.name}.npz")
+    if out is not None:
+        return output_path(out, default=default, suffix=".npz", where="--out", inputs=inputs, roots=roots,
+                           then="nothing was simulated")
+    if sc.output is not None:
+        where = f"{sc.path} [output] file" if sc.path else "[output] file"
+        if not sc.output.strip():
+            fail(f"{where}: empty file name; give a file ending in .npz (or remove the field)")
         base = (sc.path.parent if sc.path else Path.cwd()).resolve()
-        path, where = (base / sc.output).resolve(), f"{sc.path} [output] file = {sc.output!r}"
+        path = (base / sc.output).resolve()
         if not path.is_relative_to(base):
-            fail(f"{where}: must stay inside the scene's folder {base}; give -o/--out to write elsewhere")
-    else:
-        path, where = Path(f"{sc.name}.npz"), "output"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".check"):
-            pass
-    except OSError as exc:
-        fail(f"{where}: cannot write there ({exc.strerror or exc}); nothing was simulated")
-    if path.is_dir():
-        fail(f"{where}: is a folder; give a file name")
-    return path
+            fail(f"{where} = {sc.output!r}: must stay inside the scene's folder {base}; give -o/--out to write "
+                 "elsewhere")
+        given = str(path) + ("/" if sc.output.endswith("/") else "")
+        return output_path(given, default=default, suffix=".npz", where=where, inputs=inputs, roots=[base],
+                           then="nothing was simulated")
+    return output_path(None, default=default, suffix=".npz", where="output", inputs=inputs,
+                       then="nothing was simulated")
 
 
 def _show_progress(flag: bool | None, as_json: bool) -> bool:
@@ -89,8 +88,9 @@ def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
         exc.trajectory.save(partial)
         again = (f"; --resume continues from the last checkpoint {ck.path}" if ck is not None and ck.path.exists()
                  else "")
-        click.echo(f"moreau-sim: {exc}; the samples so far are in {partial} (meta status 'failed'){again}", err=True)
-        sys.exit(130)
+        click.echo(f"moreau-sim: {exc} ({interrupts.signal_name()}); the samples so far are in {partial} (meta "
+                   f"status 'failed'){again}", err=True)
+        sys.exit(interrupts.exit_status())
     except SimulationError as exc:
         partial = out.with_name(out.stem + ".partial.npz")
         if exc.trajectory is not None:
@@ -110,7 +110,8 @@ def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
 @click.option("--set", "-s", "settings", multiple=True, metavar="NAME=VALUE",
               help="Any option of the scene's [simulation] table, by its scene-file name (repeatable), "
                    "e.g. --set bias=explicit --set gravity=[0,0,-1.62] (docs/scenes.md).")
-@click.option("--out", "-o", type=click.Path(dir_okay=False), help="Output NPZ (default: the scene's [output] file).")
+@click.option("--out", "-o", type=click.Path(),
+              help="Output NPZ (default: the scene's [output] file); a folder (DIR/) gets SCENE_NAME.npz.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar on runs longer than 2 s (default: only when stderr is a terminal).")
@@ -129,7 +130,7 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
         if value is not None:
             overrides[key] = value
     sc, model = _load(scene, **overrides)
-    out = _output(out, sc)
+    out = _output(out, sc, model)
     if checkpoint_every is not None and not (checkpoint_every > 0 and np.isfinite(checkpoint_every)):
         fail(f"command line: --checkpoint-every: must be a finite time > 0 s, got {checkpoint_every!r}")
     ck = None
@@ -138,16 +139,14 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
                         keep=True)
         if resume and not ck.path.exists():
             click.echo(f"moreau-sim: no checkpoint {ck.path}: starting from the beginning", err=True)
-    previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM as Ctrl-C: the samples so far are kept
-    try:
+    try:  # SIGTERM as Ctrl-C (cli/__init__.py): the samples so far are kept
         traj = _simulate(model, out, ck, _show_progress(progress, as_json))
         traj.save(out)
     except OSError as exc:  # the output's folder filled up (the run's spill files, a partial file, the output)
         fail(f"{out.parent}: cannot write there ({exc.strerror or exc}); nothing written to {out}")
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     if ck is not None:
         ck.path.unlink(missing_ok=True)  # the run is complete and saved
+    out.with_name(out.stem + ".partial.npz").unlink(missing_ok=True)  # an interrupted attempt's samples: superseded
     s = summary(traj)
     s["output"] = str(out)
     if as_json:
@@ -174,11 +173,16 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
     click.echo(f"  wall {s['wall_seconds']:.3f} s{per_step}  -> {out}")
 
 
+PAIRS_SHOWN = 10  # `info` lists this many collision pairs unless --all-pairs
+
+
 @click.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--json", "as_json", is_flag=True, help="Print as JSON.")
-def info(scene, as_json):
-    """Dofs, bodies, collision pairs, e and h of SCENE."""
+@click.option("--all-pairs", is_flag=True, help=f"List every collision pair (default: the count and the first "
+                                                f"{PAIRS_SHOWN}).")
+@click.option("--json", "as_json", is_flag=True, help="Print as JSON (every pair).")
+def info(scene, all_pairs, as_json):
+    """Dofs, bodies, joints (in the order of q and u), collision pairs, e and h of SCENE."""
     sc, model = _load(scene)
     d = model.describe()
     if as_json:
@@ -188,9 +192,16 @@ def info(scene, as_json):
                f"duration = {d['duration']:g} s, gravity = {d['gravity']}")
     for b in d["bodies"]:
         click.echo(f"  body {b['name']}: root {b['root_joint']}, nq = {b['nq']}, nv = {b['nv']} ({b['urdf']})")
-    click.echo(f"  collision pairs ({len(d['collision_pairs'])}):")
-    for p in d["collision_pairs"]:
+    names = model.coordinates()
+    click.echo(f"  coordinates q ({len(names['q_names'])}): {', '.join(names['q_names'])}")
+    click.echo(f"  velocities u ({len(names['u_names'])}): {', '.join(names['u_names'])}")
+    pairs = d["collision_pairs"]
+    shown = pairs if all_pairs else pairs[:PAIRS_SHOWN]
+    click.echo(f"  collision pairs ({len(pairs)}):")
+    for p in shown:
         click.echo(f"    {p}")
+    if len(shown) < len(pairs):
+        click.echo(f"    ... and {len(pairs) - len(shown)} more (--all-pairs or --json lists them)")
 
 
 @click.command()
@@ -242,16 +253,19 @@ def outcomes(scene, npz, t, restitution, as_json):
 
 @click.command()
 @click.argument("file", type=click.Path(dir_okay=False))
-@click.option("--out", "-o", "png", type=click.Path(dir_okay=False), help="PNG to write (default: FILE with .png).")
-@click.option("--save", "png", type=click.Path(dir_okay=False), hidden=True)  # the old name of --out
+@click.option("--out", "-o", "png", type=click.Path(),
+              help="PNG (or .svg, .pdf) to write (default: FILE with .png); a folder (DIR/) gets NAME.png.")
+@click.option("--save", "png", type=click.Path(), hidden=True)  # the old name of --out
 @click.option("--panels", default="energy,gap,percussion", show_default=True,
               help="Comma-separated panels among energy, gap, percussion, q, u.")
 def plot(file, png, panels):
     """Energy, gaps, percussions (and q, u) against time from a trajectory FILE."""
     from ..plot import save
 
+    png = output_path(png, default=Path(file).with_suffix(".png"), suffix=(".png", ".svg", ".pdf"), where="--out",
+                      inputs=[file], roots=[Path(file).parent])
     try:
-        path = save(file, png or Path(file).with_suffix(".png"), [p.strip() for p in panels.split(",") if p.strip()])
+        path = save(file, png, [p.strip() for p in panels.split(",") if p.strip()])
     except ValueError as exc:
         fail(str(exc))
     click.echo(f"wrote {path}")
