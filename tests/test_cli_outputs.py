@@ -122,7 +122,6 @@ def test_an_interrupted_run_keeps_its_samples_then_resume_clears_them(repo):
     assert ms.load_trajectory(repo / "s.partial.npz").meta["status"].startswith("failed")
 
 
-@pytest.mark.skipif(shutil.which("moreau-sim") is None, reason="the console script is not installed")
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_during_start_up_is_one_line(sig, tmp_path):
     """The imports take a moment: a signal at any point of them is one line, exit 128 + its number.

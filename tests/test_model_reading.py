@@ -179,12 +179,10 @@ def test_mjcf_impossible_inertia_is_refused(tmp_path):
 def test_welded_placeholder_inertias_are_judged_with_their_link():
     """example-robot-data's go1 has a 1e-6 kg 'base' link with the placeholder inertia (1e-6 on
     every entry: impossible alone) welded to its trunk: only the sum moves, and it is physical."""
-    pytest.importorskip("pinocchio")
     from moreau_sim.robots import example_robot_data_share
 
     share = example_robot_data_share()
-    if share is None:
-        pytest.skip("example-robot-data is not installed")
+    assert share is not None, "example-robot-data (a test dependency) is not installed"
     go1 = share / "example-robot-data" / "robots" / "go1_description" / "urdf" / "go1.urdf"
     import pinocchio as pin
     m = pin.buildModelFromUrdf(str(go1))

@@ -178,10 +178,8 @@ def test_toml_fragments_load_as_scenes(doc, fresh):
     for k, body in enumerate(blocks(doc, "toml")):
         tomllib.loads(body)
         if "[[bodies]]" in body and "example-robot-data" in body:
-            pytest.importorskip("pinocchio")
             from moreau_sim.robots import example_robot_data_share
-            if example_robot_data_share() is None:
-                pytest.skip("example-robot-data is not installed")
+            assert example_robot_data_share() is not None, "example-robot-data (a test dependency) is not installed"
         path = fresh / f"snippet_{k}.toml"
         path.write_text(body, encoding="utf-8")
         model = ms.build_model(ms.load_scene(path))
