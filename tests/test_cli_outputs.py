@@ -128,7 +128,9 @@ def test_a_signal_during_start_up_is_one_line(sig, tmp_path):
     (It is sent once the package's imports have begun, i.e. once coal or Pinocchio is being loaded:
     before that, in the interpreter's own start-up, Python's default applies.)"""
     for delay in (0.0, 0.05, 0.1, 0.2, 0.4):
-        p = subprocess.Popen(["moreau-sim", "info", str(ROOT / "scenes" / "bouncing_ball.toml")],
+        script = Path(sys.executable).with_name("moreau-sim")  # the console script, not on CI's PATH
+        command = [str(script), "info", str(ROOT / "scenes" / "bouncing_ball.toml")]
+        p = subprocess.Popen(command,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
         maps = Path(f"/proc/{p.pid}/maps")
         for _ in range(3000):
