@@ -61,14 +61,8 @@ def output_path(given: str | os.PathLike | None, *, default: Path, suffix: str |
     if path.suffix not in suffixes:
         fail(f"{where}: {path}: the output must end in {suffix}")
     parent = path.parent
-    if not parent.exists():
-        try:
-            target = parent.resolve()
-        except (OSError, RuntimeError) as exc:
-            fail(f"{where}: cannot use the folder {parent} ({exc})")
-        if not any(target.is_relative_to(r) for r in _roots(roots)):
-            fail(f"{where}: the folder {parent} does not exist; create it first (moreau-sim only creates "
-                 "folders below the current directory, the scene's folder or the temporary folder)")
+    _creatable(parent, where, roots, f"{where}: the folder {parent} does not exist; create it first (moreau-sim only "
+               "creates folders below the current directory, the scene's folder or the temporary folder)")
     try:
         parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=parent, prefix=f".{path.name}.", suffix=".check"):
@@ -88,12 +82,19 @@ def output_dir(given: str | None, *, default: Path, where: str, roots=()) -> Pat
     path = default if given is None else Path(given)
     if path.exists() and not path.is_dir():
         fail(f"{where}: {path} is a file, not a folder; choose another output folder")
-    if not path.exists():
-        try:
-            target = path.resolve()
-        except (OSError, RuntimeError) as exc:
-            fail(f"{where}: cannot use the folder {path} ({exc})")
-        if not any(target.is_relative_to(r) for r in _roots(roots)):
-            fail(f"{where}: the folder {path} does not exist and is outside the current directory, the scene's "
-                 "folder and the temporary folder; create it first")
+    _creatable(path, where, roots, f"{where}: the folder {path} does not exist and is outside the current "
+               "directory, the scene's folder and the temporary folder; create it first")
     return path
+
+
+def _creatable(folder: Path, where: str, roots, outside: str) -> None:
+    """A missing `folder` may be created only below the current directory, `roots` or the
+    temporary folder: else fail with `outside`."""
+    if folder.exists():
+        return
+    try:
+        target = folder.resolve()
+    except (OSError, RuntimeError) as exc:
+        fail(f"{where}: cannot use the folder {folder} ({exc})")
+    if not any(target.is_relative_to(r) for r in _roots(roots)):
+        fail(outside)
