@@ -18,7 +18,7 @@ from .checkpoint import Checkpoint
 from .data import Data
 from .errors import SimulationError, named_stops
 from .model import Model
-from .protocol import FixedStep, Impact, Integrator, Report, Status
+from .protocol import FixedStep, Impact, Integrator, Report, RunStatus, Status
 from .recording import LOG_RELATIVE, PercussionRow, Recorder
 from .state import State
 from .trajectory import Trajectory
@@ -28,10 +28,13 @@ _PROGRESS_DELAY = float(os.environ.get("MOREAU_SIM_PROGRESS_DELAY", "2.0"))
 PROGRESS_EVERY = 0.5  # [s of wall time] the bar is refreshed at most this often, whatever a step costs
 _BAR = "{percentage:3.0f}%|{bar}| {n:.6g}/{total:.6g} {unit} [{elapsed}<{remaining}]"
 
-# The invariant hook: check(where, state, report) at the initial state (where "start", report None),
-# at every accepted point ("point") and every sample ("sample"); a dict it returns is a violation,
-# kept in meta["invariants"] (a check that must stop the run raises SimulationError).
-Check = Callable[[str, State, "Report | None"], "dict | None"]
+# The invariant hook: check(where, state, report, recorder) at the initial state (where "start",
+# report None), at every accepted point ("point") and every sample ("sample", after it is recorded);
+# the recorder's figures (Recorder.energies, .last_sample) are there to read. A dict (or a list of
+# them) it returns is a violation, kept in meta["invariants"], and the run ends "flagged" instead of "complete"
+# (protocol.RunStatus); a check that must stop the run raises SimulationError. A hook with
+# state_dict()/load_state_dict() carries its figures through a checkpoint (invariants.Invariants).
+Check = Callable[[str, State, "Report | None", Recorder], "dict | None"]
 
 
 def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | None = None,
@@ -90,7 +93,8 @@ def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | Non
                     refresh = time.perf_counter() + PROGRESS_EVERY
         finally:
             bar.close()
-    traj = rec.trajectory(loop.meta("complete", wall()))
+    done = RunStatus.FLAGGED if loop.violations else RunStatus.COMPLETE
+    traj = rec.trajectory(loop.meta(done.value, wall()))
     if checkpoint is not None and not checkpoint.keep:
         Path(checkpoint.path).unlink(missing_ok=True)
     return traj
@@ -186,8 +190,10 @@ class _Loop:
 
     def _check(self, where: str, state: State, rep: Report | None) -> None:
         if self.check is not None:
-            v = self.check(where, state, rep)
-            if v is not None:
+            v = self.check(where, state, rep, self.rec)
+            if isinstance(v, list):
+                self.violations += v
+            elif v is not None:
                 self.violations.append(v)
 
     def meta(self, status: str, wall: float) -> dict:
@@ -195,10 +201,14 @@ class _Loop:
         return {**meta, "invariants": self.violations} if self.violations else meta
 
     def state_dict(self) -> dict:
+        carried = getattr(self.check, "state_dict", None)
         return {"work": self.work, "corr": self.corr, "gi": self.gi, "previous": sorted(self.previous),
-                "violations": self.violations, "t_ck": self.t_ck, "points": self.points}
+                "violations": self.violations, "t_ck": self.t_ck, "points": self.points,
+                "check": carried() if carried is not None else None}
 
     def load(self, d: dict) -> None:
         self.work, self.corr, self.gi = float(d["work"]), float(d["corr"]), int(d["gi"])
         self.previous = {tuple(p) for p in d["previous"]}
         self.violations, self.t_ck, self.points = list(d["violations"]), float(d["t_ck"]), int(d["points"])
+        if d.get("check") is not None and hasattr(self.check, "load_state_dict"):
+            self.check.load_state_dict(d["check"])

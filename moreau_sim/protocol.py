@@ -24,6 +24,16 @@ class Status(Enum):
     FAILED = "failed"
 
 
+class RunStatus(Enum):
+    """How a run ended, meta["status"] of its trajectory (docs/output.md): complete when it ran to
+    its end and every invariant held (invariants.py), flagged when it ran to its end but broke one
+    (listed in meta["invariants"]), failed when it stopped ("failed: " and the reason)."""
+
+    COMPLETE = "complete"
+    FLAGGED = "flagged"
+    FAILED = "failed"
+
+
 @dataclass(slots=True)
 class FixedStep:
     """A midpoint Moreau step to record (docs/theory.md §2, §5): its percussions, its ledger

@@ -7,7 +7,8 @@ energy-dissipation regression test is three lines (docs/regression.md):
         traj = ms.run("scenes/solo_drop.toml", duration=0.3)
         energy_ledger.check(traj)
 
-check() asserts that every contact step dissipates what the law says and that the ledger matches
+check() asserts that the run held its invariants (docs/theory.md §10: a flagged run fails), that
+every contact step dissipates what the law says and that the ledger matches
 its baseline, the same JSON file as `moreau-sim regress` writes: by default
 <test folder>/ledger_baselines/<test module>/<test name>.json (ini option
 `moreau_sim_baselines` changes the folder). A missing baseline is recorded and the test fails
@@ -69,14 +70,17 @@ class EnergyLedger:
 
     def check(self, traj, *, tolerances: dict | None = None, law_rtol: float | None = 1e-9,
               no_gain_rtol: float | None = None) -> None:
-        """The law's dissipation in every contact step to law_rtol of the run's energy scale (None: not
-        checked); no energy gain beyond no_gain_rtol (None, the default: not checked; the smooth
+        """The run's invariants held (testing.assert_invariants_held: a flagged run fails); the law's
+        dissipation in every contact step to law_rtol of the run's energy scale (None: not checked); no energy gain beyond no_gain_rtol (None, the default: not checked; the smooth
         motion of a jointed robot oscillates at O(h^2)); then the baseline within `tolerances`
         {quantity: (rtol, atol)} (regress.py's defaults otherwise)."""
         __tracebackhide__ = True  # a failure shows the test's line and the table, not this source
         from .regress import write_baseline
-        from .testing import assert_dissipation_follows_law, assert_matches_baseline, assert_no_energy_gain
+        from .testing import (assert_dissipation_follows_law, assert_invariants_held, assert_matches_baseline,
+                              assert_no_energy_gain)
 
+        if hasattr(traj, "meta"):  # a Trajectory (a Ledger carries no status)
+            assert_invariants_held(traj)
         if no_gain_rtol is not None:
             assert_no_energy_gain(traj, rtol=no_gain_rtol)
         if law_rtol is not None:

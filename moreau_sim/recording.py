@@ -281,6 +281,19 @@ class Recorder:
         self._smooth = self._diss = self._law = 0.0
         self._E, self._at, self._TV = T + V, (q, u), (T, V)
 
+    def energies(self, state: State) -> tuple[float, float] | None:
+        """(T, V) [J] of `state` when it is the last state the ledger evaluated (a fixed step's end,
+        a sample), else None (the invariant checks read them instead of evaluating them again)."""
+        at = self._at
+        return self._TV if at is not None and at[0] is state.q and at[1] is state.u else None
+
+    def last_sample(self) -> tuple[float, float, float, float, float, np.ndarray]:
+        """The last sample's T, V, contact work, correction energy, smooth error [J] and pair gaps [m]
+        (a view of its row)."""
+        i, c = self._samples.last, self._samples.cols
+        return (float(c["kinetic_energy"][i]), float(c["potential_energy"][i]), float(c["contact_work"][i]),
+                float(c["correction_energy"][i]), float(c["smooth_error"][i]), c["gap"][i])
+
     def _smooth_until(self, E: float, t: float) -> None:
         """Contact-free motion from the last accounted state to a state of T + V = E [J] at t [s]:
         smooth error, and a rise that counts as one step's (event-driven, adaptive: a smooth stretch)."""

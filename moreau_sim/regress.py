@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import MoreauSimError, SceneError, SimulationError
+from .invariants import flagged, one_line
 from .ledger import Drift, compare, drift_table, ledger
 from .model import build_model
 from .scene import load_scene
@@ -94,8 +95,9 @@ def read_baseline(path: str | Path) -> dict:
 
 @dataclass
 class Result:
-    """One scene of a regress run: status "ok", "drift", "failed" (the run stopped), "recorded"
-    (--update), "error" (bad input: scene, options, baseline file); drifts; notes (what differs
+    """One scene of a regress run: status "ok", "drift", "failed" (the run stopped), "flagged" (the
+    run broke an invariant, docs/theory.md §10: a failure like drift, and no baseline is recorded from
+    it), "recorded" (--update), "error" (bad input: scene, options, baseline file); drifts; notes (what differs
     from the baseline: scene file, options, versions); message (failed, error); seconds of wall time."""
 
     scene: str
@@ -159,6 +161,9 @@ def check_scene(scene: str | Path, directory: str | Path, *, update: bool = Fals
     except SimulationError as exc:
         return Result(sc.name, str(scene), "failed", message=f"the run failed: {exc}",
                       seconds=time.perf_counter() - t0)
+    if flagged(traj.meta):
+        return Result(sc.name, str(scene), "flagged", message=f"the run broke an invariant: "
+                      f"{one_line(traj.meta.get('invariants', []))}", seconds=time.perf_counter() - t0)
     if update:  # what the new baseline changes, when there was one, is shown (it is accepted)
         try:
             old = read_baseline(path) if path.exists() else None
@@ -175,16 +180,19 @@ def check_scene(scene: str | Path, directory: str | Path, *, update: bool = Fals
     return Result(sc.name, str(scene), "drift" if drifts else "ok", drifts, notes, seconds=time.perf_counter() - t0)
 
 
+FAILURES = ("drift", "failed", "flagged")  # the statuses of Result that fail a regress run (exit 1)
+
+
 def junit(results: list[Result], path: str | Path) -> Path:
-    """A JUnit XML report (one testcase per scene; drift and failed runs are failures), atomically."""
+    """A JUnit XML report (one testcase per scene; drift, failed and flagged runs are failures), atomically."""
     suite = ET.Element("testsuite", name="moreau-sim regress", tests=str(len(results)),
-                       failures=str(sum(r.status in ("drift", "failed") for r in results)),
+                       failures=str(sum(r.status in FAILURES for r in results)),
                        errors=str(sum(r.status == "error" for r in results)),
                        time=f"{sum(r.seconds for r in results):.3f}")
     for r in results:
         case = ET.SubElement(suite, "testcase", classname="moreau-sim.regress", name=r.scene, file=r.path,
                              time=f"{r.seconds:.3f}")
-        if r.status in ("drift", "failed", "error"):
+        if r.status in FAILURES + ("error",):
             what = r.message or ", ".join(d.quantity for d in r.drifts)
             tag = "error" if r.status == "error" else "failure"
             fail = ET.SubElement(case, tag, message=f"{r.scene}: {r.status}: {what}", type=r.status)

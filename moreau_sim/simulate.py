@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
 
 from .adaptive import simulate_adaptive
@@ -9,6 +10,7 @@ from .checkpoint import Checkpoint
 from .data import Data, make_data
 from .driver import Check, drive
 from .event_driven import simulate_event_driven
+from .invariants import Invariants
 from .model import Model, build_model, initial_state
 from .options import Integrator
 from .scene import Scene, load_scene
@@ -16,12 +18,14 @@ from .state import State
 from .time_stepping import TimeStepping
 from .trajectory import Summary, Trajectory
 
+_EVENT_RTOL = inspect.signature(simulate_event_driven).parameters["rtol"].default  # its smooth phases' rtol
+
 # An impact ("log_impact") is a logged percussion of a contact that was not closed in the previous step.
 
 
 def simulate(model: Model, *, data: Data | None = None, state: State | None = None,
              progress: bool = True, checkpoint: Checkpoint | None = None,
-             spill: str | Path | None = None, check: Check | None = None) -> Trajectory:
+             spill: str | Path | None = None, check: Check | None = None, strict: bool = False) -> Trajectory:
     """Run the scene's options (integrator, restitution, dt, duration) from `state` (default: the
     scene's initial state). Returns a complete :class:`Trajectory` or raises :class:`SimulationError`
     (naming the step and time) whose ``.trajectory`` holds the samples up to the failure,
@@ -35,10 +39,18 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     spill: a folder where the run keeps all but the last block of its recorded rows, in unnamed
     temporary files (recording.Recorder): the memory of a long run stays that of the libraries and
     one block, and the returned arrays are read-only maps of those files (they disappear with the
-    arrays). check: the invariant hook (driver.Check)."""
+    arrays).
+
+    The run checks its own invariants (invariants.py, docs/theory.md §10): a run that broke one
+    ends with meta status "flagged" (not "complete") and the violations in meta["invariants"];
+    strict: raise InvariantViolation (a SimulationError) at the first one instead, its
+    ``.trajectory`` the samples so far. check: another hook instead of the invariants (driver.Check)."""
     data = data or make_data(model)
     state = state or initial_state(model, data)
     opts = model.options
+    if check is None:
+        rtol = opts.rtol if opts.integrator is Integrator.ADAPTIVE else _EVENT_RTOL
+        check = Invariants(model, rtol=rtol, strict=strict)
     if opts.integrator is Integrator.EVENT_DRIVEN:
         return simulate_event_driven(model, data=data, state=state, progress=progress, checkpoint=checkpoint,
                                      spill=spill, check=check)
@@ -53,18 +65,19 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
 def run(scene: Scene | str | Path, *, dt: float | None = None, duration: float | None = None,
         restitution: float | None = None, progress: bool = False, checkpoint: str | Path | None = None,
         checkpoint_every: float | None = None, resume: bool = False, spill: str | Path | None = None,
-        **options) -> Trajectory:
+        strict: bool = False, **options) -> Trajectory:
     """Load (if a path), override options (dt [s], duration [s], restitution, any other
     :class:`~moreau_sim.options.Options` field, e.g. integrator="adaptive", rtol=1e-10,
     atol=1e-12), build and simulate. Returns the Trajectory.
 
     checkpoint: a checkpoint file, written every `checkpoint_every` seconds of simulated time
     (rounded to whole steps) and removed when the run completes; resume: continue from it when
-    it exists (checkpoint.py); spill: a folder for the recorded rows instead of memory (simulate)."""
+    it exists (checkpoint.py); spill: a folder for the recorded rows instead of memory; strict: a
+    broken invariant is an error (simulate)."""
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     sc = sc.with_options(dt=dt, duration=duration, restitution=restitution, **options)
     ck = None if checkpoint is None else Checkpoint(path=Path(checkpoint), every=checkpoint_every, resume=resume)
-    return simulate(build_model(sc), progress=progress, checkpoint=ck, spill=spill)
+    return simulate(build_model(sc), progress=progress, checkpoint=ck, spill=spill, strict=strict)
 
 
 def summary(traj: Trajectory) -> Summary:

@@ -21,11 +21,11 @@ INTEGRATORS = ["time-stepping", "adaptive", "event-driven"]
 def test_the_invariant_hook_sees_every_point_and_records_violations(integrator, e):
     """A hook that flags nothing leaves meta alone (and the ball gains no energy); one that wants
     the ball never below its initial height flags every sample
-    after the start, in meta["invariants"], and the run still completes with the same arrays."""
+    after the start, in meta["invariants"], and the run still ends with the same arrays, flagged."""
     model = ms.build_model(scene("bouncing_ball", duration=0.6, restitution=e, integrator=integrator))
     seen = {"start": 0, "point": 0, "sample": 0}
 
-    def count(where, state, rep):
+    def count(where, state, rep, rec):
         seen[where] += 1
         assert (rep is None) == (where != "point") and (rep is None or isinstance(rep, Report))
         return None
@@ -38,7 +38,7 @@ def test_the_invariant_hook_sees_every_point_and_records_violations(integrator, 
 
     h0 = float(quiet.q[0, -1])
 
-    def never_below_start(where, state, rep):
+    def never_below_start(where, state, rep, rec):
         if where == "sample" and state.q[-1] < h0:
             return {"t": state.t, "what": "below the initial height"}
         return None
@@ -46,7 +46,7 @@ def test_the_invariant_hook_sees_every_point_and_records_violations(integrator, 
     flagged = ms.simulate(model, progress=False, check=never_below_start)
     below = np.flatnonzero(quiet.q[:, -1] < h0)
     assert [v["t"] for v in flagged.meta["invariants"]] == quiet.t[below].tolist()
-    assert flagged.complete and np.array_equal(flagged.q, quiet.q)
+    assert quiet.complete and flagged.meta["status"] == "flagged" and np.array_equal(flagged.q, quiet.q)
 
 
 @pytest.mark.parametrize("integrator", INTEGRATORS)

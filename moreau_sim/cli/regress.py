@@ -1,7 +1,7 @@
 """`moreau-sim regress`: the command over :mod:`moreau_sim.regress` (docs/regression.md).
 
-Exit status: 0 every scene within tolerance (or recorded), 1 a ledger drifted or a run failed,
-2 bad input (scene, option, tolerance, a missing or unreadable baseline)."""
+Exit status: 0 every scene within tolerance (or recorded), 1 a ledger drifted, a run failed or
+broke an invariant (flagged), 2 bad input (scene, option, tolerance, a missing or unreadable baseline)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import click
 
 from ..errors import MoreauSimError
 from ..ledger import DEFAULT_TOLERANCE, QUANTITIES
-from ..regress import Result, check_scene, junit
+from ..regress import FAILURES, Result, check_scene, junit
 from ..sweep import parse_settings
 from .common import fail
 from .paths import output_dir, output_path
@@ -55,7 +55,8 @@ def _tolerances(rtol, atol, specs) -> dict | None:
               help="Also write a JUnit XML report to this file.")
 def regress(scenes, directory, update, settings, rtol, atol, tol_specs, junit_file):
     """Run SCENES and compare their energy ledgers with the baselines in --baseline (docs/regression.md).
-    Exits 0 when every scene is within tolerance, 1 when a ledger drifted, 2 on bad input."""
+    Exits 0 when every scene is within tolerance, 1 when a ledger drifted or a run failed or was
+    flagged (broke an invariant), 2 on bad input."""
     tolerances = _tolerances(rtol, atol, tol_specs)
     try:
         overrides = parse_settings(settings)
@@ -82,9 +83,9 @@ def regress(scenes, directory, update, settings, rtol, atol, tol_specs, junit_fi
             junit(results, junit_file)
         except OSError as exc:
             fail(f"{junit_file}: cannot write the JUnit report ({exc.strerror or exc})")
-    bad = [r for r in results if r.status in ("drift", "failed")]
+    bad = [r for r in results if r.status in FAILURES]
     click.echo(f"{len(results)} scene{'' if len(results) == 1 else 's'}: {len(results) - len(bad) - errors} within "
                "tolerance"
-               + ("" if not bad else f", {len(bad)} drifted or failed: {', '.join(r.scene for r in bad)}")
+               + ("" if not bad else f", {len(bad)} drifted, failed or flagged: {', '.join(r.scene for r in bad)}")
                + ("" if not errors else f", {errors} not run (bad input)"))
     sys.exit(2 if errors else 1 if bad else 0)

@@ -12,6 +12,7 @@ import numpy as np
 from .. import interrupts
 from ..checkpoint import Checkpoint
 from ..errors import MoreauSimError, SceneError, SimulationError, SimulationInterrupted
+from ..invariants import InvariantViolation, flagged, one_line
 from ..model import build_model
 from ..scene import load_scene
 from ..simulate import simulate, summary
@@ -76,11 +77,14 @@ def _show_progress(flag: bool | None, as_json: bool) -> bool:
     return (sys.stderr.isatty() if flag is None else flag) and not as_json
 
 
-def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
+VIOLATED = 3  # the exit status of a --strict run that broke an invariant (docs/cli.md)
+
+
+def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool, strict: bool):
     """simulate() for `run`, its recorded rows waiting in unnamed files beside the output instead of
     in memory (docs/output.md); a stop saves the samples so far as FILE.partial.npz and exits."""
     try:
-        return simulate(model, progress=progress, checkpoint=ck, spill=out.parent)
+        return simulate(model, progress=progress, checkpoint=ck, spill=out.parent, strict=strict)
     except SceneError as exc:  # a damaged checkpoint, or one of another run
         fail(str(exc))
     except SimulationInterrupted as exc:
@@ -93,11 +97,12 @@ def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
         sys.exit(interrupts.exit_status())
     except SimulationError as exc:
         partial = out.with_name(out.stem + ".partial.npz")
+        code = VIOLATED if isinstance(exc, InvariantViolation) else 2
         if exc.trajectory is not None:
             exc.trajectory.save(partial)
             fail(f"{exc}\n  nothing written to {out}; the samples up to the failure are in {partial} "
-                  "(meta status 'failed')")
-        fail(str(exc))
+                  "(meta status 'failed')", code)
+        fail(str(exc), code)
 
 
 @click.command()
@@ -121,8 +126,10 @@ def _simulate(model, out: Path, ck: Checkpoint | None, progress: bool):
 @click.option("--resume", is_flag=True,
               help="Continue from FILE.checkpoint.npz if it exists; the result is bit-identical to an "
                    "uninterrupted run.")
+@click.option("--strict", is_flag=True,
+              help="A broken invariant (docs/theory.md §10) stops the run as an error (exit 3) instead of flagging it.")
 def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as_json, progress, checkpoint_every,
-        resume):
+        resume, strict):
     """Simulate SCENE and write a self-describing NPZ."""
     overrides = _settings(settings)
     for key, value in (("dt", dt), ("duration", duration), ("restitution", restitution), ("save_every", save_every),
@@ -140,7 +147,7 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
         if resume and not ck.path.exists():
             click.echo(f"moreau-sim: no checkpoint {ck.path}: starting from the beginning", err=True)
     try:  # SIGTERM as Ctrl-C (cli/__init__.py): the samples so far are kept
-        traj = _simulate(model, out, ck, _show_progress(progress, as_json))
+        traj = _simulate(model, out, ck, _show_progress(progress, as_json), strict)
         traj.save(out)
     except OSError as exc:  # the output's folder filled up (the run's spill files, a partial file, the output)
         fail(f"{out.parent}: cannot write there ({exc.strerror or exc}); nothing written to {out}")
@@ -149,6 +156,9 @@ def run(scene, dt, duration, restitution, save_every, qp_form, settings, out, as
     out.with_name(out.stem + ".partial.npz").unlink(missing_ok=True)  # an interrupted attempt's samples: superseded
     s = summary(traj)
     s["output"] = str(out)
+    if flagged(traj.meta):  # one line on stderr (also with --json): the run ran to its end but broke an invariant
+        click.echo(f"moreau-sim: flagged: {one_line(traj.meta.get('invariants', []))} (meta invariants; "
+                   "--strict makes it an error)", err=True)
     if as_json:
         click.echo(json.dumps(s, indent=2))
         return

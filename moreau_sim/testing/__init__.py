@@ -18,12 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..invariants import flagged, one_line
 from ..ledger import Ledger, compare, drift_table, ledger
 from ..regress import baseline_path, differences, read_baseline, write_baseline
 from ..trajectory import Trajectory
 
-__all__ = ["assert_budget_closes", "assert_dissipation_follows_law", "assert_matches_baseline",
-           "assert_no_energy_gain"]
+__all__ = ["assert_budget_closes", "assert_dissipation_follows_law", "assert_invariants_held",
+           "assert_matches_baseline", "assert_no_energy_gain"]
 
 
 def _ledger(x: Trajectory | Ledger) -> Ledger:
@@ -50,6 +51,17 @@ def assert_no_energy_gain(traj: Trajectory | Ledger, *, rtol: float = 1e-9, atol
     if rows:
         _fail(f"{L.scene}: energy gained (scale {L.scale:.3g} J)",
               f"  {'what':<14} {'t [s]':>12} {'rise [J]':>12} {'tolerance':>10}", rows)
+
+
+def assert_invariants_held(traj: Trajectory) -> None:
+    """The run held every invariant it checks of itself (docs/theory.md §10): its status is not
+    "flagged"; else the violations, one per invariant with its size, where and when."""
+    __tracebackhide__ = True
+    if flagged(traj.meta):
+        rows = [f"  {v.get('invariant', '?'):<24} {v.get('t', float('nan')):12.6g} {v.get('size', float('nan')):12.3e} "
+                f"{v.get('allowed', float('nan')):10.1e} {v.get('unit', '')}" for v in traj.meta.get("invariants", [])[:10]]
+        _fail(f"{traj.meta.get('scene', {}).get('name', 'run')}: flagged: {one_line(traj.meta.get('invariants', []))}",
+              f"  {'invariant':<24} {'t [s]':>12} {'size':>12} {'allowed':>10}", rows)
 
 
 def assert_dissipation_follows_law(traj: Trajectory | Ledger, *, rtol: float = 1e-9, atol: float = 0.0) -> None:
@@ -90,8 +102,11 @@ def assert_matches_baseline(traj: Trajectory | Ledger, baseline: str | Path | di
     """The ledger matches a recorded baseline: a JSON file of `moreau-sim regress` (a path ending in
     .json; any other path is a folder holding SCENE_NAME.json) or its dict, within tolerances
     {quantity: (rtol, atol [J])} ("default" for the rest; docs/regression.md).
-    update: write the baseline from this run instead (also when the file does not exist yet)."""
+    update: write the baseline from this run instead (also when the file does not exist yet).
+    A flagged run (it broke an invariant) fails, and records no baseline."""
     __tracebackhide__ = True
+    if isinstance(traj, Trajectory):
+        assert_invariants_held(traj)
     L = _ledger(traj)
     path = None
     if not isinstance(baseline, dict):

@@ -1,0 +1,223 @@
+"""The invariants every run checks of itself (docs/theory.md §10), through the driver's hook
+(driver.Check) at the start, every accepted point and every sample, for every integrator: a
+finite state, no penetration beyond the method's, no energy gain beyond the integrator's stated
+bound, no speed the energy cannot pay for, a closed ledger, no start inside an obstacle.
+Each check is a few float reductions; a violation is a dict kept in meta["invariants"].
+"""
+
+from __future__ import annotations
+
+import math
+from enum import Enum
+
+import numpy as np
+
+from .data import make_data
+from .energy import kinetic, potential
+from .errors import SimulationError
+from .model import Model
+from .options import Integrator
+from .protocol import FixedStep, Impact, Report, RunStatus
+from .recording import Recorder
+from .state import State
+
+FIXED_RTOL = 1e-9  # the fixed step's stated bound on a gain of T + V in its contact steps, of the energy scale
+EXACT_FACTOR = 100.0  # the adaptive and event-driven integrators' bound: EXACT_FACTOR * rtol of the energy scale
+ROUND_OFF = 64 * np.finfo(float).eps  # relative round-off of T + V and of the ledger's sums (a few ulps of many terms)
+GAP_ROUND_OFF = 1e-12  # [m] the round-off of a gap
+PERSIST = 3  # penetration beyond the allowance at this many consecutive points (or samples) is a fault
+WORSEN = 10.0  # a violation already reported is reported again when it has grown by this factor
+
+
+class Invariant(Enum):
+    """What a run checks of itself (docs/theory.md §10)."""
+
+    START_INSIDE = "start inside"
+    PENETRATION = "penetration"
+    ENERGY_GAIN = "energy gain"
+    SPEED = "speed beyond the energy"
+    LEDGER = "ledger residual"
+
+
+class InvariantViolation(SimulationError):
+    """A strict run (strict=True, --strict) broke an invariant: ``trajectory`` holds the samples up to it."""
+
+
+class Invariants:
+    """The hook driver.drive calls (driver.Check): check(where, state, report, recorder) -> the
+    violations found there (dicts: invariant, t [s], point, size, allowed, unit, message) or None. model: the run's model (its options give the integrator, dt, the
+    contact tolerance, rtol); rtol: the tolerance of the integrator's smooth motion (the adaptive
+    one's rtol, the event-driven one's solver rtol; ignored for time-stepping); strict: raise
+    InvariantViolation at the first violation instead of recording it.
+
+    Energies are T + V [J] with the booked position correction taken out (docs/theory.md §2.5,
+    §5); in a fixed step without contact the change of T + V is the midpoint rule's smooth error,
+    booked by the ledger (§5.3) and taken out as well."""
+
+    def __init__(self, model: Model, *, rtol: float, strict: bool = False):
+        opts = model.options
+        self.model, self.data = model, make_data(model)  # its own Data: checking changes nothing the run reads
+        self.fixed = opts.integrator is Integrator.TIME_STEPPING
+        self.rel = FIXED_RTOL if self.fixed else max(EXACT_FACTOR * rtol, FIXED_RTOL if
+                                                     opts.integrator is Integrator.ADAPTIVE else 0.0, ROUND_OFF)
+        self.tol, self.h, self.strict = opts.contact_tolerance, opts.dt, strict
+        self.g = math.hypot(*opts.gravity)  # [m/s^2] what a step's smooth motion adds to an approach, per second
+        self.E0 = self.E = self.Ehat = self.Emin = 0.0  # [J] start, last point, unexplained energy, its minimum
+        self.scale = 0.0  # [J] max(|E_0|, max T): the energy the bounds refer to (as ledger.Ledger.scale)
+        self.booked = 0.0  # [J] the positive energy booked so far (correction, smooth error): the speed budget
+        self.residual = 0.0  # [J] the ledger's running residual (samples)
+        self.Es = math.nan  # [J] T + V at the last sample (NaN before the first)
+        self.v_app = 0.0  # [m/s] the largest approach speed |gamma-| of any contact step or impact so far
+        self.deep_points = self.deep_samples = 0  # consecutive checks with penetration beyond the allowance
+        self.v_streak = 0.0  # [m/s] the largest approach speed over those consecutive points
+        self.points = 0
+        self.reported: dict[str, float] = {}  # invariant -> the size last reported
+
+    # ---- the hook ---------------------------------------------------------------------------------------------
+    def __call__(self, where: str, state: State, rep: Report | None, rec: Recorder) -> list[dict] | None:
+        if where == "point":
+            return self._point(state, rep, rec)
+        if where == "sample":
+            return self._sample(state, rec)
+        return self._start(state, rec)
+
+    def _energies(self, state: State, rec: Recorder) -> tuple[float, float]:
+        TV = rec.energies(state)
+        if TV is None:  # a point the ledger did not evaluate (a smooth step of the event integrators)
+            TV = kinetic(self.model, self.data, state.q, state.u), potential(self.model, self.data, state.q)
+        T, V = TV
+        if not (math.isfinite(T) and math.isfinite(V)):
+            raise SimulationError(f"the state at t = {state.t:.6g} s became non-finite (NaN or inf)")
+        return T, V
+
+    def _start(self, state: State, rec: Recorder) -> list[dict] | None:
+        T, V = self._energies(state, rec)
+        self.E0 = self.E = T + V
+        self.Ehat = self.Emin = 0.0
+        self.scale = max(abs(self.E0), T)
+        if rec.n:
+            g = rec.last_sample()[5]
+            if g.size:
+                depth = -float(g.min())
+                if depth > self.tol:  # a start deeper than the rest rule is meant for (model.check_start's rule)
+                    return self._violate(Invariant.START_INSIDE, state.t, depth, self.tol, "m",
+                                         f"a pair starts {depth:.3g} m inside another (contact_tolerance "
+                                         f"{self.tol:g} m)")
+        return None
+
+    def _point(self, state: State, rep: Report, rec: Recorder) -> list[dict] | None:
+        self.points += 1
+        T, V = self._energies(state, rec)
+        E = T + V
+        dE = E - self.E
+        booked = rep.corr
+        deep, allowed = 0.0, 0.0
+        for r in rep.records:
+            if type(r) is FixedStep:
+                res = r.result
+                if res.contacts.m:
+                    # the step's own transient: h/2 (|gamma-| + h |gravity|), the largest approach of the streak
+                    d, v = -min(res.contacts.g.tolist()), -min(res.gamma_minus.tolist(), default=0.0) + r.h * self.g
+                    self.v_app = max(self.v_app, v)
+                    self.v_streak = max(self.v_streak, v) if self.deep_points else v
+                    a = self.tol + 0.5 * r.h * max(self.v_streak, 0.0) + GAP_ROUND_OFF
+                    if d - a > deep - allowed:
+                        deep, allowed = d, a
+                elif len(rep.records) == 1:  # a contact-free fixed step: its change is the smooth error (§5.3)
+                    booked = dE
+            elif type(r) is Impact and len(r.gamma_minus):
+                self.v_app = max(self.v_app, -min(r.gamma_minus.tolist()))
+        self.E = E
+        self.booked += max(booked, 0.0)
+        self.Ehat += dE - booked
+        self.scale = max(self.scale, T)
+        bound = self.rel * self.scale
+        out: list[dict] = []
+        if self.Ehat < self.Emin:
+            self.Emin = self.Ehat
+        elif self.Ehat - self.Emin > bound:
+            out += self._violate(Invariant.ENERGY_GAIN, state.t, self.Ehat - self.Emin, bound, "J",
+                                f"T + V rose {self.Ehat - self.Emin:.3g} J above its running minimum (booked "
+                                f"correction and smooth error taken out)")
+        budget = self.E0 - V + self.booked + bound
+        if T > budget:
+            out += self._violate(Invariant.SPEED, state.t, T - budget, bound, "J",
+                                f"kinetic energy {T:.6g} J exceeds what the energy allows, {budget:.6g} J")
+        if deep > allowed:
+            self.deep_points += 1
+            if self.deep_points >= PERSIST:
+                out += self._violate(Invariant.PENETRATION, state.t, deep, allowed, "m",
+                                    f"a contact {deep:.3g} m deep at the step's midpoint for {self.deep_points} "
+                                    f"steps (allowed {allowed:.3g} m: contact_tolerance + h/2 |gamma-|)")
+        else:
+            self.deep_points = 0
+            self.v_streak = 0.0
+        return out or None
+
+    def _sample(self, state: State, rec: Recorder) -> list[dict] | None:
+        T, V, work, corr, smooth, g = rec.last_sample()
+        Es, self.Es = self.Es, T + V
+        if math.isnan(Es):  # the first sample (the start: checked by _start, which follows it)
+            return None
+        self.residual += (T + V) - Es - (work + corr + smooth)
+        bound = max(self.rel, ROUND_OFF) * self.scale
+        out: list[dict] = []
+        if abs(self.residual) > bound:
+            out += self._violate(Invariant.LEDGER, state.t, abs(self.residual), bound, "J",
+                                f"the energy budget leaves {self.residual:+.3g} J (E_end - E_0 - contact work - "
+                                "correction - smooth error)")
+        if g.size:
+            depth = -float(g.min())
+            allowed = self.tol + 0.5 * self.h * self.v_app + GAP_ROUND_OFF
+            if depth > allowed:
+                self.deep_samples += 1
+                if self.deep_samples >= PERSIST:
+                    out += self._violate(Invariant.PENETRATION, state.t, depth, allowed, "m",
+                                        f"a pair {depth:.3g} m inside another for {self.deep_samples} samples "
+                                        f"(allowed {allowed:.3g} m: contact_tolerance + h/2 |gamma-|)")
+            else:
+                self.deep_samples = 0
+        return out or None
+
+    def _violate(self, what: Invariant, t: float, size: float, allowed: float, unit: str, message: str) -> list[dict]:
+        """[the violation's record], or [] when it was reported already and has not grown by WORSEN."""
+        if size <= WORSEN * self.reported.get(what.value, 0.0):
+            return []
+        self.reported[what.value] = size
+        v = {"invariant": what.value, "t": float(t), "point": self.points, "size": float(size),
+             "allowed": float(allowed), "unit": unit, "message": message}
+        if self.strict:
+            raise InvariantViolation(f"invariant violated: {what.value}: {message}")
+        return [v]
+
+    # ---- a checkpoint carries the running figures --------------------------------------------------------------
+    _CARRIED = ("E0", "E", "Ehat", "Emin", "scale", "booked", "residual", "Es", "v_app", "deep_points", "deep_samples", "v_streak",
+                "points")
+
+    def state_dict(self) -> dict:
+        return {**{k: getattr(self, k) for k in self._CARRIED}, "reported": dict(self.reported)}
+
+    def load_state_dict(self, d: dict) -> None:
+        for k in self._CARRIED:
+            setattr(self, k, d[k])
+        self.reported = dict(d["reported"])
+
+
+def status(violations: list[dict] | None) -> RunStatus:
+    """The status of a run that ran to its end: complete when every invariant held, else flagged."""
+    return RunStatus.FLAGGED if violations else RunStatus.COMPLETE
+
+
+def flagged(meta: dict) -> bool:
+    """Whether a trajectory's meta says its run broke an invariant."""
+    return meta.get("status") == RunStatus.FLAGGED.value
+
+
+def one_line(violations: list[dict]) -> str:
+    """The violations of a run on one line: each invariant with its largest size, where and when."""
+    worst: dict[str, dict] = {}
+    for v in violations:
+        if v.get("invariant") not in worst or v.get("size", 0.0) >= worst[v["invariant"]].get("size", 0.0):
+            worst[v.get("invariant", "?")] = v
+    return "; ".join(f"{k} {v.get('size', math.nan):.3g} {v.get('unit', '')} (allowed {v.get('allowed', math.nan):.3g})"
+                     f" at t = {v.get('t', math.nan):.6g} s" for k, v in worst.items())
