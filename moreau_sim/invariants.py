@@ -21,10 +21,11 @@ from .protocol import FixedStep, Impact, Report, RunStatus
 from .recording import Recorder
 from .state import State
 
-FIXED_RTOL = 1e-9  # the fixed step's stated bound on a gain of T + V in its contact steps, of the energy scale
+FIXED_RTOL = 1e-8  # the fixed step's stated bound on a gain of T + V in its contact steps, of the energy scale
 EXACT_FACTOR = 100.0  # the adaptive and event-driven integrators' bound: EXACT_FACTOR * rtol of the energy scale
 ROUND_OFF = 64 * np.finfo(float).eps  # relative round-off of T + V and of the ledger's sums (a few ulps of many terms)
 GAP_ROUND_OFF = 1e-12  # [m] the round-off of a gap
+ACCELERATION = 2.0  # a gap's free acceleration, of |gravity|: gravity, and as much again (a rotating contact point)
 PERSIST = 3  # penetration beyond the allowance at this many consecutive points (or samples) is a fault
 WORSEN = 10.0  # a violation already reported is reported again when it has grown by this factor
 
@@ -45,9 +46,10 @@ class InvariantViolation(SimulationError):
 
 class Invariants:
     """The hook driver.drive calls (driver.Check): check(where, state, report, recorder) -> the
-    violations found there (dicts: invariant, t [s], point, size, allowed, unit, message) or None. model: the run's model (its options give the integrator, dt, the
-    contact tolerance, rtol); rtol: the tolerance of the integrator's smooth motion (the adaptive
-    one's rtol, the event-driven one's solver rtol; ignored for time-stepping); strict: raise
+    violations found there (dicts: invariant, t [s], point, size, allowed, unit, message) or None.
+    model: the run's model (its options give the integrator, dt, the contact tolerance); rtol: the
+    tolerance of the integrator's smooth motion (the adaptive one's rtol, the event-driven one's
+    solver rtol; ignored for time-stepping); strict: raise
     InvariantViolation at the first violation instead of recording it.
 
     Energies are T + V [J] with the booked position correction taken out (docs/theory.md §2.5,
@@ -60,6 +62,7 @@ class Invariants:
         self.fixed = opts.integrator is Integrator.TIME_STEPPING
         self.rel = FIXED_RTOL if self.fixed else max(EXACT_FACTOR * rtol, FIXED_RTOL if
                                                      opts.integrator is Integrator.ADAPTIVE else 0.0, ROUND_OFF)
+        self.rel_ledger = max(self.rel, ROUND_OFF)  # the ledger's sums: at least their round-off
         self.tol, self.h, self.strict = opts.contact_tolerance, opts.dt, strict
         self.g = math.hypot(*opts.gravity)  # [m/s^2] what a step's smooth motion adds to an approach, per second
         self.E0 = self.E = self.Ehat = self.Emin = 0.0  # [J] start, last point, unexplained energy, its minimum
@@ -111,71 +114,81 @@ class Invariants:
         E = T + V
         dE = E - self.E
         booked = rep.corr
-        deep, allowed = 0.0, 0.0
-        for r in rep.records:
+        deep = allowed = 0.0
+        records = rep.records
+        for r in records:
             if type(r) is FixedStep:
                 res = r.result
                 if res.contacts.m:
-                    # the step's own transient: h/2 (|gamma-| + h |gravity|), the largest approach of the streak
-                    d, v = -min(res.contacts.g.tolist()), -min(res.gamma_minus.tolist(), default=0.0) + r.h * self.g
-                    self.v_app = max(self.v_app, v)
+                    # the step's own transient at its midpoint, h/2 (|gamma-| + 2 h |g|), and as much again that the
+                    # previous step may have left: h (...), with the largest approach of the streak
+                    d = -min(res.contacts.g.tolist())
+                    v = max(-min(res.gamma_minus.tolist(), default=0.0), 0.0) + ACCELERATION * r.h * self.g
+                    if v > self.v_app:
+                        self.v_app = v
                     self.v_streak = max(self.v_streak, v) if self.deep_points else v
-                    a = self.tol + 0.5 * r.h * max(self.v_streak, 0.0) + GAP_ROUND_OFF
+                    a = self.tol + r.h * self.v_streak + GAP_ROUND_OFF
                     if d - a > deep - allowed:
                         deep, allowed = d, a
-                elif len(rep.records) == 1:  # a contact-free fixed step: its change is the smooth error (§5.3)
+                elif len(records) == 1:  # a contact-free fixed step: its change is the smooth error (§5.3)
                     booked = dE
             elif type(r) is Impact and len(r.gamma_minus):
                 self.v_app = max(self.v_app, -min(r.gamma_minus.tolist()))
         self.E = E
-        self.booked += max(booked, 0.0)
-        self.Ehat += dE - booked
-        self.scale = max(self.scale, T)
+        if booked > 0.0:
+            self.booked += booked
+        Ehat = self.Ehat = self.Ehat + (dE - booked)
+        if T > self.scale:
+            self.scale = T
         bound = self.rel * self.scale
-        out: list[dict] = []
-        if self.Ehat < self.Emin:
-            self.Emin = self.Ehat
-        elif self.Ehat - self.Emin > bound:
-            out += self._violate(Invariant.ENERGY_GAIN, state.t, self.Ehat - self.Emin, bound, "J",
-                                f"T + V rose {self.Ehat - self.Emin:.3g} J above its running minimum (booked "
+        out = None
+        if Ehat < self.Emin:
+            self.Emin = Ehat
+        elif Ehat - self.Emin > bound:
+            out = self._violate(Invariant.ENERGY_GAIN, state.t, Ehat - self.Emin, bound, "J",
+                                f"T + V rose {Ehat - self.Emin:.3g} J above its running minimum (booked "
                                 f"correction and smooth error taken out)")
         budget = self.E0 - V + self.booked + bound
         if T > budget:
-            out += self._violate(Invariant.SPEED, state.t, T - budget, bound, "J",
-                                f"kinetic energy {T:.6g} J exceeds what the energy allows, {budget:.6g} J")
+            out = (out or []) + self._violate(Invariant.SPEED, state.t, T - budget, bound, "J",
+                                              f"kinetic energy {T:.6g} J exceeds what the energy allows, "
+                                              f"{budget:.6g} J")
         if deep > allowed:
             self.deep_points += 1
             if self.deep_points >= PERSIST:
-                out += self._violate(Invariant.PENETRATION, state.t, deep, allowed, "m",
-                                    f"a contact {deep:.3g} m deep at the step's midpoint for {self.deep_points} "
-                                    f"steps (allowed {allowed:.3g} m: contact_tolerance + h/2 |gamma-|)")
-        else:
+                out = (out or []) + self._violate(
+                    Invariant.PENETRATION, state.t, deep, allowed, "m",
+                    f"a contact {deep:.3g} m deep at the step's midpoint for {self.deep_points} steps (allowed "
+                    f"{allowed:.3g} m: contact_tolerance + h (|gamma-| + 2 h |g|))")
+        elif self.deep_points:
             self.deep_points = 0
-            self.v_streak = 0.0
         return out or None
 
     def _sample(self, state: State, rec: Recorder) -> list[dict] | None:
         T, V, work, corr, smooth, g = rec.last_sample()
         Es, self.Es = self.Es, T + V
-        if math.isnan(Es):  # the first sample (the start: checked by _start, which follows it)
+        if Es != Es:  # NaN: the first sample (the start: checked by _start, which follows it)
             return None
-        self.residual += (T + V) - Es - (work + corr + smooth)
-        bound = max(self.rel, ROUND_OFF) * self.scale
-        out: list[dict] = []
-        if abs(self.residual) > bound:
-            out += self._violate(Invariant.LEDGER, state.t, abs(self.residual), bound, "J",
-                                f"the energy budget leaves {self.residual:+.3g} J (E_end - E_0 - contact work - "
+        residual = self.residual = self.residual + ((T + V) - Es - (work + corr + smooth))
+        bound = self.rel_ledger * self.scale
+        out = None
+        # the fixed step's residual of contact steps with rotation is first order in h (§5.4), an
+        # unattributed loss: only a gain is its fault; the event integrators' ledger closes either way
+        if (residual if self.fixed else abs(residual)) > bound:
+            out = self._violate(Invariant.LEDGER, state.t, abs(residual), bound, "J",
+                                f"the energy budget leaves {residual:+.3g} J (E_end - E_0 - contact work - "
                                 "correction - smooth error)")
-        if g.size:
-            depth = -float(g.min())
-            allowed = self.tol + 0.5 * self.h * self.v_app + GAP_ROUND_OFF
+        if len(g):
+            depth = -min(g.tolist())
+            allowed = self.tol + self.h * self.v_app + GAP_ROUND_OFF
             if depth > allowed:
                 self.deep_samples += 1
                 if self.deep_samples >= PERSIST:
-                    out += self._violate(Invariant.PENETRATION, state.t, depth, allowed, "m",
-                                        f"a pair {depth:.3g} m inside another for {self.deep_samples} samples "
-                                        f"(allowed {allowed:.3g} m: contact_tolerance + h/2 |gamma-|)")
-            else:
+                    out = (out or []) + self._violate(
+                        Invariant.PENETRATION, state.t, depth, allowed, "m",
+                        f"a pair {depth:.3g} m inside another for {self.deep_samples} samples (allowed "
+                        f"{allowed:.3g} m: contact_tolerance + h max |gamma-|)")
+            elif self.deep_samples:
                 self.deep_samples = 0
         return out or None
 
@@ -191,8 +204,8 @@ class Invariants:
         return [v]
 
     # ---- a checkpoint carries the running figures --------------------------------------------------------------
-    _CARRIED = ("E0", "E", "Ehat", "Emin", "scale", "booked", "residual", "Es", "v_app", "deep_points", "deep_samples", "v_streak",
-                "points")
+    _CARRIED = ("E0", "E", "Ehat", "Emin", "scale", "booked", "residual", "Es", "v_app", "deep_points",
+                "deep_samples", "v_streak", "points")
 
     def state_dict(self) -> dict:
         return {**{k: getattr(self, k) for k in self._CARRIED}, "reported": dict(self.reported)}

@@ -71,8 +71,9 @@ class EnergyLedger:
     def check(self, traj, *, tolerances: dict | None = None, law_rtol: float | None = 1e-9,
               no_gain_rtol: float | None = None) -> None:
         """The run's invariants held (testing.assert_invariants_held: a flagged run fails); the law's
-        dissipation in every contact step to law_rtol of the run's energy scale (None: not checked); no energy gain beyond no_gain_rtol (None, the default: not checked; the smooth
-        motion of a jointed robot oscillates at O(h^2)); then the baseline within `tolerances`
+        dissipation in every contact step to law_rtol of the run's energy scale (None: not checked);
+        no energy gain beyond no_gain_rtol (None, the default: not checked; the smooth motion of a
+        jointed robot oscillates at O(h^2)); then the baseline within `tolerances`
         {quantity: (rtol, atol)} (regress.py's defaults otherwise)."""
         __tracebackhide__ = True  # a failure shows the test's line and the table, not this source
         from .regress import write_baseline

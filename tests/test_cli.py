@@ -24,12 +24,14 @@ def test_run_writes_a_self_describing_npz(name, tmp_path):
     r = cli("run", SCENES / f"{name}.toml", "--duration", "0.3", "--out", out, "--json")
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
-    assert summary["status"] == "complete" and summary["steps"] == round(0.3 / ms.load_scene(
+    # a run that broke an invariant (docs/theory.md §10) is flagged, says so in one line, and is written too
+    assert summary["status"] in ("complete", "flagged") and summary["steps"] == round(0.3 / ms.load_scene(
         SCENES / f"{name}.toml").options.dt)
+    assert (summary["status"] == "flagged") == ("moreau-sim: flagged: " in r.stderr)
     with np.load(out, allow_pickle=False) as z:
         assert set(ARRAYS) | {"meta"} <= set(z.files)
         meta = json.loads(str(z["meta"]))
-    assert meta["status"] == "complete"
+    assert meta["status"] == summary["status"] and bool(meta.get("invariants")) == (meta["status"] == "flagged")
     assert meta["scene"]["name"] == name and "[[bodies]]" in meta["scene"]["toml"]
     assert all("<robot" in text or "<mujoco" in text for text in meta["scene"]["urdf"].values())
     assert meta["options"]["duration"] == 0.3

@@ -58,8 +58,9 @@ def assert_invariants_held(traj: Trajectory) -> None:
     "flagged"; else the violations, one per invariant with its size, where and when."""
     __tracebackhide__ = True
     if flagged(traj.meta):
-        rows = [f"  {v.get('invariant', '?'):<24} {v.get('t', float('nan')):12.6g} {v.get('size', float('nan')):12.3e} "
-                f"{v.get('allowed', float('nan')):10.1e} {v.get('unit', '')}" for v in traj.meta.get("invariants", [])[:10]]
+        nan = float("nan")
+        rows = [f"  {v.get('invariant', '?'):<24} {v.get('t', nan):12.6g} {v.get('size', nan):12.3e} "
+                f"{v.get('allowed', nan):10.1e} {v.get('unit', '')}" for v in traj.meta.get("invariants", [])[:10]]
         _fail(f"{traj.meta.get('scene', {}).get('name', 'run')}: flagged: {one_line(traj.meta.get('invariants', []))}",
               f"  {'invariant':<24} {'t [s]':>12} {'size':>12} {'allowed':>10}", rows)
 
