@@ -60,13 +60,15 @@ def held_or_flagged(masses, h, e, integrator, duration):
     """The run holds (measured here from its trajectory) or says it did not; a failure is loud too."""
     try:
         traj = ms.run(stack(masses, h, e, integrator), duration=duration)
-    except (SimulationError, UnsupportedModel):
+    except (SimulationError, UnsupportedModel) as exc:
+        print(f"stack {integrator} {masses} h={h} e={e}: failed: {str(exc)[:100]}")  # the counts (pytest -s)
         return
     q = traj.q.reshape(len(traj.t), len(masses), 7)[:, :, :3]  # the cubes' positions
     drift = float(np.abs(q - q[0]).max())
     E = traj.total_energy
     gain = float((E - E[0]).max())
     held = drift <= DRIFT and gain <= GAIN * abs(E[0])
+    print(f"stack {integrator} {masses} h={h} e={e}: {traj.meta['status']} (drift {drift:.2g} m, gain {gain:.2g} J)")
     assert held or traj.meta["status"] == "flagged", (
         f"silent: status {traj.meta['status']} with drift {drift:.3g} m, gain {gain:.3g} J (E0 {E[0]:.6g} J)")
 
