@@ -29,7 +29,8 @@ PROGRESS_EVERY = 0.5  # [s of wall time] the bar is refreshed at most this often
 _BAR = "{percentage:3.0f}%|{bar}| {n:.6g}/{total:.6g} {unit} [{elapsed}<{remaining}]"
 
 # The invariant hook: check(where, state, report, recorder) at the initial state (where "start",
-# report None), at every accepted point ("point") and every sample ("sample", after it is recorded);
+# report None), at every accepted point ("point"), every sample ("sample", after it is recorded) and
+# once at the end ("end", the final state);
 # the recorder's figures (Recorder.energies, .last_sample) are there to read. A dict (or a list of
 # them) it returns is a violation, kept in meta["invariants"], and the run ends "flagged" instead of "complete"
 # (protocol.RunStatus); a check that must stop the run raises SimulationError. A hook with
@@ -93,6 +94,7 @@ def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | Non
                     refresh = time.perf_counter() + PROGRESS_EVERY
         finally:
             bar.close()
+    loop.end(integ.state)
     done = RunStatus.FLAGGED if loop.violations else RunStatus.COMPLETE
     traj = rec.trajectory(loop.meta(done.value, wall()))
     if checkpoint is not None and not checkpoint.keep:
@@ -162,6 +164,10 @@ class _Loop:
         if self.check is not None and rep.state is not None:
             self._check("point", rep.state, rep)
         self.points += 1
+
+    def end(self, state: State) -> None:
+        """The hook once more at the run's end (where "end"): what had not yet persisted long enough."""
+        self._check("end", state, None)
 
     def _impact(self, r: Impact) -> None:
         rec = self.rec

@@ -71,8 +71,10 @@ class Invariants:
         self.residual = 0.0  # [J] the ledger's running residual (samples)
         self.Es = math.nan  # [J] T + V at the last sample (NaN before the first)
         self.v_app = 0.0  # [m/s] the largest approach speed |gamma-| of any contact step or impact so far
+        # (a sample, after the step's correction, is held to contact_tolerance + h max |gamma-|)
         self.deep_points = self.deep_samples = 0  # consecutive checks with penetration beyond the allowance
         self.v_streak = 0.0  # [m/s] the largest approach speed over those consecutive points
+        self.last_depth = self.last_allowed = 0.0  # [m] the last penetration beyond the allowance, the allowance
         self.points = 0
         self.reported: dict[str, float] = {}  # invariant -> the size last reported
 
@@ -82,7 +84,18 @@ class Invariants:
             return self._point(state, rep, rec)
         if where == "sample":
             return self._sample(state, rec)
+        if where == "end":
+            return self._end(state)
         return self._start(state, rec)
+
+    def _end(self, state: State) -> list[dict] | None:
+        """A penetration beyond the allowance at the last samples (or steps) persists to the end of the
+        run, however few they were."""
+        if self.deep_samples or self.deep_points:
+            return self._violate(Invariant.PENETRATION, state.t, self.last_depth, self.last_allowed, "m",
+                                 f"a pair {self.last_depth:.3g} m inside another at the end of the run (allowed "
+                                 f"{self.last_allowed:.3g} m)") or None
+        return None
 
     def _energies(self, state: State, rec: Recorder) -> tuple[float, float]:
         TV = rec.energies(state)
@@ -123,9 +136,10 @@ class Invariants:
                     # the step's own transient at its midpoint, h/2 (|gamma-| + 2 h |g|), and as much again that the
                     # previous step may have left: h (...), with the largest approach of the streak
                     d = -min(res.contacts.g.tolist())
-                    v = max(-min(res.gamma_minus.tolist(), default=0.0), 0.0) + ACCELERATION * r.h * self.g
+                    v = max(-min(res.gamma_minus.tolist(), default=0.0), 0.0)
                     if v > self.v_app:
                         self.v_app = v
+                    v += ACCELERATION * r.h * self.g
                     self.v_streak = max(self.v_streak, v) if self.deep_points else v
                     a = self.tol + r.h * self.v_streak + GAP_ROUND_OFF
                     if d - a > deep - allowed:
@@ -155,6 +169,7 @@ class Invariants:
                                               f"{budget:.6g} J")
         if deep > allowed:
             self.deep_points += 1
+            self.last_depth, self.last_allowed = deep, allowed
             if self.deep_points >= PERSIST:
                 out = (out or []) + self._violate(
                     Invariant.PENETRATION, state.t, deep, allowed, "m",
@@ -183,6 +198,7 @@ class Invariants:
             allowed = self.tol + self.h * self.v_app + GAP_ROUND_OFF
             if depth > allowed:
                 self.deep_samples += 1
+                self.last_depth, self.last_allowed = depth, allowed
                 if self.deep_samples >= PERSIST:
                     out = (out or []) + self._violate(
                         Invariant.PENETRATION, state.t, depth, allowed, "m",
@@ -205,7 +221,7 @@ class Invariants:
 
     # ---- a checkpoint carries the running figures --------------------------------------------------------------
     _CARRIED = ("E0", "E", "Ehat", "Emin", "scale", "booked", "residual", "Es", "v_app", "deep_points",
-                "deep_samples", "v_streak", "points")
+                "deep_samples", "v_streak", "last_depth", "last_allowed", "points")
 
     def state_dict(self) -> dict:
         return {**{k: getattr(self, k) for k in self._CARRIED}, "reported": dict(self.reported)}
