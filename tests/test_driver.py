@@ -23,7 +23,7 @@ def test_the_invariant_hook_sees_every_point_and_records_violations(integrator, 
     the ball never below its initial height flags every sample
     after the start, in meta["invariants"], and the run still ends with the same arrays, flagged."""
     model = ms.build_model(scene("bouncing_ball", duration=0.6, restitution=e, integrator=integrator))
-    seen = {"start": 0, "point": 0, "sample": 0}
+    seen = {"start": 0, "point": 0, "sample": 0, "end": 0}
 
     def count(where, state, rep, rec):
         seen[where] += 1
@@ -31,7 +31,7 @@ def test_the_invariant_hook_sees_every_point_and_records_violations(integrator, 
         return None
 
     quiet = ms.simulate(model, progress=False, check=count)
-    assert seen["start"] == 1 and seen["sample"] == len(quiet.t) and seen["point"] >= 1
+    assert seen["start"] == seen["end"] == 1 and seen["sample"] == len(quiet.t) and seen["point"] >= 1
     assert "invariants" not in quiet.meta
     E = quiet.arrays["kinetic_energy"] + quiet.arrays["potential_energy"]
     assert E.max() <= E[0] + 1e-9 * abs(E[0])  # the law never gains energy (docs/theory.md §1.4)

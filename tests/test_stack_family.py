@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 import moreau_sim as ms
 from moreau_sim.errors import SimulationError
@@ -74,6 +74,7 @@ def held_or_flagged(masses, h, e, integrator, duration):
 
 
 @settings(max_examples=30, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@example(masses=[1.0, 1.0, 1e5], h=1e-2, e=0.5, integrator="adaptive")  # sinks 2.5 mm after its fixed steps
 @given(masses=MASSES, h=STEPS, e=RESTITUTIONS, integrator=st.sampled_from(["time-stepping", "adaptive"]))
 def test_a_stack_holds_or_is_flagged_never_silent(masses, h, e, integrator):
     held_or_flagged(masses, h, e, integrator, DURATION)
