@@ -94,13 +94,21 @@ class FeatureContacts:
         redundant = self._redundant.get(C)
         if redundant is None:  # rows of C dependent (4 corners of a face on a face): decided once per set
             redundant = self._redundant[C] = bool(np.linalg.matrix_rank(fs.W) < len(C))
-        if redundant:
-            return a + MiW @ (lam := np.linalg.lstsq(G, rhs, rcond=1e-12)[0]), lam, fs  # minimum-norm forces
-        try:
-            lam = np.linalg.solve(G, rhs)
-        except np.linalg.LinAlgError:
-            lam = np.linalg.lstsq(G, rhs, rcond=1e-12)[0]  # redundant rows: minimum-norm forces
-        return a + MiW @ lam, lam, fs
+
+        def solve(b):
+            if not redundant:
+                try:
+                    return np.linalg.solve(G, b)
+                except np.linalg.LinAlgError:
+                    pass
+            return np.linalg.lstsq(G, b, rcond=1e-12)[0]  # redundant rows: minimum-norm forces
+        lam = solve(rhs)
+        a_c = a + MiW @ lam
+        # one step of iterative refinement (as the impact's, docs/theory.md §1.5): lam ~ R m g is exact only
+        # to its own magnitude, which leaves a light body accelerating at ~R eps g along the rows it should
+        # hold; the residual W_C'a_C + drift is computed where it is ~0, accurately, and removed
+        dl = solve(-(fs.W.T @ a_c + fs.drift))
+        return a_c + MiW @ dl, lam + dl, fs
 
     # ---- events ----------------------------------------------------------------------------
     def resolve(self, t: float, q: np.ndarray, u: np.ndarray, released: frozenset):
