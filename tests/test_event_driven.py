@@ -401,3 +401,35 @@ def test_a_light_ball_lifts_off_a_sphere_under_a_small_separating_acceleration(i
     assert np.abs(tr.q[:, 0] - v0 * tr.t).max() <= 1e-12
     assert np.abs(tr.q[:, 1] + 0.5 * G * tr.t ** 2).max() <= 1e-12
     assert (tr.gap[1:] > 0.0).all() and len(tr.log_t) == 0 and tr.n_contacts.max() == 0
+
+
+@pytest.mark.parametrize("integrator", ["event-driven", "adaptive"])
+def test_lift_off_instant_from_a_sphere_sampled_to_1e_10_s(integrator):
+    """A ball (1 kg, translations in x-z) riding a static sphere (R = 0.6 m to its centre) from the
+    top with v0^2 = g R / 2 leaves it at cos theta* = 5/6, at t* = int_0^theta* dtheta / theta'
+    (theta'^2 = v0^2/R^2 + 2 g (1 - cos theta)/R). Sampled every 1e-10 s from t* - 2e-9 to t* + 2e-9 s:
+    one persistent contact before t*, none after (the release is located where the multiplier
+    reaches -LAM_EPS = -1e-9 N, 2.7e-11 s after t*), so the located lift-off instant is t* to
+    1e-10 s; before it the ball is on the circle. A lift-off is a C^2 event: an error dt in its
+    instant moves the motion by O(dt^2) only, so only its sampled instant shows it (the adaptive
+    integrator's event location with xtol 1e-6 instead of 1e-13 of the step put it 2.1e-10 s late)."""
+    from scipy.integrate import quad
+
+    R = 0.6
+    v0 = np.sqrt(0.5 * G * R)
+    th = np.arccos((2.0 + v0 * v0 / (G * R)) / 3.0)
+    t_star = quad(lambda x: 1.0 / np.sqrt(v0 * v0 / R ** 2 + 2.0 * G * (1.0 - np.cos(x)) / R), 0.0, th,
+                  epsabs=1e-14, epsrel=1e-14, limit=200)[0]
+    b = ms.SceneBuilder("ball_on_sphere", restitution=0.5, dt=1e-3, duration=t_star + 1e-7)
+    b.add_body("ball", ROOT / "models" / "ball.urdf", root_joint="translation", axes=[[1, 0, 0], [0, 0, 1]],
+               position=[0.0, 0.0, R], q0=[0.0, 0.0], u0=[v0, 0.0])
+    b.add_sphere("dome", 0.5, position=[0.0, 0.0, 0.0])
+    model = ms.build_model(b.build())
+    k = np.r_[-20:0, 1:21]
+    t_eval = np.r_[0.0, t_star + 1e-10 * k]
+    run = simulate_event_driven if integrator == "event-driven" else simulate_adaptive
+    tr = run(model, t_eval=t_eval)
+    assert tr.complete
+    assert (tr.n_contacts[1:21] == 1).all() and (tr.n_contacts[21:] == 0).all()
+    x, z = tr.q[1:21, 0], R + tr.q[1:21, 1]
+    assert np.abs(np.hypot(x, z) - R).max() <= 1e-9
