@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from dataclasses import InitVar, dataclass
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from . import shapes
+from . import self_pairs, shapes
 from .bodies import load_body
 from .errors import SceneError
 from .options import Options, RootJoint
@@ -60,7 +61,9 @@ class Model:
     face normals of a polytope in its joint frame (empty otherwise); face_planes[g]: a box's
     (normals, offsets) in its joint frame, else None; vertex_edges[g]: the edge directions leaving
     each vertex (corner detection in contacts.py); support_mask[j]: 1 on the
-    velocity indices that move joint j; q0/u0: the initial state.
+    velocity indices that move joint j; q0/u0: the initial state; excluded: the pairs the
+    automatic rule would make that are left out, each with why (the SRDF, an overlap at a reference
+    pose, the scene's [collisions] exclude).
     """
 
     scene: Scene
@@ -77,6 +80,7 @@ class Model:
     geometry_body: tuple[str, ...]
     q0: np.ndarray
     u0: np.ndarray
+    excluded: tuple[tuple[str, str], ...] = ()  # (pair name, why): automatic pairs left out (build_model)
     scratch: InitVar[pin.Data | None] = None  # a Data of `pin` to reuse for the checks below
 
     def __post_init__(self, scratch):
@@ -190,6 +194,22 @@ class Model:
                 u_units += uu
         return {"q_names": q_names, "u_names": u_names, "q_units": q_units, "u_units": u_units}
 
+    def joints(self) -> list[dict]:
+        """Every joint in the order of q: name, type, its index ranges in q and u ([start, stop)),
+        and its position limits from the Pinocchio model (lower, upper per coordinate; None where
+        unlimited, and for every joint but a revolute or prismatic one: a quaternion's or a
+        continuous joint's (cos, sin) bounds are no limits)."""
+        out = []
+        for j in sorted(range(1, self.pin.njoints), key=lambda j: self.pin.joints[j].idx_q):
+            jm = self.pin.joints[j]
+            sl = slice(jm.idx_q, jm.idx_q + jm.nq)
+            kind = joint_type(jm)
+            lim = [[None if not abs(x) < UNLIMITED or not kind.startswith(("revolute", "prismatic")) else float(x)
+                    for x in v[sl]] for v in (self.pin.lowerPositionLimit, self.pin.upperPositionLimit)]
+            out.append({"name": self.pin.names[j], "type": kind, "q": [sl.start, sl.stop],
+                        "u": [jm.idx_v, jm.idx_v + jm.nv], "lower": lim[0], "upper": lim[1]})
+        return out
+
     def describe(self) -> dict:
         """A JSON-able summary (for `moreau-sim info` and output metadata)."""
         o = self.options
@@ -197,11 +217,15 @@ class Model:
             "scene": self.scene.name,
             "nq": self.nq,
             "nv": self.nv,
+            "joints": self.joints(),
             "bodies": [{"name": b.name, "root_joint": b.root_joint.value, "nq": b.q_slice.stop - b.q_slice.start,
                         "nv": b.v_slice.stop - b.v_slice.start, "urdf": str(b.urdf),
-                        "joints": [self.pin.names[j] for j in b.joints]} for b in self.bodies],
+                        "srdf": None if s.srdf is None else str(s.srdf),
+                        "joints": [self.pin.names[j] for j in b.joints]}
+                       for b, s in zip(self.bodies, self.scene.bodies)],
             "geometries": [g.name for g in self.geom.geometryObjects],
             "collision_pairs": list(self.pair_names),
+            "excluded_pairs": [{"pair": name, "why": why} for name, why in self.excluded],
             "restitution": o.restitution,
             "dt": o.dt,
             "duration": o.duration,
@@ -216,10 +240,11 @@ def build_model(scene: Scene) -> Model:
     model.name = scene.name
     body_of_joint: dict[int, str] = {}
     geometry_body: list[str] = []
-    infos = []
+    infos, authored = [], []
     for i, body in enumerate(scene.bodies):
         w = f"{where} [[bodies]][{i}] ({body.name})"
-        m, g, _ = load_body(body, w)
+        m, g, _, said = load_body(body, w)
+        authored.append(said)
         placement = pin.SE3(pin.rpy.rpyToMatrix(*body.rpy), np.array(body.position, float))
         if body.root_joint is RootJoint.FREE:
             placement = pin.SE3.Identity()  # a free body's pose is its q (world frame): see _initial
@@ -264,7 +289,8 @@ def build_model(scene: Scene) -> Model:
                 raise SceneError(f"{where} [collisions] {key}: '{name}' names no body, static, link or geometry")
         return [(min(x, y), max(x, y)) for x in ia for y in ib if x != y]
 
-    chosen = set()
+    chosen, why = set(), {}
+    disabled = frozenset().union(*(a.disabled for a in authored))
     for i in range(len(gobs)):
         for j in range(i + 1, len(gobs)):
             ji, jj = gobs[i].parentJoint, gobs[j].parentJoint
@@ -272,15 +298,25 @@ def build_model(scene: Scene) -> Model:
                 continue  # one rigid body (or both static)
             if geometry_body[i] == geometry_body[j] and (model.parents[ji] == jj or model.parents[jj] == ji):
                 continue  # a link and its parent in one body
+            if frozenset((gobs[i].name, gobs[j].name)) in disabled:
+                why[(i, j)] = "disabled by the SRDF"
+                continue  # the robot's author disabled it (self_pairs.read_authored)
             chosen.add((i, j))
+    included = set()
     for a, b in scene.collisions.include:
         for i, j in pairs_matching(a, b, "include"):
             if gobs[i].parentJoint == gobs[j].parentJoint:
                 raise SceneError(f"{where} [collisions] include: {gobs[i].name} and {gobs[j].name} "
                                  "are on one rigid body (or both static) and can never touch")
             chosen.add((i, j))
+            included.add((i, j))
+            why.pop((i, j), None)
     for a, b in scene.collisions.exclude:
-        chosen -= set(pairs_matching(a, b, "exclude"))
+        for ij in set(pairs_matching(a, b, "exclude")) & chosen:
+            chosen.discard(ij)
+            why[ij] = "[collisions] exclude"
+    chosen -= _overlapping_at_reference(scene, model, d, geom, infos, authored, geometry_body,
+                                        chosen - included, why, where)
     pairs = []
     geom.removeAllCollisionPairs()  # appendModel pairs the bodies' geometries itself: start clean
     for k, (i, j) in enumerate(sorted(chosen)):
@@ -311,7 +347,39 @@ def build_model(scene: Scene) -> Model:
     q0, u0 = _initial(scene, model, infos, where)
     _check_mass_matrix(model, d, q0, where)
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
-                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, scratch=d)
+                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0,
+                 excluded=tuple((f"{gobs[i].name}|{gobs[j].name}", w) for (i, j), w in sorted(why.items())),
+                 scratch=d)
+
+
+def _overlapping_at_reference(scene, model, data, geom, infos, authored, geometry_body, candidates, why,
+                              where) -> set[tuple[int, int]]:
+    """The self pairs among `candidates` (one body's geometries, not named by [collisions]
+    include) that overlap by more than contact_tolerance at one of the body's reference poses
+    (self_pairs.Authored.poses: neutral, the SRDF's group states): shapes the robot's author made
+    overlap (e.g. a thigh's hull in the base's), which would stop the first step. They are left
+    out, with one warning per body naming them and the remedy (docs/robots.md)."""
+    out: set[tuple[int, int]] = set()
+    for body, info, said in zip(scene.bodies, infos, authored):
+        mine = [(i, j) for i, j in sorted(candidates) if geometry_body[i] == geometry_body[j] == body.name]
+        poses = []
+        for name, pose in said.poses:
+            q = pin.neutral(model)
+            q[info.q_slice] = pose
+            poses.append((name, q))
+        found = self_pairs.overlapping(model, data, geom, mine, poses, scene.options.contact_tolerance)
+        if not found:
+            continue
+        gobs = geom.geometryObjects
+        listed = ", ".join(f"{gobs[i].name}|{gobs[j].name} ({-dist * 1e3:.3g} mm at {pose})"
+                           for (i, j), (dist, pose) in sorted(found.items()))
+        for (i, j), (dist, pose) in found.items():
+            why[(i, j)] = f"overlaps {-dist:.3g} m at the reference pose {pose}"
+        out |= set(found)
+        warnings.warn_explicit(f"{len(found)} self pair(s) of body {body.name} overlap at its reference pose(s) and "
+                               f"are left out: {listed}; to keep one, name it in [collisions] include [{where}]",
+                               UserWarning, str(body.urdf), 0)
+    return out
 
 
 DATA_BYTES_PER_NV3 = 32  # Pinocchio 4.1's Data: four nv x nv x nv tensors of doubles (second-order derivatives)
@@ -433,6 +501,28 @@ def initial_state(model: Model, data=None) -> State:
     pd = data.pin if data is not None else new_data(model.pin, where)
     check_start(model.pin, model.geom, pd, model.pairs, model.q0, where, model.options.contact_tolerance)
     return State(0.0, model.q0.copy(), model.u0.copy())
+
+
+UNLIMITED = 1e300  # a Pinocchio position limit this large (its default: the largest double) is none
+
+
+def joint_type(jm) -> str:
+    """A Pinocchio joint model's kind in words: "revolute z", "continuous y" (a URDF continuous
+    joint: cos, sin in q), "prismatic x", "spherical", "free flyer", "translation", and for a
+    composite the kinds of its parts joined by " + " (the free root: "translation + spherical")."""
+    kind = jm.shortname().removeprefix("JointModel")
+    if kind == "Composite":
+        return " + ".join(joint_type(sub) for sub in jm.extract().joints)
+    words = {"FreeFlyer": "free flyer", "Spherical": "spherical", "SphericalZYX": "spherical zyx",
+             "Translation": "translation", "Planar": "planar", "RevoluteUnaligned": "revolute (unaligned axis)",
+             "PrismaticUnaligned": "prismatic (unaligned axis)",
+             "RevoluteUnboundedUnaligned": "continuous (unaligned axis)"}
+    if kind in words:
+        return words[kind]
+    for prefix, word in (("RUB", "continuous"), ("R", "revolute"), ("P", "prismatic")):
+        if kind.startswith(prefix) and kind[len(prefix):] in ("X", "Y", "Z"):
+            return f"{word} {kind[-1].lower()}"
+    return kind
 
 
 def _axis(kind: str, base: str) -> str:
