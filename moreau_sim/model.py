@@ -329,8 +329,7 @@ def build_model(scene: Scene) -> Model:
         poly = [len(shapes.vertices(gobs[x].geometry, gobs[x].placement)) > 0 for x in (i, j)]
         flat = [isinstance(gobs[x].geometry, shapes.FLAT) for x in (i, j)]  # a patch needs two flat faces
         patch = all(flat) and not ((half[0] and poly[1]) or (half[1] and poly[0]))
-        pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, f"{gobs[i].name}|{gobs[j].name}",
-                          patch))
+        pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, _pair_name(gobs, i, j), patch))
 
     vertices = tuple(shapes.vertices(go.geometry, go.placement) for go in gobs)
     bounds = tuple(shapes.distance_bound(go.geometry, go.placement) for go in gobs)
@@ -348,8 +347,14 @@ def build_model(scene: Scene) -> Model:
     _check_mass_matrix(model, d, q0, where)
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0,
-                 excluded=tuple((f"{gobs[i].name}|{gobs[j].name}", w) for (i, j), w in sorted(why.items())),
+                 excluded=tuple((_pair_name(gobs, i, j), w) for (i, j), w in sorted(why.items())),
                  scratch=d)
+
+
+def _pair_name(gobs, i: int, j: int) -> str:
+    """"first|second": the geometry on the larger joint id first (shape 1 of the pair: build_model)."""
+    i, j = (j, i) if gobs[i].parentJoint < gobs[j].parentJoint else (i, j)
+    return f"{gobs[i].name}|{gobs[j].name}"
 
 
 def _overlapping_at_reference(scene, model, data, geom, infos, authored, geometry_body, candidates, why,
@@ -371,7 +376,7 @@ def _overlapping_at_reference(scene, model, data, geom, infos, authored, geometr
         if not found:
             continue
         gobs = geom.geometryObjects
-        listed = ", ".join(f"{gobs[i].name}|{gobs[j].name} ({-dist * 1e3:.3g} mm at {pose})"
+        listed = ", ".join(f"{_pair_name(gobs, i, j)} ({-dist * 1e3:.3g} mm at {pose})"
                            for (i, j), (dist, pose) in sorted(found.items()))
         for (i, j), (dist, pose) in found.items():
             why[(i, j)] = f"overlaps {-dist:.3g} m at the reference pose {pose}"
@@ -463,8 +468,12 @@ def check_start(model: pin.Model, geom: pin.GeometryModel, data: pin.Data, pairs
     deep = np.flatnonzero(g < -tol)
     if len(deep):
         k = int(deep[np.argmin(g[deep])])
+        a, b = (x.split("/", 1)[0] for x in pairs[k].name.split("|"))
+        more = f" ({len(deep) - 1} more pair(s) too)" if len(deep) > 1 else ""
+        fix = (f"two parts of body {a}: change its q0, or leave the pair out with [collisions] exclude"
+               if a == b and "/" in pairs[k].name.split("|")[0] else "place the bodies apart or touching")
         raise SceneError(f"{where}: pair {pairs[k].name} starts {-g[k]:.3g} m inside (more than contact_tolerance "
-                         f"= {tol:g} m); place the bodies apart or touching")
+                         f"= {tol:g} m){more}; {fix}")
 
 
 def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndarray, np.ndarray]:
