@@ -88,7 +88,8 @@ def test_the_srdf_beside_the_urdf_disables_its_pairs(tmp_path, name):
 def test_a_malformed_or_missing_srdf_is_one_line(tmp_path):
     bad = tmp_path / "bad.srdf"
     bad.write_text("<robot><disable_collisions link1='a'")
-    for value, fragment in ((str(bad), "malformed SRDF"), ("nothere.srdf", "file not found"), ("1", "srdf: must be a path string")):
+    for value, fragment in ((str(bad), "malformed SRDF"), ("nothere.srdf", "file not found"),
+                            ("1", "srdf: must be a path string")):
         body = f'srdf = "{value}"' if value != "1" else "srdf = 1"
         with pytest.raises(ms.SceneError) as info:
             build(scene(tmp_path, "go2", body))
@@ -118,7 +119,8 @@ def test_pairs_overlapping_at_a_reference_pose_are_left_out_with_one_warning(tmp
     for k, name in enumerate(keep.pair_names):
         if name in expected:
             assert gd.distanceResults[k].min_distance < -1e-3
-    with pytest.raises(ms.SceneError, match=r"UPPER_LEG_0\|solo12/base_link_0 starts .* inside.*\(3 more pair\(s\) too\); two parts of body solo12"):
+    refusal = r"UPPER_LEG_0\|solo12/base_link_0 starts .* inside.*\(3 more pair\(s\) too\); two parts of body solo12"
+    with pytest.raises(ms.SceneError, match=refusal):
         ms.model.initial_state(keep)  # kept by include: the start is refused, naming a pair and the remedy
 
 
@@ -206,7 +208,8 @@ def test_ur5_mounted_above_the_ground_has_no_persistent_penetration(tmp_path):
 
 # ------------------------------------------------------------------ MJCF
 
-BODY = '<body name="b" pos="0 0 1">\n<joint name="h" type="hinge" axis="0 1 0"/>\n<geom type="sphere" size="0.1" mass="1"/>\n'
+BODY = ('<body name="b" pos="0 0 1">\n<joint name="h" type="hinge" axis="0 1 0"/>\n'
+        '<geom type="sphere" size="0.1" mass="1"/>\n')
 
 
 def mjcf_scene(tmp_path: Path, before="", inside="", name="m.xml") -> Path:
@@ -259,7 +262,8 @@ LIMITS = """<mujoco model="limits">
         <geom type="sphere" size="0.1" mass="1"/>
         <body name="c" pos="0 0 -0.5" childclass="lim"><joint name="h2" type="hinge" axis="0 1 0"/>
           <geom type="sphere" size="0.1" mass="1"/>
-          <body name="d" pos="0 0 -0.5" childclass="plain"><joint name="h3" type="hinge" axis="0 1 0" range="-60 60" limited="false"/>
+          <body name="d" pos="0 0 -0.5" childclass="plain">
+            <joint name="h3" type="hinge" axis="0 1 0" range="-60 60" limited="false"/>
             <geom type="sphere" size="0.1" mass="1"/>
             <body name="e" pos="0 0 -0.5"><joint name="h4" type="hinge" axis="0 1 0"/>
               <geom type="sphere" size="0.1" mass="1"/>
