@@ -302,3 +302,17 @@ def test_mjcf_limits_that_cannot_be_read_are_refused(tmp_path, joint, fragment):
     path = mjcf_scene(tmp_path, inside=f'<body name="c" pos="0 0 -0.3">{joint}<geom type="sphere" size="0.1" '
                                        'mass="1"/></body>')
     refused_line(path, f"{tmp_path / 'm.xml'}:8: joint 'x'", fragment)
+
+
+def test_the_replay_rebuilds_the_pairs_the_run_used(tmp_path):
+    """The output keeps the SRDF's text: the model rebuilt from a trajectory alone has the run's
+    pairs (the percussion log's pair indices point at the same pairs)."""
+    from moreau_sim.viewer.stored import model_from_trajectory
+
+    model = build(scene(tmp_path, "go2", "position = [0.0, 0.0, 0.6]", duration=0.005))
+    traj = ms.simulate(model, progress=False)
+    assert "go2" in traj.meta["scene"]["srdf"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        again = model_from_trajectory(traj)
+    assert again.pair_names == model.pair_names and len(again.excluded) == len(model.excluded)
