@@ -315,8 +315,19 @@ def build_model(scene: Scene) -> Model:
         for ij in set(pairs_matching(a, b, "exclude")) & chosen:
             chosen.discard(ij)
             why[ij] = "[collisions] exclude"
-    chosen -= _overlapping_at_reference(scene, model, d, geom, infos, authored, geometry_body,
-                                        chosen - included, why, where)
+    poses = [[(name, _in_scene(model, info, pose)) for name, pose in said.poses] for info, said in zip(infos, authored)]
+    for body, found in zip(scene.bodies, self_pairs.leave_out_overlapping(
+            model, d, geom, [b.name for b in scene.bodies], poses, geometry_body, chosen - included,
+            scene.options.contact_tolerance)):
+        for ij, (dist, pose) in found.items():
+            chosen.discard(ij)
+            why[ij] = f"overlaps {-dist:.3g} m at the reference pose {pose}"
+        if found:
+            listed = ", ".join(f"{_pair_name(gobs, i, j)} ({-dist * 1e3:.3g} mm at {pose})"
+                               for (i, j), (dist, pose) in sorted(found.items()))
+            warnings.warn_explicit(f"{len(found)} self pair(s) of body {body.name} overlap at its reference pose(s) "
+                                   f"and are left out: {listed}; to keep one, name it in [collisions] include "
+                                   f"[{where}]", UserWarning, str(body.urdf), 0)
     pairs = []
     geom.removeAllCollisionPairs()  # appendModel pairs the bodies' geometries itself: start clean
     for k, (i, j) in enumerate(sorted(chosen)):
@@ -351,40 +362,17 @@ def build_model(scene: Scene) -> Model:
                  scratch=d)
 
 
+def _in_scene(model: pin.Model, info: BodyInfo, pose: np.ndarray) -> np.ndarray:
+    """A body's pose (its own q) as the scene's q: the other bodies at their neutral q."""
+    q = pin.neutral(model)
+    q[info.q_slice] = pose
+    return q
+
+
 def _pair_name(gobs, i: int, j: int) -> str:
     """"first|second": the geometry on the larger joint id first (shape 1 of the pair: build_model)."""
     i, j = (j, i) if gobs[i].parentJoint < gobs[j].parentJoint else (i, j)
     return f"{gobs[i].name}|{gobs[j].name}"
-
-
-def _overlapping_at_reference(scene, model, data, geom, infos, authored, geometry_body, candidates, why,
-                              where) -> set[tuple[int, int]]:
-    """The self pairs among `candidates` (one body's geometries, not named by [collisions]
-    include) that overlap by more than contact_tolerance at one of the body's reference poses
-    (self_pairs.Authored.poses: neutral, the SRDF's group states): shapes the robot's author made
-    overlap (e.g. a thigh's hull in the base's), which would stop the first step. They are left
-    out, with one warning per body naming them and the remedy (docs/robots.md)."""
-    out: set[tuple[int, int]] = set()
-    for body, info, said in zip(scene.bodies, infos, authored):
-        mine = [(i, j) for i, j in sorted(candidates) if geometry_body[i] == geometry_body[j] == body.name]
-        poses = []
-        for name, pose in said.poses:
-            q = pin.neutral(model)
-            q[info.q_slice] = pose
-            poses.append((name, q))
-        found = self_pairs.overlapping(model, data, geom, mine, poses, scene.options.contact_tolerance)
-        if not found:
-            continue
-        gobs = geom.geometryObjects
-        listed = ", ".join(f"{_pair_name(gobs, i, j)} ({-dist * 1e3:.3g} mm at {pose})"
-                           for (i, j), (dist, pose) in sorted(found.items()))
-        for (i, j), (dist, pose) in found.items():
-            why[(i, j)] = f"overlaps {-dist:.3g} m at the reference pose {pose}"
-        out |= set(found)
-        warnings.warn_explicit(f"{len(found)} self pair(s) of body {body.name} overlap at its reference pose(s) and "
-                               f"are left out: {listed}; to keep one, name it in [collisions] include [{where}]",
-                               UserWarning, str(body.urdf), 0)
-    return out
 
 
 DATA_BYTES_PER_NV3 = 32  # Pinocchio 4.1's Data: four nv x nv x nv tensors of doubles (second-order derivatives)

@@ -2,7 +2,8 @@
 the pairs the SRDF beside a URDF disables, read with Pinocchio's own SRDF reader
 (``pin.removeCollisionPairs``, ``pin.loadReferenceConfigurations``), and the pairs of one body
 whose shapes already overlap at its reference poses (its neutral q and the SRDF's
-``<group_state>`` poses), which model.build_model drops with one warning naming them.
+``<group_state>`` poses), which model.build_model leaves out (leave_out_overlapping) with one
+warning naming them.
 """
 
 from __future__ import annotations
@@ -82,3 +83,15 @@ def overlapping(model: pin.Model, data: pin.Data, geom: pin.GeometryModel, candi
             if -1e100 < d < -tol and d < found.get(candidates[k], (0.0, ""))[0]:
                 found[candidates[k]] = (float(d), pose)
     return found
+
+
+def leave_out_overlapping(model: pin.Model, data: pin.Data, geom: pin.GeometryModel, bodies, poses, geometry_body,
+                          candidates, tol: float) -> list[dict[tuple[int, int], tuple[float, str]]]:
+    """Per body (names `bodies`, its reference poses `poses[k]` as scene configurations), the self
+    pairs among `candidates` (geometry index pairs; geometry_body[g] names each geometry's body)
+    that overlap by more than `tol` [m] at one of them: shapes the robot's author made overlap
+    (e.g. a thigh's hull in the base's), which would stop the first step. model.build_model leaves
+    them out with one warning per body (docs/robots.md)."""
+    return [overlapping(model, data, geom, [(i, j) for i, j in sorted(candidates)
+                                            if geometry_body[i] == geometry_body[j] == name], body_poses, tol)
+            for name, body_poses in zip(bodies, poses)]
