@@ -1,5 +1,6 @@
-"""Robot descriptions: ``package://`` resolution, URDF meshes, MJCF (its elements read, ignored
-or refused by name; ``<include>`` inside the model's folder), mesh collision modes.
+"""Robot descriptions: ``package://`` resolution, URDF meshes, the SRDF beside a URDF
+(find_srdf; self_pairs.py reads it), MJCF (its elements read, ignored or refused by name and line;
+``<include>`` inside the model's folder; joint ranges into the position limits), mesh collision modes.
 
 Search order for a ``package://PKG/rel/path`` URI (docs/robots.md):
 
