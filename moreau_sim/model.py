@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from dataclasses import InitVar, dataclass
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from . import shapes
+from . import self_pairs, shapes
 from .bodies import load_body
 from .errors import SceneError
 from .options import Options, RootJoint
@@ -60,7 +61,9 @@ class Model:
     face normals of a polytope in its joint frame (empty otherwise); face_planes[g]: a box's
     (normals, offsets) in its joint frame, else None; vertex_edges[g]: the edge directions leaving
     each vertex (corner detection in contacts.py); support_mask[j]: 1 on the
-    velocity indices that move joint j; q0/u0: the initial state.
+    velocity indices that move joint j; q0/u0: the initial state; excluded: the pairs the
+    automatic rule would make that are left out, each with why (the SRDF, an overlap at a reference
+    pose, the scene's [collisions] exclude).
     """
 
     scene: Scene
@@ -77,6 +80,7 @@ class Model:
     geometry_body: tuple[str, ...]
     q0: np.ndarray
     u0: np.ndarray
+    excluded: tuple[tuple[str, str], ...] = ()  # (pair name, why): automatic pairs left out (build_model)
     scratch: InitVar[pin.Data | None] = None  # a Data of `pin` to reuse for the checks below
 
     def __post_init__(self, scratch):
@@ -190,6 +194,22 @@ class Model:
                 u_units += uu
         return {"q_names": q_names, "u_names": u_names, "q_units": q_units, "u_units": u_units}
 
+    def joints(self) -> list[dict]:
+        """Every joint in the order of q: name, type, its index ranges in q and u ([start, stop)),
+        and its position limits from the Pinocchio model (lower, upper per coordinate; None where
+        unlimited, and for every joint but a revolute or prismatic one: a quaternion's or a
+        continuous joint's (cos, sin) bounds are no limits)."""
+        out = []
+        for j in sorted(range(1, self.pin.njoints), key=lambda j: self.pin.joints[j].idx_q):
+            jm = self.pin.joints[j]
+            sl = slice(jm.idx_q, jm.idx_q + jm.nq)
+            kind = joint_type(jm)
+            lim = [[None if not abs(x) < UNLIMITED or not kind.startswith(("revolute", "prismatic")) else float(x)
+                    for x in v[sl]] for v in (self.pin.lowerPositionLimit, self.pin.upperPositionLimit)]
+            out.append({"name": self.pin.names[j], "type": kind, "q": [sl.start, sl.stop],
+                        "u": [jm.idx_v, jm.idx_v + jm.nv], "lower": lim[0], "upper": lim[1]})
+        return out
+
     def describe(self) -> dict:
         """A JSON-able summary (for `moreau-sim info` and output metadata)."""
         o = self.options
@@ -197,11 +217,15 @@ class Model:
             "scene": self.scene.name,
             "nq": self.nq,
             "nv": self.nv,
+            "joints": self.joints(),
             "bodies": [{"name": b.name, "root_joint": b.root_joint.value, "nq": b.q_slice.stop - b.q_slice.start,
                         "nv": b.v_slice.stop - b.v_slice.start, "urdf": str(b.urdf),
-                        "joints": [self.pin.names[j] for j in b.joints]} for b in self.bodies],
+                        "srdf": None if s.srdf is None else str(s.srdf),
+                        "joints": [self.pin.names[j] for j in b.joints]}
+                       for b, s in zip(self.bodies, self.scene.bodies)],
             "geometries": [g.name for g in self.geom.geometryObjects],
             "collision_pairs": list(self.pair_names),
+            "excluded_pairs": [{"pair": name, "why": why} for name, why in self.excluded],
             "restitution": o.restitution,
             "dt": o.dt,
             "duration": o.duration,
@@ -216,10 +240,11 @@ def build_model(scene: Scene) -> Model:
     model.name = scene.name
     body_of_joint: dict[int, str] = {}
     geometry_body: list[str] = []
-    infos = []
+    infos, authored = [], []
     for i, body in enumerate(scene.bodies):
         w = f"{where} [[bodies]][{i}] ({body.name})"
-        m, g, _ = load_body(body, w)
+        m, g, _, said = load_body(body, w)
+        authored.append(said)
         placement = pin.SE3(pin.rpy.rpyToMatrix(*body.rpy), np.array(body.position, float))
         if body.root_joint is RootJoint.FREE:
             placement = pin.SE3.Identity()  # a free body's pose is its q (world frame): see _initial
@@ -264,7 +289,8 @@ def build_model(scene: Scene) -> Model:
                 raise SceneError(f"{where} [collisions] {key}: '{name}' names no body, static, link or geometry")
         return [(min(x, y), max(x, y)) for x in ia for y in ib if x != y]
 
-    chosen = set()
+    chosen, why = set(), {}
+    disabled = frozenset().union(*(a.disabled for a in authored))
     for i in range(len(gobs)):
         for j in range(i + 1, len(gobs)):
             ji, jj = gobs[i].parentJoint, gobs[j].parentJoint
@@ -272,15 +298,36 @@ def build_model(scene: Scene) -> Model:
                 continue  # one rigid body (or both static)
             if geometry_body[i] == geometry_body[j] and (model.parents[ji] == jj or model.parents[jj] == ji):
                 continue  # a link and its parent in one body
+            if frozenset((gobs[i].name, gobs[j].name)) in disabled:
+                why[(i, j)] = "disabled by the SRDF"
+                continue  # the robot's author disabled it (self_pairs.read_authored)
             chosen.add((i, j))
+    included = set()
     for a, b in scene.collisions.include:
         for i, j in pairs_matching(a, b, "include"):
             if gobs[i].parentJoint == gobs[j].parentJoint:
                 raise SceneError(f"{where} [collisions] include: {gobs[i].name} and {gobs[j].name} "
                                  "are on one rigid body (or both static) and can never touch")
             chosen.add((i, j))
+            included.add((i, j))
+            why.pop((i, j), None)
     for a, b in scene.collisions.exclude:
-        chosen -= set(pairs_matching(a, b, "exclude"))
+        for ij in set(pairs_matching(a, b, "exclude")) & chosen:
+            chosen.discard(ij)
+            why[ij] = "[collisions] exclude"
+    poses = [[(name, _in_scene(model, info, pose)) for name, pose in said.poses] for info, said in zip(infos, authored)]
+    for body, found in zip(scene.bodies, self_pairs.leave_out_overlapping(
+            model, d, geom, [b.name for b in scene.bodies], poses, geometry_body, chosen - included,
+            scene.options.contact_tolerance)):
+        for ij, (dist, pose) in found.items():
+            chosen.discard(ij)
+            why[ij] = f"overlaps {-dist:.3g} m at the reference pose {pose}"
+        if found:
+            listed = ", ".join(f"{_pair_name(gobs, i, j)} ({-dist * 1e3:.3g} mm at {pose})"
+                               for (i, j), (dist, pose) in sorted(found.items()))
+            warnings.warn_explicit(f"{len(found)} self pair(s) of body {body.name} overlap at its reference pose(s) "
+                                   f"and are left out: {listed}; to keep one, name it in [collisions] include "
+                                   f"[{where}]", UserWarning, str(body.urdf), 0)
     pairs = []
     geom.removeAllCollisionPairs()  # appendModel pairs the bodies' geometries itself: start clean
     for k, (i, j) in enumerate(sorted(chosen)):
@@ -293,8 +340,7 @@ def build_model(scene: Scene) -> Model:
         poly = [len(shapes.vertices(gobs[x].geometry, gobs[x].placement)) > 0 for x in (i, j)]
         flat = [isinstance(gobs[x].geometry, shapes.FLAT) for x in (i, j)]  # a patch needs two flat faces
         patch = all(flat) and not ((half[0] and poly[1]) or (half[1] and poly[0]))
-        pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, f"{gobs[i].name}|{gobs[j].name}",
-                          patch))
+        pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, _pair_name(gobs, i, j), patch))
 
     vertices = tuple(shapes.vertices(go.geometry, go.placement) for go in gobs)
     bounds = tuple(shapes.distance_bound(go.geometry, go.placement) for go in gobs)
@@ -311,7 +357,22 @@ def build_model(scene: Scene) -> Model:
     q0, u0 = _initial(scene, model, infos, where)
     _check_mass_matrix(model, d, q0, where)
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
-                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, scratch=d)
+                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0,
+                 excluded=tuple((_pair_name(gobs, i, j), w) for (i, j), w in sorted(why.items())),
+                 scratch=d)
+
+
+def _in_scene(model: pin.Model, info: BodyInfo, pose: np.ndarray) -> np.ndarray:
+    """A body's pose (its own q) as the scene's q: the other bodies at their neutral q."""
+    q = pin.neutral(model)
+    q[info.q_slice] = pose
+    return q
+
+
+def _pair_name(gobs, i: int, j: int) -> str:
+    """"first|second": the geometry on the larger joint id first (shape 1 of the pair: build_model)."""
+    i, j = (j, i) if gobs[i].parentJoint < gobs[j].parentJoint else (i, j)
+    return f"{gobs[i].name}|{gobs[j].name}"
 
 
 DATA_BYTES_PER_NV3 = 32  # Pinocchio 4.1's Data: four nv x nv x nv tensors of doubles (second-order derivatives)
@@ -395,8 +456,12 @@ def check_start(model: pin.Model, geom: pin.GeometryModel, data: pin.Data, pairs
     deep = np.flatnonzero(g < -tol)
     if len(deep):
         k = int(deep[np.argmin(g[deep])])
+        a, b = (x.split("/", 1)[0] for x in pairs[k].name.split("|"))
+        more = f" ({len(deep) - 1} more pair(s) too)" if len(deep) > 1 else ""
+        fix = (f"two parts of body {a}: change its q0, or leave the pair out with [collisions] exclude"
+               if a == b and "/" in pairs[k].name.split("|")[0] else "place the bodies apart or touching")
         raise SceneError(f"{where}: pair {pairs[k].name} starts {-g[k]:.3g} m inside (more than contact_tolerance "
-                         f"= {tol:g} m); place the bodies apart or touching")
+                         f"= {tol:g} m){more}; {fix}")
 
 
 def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -433,6 +498,28 @@ def initial_state(model: Model, data=None) -> State:
     pd = data.pin if data is not None else new_data(model.pin, where)
     check_start(model.pin, model.geom, pd, model.pairs, model.q0, where, model.options.contact_tolerance)
     return State(0.0, model.q0.copy(), model.u0.copy())
+
+
+UNLIMITED = 1e300  # a Pinocchio position limit this large (its default: the largest double) is none
+
+
+def joint_type(jm) -> str:
+    """A Pinocchio joint model's kind in words: "revolute z", "continuous y" (a URDF continuous
+    joint: cos, sin in q), "prismatic x", "spherical", "free flyer", "translation", and for a
+    composite the kinds of its parts joined by " + " (the free root: "translation + spherical")."""
+    kind = jm.shortname().removeprefix("JointModel")
+    if kind == "Composite":
+        return " + ".join(joint_type(sub) for sub in jm.extract().joints)
+    words = {"FreeFlyer": "free flyer", "Spherical": "spherical", "SphericalZYX": "spherical zyx",
+             "Translation": "translation", "Planar": "planar", "RevoluteUnaligned": "revolute (unaligned axis)",
+             "PrismaticUnaligned": "prismatic (unaligned axis)",
+             "RevoluteUnboundedUnaligned": "continuous (unaligned axis)"}
+    if kind in words:
+        return words[kind]
+    for prefix, word in (("RUB", "continuous"), ("R", "revolute"), ("P", "prismatic")):
+        if kind.startswith(prefix) and kind[len(prefix):] in ("X", "Y", "Z"):
+            return f"{word} {kind[-1].lower()}"
+    return kind
 
 
 def _axis(kind: str, base: str) -> str:

@@ -47,7 +47,7 @@ def versions() -> dict[str, str]:
 
 
 def run_metadata(model: Model, status: str, run: dict, **extra) -> dict:
-    """The `meta` of a trajectory: format, status, scene (name, path, TOML and URDF texts), options,
+    """The `meta` of a trajectory: format, status, scene (name, path, TOML, URDF and SRDF texts), options,
     model summary, the names and units of q and u, versions, `run` statistics, and any `extra`
     entries (e.g. integrator)."""
     sc = model.scene
@@ -58,7 +58,8 @@ def run_metadata(model: Model, status: str, run: dict, **extra) -> dict:
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "scene": {"name": sc.name, "description": sc.description, "path": str(sc.path) if sc.path else None,
                   "toml": sc.source,
-                  "urdf": {b.name: Path(b.urdf).read_text(encoding="utf-8") for b in sc.bodies}},
+                  "urdf": {b.name: Path(b.urdf).read_text(encoding="utf-8") for b in sc.bodies},
+                  "srdf": {b.name: Path(b.srdf).read_text(encoding="utf-8") for b in sc.bodies if b.srdf}},
         "options": model.options.to_dict(),
         "model": model.describe(),
         **model.coordinates(),  # q_names, u_names, q_units, u_units

@@ -17,7 +17,7 @@ from typing import Any
 from .errors import SceneError
 from .options import (CHOICES, MeshMode, Options, RootJoint, StaticShape, choice, finite_number, finite_vector,
                       require)
-from .robots import real_path, resolve_model_file
+from .robots import find_srdf, real_path, resolve_model_file
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -27,7 +27,9 @@ class Body:
     urdf: the model file, resolved (a path or a package:// URI in the scene); an MJCF file when
     `mjcf` is true (its text is what outputs record as the body's description).
     package_dirs: folders searched first for package:// URIs (docs/robots.md).
-    meshes: how collision meshes enter coal (options.MeshMode: convex hull or BVH)."""
+    meshes: how collision meshes enter coal (options.MeshMode: convex hull or BVH).
+    srdf: the SRDF whose disabled collision pairs and reference poses apply (the scene's, else
+    the one example-robot-data ships beside a URDF: robots.find_srdf), or None."""
 
     name: str
     urdf: Path
@@ -35,6 +37,7 @@ class Body:
     mjcf: bool = False
     package_dirs: tuple[Path, ...] = ()
     meshes: MeshMode = MeshMode.CONVEX
+    srdf: Path | None = None
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
     axes: tuple[tuple[float, float, float], ...] | None = None  # planar: default x, z; translation: x, y, z
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -89,7 +92,8 @@ _SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravi
         "separating": "separating", "corner_selection": "corner_selection", "bias": "bias",
         "position_correction": "position_correction", "slow_impacts": "slow_impacts", "integrator": "integrator",
         "tunnelling": "tunnelling", "rtol": "rtol", "atol": "atol", "step_impl": "step_impl"}
-_BODY = {"name", "urdf", "mjcf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0", "package_dirs", "meshes"}
+_BODY = {"name", "urdf", "mjcf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0", "package_dirs", "meshes",
+         "srdf"}
 _STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy"}
 
 
@@ -151,6 +155,12 @@ def _parse_body(t: dict, where: str, base: Path) -> Body:
                               mjcf=key == "mjcf", package_dirs=tuple(dirs))
     if "meshes" in t:
         kw["meshes"] = choice(MeshMode, t["meshes"], f"{w} meshes")
+    if "srdf" not in t:  # the SRDF shipped beside a URDF applies unless the scene says otherwise
+        kw["srdf"] = None if kw["mjcf"] else find_srdf(urdf)
+    elif t["srdf"] is not False:
+        require(isinstance(t["srdf"], str) and t["srdf"] != "", f"{w} srdf",
+                f"must be a path string, a package:// URI, or false (no SRDF), got {t['srdf']!r}")
+        kw["srdf"] = resolve_model_file(t["srdf"], base, dirs, f"{w} srdf")
     for key in ("axis", "position", "rpy"):
         if key in t:
             kw[key] = finite_vector(t[key], 3, f"{w} {key}")
