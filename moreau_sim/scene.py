@@ -41,6 +41,7 @@ class Body:
     rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     q0: tuple[float, ...] | None = None
     u0: tuple[float, ...] | None = None
+    joint_limits: bool = True  # the position limits of its revolute / prismatic joints (moreau_sim/limits.py)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -89,7 +90,8 @@ _SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravi
         "separating": "separating", "corner_selection": "corner_selection", "bias": "bias",
         "position_correction": "position_correction", "slow_impacts": "slow_impacts", "integrator": "integrator",
         "tunnelling": "tunnelling", "rtol": "rtol", "atol": "atol", "step_impl": "step_impl"}
-_BODY = {"name", "urdf", "mjcf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0", "package_dirs", "meshes"}
+_BODY = {"name", "urdf", "mjcf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0", "package_dirs", "meshes",
+         "joint_limits"}
 _STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy"}
 
 
@@ -151,6 +153,10 @@ def _parse_body(t: dict, where: str, base: Path) -> Body:
                               mjcf=key == "mjcf", package_dirs=tuple(dirs))
     if "meshes" in t:
         kw["meshes"] = choice(MeshMode, t["meshes"], f"{w} meshes")
+    if "joint_limits" in t:
+        require(isinstance(t["joint_limits"], bool), f"{w} joint_limits",
+                f"must be true or false, got {t['joint_limits']!r}")
+        kw["joint_limits"] = t["joint_limits"]
     for key in ("axis", "position", "rpy"):
         if key in t:
             kw[key] = finite_vector(t[key], 3, f"{w} {key}")
