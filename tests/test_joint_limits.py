@@ -7,12 +7,13 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
-from helpers import MODELS, inline_scene, scene
 
 import moreau_sim as ms
 from moreau_sim.contacts import FeatureKind
 from moreau_sim.stepper import step
 from moreau_sim.testing import assert_budget_closes, assert_dissipation_follows_law
+
+from helpers import MODELS, inline_scene, scene
 
 LOWER = 0.5  # [rad] models/pendulum_limit.urdf's lower limit
 Q0 = math.pi / 2
@@ -27,10 +28,10 @@ def _omega_minus(model) -> float:
     """The closed-form angular velocity at the limit after falling from rest at Q0: energy conservation,
     I omega^2 / 2 = V(Q0) - V(LOWER), with I and V from Pinocchio (the hinge's inertia is constant)."""
     d = model.pin.createData()
-    I = float(pin.crba(model.pin, d, np.array([LOWER]))[0, 0])
+    inertia = float(pin.crba(model.pin, d, np.array([LOWER]))[0, 0])
     dV = pin.computePotentialEnergy(model.pin, d, np.array([Q0])) - pin.computePotentialEnergy(
         model.pin, d, np.array([LOWER]))
-    return -math.sqrt(2.0 * dV / I)
+    return -math.sqrt(2.0 * dV / inertia)
 
 
 @pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
@@ -161,8 +162,8 @@ def test_located_limit_and_contact_are_one_impact(tmp_path, integrator, e):
 
 def test_joint_limits_false_turns_them_off(tmp_path):
     text = (MODELS.parent / "scenes" / "pendulum_limit.toml").read_text()
-    text = text.replace('urdf = "../models/', 'urdf = "{models}/').replace('root_joint = "fixed"',
-                                                                             'root_joint = "fixed"\njoint_limits = false')
+    text = text.replace('urdf = "../models/', 'urdf = "{models}/')
+    text = text.replace('root_joint = "fixed"', 'root_joint = "fixed"\njoint_limits = false')
     model = ms.build_model(inline_scene(text, tmp_path).with_options(duration=1.0))
     assert model.limits == ()
     tr = ms.simulate(model, progress=False)
@@ -262,12 +263,11 @@ name = "{n}"
 urdf = "{p}"
 root_joint = "{root}"
 position = [{x}, 0.0, 1.0]
+q0 = {q0}
 """
-    text = '[scene]\nname = "c"\n' + "".join(body.format(n=n, p=tmp_path / f, root=r, x=x) for n, f, r, x in (
-        ("c", "cont.urdf", "fixed", 0.0), ("s", "slide.urdf", "fixed", 2.0), ("r", "pendulum_limit.urdf".join(
-            [str(MODELS) + "/", ""]), "prismatic", 4.0)))
-    text = text.replace('root_joint = "fixed"\nposition = [0.0', 'root_joint = "fixed"\nq0 = [1.0, 0.0]\nposition = [0.0')
-    text = text.replace('root_joint = "fixed"\nposition = [2.0', 'root_joint = "fixed"\nq0 = [1.0]\nposition = [2.0')
-    text = text.replace('root_joint = "prismatic"\nposition', 'root_joint = "prismatic"\nq0 = [0.0, 1.0]\nposition')
+    bodies = (("c", tmp_path / "cont.urdf", "fixed", 0.0, [1.0, 0.0]),  # continuous: q = (cos, sin)
+              ("s", tmp_path / "slide.urdf", "fixed", 2.0, [1.0]),
+              ("r", MODELS / "pendulum_limit.urdf", "prismatic", 4.0, [0.0, 1.0]))  # root, then the hinge
+    text = '[scene]\nname = "c"\n' + "".join(body.format(n=n, p=p, root=r, x=x, q0=q0) for n, p, r, x, q0 in bodies)
     model = ms.build_model(inline_scene(text, tmp_path))
     assert [lim.name for lim in model.limits] == ["s/hinge lower", "s/hinge upper", "r/hinge lower", "r/hinge upper"]
