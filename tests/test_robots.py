@@ -288,36 +288,47 @@ def _check_run(model, traj, *, rise: float, penetration: float):
 
 def test_quadruped_drop(runs):
     model, traj = runs("quadruped_drop")
-    assert (model.nq, model.nv, len(model.pairs)) == (19, 18, 25)
+    assert (model.nq, model.nv, len(model.pairs)) == (19, 18, 27)
     assert all(isinstance(go.geometry, (coal.Box, coal.Cylinder, coal.Sphere, coal.Halfspace))
                for go in model.geom.geometryObjects)
     s = _check_run(model, traj, rise=1e-12, penetration=5e-3)  # measured: rise 2.6e-13 J, gap -1.6e-3 m
     assert s["impacts"] > 50
     # it comes to rest lying on its trunk (0.114 m high), level
     assert traj.kinetic_energy[-1] < 1e-3 and abs(traj.q[-1, 2] - 0.057) < 2e-3 and abs(traj.q[-1, 6]) > 0.999
-    used = {model.pair_names[p] for p in traj.arrays["log_pair"]}
-    assert {"a1/trunk_0|ground", "a1/FL_foot_0|ground", "a1/FL_foot_0|a1/FL_thigh_shoulder_0"} <= used
+    names = model.pair_names + tuple(lim.name for lim in model.limits)  # log_pair: the pairs, then the joint limits
+    used = {names[p] for p in traj.arrays["log_pair"]}
+    # the knees fold until their joint limits stop them (calf lower, -2.70 rad), before a foot reaches its hip
+    assert {"a1/trunk_0|ground", "a1/FL_foot_0|ground", "a1/FL_calf_joint lower", "a1/RR_calf_joint lower"} <= used
 
 
 def test_quadruped_drop_pairs_are_all_that_touch():
-    """With every automatic pair (212) the run is the same: the excluded self pairs never close."""
-    sc = ms.load_scene(SCENES / "quadruped_drop.toml").with_options(duration=0.6)
+    """With every automatic pair (212) the run is the same: the excluded self pairs never close (the
+    closest comes within 2.2 mm). Compared without the swept test: its trigger is the model's thinnest
+    pair (7.2 cm with the scene's pairs, 1.7 cm with all), so where the front hips strike each other
+    at 0.31 s the 212-pair model takes swept contacts (first-touch witness points) that differ by ~3e-6 m."""
+    sc = ms.load_scene(SCENES / "quadruped_drop.toml").with_options(duration=0.6, tunnelling="none")
     full = dataclasses.replace(sc, collisions=ms.scene.Collisions())
-    a, mf = ms.simulate(ms.build_model(sc), progress=False), ms.build_model(full)
+    ma, mf = ms.build_model(sc), ms.build_model(full)
+    a = ms.simulate(ma, progress=False)
     assert len(mf.pairs) == 212
     b = ms.simulate(mf, progress=False)
     assert np.array_equal(a.q, b.q)
-    assert set(collections.Counter(mf.pair_names[p] for p in b.arrays["log_pair"])) <= set(
-        ms.build_model(sc).pair_names)
+    assert set(collections.Counter(mf.pair_names[p] for p in b.arrays["log_pair"] if p < len(mf.pairs))) <= set(
+        ma.pair_names)
+    kept = np.isin(np.array(mf.pair_names), ma.pair_names)
+    assert np.nanmin(b.arrays["gap"][:, ~kept]) > mf.options.contact_tolerance
 
 
 def test_panda_table(runs):
     model, traj = runs("panda_table")
     assert (model.nq, model.nv, len(model.pairs)) == (7, 7, 36)
-    s = _check_run(model, traj, rise=1e-12, penetration=1e-3)  # measured: rise 0 J, gap -2.4e-4 m
+    s = _check_run(model, traj, rise=1e-12, penetration=1e-3)  # measured: rise 0 J, gap -3.1e-4 m
     assert s["impacts"] > 10
-    hit = {model.pair_names[p].split("|")[0] for p in traj.arrays["log_pair"]}
-    assert {"panda/panda_link4_0", "panda/panda_hand_0"} <= hit
+    log_pair = traj.arrays["log_pair"]  # the pairs, then the joint limits
+    hit = {model.pair_names[p].split("|")[0].rsplit("_", 1)[0] for p in log_pair if p < len(model.pairs)}  # links
+    assert {"panda/panda_link4", "panda/panda_hand"} <= hit
+    assert "panda/panda_joint4 upper" in {model.limits[p - len(model.pairs)].name for p in log_pair
+                                          if p >= len(model.pairs)}
     assert traj.arrays["gap"][-100:].min(axis=1).max() < 1e-3  # still lying on the table at the end
 
 
