@@ -1,5 +1,5 @@
-"""The contact layer's per-feature gaps (docs/theory.md §7, §7.1, §7.2): each feature of a
-collision pair with its gap g, row w, drift Wdot' u and gamma = w' u, computed from (q, u) alone:
+"""The contact layer's per-feature gaps (docs/theory.md §7, §7.1, §7.2): each feature of a collision
+pair (and each joint limit, limits.py) with its gap g, row w, drift Wdot' u and gamma = w' u, from (q, u):
 :meth:`Gaps.features` returns everything it computes (FeatureState) and keeps nothing between calls.
 The decisions at events that use them are in event_rules.py."""
 
