@@ -30,6 +30,7 @@ CONSTANTS = {
     "screen": qp.SCREEN, "dependent": qp.DEPENDENT, "met": qp.MET, "accept": qp.ACCEPT, "refine": qp.REFINE,
     "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA,
     "distinct": constraints.DISTINCT, "guess_min": GUESS_MIN, "distance_failed": DISTANCE_FAILED,
+    "joint_limit": int(FeatureKind.JOINT_LIMIT),
 }
 _EMPTY = np.zeros(0)
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}
@@ -141,7 +142,9 @@ class _Context:
                 np.asarray(model.support_mask, float), float(model.reach), float(model.thinnest_pair),
                 float(o.contact_tolerance), _TUNNELLING[o.tunnelling], o.separating is Separating.ELASTIC,
                 o.slow_impacts is SlowImpacts.PLASTIC, o.bias is Bias.MIDPOINT, bool(model.velocity_bias),
-                o.position_correction is PositionCorrection.PROJECTION, CONSTANTS, _dgesv_pointer())
+                o.position_correction is PositionCorrection.PROJECTION, CONSTANTS, _dgesv_pointer(),
+                np.array([(lim.pair, lim.joint, lim.idx_q, lim.idx_v, lim.sign, lim.bound) for lim in model.limits],
+                         dtype=float).reshape(-1, 6))
 
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its two buffers, laid out as r.layout()

@@ -46,6 +46,7 @@ class FeatureKind(enum.IntEnum):
     PATCH = 2  # corner `feature` of coal's contact patch (the overlap polygon of two parallel faces)
     CORNER = 3  # face `feature` of a corner: the way of staying apart that pushed (docs/theory.md §3)
     SWEPT = 4  # found by the swept test along a fast motion (tunnelling.py; feature 0)
+    JOINT_LIMIT = 5  # a joint's lower or upper position limit (limits.py; feature = the Pinocchio joint id)
 
 
 _SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact

@@ -15,9 +15,10 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from . import self_pairs, shapes
+from . import limits, self_pairs, shapes
 from .bodies import load_body
 from .errors import SceneError
+from .limits import UNLIMITED
 from .options import Options, RootJoint
 from .scene import Scene
 from .state import State
@@ -63,7 +64,9 @@ class Model:
     each vertex (corner detection in contacts.py); support_mask[j]: 1 on the
     velocity indices that move joint j; q0/u0: the initial state; excluded: the pairs the
     automatic rule would make that are left out, each with why (the SRDF, an overlap at a reference
-    pose, the scene's [collisions] exclude).
+    pose, the scene's [collisions] exclude);
+    limits: the joint limits (limits.JointLimit: unilateral constraints of the same law, pair indices
+    after the pairs').
     """
 
     scene: Scene
@@ -81,6 +84,7 @@ class Model:
     q0: np.ndarray
     u0: np.ndarray
     excluded: tuple[tuple[str, str], ...] = ()  # (pair name, why): automatic pairs left out (build_model)
+    limits: tuple = ()  # limits.JointLimit of every limited joint of the bodies with joint_limits on
     scratch: InitVar[pin.Data | None] = None  # a Data of `pin` to reuse for the checks below
 
     def __post_init__(self, scratch):
@@ -226,6 +230,7 @@ class Model:
             "geometries": [g.name for g in self.geom.geometryObjects],
             "collision_pairs": list(self.pair_names),
             "excluded_pairs": [{"pair": name, "why": why} for name, why in self.excluded],
+            "joint_limits": [{"pair": lim.pair, "name": lim.name, "bound": lim.bound} for lim in self.limits],
             "restitution": o.restitution,
             "dt": o.dt,
             "duration": o.duration,
@@ -356,8 +361,11 @@ def build_model(scene: Scene) -> Model:
 
     q0, u0 = _initial(scene, model, infos, where)
     _check_mass_matrix(model, d, q0, where)
+    limited = [j for body, info in zip(scene.bodies, infos) if body.joint_limits
+               for j in info.joints[(body.root_joint is not RootJoint.FIXED):]]  # a root joint has no limits
+    joint_limits = limits.joint_limits(model, limited, len(pairs))
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
-                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0,
+                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, limits=joint_limits,
                  excluded=tuple((_pair_name(gobs, i, j), w) for (i, j), w in sorted(why.items())),
                  scratch=d)
 
@@ -497,10 +505,8 @@ def initial_state(model: Model, data=None) -> State:
     where = str(model.scene.path) if model.scene.path else "<scene>"
     pd = data.pin if data is not None else new_data(model.pin, where)
     check_start(model.pin, model.geom, pd, model.pairs, model.q0, where, model.options.contact_tolerance)
+    check_limits(model.limits, model.q0, where, model.options.contact_tolerance)
     return State(0.0, model.q0.copy(), model.u0.copy())
-
-
-UNLIMITED = 1e300  # a Pinocchio position limit this large (its default: the largest double) is none
 
 
 def joint_type(jm) -> str:
@@ -520,6 +526,17 @@ def joint_type(jm) -> str:
         if kind.startswith(prefix) and kind[len(prefix):] in ("X", "Y", "Z"):
             return f"{word} {kind[-1].lower()}"
     return kind
+
+
+def check_limits(joint_limits: tuple, q: np.ndarray, where: str, tol: float) -> None:
+    """A start beyond a joint limit by more than `tol` is bad input, as a pair deeper than the tolerance
+    (check_start): one SceneError naming the joint, its limit and q."""
+    for lim in joint_limits:
+        g = lim.gap(q)
+        if g < -tol:
+            raise SceneError(f"{where}: joint {lim.name.rsplit(' ', 1)[0]} starts at q = {q[lim.idx_q]:.6g}, "
+                             f"{-g:.3g} beyond its {lim.name.rsplit(' ', 1)[1]} limit {lim.bound:.6g}; start it within "
+                             "its limits or set joint_limits = false on the body")
 
 
 def _axis(kind: str, base: str) -> str:

@@ -44,6 +44,7 @@ class Body:
     rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     q0: tuple[float, ...] | None = None
     u0: tuple[float, ...] | None = None
+    joint_limits: bool = True  # the position limits of its revolute / prismatic joints (moreau_sim/limits.py)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -93,7 +94,7 @@ _SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravi
         "position_correction": "position_correction", "slow_impacts": "slow_impacts", "integrator": "integrator",
         "tunnelling": "tunnelling", "rtol": "rtol", "atol": "atol", "step_impl": "step_impl"}
 _BODY = {"name", "urdf", "mjcf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0", "package_dirs", "meshes",
-         "srdf"}
+         "srdf", "joint_limits"}
 _STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy"}
 
 
@@ -161,6 +162,10 @@ def _parse_body(t: dict, where: str, base: Path) -> Body:
         require(isinstance(t["srdf"], str) and t["srdf"] != "", f"{w} srdf",
                 f"must be a path string, a package:// URI, or false (no SRDF), got {t['srdf']!r}")
         kw["srdf"] = resolve_model_file(t["srdf"], base, dirs, f"{w} srdf")
+    if "joint_limits" in t:
+        require(isinstance(t["joint_limits"], bool), f"{w} joint_limits",
+                f"must be true or false, got {t['joint_limits']!r}")
+        kw["joint_limits"] = t["joint_limits"]
     for key in ("axis", "position", "rpy"):
         if key in t:
             kw[key] = finite_vector(t[key], 3, f"{w} {key}")

@@ -11,7 +11,7 @@ import numpy as np
 import pinocchio as pin
 
 from . import compiled, qp
-from .constraints import CornerPieces, assemble_constraints, corner_faces
+from .constraints import CornerPieces, assemble_constraints, closed_limits, corner_faces
 from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
 from .corners import MAX_PIECES, corner_law
 from .data import Data
@@ -121,6 +121,8 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float) -> C
     contacts = detect(model, data, q_m, corner_margin=travel)
     if opts.tunnelling is Tunnelling.ALWAYS or (opts.tunnelling is Tunnelling.SWEPT and travel > model.thinnest_pair):
         contacts = swept_detect(model, data, q, u, h, q_m, contacts)  # a thin obstacle crossed in the step
+    if model.limits:  # the joint limits closed at q_m: constraints of the same law (limits.py)
+        contacts = contacts.concat(closed_limits(model, q_m, opts.contact_tolerance))
     if contacts.m == 0 and not contacts.corners:
         return ContactProblem(h, e, q, u, q_m, NO_CONTACTS, free_velocity(model, data, q_m, u, h, opts.bias))
     cs = assemble_constraints(model, data, q_m, contacts)
