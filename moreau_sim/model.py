@@ -14,10 +14,12 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from . import shapes
+from . import actuation as act, prescribed as presc, shapes
+from .actuation import Actuation
 from .bodies import load_body
 from .errors import SceneError
 from .options import Options, RootJoint
+from .prescribed import Prescribed
 from .scene import Scene
 from .state import State
 
@@ -60,7 +62,8 @@ class Model:
     face normals of a polytope in its joint frame (empty otherwise); face_planes[g]: a box's
     (normals, offsets) in its joint frame, else None; vertex_edges[g]: the edge directions leaving
     each vertex (corner detection in contacts.py); support_mask[j]: 1 on the
-    velocity indices that move joint j; q0/u0: the initial state.
+    velocity indices that move joint j; q0/u0: the initial state; actuation: the joint torques
+    (actuation.py; None: none); prescribed: the statics that move (prescribed.py; None: none).
     """
 
     scene: Scene
@@ -77,6 +80,8 @@ class Model:
     geometry_body: tuple[str, ...]
     q0: np.ndarray
     u0: np.ndarray
+    actuation: Actuation | None = None
+    prescribed: Prescribed | None = None
     scratch: InitVar[pin.Data | None] = None  # a Data of `pin` to reuse for the checks below
 
     def __post_init__(self, scratch):
@@ -238,6 +243,7 @@ def build_model(scene: Scene) -> Model:
         else:
             q_sl = v_sl = slice(model.nq, model.nq)
         infos.append(BodyInfo(body.name, body.root_joint, joints, q_sl, v_sl, body.urdf))
+    first_static = geom.ngeoms
     for s in scene.statics:
         shape, placement = shapes.static_shape(s)
         geom.addGeometryObject(pin.GeometryObject(s.name, 0, 0, placement, shape))
@@ -297,6 +303,7 @@ def build_model(scene: Scene) -> Model:
                           patch))
 
     vertices = tuple(shapes.vertices(go.geometry, go.placement) for go in gobs)
+    moving = presc.build(geom, scene.statics, first_static, pairs, vertices, where)  # placed at t = 0
     bounds = tuple(shapes.distance_bound(go.geometry, go.placement) for go in gobs)
     face_normals = tuple(shapes.face_normals(go.geometry, go.placement) for go in gobs)
     face_planes = tuple(shapes.face_planes(go.geometry, go.placement) for go in gobs)
@@ -310,8 +317,10 @@ def build_model(scene: Scene) -> Model:
 
     q0, u0 = _initial(scene, model, infos, where)
     _check_mass_matrix(model, d, q0, where)
+    actuation = act.build(model, infos, scene.actuators, q0)
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
-                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, scratch=d)
+                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0,
+                 actuation=actuation, prescribed=moving, scratch=d)
 
 
 DATA_BYTES_PER_NV3 = 32  # Pinocchio 4.1's Data: four nv x nv x nv tensors of doubles (second-order derivatives)
