@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import SimulationError
+from .errors import SceneError, SimulationError
 from .options import require
 from .prescribed import Schedule, constant, parse_schedule
 
@@ -77,6 +77,15 @@ class Actuation:
                                       f"fixed ({self.root_names}) at t = {t:.6g} s: floating bases are not actuated")
             tau += f
         return np.clip(tau, -self.limit, self.limit)
+
+
+def refuse_driven(model, integrator: str) -> None:
+    """SceneError (one line) if `model` has joint torques or a moving static: the event-driven and
+    adaptive integrators do not take them."""
+    if model.actuation is not None or model.prescribed is not None:
+        what = "joint torques (a controller or [[actuators]])" if model.actuation is not None else "a moving static"
+        raise SceneError(f"{model.scene.name}: integrator {integrator!r} does not take {what}: "
+                         "use integrator = \"time-stepping\"")
 
 
 def effort_limits(effort: np.ndarray) -> np.ndarray:

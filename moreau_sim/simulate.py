@@ -10,7 +10,6 @@ from .adaptive import simulate_adaptive
 from .checkpoint import Checkpoint
 from .data import Data, make_data
 from .driver import Check, drive
-from .errors import SceneError
 from .event_driven import simulate_event_driven
 from .model import Model, build_model, initial_state
 from .options import Integrator
@@ -50,11 +49,6 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     data = data or make_data(model)
     state = state or initial_state(model, data)
     opts = model.options
-    driven = model.actuation is not None or model.prescribed is not None
-    if driven and opts.integrator is not Integrator.TIME_STEPPING:
-        what = "joint torques (a controller or [[actuators]])" if model.actuation is not None else "a moving static"
-        raise SceneError(f"{model.scene.name}: integrator {opts.integrator.value!r} does not take {what}: "
-                         "use integrator = \"time-stepping\"")
     if opts.integrator is Integrator.EVENT_DRIVEN:
         return simulate_event_driven(model, data=data, state=state, progress=progress, checkpoint=checkpoint,
                                      spill=spill, check=check)

@@ -123,3 +123,21 @@ def test_event_driven_refuses_a_moving_static(tmp_path):
     sc = paddle(tmp_path, e=0.5, h=1e-3, T=0.1, motion="{ velocity = [0, 0, 0.1] }")
     with pytest.raises(ms.SceneError, match="does not take a moving static"):
         ms.simulate(ms.build_model(sc.with_options(integrator="event-driven")))
+
+
+def test_bundled_vibrating_paddle():
+    """scenes/vibrating_paddle.toml: every impact step follows the table map (docs/theory.md §2.9), the ball
+    keeps bouncing (the paddle feeds it), the ledger closes to round-off."""
+    sc = ms.load_scene(MODELS.parent / "scenes" / "vibrating_paddle.toml")
+    e, h = sc.options.restitution, sc.options.dt
+    tr = ms.simulate(ms.build_model(sc))
+    A, f = 0.01, 8.0
+    n = 0
+    for s, t_m, new, gm in zip(tr.log_step, tr.log_t, tr.log_impact, tr.log_gamma_minus):
+        V = A * 2 * math.pi * f * math.cos(2 * math.pi * f * t_m)
+        e_i = 1.0 if gm > 0 else e if -gm > 9.81 * h else 0.0
+        assert tr.u[s, 0] == pytest.approx(-e_i * tr.u[s - 1, 0] + (1 + e_i) * V, abs=1e-12)
+        n += bool(new)
+    assert n >= 10 and tr.log_t[tr.log_impact][-1] > 4.0  # still bouncing at the end
+    L = ms.ledger(tr)
+    assert abs(L.residual) <= 1e-12 * L.scale and L.obstacle_work > 0
