@@ -49,6 +49,8 @@ class Actuation:
                  controller: Controller | None = None):
         self.nv, self.limit, self.root, self.root_names = nv, limit, root, root_names
         self.groups, self.controller = groups, controller
+        self._clamped = bool(np.isfinite(limit).any())
+        self._rooted = bool(root.any())
 
     def with_controller(self, controller: Controller | None) -> "Actuation":
         return Actuation(self.nv, self.limit, self.root, self.root_names, self.groups, controller)
@@ -59,24 +61,31 @@ class Actuation:
         for g in self.groups:
             tau[g.v_index] += g.torque(t, q, u)
         if self.controller is not None:
-            qc, uc = q.copy(), u.copy()
-            qc.flags.writeable = uc.flags.writeable = False
-            try:
-                f = np.asarray(self.controller(t, qc, uc), dtype=float)
-            except SimulationError:
-                raise
-            except Exception as exc:  # noqa: BLE001 - the user's function: name it, one line
-                raise SimulationError(f"the controller raised {type(exc).__name__}: {exc} (at t = {t:.6g} s)") from None
-            if f.shape != (self.nv,):
-                raise SimulationError(f"the controller returned shape {f.shape}, expected ({self.nv},) "
-                                      f"(one torque per velocity row, nv = {self.nv}) at t = {t:.6g} s")
-            if not np.isfinite(f).all():
-                raise SimulationError(f"the controller returned a non-finite torque at t = {t:.6g} s")
-            if (f[self.root] != 0.0).any():
-                raise SimulationError(f"the controller returned a torque on the rows of a root joint that is not "
-                                      f"fixed ({self.root_names}) at t = {t:.6g} s: floating bases are not actuated")
-            tau += f
-        return np.clip(tau, -self.limit, self.limit)
+            tau += self._call(t, q, u)
+        if self._clamped:
+            np.minimum(tau, self.limit, out=tau)
+            np.maximum(tau, -self.limit, out=tau)
+        return tau
+
+    def _call(self, t: float, q: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The controller's torques, checked (one line naming what is wrong); it sees read-only views."""
+        qc, uc = q.view(), u.view()
+        qc.flags.writeable = uc.flags.writeable = False
+        try:
+            f = np.asarray(self.controller(t, qc, uc), dtype=float)
+        except SimulationError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the user's function: name it, one line
+            raise SimulationError(f"the controller raised {type(exc).__name__}: {exc} (at t = {t:.6g} s)") from None
+        if f.shape != (self.nv,):
+            raise SimulationError(f"the controller returned shape {f.shape}, expected ({self.nv},) "
+                                  f"(one torque per velocity row, nv = {self.nv}) at t = {t:.6g} s")
+        if not np.isfinite(f).all():
+            raise SimulationError(f"the controller returned a non-finite torque at t = {t:.6g} s")
+        if self._rooted and f[self.root].any():
+            raise SimulationError(f"the controller returned a torque on the rows of a root joint that is not "
+                                  f"fixed ({self.root_names}) at t = {t:.6g} s: floating bases are not actuated")
+        return f
 
 
 def refuse_driven(model, integrator: str) -> None:
