@@ -327,7 +327,9 @@ class Recorder:
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * r.u_free)
             act_free = 0.0 if tau is None else 0.5 * h * float(tau @ (u0 + r.u_free))  # the torques' work there
             self._smooth += total(m, d, q_free, r.u_free) - E0 - act_free
-            self._add_impact(step, t, T_minus, T_plus, law, int(np.count_nonzero(r.P > 0)), self._new_impact)
+            # a moving static's push (§2.9): the impact's dissipation is counted in its frame, T- - T+ + W_o
+            self._add_impact(step, t, T_minus, T_plus, law, int(np.count_nonzero(r.P > 0)), self._new_impact,
+                             r.obstacle_work)
         self._E, self._at, self._TV = E1, (q1, u1), (T1, V1)
 
     def account_impact(self, t: float, q: np.ndarray, u_minus: np.ndarray, u_plus: np.ndarray, M: np.ndarray,
@@ -342,11 +344,16 @@ class Recorder:
         self._E, self._at = total(m, d, q, u_plus), None
 
     def _add_impact(self, step: int, t: float, T_minus: float, T_plus: float, law: float, contacts: int,
-                    new: bool) -> None:
+                    new: bool, given: float = 0.0) -> None:
+        """given: the work a moving static did in the step [J], added to both the dissipation and the law's
+        figure (their difference is unchanged; the dissipation is then the one in the static's frame, >= 0)."""
+        dissipated = T_minus - T_plus
+        if given:
+            dissipated, law = dissipated + given, law + given
         self._contact_steps += 1
-        self._diss += T_minus - T_plus
+        self._diss += dissipated
         self._law += law
-        diff = abs((T_minus - T_plus) - law)
+        diff = abs(dissipated - law)
         if diff > self._law_difference[0]:
             self._law_difference = (diff, float(t))
         if new:
@@ -354,7 +361,7 @@ class Recorder:
             c = self._impacts.cols
             c["impact_step"][i], c["impact_t"][i], c["impact_contacts"][i] = step, t, contacts
             c["impact_T_minus"][i], c["impact_T_plus"][i] = T_minus, T_plus
-            c["impact_dissipation"][i], c["impact_law"][i] = T_minus - T_plus, law
+            c["impact_dissipation"][i], c["impact_law"][i] = dissipated, law
             self._impacts.commit()
 
     def ledger_meta(self) -> dict:
