@@ -188,7 +188,8 @@ def test_pd_held_double_pendulum(tmp_path):
     text = (MODELS.parent / "scenes" / "pendulum_wall.toml").read_text().replace("../models", "{models}")
     text = text.replace("duration = 3.0", "duration = 8.0").replace('position = [0.55, 0.0, 1.0]',
                                                                     'position = [5.55, 0.0, 1.0]')
-    text += '[[actuators]]\nbody = "pendulum"\njoints = ["shoulder", "elbow"]\nkp = 200.0\nkd = 10.0\ntarget = [0.4, 0.2]\n'
+    text += ('[[actuators]]\nbody = "pendulum"\njoints = ["shoulder", "elbow"]\nkp = 200.0\nkd = 10.0\n'
+             'target = [0.4, 0.2]\n')
     model = ms.build_model(inline_scene(text, tmp_path))
     tr = ms.simulate(model)
     import pinocchio as pin
