@@ -93,12 +93,13 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     h = opts.dt if h is None else h
     e = opts.restitution if e is None else e
     t1 = state.t + h if t_next is None else t_next
+    tau = None if model.actuation is None else torque(model, state, h)  # once a step, whichever step takes it
     if (opts.step_impl is StepImpl.COMPILED and form is None and eps is None and corner_choice is None
             and compiled.available()):
-        r = compiled.step(model, data, state, h, e, t1)  # None: a step the compiled one does not cover
+        r = compiled.step(model, data, state, h, e, t1, tau)  # None: a step the compiled one does not cover
         if r is not None:
             return r
-    pb = assemble(model, data, state, h=h, e=e)
+    pb = assemble(model, data, state, h=h, e=e, tau=tau)
     if not pb.closed:
         q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * pb.u_free)
         return StepResult(State(t1, q_next, pb.u_free), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None,
@@ -113,10 +114,18 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
                       obstacle_work=imp.obstacle_work)
 
 
-def assemble(model: Model, data: Data, state: State, *, h: float, e: float) -> ContactProblem:
+def torque(model: Model, state: State, h: float) -> np.ndarray:
+    """The step's joint torques tau [N or N m], evaluated at (t_m, q_m, u_k) (docs/theory.md §2.1)."""
+    q_m = pin.integrate(model.pin, state.q, 0.5 * h * state.u)
+    return model.actuation.torque(state.t + 0.5 * h, q_m, state.u)
+
+
+def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
+             tau: np.ndarray | None = None) -> ContactProblem:
     """The step's problem: q_m, the contacts closed at q_m (swept ones added where the options ask,
     docs/theory.md §2.6), and if any: M, M^-1, W, corner pieces (constraints.assemble_constraints),
-    u_free and v_free. Leaves data's kinematics at q_m."""
+    u_free and v_free. Leaves data's kinematics at q_m. tau: the step's joint torques (default: the
+    model's, evaluated here; torque())."""
     pm, pd = model.pin, data.pin
     q, u = state.q, state.u
     opts = model.options
@@ -124,7 +133,8 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float) -> C
     t_m = state.t + 0.5 * h  # the force evaluation: torques and obstacles at (t_m, q_m, u_k), §2.1, §2.9
     if model.prescribed is not None:
         model.prescribed.place(model.geom, t_m)
-    tau = None if model.actuation is None else model.actuation.torque(t_m, q_m, u)
+    if tau is None and model.actuation is not None:
+        tau = model.actuation.torque(t_m, q_m, u)
     # how far a vertex can move in the step (|u| times the largest lever arm): a corner struck within
     # the step may have crossed one face plane by up to this; a thinner pair may be passed through
     travel = h * float(np.abs(u).max(initial=0.0)) * model.reach
@@ -218,7 +228,7 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     E1 = kinetic(model, data, q_next, u_next) + potential(model, data, q_next)
     budget = E0 - E1 + imp.obstacle_work  # what the step dissipated beyond the work done on it (§5.5)
     if pb.tau is not None:
-        budget += 0.5 * pb.h * float(pb.tau @ (u + u_next))
+        budget += 0.5 * pb.h * float(ordered(pb.tau, u + u_next))
     resting = _resting(pb, imp, g_next < -tol)
     if budget <= 0.0 and not resting:
         return q_next, 0.0
