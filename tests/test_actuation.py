@@ -103,14 +103,24 @@ def test_controller_sees_the_midpoint(tmp_path):
         assert w == tr.u[k, 0] and z == pytest.approx(tr.q[k, 0] + 0.5 * h * tr.u[k, 0], abs=1e-15)
 
 
-def test_actuated_steps_go_to_python_with_a_reason(tmp_path):
-    model = ms.build_model(ball(tmp_path, T=0.05))
+@pytest.mark.parametrize("e", [0.0, 0.8])
+def test_compiled_step_takes_torques_bit_for_bit(tmp_path, e):
+    """tau enters the compiled free velocity and correction budget: the compiled run of a driven ball takes
+    every step (flight and contact) and gives the Python run's arrays bit for bit."""
     if not compiled.available():
         pytest.skip("no compiled step")
-    data = ms.make_data(model)
-    ms.simulate(model, data=data, controller=lambda t, q, u: np.array([1.0]))
-    # the controller's model is a copy of `model`: the counts are those of its run on `data`
-    assert any("joint torques" in k for k in compiled.counts(data))
+    sc = ball(tmp_path, e=e, T=1.5)
+    runs = {}
+    for impl in ("python", "compiled"):
+        model = ms.build_model(sc.with_options(step_impl=impl))
+        data = ms.make_data(model)
+        runs[impl] = ms.simulate(model, data=data, controller=lambda t, q, u: np.array([3.0 * np.sin(4.0 * t)]))
+        counts = compiled.counts(data)
+    assert set(counts) == {"flight", "contact"}
+    a, b = runs["python"], runs["compiled"]
+    assert set(a.arrays) == set(b.arrays) and "actuator_work" in a.arrays
+    for k in a.arrays:
+        np.testing.assert_array_equal(a.arrays[k], b.arrays[k], err_msg=k)
 
 
 def test_passive_run_has_no_external_columns(tmp_path):
