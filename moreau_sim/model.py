@@ -15,11 +15,13 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from . import limits, self_pairs, shapes
+from . import actuation as act, limits, prescribed as presc, self_pairs, shapes
+from .actuation import Actuation
 from .bodies import load_body
 from .errors import SceneError
 from .limits import UNLIMITED
 from .options import Options, RootJoint
+from .prescribed import Prescribed
 from .scene import Scene
 from .state import State
 
@@ -66,7 +68,9 @@ class Model:
     automatic rule would make that are left out, each with why (the SRDF, an overlap at a reference
     pose, the scene's [collisions] exclude);
     limits: the joint limits (limits.JointLimit: unilateral constraints of the same law, pair indices
-    after the pairs').
+    after the pairs');
+    actuation: the joint torques (actuation.py; None: none); prescribed: the statics that move
+    (prescribed.py; None: none).
     """
 
     scene: Scene
@@ -85,6 +89,8 @@ class Model:
     u0: np.ndarray
     excluded: tuple[tuple[str, str], ...] = ()  # (pair name, why): automatic pairs left out (build_model)
     limits: tuple = ()  # limits.JointLimit of every limited joint of the bodies with joint_limits on
+    actuation: Actuation | None = None
+    prescribed: Prescribed | None = None
     scratch: InitVar[pin.Data | None] = None  # a Data of `pin` to reuse for the checks below
 
     def __post_init__(self, scratch):
@@ -268,6 +274,7 @@ def build_model(scene: Scene) -> Model:
         else:
             q_sl = v_sl = slice(model.nq, model.nq)
         infos.append(BodyInfo(body.name, body.root_joint, joints, q_sl, v_sl, body.urdf))
+    first_static = geom.ngeoms
     for s in scene.statics:
         shape, placement = shapes.static_shape(s)
         geom.addGeometryObject(pin.GeometryObject(s.name, 0, 0, placement, shape))
@@ -348,6 +355,7 @@ def build_model(scene: Scene) -> Model:
         pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, _pair_name(gobs, i, j), patch))
 
     vertices = tuple(shapes.vertices(go.geometry, go.placement) for go in gobs)
+    moving = presc.build(geom, scene.statics, first_static, pairs, vertices, where)  # placed at t = 0
     bounds = tuple(shapes.distance_bound(go.geometry, go.placement) for go in gobs)
     face_normals = tuple(shapes.face_normals(go.geometry, go.placement) for go in gobs)
     face_planes = tuple(shapes.face_planes(go.geometry, go.placement) for go in gobs)
@@ -361,11 +369,13 @@ def build_model(scene: Scene) -> Model:
 
     q0, u0 = _initial(scene, model, infos, where)
     _check_mass_matrix(model, d, q0, where)
+    actuation = act.build(model, infos, scene.actuators, q0)
     limited = [j for body, info in zip(scene.bodies, infos) if body.joint_limits
                for j in info.joints[(body.root_joint is not RootJoint.FIXED):]]  # a root joint has no limits
     joint_limits = limits.joint_limits(model, limited, len(pairs))
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, limits=joint_limits,
+                 actuation=actuation, prescribed=moving,
                  excluded=tuple((_pair_name(gobs, i, j), w) for (i, j), w in sorted(why.items())),
                  scratch=d)
 

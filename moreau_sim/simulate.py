@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
+from .actuation import Controller, for_controller
 from .adaptive import simulate_adaptive
 from .checkpoint import Checkpoint
 from .data import Data, make_data
@@ -21,7 +23,8 @@ from .trajectory import Summary, Trajectory
 
 def simulate(model: Model, *, data: Data | None = None, state: State | None = None,
              progress: bool = True, checkpoint: Checkpoint | None = None,
-             spill: str | Path | None = None, check: Check | None = None) -> Trajectory:
+             spill: str | Path | None = None, check: Check | None = None,
+             controller: Controller | None = None) -> Trajectory:
     """Run the scene's options (integrator, restitution, dt, duration) from `state` (default: the
     scene's initial state). Returns a complete :class:`Trajectory` or raises :class:`SimulationError`
     (naming the step and time) whose ``.trajectory`` holds the samples up to the failure,
@@ -35,7 +38,14 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     spill: a folder where the run keeps all but the last block of its recorded rows, in unnamed
     temporary files (recording.Recorder): the memory of a long run stays that of the libraries and
     one block, and the returned arrays are read-only maps of those files (they disappear with the
-    arrays). check: the invariant hook (driver.Check)."""
+    arrays). check: the invariant hook (driver.Check).
+
+    controller: f(t, q, u) -> tau (nv,) [N or N m], joint torques added to the scene's PD targets,
+    called once per step at (t_m, q_m, u_k) (docs/theory.md §2.1; actuation.py). Torques and
+    prescribed motion run with the time-stepping integrator only."""
+    if controller is not None:
+        model = dataclasses.replace(model, actuation=for_controller(model.pin, model.bodies, model.actuation,
+                                                                    controller))
     data = data or make_data(model)
     state = state or initial_state(model, data)
     opts = model.options
@@ -53,18 +63,19 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
 def run(scene: Scene | str | Path, *, dt: float | None = None, duration: float | None = None,
         restitution: float | None = None, progress: bool = False, checkpoint: str | Path | None = None,
         checkpoint_every: float | None = None, resume: bool = False, spill: str | Path | None = None,
-        **options) -> Trajectory:
+        controller: Controller | None = None, **options) -> Trajectory:
     """Load (if a path), override options (dt [s], duration [s], restitution, any other
     :class:`~moreau_sim.options.Options` field, e.g. integrator="adaptive", rtol=1e-10,
     atol=1e-12), build and simulate. Returns the Trajectory.
 
     checkpoint: a checkpoint file, written every `checkpoint_every` seconds of simulated time
     (rounded to whole steps) and removed when the run completes; resume: continue from it when
-    it exists (checkpoint.py); spill: a folder for the recorded rows instead of memory (simulate)."""
+    it exists (checkpoint.py); spill: a folder for the recorded rows instead of memory; controller:
+    joint torques f(t, q, u) -> tau (simulate)."""
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     sc = sc.with_options(dt=dt, duration=duration, restitution=restitution, **options)
     ck = None if checkpoint is None else Checkpoint(path=Path(checkpoint), every=checkpoint_every, resume=resume)
-    return simulate(build_model(sc), progress=progress, checkpoint=ck, spill=spill)
+    return simulate(build_model(sc), progress=progress, checkpoint=ck, spill=spill, controller=controller)
 
 
 def summary(traj: Trajectory) -> Summary:

@@ -484,8 +484,10 @@ class Stepper {
     if (limits_.cols() != 6) throw nb::value_error("limits: (number of joint limits, 6) expected");
   }
 
-  StepOut step(const VectorXd &q, const VectorXd &u, double h, double e) {
+  StepOut step(const VectorXd &q, const VectorXd &u, double h, double e, const VectorXd &tau) {
     StepOut out;
+    if (tau.size() != 0 && tau.size() != model_.nv) throw nb::value_error("tau: size nv (or empty) expected");
+    tau_ = tau;  // the step's joint torques (actuation.py), evaluated by Python at (t_m, q_m, u_k); empty: none
     try {
       step_(q, u, h, e, out);
     } catch (const Fallback &f) {
@@ -500,6 +502,7 @@ class Stepper {
 
  private:
   nb::object py_[4];  // keeps the Python objects (and so the C++ ones) alive
+  VectorXd tau_;  // the current step's joint torques (empty: none)
   const pinocchio::Model &model_;
   pinocchio::Data &data_;
   const pinocchio::GeometryModel &gm_;
@@ -582,9 +585,9 @@ class Stepper {
     }
   }
 
-  // stepper.free_velocity
+  // stepper.free_velocity (tau_: the step's joint torques, or zero)
   VectorXd free_velocity(const VectorXd &q_m, const VectorXd &u, double h) {
-    const VectorXd zero = VectorXd::Zero(model_.nv);
+    const VectorXd zero = tau_.size() ? tau_ : VectorXd::Zero(model_.nv);
     VectorXd a = pinocchio::aba(model_, data_, q_m, u, zero);
     VectorXd u_free = u + h * a;
     if (!bias_midpoint_ || !velocity_bias_) return u_free;
@@ -829,7 +832,11 @@ class Stepper {
     if (m == 0 || g_next.minCoeff() >= -tol_) return;
     const double E0 = energy(q, u);
     const double E1 = energy(q_next, u_next);
-    const double budget = E0 - E1;
+    double budget = E0 - E1;
+    if (tau_.size()) {  // what the step dissipated beyond the torques' work h tau.(u + u_next)/2 (theory §5.5)
+      const VectorXd s = u + u_next;
+      budget += 0.5 * h * odot(tau_.data(), s.data(), model_.nv);
+    }
     // stepper._resting: the bodies of every penetrating contact end the step at rest
     // (|u_next_j| <= resting max|u_free - u| wherever a penetrating row has w_ij != 0)
     bool resting = true;
@@ -885,7 +892,8 @@ NB_MODULE(_step, mod) {
                     std::vector<Vec3>, std::vector<double>, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic>,
                     MatrixXd, double, double, double, int, bool, bool, bool, bool, bool,
                     const std::map<std::string, double> &, uintptr_t, MatrixXd>())
-      .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"))
+      .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"),
+           nb::arg("tau") = VectorXd())
       .def_prop_ro("constants", &Stepper::constants);
   // the names the constants dict must hold (moreau_sim/compiled.py CONSTANTS), and a dict as the step reads it
   mod.def("constant_names", []() { return Constants::keys(); });
