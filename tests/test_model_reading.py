@@ -114,7 +114,7 @@ def test_model_building_makes_no_data_of_the_whole_model(monkeypatch):
     (M is block diagonal by bodies): Datas of the bodies' sizes only, none of the whole model's nv."""
     made = []
     real = model_module.new_data
-    monkeypatch.setattr(model_module, "new_data", lambda m, where: made.append(m.nv) or real(m, where))
+    monkeypatch.setattr(model_module, "new_data", lambda m, where, **kw: made.append(m.nv) or real(m, where, **kw))
     m = ms.build_model(ms.load_scene(ROOT / "scenes" / "newton_cradle_5.toml"))
     assert made == [b.v_slice.stop - b.v_slice.start for b in m.bodies] == [1] * 5
 
