@@ -3,7 +3,11 @@
 the world and inflated by the narrow phase's security margin; a pair with a half-space is kept
 when the other's box comes within that margin of its plane. A pair it drops is farther apart than
 the margin, where the narrow phase finds no collision: the contacts are those of the all-pairs
-narrow phase. Linear in geometries plus the pairs it keeps (a column of n beads: ~2n, not n^2/2).
+narrow phase, bit for bit for coal's closed-form pairs. A pair coal resolves by GJK warm-starts
+from its own previous query (pinocchio keeps the guess): skipped for a while, it starts again from
+an older guess, and its witness points can differ in round-off (forced on every bundled scene,
+panda_table's mesh pairs differ, the box stacks do not). Linear in geometries plus the pairs it
+keeps (a column of n beads: ~n candidates, not n^2/2).
 
 coal's broad-phase managers would do the same in C++, but coal 3.0.3's Python binding cannot say
 which pairs they found: ``CollisionCallBackCollect.getCollisionPairs()`` has no Python converter
