@@ -14,7 +14,7 @@ Modules:
 - compiled_costs: the compiled step against the Python step, Siconos's Moreau-Jean step and MuJoCo's
   mj_step per step, whole runs per step, and the cost targets' verdicts, one run.
 - adaptive_costs: the adaptive integrator against the event-driven one and the fixed step.
-- scaling: the cost of one step against the number of contacts (columns of 10 to 1000 beads).
+- scaling: columns of 10 to 10,000 beads and piles of free boxes against MuJoCo: per step, build, memory.
 - robots_table: the bundled robot scenes' figures (docs/robots.md).
 - doc_tables: every table of docs/*.md generated from the committed JSON, and the drift check.
 - check_peers: every available peer against the exact references.

@@ -1,17 +1,28 @@
-"""The cost of one contact step against the number of contacts: columns of 10 to 1000 beads.
+"""Scale: columns of 10 to 10,000 beads and piles of 8 to 1000 free boxes, against MuJoCo (issue 24).
 
-A benchmark, not a test. A column of N beads is column_of_beads_100's construction built in code
-(balls r = 0.1 m, 1 kg, each on a vertical prismatic joint; pairs between neighbours and the
-bottom bead with the ground; e = 0.9, h = 5e-4), here started touching (centres at 0.1 + 0.2 k m)
-so that every step of a short run from rest has all N contacts closed: m = N, M diagonal, the
-Delassus matrix W'M^-1 W tridiagonal. `ms.step` is timed on the states of that run (best of
-`repeat` per state, median over states) with each step_impl, saying which path took the steps
-(compiled.counts: the compiled step hands more than 12 velocities or contacts to the Python one),
-and the stages of the step are split by cProfile (cumulative time of the stage functions). The
-slope of log(cost) against log(m) is fitted by least squares (target <= 1.1: cost linear in m).
+A benchmark, not a test. Two families of scenes built in code, each size measured in a child
+process of its own (its peak RSS is that size's alone):
+
+- a column of N beads: column_of_beads_100's construction (balls r = 0.1 m, 1 kg, each on a vertical
+  prismatic joint, over the ground; e = 0.9, h = 5e-4) started touching, with no [collisions] list:
+  the model has N (N - 1) / 2 + N pairs and the detection's broad phase (moreau_sim/broad_phase.py)
+  keeps the neighbours. Every step of a short run from rest closes all N contacts. `ms.step` is timed
+  on those states (best of `repeat` per state, median over states) with each step_impl, saying which
+  path took the steps (compiled.counts);
+- a pile of N free 0.1 m cubes (1 kg) dropped from a grid into a bin (the ground and four walls,
+  half-spaces), e = 0.5, h = 1e-3, run for T seconds with the Python step (the compiled step hands
+  box-box pairs back): every step timed, the contacts counted, the total energy checked against its
+  start (no gain), and the largest |u| at the end (at rest?).
+
+For each: the model's build time (build_model), the Data's (make_data), the peak RSS of the child
+after stepping, and MuJoCo (peers.mujoco's soft contacts, condim 1) on the same scene in the same
+child: mj_step timed in a Python loop after the same warm-up, its contact count (ncon). Sizes whose
+Pinocchio Data would take more than half the free memory (32 nv^3 bytes, stack-of-tasks/pinocchio#2949)
+are not built; MuJoCo still runs them. Also the impact QP alone (no model) to 3000 beads. The slope
+of log(cost) against log(contacts) is fitted by least squares (target <= 1.1: linear).
 Writes scaling.json and scaling.png to out/ (--out docs/bench: the committed files).
 
-    python -m benchmarks.scaling [--out docs/bench] [--sizes 10 20 50 100 200 500 1000]
+    python -m benchmarks.scaling [--out docs/bench] [--sizes 10 100 500] [--boxes 8 27] [--mujoco-boxes 125 1000]
     python -m benchmarks.scaling --table docs/bench/scaling.json docs/benchmarks.md
     python -m benchmarks.scaling --plot docs/bench/scaling.json   # redraw the chart from the JSON
 """
@@ -20,13 +31,13 @@ from __future__ import annotations
 
 import argparse
 import copy
-import cProfile
-import dataclasses
 import json
 import os
 import platform
-import pstats
+import resource
 import statistics
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -34,104 +45,222 @@ import numpy as np
 import pinocchio as pin
 
 import moreau_sim as ms
-from moreau_sim import compiled, qp
+from moreau_sim import compiled, energy, qp
 from moreau_sim.recording import versions
-from moreau_sim.scene import Collisions
 
 from . import OUT, REPO, add_plot_option, add_table_option, redraw, rewrite_tables
-from .step_costs import best  # best of `repeat` timings, us
 
-SIZES = (10, 20, 50, 100, 200, 500, 1000)
+CLOCK = time.process_time  # CPU time of this process: the shared 2-core machine runs at load 5-15
+
+
+def best(f, repeat: int) -> float:
+    """The least CPU time of `repeat` calls of f, us."""
+    out = []
+    for _ in range(repeat):
+        t0 = CLOCK()
+        f()
+        out.append(CLOCK() - t0)
+    return min(out) * 1e6
+
+
+SIZES = (10, 20, 50, 100, 200, 300, 500, 1000, 3000, 10000)
+BOXES = (8, 27, 64, 125, 343)  # MuJoCo's 1000-box pile: over 8 min for its 800 steps here
 QP_SIZES = (100, 300, 1000, 3000)
 TARGET_SLOPE = 1.1
 IMPLS = ("compiled", "python")
-NAMES = {"compiled": "compiled", "python": "Python"}  # the step implementations as the chart names them
-# the stages of a Python step: (label, module file, function) for cProfile's cumulative times (file "~": a
-# built-in, matched by the end of its name; no file: Pinocchio's, which cProfile does not see, timed apart)
-STAGES = (("detect", "contacts.py", "detect"), ("CRBA", "", ""), ("rows W", "constraints.py", "contact_rows"),
-          ("distinct", "constraints.py", "distinct"), ("M^-1", "", ""),
-          ("free velocity", "stepper.py", "free_velocity"), ("impact QP", "law.py", "project"),
-          ("position correction", "stepper.py", "correct_positions"), ("step", "stepper.py", "step"))
+NAMES = {"compiled": "compiled", "python": "Python", "mujoco": "MuJoCo mj_step"}
+CUBE = 0.1  # [m] side of the pile's cubes (models/cube.urdf: 1 kg, I = m s^2 / 6)
+SPACING = 0.18  # [m] the pile's grid (more than a cube's diagonal, 0.173 m: tilted neighbours stay apart)
+PILE_H, PILE_E, PILE_T = 1e-3, 0.1, 0.8
 
 
 def column(n: int, *, step_impl: str = "compiled") -> ms.Scene:
-    """A column of n touching beads on vertical prismatic joints over the ground (neighbour pairs only)."""
+    """A column of n touching beads on vertical prismatic joints over the ground (no exclusions)."""
     b = ms.SceneBuilder(f"column_of_beads_{n}", folder=REPO / "scenes", restitution=0.9, dt=5e-4, duration=0.01,
                         step_impl=step_impl,
                         description=f"{n} beads (column_of_beads_100's construction), touching, from rest")
     for k in range(n):
         b.add_body(f"bead{k}", "../models/ball.urdf", root_joint="prismatic", axis=(0, 0, 1), q0=[0.1 + 0.2 * k])
     b.add_halfspace("ground")
-    scene = b.build()
-    # every pair but neighbours and bead0-ground excluded (the scene file lists them; here in code: O(n^2) names)
-    names = [f"bead{k}" for k in range(n)]
-    exclude = [(names[i], names[j]) for i in range(n) for j in range(i + 2, n)]
-    exclude += [(names[k], "ground") for k in range(1, n)]
-    return dataclasses.replace(scene, collisions=Collisions(exclude=tuple(exclude)))
+    return b.build()
 
 
-def states_in_contact(model, data, n_states: int) -> list:
-    """The states of a short run from the model's initial state (every one with all contacts closed)."""
-    st = ms.initial_state(model)
+def pile_layout(n: int) -> tuple[list, float]:
+    """Positions and rpy of n cubes on a k x k grid of layers (seeded small tilts), and the bin's half-width."""
+    k = int(np.ceil(n ** (1 / 3)))
+    rng = np.random.default_rng(n)
     out = []
-    for _ in range(n_states):
-        r = ms.step(model, data, st)
-        if not r.qp or not r.qp.ok:
-            raise RuntimeError(f"{model.pin.name}: the step at t = {st.t} failed ({r.qp and r.qp.status})")
-        out.append((st, r.contacts.m))
-        st = r.state
+    for i in range(n):
+        z, rest = divmod(i, k * k)
+        y, x = divmod(rest, k)
+        out.append(((x - (k - 1) / 2) * SPACING, (y - (k - 1) / 2) * SPACING, 0.1 + z * SPACING,  # 0.1 > diagonal / 2
+                    tuple(rng.uniform(-0.3, 0.3, 3))))
+    return out, k * SPACING / 2 + CUBE / 2
+
+
+WALLS = (((1.0, 0.0, 0.0), "x0"), ((-1.0, 0.0, 0.0), "x1"), ((0.0, 1.0, 0.0), "y0"), ((0.0, -1.0, 0.0), "y1"))
+
+
+def pile(n: int) -> ms.Scene:
+    """n free cubes dropped into a bin: the ground and four walls (half-spaces), frictionless."""
+    layout, half = pile_layout(n)
+    b = ms.SceneBuilder(f"box_pile_{n}", folder=REPO / "scenes", restitution=PILE_E, dt=PILE_H, duration=PILE_T,
+                        step_impl="python", description=f"{n} cubes dropped into a bin")
+    for i, (x, y, z, rpy) in enumerate(layout):
+        b.add_body(f"box{i}", "../models/cube.urdf", root_joint="free", position=(x, y, z), rpy=rpy)
+    b.add_halfspace("ground")
+    for normal, name in WALLS:
+        b.add_halfspace(f"wall_{name}", normal=normal, offset=-half)
+    return b.build()
+
+
+def mujoco_xml(kind: str, n: int) -> tuple[str, float]:
+    """The same column or pile for MuJoCo (peers.mujoco's MJCF and contact settings), and its step h."""
+    from .peers import mujoco as mj
+
+    if kind == "beads":
+        h, e = 5e-4, 0.9
+        bodies = [{"shape": "sphere", "radius": 0.1, "mass": 1.0, "inertia": [0.004] * 3, "joint": "slide",
+                   "origin": [0.0, 0.0, 0.1 + 0.2 * k], "axis": [0.0, 0.0, 1.0]} for k in range(n)]
+        statics = [{"shape": "halfspace", "normal": [0.0, 0.0, 1.0], "offset": 0.0}]
+    else:
+        h, e = PILE_H, PILE_E
+        layout, half = pile_layout(n)
+        bodies = []
+        for x, y, z, rpy in layout:
+            qx, qy, qz, qw = pin.Quaternion(pin.rpy.rpyToMatrix(*rpy)).coeffs()
+            bodies.append({"shape": "box", "half_extents": [CUBE / 2] * 3, "mass": 1.0,
+                           "inertia": [CUBE ** 2 / 6] * 3, "joint": "free", "pos": [x, y, z], "quat": [qw, qx, qy, qz]})
+        statics = [{"shape": "halfspace", "normal": [0.0, 0.0, 1.0], "offset": 0.0}]
+        statics += [{"shape": "halfspace", "normal": list(nrm), "offset": -half} for nrm, _ in WALLS]
+    P = mj.merge_params("mujoco", mj.DEFAULTS, {})
+    spec = {"h": h, "gravity": [0.0, 0.0, -9.81], "statics": statics, "bodies": bodies}
+    return mj.xml(spec, P, mj.contact_settings(e, h, P)), h
+
+
+def mujoco_run(kind: str, n: int, warm: int, timed: int) -> dict:
+    """mj_step in a Python loop: `warm` steps, then `timed` steps each timed; median us and ncon."""
+    import mujoco
+
+    xml, h = mujoco_xml(kind, n)
+    t0 = CLOCK()
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    build = CLOCK() - t0
+    for _ in range(warm):
+        mujoco.mj_step(m, d)
+    times, ncon = [], []
+    for _ in range(timed):
+        t = CLOCK()
+        mujoco.mj_step(m, d)
+        times.append(CLOCK() - t)
+        ncon.append(d.ncon)
+    return {"us": statistics.median(times) * 1e6, "contacts": statistics.median(ncon), "build_s": build,
+            "version": mujoco.__version__}
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def too_big(nv: int) -> str | None:
+    """Why a model of nv velocities is not built here (its Data would take over half the free memory), or None."""
+    free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    need = ms.model.DATA_BYTES_PER_NV3 * nv ** 3
+    if ms.model.DATA_PEAK * need > free / 2:
+        return (f"a Pinocchio Data of nv = {nv} allocates ~{need / 1e9:.3g} GB (four nv^3 tensors, "
+                f"stack-of-tasks/pinocchio#2949; twice that while built), over half of the {free / 1e9:.0f} GB free")
+    return None
+
+
+def beads_one(n: int, repeat: int, n_states: int) -> dict:
+    """One column size, in this process: build, Data, steps of both step_impls, peak RSS, then MuJoCo."""
+    out = {"beads": n}
+    why = too_big(n)
+    if why is None:
+        t0 = CLOCK()
+        base = ms.build_model(column(n))
+        out["build_s"] = CLOCK() - t0
+        t0 = CLOCK()
+        data = ms.make_data(base)
+        out["data_s"] = CLOCK() - t0
+        models = {"compiled": base, "python": copy.copy(base)}  # the same model but for step_impl
+        object.__setattr__(models["python"], "scene", base.scene.with_options(step_impl="python"))
+        st, states = ms.initial_state(models["python"], data), []
+        for _ in range(n_states):
+            r = ms.step(models["python"], data, st)
+            if not r.qp or not r.qp.ok:
+                raise RuntimeError(f"{n} beads: the step at t = {st.t} failed ({r.qp and r.qp.status})")
+            states.append((st, r.contacts.m))
+            st = r.state
+        from moreau_sim import broad_phase
+
+        bp = broad_phase.of(base, max(base.options.contact_tolerance, ms.data.GATE_MARGIN))
+        pin.forwardKinematics(base.pin, data.pin, states[-1][0].q)
+        out.update(nv=base.nv, pairs=len(base.pairs), contacts=statistics.median(m for _, m in states),
+                   candidates=len(bp.candidates(data)) if bp else len(base.pairs), states=len(states))
+        for impl in IMPLS:
+            model = models[impl]
+            ms.step(model, data, states[0][0])  # the compiled stepper is set up at its first step: not timed
+            times = [best(lambda st=st, model=model: ms.step(model, data, st), repeat) for st, _ in states]
+            paths = dict(compiled.counts(data)) if impl == "compiled" else {"python": repeat * len(states)}
+            out[impl] = {"us": statistics.median(times), "paths": paths}
+        out["peak_rss_mb"] = peak_rss_mb()
+        del data, models, base
+    else:
+        out["skipped"] = why
+    out["mujoco"] = mujoco_run("beads", n, warm=200, timed=200) if n <= 1000 else mujoco_run("beads", n, 20, 10)
     return out
 
 
-def stage_split(model, data, states) -> dict:
-    """us per step in each stage (cProfile's cumulative times over one step of each state, / states;
-    Pinocchio's CRBA and M^-1, which cProfile does not see, timed apart: best of 3 at each state's q)."""
-    prof = cProfile.Profile()
-    for st, _ in states:
-        prof.enable()
-        ms.step(model, data, st)
-        prof.disable()
-    stats = pstats.Stats(prof).stats
-    pm, pd = model.pin, data.pin
-    out = {"CRBA": statistics.median(best(lambda q=st.q: pin.crba(pm, pd, q, pin.Convention.WORLD), 3)
-                                     for st, _ in states),
-           "M^-1": statistics.median(best(lambda q=st.q: pin.computeMinverse(pm, pd, q), 3) for st, _ in states)}
-    for label, file, func in STAGES:
-        if label in out:
-            continue
-        cum = sum(v[3] for (f, _, name), v in stats.items()
-                  if ((f == "~" and name.endswith(func)) if file == "~"
-                      else (name == func and f.endswith(f"moreau_sim/{file}"))))
-        out[label] = cum / len(states) * 1e6
+def boxes_one(n: int) -> dict:
+    """One pile size, in this process: build, Data, a run of PILE_T s with every step timed, then MuJoCo."""
+    out = {"boxes": n}
+    why = too_big(6 * n)
+    if why is None:
+        t0 = CLOCK()
+        model = ms.build_model(pile(n))
+        out["build_s"] = CLOCK() - t0
+        t0 = CLOCK()
+        data = ms.make_data(model)
+        out["data_s"] = CLOCK() - t0
+        st = ms.initial_state(model, data)
+        e0 = energy.total(model, data, st.q, st.u)
+        times, contacts, gain = [], [], 0.0
+        for _ in range(int(round(PILE_T / PILE_H))):
+            t = CLOCK()
+            r = ms.step(model, data, st)
+            times.append(CLOCK() - t)
+            contacts.append(r.contacts.m + len(r.contacts.corners))
+            st = r.state
+            gain = max(gain, energy.total(model, data, st.q, st.u) - e0)
+        third = len(times) // 3
+        out.update(nv=model.nv, pairs=len(model.pairs), steps=len(times), us=statistics.median(times) * 1e6,
+                   us_last_third=statistics.median(times[-third:]) * 1e6, contacts=statistics.median(contacts),
+                   contacts_last_third=statistics.median(contacts[-third:]), energy0=e0, max_energy_gain=gain,
+                   final_max_speed=float(np.abs(st.u).max()), peak_rss_mb=peak_rss_mb())
+        del data, model
+    else:
+        out["skipped"] = why
+    steps = int(round(PILE_T / PILE_H))
+    out["mujoco"] = mujoco_run("boxes", n, warm=steps - steps // 3, timed=steps // 3)
     return out
 
 
-def bench_size(n: int, repeat: int, n_states: int) -> dict:
-    t0 = time.perf_counter()
-    base = ms.build_model(column(n, step_impl="python"))
-    data = ms.make_data(base)  # one Pinocchio Data: its size grows like N^3 (500 beads: 9 GB, 23 s)
-    build = time.perf_counter() - t0
-    models = {}
-    for impl in IMPLS:  # the same model but for step_impl (building another would build another Data)
-        models[impl] = copy.copy(base)
-        object.__setattr__(models[impl], "scene", base.scene.with_options(step_impl=impl))
-    states = states_in_contact(models["python"], data, n_states)
-    out = {"beads": n, "nv": base.nv, "pairs": len(base.pairs),
-           "contacts": statistics.median(m for _, m in states), "states": len(states), "build_s": build}
-    for impl in IMPLS:
-        model = models[impl]
-        ms.step(model, data, states[0][0])  # the compiled stepper is set up at its first step: not timed
-        times = [best(lambda st=st, model=model: ms.step(model, data, st), repeat) for st, _ in states]
-        paths = dict(compiled.counts(data)) if impl == "compiled" else {"python": repeat * len(states)}
-        out[impl] = {"us": statistics.median(times), "paths": paths}
-    out["stages_python"] = stage_split(models["python"], data, states)
-    return out
+def child(kind: str, n: int, a) -> dict:
+    """One size measured in a child process (its own peak RSS); a failure is recorded, not raised."""
+    cmd = [sys.executable, "-m", "benchmarks.scaling", "--one", kind, str(n), "--repeat", str(a.repeat),
+           "--states", str(a.states)]
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+    if r.returncode != 0:
+        tail = (r.stderr.strip().splitlines() or ["no output"])[-1]
+        return {"beads" if kind == "beads" else "boxes": n, "failed": tail}
+    return json.loads(r.stdout.strip().splitlines()[-1])
 
 
 def qp_alone(n: int, repeat: int) -> dict:
     """The impact QP of a resting column of n unit beads built without a model (M = I, the column's rows, every
-    bead at -g h): qp.solve as the stepper calls it, best of `repeat`. It reaches sizes whose Pinocchio Data
-    cannot be built (too_big); its inputs are still dense (M, M^-1, W: n^2 each)."""
+    bead at -g h): qp.solve as the stepper calls it, best of `repeat`."""
     W = np.zeros((n, n), order="F")
     W[0, 0] = 1.0
     k = np.arange(1, n)
@@ -139,32 +268,32 @@ def qp_alone(n: int, repeat: int) -> dict:
     M, v0 = np.eye(n), np.full(n, -9.81 * 5e-4)
     r = qp.solve(M, W, v0, Minv=M)
     return {"beads": n, "us": best(lambda: qp.solve(M, W, v0, Minv=M), repeat), "status": r.status,
-            "polished": bool(r.polished), "max_abs_v": float(np.abs(r.v).max())}
+            "polished": bool(r.polished)}
 
 
-def fit_slope(rows: list, impl: str) -> float:
-    """Least-squares slope of log(us per step) against log(contacts) (nan with fewer than 2 sizes)."""
-    if len(rows) < 2:
+def slope(x, y) -> float:
+    """Least-squares slope of log(y) against log(x) (nan with fewer than 2 points)."""
+    if len(x) < 2:
         return float("nan")
-    m = np.log([r["contacts"] for r in rows])
-    t = np.log([r[impl]["us"] for r in rows])
-    return float(np.polyfit(m, t, 1)[0])
+    return float(np.polyfit(np.log(x), np.log(y), 1)[0])
 
 
-def data_bytes(n: int) -> int:
-    """What one Pinocchio Data of an n-velocity model allocates, about: four nv^3 tensors of second-order
-    derivatives, whatever the algorithms used (stack-of-tasks/pinocchio#2949; measured 9 GB RSS at nv = 500)."""
-    return 4 * 8 * n ** 3
+def measured(rows: list) -> list:
+    return [r for r in rows if "skipped" not in r and "failed" not in r]
 
 
-def too_big(n: int) -> str | None:
-    """Why a column of n beads is not built here (its Data would take over half the free memory), or None."""
-    free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    need = data_bytes(n)
-    if need > free / 2:
-        return (f"a Pinocchio Data of nv = {n} allocates ~{need / 1e9:.0f} GB (four nv^3 tensors, "
-                f"stack-of-tasks/pinocchio#2949), over half of the {free / 1e9:.0f} GB free")
-    return None
+def slopes(data: dict) -> dict:
+    b, p = measured(data["beads"]), measured(data["boxes"])
+    out = {impl: slope([r["contacts"] for r in b], [r[impl]["us"] for r in b]) for impl in IMPLS}
+    above = [r for r in b if r["contacts"] > compiled.MAX_CONTACTS]
+    out["python_above_compiled_limit"] = slope([r["contacts"] for r in above], [r["python"]["us"] for r in above])
+    mb = [r for r in data["beads"] if "mujoco" in r]
+    out["mujoco_beads"] = slope([r["beads"] for r in mb], [r["mujoco"]["us"] for r in mb])
+    out["build_beads"] = slope([r["beads"] for r in b], [r["build_s"] for r in b])
+    out["pile"] = slope([r["boxes"] for r in p], [r["us"] for r in p])
+    mp = [r for r in data["boxes"] if "mujoco" in r]
+    out["mujoco_pile"] = slope([r["boxes"] for r in mp], [r["mujoco"]["us"] for r in mp])
+    return out
 
 
 def plot(data: dict, png: Path) -> None:
@@ -173,93 +302,113 @@ def plot(data: dict, png: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = data["sizes"]
-    m = np.array([r["contacts"] for r in rows], float)
-    fig, ax = plt.subplots(figsize=(8.5, 7.5), layout="constrained")
-    for impl, mark, size in zip(IMPLS, ("o", "s"), (9, 5)):  # the python squares inside the compiled discs
-        t = np.array([r[impl]["us"] for r in rows]) * 1e-3
-        c, t0 = np.polyfit(np.log(m), np.log(t), 1)
-        line, = ax.loglog(m, t, mark, ms=size, label=f"{NAMES[impl]} step")
-        ax.loglog(m, np.exp(t0) * m ** c, "-", color=line.get_color(), lw=1, label=f"fit: slope {c:.2f}")
-    before = data.get("before")
-    if before:
-        for impl, mark in zip(IMPLS, ("o", "s")):
-            pts = sorted((int(n), v[impl] * 1e-3) for n, v in before["sizes"].items())
-            ax.loglog(*zip(*pts), mark, mfc="none", color="grey", ms=7,
-                      label=f"{NAMES[impl]} step, older code with a dense QP (git {before['commit']}): "
-                            f"slope {before['slopes'][impl]:.2f}")
+    s = data["slopes"]
+    fig, (a1, a2, a3) = plt.subplots(1, 3, figsize=(16, 6), layout="constrained")
+    b = measured(data["beads"])
+    n = np.array([r["beads"] for r in b], float)
+
+    def fitted(ax, x, y, fmt, label, **kw):
+        line, = ax.loglog(x, y, fmt, label=label, **kw)
+        if len(x) >= 2:
+            c, t0 = np.polyfit(np.log(x), np.log(y), 1)
+            ax.loglog(x, np.exp(t0) * np.asarray(x) ** c, "-", lw=0.8, color=line.get_color())
+
+    for impl, fmt in zip(IMPLS, ("o", "s")):
+        fitted(a1, n, [r[impl]["us"] * 1e-3 for r in b], fmt, f"moreau-sim, {NAMES[impl]} step: slope {s[impl]:.2f}")
+    mb = [r for r in data["beads"] if "mujoco" in r]
+    fitted(a1, [r["beads"] for r in mb], [r["mujoco"]["us"] * 1e-3 for r in mb], "^",
+           f"{NAMES['mujoco']}: slope {s['mujoco_beads']:.2f}")
     qa = data.get("qp_alone") or []
     if qa:
-        ax.loglog([r["beads"] for r in qa], [r["us"] * 1e-3 for r in qa], "^-", color="tab:green", lw=0.8,
-                  label=f"impact QP alone, no model (M = I): slope {data['qp_alone_slope']:.2f}")
-        bq = sorted((int(n), v * 1e-3) for n, v in (before or {}).get("qp_alone", {}).items())
-        if bq:
-            ax.loglog(*zip(*bq), "^", mfc="none", color="grey", ms=7,
-                      label=f"impact QP alone, older code (git {before['commit']})")
-    ref = np.array([r["python"]["us"] for r in rows]) * 1e-3
-    ax.loglog(m, ref[0] * m / m[0], "k:", lw=1, label="slope 1 (from the first point)")
-    ax.axvline(data["compiled_limit"] + 0.5, color="grey", lw=0.8, ls="--")
-    ax.axvline(data["sparse_rows"] + 0.5, color="grey", lw=0.8, ls="-.")
-    top = ax.get_ylim()[1]
-    ax.text(data["compiled_limit"] + 0.5, top, f"compiled step: up to {data['compiled_limit']} contacts ", fontsize=7,
-            va="top", ha="right")
-    ax.text(data["sparse_rows"] + 0.5, top, f" sparse QP above {data['sparse_rows']} rows", fontsize=7, va="top")
-    ax.set_xlabel("contacts m (= beads N)")
-    ax.set_ylabel("ms per step (median over states); ms per solve (QP alone)")
-    ax.set_title(f"a column of N touching beads: cost of one step (target: fitted slope ≤ {TARGET_SLOPE})")
-    ax.grid(True, which="both", alpha=0.3)
-    fig.legend(*ax.get_legend_handles_labels(), fontsize=8, loc="outside lower center", ncol=2, frameon=False)
-    fig.savefig(png, dpi=110)
+        a1.loglog([r["beads"] for r in qa], [r["us"] * 1e-3 for r in qa], "v:", color="grey",
+                  label="impact QP alone (no model)")
+    for r in data["beads"]:
+        if "skipped" in r:
+            a1.axvline(r["beads"], color="red", lw=0.6, ls="--")
+    a1.axvline(data["compiled_limit"] + 0.5, color="grey", lw=0.8, ls="-.")
+    a1.set_xlabel("beads N (= contacts)")
+    a1.set_ylabel("ms per step")
+    a1.set_title(f"column of N touching beads (red dashes: not built, Data too big)\n"
+                 f"target slope ≤ {TARGET_SLOPE}; dash-dot: compiled step up to {data['compiled_limit']} contacts",
+                 fontsize=9)
+    p = measured(data["boxes"])
+    mp = [r for r in data["boxes"] if "mujoco" in r]
+    fitted(a2, [r["boxes"] for r in p], [r["us"] * 1e-3 for r in p], "s",
+           f"moreau-sim, Python step: slope {s['pile']:.2f}")
+    fitted(a2, [r["boxes"] for r in mp], [r["mujoco"]["us"] * 1e-3 for r in mp], "^",
+           f"{NAMES['mujoco']}: slope {s['mujoco_pile']:.2f}")
+    for r in data["boxes"]:
+        if "skipped" in r:
+            a2.axvline(r["boxes"], color="red", lw=0.6, ls="--")
+    a2.set_xlabel("boxes N")
+    a2.set_ylabel("ms per step (median over the run)")
+    a2.set_title(f"a pile of N cubes dropped into a bin, {PILE_T} s at h = {PILE_H}\n(red dashes: not built)",
+                 fontsize=9)
+    fitted(a3, n, [r["build_s"] for r in b], "o", f"beads: build_model s (slope {s['build_beads']:.2f})")
+    a3.loglog(n, [r["data_s"] for r in b], "o--", label="beads: make_data s (the nv^3 Data)")
+    a3.loglog(n, [r["peak_rss_mb"] / 1024 for r in b], "d-", label="beads: peak RSS GB")
+    if p:
+        a3.loglog([r["boxes"] * 6 for r in p], [r["peak_rss_mb"] / 1024 for r in p], "d:",
+                  label="pile: peak RSS GB (at nv = 6 N)")
+    a3.set_xlabel("nv")
+    a3.set_ylabel("s / GB")
+    a3.set_title("model building and memory (one Pinocchio model)", fontsize=9)
+    for ax in (a1, a2, a3):
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.savefig(png, dpi=100)
+
+
+def _f(x, fmt="{:.3g}") -> str:
+    return "–" if x is None else fmt.format(x)
 
 
 def markdown_table(data: dict) -> str:
-    """The scaling table of docs/benchmarks.md from a scaling.json."""
-    rows = data["sizes"]
-    stages = [s for s, _, _ in STAGES if s != "step"]
-    before = data.get("before")
-    threads = data["meta"].get("OPENBLAS_NUM_THREADS")
-    out = [f"Run of {data['meta']['date']} (git `{data['meta']['commit']}`"
-           + (f", OPENBLAS_NUM_THREADS={threads}" if threads else "") + f"): ms per step, median over "
-           f"{rows[0]['states']} states of the best of {data['meta']['repeat']} timings"
-           + (f"; *before*: the same benchmark on the code of git `{before['commit']}` (dense QP path, "
-              "all-pairs distinct)" if before else "")
-           + "; stages: cProfile's cumulative times in the Python step (profiled, so inflated; CRBA and "
-           "M⁻¹ timed apart).", "",
-           "| beads | contacts | compiled | paths (compiled) | python | "
-           + ("before: compiled / python | " if before else "") + " | ".join(stages) + " |",
-           "|---:|---:|---:|---|---:|" + ("---:|" if before else "") + "---:|" * len(stages)]
-    for r in rows:
+    """The scaling tables of docs/benchmarks.md from a scaling.json."""
+    meta, s = data["meta"], data["slopes"]
+    out = [f"Run of {meta['date']} (git `{meta['commit']}`, OPENBLAS_NUM_THREADS={meta.get('OPENBLAS_NUM_THREADS')}, "
+           f"{meta['cpus']} cores shared, load {meta['load']:.1f}; MuJoCo {meta.get('mujoco', '?')}): µs per step. "
+           f"Beads: median over {meta['states']} contact states of the best of {meta['repeat']}; pile: median over "
+           f"the run's {int(round(PILE_T / PILE_H))} steps; MuJoCo: median of `mj_step` timed in a Python loop "
+           "after the same warm-up. Peak RSS of a child process per size (moreau-sim's part, before MuJoCo runs).",
+           "", "| beads | pairs (model) | broad-phase candidates | contacts | compiled | paths (compiled) | Python | "
+           "MuJoCo (ncon) | build_model s | make_data s | peak RSS MB |",
+           "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
+    for r in data["beads"]:
+        mj = r.get("mujoco")
+        mjs = f"{mj['us']:.1f} ({mj['contacts']:.0f})" if mj else "–"
+        if "skipped" in r or "failed" in r:
+            why = r.get("skipped") or f"failed: {r['failed']}"
+            out.append(f"| {r['beads']} | not built: {why} | | | | | | {mjs} | | | |")
+            continue
         paths = ", ".join(f"{k}: {v}" for k, v in sorted(r["compiled"]["paths"].items()))
-        st = " | ".join(f"{r['stages_python'][s] * 1e-3:.3f}" for s in stages)
-        b = before["sizes"].get(str(r["beads"])) if before else None
-        was = "" if not before else ("– | " if b is None else
-                                     f"{b['compiled'] * 1e-3:.3f} / {b['python'] * 1e-3:.3f} | ")
-        out.append(f"| {r['beads']} | {r['contacts']:.0f} | {r['compiled']['us'] * 1e-3:.3f} | {paths} | "
-                   f"{r['python']['us'] * 1e-3:.3f} | {was}{st} |")
-    s, s2 = data["slopes"], data["slopes_above_compiled_limit"]
-    met = {k: "met" if v <= TARGET_SLOPE else "missed" for k, v in s.items()}
-    out += ["", f"Fitted log-log slope of the cost against the contacts ({rows[0]['contacts']:.0f} to "
-            f"{rows[-1]['contacts']:.0f}): step_impl = compiled {s['compiled']:.2f} ({met['compiled']}), "
-            f"python {s['python']:.2f} ({met['python']}); target ≤ {TARGET_SLOPE}. Above "
-            f"{data['compiled_limit']} contacts, where every step is the Python step: {s2['compiled']:.2f} and "
-            f"{s2['python']:.2f}. The QP runs on sparse matrices above {data['sparse_rows']} rows."]
+        out.append(f"| {r['beads']} | {r['pairs']} | {r['candidates']} | {r['contacts']:.0f} | "
+                   f"{r['compiled']['us']:.1f} | {paths} | {r['python']['us']:.1f} | {mjs} | {r['build_s']:.3g} | "
+                   f"{r['data_s']:.3g} | {r['peak_rss_mb']:.0f} |")
+    out += ["", "| boxes | nv | pairs (model) | contacts (median; last third) | Python step | last third | "
+            "MuJoCo (ncon) | ratio ours / MuJoCo | max energy gain J (E0) | max \\|u\\| at the end | build_model s | "
+            "make_data s | peak RSS MB |",
+            "|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|"]
+    for r in data["boxes"]:
+        mj = r.get("mujoco")
+        mjs = f"{mj['us']:.1f} ({mj['contacts']:.0f})" if mj else "–"
+        if "skipped" in r or "failed" in r:
+            why = r.get("skipped") or f"failed: {r['failed']}"
+            out.append(f"| {r['boxes']} | {6 * r['boxes']} | not built: {why} | | | | {mjs} | | | | | | |")
+            continue
+        out.append(f"| {r['boxes']} | {r['nv']} | {r['pairs']} | {r['contacts']:.0f}; {r['contacts_last_third']:.0f} | "
+                   f"{r['us']:.0f} | {r['us_last_third']:.0f} | {mjs} | {r['us'] / mj['us']:.0f} | "
+                   f"{r['max_energy_gain']:.2g} ({r['energy0']:.3g}) | {r['final_max_speed']:.2g} | "
+                   f"{r['build_s']:.3g} | {r['data_s']:.3g} | {r['peak_rss_mb']:.0f} |")
+    out += ["", f"Fitted log-log slopes: per step against contacts, beads "
+            f"{measured(data['beads'])[0]['beads']}–{measured(data['beads'])[-1]['beads']}: compiled "
+            f"{s['compiled']:.2f}, Python {s['python']:.2f} (above {data['compiled_limit']} contacts, every step the "
+            f"Python step: {s['python_above_compiled_limit']:.2f}); MuJoCo {s['mujoco_beads']:.2f}; target ≤ "
+            f"{TARGET_SLOPE}. build_model against beads: {s['build_beads']:.2f}. Pile, per step against boxes: "
+            f"ours {s['pile']:.2f}, MuJoCo {s['mujoco_pile']:.2f}."]
     if data.get("qp_alone"):
-        bq = before.get("qp_alone", {}) if before else {}
-        out += ["", "The impact QP alone on the same column built without a model (M = I, no Pinocchio Data, so "
-                "beyond what a model can build here), ms per solve:", "",
-                "| beads | QP | " + ("before | " if bq else "") + "status |",
-                "|---:|---:|" + ("---:|" if bq else "") + "---|"]
-        for r in data["qp_alone"]:
-            was = "" if not bq else (f"{bq[str(r['beads'])] * 1e-3:.2f} | " if str(r["beads"]) in bq else "– | ")
-            out.append(f"| {r['beads']} | {r['us'] * 1e-3:.2f} | {was}{r['status']}"
-                       f"{', polished' if r['polished'] else ''} |")
-        out.append("")
-        out.append(f"Slope of the QP alone: {data['qp_alone_slope']:.2f}.")
-    if before:
-        out.append(f"Before: slopes {before['slopes']['compiled']:.2f} (compiled) and "
-                   f"{before['slopes']['python']:.2f} (python) over the sizes it measured.")
-    for n, why in data.get("skipped", {}).items():
-        out.append(f"Not measured: {n} beads ({why}).")
+        out += ["", "The impact QP alone (the column's rows, M = I, no model; ms per solve): "
+                + ", ".join(f"{r['beads']} beads {r['us'] * 1e-3:.2f}" for r in data["qp_alone"]) + "."]
     return "\n".join(out)
 
 
@@ -269,10 +418,10 @@ def doc_tables(data: dict) -> dict[str, str]:
 
 
 def _commit() -> str:
-    import subprocess
-
     r = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=REPO)
-    return r.stdout.strip() or "unknown"
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True,
+                           cwd=REPO).stdout.strip()
+    return (r.stdout.strip() or "unknown") + (" plus uncommitted changes" if dirty else "")
 
 
 def main(argv=None) -> int:
@@ -281,57 +430,44 @@ def main(argv=None) -> int:
     add_table_option(ap, "scaling.json", "docs/benchmarks.md")
     add_plot_option(ap, "scaling.json")
     ap.add_argument("--sizes", type=int, nargs="*", default=list(SIZES), help="numbers of beads")
+    ap.add_argument("--boxes", type=int, nargs="*", default=list(BOXES), help="numbers of boxes of the pile")
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--states", type=int, default=10, help="contact states per size (a run of that many steps)")
-    ap.add_argument("--before", type=Path, help="a scaling.json of earlier code, quoted beside this run's figures")
+    ap.add_argument("--states", type=int, default=10, help="contact states per column (a run of that many steps)")
     ap.add_argument("--qp-sizes", type=int, nargs="*", default=list(QP_SIZES),
-                    help="numbers of beads of the QP alone (no Pinocchio Data: beyond what a model can build)")
+                    help="numbers of beads of the QP alone (no Pinocchio Data)")
+    ap.add_argument("--one", nargs=2, metavar=("KIND", "N"), help=argparse.SUPPRESS)  # a child: one size, JSON out
     a = ap.parse_args(argv)
     if rewrite_tables(a, doc_tables) or redraw(a, plot):
         return 0
+    if a.one:
+        kind, n = a.one[0], int(a.one[1])
+        r = beads_one(n, a.repeat, a.states) if kind == "beads" else boxes_one(n)
+        print(json.dumps(r))
+        return 0
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows, skipped = [], {}
-    print(f"{'beads':>6s} {'m':>6s} {'compiled ms':>12s} {'python ms':>10s}  paths (compiled)")
+    t_start = time.time()
+    beads, boxes = [], []
     for n in a.sizes:
-        why = too_big(n)
-        if why is not None:
-            skipped[str(n)] = why
-            print(f"{n:6d} skipped: {why}", flush=True)
-            continue
-        r = bench_size(n, a.repeat, a.states)
-        rows.append(r)
-        print(f"{n:6d} {r['contacts']:6.0f} {r['compiled']['us'] * 1e-3:12.3f} {r['python']['us'] * 1e-3:10.3f}  "
-              f"{r['compiled']['paths']}", flush=True)
-        print("       stages (python, profiled, ms): "
-              + ", ".join(f"{k} {v * 1e-3:.3f}" for k, v in r["stages_python"].items()), flush=True)
-    qp_rows = []
-    for n in a.qp_sizes:
-        qp_rows.append(qp_alone(n, a.repeat))
-        print(f"QP alone, {n} beads: {qp_rows[-1]['us'] * 1e-3:.3f} ms ({qp_rows[-1]['status']})", flush=True)
-    slopes = {impl: fit_slope(rows, impl) for impl in IMPLS}
-    above = [r for r in rows if r["contacts"] > compiled.MAX_CONTACTS]  # every step in the Python step
-    slopes_python_only = {impl: fit_slope(above, impl) for impl in IMPLS}
-    print("slopes:", {k: round(v, 3) for k, v in slopes.items()}, f"(target <= {TARGET_SLOPE}); above "
-          f"{compiled.MAX_CONTACTS} contacts:", {k: round(v, 3) for k, v in slopes_python_only.items()})
+        beads.append(child("beads", n, a))
+        print(json.dumps(beads[-1]), flush=True)
+    for n in a.boxes:
+        boxes.append(child("boxes", n, a))
+        print(json.dumps(boxes[-1]), flush=True)
+    qp_rows = [qp_alone(n, a.repeat) for n in a.qp_sizes]
+    import mujoco
+
     meta = {"date": time.strftime("%Y-%m-%d", time.gmtime()), "commit": _commit(), "machine": platform.machine(),
             "cpus": os.cpu_count(), "load": os.getloadavg()[0], "versions": versions(), "repeat": a.repeat,
-            "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"),
-            "note": "us per step: median over the states of a short run of the best of `repeat` timings"}
-    data = {"meta": meta, "sizes": rows, "skipped": skipped, "slopes": slopes,
-            "slopes_above_compiled_limit": slopes_python_only, "compiled_limit": compiled.MAX_CONTACTS,
-            "sparse_rows": getattr(qp, "SPARSE_ROWS", None), "target_slope": TARGET_SLOPE, "qp_alone": qp_rows,
-            "qp_alone_slope": fit_slope([{"contacts": r["beads"], "qp": r} for r in qp_rows], "qp")}
-    if a.before:
-        prev = json.loads(a.before.read_text(encoding="utf-8"))
-        data["before"] = {"commit": prev["meta"]["commit"], "note": prev["meta"].get("label", ""),
-                          "slopes": prev["slopes"],
-                          "sizes": {str(r["beads"]): {impl: r[impl]["us"] for impl in IMPLS} for r in prev["sizes"]},
-                          "qp_alone": {str(r["beads"]): r["us"] for r in prev.get("qp_alone", [])}}
+            "states": a.states, "mujoco": mujoco.__version__, "wall_s": time.time() - t_start,
+            "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS")}
+    data = {"meta": meta, "beads": beads, "boxes": boxes, "compiled_limit": compiled.MAX_CONTACTS,
+            "target_slope": TARGET_SLOPE, "qp_alone": qp_rows}
+    data["slopes"] = slopes(data)
+    print("slopes:", {k: round(v, 3) for k, v in data["slopes"].items()})
     (out / "scaling.json").write_text(json.dumps(data, indent=2))
-    if len(rows) >= 2:
-        plot(data, out / "scaling.png")
-    print(f"wrote {out / 'scaling.json'}" + (f" and {out / 'scaling.png'}" if len(rows) >= 2 else ""))
+    plot(data, out / "scaling.png")
+    print(f"wrote {out / 'scaling.json'} and {out / 'scaling.png'}")
     return 0
 
 

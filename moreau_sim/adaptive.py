@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from .actuation import refuse_driven
 from .data import Data, make_data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
@@ -572,6 +573,7 @@ def simulate_adaptive(model: Model, *, state: State | None = None, t_end: float 
     since the previous sample. meta: "integrator": "adaptive", "status", "adaptive" (settings),
     "zeno", "fallbacks", "run" (steps extrapolated / refused / fixed, events, impacts,
     wall_seconds). Raises SimulationError (with .trajectory up to the failure)."""
+    refuse_driven(model, "adaptive")
     data = data or make_data(model)
     state = state or initial_state(model, data)
     opts = model.options

@@ -4,6 +4,7 @@ coexist (model.build_model appends them into one model)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -12,7 +13,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from . import robots
+from . import robots, self_pairs
 from .errors import SceneError, one_line
 from .options import RootJoint
 from .scene import Body
@@ -167,10 +168,11 @@ def _short(value, n: int = 40) -> str:
     return text if len(text) <= n else text[:n - 5] + "...'"
 
 
-def load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str]:
-    """A body's Pinocchio model and collision geometry, names prefixed "<body>/". URDF meshes
-    and MJCF files go through robots.py (package:// resolution, MJCF root joint); meshes become
-    convex hulls or stay BVHs per the body's `meshes` key."""
+def load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str, self_pairs.Authored]:
+    """A body's Pinocchio model and collision geometry, names prefixed "<body>/", its file's text,
+    and what its SRDF says (self_pairs.Authored: disabled pairs by prefixed geometry names,
+    reference poses). URDF meshes and MJCF files go through robots.py (package:// resolution,
+    MJCF root joint); meshes become convex hulls or stay BVHs per the body's `meshes` key."""
     path = body.urdf
     root = root_joint(body, where)
     if body.mjcf:
@@ -199,6 +201,7 @@ def load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str
     check_inertias(m, path, where, "mjcf" if body.mjcf else "urdf")
     robots.apply_mesh_mode(g, body.meshes, f"{path} [{where}]")
     robots.unique_frame_names(m)  # a link and a joint of one name: appendModel would refuse the model
+    authored = self_pairs.read_authored(m, g, body.srdf, where)  # the file's link names: before the prefix
     # prefix every name with the body name so several instances of one URDF can coexist
     p = f"{body.name}/"
     for i in range(1, m.njoints):
@@ -207,7 +210,9 @@ def load_body(body: Body, where: str) -> tuple[pin.Model, pin.GeometryModel, str
         m.frames[i].name = p + m.frames[i].name
     for go in g.geometryObjects:
         go.name = p + go.name
-    return m, g, (path.read_text(encoding="utf-8"))
+    authored = dataclasses.replace(authored, disabled=frozenset(frozenset(p + n for n in pair)
+                                                                for pair in authored.disabled))
+    return m, g, path.read_text(encoding="utf-8"), authored
 
 
 # One mesh loader for every body: coal caches each mesh file (by name, scale and modification

@@ -30,6 +30,7 @@ CONSTANTS = {
     "screen": qp.SCREEN, "dependent": qp.DEPENDENT, "met": qp.MET, "accept": qp.ACCEPT, "refine": qp.REFINE,
     "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA,
     "distinct": constraints.DISTINCT, "guess_min": GUESS_MIN, "distance_failed": DISTANCE_FAILED,
+    "joint_limit": int(FeatureKind.JOINT_LIMIT),
 }
 _EMPTY = np.zeros(0)
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}
@@ -106,6 +107,8 @@ def _analytic(a, b) -> bool:
 def unsupported(model) -> str | None:
     """Why the compiled step never takes this model's steps (None: it takes the ones it covers)."""
     o = model.options
+    if model.prescribed is not None:
+        return "a static with prescribed motion"
     geoms = model.geom.geometryObjects
     if not all(_analytic(geoms[p.first].geometry, geoms[p.second].geometry) for p in model.pairs):
         return "a pair coal resolves by GJK/EPA (warm-started from its previous call)"
@@ -141,7 +144,9 @@ class _Context:
                 np.asarray(model.support_mask, float), float(model.reach), float(model.thinnest_pair),
                 float(o.contact_tolerance), _TUNNELLING[o.tunnelling], o.separating is Separating.ELASTIC,
                 o.slow_impacts is SlowImpacts.PLASTIC, o.bias is Bias.MIDPOINT, bool(model.velocity_bias),
-                o.position_correction is PositionCorrection.PROJECTION, CONSTANTS, _dgesv_pointer())
+                o.position_correction is PositionCorrection.PROJECTION, CONSTANTS, _dgesv_pointer(),
+                np.array([(lim.pair, lim.joint, lim.idx_q, lim.idx_v, lim.sign, lim.bound) for lim in model.limits],
+                         dtype=float).reshape(-1, 6))
 
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its two buffers, laid out as r.layout()
@@ -171,13 +176,21 @@ def counts(data) -> Counter:
     return Counter() if ctx is None else ctx.counts
 
 
-def step(model, data, state: State, h: float, e: float, t1: float) -> StepResult | None:
-    """stepper.step in C++, or None where the Python step must take it (counted in counts(data))."""
+def step(model, data, state: State, h: float, e: float, t1: float, tau: np.ndarray | None = None) -> StepResult | None:
+    """stepper.step in C++, or None where the Python step must take it (counted in counts(data)). tau: the
+    step's joint torques [N or N m] (stepper.torque; None: none), entering the free velocity on both sides."""
     ctx = _context(model, data)
     if ctx.stepper is None:
         ctx.counts[f"python: {ctx.why}"] += 1
         return None
-    r = ctx.stepper.step(state.q, state.u, h, e)
+    if tau is None:
+        r = ctx.stepper.step(state.q, state.u, h, e)
+    else:
+        try:
+            r = ctx.stepper.step(state.q, state.u, h, e, tau)
+        except TypeError:  # an extension built before torques: the Python step takes them
+            ctx.counts["python: joint torques (the compiled step predates them: rebuild)"] += 1
+            return None
     Outcome = _module.Outcome
     if r.outcome is Outcome.FALLBACK:
         ctx.counts[f"python: {r.reason}"] += 1
@@ -186,10 +199,11 @@ def step(model, data, state: State, h: float, e: float, t1: float) -> StepResult
     if r.outcome is Outcome.FLIGHT:
         ctx.counts["flight"] += 1
         u = f["u_next"]
-        return StepResult(State(t1, f["q_next"], u), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None, u_free=u)
+        return StepResult(State(t1, f["q_next"], u), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None, u_free=u,
+                          tau=tau)
     ctx.counts["contact"] += 1
     contacts = Contacts(*(f[k] for k in Contacts.ARRAYS))
     admissible = r.projection is _module.Projection.ADMISSIBLE
     res = QPResult(r.projection.name, True, 0, not admissible, f["v"], f["lam"], f["M"], f["W"], f["v_free"], f["b"])
     return StepResult(State(t1, f["q_next"], f["u_next"]), contacts, f["P"], f["gamma_minus"], f["gamma_plus"],
-                      r.contact_work, res, None, r.correction_energy, u_free=f["u_free"])
+                      r.contact_work, res, None, r.correction_energy, u_free=f["u_free"], tau=tau)

@@ -6,7 +6,7 @@ at corners (docs/theory.md §1, §3, §6).
 
 is the one assembly every caller uses (the stepper, the outcome analysis, the event-driven
 integrator, the benchmarks): M(q) by CRBA (which also fills the WORLD joint Jacobians the rows
-need), the rows, distinct rows, then the corner pieces.
+need), the rows (joint limits' among them, limits.py), distinct rows, then the corner pieces.
 """
 
 from __future__ import annotations
@@ -17,8 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .contacts import Contacts, Corner, FeatureKind
+from .contacts import NO_CONTACTS, Contacts, Corner, FeatureKind
 from .data import Data
+from .limits import limit_rows
 from .model import Model
 from .qp import ordered
 
@@ -41,7 +42,27 @@ def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
                   p[:, 0] * nn[:, 1] - p[:, 1] * nn[:, 0]), axis=1)  # p x n
     R = ordered(nn, J[:3]) + ordered(c, J[3:])  # (2m, nv): A, then B (src/step.cpp contact_rows: the same sums)
     mask = model.support_mask
-    return (R[:m] * mask[contacts.joint_a] - R[m:] * mask[contacts.joint_b]).T
+    W = (R[:m] * mask[contacts.joint_a] - R[m:] * mask[contacts.joint_b]).T
+    lim = contacts.kind == FeatureKind.JOINT_LIMIT
+    if lim.any():  # a joint limit's row is the constant +-e_i (its zero normal gave a zero row above)
+        W[:, lim] = limit_rows(model.limits, contacts.pair[lim], model.nv)
+    return W
+
+
+def closed_limits(model: Model, q: np.ndarray, tol: float) -> Contacts:
+    """The joint limits with g(q) <= tol [rad or m] as contacts (kind JOINT_LIMIT, pair
+    len(model.pairs) + the limit's index, feature = its joint id; no points, zero normals: their rows
+    +-e_i are set by contact_rows). docs/theory.md §2.1."""
+    if not model.limits:
+        return NO_CONTACTS
+    on = [lim for lim in model.limits if lim.gap(q) <= tol]
+    if not on:
+        return NO_CONTACTS
+    k = len(on)
+    z3 = np.zeros((k, 3))
+    return Contacts(np.array([lim.gap(q) for lim in on]), z3, z3, z3, np.array([lim.pair for lim in on], np.int64),
+                    np.full(k, int(FeatureKind.JOINT_LIMIT), np.int64), np.array([lim.joint for lim in on], np.int64),
+                    np.array([lim.joint for lim in on], np.int64), np.zeros(k, np.int64))
 
 
 _UPPER: dict[int, np.ndarray] = {}
@@ -164,8 +185,11 @@ class Constraints:
 
 
 def assemble_constraints(model: Model, data: Data, q: np.ndarray, contacts: Contacts) -> Constraints:
-    """M(q), the rows of `contacts` (detected at q), distinct rows, corner pieces."""
+    """M(q), the rows of `contacts` (detected at q) and of the joint limits closed at q (added unless
+    `contacts` has them already), distinct rows, corner pieces."""
     M = pin.crba(model.pin, data.pin, q, pin.Convention.WORLD)  # also fills data.J (WORLD) for the rows
+    if model.limits and not (contacts.kind == FeatureKind.JOINT_LIMIT).any():
+        contacts = contacts.concat(closed_limits(model, q, model.options.contact_tolerance))
     contacts, W = distinct(contacts, contact_rows(model, data, contacts))
     pieces = None
     if contacts.corners:

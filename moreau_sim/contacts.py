@@ -33,7 +33,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from .data import Data
+from . import broad_phase
+from .data import GATE_MARGIN, Data
 from .model import DISTANCE_FAILED, Model, check_start
 
 
@@ -46,6 +47,7 @@ class FeatureKind(enum.IntEnum):
     PATCH = 2  # corner `feature` of coal's contact patch (the overlap polygon of two parallel faces)
     CORNER = 3  # face `feature` of a corner: the way of staying apart that pushed (docs/theory.md §3)
     SWEPT = 4  # found by the swept test along a fast motion (tunnelling.py; feature 0)
+    JOINT_LIMIT = 5  # a joint's lower or upper position limit (limits.py; feature = the Pinocchio joint id)
 
 
 _SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact
@@ -315,20 +317,28 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     if not model.pairs:
         return NO_CONTACTS
     tol = model.options.contact_tolerance
-    fresh_guesses(gd.collisionRequests)
-    coll = pin.computeCollisions(gm, gd, False)
+    bp = broad_phase.of(model, max(tol, GATE_MARGIN))
+    if bp is None:  # few pairs: coal's narrow phase on all of them in one call
+        fresh_guesses(gd.collisionRequests)
+        pin.computeCollisions(gm, gd, False)
+        hits = [p.index for p in model.pairs if gd.collisionResults[p.index].isCollision()]
+    else:  # the narrow phase on the broad phase's candidates, in pair order (the same results)
+        reqs = gd.collisionRequests
+        cand = bp.candidates(data).tolist()
+        fresh_guesses([reqs[k] for k in cand])
+        hits = [k for k in cand if pin.computeCollision(gm, gd, k)]
     near = _near_polytopes(model, data, tol)
-    if not coll and not near:
+    if not hits and not near:
         data.warm_start_pairs = set()
         return NO_CONTACTS
     margin = tol if corner_margin is None else max(tol, corner_margin)
     found: list = []
     corner_list: list = []
-    for pair in model.pairs:
-        res = gd.collisionResults[pair.index]
-        hit = res.isCollision()
-        if not hit and pair.index not in near:
-            continue
+    hit_set = set(hits)
+    for k in sorted(hit_set | near):
+        pair = model.pairs[k]
+        res = gd.collisionResults[k]
+        hit = k in hit_set
         start = len(found)
         na, nb = len(model.vertices[pair.first]), len(model.vertices[pair.second])
         start_c = len(corner_list)

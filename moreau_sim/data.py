@@ -7,7 +7,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from .model import Model
+from .model import Model, new_data
 
 GJK_TOLERANCE = 1e-12  # coal's GJK/EPA tolerances for the contact normal (default 1e-6 is too coarse)
 # Faces parallel to within this [m] over their extent form a contact patch. Coal's EPA normal of
@@ -43,7 +43,8 @@ class Data:
     Create one per thread and per run with :func:`make_data`; the state itself is in State."""
 
     def __init__(self, model: Model):
-        self.pin = model.pin.createData()
+        where = str(model.scene.path) if model.scene.path else model.scene.name
+        self.pin = new_data(model.pin, f"{where} ({len(model.bodies)} bodies)")  # or a SceneError naming its size
         # GeometryData must be created after every geometry and pair exists (segfault otherwise).
         self.geom = pin.GeometryData(model.geom)
         # proxies of the pairs' distance results, made once: they read the live results after each

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from .actuation import refuse_driven
 from .data import Data, make_data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
@@ -181,20 +182,23 @@ class EventDrivenRun:
         near = {i for i, g in zip(free, g0) if 0.5 * G_RES <= g < G_DIP}
         qb = q.copy()
         events, tags = self._phase_events(qb, C, free, low, near)
-        sol = solve_ivp(self._rhs(qb, C), (t, self.t_end), np.concatenate((np.zeros(nv), u)), method=self.method,
-                        dense_output=True, events=events or None, rtol=self.rtol, atol=self.atol,
-                        max_step=self._max_step(q, u, C, low))
+        # in the phase's own time tau = t - t_phase (docs/theory.md §7): an event near the phase's start is
+        # located to ulp(tau), not ulp(t) (at t >= 64 s one ulp of t moves a ball at 4 m/s by 6e-14 m > G_RES/2)
+        sol = solve_ivp(self._rhs(qb, C), (0.0, self.t_end - t), np.concatenate((np.zeros(nv), u)),
+                        method=self.method, dense_output=True, events=events or None, rtol=self.rtol,
+                        atol=self.atol, max_step=self._max_step(q, u, C, low))
         if sol.status < 0:
             raise SimulationError(f"solve_ivp failed: {sol.message}")
-        t_stop, end = float(sol.t[-1]), sol.status == 0
+        tau_stop, end = float(sol.t[-1]), sol.status == 0
         y_stop = sol.y[:, -1]
         if not end:  # a gap that dipped below 0 within one ODE step: stop where it crossed
-            t_cross = self._crossing(sol, qb, t, t_stop, [i for i in free if i not in low])
-            if t_cross is not None:
-                t_stop, y_stop = t_cross, sol.sol(t_cross)
+            tau_cross = self._crossing(sol, qb, 0.0, tau_stop, [i for i in free if i not in low])
+            if tau_cross is not None:
+                tau_stop, y_stop = tau_cross, sol.sol(tau_cross)
+        t_stop = self.t_end if end else t + tau_stop
 
         def dense(tg: float):
-            y = sol.sol(tg)
+            y = sol.sol(min(tg - t, tau_stop))
             return self.q_of(qb, y[:nv]), y[nv:]
         samples = (Segment(dense, t_stop, end, len(C)),)
         if end:
@@ -204,11 +208,12 @@ class EventDrivenRun:
         self.events += 1
         if self.events > self.max_events:
             raise SimulationError(f"more than {self.max_events} events")
-        self.stuck = self.stuck + 1 if t_stop - t < 1e-13 else 0
+        self.stuck = self.stuck + 1 if tau_stop < 1e-13 else 0
         if self.stuck > 100:
             raise SimulationError("100 events without time advancing")
         self.state = State(t_stop, self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy())
-        stopped = [(kind, i) for (kind, i), te in zip(tags, sol.t_events) if len(te) and abs(te[-1] - t_stop) <= 1e-12]
+        stopped = [(kind, i) for (kind, i), te in zip(tags, sol.t_events)
+                   if len(te) and abs(te[-1] - tau_stop) <= 1e-12]
         self.released = frozenset(i for kind, i in stopped if kind in ("release", "open"))
         self.opened = frozenset(i for kind, i in stopped if kind == "open")
         return Report(Status.RUNNING, t_stop, self.state, records, work, segments=samples)
@@ -266,6 +271,7 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     accumulation points declared: t, t_accumulation, speed, pairs), "reference" (tolerances and
     thresholds), "run" (events, impacts, nfev, wall_seconds). Raises UnsupportedModel for a pair
     without an analytic gap, SimulationError (with .trajectory up to the failure) otherwise."""
+    refuse_driven(model, "event-driven")
     data = data or make_data(model)
     state = state or initial_state(model, data)
     t_end, t_grid = sample_grid(model, state, t_end, t_eval)

@@ -1,5 +1,5 @@
-"""The contact layer's per-feature gaps (docs/theory.md §7, §7.1, §7.2): each feature of a
-collision pair with its gap g, row w, drift Wdot' u and gamma = w' u, computed from (q, u) alone:
+"""The contact layer's per-feature gaps (docs/theory.md §7, §7.1, §7.2): each feature of a collision
+pair (and each joint limit, limits.py) with its gap g, row w, drift Wdot' u and gamma = w' u, from (q, u):
 :meth:`Gaps.features` returns everything it computes (FeatureState) and keeps nothing between calls.
 The decisions at events that use them are in event_rules.py."""
 
@@ -13,6 +13,7 @@ import pinocchio as pin
 
 from .data import Data
 from .errors import MoreauSimError, SimulationError
+from .limits import JointLimit
 from .model import Model
 
 G_RES = 1e-13  # [m] smallest gap whose sign is trusted (~3000x the rounding of positions ~ 1 m)
@@ -31,7 +32,7 @@ class Feature:
     length hl) with cap `feature` (0: +hl, 1: -hl) against the plane (n, d) or the static box (R,
     p_b, h), or with the box's edge `feature`; "sphere_cylinder": the sphere (p on joint_a, r)
     against the cylinder (p_b, a on joint_b, r_b, hl); "vertex_box", "edge_edge": feature
-    `feature` of the box pair `box` (:class:`BoxPair`)."""
+    `feature` of the box pair `box` (:class:`BoxPair`); "joint_limit": the joint limit `limit`."""
 
     kind: str
     pair: int
@@ -49,6 +50,7 @@ class Feature:
     box: "BoxPair | None" = None  # "vertex_box" / "edge_edge": the pair's geometry (vectorized kinds)
     a: np.ndarray = field(default_factory=lambda: np.zeros(3))  # cylinder kinds: unit axis (its joint's frame)
     hl: float = 0.0  # cylinder kinds: half length [m]
+    limit: "JointLimit | None" = None  # "joint_limit": g = sign (q_i - bound), row sign e_i, no drift (limits.py)
 
 
 ARC_TOL = 1e-9  # an edge pair's normal may leave the edges' normal cones by this (face on face: at their ends)
@@ -176,7 +178,8 @@ def feature_list(model: Model) -> tuple[Feature, ...]:
                                f"{type(sb).__name__}): the feature integrators have gaps for polytope, sphere or "
                                "cylinder vs half-space, sphere vs sphere, sphere or cylinder vs static box, sphere "
                                "vs cylinder and box vs box only")
-    return tuple(out)
+    return tuple(out) + tuple(Feature("joint_limit", lim.pair, lim.joint, lim.joint, 0, np.zeros(3), limit=lim)
+                              for lim in model.limits)
 
 
 CYLINDER_KINDS = ("rim_plane", "rim_box", "side_edge", "sphere_cylinder")
@@ -267,8 +270,7 @@ class Gaps:
     def __init__(self, model: Model, data: Data, feats: tuple[Feature, ...], gap_tol: float):
         self.model, self.data, self.feats, self.gap_tol = model, data, feats, gap_tol
         self.pm, self.pd = model.pin, data.pin
-        self.nv = model.nv
-        self.zero = np.zeros(self.nv)
+        self.nv, self.zero = model.nv, np.zeros(model.nv)
         self._pair_names = {p.index: p.name for p in model.pairs}
 
     # ---- kinematics of the features -------------------------------------------------------
@@ -310,6 +312,9 @@ class Gaps:
         boxes: dict = {}
         for col, i in enumerate(idx):
             f = self.feats[i]
+            if f.limit is not None:  # a joint limit: constant row, no curvature term (drift 0)
+                g[col], W[f.limit.idx_v, col] = f.limit.gap(q), f.limit.sign
+                continue
             if f.box is not None:  # box-box kinds: vectorized per pair, below
                 entry = boxes.get(f.pair)
                 if entry is None:
@@ -360,10 +365,7 @@ class Gaps:
     # ---- cylinder kinds (docs/theory.md §7.2) ---------------------------------------------------
     def _frame0(self, j: int):
         """_frame(j), or the world's (at rest) for j = 0."""
-        if j == 0:
-            z = np.zeros(3)
-            return np.eye(3), z, z, z, z, z
-        return self._frame(j)
+        return (np.eye(3),) + (np.zeros(3),) * 5 if j == 0 else self._frame(j)
 
     def _cylinder(self, f: Feature, rows: bool):
         """(g, w (nv,) or None, drift) of a cylinder feature (docs/theory.md §7.2); self._exact:
@@ -680,7 +682,6 @@ class Gaps:
             extra[e_sel] = 2.0 * (ndot * dv[e_sel]).sum(axis=1) - np.where(ok, d, 0.0) * (ndot * ndot).sum(axis=1)
         self.box_points[bp.pair] = (which, P_a, P_b, nn)  # contact points and normals (_missed_features)
         return g, self._rows(JA, JB, P_a, P_b, nn), (nn * da).sum(axis=1) + extra
-
 
     def thin_limit(self, u: np.ndarray, a: np.ndarray) -> float:
         """The longest step h [s] over which no point can travel the thinnest pair's extent

@@ -9,7 +9,9 @@ One step from (q_k, u_k), with the law's frame at the midpoint q_m, M = M(q_m):
     law          L = (1 - e^2)/2 |u- - v|_M^2 - P.b   (b: the per-contact bounds of §2.7, else 0)
     smooth error S = E(q_m (+) h/2 u_free, u_free) - E(q_k, u_k)    (the step without its contacts)
 
-and the budget E_end - E_0 = sum W_c + sum correction + sum S + residual. Recorder fills the
+and the budget E_end - E_0 = sum W_c + sum correction + sum S + sum W_a + sum W_o + residual, with the
+work done on the system (§5.5): the torques' W_a = h tau.(u_k + u_{k+1})/2 and the moving statics'
+W_o = -P.dg/dt (S is then the contact-free step's change less its own torque work). Recorder fills the
 arrays (recording.py); this module reads them. Units: J, s.
 """
 
@@ -61,8 +63,9 @@ class Ledger:
     """The energy ledger of a run (docs/theory.md §5). Energies [J], times [s].
 
     energy_start/end: T + V at the first/last sample; scale: max(|E_0|, max T), the energy the
-    relative tolerances refer to; contact_work, correction, smooth_error, dissipation, law: the
-    run's totals; residual = E_end - E_0 - (contact_work + correction + smooth_error);
+    relative tolerances refer to; contact_work, correction, smooth_error, dissipation, law,
+    actuator_work, obstacle_work (the work done on the system, §5.5; 0 in a passive run): the run's
+    totals; residual = E_end - E_0 - (contact_work + correction + smooth_error + actuator_work + obstacle_work);
     max_step_rise: the largest increase of T + V over one step, less the energy the position
     correction booked in it (docs/theory.md §2.5) (at t_step_rise, the step's end; in
     event-driven and adaptive runs, over one stretch of smooth motion between samples and events);
@@ -91,13 +94,15 @@ class Ledger:
     t: np.ndarray
     E: np.ndarray
     residuals: np.ndarray
+    actuator_work: float = 0.0
+    obstacle_work: float = 0.0
 
     def totals(self) -> dict[str, float]:
         """The per-run figures by name (what a baseline records and compares)."""
         return {"energy_start": self.energy_start, "energy_end": self.energy_end, "contact_work": self.contact_work,
                 "correction": self.correction, "smooth_error": self.smooth_error, "dissipation": self.dissipation,
                 "law": self.law, "residual": self.residual, "max_step_rise": self.max_step_rise,
-                "impacts": len(self.impacts)}
+                "impacts": len(self.impacts), "actuator_work": self.actuator_work, "obstacle_work": self.obstacle_work}
 
     def record(self) -> dict:
         """A JSON-able record for a baseline: the totals, every impact, E(t) at <= BASELINE_SAMPLES samples."""
@@ -115,6 +120,9 @@ class Ledger:
                  f"  contact work     {self.contact_work:+.6e} J",
                  f"  correction       {self.correction:+.6e} J",
                  f"  smooth error     {self.smooth_error:+.6e} J",
+                 *([f"  actuator work    {self.actuator_work:+.6e} J",
+                    f"  obstacle work    {self.obstacle_work:+.6e} J"] if self.actuator_work or self.obstacle_work
+                   else []),
                  f"  residual         {self.residual:+.6e} J  ({_rel(self.residual, s)} of scale)",
                  f"  dissipation      {self.dissipation:.6e} J, law {self.law:.6e} J, largest step difference "
                  f"{self.max_law_difference:.2e} J ({_rel(self.max_law_difference, s)}) "
@@ -153,6 +161,9 @@ def ledger(traj: Trajectory) -> Ledger:
     if not len(E):
         E = np.zeros(1)
     budget = a["contact_work"] + a["correction_energy"] + a["smooth_error"]
+    act, obs = (a.get(k, np.zeros(len(a["t"]))) for k in ("actuator_work", "obstacle_work"))
+    if "actuator_work" in a:
+        budget = budget + act + obs
     residuals = np.r_[0.0, np.diff(E) - budget[1:]] if len(a["t"]) else np.zeros(0)
     scale = max(abs(float(E[0])), float(a["kinetic_energy"].max(initial=0.0)))
     impacts = tuple(ImpactRow(int(s), float(t), int(c), float(tm), float(tp), float(d), float(p))
@@ -167,14 +178,15 @@ def ledger(traj: Trajectory) -> Ledger:
         law=float(a["law_dissipation"].sum()), residual=float(E[-1] - E[0] - budget[1:].sum()),
         max_step_rise=float(led["max_step_rise"]), t_step_rise=_time(led["t_step_rise"]),
         max_law_difference=float(led["max_law_difference"]), t_law_difference=_time(led["t_law_difference"]),
-        contact_steps=int(led["contact_steps"]), impacts=impacts, t=a["t"], E=E, residuals=residuals)
+        contact_steps=int(led["contact_steps"]), impacts=impacts, t=a["t"], E=E, residuals=residuals,
+        actuator_work=float(act.sum()), obstacle_work=float(obs.sum()))
 
 
 # ---- comparison with a baseline record -----------------------------------------------------------
 
 DEFAULT_TOLERANCE = (1e-6, 1e-9)  # (rtol, atol [J]) of every quantity unless given
 TOTALS = ("energy_start", "energy_end", "contact_work", "correction", "smooth_error", "dissipation", "law", "residual",
-          "max_step_rise", "impacts")  # the keys of Ledger.totals()
+          "max_step_rise", "impacts", "actuator_work", "obstacle_work")  # the keys of Ledger.totals()
 QUANTITIES = TOTALS + ("impact_t", "impact_dissipated", "energy", "default")  # what a tolerance can name
 
 

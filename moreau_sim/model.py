@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from dataclasses import InitVar, dataclass
 from pathlib import Path
 
@@ -14,10 +15,13 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from . import shapes
+from . import actuation as act, limits, prescribed as presc, self_pairs, shapes
+from .actuation import Actuation
 from .bodies import load_body
 from .errors import SceneError
+from .limits import UNLIMITED
 from .options import Options, RootJoint
+from .prescribed import Prescribed
 from .scene import Scene
 from .state import State
 
@@ -60,7 +64,13 @@ class Model:
     face normals of a polytope in its joint frame (empty otherwise); face_planes[g]: a box's
     (normals, offsets) in its joint frame, else None; vertex_edges[g]: the edge directions leaving
     each vertex (corner detection in contacts.py); support_mask[j]: 1 on the
-    velocity indices that move joint j; q0/u0: the initial state.
+    velocity indices that move joint j; q0/u0: the initial state; excluded: the pairs the
+    automatic rule would make that are left out, each with why (the SRDF, an overlap at a reference
+    pose, the scene's [collisions] exclude);
+    limits: the joint limits (limits.JointLimit: unilateral constraints of the same law, pair indices
+    after the pairs');
+    actuation: the joint torques (actuation.py; None: none); prescribed: the statics that move
+    (prescribed.py; None: none).
     """
 
     scene: Scene
@@ -77,9 +87,14 @@ class Model:
     geometry_body: tuple[str, ...]
     q0: np.ndarray
     u0: np.ndarray
-    scratch: InitVar[pin.Data | None] = None  # a Data of `pin` to reuse for the checks below
+    excluded: tuple[tuple[str, str], ...] = ()  # (pair name, why): automatic pairs left out (build_model)
+    limits: tuple = ()  # limits.JointLimit of every limited joint of the bodies with joint_limits on
+    actuation: Actuation | None = None
+    prescribed: Prescribed | None = None
+    scratch: InitVar[pin.Data | None] = None  # a Data of `pin` for the velocity-bias probe below, if not given
+    velocity_bias_of_bodies: InitVar[bool | None] = None  # that probe made body by body (build_model)
 
-    def __post_init__(self, scratch):
+    def __post_init__(self, scratch, velocity_bias_of_bodies):
         pj = np.array([(p.joint_first, p.joint_second) for p in self.pairs], dtype=np.int64).reshape(-1, 2)
         pj.setflags(write=False)
         object.__setattr__(self, "_pair_joints", pj)
@@ -92,8 +107,8 @@ class Model:
             geo.computeLocalAABB()
             b = geo.aabb_local
             return float(min(b.width(), b.height(), b.depth()))
-        object.__setattr__(self, "_thinnest_pair", min([extent(p.first) + extent(p.second) for p in self.pairs]
-                                                       + [np.inf]))
+        ext = [extent(g) for g in range(len(self.geom.geometryObjects))]  # once per geometry, not per pair
+        object.__setattr__(self, "_thinnest_pair", min([ext[p.first] + ext[p.second] for p in self.pairs] + [np.inf]))
         object.__setattr__(self, "_polytope_pairs", tuple(
             (p.index, p.first, p.second, p.joint_first, p.joint_second) for p in self.pairs
             if len(self.vertices[p.first]) and len(self.vertices[p.second])
@@ -103,12 +118,10 @@ class Model:
             and len(self.vertices[p.first]) and len(self.vertices[p.second])))
         # does h(q, u) depend on u (Coriolis, gyroscopic)? A random state tells (structurally zero
         # for translations and prismatic chains); stepper.free_velocity skips the midpoint iteration.
-        rng = np.random.default_rng(0)
-        d = scratch if scratch is not None else new_data(self.pin, self.scene.name)
-        qr = pin.randomConfiguration(self.pin, -np.ones(self.nq), np.ones(self.nq))
-        ur = rng.standard_normal(self.nv)
-        c = pin.nonLinearEffects(self.pin, d, qr, ur) - pin.nonLinearEffects(self.pin, d, qr, np.zeros(self.nv))
-        object.__setattr__(self, "_velocity_bias", bool(np.abs(c).max(initial=0.0) > 1e-12))
+        if velocity_bias_of_bodies is None:
+            d = scratch if scratch is not None else new_data(self.pin, self.scene.name)
+            velocity_bias_of_bodies = _velocity_bias(self.pin, d)
+        object.__setattr__(self, "_velocity_bias", bool(velocity_bias_of_bodies))
 
     @property
     def options(self) -> Options:
@@ -190,6 +203,22 @@ class Model:
                 u_units += uu
         return {"q_names": q_names, "u_names": u_names, "q_units": q_units, "u_units": u_units}
 
+    def joints(self) -> list[dict]:
+        """Every joint in the order of q: name, type, its index ranges in q and u ([start, stop)),
+        and its position limits from the Pinocchio model (lower, upper per coordinate; None where
+        unlimited, and for every joint but a revolute or prismatic one: a quaternion's or a
+        continuous joint's (cos, sin) bounds are no limits)."""
+        out = []
+        for j in sorted(range(1, self.pin.njoints), key=lambda j: self.pin.joints[j].idx_q):
+            jm = self.pin.joints[j]
+            sl = slice(jm.idx_q, jm.idx_q + jm.nq)
+            kind = joint_type(jm)
+            lim = [[None if not abs(x) < UNLIMITED or not kind.startswith(("revolute", "prismatic")) else float(x)
+                    for x in v[sl]] for v in (self.pin.lowerPositionLimit, self.pin.upperPositionLimit)]
+            out.append({"name": self.pin.names[j], "type": kind, "q": [sl.start, sl.stop],
+                        "u": [jm.idx_v, jm.idx_v + jm.nv], "lower": lim[0], "upper": lim[1]})
+        return out
+
     def describe(self) -> dict:
         """A JSON-able summary (for `moreau-sim info` and output metadata)."""
         o = self.options
@@ -197,11 +226,16 @@ class Model:
             "scene": self.scene.name,
             "nq": self.nq,
             "nv": self.nv,
+            "joints": self.joints(),
             "bodies": [{"name": b.name, "root_joint": b.root_joint.value, "nq": b.q_slice.stop - b.q_slice.start,
                         "nv": b.v_slice.stop - b.v_slice.start, "urdf": str(b.urdf),
-                        "joints": [self.pin.names[j] for j in b.joints]} for b in self.bodies],
+                        "srdf": None if s.srdf is None else str(s.srdf),
+                        "joints": [self.pin.names[j] for j in b.joints]}
+                       for b, s in zip(self.bodies, self.scene.bodies)],
             "geometries": [g.name for g in self.geom.geometryObjects],
             "collision_pairs": list(self.pair_names),
+            "excluded_pairs": [{"pair": name, "why": why} for name, why in self.excluded],
+            "joint_limits": [{"pair": lim.pair, "name": lim.name, "bound": lim.bound} for lim in self.limits],
             "restitution": o.restitution,
             "dt": o.dt,
             "duration": o.duration,
@@ -216,10 +250,12 @@ def build_model(scene: Scene) -> Model:
     model.name = scene.name
     body_of_joint: dict[int, str] = {}
     geometry_body: list[str] = []
-    infos = []
+    infos, authored, body_models = [], [], []  # body_models: each body's own Pinocchio model (M checked on it)
     for i, body in enumerate(scene.bodies):
         w = f"{where} [[bodies]][{i}] ({body.name})"
-        m, g, _ = load_body(body, w)
+        m, g, _, said = load_body(body, w)
+        authored.append(said)
+        body_models.append(m)
         placement = pin.SE3(pin.rpy.rpyToMatrix(*body.rpy), np.array(body.position, float))
         if body.root_joint is RootJoint.FREE:
             placement = pin.SE3.Identity()  # a free body's pose is its q (world frame): see _initial
@@ -238,6 +274,7 @@ def build_model(scene: Scene) -> Model:
         else:
             q_sl = v_sl = slice(model.nq, model.nq)
         infos.append(BodyInfo(body.name, body.root_joint, joints, q_sl, v_sl, body.urdf))
+    first_static = geom.ngeoms
     for s in scene.statics:
         shape, placement = shapes.static_shape(s)
         geom.addGeometryObject(pin.GeometryObject(s.name, 0, 0, placement, shape))
@@ -245,9 +282,11 @@ def build_model(scene: Scene) -> Model:
     model.gravity.linear = np.array(scene.options.gravity, float)
     if model.nv == 0:
         raise SceneError(f"{where} [[bodies]]: nothing moves (every body has a fixed root and no joints)")
-    # the one Data of model building, allocated (or refused by size) before any O(nv^2) work
+    # no Data of the whole model here: its size is checked (refused by estimate, before any O(nv^2)
+    # work); the mass matrix and the velocity bias are checked body by body, on each body's own model
     body, info = max(zip(scene.bodies, infos), key=lambda bi: bi[1].v_slice.stop - bi[1].v_slice.start)
-    d = new_data(model, f"{where} (largest body: {body.urdf}, nv = {info.v_slice.stop - info.v_slice.start})")
+    check_data_size(model, f"{where} ({len(scene.bodies)} bodies; the largest: {body.urdf}, "
+                           f"nv = {info.v_slice.stop - info.v_slice.start})")
 
     # --- collision pairs: different joints, not both static, not a link and its parent
     gobs = list(geom.geometryObjects)
@@ -264,39 +303,56 @@ def build_model(scene: Scene) -> Model:
                 raise SceneError(f"{where} [collisions] {key}: '{name}' names no body, static, link or geometry")
         return [(min(x, y), max(x, y)) for x in ia for y in ib if x != y]
 
-    chosen = set()
-    for i in range(len(gobs)):
-        for j in range(i + 1, len(gobs)):
-            ji, jj = gobs[i].parentJoint, gobs[j].parentJoint
-            if ji == jj:
-                continue  # one rigid body (or both static)
-            if geometry_body[i] == geometry_body[j] and (model.parents[ji] == jj or model.parents[jj] == ji):
-                continue  # a link and its parent in one body
-            chosen.add((i, j))
+    chosen, why = set(), {}
+    disabled = frozenset().union(*(a.disabled for a in authored))
+    for i, j in _default_pairs(model, gobs, geometry_body):
+        if frozenset((gobs[i].name, gobs[j].name)) in disabled:
+            why[(i, j)] = "disabled by the SRDF"
+            continue  # the robot's author disabled it (self_pairs.read_authored)
+        chosen.add((i, j))
+    included = set()
     for a, b in scene.collisions.include:
         for i, j in pairs_matching(a, b, "include"):
             if gobs[i].parentJoint == gobs[j].parentJoint:
                 raise SceneError(f"{where} [collisions] include: {gobs[i].name} and {gobs[j].name} "
                                  "are on one rigid body (or both static) and can never touch")
             chosen.add((i, j))
+            included.add((i, j))
+            why.pop((i, j), None)
     for a, b in scene.collisions.exclude:
-        chosen -= set(pairs_matching(a, b, "exclude"))
+        for ij in set(pairs_matching(a, b, "exclude")) & chosen:
+            chosen.discard(ij)
+            why[ij] = "[collisions] exclude"
+    poses = [[(name, _in_scene(model, info, pose)) for name, pose in said.poses] for info, said in zip(infos, authored)]
+    own = {(i, j) for i, j in chosen - included if geometry_body[i] == geometry_body[j]}  # self pairs
+    d = new_data(model, where, checked=True) if own else None  # a Data of the whole model only for them
+    for body, found in zip(scene.bodies, [] if not own else self_pairs.leave_out_overlapping(
+            model, d, geom, [b.name for b in scene.bodies], poses, geometry_body, own,
+            scene.options.contact_tolerance)):
+        for ij, (dist, pose) in found.items():
+            chosen.discard(ij)
+            why[ij] = f"overlaps {-dist:.3g} m at the reference pose {pose}"
+        if found:
+            listed = ", ".join(f"{_pair_name(gobs, i, j)} ({-dist * 1e3:.3g} mm at {pose})"
+                               for (i, j), (dist, pose) in sorted(found.items()))
+            warnings.warn_explicit(f"{len(found)} self pair(s) of body {body.name} overlap at its reference pose(s) "
+                                   f"and are left out: {listed}; to keep one, name it in [collisions] include "
+                                   f"[{where}]", UserWarning, str(body.urdf), 0)
     pairs = []
     geom.removeAllCollisionPairs()  # appendModel pairs the bodies' geometries itself: start clean
+    half = [isinstance(go.geometry, (coal.Halfspace, coal.Plane)) for go in gobs]
+    poly = [len(shapes.vertices(go.geometry, go.placement)) > 0 for go in gobs]
+    flat = [isinstance(go.geometry, shapes.FLAT) for go in gobs]  # a patch needs two flat faces
     for k, (i, j) in enumerate(sorted(chosen)):
         # shape 1 = the moving one with the larger joint id: normals then point from it to the other
         if gobs[i].parentJoint < gobs[j].parentJoint:
             i, j = j, i
         geom.addCollisionPair(pin.CollisionPair(i, j))
-        assert geom.collisionPairs[k].first == i and geom.collisionPairs[k].second == j
-        half = [isinstance(gobs[x].geometry, (coal.Halfspace, coal.Plane)) for x in (i, j)]
-        poly = [len(shapes.vertices(gobs[x].geometry, gobs[x].placement)) > 0 for x in (i, j)]
-        flat = [isinstance(gobs[x].geometry, shapes.FLAT) for x in (i, j)]  # a patch needs two flat faces
-        patch = all(flat) and not ((half[0] and poly[1]) or (half[1] and poly[0]))
-        pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, f"{gobs[i].name}|{gobs[j].name}",
-                          patch))
+        patch = flat[i] and flat[j] and not ((half[i] and poly[j]) or (half[j] and poly[i]))
+        pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, _pair_name(gobs, i, j), patch))
 
     vertices = tuple(shapes.vertices(go.geometry, go.placement) for go in gobs)
+    moving = presc.build(geom, scene.statics, first_static, pairs, vertices, where)  # placed at t = 0
     bounds = tuple(shapes.distance_bound(go.geometry, go.placement) for go in gobs)
     face_normals = tuple(shapes.face_normals(go.geometry, go.placement) for go in gobs)
     face_planes = tuple(shapes.face_planes(go.geometry, go.placement) for go in gobs)
@@ -309,12 +365,52 @@ def build_model(scene: Scene) -> Model:
     mask.setflags(write=False)
 
     q0, u0 = _initial(scene, model, infos, where)
-    _check_mass_matrix(model, d, q0, where)
+    bias = _check_bodies(scene, body_models, infos, q0, where)
+    actuation = act.build(model, infos, scene.actuators, q0)
+    limited = [j for body, info in zip(scene.bodies, infos) if body.joint_limits
+               for j in info.joints[(body.root_joint is not RootJoint.FIXED):]]  # a root joint has no limits
+    joint_limits = limits.joint_limits(model, limited, len(pairs))
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
-                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, scratch=d)
+                 bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, limits=joint_limits,
+                 actuation=actuation, prescribed=moving,
+                 excluded=tuple((_pair_name(gobs, i, j), w) for (i, j), w in sorted(why.items())),
+                 velocity_bias_of_bodies=bias)
+
+
+def _in_scene(model: pin.Model, info: BodyInfo, pose: np.ndarray) -> np.ndarray:
+    """A body's pose (its own q) as the scene's q: the other bodies at their neutral q."""
+    q = pin.neutral(model)
+    q[info.q_slice] = pose
+    return q
+
+
+def _pair_name(gobs, i: int, j: int) -> str:
+    """"first|second": the geometry on the larger joint id first (shape 1 of the pair: build_model)."""
+    i, j = (j, i) if gobs[i].parentJoint < gobs[j].parentJoint else (i, j)
+    return f"{gobs[i].name}|{gobs[j].name}"
+
+
+def _default_pairs(model: pin.Model, gobs: list, geometry_body: list) -> list[tuple[int, int]]:
+    """(i, j), i < j, of every two geometries on different joints (not both static) that are not a
+    link and its parent in one body: the pairs of a scene without [collisions] (the detection's
+    broad phase, broad_phase.py, keeps the narrow phase to the pairs that are near)."""
+    G = len(gobs)
+    if G < 2:
+        return []
+    joint = np.array([go.parentJoint for go in gobs], dtype=np.int64)
+    parent = np.array(list(model.parents), dtype=np.int64)[joint]
+    _, body = np.unique(np.array(geometry_body, dtype=object).astype(str), return_inverse=True)
+    out: list[tuple[int, int]] = []
+    for i in range(G - 1):  # a row at a time: O(G) memory besides the pairs themselves
+        j = np.arange(i + 1, G)
+        keep = (joint[j] != joint[i]) & ~((body[j] == body[i]) & ((parent[j] == joint[i]) | (parent[i] == joint[j])))
+        out += [(i, int(k)) for k in j[keep]]
+    return out
 
 
 DATA_BYTES_PER_NV3 = 32  # Pinocchio 4.1's Data: four nv x nv x nv tensors of doubles (second-order derivatives)
+DATA_PEAK = 2  # createData's peak RSS is twice that (measured at nv = 300: 1.70 GB for 0.86 GB of tensors)
+DATA_LIMIT_VARIABLE = "MOREAU_SIM_DATA_LIMIT_GB"  # overrides the limit of check_data_size [GiB]
 
 
 def available_memory() -> int | None:
@@ -341,25 +437,85 @@ def available_memory() -> int | None:
     return avail
 
 
-def new_data(model: pin.Model, where: str) -> pin.Data:
-    """``model.createData()``, or a SceneError naming `where`, the size and what needs it when the
-    Data cannot be allocated: Pinocchio 4.1 allocates DATA_BYTES_PER_NV3 * nv^3 bytes in every Data
-    whatever algorithms run (upstream stack-of-tasks/pinocchio#2949), 32 GB at nv = 1000."""
-    need, avail = DATA_BYTES_PER_NV3 * model.nv ** 3, available_memory()
-    msg = (f"{where}: the model has nv = {model.nv} degrees of freedom and Pinocchio 4.1's Data allocates four "
-           f"nv x nv x nv tensors, {need / 2 ** 30:.3g} GiB")
-    if avail is not None and need > avail:
-        raise SceneError(f"{msg}, more than the {avail / 2 ** 30:.3g} GiB of memory available")
+def _data_message(model: pin.Model, where: str) -> tuple[int, str]:
+    need = DATA_BYTES_PER_NV3 * model.nv ** 3
+    return need, (f"{where}: the model has nv = {model.nv} degrees of freedom and Pinocchio 4.1's Data allocates "
+                  f"four nv x nv x nv tensors, {need / 2 ** 30:.3g} GiB (twice that while it is built)")
+
+
+def data_limit() -> tuple[int | None, str]:
+    """The most one Pinocchio Data may take [bytes] and what sets it: $MOREAU_SIM_DATA_LIMIT_GB [GiB]
+    if set, else the memory available (available_memory; None if unknown). Refusing by this estimate
+    comes before the allocation because Linux overcommits: a Data over the free memory is often not
+    a MemoryError but pages touched later and the process killed by the OOM killer."""
+    text = os.environ.get(DATA_LIMIT_VARIABLE)
+    if text:
+        try:
+            gib = float(text)
+        except ValueError:
+            raise SceneError(f"${DATA_LIMIT_VARIABLE} = {text!r}: a number of GiB expected") from None
+        return int(gib * 2 ** 30), f"the limit ${DATA_LIMIT_VARIABLE} = {text} GiB"
+    avail = available_memory()
+    return avail, "" if avail is None else (f"the {avail / 2 ** 30:.3g} GiB of memory available "
+                                            f"(${DATA_LIMIT_VARIABLE} sets another limit)")
+
+
+def check_data_size(model: pin.Model, where: str) -> None:
+    """A SceneError naming `where`, nv and the size when one Data of `model` would exceed data_limit() at
+    its peak (DATA_PEAK times its tensors):
+    Pinocchio 4.1 allocates DATA_BYTES_PER_NV3 * nv^3 bytes in every Data whatever algorithms run
+    (upstream stack-of-tasks/pinocchio#2949), 32 GB at nv = 1000."""
+    need, msg = _data_message(model, where)
+    limit, what = data_limit()
+    if limit is not None and DATA_PEAK * need > limit:
+        raise SceneError(f"{msg}, more than {what}")
+
+
+def new_data(model: pin.Model, where: str, *, checked: bool = False) -> pin.Data:
+    """``model.createData()`` after check_data_size (unless `checked`: a larger model's passed), or a
+    SceneError naming `where` and the size when the allocation fails all the same (MemoryError, or
+    std::bad_alloc as a RuntimeError)."""
+    if not checked:
+        check_data_size(model, where)
     try:
         return model.createData()
     except MemoryError:
-        raise SceneError(f"{msg}, which could not be allocated") from None
+        pass
+    except RuntimeError as exc:
+        if "alloc" not in str(exc):
+            raise
+    raise SceneError(f"{_data_message(model, where)[1]}, which could not be allocated") from None
+
+
+def _velocity_bias(model: pin.Model, data: pin.Data) -> bool:
+    """Whether h(q, u) depends on u at a random state (Coriolis, gyroscopic terms)."""
+    rng = np.random.default_rng(0)
+    qr = pin.randomConfiguration(model, -np.ones(model.nq), np.ones(model.nq))
+    ur = rng.standard_normal(model.nv)
+    c = pin.nonLinearEffects(model, data, qr, ur) - pin.nonLinearEffects(model, data, qr, np.zeros(model.nv))
+    return bool(np.abs(c).max(initial=0.0) > 1e-12)
+
+
+def _check_bodies(scene: Scene, body_models: list, infos, q0: np.ndarray, where: str) -> bool:
+    """The mass matrix and the velocity bias body by body, each on the body's own Pinocchio model
+    and a Data of its size: every body hangs from the world (pin.appendModel at joint 0), so M is
+    block diagonal by bodies and its block of a body is that body's M (its root placement only
+    changes the world frame). Linear in bodies; no nv^3 Data of the whole model. Returns whether
+    any body's h(q, u) depends on u."""
+    bias = False
+    for i, (body, m, info) in enumerate(zip(scene.bodies, body_models, infos)):
+        if m.nv == 0:
+            continue
+        w = f"{where} [[bodies]][{i}] ({body.name})"
+        d = new_data(m, w, checked=True)  # smaller than the whole model's, checked already
+        _check_mass_matrix(m, d, q0[info.q_slice], w)
+        bias = bias or _velocity_bias(m, d)
+    return bias
 
 
 def _check_mass_matrix(model: pin.Model, data: pin.Data, q0: np.ndarray, where: str) -> None:
     """M(q0) must be positive definite: every moving dof must carry mass or inertia (a zero mass
-    or inertia otherwise surfaces as a failed QP or a NaN state at the first step). Uses the
-    model's one Data (`data`): no second nv^3-sized allocation."""
+    or inertia otherwise surfaces as a failed QP or a NaN state at the first step)."""
     M = pin.crba(model, data, q0)
     if np.isfinite(M).all():
         try:
@@ -372,7 +528,7 @@ def _check_mass_matrix(model: pin.Model, data: pin.Data, q0: np.ndarray, where: 
         Y = model.inertias[j]
         if not (Y.mass > 0.0 and np.linalg.eigvalsh(0.5 * (Y.inertia + Y.inertia.T)).min() > 0.0):
             bad.append(model.names[j])
-    raise SceneError(f"{where} [[bodies]]: the mass matrix at the initial state is singular: every moving link "
+    raise SceneError(f"{where}: the mass matrix at the initial state is singular: every moving link "
                      f"needs a mass > 0 and a positive-definite inertia (links without: {', '.join(bad) or 'none'})")
 
 
@@ -395,8 +551,12 @@ def check_start(model: pin.Model, geom: pin.GeometryModel, data: pin.Data, pairs
     deep = np.flatnonzero(g < -tol)
     if len(deep):
         k = int(deep[np.argmin(g[deep])])
+        a, b = (x.split("/", 1)[0] for x in pairs[k].name.split("|"))
+        more = f" ({len(deep) - 1} more pair(s) too)" if len(deep) > 1 else ""
+        fix = (f"two parts of body {a}: change its q0, or leave the pair out with [collisions] exclude"
+               if a == b and "/" in pairs[k].name.split("|")[0] else "place the bodies apart or touching")
         raise SceneError(f"{where}: pair {pairs[k].name} starts {-g[k]:.3g} m inside (more than contact_tolerance "
-                         f"= {tol:g} m); place the bodies apart or touching")
+                         f"= {tol:g} m){more}; {fix}")
 
 
 def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -432,7 +592,38 @@ def initial_state(model: Model, data=None) -> State:
     where = str(model.scene.path) if model.scene.path else "<scene>"
     pd = data.pin if data is not None else new_data(model.pin, where)
     check_start(model.pin, model.geom, pd, model.pairs, model.q0, where, model.options.contact_tolerance)
+    check_limits(model.limits, model.q0, where, model.options.contact_tolerance)
     return State(0.0, model.q0.copy(), model.u0.copy())
+
+
+def joint_type(jm) -> str:
+    """A Pinocchio joint model's kind in words: "revolute z", "continuous y" (a URDF continuous
+    joint: cos, sin in q), "prismatic x", "spherical", "free flyer", "translation", and for a
+    composite the kinds of its parts joined by " + " (the free root: "translation + spherical")."""
+    kind = jm.shortname().removeprefix("JointModel")
+    if kind == "Composite":
+        return " + ".join(joint_type(sub) for sub in jm.extract().joints)
+    words = {"FreeFlyer": "free flyer", "Spherical": "spherical", "SphericalZYX": "spherical zyx",
+             "Translation": "translation", "Planar": "planar", "RevoluteUnaligned": "revolute (unaligned axis)",
+             "PrismaticUnaligned": "prismatic (unaligned axis)",
+             "RevoluteUnboundedUnaligned": "continuous (unaligned axis)"}
+    if kind in words:
+        return words[kind]
+    for prefix, word in (("RUB", "continuous"), ("R", "revolute"), ("P", "prismatic")):
+        if kind.startswith(prefix) and kind[len(prefix):] in ("X", "Y", "Z"):
+            return f"{word} {kind[-1].lower()}"
+    return kind
+
+
+def check_limits(joint_limits: tuple, q: np.ndarray, where: str, tol: float) -> None:
+    """A start beyond a joint limit by more than `tol` is bad input, as a pair deeper than the tolerance
+    (check_start): one SceneError naming the joint, its limit and q."""
+    for lim in joint_limits:
+        g = lim.gap(q)
+        if g < -tol:
+            raise SceneError(f"{where}: joint {lim.name.rsplit(' ', 1)[0]} starts at q = {q[lim.idx_q]:.6g}, "
+                             f"{-g:.3g} beyond its {lim.name.rsplit(' ', 1)[1]} limit {lim.bound:.6g}; start it within "
+                             "its limits or set joint_limits = false on the body")
 
 
 def _axis(kind: str, base: str) -> str:

@@ -47,7 +47,7 @@ def versions() -> dict[str, str]:
 
 
 def run_metadata(model: Model, status: str, run: dict, **extra) -> dict:
-    """The `meta` of a trajectory: format, status, scene (name, path, TOML and URDF texts), options,
+    """The `meta` of a trajectory: format, status, scene (name, path, TOML, URDF and SRDF texts), options,
     model summary, the names and units of q and u, versions, `run` statistics, and any `extra`
     entries (e.g. integrator)."""
     sc = model.scene
@@ -58,7 +58,8 @@ def run_metadata(model: Model, status: str, run: dict, **extra) -> dict:
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "scene": {"name": sc.name, "description": sc.description, "path": str(sc.path) if sc.path else None,
                   "toml": sc.source,
-                  "urdf": {b.name: Path(b.urdf).read_text(encoding="utf-8") for b in sc.bodies}},
+                  "urdf": {b.name: Path(b.urdf).read_text(encoding="utf-8") for b in sc.bodies},
+                  "srdf": {b.name: Path(b.srdf).read_text(encoding="utf-8") for b in sc.bodies if b.srdf}},
         "options": model.options.to_dict(),
         "model": model.describe(),
         **model.coordinates(),  # q_names, u_names, q_units, u_units
@@ -234,7 +235,10 @@ class Recorder:
     def __init__(self, model: Model, data: Data, n_samples: int = 1, *, spill: str | Path | None = None):
         self.model, self.data = model, data
         sizes = {"nq": model.nq, "nv": model.nv, "pairs": len(model.pairs)}
-        self._samples = _Columns(trajectory.SAMPLES, sizes, n_samples, spill)
+        self._external = model.actuation is not None or model.prescribed is not None  # the EXTERNAL columns
+        schema = {**trajectory.SAMPLES, **trajectory.EXTERNAL} if self._external else trajectory.SAMPLES
+        self._samples = _Columns(schema, sizes, n_samples, spill)
+        self._act = self._obs = 0.0  # actuator and obstacle work since the previous sample [J] (§5.5)
         self._log = _Columns(trajectory.LOG, sizes, 64, spill)
         self._branches = _Columns(trajectory.BRANCHES, sizes, 4, spill)
         self._candidates = _Columns(trajectory.CANDIDATES, sizes, 8, spill)
@@ -256,6 +260,8 @@ class Recorder:
     def sample(self, state: State, work: float, corr: float, n_contacts: int) -> None:
         m, d = self.model, self.data
         q, u = state.q, state.u
+        if m.prescribed is not None:
+            m.prescribed.place(m.geom, state.t)  # the gaps at the sample's time
         i = self._samples.free()
         c = self._samples.cols
         c["t"][i] = state.t
@@ -277,8 +283,10 @@ class Recorder:
         c["n_contacts"][i] = n_contacts
         self._smooth_until(T + V, state.t)  # 0 right after a step
         c["smooth_error"][i], c["dissipation"][i], c["law_dissipation"][i] = self._smooth, self._diss, self._law
+        if self._external:
+            c["actuator_work"][i], c["obstacle_work"][i] = self._act, self._obs
         self._samples.commit()
-        self._smooth = self._diss = self._law = 0.0
+        self._smooth = self._diss = self._law = self._act = self._obs = 0.0
         self._E, self._at, self._TV = T + V, (q, u), (T, V)
 
     def energies(self, state: State) -> tuple[float, float] | None:
@@ -315,19 +323,27 @@ class Recorder:
             self._smooth_until(E0, before.t)
         T1, V1 = kinetic(m, d, q1, u1), potential(m, d, q1)
         E1 = T1 + V1
+        # the work done on the system (§5.5): torques over the step's mean velocity, the moving statics' push
+        tau = r.tau
+        act = 0.0 if tau is None else 0.5 * h * float(tau @ (u0 + u1))
+        self._act += act
+        self._obs += r.obstacle_work
         # a rise the position correction made and booked (the lift of bodies at rest, docs/theory.md
-        # §2.5) is in the ledger's correction term, not a gain of the physics
-        rise = E1 - E0 - max(r.correction_energy, 0.0)
+        # §2.5) is in the ledger's correction term, not a gain of the physics; nor is the work done on it
+        rise = E1 - E0 - max(r.correction_energy, 0.0) - act - r.obstacle_work
         if rise > self._rise[0]:
             self._rise = (rise, float(r.state.t))
         res = r.qp
         if res is None or res.M is None:
-            self._smooth += E1 - E0  # a contact-free step is smooth motion only
+            self._smooth += E1 - E0 - act  # a contact-free step is smooth motion only
         else:  # the projection's problem: M, v_free = v0, b; and the step's own u_free
             T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u1, e, r.P, res.b)
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * r.u_free)
-            self._smooth += total(m, d, q_free, r.u_free) - E0
-            self._add_impact(step, t, T_minus, T_plus, law, int(np.count_nonzero(r.P > 0)), self._new_impact)
+            act_free = 0.0 if tau is None else 0.5 * h * float(tau @ (u0 + r.u_free))  # the torques' work there
+            self._smooth += total(m, d, q_free, r.u_free) - E0 - act_free
+            # a moving static's push (§2.9): the impact's dissipation is counted in its frame, T- - T+ + W_o
+            self._add_impact(step, t, T_minus, T_plus, law, int(np.count_nonzero(r.P > 0)), self._new_impact,
+                             r.obstacle_work)
         self._E, self._at, self._TV = E1, (q1, u1), (T1, V1)
 
     def account_impact(self, t: float, q: np.ndarray, u_minus: np.ndarray, u_plus: np.ndarray, M: np.ndarray,
@@ -342,11 +358,16 @@ class Recorder:
         self._E, self._at = total(m, d, q, u_plus), None
 
     def _add_impact(self, step: int, t: float, T_minus: float, T_plus: float, law: float, contacts: int,
-                    new: bool) -> None:
+                    new: bool, given: float = 0.0) -> None:
+        """given: the work a moving static did in the step [J], added to both the dissipation and the law's
+        figure (their difference is unchanged; the dissipation is then the one in the static's frame, >= 0)."""
+        dissipated = T_minus - T_plus
+        if given:
+            dissipated, law = dissipated + given, law + given
         self._contact_steps += 1
-        self._diss += T_minus - T_plus
+        self._diss += dissipated
         self._law += law
-        diff = abs((T_minus - T_plus) - law)
+        diff = abs(dissipated - law)
         if diff > self._law_difference[0]:
             self._law_difference = (diff, float(t))
         if new:
@@ -354,7 +375,7 @@ class Recorder:
             c = self._impacts.cols
             c["impact_step"][i], c["impact_t"][i], c["impact_contacts"][i] = step, t, contacts
             c["impact_T_minus"][i], c["impact_T_plus"][i] = T_minus, T_plus
-            c["impact_dissipation"][i], c["impact_law"][i] = T_minus - T_plus, law
+            c["impact_dissipation"][i], c["impact_law"][i] = dissipated, law
             self._impacts.commit()
 
     def ledger_meta(self) -> dict:
@@ -420,6 +441,7 @@ class Recorder:
         """What the recording carries from one step to the next besides its arrays (the ledger's
         running terms), as JSON for a checkpoint (checkpoint.py); `state`: the run's current state."""
         return {"smooth": float(self._smooth), "diss": float(self._diss), "law": float(self._law),
+                "act": float(self._act), "obs": float(self._obs),
                 "E": None if self._E is None else float(self._E),
                 "at_state": self._at is not None and self._at[0] is state.q and self._at[1] is state.u,
                 "TV": [float(x) for x in self._TV], "new_impact": bool(self._new_impact),
@@ -434,6 +456,7 @@ class Recorder:
             g.load(arrays)
         c = carried
         self._smooth, self._diss, self._law, self._E = c["smooth"], c["diss"], c["law"], c["E"]
+        self._act, self._obs = c.get("act", 0.0), c.get("obs", 0.0)
         self._at = (state.q, state.u) if c["at_state"] else None
         self._TV, self._new_impact, self._contact_steps = tuple(c["TV"]), c["new_impact"], c["contact_steps"]
         rise, t_rise = c["rise"]
@@ -444,7 +467,7 @@ class Recorder:
     def arrays(self) -> dict[str, np.ndarray]:
         out = {**self._samples.arrays(), **self._log.arrays(), **self._branches.arrays(), **self._candidates.arrays(),
                **self._impacts.arrays()}
-        return {k: out[k] for k in trajectory.ARRAYS}
+        return {k: out[k] for k in trajectory.ARRAYS + tuple(trajectory.EXTERNAL) if k in out}
 
     def trajectory(self, meta: dict, *, final: bool = True) -> Trajectory:
         """The arrays so far (views) with `meta` (and its "ledger" entry, ledger_meta()); `final`:

@@ -29,7 +29,9 @@ class StepResult:
     correction_energy: the change of T + V made by the position correction [J] (0 without; never more than
     the step dissipated), so that E_{k+1} - E_k = W_c + correction_energy where the smooth motion is exact.
     u_free: the velocity the smooth forces alone give, u_k + h M(q_m)^-1 f [velocity] (the ledger's smooth
-    motion, §5.3; u_{k+1} itself on a step without contact)."""
+    motion, §5.3; u_{k+1} itself on a step without contact).
+    tau: the joint torques of the step [N or N m] (actuation.py, evaluated at t_m, q_m, u_k; None: none);
+    obstacle_work: the work of the prescribed motion of statics, -sum_i P_i dg_i/dt [J] (§2.9, §5.5)."""
 
     state: State
     contacts: Contacts
@@ -41,3 +43,5 @@ class StepResult:
     branch: tuple | None = None
     correction_energy: float = 0.0
     u_free: np.ndarray | None = None
+    tau: np.ndarray | None = None
+    obstacle_work: float = 0.0

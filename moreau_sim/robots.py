@@ -1,5 +1,6 @@
-"""Robot descriptions: ``package://`` resolution, URDF meshes, MJCF (its elements read, ignored
-or refused by name; ``<include>`` inside the model's folder), mesh collision modes.
+"""Robot descriptions: ``package://`` resolution, URDF meshes, the SRDF beside a URDF
+(find_srdf; self_pairs.py reads it), MJCF (its elements read, ignored or refused by name and line;
+``<include>`` inside the model's folder; joint ranges into the position limits), mesh collision modes.
 
 Search order for a ``package://PKG/rel/path`` URI (docs/robots.md):
 
@@ -36,7 +37,9 @@ import re
 import sys
 import tempfile
 import warnings
+import weakref
 import xml.etree.ElementTree as ET
+from xml.parsers import expat
 from pathlib import Path
 from xml.sax.saxutils import escape, unescape
 
@@ -205,6 +208,21 @@ def resolve_model_file(value: str, base: Path, package_dirs, where: str) -> Path
     return p
 
 
+SRDF_FOLDER = "srdf"  # example-robot-data: <robot>_description/{urdf,robots}/X.urdf beside .../srdf/
+
+
+def find_srdf(urdf: Path) -> Path | None:
+    """The SRDF example-robot-data ships beside `urdf`: in the folder ``srdf`` next to the URDF's
+    folder, the file named as the URDF (``go2.urdf`` -> ``go2.srdf``), else the one whose name is
+    the longest prefix of the URDF's (``solo12.urdf`` -> ``solo.srdf``, ``ur5_robot.urdf`` ->
+    ``ur5.srdf``: the pairs the package's own loaders make). None when there is none."""
+    folder = Path(urdf).parent.parent / SRDF_FOLDER
+    if not folder.is_dir():
+        return None
+    stems = [p.stem for p in folder.glob("*.srdf") if p.is_file() and Path(urdf).stem.startswith(p.stem)]
+    return (folder / f"{max(stems, key=len)}.srdf").resolve() if stems else None
+
+
 _MESH_ATTR = re.compile(r"""(<mesh\b[^>]*?\bfilename\s*=\s*)(["'])(.*?)\2""", re.S)
 
 
@@ -329,14 +347,38 @@ MJCF_WHY = {"equality": "equality constraints", "tendon": "tendons",
             "hfield": "height fields", "plugin": "plugins", "extension": "plugins"}
 
 
+_SOURCE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # MJCF element -> (file, line)
+
+
+def _parse_with_lines(path: Path) -> ET.Element:
+    """``ET.parse(path).getroot()`` (comments dropped), each element's file and line recorded in
+    _SOURCE, so that a refusal names the line (an included file's element names that file)."""
+    builder, parser = ET.TreeBuilder(), expat.ParserCreate()
+
+    def start(tag, attrs):
+        _SOURCE[builder.start(tag, attrs)] = (path, parser.CurrentLineNumber)
+
+    parser.StartElementHandler, parser.EndElementHandler = start, builder.end
+    parser.CharacterDataHandler, parser.buffer_text = builder.data, True
+    with open(path, "rb") as f:
+        parser.ParseFile(f)
+    return builder.close()
+
+
+def _at(el: ET.Element, path: Path) -> str:
+    """"file:line" of an MJCF element read by _parse_with_lines, else the file `path`."""
+    found = _SOURCE.get(el)
+    return f"{found[0]}:{found[1]}" if found else str(path)
+
+
 def _mjcf_expanded(path: Path, where: str, _seen: tuple[Path, ...] = ()) -> ET.Element:
     """The MJCF tree of `path` with every ``<include file=...>`` replaced by the children of the
     included file's root (MuJoCo's rule), each resolved against the model's folder and refused
     when it lies outside it (symbolic links followed) or includes itself."""
     top = _seen[0].parent if _seen else path.parent
     try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
+        root = _parse_with_lines(path)
+    except expat.ExpatError as exc:
         raise SceneError(f"{path}: malformed MJCF (XML error: {exc}) [{where} mjcf]") from None
     except OSError as exc:
         raise SceneError(f"{path}: cannot read this MJCF ({exc.strerror or exc}) [{where} mjcf]") from None
@@ -349,15 +391,15 @@ def _mjcf_expanded(path: Path, where: str, _seen: tuple[Path, ...] = ()) -> ET.E
                 continue
             name = child.get("file", "")
             if not name.strip():
-                raise SceneError(f"{path}: an <include> without a file=\"...\" [{where} mjcf]")
-            inc = real_path(top / name, f"{path}: <include file=\"{name}\"> [{where} mjcf]")
+                raise SceneError(f"{_at(child, path)}: an <include> without a file=\"...\" [{where} mjcf]")
+            inc = real_path(top / name, f"{_at(child, path)}: <include file=\"{name}\"> [{where} mjcf]")
             if not inc.is_relative_to(top.resolve()):
-                raise SceneError(f"{path}: <include file=\"{name}\">: only files inside the model's folder "
+                raise SceneError(f"{_at(child, path)}: <include file=\"{name}\">: only files inside the model's folder "
                                  f"{top} may be included [{where} mjcf]")
             if inc in _seen or inc == path:
-                raise SceneError(f"{path}: <include file=\"{name}\"> includes itself [{where} mjcf]")
+                raise SceneError(f"{_at(child, path)}: <include file=\"{name}\"> includes itself [{where} mjcf]")
             if not inc.is_file():
-                raise SceneError(f"{path}: <include file=\"{name}\">: file not found: {inc} [{where} mjcf]")
+                raise SceneError(f"{_at(child, path)}: <include file=\"{name}\">: file not found: {inc} [{where} mjcf]")
             sub = _mjcf_expanded(inc, where, (*(_seen or (path,)), inc))
             parent.remove(child)
             for i, c in enumerate(list(sub)):
@@ -381,9 +423,9 @@ def check_mjcf(root: ET.Element, path: Path, where: str) -> list[str]:
                 continue
             if tag not in MJCF_READ:
                 why = MJCF_WHY.get(tag, "an element moreau-sim's MJCF reader does not read")
-                raise SceneError(f"{path}: <{tag}> is not supported ({why}); remove it [{where} mjcf]")
+                raise SceneError(f"{_at(child, path)}: <{tag}> is not supported ({why}); remove it [{where} mjcf]")
             if tag == "geom" and child.get("type") in ("hfield", "sdf"):
-                raise SceneError(f"{path}: <geom type=\"{child.get('type')}\"> is not supported "
+                raise SceneError(f"{_at(child, path)}: <geom type=\"{child.get('type')}\"> is not supported "
                                  f"({MJCF_WHY['hfield'] if child.get('type') == 'hfield' else 'SDF geoms'}) "
                                  f"[{where} mjcf]")
             if tag != "default":
@@ -396,6 +438,89 @@ def check_mjcf(root: ET.Element, path: Path, where: str) -> list[str]:
                          f"{', ...' if len(tops) > 5 else ''}); the MJCF reader reads one tree: give each its own "
                          f"[[bodies]] entry (one file each) [{where} mjcf]")
     return ignored
+
+
+def _joint_defaults(tree: ET.Element) -> dict[str, dict[str, str]]:
+    """The <joint> attributes each <default> class gives (nested classes inherit their parent's),
+    by class name; the top class is "main" (MuJoCo's rule)."""
+    out: dict[str, dict[str, str]] = {"main": {}}
+
+    def walk(d: ET.Element, inherited: dict, name: str) -> None:
+        attrs = dict(inherited)
+        for j in d.findall("joint"):
+            attrs.update(j.attrib)
+        out[name] = attrs
+        for child in d.findall("default"):
+            walk(child, attrs, child.get("class", "main"))
+
+    for d in tree.findall("default"):
+        walk(d, {}, d.get("class", "main"))
+    return out
+
+
+_JOINT_NQ = {"free": 7, "ball": 4, "hinge": 1, "slide": 1}
+
+
+def mjcf_joint_limits(tree: ET.Element, m: pin.Model, path: Path, where: str) -> None:
+    """Set the position limits of `m` (built by Pinocchio from the MJCF `tree`) from each joint's
+    ``range`` and ``limited`` as MuJoCo reads them: its own attributes over its class's (``class``,
+    else the nearest ``childclass`` above it, else "main"); ``limited="auto"`` (the default) means
+    limited when a range is given unless ``<compiler autolimits="false">``; a hinge's range in
+    degrees unless ``<compiler angle="radian">``, a slide's in metres. Unlimited: -inf, inf.
+    Pinocchio 4.1's reader alone converts a slide's range from degrees and keeps the range of a
+    joint with ``limited="false"``. A limited ball joint (a cone) is refused by name."""
+    compiler: dict[str, str] = {}
+    for c in tree.findall("compiler"):
+        compiler.update(c.attrib)
+    degrees = compiler.get("angle", "degree") != "radian"
+    auto = compiler.get("autolimits", "true") == "true"
+    defaults = _joint_defaults(tree)
+    found: list[tuple[str, int, float, float]] = []  # (name, nq, lower, upper) in the order of q
+
+    def visit(el: ET.Element, childclass: str) -> None:
+        for child in el:
+            if child.tag == "body":
+                visit(child, child.get("childclass", childclass))
+            elif child.tag == "freejoint":
+                found.append((child.get("name", "?"), 7, -np.inf, np.inf))
+            elif child.tag == "joint":
+                a = {**defaults.get(child.get("class", childclass), {}), **child.attrib}
+                kind, name, rng = a.get("type", "hinge"), a.get("name", "?"), a.get("range")
+                limited = a.get("limited", "auto")
+                limited = limited == "true" or (limited == "auto" and auto and rng is not None)
+                at = f"{_at(child, path)}: joint '{name}'"
+                if kind not in _JOINT_NQ:
+                    raise SceneError(f"{at}: type \"{kind}\" is not a MuJoCo joint type [{where} mjcf]")
+                lo, up = -np.inf, np.inf
+                if limited:
+                    try:
+                        lo, up = (float(x) for x in (rng or "").split())
+                    except ValueError:
+                        raise SceneError(f"{at}: limited, but range={rng!r} is not two numbers (lower upper) "
+                                         f"[{where} mjcf]") from None
+                    if not (np.isfinite(lo) and np.isfinite(up) and lo < up):
+                        raise SceneError(f"{at}: range {lo:g} {up:g} must be finite with lower < upper "
+                                         f"[{where} mjcf]")
+                    if kind in ("ball", "free"):
+                        raise SceneError(f"{at}: a limited {kind} joint (range: a cone about its reference) "
+                                         f"is not supported; remove its range or set limited=\"false\" "
+                                         f"[{where} mjcf]")
+                    if kind == "hinge" and degrees:
+                        lo, up = np.deg2rad(lo), np.deg2rad(up)
+                found.append((name, _JOINT_NQ[kind], lo, up))
+
+    for w in tree.findall("worldbody"):
+        visit(w, "main")
+    if sum(n for _, n, _, _ in found) != m.nq:
+        raise SceneError(f"{path}: its joints have {sum(n for _, n, _, _ in found)} coordinates, Pinocchio's MJCF "
+                         f"reader made nq = {m.nq}; the joint limits cannot be matched [{where} mjcf]")
+    lower, upper = m.lowerPositionLimit.copy(), m.upperPositionLimit.copy()
+    k = 0
+    for _, n, lo, up in found:
+        if n == 1:
+            lower[k], upper[k] = lo, up
+        k += n
+    m.lowerPositionLimit, m.upperPositionLimit = lower, upper
 
 
 def load_mjcf(path: Path, root, where: str,
@@ -439,6 +564,7 @@ def load_mjcf(path: Path, root, where: str,
                 g = pin.buildGeomFromMJCF(m, str(read_from), kind)
         except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError with C++ text
             raise SceneError(f"{path}: Pinocchio cannot load this MJCF: {one_line(exc)} [{where} mjcf]") from None
+    mjcf_joint_limits(tree, m, path, where)
     if root is None:
         return m, g
     rm = pin.Model()

@@ -17,7 +17,8 @@ from typing import Any
 from .errors import SceneError
 from .options import (CHOICES, MeshMode, Options, RootJoint, StaticShape, choice, finite_number, finite_vector,
                       require)
-from .robots import real_path, resolve_model_file
+from .prescribed import Schedule, parse_schedule
+from .robots import find_srdf, real_path, resolve_model_file
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -27,7 +28,9 @@ class Body:
     urdf: the model file, resolved (a path or a package:// URI in the scene); an MJCF file when
     `mjcf` is true (its text is what outputs record as the body's description).
     package_dirs: folders searched first for package:// URIs (docs/robots.md).
-    meshes: how collision meshes enter coal (options.MeshMode: convex hull or BVH)."""
+    meshes: how collision meshes enter coal (options.MeshMode: convex hull or BVH).
+    srdf: the SRDF whose disabled collision pairs and reference poses apply (the scene's, else
+    the one example-robot-data ships beside a URDF: robots.find_srdf), or None."""
 
     name: str
     urdf: Path
@@ -35,12 +38,14 @@ class Body:
     mjcf: bool = False
     package_dirs: tuple[Path, ...] = ()
     meshes: MeshMode = MeshMode.CONVEX
+    srdf: Path | None = None
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
     axes: tuple[tuple[float, float, float], ...] | None = None  # planar: default x, z; translation: x, y, z
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     q0: tuple[float, ...] | None = None
     u0: tuple[float, ...] | None = None
+    joint_limits: bool = True  # the position limits of its revolute / prismatic joints (moreau_sim/limits.py)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -56,6 +61,26 @@ class Static:
     length: float = 0.1  # cylinder: full length [m]
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    motion: Schedule | None = None  # prescribed displacement from `position` [m] (prescribed.py)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Actuator:
+    """PD targets of some joints of a body (docs/scenes.md, [[actuators]]): joints (None: every 1-dof
+    joint of the body but an unfixed root, in q order), kp [N m/rad or N/m], kd [N m s/rad or N s/m],
+    target and velocity: the raw TOML values (a number, a list per joint, a time table or a sine; None:
+    hold the initial positions / the target's own derivative), parsed once the joints are known
+    (actuation.build); effort [N m or N]: a clamp of this entry's torques (None: the URDF's only);
+    where: the entry's place in the file, for errors."""
+
+    body: str
+    joints: tuple[str, ...] | None
+    kp: float
+    kd: float = 0.0
+    target: Any = None
+    velocity: Any = None
+    effort: float | None = None
+    where: str = ""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -74,6 +99,7 @@ class Scene:
     bodies: tuple[Body, ...] = ()
     statics: tuple[Static, ...] = ()
     collisions: Collisions = field(default_factory=Collisions)
+    actuators: tuple[Actuator, ...] = ()
     output: str | None = None  # default output file (relative to the working directory)
     path: Path | None = None  # the file it was read from
     source: str = ""  # the TOML text, kept so outputs describe themselves
@@ -83,14 +109,16 @@ class Scene:
         return dataclasses.replace(self, options=self.options.replace(**changes))
 
 
-_TOP = {"scene", "simulation", "output", "bodies", "statics", "collisions"}
+_TOP = {"scene", "simulation", "output", "bodies", "statics", "collisions", "actuators"}
 _SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravity": "gravity",
         "contact_tolerance": "contact_tolerance", "qp_form": "qp_form", "qp_tolerance": "qp_tolerance",
         "separating": "separating", "corner_selection": "corner_selection", "bias": "bias",
         "position_correction": "position_correction", "slow_impacts": "slow_impacts", "integrator": "integrator",
         "tunnelling": "tunnelling", "rtol": "rtol", "atol": "atol", "step_impl": "step_impl"}
-_BODY = {"name", "urdf", "mjcf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0", "package_dirs", "meshes"}
-_STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy"}
+_BODY = {"name", "urdf", "mjcf", "root_joint", "axis", "axes", "position", "rpy", "q0", "u0", "package_dirs", "meshes",
+         "srdf", "joint_limits"}
+_STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy", "motion"}
+_ACTUATOR = {"body", "joints", "kp", "kd", "target", "velocity", "effort"}
 
 
 def _unknown(table: dict, allowed: set, where: str) -> None:
@@ -151,6 +179,16 @@ def _parse_body(t: dict, where: str, base: Path) -> Body:
                               mjcf=key == "mjcf", package_dirs=tuple(dirs))
     if "meshes" in t:
         kw["meshes"] = choice(MeshMode, t["meshes"], f"{w} meshes")
+    if "srdf" not in t:  # the SRDF shipped beside a URDF applies unless the scene says otherwise
+        kw["srdf"] = None if kw["mjcf"] else find_srdf(urdf)
+    elif t["srdf"] is not False:
+        require(isinstance(t["srdf"], str) and t["srdf"] != "", f"{w} srdf",
+                f"must be a path string, a package:// URI, or false (no SRDF), got {t['srdf']!r}")
+        kw["srdf"] = resolve_model_file(t["srdf"], base, dirs, f"{w} srdf")
+    if "joint_limits" in t:
+        require(isinstance(t["joint_limits"], bool), f"{w} joint_limits",
+                f"must be true or false, got {t['joint_limits']!r}")
+        kw["joint_limits"] = t["joint_limits"]
     for key in ("axis", "position", "rpy"):
         if key in t:
             kw[key] = finite_vector(t[key], 3, f"{w} {key}")
@@ -194,10 +232,39 @@ def _parse_static(t: dict, where: str) -> Static:
     for key in ("offset", "radius", "length"):
         if key in t:
             kw[key] = finite_number(t[key], f"{w} {key}")
+    if "motion" in t:
+        kw["motion"] = parse_schedule(t["motion"], 3, f"{w} motion", key="position", moves=True)
     s = Static(**kw)
     require(math.hypot(*s.normal) > 1e-12, f"{w} normal", "must not be zero")
     require(min(s.size) > 0 and s.radius > 0 and s.length > 0, w, "sizes, radius and length must be > 0 m")
     return s
+
+
+def _parse_actuator(t: dict, where: str) -> Actuator:
+    require(isinstance(t, dict), where, "must be a table")
+    _unknown(t, _ACTUATOR, where)
+    for req in ("body", "kp"):
+        require(req in t, where, f"missing required key '{req}'")
+    body = _name(t["body"], f"{where} body")
+    w = f"{where} ({body})"
+    joints = t.get("joints", "all")
+    if joints == "all":
+        joints = None
+    else:
+        require(isinstance(joints, list) and joints and all(isinstance(j, str) and j for j in joints),
+                f"{w} joints", f"must be \"all\" or a non-empty list of joint names, got {joints!r}")
+        require(len(set(joints)) == len(joints), f"{w} joints", "names a joint twice")
+        joints = tuple(joints)
+    kw: dict[str, Any] = dict(body=body, joints=joints, where=w)
+    for key in ("kp", "kd", "effort"):
+        if key in t:
+            kw[key] = finite_number(t[key], f"{w} {key}")
+            require(kw[key] >= 0 if key != "effort" else kw[key] > 0, f"{w} {key}",
+                    f"must be {'> 0' if key == 'effort' else '>= 0'}, got {kw[key]!r}")
+    for key in ("target", "velocity"):
+        if key in t:
+            kw[key] = t[key]
+    return Actuator(**kw)
 
 
 def _parse_pairs(value, where: str) -> tuple[tuple[str, str], ...]:
@@ -243,8 +310,14 @@ def parse_scene(text: str, *, path: Path | str | None = None) -> Scene:
     _unknown(col, {"include", "exclude"}, f"{where} [collisions]")
     collisions = Collisions(include=_parse_pairs(col.get("include", []), f"{where} [collisions] include"),
                             exclude=_parse_pairs(col.get("exclude", []), f"{where} [collisions] exclude"))
+    act_t = doc.get("actuators", [])
+    require(isinstance(act_t, list), f"{where} [[actuators]]", "must be an array of tables")
+    actuators = tuple(_parse_actuator(t, f"{where} [[actuators]][{i}]") for i, t in enumerate(act_t))
+    for a in actuators:
+        require(a.body in [b.name for b in bodies], f"{a.where} body", f"names no body of the scene ({a.body!r})")
     return Scene(name=name, description=description, options=options, bodies=bodies, statics=statics,
-                 collisions=collisions, output=output, path=real_path(Path(path), where) if path else None, source=text)
+                 collisions=collisions, actuators=actuators, output=output,
+                 path=real_path(Path(path), where) if path else None, source=text)
 
 
 def load_scene(path: str | Path) -> Scene:

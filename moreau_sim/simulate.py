@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 from pathlib import Path
 
+from .actuation import Controller, for_controller
 from .adaptive import simulate_adaptive
 from .checkpoint import Checkpoint
 from .data import Data, make_data
@@ -25,7 +27,8 @@ _EVENT_RTOL = inspect.signature(simulate_event_driven).parameters["rtol"].defaul
 
 def simulate(model: Model, *, data: Data | None = None, state: State | None = None,
              progress: bool = True, checkpoint: Checkpoint | None = None,
-             spill: str | Path | None = None, check: Check | None = None, strict: bool = False) -> Trajectory:
+             spill: str | Path | None = None, check: Check | None = None, strict: bool = False,
+             controller: Controller | None = None) -> Trajectory:
     """Run the scene's options (integrator, restitution, dt, duration) from `state` (default: the
     scene's initial state). Returns a complete :class:`Trajectory` or raises :class:`SimulationError`
     (naming the step and time) whose ``.trajectory`` holds the samples up to the failure,
@@ -44,7 +47,14 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     The run checks its own invariants (invariants.py, docs/theory.md §10): a run that broke one
     ends with meta status "flagged" (not "complete") and the violations in meta["invariants"];
     strict: raise InvariantViolation (a SimulationError) at the first one instead, its
-    ``.trajectory`` the samples so far. check: another hook instead of the invariants (driver.Check)."""
+    ``.trajectory`` the samples so far. check: another hook instead of the invariants (driver.Check).
+
+    controller: f(t, q, u) -> tau (nv,) [N or N m], joint torques added to the scene's PD targets,
+    called once per step at (t_m, q_m, u_k) (docs/theory.md §2.1; actuation.py). Torques and
+    prescribed motion run with the time-stepping integrator only."""
+    if controller is not None:
+        model = dataclasses.replace(model, actuation=for_controller(model.pin, model.bodies, model.actuation,
+                                                                    controller))
     data = data or make_data(model)
     state = state or initial_state(model, data)
     opts = model.options
@@ -65,7 +75,7 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
 def run(scene: Scene | str | Path, *, dt: float | None = None, duration: float | None = None,
         restitution: float | None = None, progress: bool = False, checkpoint: str | Path | None = None,
         checkpoint_every: float | None = None, resume: bool = False, spill: str | Path | None = None,
-        strict: bool = False, **options) -> Trajectory:
+        strict: bool = False, controller: Controller | None = None, **options) -> Trajectory:
     """Load (if a path), override options (dt [s], duration [s], restitution, any other
     :class:`~moreau_sim.options.Options` field, e.g. integrator="adaptive", rtol=1e-10,
     atol=1e-12), build and simulate. Returns the Trajectory.
@@ -73,11 +83,12 @@ def run(scene: Scene | str | Path, *, dt: float | None = None, duration: float |
     checkpoint: a checkpoint file, written every `checkpoint_every` seconds of simulated time
     (rounded to whole steps) and removed when the run completes; resume: continue from it when
     it exists (checkpoint.py); spill: a folder for the recorded rows instead of memory; strict: a
-    broken invariant is an error (simulate)."""
+    broken invariant is an error (simulate); controller: joint torques f(t, q, u) -> tau (simulate)."""
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     sc = sc.with_options(dt=dt, duration=duration, restitution=restitution, **options)
     ck = None if checkpoint is None else Checkpoint(path=Path(checkpoint), every=checkpoint_every, resume=resume)
-    return simulate(build_model(sc), progress=progress, checkpoint=ck, spill=spill, strict=strict)
+    return simulate(build_model(sc), progress=progress, checkpoint=ck, spill=spill, strict=strict,
+                    controller=controller)
 
 
 def summary(traj: Trajectory) -> Summary:

@@ -11,7 +11,7 @@ import numpy as np
 import pinocchio as pin
 
 from . import compiled, qp
-from .constraints import CornerPieces, assemble_constraints, corner_faces
+from .constraints import CornerPieces, assemble_constraints, closed_limits, corner_faces
 from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
 from .corners import MAX_PIECES, corner_law
 from .data import Data
@@ -33,7 +33,9 @@ class ContactProblem:
     """What a step knows before the impact law: h [s], e, the start (q, u) = (q_k, u_k), the
     midpoint q_m, the contacts closed at q_m, u_free [velocity]; and when a contact is closed
     (`closed`): M = M(q_m), Minv, W (nv, m) the rows of the distinct smooth contacts, the corner
-    pieces (or None), v_free = (u_free + e u_k)/(1 + e). Without a closed contact those are None."""
+    pieces (or None), v_free = (u_free + e u_k)/(1 + e). Without a closed contact those are None.
+    tau: the joint torques of the step [N or N m] (None: no actuation); rate: dg_i/dt of the
+    contacts against a moving static [m/s] (None: none; docs/theory.md §2.9)."""
 
     h: float
     e: float
@@ -47,6 +49,8 @@ class ContactProblem:
     Minv: np.ndarray | None = None
     W: np.ndarray | None = None
     pieces: CornerPieces | None = None
+    tau: np.ndarray | None = None
+    rate: np.ndarray | None = None
 
     @property
     def closed(self) -> bool:
@@ -71,6 +75,7 @@ class ImpactSolution:
     contact_work: float
     qp: QPResult
     branch: tuple | None = None
+    obstacle_work: float = 0.0
 
 
 def step(model: Model, data: Data, state: State, *, h: float | None = None, e: float | None = None,
@@ -88,54 +93,75 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     h = opts.dt if h is None else h
     e = opts.restitution if e is None else e
     t1 = state.t + h if t_next is None else t_next
+    tau = None if model.actuation is None else torque(model, state, h)  # once a step, whichever step takes it
     if (opts.step_impl is StepImpl.COMPILED and form is None and eps is None and corner_choice is None
             and compiled.available()):
-        r = compiled.step(model, data, state, h, e, t1)  # None: a step the compiled one does not cover
+        r = compiled.step(model, data, state, h, e, t1, tau)  # None: a step the compiled one does not cover
         if r is not None:
             return r
-    pb = assemble(model, data, state, h=h, e=e)
+    pb = assemble(model, data, state, h=h, e=e, tau=tau)
     if not pb.closed:
         q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * pb.u_free)
         return StepResult(State(t1, q_next, pb.u_free), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None,
-                          u_free=pb.u_free)
+                          u_free=pb.u_free, tau=pb.tau)
     imp = solve_impact(pb, opts, form=form, eps=eps, corner_choice=corner_choice)
     q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
     corr = 0.0
     if opts.position_correction is PositionCorrection.PROJECTION and imp.qp.ok:  # a failed QP: simulate names it
         q_next, corr = correct_positions(model, data, pb, imp, q_next)
     return StepResult(State(t1, q_next, imp.u_next), imp.contacts, imp.P, imp.gamma_minus, imp.gamma_plus,
-                      imp.contact_work, imp.qp, imp.branch, corr, u_free=pb.u_free)
+                      imp.contact_work, imp.qp, imp.branch, corr, u_free=pb.u_free, tau=pb.tau,
+                      obstacle_work=imp.obstacle_work)
 
 
-def assemble(model: Model, data: Data, state: State, *, h: float, e: float) -> ContactProblem:
+def torque(model: Model, state: State, h: float) -> np.ndarray:
+    """The step's joint torques tau [N or N m], evaluated at (t_m, q_m, u_k) (docs/theory.md §2.1)."""
+    q_m = pin.integrate(model.pin, state.q, 0.5 * h * state.u)
+    return model.actuation.torque(state.t + 0.5 * h, q_m, state.u)
+
+
+def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
+             tau: np.ndarray | None = None) -> ContactProblem:
     """The step's problem: q_m, the contacts closed at q_m (swept ones added where the options ask,
     docs/theory.md §2.6), and if any: M, M^-1, W, corner pieces (constraints.assemble_constraints),
-    u_free and v_free. Leaves data's kinematics at q_m."""
+    u_free and v_free. Leaves data's kinematics at q_m. tau: the step's joint torques (default: the
+    model's, evaluated here; torque())."""
     pm, pd = model.pin, data.pin
     q, u = state.q, state.u
     opts = model.options
     q_m = pin.integrate(pm, q, 0.5 * h * u)
+    t_m = state.t + 0.5 * h  # the force evaluation: torques and obstacles at (t_m, q_m, u_k), §2.1, §2.9
+    if model.prescribed is not None:
+        model.prescribed.place(model.geom, t_m)
+    if tau is None and model.actuation is not None:
+        tau = model.actuation.torque(t_m, q_m, u)
     # how far a vertex can move in the step (|u| times the largest lever arm): a corner struck within
     # the step may have crossed one face plane by up to this; a thinner pair may be passed through
     travel = h * float(np.abs(u).max(initial=0.0)) * model.reach
     contacts = detect(model, data, q_m, corner_margin=travel)
     if opts.tunnelling is Tunnelling.ALWAYS or (opts.tunnelling is Tunnelling.SWEPT and travel > model.thinnest_pair):
         contacts = swept_detect(model, data, q, u, h, q_m, contacts)  # a thin obstacle crossed in the step
+    if model.limits:  # the joint limits closed at q_m: constraints of the same law (limits.py)
+        contacts = contacts.concat(closed_limits(model, q_m, opts.contact_tolerance))
     if contacts.m == 0 and not contacts.corners:
-        return ContactProblem(h, e, q, u, q_m, NO_CONTACTS, free_velocity(model, data, q_m, u, h, opts.bias))
+        return ContactProblem(h, e, q, u, q_m, NO_CONTACTS, free_velocity(model, data, q_m, u, h, opts.bias, tau),
+                              tau=tau)
     cs = assemble_constraints(model, data, q_m, contacts)
     Minv = pin.computeMinverse(pm, pd, q_m)
-    u_free = free_velocity(model, data, q_m, u, h, opts.bias)
+    u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
     v_free = (u_free + e * u) / (1.0 + e)
-    return ContactProblem(h, e, q, u, q_m, cs.contacts, u_free, v_free, cs.M, Minv, cs.W, cs.pieces)
+    rate = None if model.prescribed is None else model.prescribed.rates(model.pairs, cs.contacts, t_m)
+    return ContactProblem(h, e, q, u, q_m, cs.contacts, u_free, v_free, cs.M, Minv, cs.W, cs.pieces, tau, rate)
 
 
-def free_velocity(model: Model, data: Data, q_m: np.ndarray, u: np.ndarray, h: float, bias: Bias) -> np.ndarray:
-    """u_free = u_k + h M(q_m)^-1 (-h(q_m, u_bar)) [velocity]: u_bar = u_k (EXPLICIT) or the fixed
+def free_velocity(model: Model, data: Data, q_m: np.ndarray, u: np.ndarray, h: float, bias: Bias,
+                  tau: np.ndarray | None = None) -> np.ndarray:
+    """u_free = u_k + h M(q_m)^-1 (tau - h(q_m, u_bar)) [velocity]: u_bar = u_k (EXPLICIT) or the fixed
     point u_bar = (u_k + u_free)/2 (MIDPOINT, docs/theory.md §2.4; a few ABA calls; exact for models
-    whose bias does not depend on u, where it stops after one)."""
+    whose bias does not depend on u, where it stops after one). tau: the step's joint torques [N or N m],
+    fixed over the iteration (evaluated once, at (t_m, q_m, u_k): §2.1; None: zero)."""
     pm, pd = model.pin, data.pin
-    zero = np.zeros(pm.nv)
+    zero = np.zeros(pm.nv) if tau is None else tau
     u_free = u + h * pin.aba(pm, pd, q_m, u, zero)
     if bias is Bias.EXPLICIT or not model.velocity_bias:
         return u_free
@@ -167,15 +193,23 @@ def solve_impact(pb: ContactProblem, options: Options, *, form: QPForm | None = 
         gamma_minus = ordered(W.T, u)
     else:
         gamma_minus = ordered(W.T, u)
+        if pb.rate is not None:  # a moving static: gamma = W'u + dg/dt (§2.9)
+            gamma_minus = gamma_minus + pb.rate
         b = restitution_bounds(W, u, pb.u_free, gamma_minus, e, separating=options.separating,
                                slow_impacts=options.slow_impacts)
+        if pb.rate is not None:
+            b = -pb.rate if b is None else b - pb.rate
         res = project(pb.M, W, pb.v_free, b=b, Minv=pb.Minv, form=form or options.qp_form,
                       eps=eps or options.qp_tolerance)
     u_next = outcome(res.v, u, e)
     P = percussion(res.lam, e)
     gamma_plus = ordered(W.T, u_next)
+    obstacle_work = 0.0
+    if pb.rate is not None and pb.pieces is None:
+        gamma_plus = gamma_plus + pb.rate
+        obstacle_work = -float(ordered(P, pb.rate))
     work = float(ordered(P, gamma_plus + gamma_minus)) * 0.5
-    return ImpactSolution(u_next, contacts, W, P, gamma_minus, gamma_plus, work, res, branch)
+    return ImpactSolution(u_next, contacts, W, P, gamma_minus, gamma_plus, work, res, branch, obstacle_work)
 
 
 def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution,
@@ -194,7 +228,9 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     q, u, u_next = pb.q, pb.u, imp.u_next
     E0 = kinetic(model, data, q, u) + potential(model, data, q)
     E1 = kinetic(model, data, q_next, u_next) + potential(model, data, q_next)
-    budget = E0 - E1
+    budget = E0 - E1 + imp.obstacle_work  # what the step dissipated beyond the work done on it (§5.5)
+    if pb.tau is not None:
+        budget += 0.5 * pb.h * float(ordered(pb.tau, u + u_next))
     resting = _resting(pb, imp, g_next < -tol)
     if budget <= 0.0 and not resting:
         return q_next, 0.0

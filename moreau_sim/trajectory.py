@@ -11,6 +11,8 @@ Arrays (n = saved samples, k = logged contact percussions):
   smooth_error (n,) [J]: the change of T + V of the contact-free part of each step,
   dissipation (n,) [J]: T- - T+ of the impacts (the law's frame: u- = v_free at q_m),
   law_dissipation (n,) [J]: the law's prediction of it, (1 - e^2)/2 |v_free - v|_M^2 - P.b;
+  actuator_work, obstacle_work (n,) [J] (only in runs with joint torques or moving statics): the work of
+  the torques, h tau.(u_k + u_{k+1})/2, and of the statics' prescribed motion, -P.dg/dt (§5.5);
   impacts (steps with a new impact), i of them: impact_step, impact_t [s] (step midpoint),
   impact_contacts (pushing contacts), impact_T_minus, impact_T_plus, impact_dissipation, impact_law [J];
   log_step, log_t [s] (step midpoint time), log_pair, log_kind (contacts.FeatureKind value),
@@ -58,6 +60,9 @@ CANDIDATES = {"candidate_u_plus": (float, ("nv",)), "candidate_distance": (float
 IMPACTS = {"impact_step": (np.int64, ()), "impact_t": (float, ()), "impact_contacts": (np.int64, ()),
            "impact_T_minus": (float, ()), "impact_T_plus": (float, ()), "impact_dissipation": (float, ()),
            "impact_law": (float, ())}
+# per sample, only in runs with joint torques or moving statics (absent elsewhere: those files are unchanged):
+# the work of the actuators and of the statics' prescribed motion over the steps since the previous sample [J]
+EXTERNAL = {"actuator_work": (float, ()), "obstacle_work": (float, ())}
 ARRAYS = tuple(SAMPLES) + tuple(LOG) + tuple(BRANCHES) + tuple(CANDIDATES) + tuple(IMPACTS)
 LEDGER_ARRAYS = ("smooth_error", "dissipation", "law_dissipation") + tuple(IMPACTS)  # absent before format 3
 _FORMAT1_OFFSETS = ((30_000, 4), (20_000, 3), (10_000, 2))  # format 1 feature ids: SWEPT, CORNER, PATCH
@@ -260,7 +265,7 @@ def _remove_orphans(path: Path) -> None:
 def checksum(arrays: dict[str, np.ndarray]) -> str:
     """SHA-256 of the arrays (names, dtypes, shapes and bytes, in schema order)."""
     h = hashlib.sha256()
-    for k in ARRAYS:
+    for k in ARRAYS + tuple(EXTERNAL):
         if k in arrays:
             a = np.ascontiguousarray(arrays[k])
             h.update(f"{k}|{a.dtype.str}|{a.shape}|".encode())
@@ -280,7 +285,7 @@ def load_trajectory(path: str | Path, *, verify: bool = True) -> Trajectory:
         if missing:
             raise ValueError(f"{path}: not a moreau-sim trajectory (missing {missing})")
         meta = json.loads(str(z["meta"]))
-        arrays = {k: z[k] for k in ARRAYS if k in z.files}
+        arrays = {k: z[k] for k in ARRAYS + tuple(EXTERNAL) if k in z.files}
         if verify:
             verify_checksum(path, meta, arrays)
         if old:

@@ -60,7 +60,7 @@ struct Constants {
   int midpoint_iterations;  // stepper.MIDPOINT_ITERATIONS
   double midpoint_tolerance;  // stepper.MIDPOINT_TOLERANCE
   double resting;  // stepper.RESTING
-  int vertex, witness;  // contacts.FeatureKind.VERTEX, .WITNESS
+  int vertex, witness, joint_limit;  // contacts.FeatureKind.VERTEX, .WITNESS, .JOINT_LIMIT
   int max_contacts;  // qp.COLD_START_ROWS
   double screen, dependent, met, accept, refine, second_pass;  // qp.SCREEN, DEPENDENT, MET, ACCEPT, REFINE, SECOND_PASS
   int moves_per_row, moves_extra;  // qp.MOVES_PER_ROW, MOVES_EXTRA
@@ -71,7 +71,7 @@ struct Constants {
     static const std::vector<std::string> k = {
         "midpoint_iterations", "midpoint_tolerance", "resting", "vertex", "witness", "max_contacts", "screen",
         "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct",
-        "guess_min", "distance_failed"};
+        "guess_min", "distance_failed", "joint_limit"};
     return k;
   }
   // from a dict holding exactly keys() (a missing or an unknown name is an error: nothing is left to a default)
@@ -96,6 +96,7 @@ struct Constants {
     c.met = get("met"), c.accept = get("accept"), c.refine = get("refine"), c.second_pass = get("second_pass");
     c.moves_per_row = geti("moves_per_row"), c.moves_extra = geti("moves_extra"), c.distinct = get("distinct");
     c.guess_min = get("guess_min"), c.distance_failed = get("distance_failed");
+    c.joint_limit = geti("joint_limit");
     return c;
   }
   std::map<std::string, double> as_dict() const {
@@ -103,7 +104,8 @@ struct Constants {
             {"resting", resting}, {"vertex", vertex}, {"witness", witness}, {"max_contacts", max_contacts},
             {"screen", screen}, {"dependent", dependent}, {"met", met}, {"accept", accept}, {"refine", refine},
             {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra},
-            {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed}};
+            {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed},
+            {"joint_limit", joint_limit}};
   }
 };
 
@@ -464,7 +466,7 @@ class Stepper {
           std::vector<double> bound_b, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic> pairs, MatrixXd mask,
           double reach, double thinnest_pair, double tol, int tunnelling, bool separating_elastic,
           bool slow_plastic, bool bias_midpoint, bool velocity_bias, bool projection,
-          const std::map<std::string, double> &constants, uintptr_t dgesv)
+          const std::map<std::string, double> &constants, uintptr_t dgesv, MatrixXd limits)
       : py_{model, data, geom_model, geom_data},
         model_(extract_ref<pinocchio::Model>(model, "pinocchio.Model")),
         data_(extract_ref<pinocchio::Data>(data, "pinocchio.Data")),
@@ -475,14 +477,17 @@ class Stepper {
         thinnest_(thinnest_pair), tol_(tol), tunnelling_(tunnelling), sep_elastic_(separating_elastic),
         slow_plastic_(slow_plastic), bias_midpoint_(bias_midpoint), velocity_bias_(velocity_bias),
         projection_(projection), C_(Constants::from(constants)),
-        dgesv_(reinterpret_cast<dgesv_t>(dgesv)) {
+        dgesv_(reinterpret_cast<dgesv_t>(dgesv)), limits_(std::move(limits)) {
     if (pairs_.cols() != 5 || (Eigen::Index)gm_.collisionPairs.size() != pairs_.rows())
       throw nb::value_error("pairs: (number of collision pairs, 5) expected");
     if (mask_.rows() != model_.njoints || mask_.cols() != model_.nv) throw nb::value_error("mask: (njoints, nv)");
+    if (limits_.cols() != 6) throw nb::value_error("limits: (number of joint limits, 6) expected");
   }
 
-  StepOut step(const VectorXd &q, const VectorXd &u, double h, double e) {
+  StepOut step(const VectorXd &q, const VectorXd &u, double h, double e, const VectorXd &tau) {
     StepOut out;
+    if (tau.size() != 0 && tau.size() != model_.nv) throw nb::value_error("tau: size nv (or empty) expected");
+    tau_ = tau;  // the step's joint torques (actuation.py), evaluated by Python at (t_m, q_m, u_k); empty: none
     try {
       step_(q, u, h, e, out);
     } catch (const Fallback &f) {
@@ -497,6 +502,7 @@ class Stepper {
 
  private:
   nb::object py_[4];  // keeps the Python objects (and so the C++ ones) alive
+  VectorXd tau_;  // the current step's joint torques (empty: none)
   const pinocchio::Model &model_;
   pinocchio::Data &data_;
   const pinocchio::GeometryModel &gm_;
@@ -512,6 +518,7 @@ class Stepper {
   bool sep_elastic_, slow_plastic_, bias_midpoint_, velocity_bias_, projection_;
   Constants C_;
   dgesv_t dgesv_;
+  MatrixXd limits_;  // model.limits: pair, joint, idx_q, idx_v, sign, bound per limit (moreau_sim/limits.py)
 
   // ---- pinocchio calls as the Python bindings make them (crba and Minv symmetrized)
   const MatrixXd &crba_world(const VectorXd &q) {
@@ -578,9 +585,9 @@ class Stepper {
     }
   }
 
-  // stepper.free_velocity
+  // stepper.free_velocity (tau_: the step's joint torques, or zero)
   VectorXd free_velocity(const VectorXd &q_m, const VectorXd &u, double h) {
-    const VectorXd zero = VectorXd::Zero(model_.nv);
+    const VectorXd zero = tau_.size() ? tau_ : VectorXd::Zero(model_.nv);
     VectorXd a = pinocchio::aba(model_, data_, q_m, u, zero);
     VectorXd u_free = u + h * a;
     if (!bias_midpoint_ || !velocity_bias_) return u_free;
@@ -667,12 +674,34 @@ class Stepper {
     return found;
   }
 
+  // constraints.closed_limits: the joint limits with g = sign (q_i - bound) <= tol, appended (pair, kind, feature:
+  // the limit's pair index, JOINT_LIMIT, its joint; no points, zero normals)
+  void closed_limits(const VectorXd &q_m, std::vector<Found> &found) const {
+    for (Eigen::Index k = 0; k < limits_.rows(); ++k) {
+      const double g = limits_(k, 4) * (q_m[(Eigen::Index)limits_(k, 2)] - limits_(k, 5));
+      if (g <= tol_)
+        found.push_back({g, Vec3::Zero(), Vec3::Zero(), Vec3::Zero(), (int)limits_(k, 0), C_.joint_limit,
+                         (int)limits_(k, 1)});
+    }
+  }
+  // a contact's joints (A, B): its pair's, or a joint limit's (its joint, the world)
+  std::pair<int, int> joints_of(const Found &f) const {
+    if (f.kind == C_.joint_limit) return {f.feature, 0};
+    return {(int)pairs_(f.pair, 2), (int)pairs_(f.pair, 3)};
+  }
+
   // constraints.contact_rows: w = mask_a (n'J_lin + (p_a x n)'J_ang) - mask_b (same at p_b), summed as qp.ordered
   MatrixXd contact_rows(const std::vector<Found> &f) {
     const Eigen::Index nv = model_.nv, m = (Eigen::Index)f.size();
     const auto &J = data_.J;  // (6, nv) WORLD
     MatrixXd W(nv, m);
     for (Eigen::Index i = 0; i < m; ++i) {
+      if (f[i].kind == C_.joint_limit) {  // the constant row sign e_{idx_v}
+        const Eigen::Index k = f[i].pair - (Eigen::Index)pairs_.rows();
+        W.col(i).setZero();
+        W((Eigen::Index)limits_(k, 3), i) = limits_(k, 4);
+        continue;
+      }
       const int ja = (int)pairs_(f[i].pair, 2), jb = (int)pairs_(f[i].pair, 3);
       const Vec3 &n = f[i].n;
       Vec3 c[2];
@@ -719,6 +748,7 @@ class Stepper {
     const double travel = h * (nv ? u.cwiseAbs().maxCoeff() : 0.0) * reach_;
     std::vector<Found> found = detect(q_m);
     if (tunnelling_ == 2 || (tunnelling_ == 0 && travel > thinnest_)) throw Fallback{"swept detection"};
+    closed_limits(q_m, found);
     if (found.empty()) {
       VectorXd u_free = free_velocity(q_m, u, h);
       out.q_next = pinocchio::integrate(model_, q_m, (0.5 * h) * u_free);
@@ -782,7 +812,8 @@ class Stepper {
       out.point_a.row(i) = con[i].pa.transpose(), out.point_b.row(i) = con[i].pb.transpose();
       out.normal.row(i) = con[i].n.transpose();
       out.pair[i] = con[i].pair, out.kind[i] = con[i].kind, out.feature[i] = con[i].feature;
-      out.joint_a[i] = pairs_(con[i].pair, 2), out.joint_b[i] = pairs_(con[i].pair, 3);
+      const auto jab = joints_of(con[i]);
+      out.joint_a[i] = jab.first, out.joint_b[i] = jab.second;
     }
     out.P = std::move(P), out.gamma_minus = std::move(gamma_minus), out.gamma_plus = std::move(gamma_plus);
     out.v_free = std::move(v_free), out.b = std::move(b), out.v = std::move(res.v), out.lam = std::move(res.lam);
@@ -801,7 +832,11 @@ class Stepper {
     if (m == 0 || g_next.minCoeff() >= -tol_) return;
     const double E0 = energy(q, u);
     const double E1 = energy(q_next, u_next);
-    const double budget = E0 - E1;
+    double budget = E0 - E1;
+    if (tau_.size()) {  // what the step dissipated beyond the torques' work h tau.(u + u_next)/2 (theory §5.5)
+      const VectorXd s = u + u_next;
+      budget += 0.5 * h * odot(tau_.data(), s.data(), model_.nv);
+    }
     // stepper._resting: the bodies of every penetrating contact end the step at rest
     // (|u_next_j| <= resting max|u_free - u| wherever a penetrating row has w_ij != 0)
     bool resting = true;
@@ -856,8 +891,9 @@ NB_MODULE(_step, mod) {
       .def(nb::init<nb::object, nb::object, nb::object, nb::object, std::vector<MatrixXd>, std::vector<int>,
                     std::vector<Vec3>, std::vector<double>, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic>,
                     MatrixXd, double, double, double, int, bool, bool, bool, bool, bool,
-                    const std::map<std::string, double> &, uintptr_t>())
-      .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"))
+                    const std::map<std::string, double> &, uintptr_t, MatrixXd>())
+      .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"),
+           nb::arg("tau") = VectorXd())
       .def_prop_ro("constants", &Stepper::constants);
   // the names the constants dict must hold (moreau_sim/compiled.py CONSTANTS), and a dict as the step reads it
   mod.def("constant_names", []() { return Constants::keys(); });

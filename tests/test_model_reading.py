@@ -109,13 +109,27 @@ def test_a_data_that_cannot_be_allocated_names_its_size(tmp_path, monkeypatch):
     refused(scene(tmp_path, 'urdf = "chain.urdf"\nroot_joint = "fixed"'), "nv = 10", "more than the")
 
 
-def test_model_building_makes_one_data(monkeypatch):
-    """The mass-matrix check and the velocity-bias probe share one Data (no second nv^3 allocation)."""
+def test_model_building_makes_no_data_of_the_whole_model(monkeypatch):
+    """The mass-matrix check and the velocity-bias probe run body by body on each body's own model
+    (M is block diagonal by bodies): Datas of the bodies' sizes only, none of the whole model's nv."""
     made = []
     real = model_module.new_data
-    monkeypatch.setattr(model_module, "new_data", lambda m, where: made.append(m.nv) or real(m, where))
+    monkeypatch.setattr(model_module, "new_data", lambda m, where, **kw: made.append(m.nv) or real(m, where, **kw))
     m = ms.build_model(ms.load_scene(ROOT / "scenes" / "newton_cradle_5.toml"))
-    assert made == [m.nv]
+    assert made == [b.v_slice.stop - b.v_slice.start for b in m.bodies] == [1] * 5
+
+
+def test_the_data_limit_is_stated_and_overridable(tmp_path, monkeypatch):
+    """$MOREAU_SIM_DATA_LIMIT_GB replaces the memory available as the limit (here 1e-6 GiB, about 1 kB:
+    a 10-link chain's Data needs 32 kB); the refusal names it, the scene, the bodies and nv."""
+    chain_urdf(tmp_path / "chain.urdf", 11)
+    s = scene(tmp_path, 'urdf = "chain.urdf"\nroot_joint = "fixed"')
+    monkeypatch.setenv(model_module.DATA_LIMIT_VARIABLE, "1e-6")
+    refused(s, s, "1 bodies", "nv = 10", "MOREAU_SIM_DATA_LIMIT_GB = 1e-6 GiB")
+    monkeypatch.setenv(model_module.DATA_LIMIT_VARIABLE, "lots")
+    refused(s, "MOREAU_SIM_DATA_LIMIT_GB", "a number of GiB expected")
+    monkeypatch.setenv(model_module.DATA_LIMIT_VARIABLE, "1")
+    assert ms.build_model(ms.load_scene(s)).nv == 10
 
 
 # ------------------------------------------------------------------ inertias

@@ -521,6 +521,7 @@ def test_panda_table_replay_in_chromium(panda, browser, tmp_path):
     img, hsv = p.shot()
     _save(img, "viewer_panda_table.png")
     coloured = (hsv[..., 1] >= 0.3) & (hsv[..., 2] >= 0.25)
-    assert coloured.sum() > 1500, "the arm is not drawn"
+    # measured 1448 px since joint limits (the elbow strikes its limit: the arm lies flatter on the table)
+    assert coloured.sum() > 1200, "the arm is not drawn"
     assert not coloured[:3].any() and not coloured[:, :3].any() and not coloured[:, -3:].any()
     assert p.errors() == []

@@ -201,17 +201,42 @@ def info(scene, all_pairs, as_json):
     click.echo(f"{d['scene']}: nq = {d['nq']}, nv = {d['nv']}, e = {d['restitution']:g}, h = {d['dt']:g} s, "
                f"duration = {d['duration']:g} s, gravity = {d['gravity']}")
     for b in d["bodies"]:
-        click.echo(f"  body {b['name']}: root {b['root_joint']}, nq = {b['nq']}, nv = {b['nv']} ({b['urdf']})")
+        srdf = f"; SRDF {b['srdf']}" if b["srdf"] else ""
+        click.echo(f"  body {b['name']}: root {b['root_joint']}, nq = {b['nq']}, nv = {b['nv']} ({b['urdf']}{srdf})")
     names = model.coordinates()
     click.echo(f"  coordinates q ({len(names['q_names'])}): {', '.join(names['q_names'])}")
     click.echo(f"  velocities u ({len(names['u_names'])}): {', '.join(names['u_names'])}")
+    click.echo(f"  joints in the order of q ({len(d['joints'])}): name, type, q indices, position limits")
+    width = max([len(j["name"]) for j in d["joints"]] + [0])
+    for j in d["joints"]:
+        q = f"q[{j['q'][0]}]" if j["q"][1] - j["q"][0] == 1 else f"q[{j['q'][0]}:{j['q'][1]}]"
+        click.echo(f"    {j['name']:<{width}}  {j['type']:<24} {q:<10} {_limits(j)}")
     pairs = d["collision_pairs"]
-    shown = pairs if all_pairs else pairs[:PAIRS_SHOWN]
-    click.echo(f"  collision pairs ({len(pairs)}):")
+    _list(f"collision pairs ({len(pairs)}):", pairs, all_pairs)
+    excluded = d["excluded_pairs"]
+    _list(f"excluded pairs ({len(excluded)}: the SRDF's, overlapping at a reference pose, [collisions] exclude):",
+          [f"{e['pair']}  ({e['why']})" for e in excluded], all_pairs)
+
+
+def _list(title: str, rows: list[str], every: bool) -> None:
+    """One indented title and its rows (the first PAIRS_SHOWN unless `every`)."""
+    shown = rows if every else rows[:PAIRS_SHOWN]
+    click.echo(f"  {title}")
     for p in shown:
         click.echo(f"    {p}")
-    if len(shown) < len(pairs):
-        click.echo(f"    ... and {len(pairs) - len(shown)} more (--all-pairs or --json lists them)")
+    if len(shown) < len(rows):
+        click.echo(f"    ... and {len(rows) - len(shown)} more (--all-pairs or --json lists them)")
+
+
+def _limits(joint: dict) -> str:
+    """A joint's position limits, [lower, upper] per limited coordinate with its unit, or "unlimited"."""
+    unit = " rad" if joint["type"].startswith(("revolute", "continuous")) else (
+        " m" if joint["type"].startswith("prismatic") else "")
+    pairs = [(lo, up) for lo, up in zip(joint["lower"], joint["upper"]) if lo is not None or up is not None]
+    if not pairs:
+        return "unlimited"
+    return ", ".join(f"[{'-inf' if lo is None else f'{lo:.6g}'}, {'inf' if up is None else f'{up:.6g}'}]"
+                     for lo, up in pairs) + unit
 
 
 @click.command()

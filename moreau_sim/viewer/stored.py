@@ -65,6 +65,11 @@ def model_from_trajectory(traj: Trajectory | str | Path) -> Model:
             path = Path(tmp) / f"{i}_{re.sub(r'[^A-Za-z0-9_.-]', '_', str(bname))}.{'xml' if key == 'mjcf' else 'urdf'}"
             path.write_text(urdfs[bname], encoding="utf-8")
             body[key] = str(path)
+            srdf = (sc.get("srdf") or {}).get(bname)  # the SRDF the run read (its pairs), or none
+            body["srdf"] = False
+            if isinstance(srdf, str):
+                body["srdf"] = str(path.with_suffix(".srdf"))
+                path.with_suffix(".srdf").write_text(srdf, encoding="utf-8")
         scene_path = Path(tmp) / name
         scene_text = tomli_w.dumps(doc)
         scene_path.write_text(scene_text, encoding="utf-8")

@@ -1,0 +1,160 @@
+"""Joint torques tau (nv,) [N or N m] of a model: the scene's PD targets ([[actuators]], docs/scenes.md)
+and a Python controller f(t, q, u) -> tau (simulate(..., controller=f)), evaluated once per step at the
+step's force evaluation (t_m, q_m, u_k) and clamped by the effort limits (docs/theory.md §2.1, §5.5).
+The root joint of a body that is not fixed to the world (free, planar, ...) is never actuated."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import SceneError, SimulationError
+from .options import require
+from .prescribed import Schedule, constant, parse_schedule
+
+Controller = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class PDGroup:
+    """One [[actuators]] entry resolved on the model: joints' q and v indices, gains kp [N m/rad or
+    N/m] and kd [N m s/rad or N s/m], the target position schedule and the target velocity schedule
+    (None: the target's own derivative), the entry's effort clamp (inf: none)."""
+
+    name: str
+    q_index: np.ndarray
+    v_index: np.ndarray
+    kp: float
+    kd: float
+    target: Schedule
+    velocity: Schedule | None
+    effort: float
+
+    def torque(self, t: float, q: np.ndarray, u: np.ndarray) -> np.ndarray:
+        x, xd = self.target.at(t)
+        if self.velocity is not None:
+            xd = self.velocity.at(t)[0]
+        tau = self.kp * (x - q[self.q_index]) + self.kd * (xd - u[self.v_index])
+        return np.clip(tau, -self.effort, self.effort)
+
+
+class Actuation:
+    """tau(t, q, u) of one model. limit (nv,): the effort limit of each velocity row [N or N m]
+    (inf: none); root (nv,) bool: the rows of unfixed root joints, never actuated, named by
+    root_names for errors."""
+
+    def __init__(self, nv: int, limit: np.ndarray, root: np.ndarray, root_names: str, groups: tuple[PDGroup, ...],
+                 controller: Controller | None = None):
+        self.nv, self.limit, self.root, self.root_names = nv, limit, root, root_names
+        self.groups, self.controller = groups, controller
+        self._clamped = bool(np.isfinite(limit).any())
+        self._rooted = bool(root.any())
+
+    def with_controller(self, controller: Controller | None) -> "Actuation":
+        return Actuation(self.nv, self.limit, self.root, self.root_names, self.groups, controller)
+
+    def torque(self, t: float, q: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """tau [N or N m] at time t [s], configuration q and velocity u, clamped by the effort limits."""
+        tau = np.zeros(self.nv)
+        for g in self.groups:
+            tau[g.v_index] += g.torque(t, q, u)
+        if self.controller is not None:
+            tau += self._call(t, q, u)
+        if self._clamped:
+            np.minimum(tau, self.limit, out=tau)
+            np.maximum(tau, -self.limit, out=tau)
+        return tau
+
+    def _call(self, t: float, q: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The controller's torques, checked (one line naming what is wrong); it sees read-only views."""
+        qc, uc = q.view(), u.view()
+        qc.flags.writeable = uc.flags.writeable = False
+        try:
+            f = np.asarray(self.controller(t, qc, uc), dtype=float)
+        except SimulationError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the user's function: name it, one line
+            raise SimulationError(f"the controller raised {type(exc).__name__}: {exc} (at t = {t:.6g} s)") from None
+        if f.shape != (self.nv,):
+            raise SimulationError(f"the controller returned shape {f.shape}, expected ({self.nv},) "
+                                  f"(one torque per velocity row, nv = {self.nv}) at t = {t:.6g} s")
+        if not np.isfinite(f).all():
+            raise SimulationError(f"the controller returned a non-finite torque at t = {t:.6g} s")
+        if self._rooted and f[self.root].any():
+            raise SimulationError(f"the controller returned a torque on the rows of a root joint that is not "
+                                  f"fixed ({self.root_names}) at t = {t:.6g} s: floating bases are not actuated")
+        return f
+
+
+def refuse_driven(model, integrator: str) -> None:
+    """SceneError (one line) if `model` has joint torques or a moving static: the event-driven and
+    adaptive integrators do not take them."""
+    if model.actuation is not None or model.prescribed is not None:
+        what = "joint torques (a controller or [[actuators]])" if model.actuation is not None else "a moving static"
+        raise SceneError(f"{model.scene.name}: integrator {integrator!r} does not take {what}: "
+                         "use integrator = \"time-stepping\"")
+
+
+def effort_limits(effort: np.ndarray) -> np.ndarray:
+    """The URDF effort limits as clamps: a limit that is not finite and positive (Pinocchio's 1.8e308 of a
+    joint without one, and the effort = "0" many hand-written URDFs carry) is no clamp."""
+    e = np.asarray(effort, float).copy()
+    e[~(np.isfinite(e) & (e > 0.0) & (e < 1e300))] = np.inf
+    return e
+
+
+_FLOATING = ("free", "planar", "translation")  # root joints that are a floating base, never actuated
+
+
+def build(pm, bodies, actuators, q0: np.ndarray, *, always: bool = False) -> Actuation | None:
+    """The Actuation of a model (None without [[actuators]]): pm the Pinocchio model, bodies the
+    model's BodyInfo, actuators the scene's, q0 the initial configuration (the default target).
+    always: an Actuation even without entries (a controller's). Raises SceneError naming the entry and field."""
+    nv = pm.nv
+    root = np.zeros(nv, bool)
+    names = []
+    for b in bodies:
+        if b.root_joint.value in _FLOATING and b.joints:
+            jm = pm.joints[b.joints[0]]
+            root[jm.idx_v:jm.idx_v + jm.nv] = True
+            names.append(pm.names[b.joints[0]])
+    groups = []
+    for a in actuators:
+        info = next(b for b in bodies if b.name == a.body)
+        own = [j for j in info.joints if not (root[pm.joints[j].idx_v] and j == info.joints[0])]
+        if a.joints is None:
+            joints = [j for j in own if pm.joints[j].nq == 1 and pm.joints[j].nv == 1]
+            require(bool(joints), f"{a.where} joints", "the body has no 1-dof joint to actuate")
+        else:
+            joints = []
+            for name in a.joints:
+                full = f"{a.body}/{name}"
+                require(pm.existJointName(full), f"{a.where} joints",
+                        f"'{name}' names no joint of {a.body} (its joints: "
+                        f"{[pm.names[j].split('/', 1)[1] for j in own]})")
+                j = pm.getJointId(full)
+                require(j in own, f"{a.where} joints", f"'{name}' is the root joint of a floating base: not actuated")
+                require(pm.joints[j].nq == 1 and pm.joints[j].nv == 1, f"{a.where} joints",
+                        f"'{name}' is not a 1-dof revolute or prismatic joint (nq = {pm.joints[j].nq})")
+                joints.append(j)
+        qi = np.array([pm.joints[j].idx_q for j in joints])
+        vi = np.array([pm.joints[j].idx_v for j in joints])
+        n = len(joints)
+        target = constant(q0[qi]) if a.target is None else parse_schedule(a.target, n, f"{a.where} target", key="q")
+        velocity = None if a.velocity is None else parse_schedule(a.velocity, n, f"{a.where} velocity", key="u")
+        groups.append(PDGroup(a.where, qi, vi, a.kp, a.kd, target, velocity,
+                              np.inf if a.effort is None else a.effort))
+    if not groups and not always:
+        return None
+    return Actuation(nv, effort_limits(pm.effortLimit), root, ", ".join(names) or "none", tuple(groups))
+
+
+def for_controller(pm, bodies, actuation: Actuation | None, controller: Controller | None) -> Actuation | None:
+    """The model's actuation with a Python controller added (or removed: None)."""
+    if actuation is None:
+        if controller is None:
+            return None
+        actuation = build(pm, bodies, (), np.zeros(pm.nq), always=True)
+    return actuation.with_controller(controller)

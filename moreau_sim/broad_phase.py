@@ -1,0 +1,121 @@
+"""The detection's broad phase: which collision pairs coal's narrow phase examines (docs/theory.md
+§6.1). A sweep-and-prune on axis-aligned boxes: each geometry's local box (coal's AABB) carried to
+the world and inflated by the narrow phase's security margin; a pair with a half-space is kept
+when the other's box comes within that margin of its plane. A pair it drops is farther apart than
+the margin, where the narrow phase finds no collision: the contacts are those of the all-pairs
+narrow phase, bit for bit for coal's closed-form pairs. A pair coal resolves by GJK warm-starts
+from its own previous query (pinocchio keeps the guess): skipped for a while, it starts again from
+an older guess, and its witness points can differ in round-off (forced on every bundled scene,
+panda_table's mesh pairs differ, the box stacks do not). Linear in geometries plus the pairs it
+keeps (a column of n beads: ~n candidates, not n^2/2).
+
+coal's broad-phase managers would do the same in C++, but coal 3.0.3's Python binding cannot say
+which pairs they found: ``CollisionCallBackCollect.getCollisionPairs()`` has no Python converter
+(TypeError) and ``CollisionCallBackBase`` cannot be subclassed from Python.
+"""
+
+from __future__ import annotations
+
+import weakref
+
+import coal
+import numpy as np
+
+from .model import Model
+
+MIN_PAIRS = 64  # models with more collision pairs than this use the broad phase (below: all pairs, one call)
+SLACK = 1e-6  # [m] added to the margin: the boxes' round-off never drops a pair within the margin
+
+_tables: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+class BroadPhase:
+    """What the sweep-and-prune needs of a model, made once: every geometry's box in its joint's
+    frame (centre, half extents), the half-spaces' planes, and the pairs keyed by geometries."""
+
+    def __init__(self, model: Model, margin: float):
+        gobs = list(model.geom.geometryObjects)
+        G = len(gobs)
+        self.margin = float(margin) + SLACK
+        self.joint = np.array([go.parentJoint for go in gobs], dtype=np.int64)
+        self.centre, self.half = np.zeros((G, 3)), np.zeros((G, 3))
+        bounded = np.ones(G, bool)
+        for g, go in enumerate(gobs):
+            geo = go.geometry
+            if isinstance(geo, (coal.Halfspace, coal.Plane)):
+                bounded[g] = False
+                continue
+            geo.computeLocalAABB()
+            lo, hi = np.array(geo.aabb_local.min_), np.array(geo.aabb_local.max_)
+            R, t = go.placement.rotation, go.placement.translation
+            self.centre[g] = R @ (0.5 * (lo + hi)) + t
+            self.half[g] = np.abs(R) @ (0.5 * (hi - lo))
+        first = np.array([p.first for p in model.pairs], dtype=np.int64)
+        second = np.array([p.second for p in model.pairs], dtype=np.int64)
+        both = bounded[first] & bounded[second]
+        key = np.minimum(first, second) * G + np.maximum(first, second)
+        order = np.argsort(key[both], kind="stable")
+        self.keys = key[both][order]
+        self.key_pairs = np.flatnonzero(both)[order]
+        self.G, self.bounded = G, np.flatnonzero(bounded)
+        # pairs with a half-space {n.x <= d} (n, d in its joint's frame): (pair, half-space, other)
+        half = [(k, a, b) for k, (a, b) in enumerate(zip(first.tolist(), second.tolist()))
+                for a, b in ((a, b), (b, a)) if isinstance(gobs[a].geometry, coal.Halfspace) and bounded[b]]
+        self.half_pairs = np.array([k for k, _, _ in half], dtype=np.int64)
+        self.half_geom = np.array([a for _, a, _ in half], dtype=np.int64)
+        self.half_other = np.array([b for _, _, b in half], dtype=np.int64)
+        self.half_n = np.array([model.bounds[a][1] for _, a, _ in half], float).reshape(-1, 3)
+        self.half_d = np.array([model.bounds[a][2] for _, a, _ in half], float)
+        # any other pair with an unbounded shape (a two-sided plane): always examined
+        with_half = set(self.half_pairs.tolist())
+        self.always = np.array([k for k in np.flatnonzero(~both).tolist() if k not in with_half], dtype=np.int64)
+
+    def candidates(self, data) -> np.ndarray:
+        """Sorted indices of the pairs whose inflated boxes overlap at the configuration of data.pin.oMi
+        (contacts.detect has placed it)."""
+        oMi = data.pin.oMi
+        R = np.array([o.rotation for o in oMi])
+        p = np.array([o.translation for o in oMi])
+        Rg, pg = R[self.joint], p[self.joint]
+        c = np.einsum("gij,gj->gi", Rg, self.centre) + pg
+        h = np.einsum("gij,gj->gi", np.abs(Rg), self.half)
+        out = [self.always, self._sweep(c, h)]
+        if len(self.half_pairs):
+            n = np.einsum("kij,kj->ki", Rg[self.half_geom], self.half_n)  # the plane in the world
+            d = self.half_d + np.einsum("ki,ki->k", n, pg[self.half_geom])
+            o = self.half_other
+            gap = np.einsum("ki,ki->k", n, c[o]) - np.einsum("ki,ki->k", np.abs(n), h[o]) - d
+            out.append(self.half_pairs[gap <= self.margin])
+        return np.unique(np.concatenate(out))
+
+    def _sweep(self, c: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """Pairs of bounded geometries whose boxes, inflated by the margin, overlap: sorted along the
+        axis where the centres spread most, each box against those starting before it ends."""
+        b = self.bounded
+        if len(b) < 2 or not len(self.keys):
+            return np.zeros(0, dtype=np.int64)
+        lo, hi = c[b] - h[b] - self.margin, c[b] + h[b] + self.margin
+        axis = int(np.argmax(c[b].var(axis=0)))
+        order = np.argsort(lo[:, axis], kind="stable")
+        ls, hs = lo[order, axis], hi[order, axis]
+        end = np.searchsorted(ls, hs, side="right")
+        count = np.maximum(end - np.arange(len(b)) - 1, 0)
+        a = np.repeat(np.arange(len(b)), count)
+        k = a + 1 + np.arange(len(a)) - np.repeat(np.cumsum(count) - count, count)
+        i, j = order[a], order[k]
+        overlap = ((lo[i] <= hi[j]) & (lo[j] <= hi[i])).all(axis=1)
+        gi, gj = b[i[overlap]], b[j[overlap]]
+        key = np.minimum(gi, gj) * self.G + np.maximum(gi, gj)
+        pos = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
+        return self.key_pairs[pos[self.keys[pos] == key]]
+
+
+def of(model: Model, margin: float) -> BroadPhase | None:
+    """The model's broad phase for the narrow phase's security margin [m] (made once per model), or
+    None when the model has at most MIN_PAIRS pairs (coal's narrow phase on all of them is cheaper)."""
+    if len(model.pairs) <= MIN_PAIRS:
+        return None
+    bp = _tables.get(model)
+    if bp is None or bp.margin != float(margin) + SLACK:
+        bp = _tables[model] = BroadPhase(model, margin)
+    return bp
