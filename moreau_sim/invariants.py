@@ -68,6 +68,7 @@ class Invariants:
         self.E0 = self.E = self.Ehat = self.Emin = 0.0  # [J] start, last point, unexplained energy, its minimum
         self.scale = 0.0  # [J] max(|E_0|, max T): the energy the bounds refer to (as ledger.Ledger.scale)
         self.booked = 0.0  # [J] the positive energy booked so far (correction, smooth error): the speed budget
+        self.external = 0.0  # [J] the work done on the system so far (torques, moving statics, §5.5)
         self.residual = 0.0  # [J] the ledger's running residual (samples)
         self.Es = math.nan  # [J] T + V at the last sample (NaN before the first)
         self.v_app = 0.0  # [m/s] the largest approach speed |gamma-| of any contact step or impact so far
@@ -112,7 +113,7 @@ class Invariants:
         self.Ehat = self.Emin = 0.0
         self.scale = max(abs(self.E0), T)
         if rec.n:
-            g = rec.last_sample()[5]
+            g = rec.last_sample()[-1]
             if g.size:
                 depth = -float(g.min())
                 if depth > self.tol:  # a start deeper than the rest rule is meant for (model.check_start's rule)
@@ -127,11 +128,15 @@ class Invariants:
         E = T + V
         dE = E - self.E
         booked = rep.corr
+        ext = 0.0  # [J] the work done on the system in this step (§5.5): T + V rises by it legitimately
         deep = allowed = 0.0
         records = rep.records
         for r in records:
             if type(r) is FixedStep:
                 res = r.result
+                if res.tau is not None:
+                    ext += 0.5 * r.h * float(res.tau @ (r.before.u + res.state.u))
+                ext += res.obstacle_work
                 if res.contacts.m:
                     # the step's own transient at its midpoint, h/2 (|gamma-| + 2 h |g|), and as much again that the
                     # previous step may have left: h (...), with the largest approach of the streak
@@ -144,14 +149,15 @@ class Invariants:
                     a = self.tol + r.h * self.v_streak + GAP_ROUND_OFF
                     if d - a > deep - allowed:
                         deep, allowed = d, a
-                elif len(records) == 1:  # a contact-free fixed step: its change is the smooth error (§5.3)
-                    booked = dE
+                elif len(records) == 1:  # a contact-free fixed step: its change beyond ext is the smooth error (§5.3)
+                    booked = dE - ext
             elif type(r) is Impact and len(r.gamma_minus):
                 self.v_app = max(self.v_app, -min(r.gamma_minus.tolist()))
         self.E = E
         if booked > 0.0:
             self.booked += booked
-        Ehat = self.Ehat = self.Ehat + (dE - booked)
+        self.external += ext
+        Ehat = self.Ehat = self.Ehat + (dE - booked - ext)
         if T > self.scale:
             self.scale = T
         bound = self.rel * self.scale
@@ -161,8 +167,8 @@ class Invariants:
         elif Ehat - self.Emin > bound:
             out = self._violate(Invariant.ENERGY_GAIN, state.t, Ehat - self.Emin, bound, "J",
                                 f"T + V rose {Ehat - self.Emin:.3g} J above its running minimum (booked "
-                                f"correction and smooth error taken out)")
-        budget = self.E0 - V + self.booked + bound
+                                f"correction, smooth error and work done on it taken out)")
+        budget = self.E0 - V + self.booked + self.external + bound
         if T > budget:
             out = (out or []) + self._violate(Invariant.SPEED, state.t, T - budget, bound, "J",
                                               f"kinetic energy {T:.6g} J exceeds what the energy allows, "
@@ -180,11 +186,11 @@ class Invariants:
         return out or None
 
     def _sample(self, state: State, rec: Recorder) -> list[dict] | None:
-        T, V, work, corr, smooth, g = rec.last_sample()
+        T, V, work, corr, smooth, external, g = rec.last_sample()
         Es, self.Es = self.Es, T + V
         if Es != Es:  # NaN: the first sample (the start: checked by _start, which follows it)
             return None
-        residual = self.residual = self.residual + ((T + V) - Es - (work + corr + smooth))
+        residual = self.residual = self.residual + ((T + V) - Es - (work + corr + smooth + external))
         bound = self.rel_ledger * self.scale
         out = None
         # the fixed step's residual of contact steps with rotation is first order in h (§5.4), an
@@ -192,7 +198,7 @@ class Invariants:
         if (residual if self.fixed else abs(residual)) > bound:
             out = self._violate(Invariant.LEDGER, state.t, abs(residual), bound, "J",
                                 f"the energy budget leaves {residual:+.3g} J (E_end - E_0 - contact work - "
-                                "correction - smooth error)")
+                                "correction - smooth error - work done on it)")
         if len(g):
             depth = -min(g.tolist())
             allowed = self.tol + self.h * self.v_app + GAP_ROUND_OFF
@@ -220,7 +226,7 @@ class Invariants:
         return [v]
 
     # ---- a checkpoint carries the running figures --------------------------------------------------------------
-    _CARRIED = ("E0", "E", "Ehat", "Emin", "scale", "booked", "residual", "Es", "v_app", "deep_points",
+    _CARRIED = ("E0", "E", "Ehat", "Emin", "scale", "booked", "external", "residual", "Es", "v_app", "deep_points",
                 "deep_samples", "v_streak", "last_depth", "last_allowed", "points")
 
     def state_dict(self) -> dict:

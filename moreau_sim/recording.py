@@ -295,12 +295,13 @@ class Recorder:
         at = self._at
         return self._TV if at is not None and at[0] is state.q and at[1] is state.u else None
 
-    def last_sample(self) -> tuple[float, float, float, float, float, np.ndarray]:
-        """The last sample's T, V, contact work, correction energy, smooth error [J] and pair gaps [m]
-        (a view of its row)."""
+    def last_sample(self) -> tuple[float, float, float, float, float, float, np.ndarray]:
+        """The last sample's T, V, contact work, correction energy, smooth error, the work done on the
+        system (actuator + obstacle work, §5.5; 0 in a passive run) [J] and pair gaps [m] (a view of its row)."""
         i, c = self._samples.last, self._samples.cols
+        external = float(c["actuator_work"][i] + c["obstacle_work"][i]) if self._external else 0.0
         return (float(c["kinetic_energy"][i]), float(c["potential_energy"][i]), float(c["contact_work"][i]),
-                float(c["correction_energy"][i]), float(c["smooth_error"][i]), c["gap"][i])
+                float(c["correction_energy"][i]), float(c["smooth_error"][i]), external, c["gap"][i])
 
     def _smooth_until(self, E: float, t: float) -> None:
         """Contact-free motion from the last accounted state to a state of T + V = E [J] at t [s]:
