@@ -10,12 +10,14 @@ Output layout of ``out_dir``:
   sweep.csv        one row per point: id, the swept options, status, message, the figures of
                    :func:`moreau_sim.simulate.summary`, energy_lost [J], npz (path relative to out_dir)
   sweep.parquet    the same table, written only when pyarrow is importable
-  runs/ID.npz      the complete trajectory of point ID; runs/ID.failed.npz the samples of a failed one
+  runs/ID.npz      the trajectory of point ID that ran to its end (complete or flagged);
+                   runs/ID.failed.npz the samples of a failed one
 
 A point's id is a hash of the scene file text, its URDF files and the point's full effective
 options, so the same simulation has the same id in any sweep. Resume: a point whose
-runs/ID.npz is complete (meta status "complete") is not recomputed; its row is taken from the
-existing table, or rebuilt from the NPZ when the table lost it. Failed points are run again.
+runs/ID.npz ran to its end (meta status "complete", or "flagged": it broke an invariant,
+docs/theory.md §10, and would again) is not recomputed; its row is taken from the existing
+table, or rebuilt from the NPZ when the table lost it. Failed points are run again.
 Runs execute in a local process pool or on a Dask cluster; the results come back to this
 process, which alone writes the NPZ files (atomically, as each run finishes) and the table
 (atomically, at most once a second and at the end, including on an interruption).
@@ -50,6 +52,7 @@ except ImportError:  # not POSIX: no lock
     fcntl = None
 
 from .errors import MoreauSimError, SceneError, SimulationError, SimulationInterrupted
+from .invariants import flagged, one_line
 from .model import build_model
 from .options import Options
 from .scene import Scene, load_scene
@@ -98,7 +101,11 @@ class Status(enum.Enum):
     """Outcome of one point."""
 
     COMPLETE = "complete"
+    FLAGGED = "flagged"  # ran to its end but broke an invariant (invariants.py): the violations in the message
     FAILED = "failed"  # SimulationError: message in the row, samples up to it in runs/ID.failed.npz
+
+
+_FINISHED = {Status.COMPLETE.value, Status.FLAGGED.value}  # a point that ran to its end: not recomputed
 
 
 WALL_COLUMNS = ("wall_seconds", "us_per_step")  # differ between identical runs; all others do not
@@ -119,8 +126,9 @@ class Param:
 class SweepResult:
     """What :func:`run_sweep` did. ``rows`` are the table rows of this grid's points, in grid
     order (the table file may hold rows of earlier sweeps too). computed + skipped + failed is
-    the number of distinct points: skipped were complete already, failed raised
-    SimulationError now, computed completed now."""
+    the number of distinct points: skipped had run to their end already, failed raised
+    SimulationError now, computed ran to their end now; flagged: how many of those computed
+    broke an invariant (status flagged)."""
 
     out_dir: Path
     table: Path
@@ -129,6 +137,7 @@ class SweepResult:
     computed: int
     skipped: int
     failed: int
+    flagged: int = 0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -277,11 +286,14 @@ class _Outcome:
 def _simulate_point(scene: Scene) -> _Outcome:
     """The task of a worker: build and simulate; a SimulationError is a result, not an error."""
     try:
-        return _Outcome(Status.COMPLETE, None, simulate(build_model(scene), progress=False))
+        traj = simulate(build_model(scene), progress=False)
     except SimulationInterrupted:  # Ctrl-C or SIGTERM stops the sweep, not only this point
         raise KeyboardInterrupt from None
     except SimulationError as exc:
         return _Outcome(Status.FAILED, str(exc), exc.trajectory)
+    if flagged(traj.meta):
+        return _Outcome(Status.FLAGGED, one_line(traj.meta["invariants"]), traj)
+    return _Outcome(Status.COMPLETE, None, traj)
 
 
 def _param_cell(name: str, value):
@@ -381,15 +393,17 @@ def _pyarrow():
     return pa, pq
 
 
-def _npz_complete(path: Path) -> bool:
-    """True if `path` is a trajectory NPZ whose meta says complete and whose arrays match the
-    checksum written with them (a damaged file is recomputed, never passed as complete)."""
+def _npz_finished(path: Path) -> str | None:
+    """The status (complete or flagged) if `path` is a trajectory NPZ whose run ran to its end and
+    whose arrays match the checksum written with them, else None (a damaged file is recomputed,
+    never passed as finished)."""
     if not path.is_file():
-        return False
+        return None
     try:
-        return load_trajectory(path, verify=True).meta.get("status") == Status.COMPLETE.value
+        status = load_trajectory(path, verify=True).meta.get("status")
     except ValueError:  # unreadable, truncated, damaged, not ours: recompute
-        return False
+        return None
+    return status if status in _FINISHED else None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -505,21 +519,25 @@ def _point_scene(scene: Scene, point: dict) -> Scene:
 
 
 def _resume(table: _Table, out_dir: Path, ids, points, scenes) -> list[tuple[int, Scene]]:
-    """Fill `table` with the rows of points complete in out_dir; return the others (index, scene)."""
+    """Fill `table` with the rows of points that ran to their end in out_dir (complete or flagged);
+    return the others (index, scene)."""
     todo, seen = [], set()
     for i, (pid, point, sc) in enumerate(zip(ids, points, scenes)):
         if pid in seen:  # the same simulation twice in one grid
             continue
         seen.add(pid)
         npz = out_dir / RUNS / f"{pid}.npz"
-        if not _npz_complete(npz):
+        status = _npz_finished(npz)
+        if status is None:
             todo.append((i, sc))
             continue
         old = table.old.get(pid)
-        if old is not None and old.get("status") == Status.COMPLETE.value:
+        if old is not None and old.get("status") == status:
             table.rows[pid] = {**old, **{k: _param_cell(k, v) for k, v in point.items()}}
         else:  # finished, but its row was never written: rebuild it from the file
-            table.rows[pid] = _row(pid, point, Status.COMPLETE, None, load_trajectory(npz), f"{RUNS}/{npz.name}")
+            traj = load_trajectory(npz)
+            message = one_line(traj.meta.get("invariants", [])) if status == Status.FLAGGED.value else None
+            table.rows[pid] = _row(pid, point, Status(status), message, traj, f"{RUNS}/{npz.name}")
     return todo
 
 
@@ -527,14 +545,15 @@ def run_sweep(scene_path: str | Path, params: Iterable[Param], out_dir: str | Pa
               workers: int | None = None, dask_address: str | None = None,
               progress: bool = True) -> SweepResult:
     """Simulate every point of ``grid(params)`` on the scene file and write ``out_dir``
-    (module docstring). Points already complete there are skipped (resume).
+    (module docstring). Points that ran to their end there (complete or flagged) are skipped (resume).
 
     workers: local processes (default: the usable cores; 1 runs in this process).
     dask_address: run on an existing Dask distributed scheduler instead (e.g. "tcp://host:8786");
         its workers must import moreau_sim and read the scene and URDF files at the same paths.
     progress: a tqdm bar over the points.
     Raises SceneError (bad scene, or a point whose options are invalid together, naming it) or
-    SweepError; a point that fails with SimulationError is recorded as ``failed``. On an
+    SweepError; a point that fails with SimulationError is recorded as ``failed``, one that ran to
+    its end but broke an invariant as ``flagged`` (its violations in the message). On an
     interruption (KeyboardInterrupt) the table is written before the exception propagates.
     """
     params = list(params)
@@ -547,7 +566,7 @@ def run_sweep(scene_path: str | Path, params: Iterable[Param], out_dir: str | Pa
     ids = [point_id(sc) for sc in scenes]
     out_dir = Path(out_dir)
     (out_dir / RUNS).mkdir(parents=True, exist_ok=True)
-    computed = failed = 0
+    computed = failed = n_flagged = 0
     with locked(out_dir):
         table = _Table(out_dir, [p.name for p in params], _read_table(out_dir / TABLE), ids)
         todo = _resume(table, out_dir, ids, points, scenes)
@@ -563,9 +582,10 @@ def run_sweep(scene_path: str | Path, params: Iterable[Param], out_dir: str | Pa
         try:
             for i, out in results:  # as they finish: save the NPZ at once, then the row
                 pid = ids[i]
-                if out.status is Status.COMPLETE:
+                if out.status is not Status.FAILED:
                     npz = out.trajectory.save(out_dir / RUNS / f"{pid}.npz")
                     computed += 1
+                    n_flagged += out.status is Status.FLAGGED
                 else:
                     npz = out.trajectory.save(out_dir / RUNS / f"{pid}.failed.npz") if out.trajectory else None
                     failed += 1
@@ -581,4 +601,4 @@ def run_sweep(scene_path: str | Path, params: Iterable[Param], out_dir: str | Pa
     rows = {r["id"]: r for r in table.all_rows()}
     return SweepResult(out_dir=out_dir, table=table.path, parquet=table.parquet if _pyarrow() else None,
                        rows=tuple(rows[pid] for pid in dict.fromkeys(ids)), computed=computed,
-                       skipped=skipped, failed=failed)
+                       skipped=skipped, failed=failed, flagged=n_flagged)

@@ -24,8 +24,10 @@ Arrays (n = saved samples, k = logged contact percussions):
   branch_start, branch_count (its candidates' rows in candidate_*); candidate_u_plus (c, nv),
   candidate_distance (c,) [J] (1/2 |v - v_free|_M^2), candidate_global_min (c,) bool.
   meta: one JSON string: scene (name, path, TOML source, URDF texts), options, model summary,
-  package versions, status ("complete" or "failed: ..."), run statistics, and "ledger": the
-  per-run figures no array holds (largest energy rise of any step, largest law difference).
+  package versions, status (protocol.RunStatus: "complete"; "flagged" when the run ran to its end
+  but broke an invariant, listed in "invariants", docs/theory.md §10; or "failed: ..." and the
+  reason), run statistics, and "ledger": the per-run figures no array holds (largest energy rise
+  of any step, largest law difference).
 """
 
 from __future__ import annotations

@@ -13,8 +13,21 @@ import pytest
 from click.testing import CliRunner
 
 import moreau_sim as ms
+from moreau_sim import invariants
 from moreau_sim.cli.sweep import sweep
-from moreau_sim.sweep import FIELDS, RUNS, WALL_COLUMNS, Kind, Param, SweepError, grid, parse_param, point_id, run_sweep
+from moreau_sim.sweep import (
+    FIELDS,
+    RUNS,
+    TABLE,
+    WALL_COLUMNS,
+    Kind,
+    Param,
+    SweepError,
+    grid,
+    parse_param,
+    point_id,
+    run_sweep,
+)
 
 from helpers import SCENES
 
@@ -207,6 +220,25 @@ def test_a_failed_point_is_recorded_not_fatal(tmp_path):
     assert read_csv(res.table)[1]["message"] == bad["message"]
     again = run_sweep(BALL, ps, tmp_path, workers=1, progress=False)  # failed points are retried
     assert (again.computed, again.skipped, again.failed) == (0, 1, 1)
+
+
+def test_a_flagged_point_is_recorded_and_not_recomputed(tmp_path, monkeypatch):
+    """A point that ran to its end but broke an invariant (the fixed step's bound set below zero,
+    so that every run breaks it at once) is flagged, with its violations; a resume keeps it."""
+    monkeypatch.setattr(invariants, "FIXED_RTOL", -1.0)
+    ps = params("dt=1e-3", "duration=0.05")
+    res = run_sweep(BALL, ps, tmp_path, workers=1, progress=False)
+    assert (res.computed, res.skipped, res.failed, res.flagged) == (1, 0, 0, 1)
+    row = res.rows[0]
+    assert row["status"] == "flagged" and "energy gain" in row["message"] and row["npz"] == f"{RUNS}/{row['id']}.npz"
+    assert ms.load_trajectory(tmp_path / row["npz"]).meta["status"] == "flagged"
+    assert read_csv(res.table)[0]["status"] == "flagged"
+    again = run_sweep(BALL, ps, tmp_path, workers=1, progress=False)
+    assert (again.computed, again.skipped, again.failed) == (0, 1, 0) and again.rows[0]["status"] == "flagged"
+    (tmp_path / TABLE).unlink()  # the row lost: rebuilt from the NPZ, still flagged
+    rebuilt = run_sweep(BALL, ps, tmp_path, workers=1, progress=False)
+    row = rebuilt.rows[0]
+    assert rebuilt.skipped == 1 and row["status"] == "flagged" and "energy gain" in row["message"]
 
 
 def test_dask_cluster_gives_the_same_table(local, tmp_path):

@@ -35,7 +35,8 @@ from .paths import output_dir
 def sweep(scene, params, settings, out_dir, workers, dask_address, progress, as_json):
     """Simulate SCENE at every point of a grid of options; write a table of summary metrics
     (sweep.csv) and one NPZ per run (runs/) into the output directory. Exits 0 when every point
-    ran, 1 when some failed, 2 on bad input."""
+    ran to its end (complete, or flagged: it broke an invariant, listed on stderr), 1 when some
+    failed, 2 on bad input."""
     try:
         parsed = [parse_param(p) for p in params]
         parsed += [Param(k, (v,), f"{k}={v}") for k, v in parse_settings(settings).items()]
@@ -48,15 +49,15 @@ def sweep(scene, params, settings, out_dir, workers, dask_address, progress, as_
     except KeyboardInterrupt:
         fail(f"interrupted by {interrupts.signal_name()}; finished runs are kept in {out_dir}: run the same command "
              "again to resume", interrupts.exit_status())
-    status = 1 if any(r["status"] != "complete" for r in res.rows) else 0
+    status = 1 if any(r["status"] == "failed" for r in res.rows) else 0
     if as_json:
         click.echo(json.dumps({"table": str(res.table), "parquet": str(res.parquet) if res.parquet else None,
                                "points": len(res.rows), "computed": res.computed, "skipped": res.skipped,
-                               "failed": res.failed, "rows": list(res.rows)}, indent=2))
+                               "failed": res.failed, "flagged": res.flagged, "rows": list(res.rows)}, indent=2))
         sys.exit(status)
     click.echo(f"{len(res.rows)} points: {res.computed} computed, {res.skipped} already done, "
                f"{res.failed} failed -> {res.table}" + (f" and {res.parquet}" if res.parquet else ""))
     for r in res.rows:
         if r["status"] != "complete":
-            click.echo(f"  failed {r['id']}: {r['message']}", err=True)
+            click.echo(f"  {r['status']} {r['id']}: {r['message']}", err=True)
     sys.exit(status)
