@@ -66,12 +66,13 @@ struct Constants {
   int moves_per_row, moves_extra;  // qp.MOVES_PER_ROW, MOVES_EXTRA
   double distinct;  // constraints.distinct's relative tolerance
   double guess_min, distance_failed;  // contacts.GUESS_MIN, DISTANCE_FAILED
+  double energy_roundoff;  // law.ENERGY_ROUNDOFF
 
   static const std::vector<std::string> &keys() {
     static const std::vector<std::string> k = {
         "midpoint_iterations", "midpoint_tolerance", "resting", "vertex", "witness", "max_contacts", "screen",
         "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct",
-        "guess_min", "distance_failed"};
+        "guess_min", "distance_failed", "energy_roundoff"};
     return k;
   }
   // from a dict holding exactly keys() (a missing or an unknown name is an error: nothing is left to a default)
@@ -96,6 +97,7 @@ struct Constants {
     c.met = get("met"), c.accept = get("accept"), c.refine = get("refine"), c.second_pass = get("second_pass");
     c.moves_per_row = geti("moves_per_row"), c.moves_extra = geti("moves_extra"), c.distinct = get("distinct");
     c.guess_min = get("guess_min"), c.distance_failed = get("distance_failed");
+    c.energy_roundoff = get("energy_roundoff");
     return c;
   }
   std::map<std::string, double> as_dict() const {
@@ -103,7 +105,8 @@ struct Constants {
             {"resting", resting}, {"vertex", vertex}, {"witness", witness}, {"max_contacts", max_contacts},
             {"screen", screen}, {"dependent", dependent}, {"met", met}, {"accept", accept}, {"refine", refine},
             {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra},
-            {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed}};
+            {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed},
+            {"energy_roundoff", energy_roundoff}};
   }
 };
 
@@ -772,7 +775,8 @@ class Stepper {
     double corr = 0.0;
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
-    if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
+    if (projection_) correct_positions(q, u, u_free, h, g, gamma_minus, gamma_plus, u_next, M, W, Minv, q_next, corr);
+    cap_energy(q, u, work, corr, W, q_next, u_next, gamma_plus);
     out.outcome = Outcome::CONTACT;
     out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
     out.g = std::move(g);
@@ -791,10 +795,49 @@ class Stepper {
     out.pack();
   }
 
+  // stepper._roundoff
+  double roundoff(const VectorXd &q, const VectorXd &u, double T1, double V1) {
+    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
+    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
+    return C_.energy_roundoff * (((T0 + std::abs(V0)) + T1) + std::abs(V1));
+  }
+  // stepper._scaled: the entries of u that W's rows involve scaled by the largest alpha in [0, 1] with
+  // T(q, u_R + alpha u_S) <= K
+  VectorXd scaled(const VectorXd &q, const VectorXd &u, const MatrixXd &W, double K, double T) {
+    VectorXd u_S = VectorXd::Zero(u.size());
+    for (Eigen::Index j = 0; j < W.rows(); ++j) {
+      bool involved = false;
+      for (Eigen::Index i = 0; i < W.cols() && !involved; ++i) involved = W(j, i) != 0.0;
+      if (involved) u_S[j] = u[j];
+    }
+    const VectorXd u_R = u - u_S;
+    const double a = pinocchio::computeKineticEnergy(model_, data_, q, u_S);
+    if (!(a > 0.0)) return u;
+    const double T_R = pinocchio::computeKineticEnergy(model_, data_, q, u_R);
+    const double b = (T - a) - T_R;
+    const double c = T_R - K;
+    const double disc = b * b - (4.0 * a) * c;
+    double alpha = disc >= 0.0 ? (std::sqrt(disc) - b) / (2.0 * a) : 0.0;
+    alpha = std::min(1.0, std::max(0.0, alpha));
+    return u_R + alpha * u_S;
+  }
+
+  // stepper.cap_energy (docs/theory.md §2.9)
+  void cap_energy(const VectorXd &q, const VectorXd &u, double work, double corr, const MatrixXd &W,
+                  const VectorXd &q_next, VectorXd &u_next, VectorXd &gamma_plus) {
+    const double E0 = energy(q, u);
+    const double T1 = pinocchio::computeKineticEnergy(model_, data_, q_next, u_next);
+    const double V1 = pinocchio::computePotentialEnergy(model_, data_, q_next);
+    const double target = (E0 + std::min(work, 0.0)) + std::max(corr, 0.0);
+    if (T1 + V1 <= target + roundoff(q, u, T1, V1)) return;
+    u_next = scaled(q_next, u_next, W, target - V1, T1);
+    gamma_plus = otimes_t(W, u_next);
+  }
+
   // stepper.correct_positions
   void correct_positions(const VectorXd &q, const VectorXd &u, const VectorXd &u_free, double h, const VectorXd &g,
-                         const VectorXd &gamma_plus, const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W,
-                         const MatrixXd &Minv, VectorXd &q_next, double &corr) {
+                         const VectorXd &gamma_minus, VectorXd &gamma_plus, VectorXd &u_next, const MatrixXd &M,
+                         const MatrixXd &W, const MatrixXd &Minv, VectorXd &q_next, double &corr) {
     (void)M;
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
@@ -816,20 +859,40 @@ class Stepper {
         if (involved) resting = std::abs(u_next[j]) <= scale;
       }
     }
-    if (budget <= 0.0 && !resting) return;
+    // a penetration deeper than the step's own approach can make (h |gamma_minus| + tol)
+    bool persistent = false;
+    for (Eigen::Index i = 0; i < m; ++i)
+      if (g_next[i] < -(h * std::abs(gamma_minus[i]) + tol_)) persistent = true;
+    if (budget <= 0.0 && !resting && !persistent) return;
     Solved res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
-    double dE = energy(q_c, u_next) - E1;
+    const double T_c = pinocchio::computeKineticEnergy(model_, data_, q_c, u_next);
+    const double V_c = pinocchio::computePotentialEnergy(model_, data_, q_c);
+    double dE = (T_c + V_c) - E1;
+    VectorXd u_c = u_next;
     if (dE > budget && !resting) {
-      q_c = pinocchio::integrate(model_, q_next, (budget / dE) * res.v);
-      dE = energy(q_c, u_next) - E1;
-      if (dE > budget) return;
+      bool paid = false;
+      if (persistent) {
+        u_c = scaled(q_c, u_next, W, E0 - V_c, T_c);
+        dE = (pinocchio::computeKineticEnergy(model_, data_, q_c, u_c) + V_c) - E1;
+        paid = dE <= budget + roundoff(q, u, T_c, V_c);
+      }
+      if (!paid) {
+        u_c = u_next;
+        q_c = pinocchio::integrate(model_, q_next, (budget / dE) * res.v);
+        dE = energy(q_c, u_next) - E1;
+        if (dE > budget) return;
+      }
     }
     const VectorXd before = pair_distances(q_next), after = pair_distances(q_c);
     for (Eigen::Index k = 0; k < before.size(); ++k)
       if (after[k] < std::min(before[k], 0.0) - tol_) return;
     q_next = q_c;
     corr = dE;
+    if (!(u_c.array() == u_next.array()).all() || u_c.size() != u_next.size()) {
+      u_next = u_c;
+      gamma_plus = otimes_t(W, u_next);
+    }
   }
 };
 

@@ -2,12 +2,15 @@
 solve_impact, correct_positions, step; the discrete law on multi-contact steps; the energy ledger
 (docs/theory.md §5) step by step."""
 
+from dataclasses import replace
+
 import numpy as np
 import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
 from moreau_sim.law import restitution_bounds
+from moreau_sim.stepper import cap_energy
 
 from helpers import run, scene
 
@@ -49,7 +52,7 @@ def test_assemble_with_contacts(e):
 
 @pytest.mark.parametrize("name,duration", [("box_drop", 0.6), ("rocking_block", 0.3), ("bouncing_ball", 0.5)])
 def test_step_is_its_stages(name, duration):
-    """step = assemble -> solve_impact -> q_m (+) h/2 u_{k+1} -> correct_positions, bit for bit, on
+    """step = assemble -> solve_impact -> q_m (+) h/2 u_{k+1} -> correct_positions -> cap_energy, bit for bit, on
     every step of a run (flight and contact steps)."""
     model = ms.build_model(scene(name))
     data = ms.make_data(model)
@@ -65,7 +68,9 @@ def test_step_is_its_stages(name, duration):
             q = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
             corr = 0.0
             if model.options.position_correction is ms.PositionCorrection.PROJECTION:
-                q, corr = ms.correct_positions(model, data, pb, imp, q)
+                q, corr, u_next = ms.correct_positions(model, data, pb, imp, q)
+                imp = replace(imp, u_next=u_next, gamma_plus=ms.qp.ordered(imp.W.T, u_next))
+            imp = cap_energy(model, data, pb, imp, q, corr)
             np.testing.assert_array_equal(r.P, imp.P)
             assert r.contact_work == imp.contact_work and r.correction_energy == corr
         else:
@@ -95,7 +100,8 @@ def test_correct_positions_lifts_within_the_step_budget():
     imp = ms.solve_impact(pb, model.options)
     q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
     assert q_next[0] - 0.1 < -1e-3
-    q_c, dE = ms.correct_positions(model, data, pb, imp, q_next)
+    q_c, dE, u_c = ms.correct_positions(model, data, pb, imp, q_next)
+    assert u_c is imp.u_next  # within the budget: the velocities stay
     assert q_c[0] == 0.1  # the centre at its radius: gap exactly 0
     E0 = 0.5 * state.u[0] ** 2 + G * state.q[0]
     E1 = 0.5 * imp.u_next[0] ** 2 + G * q_next[0]
