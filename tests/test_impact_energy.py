@@ -5,9 +5,8 @@ correction of persistent penetrations (docs/theory.md §2.5, §2.9), for the Pyt
   ends with T + V above its start (less the booked lift of §2.5) by more than the round-off bound of §2.9,
   ENERGY_ROUNDOFF (T_k + |V_k| + T_{k+1} + |V_{k+1}|); at e = 1 every contact step conserves T + V to that
   bound (main gained 1.45e-2 J = 5.9e-4 E0 in pendulum_wall's impact step at h = 1e-3, first order in h);
-- cubes dropped onto a tilted slab and sliding down it: no pair stays inside the slab (deeper than 10 um)
-  for more than two steps (main: 400 steps at h = 1e-3), the deepest gap is within h v_max, and T + V never
-  rises above its start.
+- cubes dropped onto a tilted slab and sliding down it: no contact stays deeper than 1 um for more than 3
+  steps (the budget rule alone: up to 1366), the deepest gap is within h v_max, T + V never rises.
 """
 
 from pathlib import Path
@@ -71,29 +70,31 @@ def slab(h: float, e: float) -> ms.Scene:
     return b.build()
 
 
-def longest_stretch(inside: np.ndarray) -> int:
-    best = 0
-    for col in inside.T:
-        cur = 0
-        for x in col:
-            cur = cur + 1 if x else 0
-            best = max(best, cur)
-    return best
-
-
 @pytest.mark.parametrize("impl", IMPLS)
 @pytest.mark.parametrize("h", [1e-3, 3e-4])
 @pytest.mark.parametrize("e", [0.0, 0.3])
 def test_a_sliding_contact_does_not_stay_inside(e, h, impl):
-    scene = slab(h, e)
-    tr = ms.run(scene, step_impl=impl)
-    assert tr.complete
-    slope = [k for k, name in enumerate(ms.build_model(scene).pair_names) if "slope" in name]
-    g = tr.arrays["gap"][:, slope]  # (the cubes' pair: box-box detection finds vertices only, docs/theory.md §2.5)
-    assert longest_stretch(g < -1e-4) <= 2  # deeper than 100 um (h * 0.1 m/s); the rocking cubes' own
-    # transients (h |gamma_minus|, ~1e-5 m) come and go
-    v_max = float(np.abs(tr.arrays["u"][:, [0, 1, 2, 6, 7, 8]]).max())
-    assert g.min() >= -h * v_max
-    E = tr.kinetic_energy + tr.potential_energy
-    booked = np.cumsum(np.maximum(tr.correction_energy, 0.0))
-    assert np.max(E - booked - E[0]) <= 1e-13 * abs(E[0])
+    """Cubes dropped on a tilted slab slide down it. No contact (a pair's vertex, its gap at q_{k+1}) stays
+    deeper than 1 um for more than 3 steps in a row (docs/theory.md §2.5: a penetration deeper than the step's
+    own approach is removed at the next step; under the budget rule alone 63 to 1366 steps), the deepest gap
+    is within h v_max (the impact transient: it shrinks with h), and T + V never rises above its start beyond
+    the booked lift."""
+    model = ms.build_model(slab(h, e).with_options(step_impl=impl))
+    data = ms.make_data(model)
+    state = ms.initial_state(model)
+    E0 = kinetic(model, data, state.q, state.u) + potential(model, data, state.q)
+    booked, deepest, v_max, stretch, longest = 0.0, 0.0, 0.0, {}, 0
+    for k in range(int(round(1.0 / h))):
+        r = ms.step(model, data, state, t_next=(k + 1) * h)
+        state = r.state
+        booked += max(r.correction_energy, 0.0)
+        E = kinetic(model, data, state.q, state.u) + potential(model, data, state.q)
+        assert E - booked - E0 <= 1e-13 * abs(E0), (state.t, E - booked - E0)
+        v_max = max(v_max, float(np.abs(state.u[[0, 1, 2, 6, 7, 8]]).max()))
+        after = ms.detect(model, data, state.q)
+        deep = {(p, f, c) for p, f, c, g in zip(after.pair, after.feature, after.kind, after.g) if g < -1e-6}
+        stretch = {key: stretch.get(key, 0) + 1 for key in deep}
+        longest = max(longest, *stretch.values(), 0)
+        deepest = min(deepest, float(after.g.min(initial=0.0)))
+    assert longest <= 3
+    assert -h * v_max <= deepest < -1e-5  # the cubes did land
