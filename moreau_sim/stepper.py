@@ -235,8 +235,9 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     never more - except where every penetrating contact ends the step resting (_resting): then
     alpha = 1 and the potential energy the lift adds is booked as correction energy (§2.5, §5);
     and except a persistent penetration (deeper than the step's own approach can make, h|gamma_minus|
-    + tol): it is removed in full, paid with the kinetic energy of the bodies in contact (their
-    velocities scaled, _scaled) so that T + V still ends at most at its start, where they have enough.
+    + tol) in a step that did not gain: it is removed in full, the lift beyond the budget paid with the
+    kinetic energy of the bodies in contact (their velocities scaled, _scaled) so that T + V still ends
+    at most at its start, where they have enough.
     Returns (q, the change of T + V it made [J], u_{k+1} (imp.u_next itself where unchanged))."""
     tol = model.options.contact_tolerance
     u_next = imp.u_next
@@ -249,7 +250,7 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     budget = E0 - E1
     resting = _resting(pb, imp, g_next < -tol)
     persistent = bool((g_next < -(pb.h * np.abs(imp.gamma_minus) + tol)).any())
-    if budget <= 0.0 and not resting and not persistent:
+    if budget <= 0.0 and not resting:  # the step gained (the cap of §2.9 takes it back): nothing to spend
         return q_next, 0.0, u_next
     res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
     if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)

@@ -863,7 +863,7 @@ class Stepper {
     bool persistent = false;
     for (Eigen::Index i = 0; i < m; ++i)
       if (g_next[i] < -(h * std::abs(gamma_minus[i]) + tol_)) persistent = true;
-    if (budget <= 0.0 && !resting && !persistent) return;
+    if (budget <= 0.0 && !resting) return;  // the step gained (cap_energy takes it back): nothing to spend
     Solved res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
     const double T_c = pinocchio::computeKineticEnergy(model_, data_, q_c, u_next);
