@@ -103,9 +103,7 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
     corr = 0.0
     if opts.position_correction is PositionCorrection.PROJECTION and imp.qp.ok:  # a failed QP: simulate names it
-        q_next, corr, u_next = correct_positions(model, data, pb, imp, q_next)
-        if u_next is not imp.u_next:
-            imp = replace(imp, u_next=u_next, gamma_plus=ordered(imp.W.T, u_next))
+        q_next, corr = correct_positions(model, data, pb, imp, q_next)
     if imp.qp.ok:
         imp = cap_energy(model, data, pb, imp, q_next, corr)
     return StepResult(State(t1, q_next, imp.u_next), imp.contacts, imp.P, imp.gamma_minus, imp.gamma_plus,
@@ -186,14 +184,14 @@ def solve_impact(pb: ContactProblem, options: Options, *, form: QPForm | None = 
 def cap_energy(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution, q_next: np.ndarray,
                corr: float = 0.0) -> ImpactSolution:
     """The energy cap of a contact step (docs/theory.md §2.9): T + V at (q_{k+1}, u_{k+1}) is never above
-    E* = E_k + min(W_c, 0) + max(corr, 0) beyond round-off (ENERGY_ROUNDOFF; corr [J]: the energy the
-    position correction booked). Where the step ends above it (the drift after
+    E* = E_k + min(W_c, 0) + corr beyond round-off (ENERGY_ROUNDOFF; corr [J]: the change of T + V the
+    position correction made). Where the step ends above it (the drift after
     the impact moves M(q) and V(q) along u_{k+1}, first order in h |Δu|), the velocities of the bodies in
     contact (the entries of u_{k+1} their rows involve) are scaled by the alpha in [0, 1] that brings it
     to E*; gamma_plus scales with them (signs kept). Steps that end at or below E* are returned as they are."""
     E0 = total(model, data, pb.q, pb.u)
     T1, V1 = kinetic(model, data, q_next, imp.u_next), potential(model, data, q_next)
-    target = (E0 + min(imp.contact_work, 0.0)) + max(corr, 0.0)
+    target = (E0 + min(imp.contact_work, 0.0)) + corr
     if T1 + V1 <= target + _roundoff(model, data, pb, T1, V1):
         return imp
     u_next = _scaled(model, data, q_next, imp.u_next, (imp.W != 0.0).any(axis=1), target - V1, T1)
@@ -227,58 +225,42 @@ def _scaled(model: Model, data: Data, q: np.ndarray, u: np.ndarray, involved: np
 
 
 def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution,
-                      q_next: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+                      q_next: np.ndarray) -> tuple[np.ndarray, float]:
     """PositionCorrection.PROJECTION (docs/theory.md §2.5): dq = argmin 1/2 dq'M dq s.t.
     g_i + w_i'dq >= 0 on the closed contacts (g_i: gaps at q_{k+1} linearized from q_m), applied
     as q_{k+1} (+) alpha dq with alpha <= 1 the largest step for which T + V at the end does not
     exceed T + V at the start of the step: the correction may give back energy the step dissipated,
     never more - except where every penetrating contact ends the step resting (_resting): then
-    alpha = 1 and the potential energy the lift adds is booked as correction energy (§2.5, §5);
-    and except a persistent penetration (deeper than the step's own approach can make, h|gamma_minus|
-    + tol) in a step that did not gain: it is removed in full, the lift beyond the budget paid with the
-    kinetic energy of the bodies in contact (their velocities scaled, _scaled) so that T + V still ends
-    at most at its start, where they have enough.
-    Returns (q, the change of T + V it made [J], u_{k+1} (imp.u_next itself where unchanged))."""
+    alpha = 1 and the potential energy the lift adds is booked as correction energy (§2.5, §5).
+    Returns (q, the change of T + V it made [J])."""
     tol = model.options.contact_tolerance
-    u_next = imp.u_next
     g_next = imp.contacts.g + 0.5 * pb.h * imp.gamma_plus
     if not len(g_next) or g_next.min() >= -tol:
-        return q_next, 0.0, u_next
-    q, u = pb.q, pb.u
+        return q_next, 0.0
+    q, u, u_next = pb.q, pb.u, imp.u_next
     E0 = kinetic(model, data, q, u) + potential(model, data, q)
     E1 = kinetic(model, data, q_next, u_next) + potential(model, data, q_next)
     budget = E0 - E1
     resting = _resting(pb, imp, g_next < -tol)
-    persistent = bool((g_next < -(pb.h * np.abs(imp.gamma_minus) + tol)).any())
-    if budget <= 0.0 and not resting:  # the step gained (the cap of §2.9 takes it back): nothing to spend
-        return q_next, 0.0, u_next
+    if budget <= 0.0 and not resting:
+        return q_next, 0.0
     res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
     if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)
         raise SimulationError(f"the position-correction QP failed with status {res.status} "
                               f"({imp.contacts.m} closed contacts)")
     q_c = pin.integrate(model.pin, q_next, res.v)
-    T_c = kinetic(model, data, q_c, u_next)
-    V_c = potential(model, data, q_c)
-    dE = T_c + V_c - E1
-    u_c = u_next
+    dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
     if dE > budget and not resting:
-        paid = False
-        if persistent:  # the full lift, paid with the kinetic energy of the bodies in contact
-            u_c = _scaled(model, data, q_c, u_next, (imp.W != 0.0).any(axis=1), E0 - V_c, T_c)
-            dE = kinetic(model, data, q_c, u_c) + V_c - E1
-            paid = dE <= budget + _roundoff(model, data, pb, T_c, V_c)
-        if not paid:
-            u_c = u_next
-            q_c = pin.integrate(model.pin, q_next, (budget / dE) * res.v)  # E is ~linear in dq here
-            dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
-            if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
-                return q_next, 0.0, u_next
+        q_c = pin.integrate(model.pin, q_next, (budget / dE) * res.v)  # E is ~linear in dq here
+        dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
+        if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
+            return q_next, 0.0
     # the displacement only knows the closed contacts: it must not push another pair into contact
     # (a column of beads: pushing 2 off 1 pushes 1 into 0). Otherwise the step stays uncorrected.
     before, after = pair_distances(model, data, q_next), pair_distances(model, data, q_c)
     if (after < np.minimum(before, 0.0) - tol).any():
-        return q_next, 0.0, u_next
-    return q_c, dE, u_c
+        return q_next, 0.0
+    return q_c, dE
 
 
 def _resting(pb: ContactProblem, imp: ImpactSolution, pen: np.ndarray) -> bool:

@@ -775,7 +775,7 @@ class Stepper {
     double corr = 0.0;
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
-    if (projection_) correct_positions(q, u, u_free, h, g, gamma_minus, gamma_plus, u_next, M, W, Minv, q_next, corr);
+    if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
     cap_energy(q, u, work, corr, W, q_next, u_next, gamma_plus);
     out.outcome = Outcome::CONTACT;
     out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
@@ -828,7 +828,7 @@ class Stepper {
     const double E0 = energy(q, u);
     const double T1 = pinocchio::computeKineticEnergy(model_, data_, q_next, u_next);
     const double V1 = pinocchio::computePotentialEnergy(model_, data_, q_next);
-    const double target = (E0 + std::min(work, 0.0)) + std::max(corr, 0.0);
+    const double target = (E0 + std::min(work, 0.0)) + corr;
     if (T1 + V1 <= target + roundoff(q, u, T1, V1)) return;
     u_next = scaled(q_next, u_next, W, target - V1, T1);
     gamma_plus = otimes_t(W, u_next);
@@ -836,8 +836,8 @@ class Stepper {
 
   // stepper.correct_positions
   void correct_positions(const VectorXd &q, const VectorXd &u, const VectorXd &u_free, double h, const VectorXd &g,
-                         const VectorXd &gamma_minus, VectorXd &gamma_plus, VectorXd &u_next, const MatrixXd &M,
-                         const MatrixXd &W, const MatrixXd &Minv, VectorXd &q_next, double &corr) {
+                         const VectorXd &gamma_plus, const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W,
+                         const MatrixXd &Minv, VectorXd &q_next, double &corr) {
     (void)M;
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
@@ -859,40 +859,20 @@ class Stepper {
         if (involved) resting = std::abs(u_next[j]) <= scale;
       }
     }
-    // a penetration deeper than the step's own approach can make (h |gamma_minus| + tol)
-    bool persistent = false;
-    for (Eigen::Index i = 0; i < m; ++i)
-      if (g_next[i] < -(h * std::abs(gamma_minus[i]) + tol_)) persistent = true;
-    if (budget <= 0.0 && !resting) return;  // the step gained (cap_energy takes it back): nothing to spend
+    if (budget <= 0.0 && !resting) return;
     Solved res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
-    const double T_c = pinocchio::computeKineticEnergy(model_, data_, q_c, u_next);
-    const double V_c = pinocchio::computePotentialEnergy(model_, data_, q_c);
-    double dE = (T_c + V_c) - E1;
-    VectorXd u_c = u_next;
+    double dE = energy(q_c, u_next) - E1;
     if (dE > budget && !resting) {
-      bool paid = false;
-      if (persistent) {
-        u_c = scaled(q_c, u_next, W, E0 - V_c, T_c);
-        dE = (pinocchio::computeKineticEnergy(model_, data_, q_c, u_c) + V_c) - E1;
-        paid = dE <= budget + roundoff(q, u, T_c, V_c);
-      }
-      if (!paid) {
-        u_c = u_next;
-        q_c = pinocchio::integrate(model_, q_next, (budget / dE) * res.v);
-        dE = energy(q_c, u_next) - E1;
-        if (dE > budget) return;
-      }
+      q_c = pinocchio::integrate(model_, q_next, (budget / dE) * res.v);
+      dE = energy(q_c, u_next) - E1;
+      if (dE > budget) return;
     }
     const VectorXd before = pair_distances(q_next), after = pair_distances(q_c);
     for (Eigen::Index k = 0; k < before.size(); ++k)
       if (after[k] < std::min(before[k], 0.0) - tol_) return;
     q_next = q_c;
     corr = dE;
-    if (!(u_c.array() == u_next.array()).all() || u_c.size() != u_next.size()) {
-      u_next = u_c;
-      gamma_plus = otimes_t(W, u_next);
-    }
   }
 };
 
