@@ -209,7 +209,8 @@ def _scaled(model: Model, data: Data, q: np.ndarray, u: np.ndarray, involved: np
     """u with its entries `involved` scaled by the largest alpha in [0, 1] with T(q, u_R + alpha u_S) <= K
     [J] (u_S: the involved entries, u_R the others, W'u_R = 0): T is quadratic in alpha, a alpha^2 + b alpha
     + T_R with a = T(u_S), b = T(u) - T(u_S) - T(u_R) (Pinocchio's kinetic energy, no matrix product);
-    alpha = 0 where not even that reaches K (the involved bodies stopped)."""
+    where no alpha in [0, 1] reaches K, the one of least T (T_R may exceed T(u) when b < 0: alpha = 0 is
+    not the least)."""
     u_S = np.where(involved, u, 0.0)
     u_R = u - u_S
     a = kinetic(model, data, q, u_S)
@@ -219,7 +220,7 @@ def _scaled(model: Model, data: Data, q: np.ndarray, u: np.ndarray, involved: np
     b = (T - a) - T_R
     c = T_R - K
     disc = b * b - (4.0 * a) * c
-    alpha = (math.sqrt(disc) - b) / (2.0 * a) if disc >= 0.0 else 0.0
+    alpha = (math.sqrt(disc) - b) / (2.0 * a) if disc >= 0.0 else -b / (2.0 * a)  # else: T's least value
     alpha = min(1.0, max(0.0, alpha))
     return u_R + alpha * u_S
 

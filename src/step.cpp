@@ -817,7 +817,7 @@ class Stepper {
     const double b = (T - a) - T_R;
     const double c = T_R - K;
     const double disc = b * b - (4.0 * a) * c;
-    double alpha = disc >= 0.0 ? (std::sqrt(disc) - b) / (2.0 * a) : 0.0;
+    double alpha = disc >= 0.0 ? (std::sqrt(disc) - b) / (2.0 * a) : -b / (2.0 * a);  // else: T's least value
     alpha = std::min(1.0, std::max(0.0, alpha));
     return u_R + alpha * u_S;
   }
