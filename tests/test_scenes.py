@@ -161,11 +161,12 @@ def test_energy_never_increases(name, h):
 
 def test_newton_rule_for_separating_contacts_gains_energy():
     """Pins the choice of Separating.ELASTIC: with the plain law (e for a closed contact that
-    separates) the rocking block's contact work is positive in some steps and T + V rises above
-    its start; with ELASTIC neither happens (test above)."""
+    separates) the rocking block's contact work is positive in some steps (with ELASTIC it never is,
+    test above). The energy cap of docs/theory.md §2.9 then takes the gain back (E* counts only
+    min(W_c, 0)): T + V no longer rises above its start, the ledger shows the law's positive work."""
     traj = run("rocking_block", duration=1.0, separating="newton")
     assert traj.contact_work.max() > 1e-7
-    assert np.max(traj.total_energy - traj.total_energy[0]) > 1e-10
+    assert np.max(traj.total_energy - traj.total_energy[0]) <= 1e-12 * abs(traj.total_energy[0])
 
 
 def test_pendulum_energy_error_is_second_order():
