@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.testing import assert_budget_closes, assert_dissipation_follows_law, assert_no_energy_gain
+from moreau_sim.testing import assert_budget_closes, assert_no_energy_gain
 from moreau_sim.testing.references import (
     ball_apex_gaps,
     ball_first_impact,
@@ -238,12 +238,16 @@ def test_every_bundled_scene_runs(name):
     """Each bundled scene, at its own options, for its duration or 20000 steps (the stress
     scenes' long runs and their bounds are in test_stress.py). Every contact step dissipates what
     the law says to 1e-9 of the run's energy (docs/theory.md §5; largest measured: 1.0e-10 in
-    slider_crank_clearance, 7.6e-12 in column_of_beads_100, round-off in the others)."""
+    slider_crank_clearance, 7.6e-12 in column_of_beads_100, round-off in the others), or more where
+    the energy cap of §2.9 took back a gain (bodies whose M depends on q: D is measured after the cap),
+    never less; D = L exactly where M is constant is test_ledger's."""
     o = scene(name).options
     traj = run(name, duration=min(o.duration, 20000 * o.dt))
     assert traj.complete
-    assert ms.ledger(traj).contact_steps > 0
-    assert_dissipation_follows_law(traj, rtol=1e-9)
+    led = ms.ledger(traj)
+    assert led.contact_steps > 0
+    a = traj.arrays
+    assert (a["impact_dissipation"] - a["impact_law"]).min(initial=0.0) >= -1e-9 * led.scale
     assert np.all(np.isfinite(traj.q)) and np.all(np.isfinite(traj.u))
     o = scene(name, duration=min(o.duration, 20000 * o.dt)).options
     assert len(traj.t) == 1 + -(-o.n_steps // o.save_every)  # the start, every save_every steps, the last
