@@ -16,6 +16,7 @@ import pinocchio
 
 from . import constraints, qp
 from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, Contacts, FeatureKind
+from .law import ENERGY_ROUNDOFF
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts
 from .qp import QPResult
 from .results import MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
@@ -31,6 +32,7 @@ CONSTANTS = {
     "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA,
     "distinct": constraints.DISTINCT, "guess_min": GUESS_MIN, "distance_failed": DISTANCE_FAILED,
     "joint_limit": int(FeatureKind.JOINT_LIMIT),
+    "energy_roundoff": ENERGY_ROUNDOFF,
 }
 _EMPTY = np.zeros(0)
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}

@@ -18,6 +18,10 @@ import numpy as np
 from . import qp
 from .options import QPForm, Separating, SlowImpacts, check_restitution
 
+# The round-off an energy identity of the step holds to: a step's T + V is "not above" a level E* when
+# E <= E* + ENERGY_ROUNDOFF (T_k + |V_k| + T_{k+1} + |V_{k+1}|) (docs/theory.md §2.10)
+ENERGY_ROUNDOFF = 1e-14
+
 
 def project(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None = None,
             Minv: np.ndarray | None = None, form: QPForm = QPForm.PRIMAL, eps: float = 1e-10) -> qp.QPResult:

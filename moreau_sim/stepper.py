@@ -1,11 +1,12 @@
 """The midpoint Moreau step (docs/theory.md §2.1) as named stages: assemble (q_m, the closed contacts, M, W,
 u_free, v_free) -> solve_impact (the law, §1.3 and §2.7; a corner's set-valued law, §3) -> q_{k+1} ->
-correct_positions (§2.5). The options' rules on top of the plain step: §2.2-2.7. The compiled step
+correct_positions (§2.5) -> cap_energy (§2.10). The options' rules on top of the plain step: §2.2-2.7. The compiled step
 (compiled.py) takes the steps it covers first."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pinocchio as pin
@@ -15,9 +16,9 @@ from .constraints import CornerPieces, assemble_constraints, closed_limits, corn
 from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
 from .corners import MAX_PIECES, corner_law
 from .data import Data
-from .energy import kinetic, potential
+from .energy import kinetic, potential, total
 from .errors import SimulationError
-from .law import outcome, percussion, project, restitution_bounds
+from .law import ENERGY_ROUNDOFF, outcome, percussion, project, restitution_bounds
 from .model import Model
 from .options import Bias, Options, PositionCorrection, QPForm, StepImpl, Tunnelling
 from .qp import QPResult, ordered
@@ -109,6 +110,8 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     corr = 0.0
     if opts.position_correction is PositionCorrection.PROJECTION and imp.qp.ok:  # a failed QP: simulate names it
         q_next, corr = correct_positions(model, data, pb, imp, q_next)
+    if imp.qp.ok:
+        imp = cap_energy(model, data, pb, imp, q_next, corr)
     return StepResult(State(t1, q_next, imp.u_next), imp.contacts, imp.P, imp.gamma_minus, imp.gamma_plus,
                       imp.contact_work, imp.qp, imp.branch, corr, u_free=pb.u_free, tau=pb.tau,
                       obstacle_work=imp.obstacle_work)
@@ -210,6 +213,50 @@ def solve_impact(pb: ContactProblem, options: Options, *, form: QPForm | None = 
         obstacle_work = -float(ordered(P, pb.rate))
     work = float(ordered(P, gamma_plus + gamma_minus)) * 0.5
     return ImpactSolution(u_next, contacts, W, P, gamma_minus, gamma_plus, work, res, branch, obstacle_work)
+
+
+def cap_energy(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution, q_next: np.ndarray,
+               corr: float = 0.0) -> ImpactSolution:
+    """The energy cap of a contact step (docs/theory.md §2.10): T + V at (q_{k+1}, u_{k+1}) is never above
+    E* = E_k + min(W_c, 0) + corr beyond round-off (ENERGY_ROUNDOFF; corr [J]: the change of T + V the
+    position correction made). Where the step ends above it (the drift after
+    the impact moves M(q) and V(q) along u_{k+1}, first order in h |Δu|), the velocities of the bodies in
+    contact (the entries of u_{k+1} their rows involve) are scaled by the alpha in [0, 1] that brings it
+    to E*; gamma_plus scales with them (signs kept). Steps that end at or below E* are returned as they are."""
+    E0 = total(model, data, pb.q, pb.u)
+    T1, V1 = kinetic(model, data, q_next, imp.u_next), potential(model, data, q_next)
+    target = (E0 + min(imp.contact_work, 0.0)) + corr
+    if T1 + V1 <= target + _roundoff(model, data, pb, T1, V1):
+        return imp
+    u_next = _scaled(model, data, q_next, imp.u_next, (imp.W != 0.0).any(axis=1), target - V1, T1)
+    return replace(imp, u_next=u_next, gamma_plus=ordered(imp.W.T, u_next))
+
+
+def _roundoff(model: Model, data: Data, pb: ContactProblem, T1: float, V1: float) -> float:
+    """ENERGY_ROUNDOFF (T_k + |V_k| + T_{k+1} + |V_{k+1}|) [J]: the round-off of a step's energy balance."""
+    T0, V0 = kinetic(model, data, pb.q, pb.u), potential(model, data, pb.q)
+    return ENERGY_ROUNDOFF * (((T0 + abs(V0)) + T1) + abs(V1))
+
+
+def _scaled(model: Model, data: Data, q: np.ndarray, u: np.ndarray, involved: np.ndarray, K: float,
+            T: float) -> np.ndarray:
+    """u with its entries `involved` scaled by the largest alpha in [0, 1] with T(q, u_R + alpha u_S) <= K
+    [J] (u_S: the involved entries, u_R the others, W'u_R = 0): T is quadratic in alpha, a alpha^2 + b alpha
+    + T_R with a = T(u_S), b = T(u) - T(u_S) - T(u_R) (Pinocchio's kinetic energy, no matrix product);
+    where no alpha in [0, 1] reaches K, the one of least T (T_R may exceed T(u) when b < 0: alpha = 0 is
+    not the least)."""
+    u_S = np.where(involved, u, 0.0)
+    u_R = u - u_S
+    a = kinetic(model, data, q, u_S)
+    if not a > 0.0:
+        return u
+    T_R = kinetic(model, data, q, u_R)
+    b = (T - a) - T_R
+    c = T_R - K
+    disc = b * b - (4.0 * a) * c
+    alpha = (math.sqrt(disc) - b) / (2.0 * a) if disc >= 0.0 else -b / (2.0 * a)  # else: T's least value
+    alpha = min(1.0, max(0.0, alpha))
+    return u_R + alpha * u_S
 
 
 def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution,

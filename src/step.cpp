@@ -66,12 +66,14 @@ struct Constants {
   int moves_per_row, moves_extra;  // qp.MOVES_PER_ROW, MOVES_EXTRA
   double distinct;  // constraints.distinct's relative tolerance
   double guess_min, distance_failed;  // contacts.GUESS_MIN, DISTANCE_FAILED
+  double energy_roundoff;  // law.ENERGY_ROUNDOFF
 
   static const std::vector<std::string> &keys() {
     static const std::vector<std::string> k = {
         "midpoint_iterations", "midpoint_tolerance", "resting", "vertex", "witness", "max_contacts", "screen",
         "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct",
-        "guess_min", "distance_failed", "joint_limit"};
+        "guess_min", "distance_failed", "joint_limit",
+        "energy_roundoff"};
     return k;
   }
   // from a dict holding exactly keys() (a missing or an unknown name is an error: nothing is left to a default)
@@ -97,6 +99,7 @@ struct Constants {
     c.moves_per_row = geti("moves_per_row"), c.moves_extra = geti("moves_extra"), c.distinct = get("distinct");
     c.guess_min = get("guess_min"), c.distance_failed = get("distance_failed");
     c.joint_limit = geti("joint_limit");
+    c.energy_roundoff = get("energy_roundoff");
     return c;
   }
   std::map<std::string, double> as_dict() const {
@@ -105,7 +108,8 @@ struct Constants {
             {"screen", screen}, {"dependent", dependent}, {"met", met}, {"accept", accept}, {"refine", refine},
             {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra},
             {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed},
-            {"joint_limit", joint_limit}};
+            {"joint_limit", joint_limit},
+            {"energy_roundoff", energy_roundoff}};
   }
 };
 
@@ -803,6 +807,7 @@ class Stepper {
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
     if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
+    cap_energy(q, u, work, corr, W, q_next, u_next, gamma_plus);
     out.outcome = Outcome::CONTACT;
     out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
     out.g = std::move(g);
@@ -820,6 +825,45 @@ class Stepper {
     out.M = M, out.W = std::move(W), out.projection = res.status;
     out.contact_work = work, out.correction_energy = corr, out.m = m;
     out.pack();
+  }
+
+  // stepper._roundoff
+  double roundoff(const VectorXd &q, const VectorXd &u, double T1, double V1) {
+    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
+    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
+    return C_.energy_roundoff * (((T0 + std::abs(V0)) + T1) + std::abs(V1));
+  }
+  // stepper._scaled: the entries of u that W's rows involve scaled by the largest alpha in [0, 1] with
+  // T(q, u_R + alpha u_S) <= K
+  VectorXd scaled(const VectorXd &q, const VectorXd &u, const MatrixXd &W, double K, double T) {
+    VectorXd u_S = VectorXd::Zero(u.size());
+    for (Eigen::Index j = 0; j < W.rows(); ++j) {
+      bool involved = false;
+      for (Eigen::Index i = 0; i < W.cols() && !involved; ++i) involved = W(j, i) != 0.0;
+      if (involved) u_S[j] = u[j];
+    }
+    const VectorXd u_R = u - u_S;
+    const double a = pinocchio::computeKineticEnergy(model_, data_, q, u_S);
+    if (!(a > 0.0)) return u;
+    const double T_R = pinocchio::computeKineticEnergy(model_, data_, q, u_R);
+    const double b = (T - a) - T_R;
+    const double c = T_R - K;
+    const double disc = b * b - (4.0 * a) * c;
+    double alpha = disc >= 0.0 ? (std::sqrt(disc) - b) / (2.0 * a) : -b / (2.0 * a);  // else: T's least value
+    alpha = std::min(1.0, std::max(0.0, alpha));
+    return u_R + alpha * u_S;
+  }
+
+  // stepper.cap_energy (docs/theory.md §2.10)
+  void cap_energy(const VectorXd &q, const VectorXd &u, double work, double corr, const MatrixXd &W,
+                  const VectorXd &q_next, VectorXd &u_next, VectorXd &gamma_plus) {
+    const double E0 = energy(q, u);
+    const double T1 = pinocchio::computeKineticEnergy(model_, data_, q_next, u_next);
+    const double V1 = pinocchio::computePotentialEnergy(model_, data_, q_next);
+    const double target = (E0 + std::min(work, 0.0)) + corr;
+    if (T1 + V1 <= target + roundoff(q, u, T1, V1)) return;
+    u_next = scaled(q_next, u_next, W, target - V1, T1);
+    gamma_plus = otimes_t(W, u_next);
   }
 
   // stepper.correct_positions

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.testing import assert_budget_closes, assert_dissipation_follows_law, assert_no_energy_gain
+from moreau_sim.testing import assert_budget_closes, assert_no_energy_gain
 from moreau_sim.testing.references import (
     ball_apex_gaps,
     ball_first_impact,
@@ -161,11 +161,12 @@ def test_energy_never_increases(name, h):
 
 def test_newton_rule_for_separating_contacts_gains_energy():
     """Pins the choice of Separating.ELASTIC: with the plain law (e for a closed contact that
-    separates) the rocking block's contact work is positive in some steps and T + V rises above
-    its start; with ELASTIC neither happens (test above)."""
+    separates) the rocking block's contact work is positive in some steps (with ELASTIC it never is,
+    test above). The energy cap of docs/theory.md §2.10 then takes the gain back (E* counts only
+    min(W_c, 0)): T + V no longer rises above its start, the ledger shows the law's positive work."""
     traj = run("rocking_block", duration=1.0, separating="newton")
     assert traj.contact_work.max() > 1e-7
-    assert np.max(traj.total_energy - traj.total_energy[0]) > 1e-10
+    assert np.max(traj.total_energy - traj.total_energy[0]) <= 1e-12 * abs(traj.total_energy[0])
 
 
 def test_pendulum_energy_error_is_second_order():
@@ -237,13 +238,16 @@ def test_every_bundled_scene_runs(name):
     """Each bundled scene, at its own options, for its duration or 20000 steps (the stress
     scenes' long runs and their bounds are in test_stress.py). Every contact step dissipates what
     the law says to 1e-9 of the run's energy (docs/theory.md §5; largest measured: 1.0e-10 in
-    slider_crank_clearance, 7.6e-12 in column_of_beads_100, round-off in the others)."""
+    slider_crank_clearance, 7.6e-12 in column_of_beads_100, round-off in the others), or more where
+    the energy cap of §2.10 took back a gain (bodies whose M depends on q: D is measured after the cap),
+    never less; D = L exactly where M is constant is test_ledger's."""
     o = scene(name).options
     traj = run(name, duration=min(o.duration, 20000 * o.dt))
-    # ran to its end; one that broke an invariant it checks of itself says so (test_invariants.py)
-    assert traj.complete or (traj.meta["status"] == "flagged" and traj.meta["invariants"])
-    assert ms.ledger(traj).contact_steps > 0
-    assert_dissipation_follows_law(traj, rtol=1e-9)
+    assert traj.complete, traj.meta.get("invariants")  # every invariant held (test_invariants.py)
+    led = ms.ledger(traj)
+    assert led.contact_steps > 0
+    a = traj.arrays
+    assert (a["impact_dissipation"] - a["impact_law"]).min(initial=0.0) >= -1e-9 * led.scale
     assert np.all(np.isfinite(traj.q)) and np.all(np.isfinite(traj.u))
     o = scene(name, duration=min(o.duration, 20000 * o.dt)).options
     assert len(traj.t) == 1 + -(-o.n_steps // o.save_every)  # the start, every save_every steps, the last
