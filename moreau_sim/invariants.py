@@ -74,7 +74,7 @@ class Invariants:
         self.v_app = 0.0  # [m/s] the largest approach speed |gamma-| of any contact step or impact so far
         # (a sample, after the step's correction, is held to contact_tolerance + h max |gamma-|)
         self.deep_points = self.deep_samples = 0  # consecutive checks with penetration beyond the allowance
-        self.v_streak = 0.0  # [m/s] the largest approach speed over those consecutive points
+        self.held: dict[int, float] = {}  # pair -> [m] the allowance it has carried since it went inside (points)
         self.last_depth = self.last_allowed = 0.0  # [m] the last penetration beyond the allowance, the allowance
         self.points = 0
         self.reported: dict[str, float] = {}  # invariant -> the size last reported
@@ -138,19 +138,26 @@ class Invariants:
                     ext += 0.5 * r.h * float(res.tau @ (r.before.u + res.state.u))
                 ext += res.obstacle_work
                 if res.contacts.m:
-                    # the step's own transient at its midpoint, h/2 (|gamma-| + 2 h |g|), and as much again that the
-                    # previous step may have left: h (...), with the largest approach of the streak
-                    d = -min(res.contacts.g.tolist())
-                    v = max(-min(res.gamma_minus.tolist(), default=0.0), 0.0)
-                    if v > self.v_app:
-                        self.v_app = v
-                    v += ACCELERATION * r.h * self.g
-                    self.v_streak = max(self.v_streak, v) if self.deep_points else v
-                    a = self.tol + r.h * self.v_streak + GAP_ROUND_OFF
-                    if d - a > deep - allowed:
-                        deep, allowed = d, a
-                elif len(records) == 1:  # a contact-free fixed step: its change beyond ext is the smooth error (§5.3)
-                    booked = dE - ext
+                    # a contact's transient at the midpoint, h/2 (|gamma-| + 2 h |g|), and as much again that the
+                    # previous step may have left: h (...); a pair inside keeps the largest of these since it went
+                    # inside (a closed contact does not deepen, and the correction that would lift it may be
+                    # dropped, §2.5: the depth a step left persists; a growing one exceeds it)
+                    grow = ACCELERATION * r.h * self.g
+                    held, before = {}, self.held
+                    for gi, vi, p in zip(res.contacts.g.tolist(), res.gamma_minus.tolist(),
+                                         res.contacts.pair.tolist()):
+                        if -vi > self.v_app:
+                            self.v_app = -vi
+                        if -gi > self.tol:
+                            a = self.tol + r.h * (max(-vi, 0.0) + grow) + GAP_ROUND_OFF
+                            a = held[p] = max(a, before.get(p, 0.0), held.get(p, 0.0))
+                            if -gi - a > deep - allowed:
+                                deep, allowed = -gi, a
+                    self.held = held
+                else:
+                    self.held = {}  # no pair inside
+                    if len(records) == 1:  # a contact-free fixed step: its change beyond ext is the smooth error (§5.3)
+                        booked = dE - ext
             elif type(r) is Impact and len(r.gamma_minus):
                 self.v_app = max(self.v_app, -min(r.gamma_minus.tolist()))
         self.E = E
@@ -180,7 +187,7 @@ class Invariants:
                 out = (out or []) + self._violate(
                     Invariant.PENETRATION, state.t, deep, allowed, "m",
                     f"a contact {deep:.3g} m deep at the step's midpoint for {self.deep_points} steps (allowed "
-                    f"{allowed:.3g} m: contact_tolerance + h (|gamma-| + 2 h |g|))")
+                    f"{allowed:.3g} m: contact_tolerance + h (|gamma-| + 2 h |g|), the largest since it went inside)")
         elif self.deep_points:
             self.deep_points = 0
         return out or None
@@ -227,15 +234,17 @@ class Invariants:
 
     # ---- a checkpoint carries the running figures --------------------------------------------------------------
     _CARRIED = ("E0", "E", "Ehat", "Emin", "scale", "booked", "external", "residual", "Es", "v_app", "deep_points",
-                "deep_samples", "v_streak", "last_depth", "last_allowed", "points")
+                "deep_samples", "last_depth", "last_allowed", "points")
 
     def state_dict(self) -> dict:
-        return {**{k: getattr(self, k) for k in self._CARRIED}, "reported": dict(self.reported)}
+        return {**{k: getattr(self, k) for k in self._CARRIED}, "reported": dict(self.reported),
+                "held": [[p, a] for p, a in self.held.items()]}
 
     def load_state_dict(self, d: dict) -> None:
         for k in self._CARRIED:
             setattr(self, k, d[k])
         self.reported = dict(d["reported"])
+        self.held = {int(p): float(a) for p, a in d["held"]}
 
 
 def status(violations: list[dict] | None) -> RunStatus:

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import moreau_sim as ms
-from moreau_sim.errors import SimulationError
+from moreau_sim.errors import SceneError, SimulationError
 from moreau_sim.gaps import UnsupportedModel
 from moreau_sim.invariants import one_line
 
@@ -35,7 +35,7 @@ def outcome(scene: Path, integrator: str) -> tuple[str, str]:
     """("held" | "flagged" | "failed" | "not accepted", the reason) of one run."""
     try:
         traj = ms.run(scene, duration=duration(scene, integrator), integrator=integrator)
-    except UnsupportedModel as exc:
+    except (UnsupportedModel, SceneError) as exc:  # a model or a scene (torques, moving statics) it does not take
         return "not accepted", str(exc).splitlines()[0][:120]
     except SimulationError as exc:
         return "failed", str(exc).splitlines()[0][:160]
