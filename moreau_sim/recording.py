@@ -251,6 +251,9 @@ class Recorder:
         self._rise = (-np.inf, np.nan)  # (largest T + V increase of one step [J], t [s])
         self._law_difference = (0.0, np.nan)  # (largest |D - L| of a contact step [J], t [s])
         self._contact_steps = 0
+        # [J] sum over contact steps of max(-S_k, 0): what a capped step (docs/theory.md §2.10) may leave in the
+        # ledger's residual (it closes the budget up to -S_k); read by the invariant checks
+        self.smooth_deficit = 0.0
 
     @property
     def n(self) -> int:
@@ -341,7 +344,10 @@ class Recorder:
             T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u1, e, r.P, res.b)
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * r.u_free)
             act_free = 0.0 if tau is None else 0.5 * h * float(tau @ (u0 + r.u_free))  # the torques' work there
-            self._smooth += total(m, d, q_free, r.u_free) - E0 - act_free
+            S = total(m, d, q_free, r.u_free) - E0 - act_free
+            self._smooth += S
+            if S < 0.0:
+                self.smooth_deficit -= S
             # a moving static's push (§2.9): the impact's dissipation is counted in its frame, T- - T+ + W_o
             self._add_impact(step, t, T_minus, T_plus, law, int(np.count_nonzero(r.P > 0)), self._new_impact,
                              r.obstacle_work)
@@ -448,7 +454,7 @@ class Recorder:
                 "TV": [float(x) for x in self._TV], "new_impact": bool(self._new_impact),
                 "rise": [None if not np.isfinite(x) else x for x in self._rise],
                 "law_difference": [None if np.isnan(x) else x for x in self._law_difference],
-                "contact_steps": self._contact_steps}
+                "contact_steps": self._contact_steps, "smooth_deficit": float(self.smooth_deficit)}
 
     def restore(self, arrays: Mapping[str, np.ndarray], carried: dict, state: State) -> None:
         """Continue a recording from its arrays (a dict or an open NPZ) and carried() (a
@@ -460,6 +466,7 @@ class Recorder:
         self._act, self._obs = c.get("act", 0.0), c.get("obs", 0.0)
         self._at = (state.q, state.u) if c["at_state"] else None
         self._TV, self._new_impact, self._contact_steps = tuple(c["TV"]), c["new_impact"], c["contact_steps"]
+        self.smooth_deficit = c.get("smooth_deficit", 0.0)
         rise, t_rise = c["rise"]
         self._rise = (-np.inf if rise is None else rise, np.nan if t_rise is None else t_rise)
         diff, t_diff = c["law_difference"]

@@ -230,7 +230,8 @@ def test_a_flagged_point_is_recorded_and_not_recomputed(tmp_path, monkeypatch):
     res = run_sweep(BALL, ps, tmp_path, workers=1, progress=False)
     assert (res.computed, res.skipped, res.failed, res.flagged) == (1, 0, 0, 1)
     row = res.rows[0]
-    assert row["status"] == "flagged" and "energy gain" in row["message"] and row["npz"] == f"{RUNS}/{row['id']}.npz"
+    assert row["status"] == "flagged" and "speed beyond the energy" in row["message"]
+    assert row["npz"] == f"{RUNS}/{row['id']}.npz"
     assert ms.load_trajectory(tmp_path / row["npz"]).meta["status"] == "flagged"
     assert read_csv(res.table)[0]["status"] == "flagged"
     again = run_sweep(BALL, ps, tmp_path, workers=1, progress=False)
@@ -238,7 +239,7 @@ def test_a_flagged_point_is_recorded_and_not_recomputed(tmp_path, monkeypatch):
     (tmp_path / TABLE).unlink()  # the row lost: rebuilt from the NPZ, still flagged
     rebuilt = run_sweep(BALL, ps, tmp_path, workers=1, progress=False)
     row = rebuilt.rows[0]
-    assert rebuilt.skipped == 1 and row["status"] == "flagged" and "energy gain" in row["message"]
+    assert rebuilt.skipped == 1 and row["status"] == "flagged" and "speed beyond the energy" in row["message"]
 
 
 def test_dask_cluster_gives_the_same_table(local, tmp_path):
