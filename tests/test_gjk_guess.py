@@ -87,7 +87,9 @@ def test_penetration_on_the_slope_shrinks_with_the_step():
     deepest = {}
     for h in (1e-3, 3e-4, 1e-4):
         traj = ms.run(slope(h))
-        assert traj.complete
+        # flagged at h = 1e-3 and 3e-4 (docs/theory.md §10): a closed contact of a cube deepens beyond its allowance
+        broken = {v["invariant"] for v in traj.meta.get("invariants", [])}
+        assert traj.complete or (traj.meta["status"] == "flagged" and broken == {"penetration"}), broken
         deepest[h] = -float(traj.arrays["gap"].min())
         assert 0.0 < deepest[h] <= h * v_max, (h, deepest[h])
     assert deepest[1e-3] > deepest[3e-4] > deepest[1e-4]

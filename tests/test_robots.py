@@ -276,9 +276,12 @@ def runs():
     return get
 
 
-def _check_run(model, traj, *, rise: float, penetration: float):
-    """No NaN; T + V never above its start by more than `rise` [J]; gaps >= -penetration [m]."""
-    assert traj.complete and np.isfinite(traj.q).all() and np.isfinite(traj.u).all()
+def _check_run(model, traj, *, rise: float, penetration: float, flagged: frozenset = frozenset()):
+    """No NaN; T + V never above its start by more than `rise` [J]; gaps >= -penetration [m]; every
+    invariant held, or exactly the `flagged` ones broke (docs/theory.md §10)."""
+    assert traj.meta["status"] == ("flagged" if flagged else "complete")
+    assert {v["invariant"] for v in traj.meta.get("invariants", [])} == flagged
+    assert np.isfinite(traj.q).all() and np.isfinite(traj.u).all()
     E = energy(traj)
     assert E.max() - E[0] <= rise, E.max() - E[0]
     s = ms.summary(traj)
@@ -291,7 +294,10 @@ def test_quadruped_drop(runs):
     assert (model.nq, model.nv, len(model.pairs)) == (19, 18, 25)
     assert all(isinstance(go.geometry, (coal.Box, coal.Cylinder, coal.Sphere, coal.Halfspace))
                for go in model.geom.geometryObjects)
-    s = _check_run(model, traj, rise=1e-12, penetration=5e-3)  # measured: rise 2.6e-13 J, gap -1.6e-3 m
+    # flagged (docs/theory.md §10): a closed foot contact deepens beyond its impact's allowance (2.4 mm, allowed
+    # 1.5 mm), and a contact step gains 1.8e-6 J that the energy cap does not undo
+    s = _check_run(model, traj, rise=1e-12, penetration=5e-3,  # measured: rise 2.6e-13 J, gap -1.6e-3 m
+                   flagged=frozenset({"energy gain", "penetration"}))
     assert s["impacts"] > 50
     # it comes to rest lying on its trunk (0.114 m high), level
     assert traj.kinetic_energy[-1] < 1e-3 and abs(traj.q[-1, 2] - 0.057) < 2e-3 and abs(traj.q[-1, 6]) > 0.999
@@ -329,7 +335,9 @@ def test_quadruped_drop_pairs_are_all_that_touch():
 def test_panda_table(runs):
     model, traj = runs("panda_table")
     assert (model.nq, model.nv, len(model.pairs)) == (7, 7, 36)
-    s = _check_run(model, traj, rise=1e-12, penetration=1e-3)  # measured: rise 0 J, gap -3.1e-4 m
+    # flagged (docs/theory.md §10): a persistent two-contact step gains ~4e-6 J a step that the energy cap does not undo
+    s = _check_run(model, traj, rise=1e-12, penetration=1e-3,  # measured: rise 0 J, gap -3.1e-4 m
+                   flagged=frozenset({"energy gain"}))
     assert s["impacts"] > 10
     log_pair = traj.arrays["log_pair"]  # the pairs, then the joint limits
     hit = {model.pair_names[p].split("|")[0].rsplit("_", 1)[0] for p in log_pair if p < len(model.pairs)}  # links

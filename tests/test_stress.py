@@ -149,6 +149,15 @@ def test_large_steps_explicit_bias_gains_energy():
         assert np.max(E - E[0]) <= 1e-2 * abs(E[0])
 
 
+# the runs that break an invariant they check of themselves (docs/theory.md §10): a closed contact of the block
+# rotating off its step deepens beyond its allowance, with no position correction to lift it
+LARGE_STEP_FLAGGED = {("block_on_step", 2e-2, "none", "explicit"): {"penetration"}}
+
+
+def invariants_broken(traj) -> set:
+    return {v["invariant"] for v in traj.meta.get("invariants", [])}
+
+
 @pytest.mark.parametrize("name,h,correction,bias", LARGE_STEP_CASES)
 def test_large_steps_are_stable(name, h, correction, bias):
     """The bundled scenes at h = 2e-2 and 5e-2 (their own duration): the run completes with a finite
@@ -157,7 +166,9 @@ def test_large_steps_are_stable(name, h, correction, bias):
     within a step; reach: the largest lever arm of a vertex)."""
     model = ms.build_model(scene(name, dt=h, position_correction=correction, bias=bias))
     traj = ms.simulate(model, progress=False)
-    assert traj.complete and np.isfinite(traj.q).all() and np.isfinite(traj.u).all()
+    flagged = LARGE_STEP_FLAGGED.get((name, h, correction, bias), set())
+    assert traj.meta["status"] == ("flagged" if flagged else "complete") and invariants_broken(traj) == flagged
+    assert np.isfinite(traj.q).all() and np.isfinite(traj.u).all()
     E = energy(traj)
     allowed = (1e-2 if name == "pendulum_wall" else 1e-9) * max(1.0, abs(E[0]))
     assert np.max(E - E[0]) <= allowed, np.max(E - E[0])
@@ -352,7 +363,10 @@ def test_slider_crank_clearance(correction, bias):
     max_i P_i/h <= 2e4 N (measured 6.3e3 N), the slider strikes the guide (impacts on both half-spaces)."""
     traj = run("slider_crank_clearance", duration=0.05, position_correction=correction, bias=bias)
     h = 1e-5
-    assert traj.complete and np.isfinite(traj.q).all() and np.isfinite(traj.u).all()
+    # flagged: the pin's sliding contact deepens step after step (2.5 um over 106 steps, allowed 0.2 um: beyond a
+    # step's transient at its measured approach and acceleration), the same in both settings (docs/theory.md §10)
+    assert traj.meta["status"] == "flagged" and invariants_broken(traj) == {"penetration"}
+    assert np.isfinite(traj.q).all() and np.isfinite(traj.u).all()
     E = energy(traj)
     assert np.max(E - E[0]) <= 1e-12 * abs(E[0])
     assert traj.log_P.max() / h <= 2e4
