@@ -110,7 +110,7 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     corr = 0.0
     if opts.position_correction is PositionCorrection.PROJECTION and imp.qp.ok:  # a failed QP: simulate names it
         q_next, corr = correct_positions(model, data, pb, imp, q_next)
-    if imp.qp.ok:
+    if imp.qp.ok and pb.tau is None and model.prescribed is None:  # a passive step (§2.10: the cap's scope)
         imp = cap_energy(model, data, pb, imp, q_next, corr)
     return StepResult(State(t1, q_next, imp.u_next), imp.contacts, imp.P, imp.gamma_minus, imp.gamma_plus,
                       imp.contact_work, imp.qp, imp.branch, corr, u_free=pb.u_free, tau=pb.tau,

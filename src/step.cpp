@@ -807,7 +807,7 @@ class Stepper {
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
     if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
-    cap_energy(q, u, work, corr, W, q_next, u_next, gamma_plus);
+    if (tau_.size() == 0) cap_energy(q, u, work, corr, W, q_next, u_next, gamma_plus);  // passive steps (§2.10)
     out.outcome = Outcome::CONTACT;
     out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
     out.g = std::move(g);
