@@ -220,13 +220,11 @@ def test_driven_pendulum_energy_ledger(energy_ledger):
                   controller=lambda t, q, u: np.array([20.0 * np.sin(6.0 * t), 0.0]))
     led = ms.ledger(traj)
     assert led.actuator_work != 0.0
-    # flagged: the energy cap's level E* (docs/theory.md §2.10) leaves out the torque's work, so the impact step at
-    # 0.931 s, where the torque took 0.115 J out, ends at E_k + W_c + correction: the ledger closes ~0.11 J high
+    # flagged: the energy cap (docs/theory.md §2.10) does not apply to a step with torques, so the impact step at
+    # 0.931 s keeps the step's first-order gain where M depends on q: the ledger closes 0.36 J high
     assert traj.meta["status"] == "flagged"
-    assert {v["invariant"] for v in traj.meta["invariants"]} == {Invariant.LEDGER.value} and led.residual > 0.05
-    # the cap takes back more than the law dissipates where it acts (0.26 J in that step), never less
-    assert min(r.difference for r in led.impacts) >= -1e-9 * led.scale
-    energy_ledger.check(led, law_rtol=None)  # the baseline, on the ledger (which has no status)
+    assert {v["invariant"] for v in traj.meta["invariants"]} == {Invariant.LEDGER.value} and led.residual > 0.1
+    energy_ledger.check(led)  # the law in every contact step and the baseline, on the ledger (which has no status)
 
 
 def test_vibrating_paddle_energy_ledger(energy_ledger):

@@ -242,7 +242,7 @@ FLAGGED = {
     "quadruped_drop": {"penetration", "energy gain"},
     # the clearance joint's sliding contact deepens step after step (the gap's curvature, the correction refused)
     "slider_crank_clearance": {"penetration"},
-    # the cap's level E* leaves out the PD torques' work: velocities zeroed while V rises, unbooked
+    # the energy cap (§2.10) is for passive steps: the PD-driven contact steps keep the step's first-order gain
     "solo12_stand": {"energy gain", "speed beyond the energy", "ledger residual"},
 }
 
