@@ -116,6 +116,42 @@ def test_penetration_beyond_the_steps_transient_for_persist_steps_is_flagged(fra
 
 
 @pytest.mark.parametrize("frac", [BELOW, ABOVE])
+def test_a_pair_inside_keeps_the_allowance_of_the_impact_that_put_it_there(frac):
+    """A ball that struck the ground at 1 m/s (its step's allowance A = contact_tolerance + h (|gamma-| +
+    2 h |g|)) and stays inside, at rest, by frac x A: held to A, not to the slow steps' own allowance
+    (the depth an impact left persists where the correction is dropped, docs/theory.md §10)."""
+    model, data, r, mg = ball(restitution=0.0)
+    h = model.options.dt
+    fast = State(0.0, np.array([r]), np.array([-1.0]))
+    inv, rec, _ = started(model, data, fast.q, fast.u)
+    res = step(model, data, fast, h=h, e=0.0)
+    assert point(inv, rec, res.state, [FixedStep(0, 0.5 * h, fast, res, h, 0.0)]) is None
+    A = (model.options.contact_tolerance + h * (-res.gamma_minus.min() + invariants.ACCELERATION * h * 9.81)
+         + invariants.GAP_ROUND_OFF)
+    s = State(h, np.array([r - frac * A]), np.array([0.0]))
+    slow = step(model, data, s, h=h, e=0.0)
+    assert -slow.contacts.g.min() == pytest.approx(frac * A, rel=1e-3)
+    found = [point(inv, rec, s, [FixedStep(k, 0.0, s, slow, h, 0.0)]) for k in range(1, 1 + invariants.PERSIST)]
+    assert (found[-1] is not None) == (frac > 1)
+    if frac > 1:
+        assert found[-1][0]["invariant"] == Invariant.PENETRATION.value
+        assert found[-1][0]["allowed"] == pytest.approx(A, rel=1e-9)
+
+
+@pytest.mark.parametrize("frac", [BELOW, ABOVE])
+def test_a_ledger_gain_is_allowed_the_contact_steps_smooth_deficit(frac):
+    """A capped contact step closes the budget up to -S_k (docs/theory.md §2.10): a fixed-step residual
+    gain of X (the recorded sum of max(-S_k, 0)) + frac x the bound is flagged only beyond it."""
+    model, data, r, mg = ball()
+    inv, rec, _ = started(model, data, [1.0], [0.0])
+    bound = invariants.FIXED_RTOL * mg
+    rec.smooth_deficit = X = 1e-3 * mg
+    s = State(1e-3, np.array([1.0]), np.array([0.0]))
+    rec.sample(s, -(X + frac * bound), 0.0, 0)
+    assert (inv("sample", s, None, rec) is not None) == (frac > 1)
+
+
+@pytest.mark.parametrize("frac", [BELOW, ABOVE])
 def test_a_ledger_residual_above_its_bound_is_flagged(frac):
     """A sample whose contact work explains frac x the bound less than T + V changed (a gain: the
     fixed step's residual counts only as a gain)."""
