@@ -341,7 +341,7 @@ MJCF_READ = frozenset({"mujoco", "compiler", "default", "asset", "mesh", "materi
 MJCF_IGNORED = frozenset({"visual", "statistic", "light", "camera", "texture", "skin", "sensor", "keyframe",
                           "custom", "size", "option"})  # (their children are not looked at)
 MJCF_WHY = {"equality": "equality constraints", "tendon": "tendons",
-            "actuator": "actuators: robots have no actuation yet",
+            "actuator": "MJCF actuators (not read yet: drive the joints with [[actuators]] or a controller)",
             "contact": "explicit contact pairs and exclusions: give them in the scene's [collisions]",
             "composite": "composite bodies", "flexcomp": "flexible bodies", "deformable": "deformable bodies",
             "hfield": "height fields", "plugin": "plugins", "extension": "plugins"}

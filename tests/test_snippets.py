@@ -215,11 +215,13 @@ def test_the_solo_drop_ledger_on_the_page_is_the_runs():
 
 
 def test_readme_first_screen_says_what_the_simulator_does_not_do():
-    """README.md, within its first 30 lines: frictionless by design, no actuation (joint limits are enforced);
+    """README.md, within its first 30 lines: frictionless by design, actuation under the fixed step only (joint
+    limits are enforced);
     and its two set-up commands (CI parses the line after "# 2.") unchanged."""
     lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
     first = "\n".join(lines[:30]).lower()
-    for words in ("no friction", "frictionless", "no actuation", "joint limits (urdf `<limit>`) are enforced"):
+    for words in ("no friction", "frictionless", "actuation under the fixed step only",
+                  "joint limits (urdf `<limit>`) are enforced"):
         assert words in first, words
     two = lines.index(next(line for line in lines if line.startswith("# 2.")))
     assert lines[two + 1].startswith("{ [ -x /usr/bin/chromedriver ] &&") and lines[two + 1].endswith(
