@@ -108,8 +108,7 @@ def test_controller_sees_the_midpoint(tmp_path):
 def test_compiled_step_takes_torques_bit_for_bit(tmp_path, e):
     """tau enters the compiled free velocity and correction budget: the compiled run of a driven ball takes
     every step (flight and contact) and gives the Python run's arrays bit for bit."""
-    if not compiled.available():
-        pytest.skip("no compiled step")
+    assert compiled.available(), compiled.unavailable_reason()  # the install builds it: missing is a failure
     sc = ball(tmp_path, e=e, T=1.5)
     runs = {}
     for impl in ("python", "compiled"):
