@@ -225,7 +225,7 @@ def test_readme_first_screen_says_what_the_simulator_does_not_do():
         assert words in first, words
     two = lines.index(next(line for line in lines if line.startswith("# 2.")))
     assert lines[two + 1].startswith("{ [ -x /usr/bin/chromedriver ] &&") and lines[two + 1].endswith(
-        "&& .venv/bin/python -m pytest")
+        "&& .venv/bin/python -m pytest -n 2")
     one = lines.index(next(line for line in lines if line.startswith("# 1.")))
     assert lines[one + 1].startswith("python3 -m venv .venv && .venv/bin/pip install -q -e . &&")
 
