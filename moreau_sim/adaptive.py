@@ -1,6 +1,6 @@
 """The adaptive integrator (docs/theory.md §8): extrapolated symmetric midpoint steps with error
 control and a quintic Hermite dense output between events, impacts located on the per-feature
-gaps (gaps.py) and resolved by event_rules.FeatureContacts.resolve, fixed Moreau steps where
+gaps (gaps.py) and resolved by event_rules.resolve, fixed Moreau steps where
 those do not apply; the loop is driver.drive (§9).
 
     traj = simulate_adaptive(model)          # or ms.run(path, integrator="adaptive", rtol=..., atol=...)
@@ -19,7 +19,8 @@ from .data import Data, make_data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
 from .driver import Check, drive
-from .event_rules import G_REGION, G_RES, LAM_EPS, V_TOL, FeatureContacts, sample_grid
+from .event_rules import (G_REGION, G_RES, LAM_EPS, V_TOL, EventState, dynamics, features, make_rules, phase_sets,
+                          resolve, sample_grid, thin_limit)
 from .gaps import UnsupportedModel, feature_list
 from .model import Model, initial_state
 from .options import Bias
@@ -132,7 +133,8 @@ class AdaptiveRun:
         n = sum(f.box is None for f in feats)
         if n > MAX_FEATURES:
             feats, self.unsupported = (), f"{n} features (not counting box pairs') > MAX_FEATURES = {MAX_FEATURES}"
-        self.rules = FeatureContacts(model, data, e, feats)  # the contact decisions at events (event_rules.py)
+        self.rules = make_rules(model, data, e, feats)  # what the event rules read of the model (event_rules.py)
+        self.ev = EventState()  # what they carry from one accepted point to the next
         self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
         self.pm, self.pd, self.nv, self.zero = model.pin, data.pin, model.nv, np.zeros(model.nv)
         self.is_box = np.array([f.box is not None for f in self.feats], bool)
@@ -174,7 +176,7 @@ class AdaptiveRun:
             u1 = free_velocity(self.model, self.data, q_m, u, h, Bias.MIDPOINT)
         else:
             def acc(v):
-                return self.rules.dynamics(q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
+                return dynamics(self.rules, self.ev, q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
             tol = FIXED_POINT * (self.atol + self.rtol * float(np.abs(u).max()))
             u1 = midpoint_fixed_point(acc, u, h, u + h * acc(u), tol)
         return pin.integrate(pm, q_m, 0.5 * h * u1), u1
@@ -207,10 +209,10 @@ class AdaptiveRun:
         return float(np.sqrt(np.mean((d / sc) ** 2)))
 
     def _end(self, t, q, u, C, idx) -> _End:
-        a, lam, fc = self.rules.dynamics(q, u, C)
+        a, lam, fc = dynamics(self.rules, self.ev, q, u, C)
         margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
         if idx:
-            fs = self.rules.features(q, u, idx)
+            fs = features(self.rules, self.ev, q, u, idx)
             near = self.is_box[idx] & np.isfinite(fs.margin)
             return _End(t, q, u, a, lam, fs.g, fs.gamma, fs.W.T @ a + fs.drift, margin, near)
         z = np.zeros(0)
@@ -279,13 +281,16 @@ class AdaptiveRun:
             if len(near):
                 at = self._dense(e0, e1)
                 ids = [watched[k] for k in near]
-                Gd = np.array([e0.g[near]] + [self.rules.features(*at(x), ids, rows=False).g for x in taus[1:-1]]
+                Gd = np.array([e0.g[near]]
+                              + [features(self.rules, self.ev, *at(x), ids, rows=False).g for x in taus[1:-1]]
                               + [e1.g[near]])
                 for col in np.flatnonzero((Gd < 0.0).any(axis=0)):
                     j, k = int(np.argmax(Gd[:, col] < 0.0)), int(near[col])
 
                     def fg(x, k=k):
-                        return float(self.rules.features(*at(x), [watched[k]], rows=False).g[0]) if x < 1.0 else e1.g[k]
+                        if not x < 1.0:
+                            return e1.g[k]
+                        return float(features(self.rules, self.ev, *at(x), [watched[k]], rows=False).g[0])
                     tau = _root(fg, taus[j - 1], taus[j], 1e-15) if j else 0.0
                     if best is None or tau < best[0]:
                         best = (tau, "gap", k)
@@ -325,7 +330,7 @@ class AdaptiveRun:
             for k in np.flatnonzero(e1.lam < -LAM_EPS):
                 def fl(x, k=k):
                     q, u = at(x)
-                    return float(self.rules.dynamics(q, u, C)[1][k]) + LAM_EPS
+                    return float(dynamics(self.rules, self.ev, q, u, C)[1][k]) + LAM_EPS
                 tau = _root(fl, 0.0, 1.0, 1e-13)
                 if best is None or tau < best[0]:
                     best = (tau, "release", int(k))
@@ -333,7 +338,7 @@ class AdaptiveRun:
             at = self._dense(e0, e1)
             for k in np.flatnonzero(e1.margin < -G_REGION):
                 def fm(x, k=k):
-                    return float(self.rules.dynamics(*at(x), C)[2].margin[k]) + G_REGION
+                    return float(dynamics(self.rules, self.ev, *at(x), C)[2].margin[k]) + G_REGION
                 tau = _root(fm, 0.0, 1.0, 1e-13)
                 if best is None or tau < best[0]:
                     best = (tau, "release", int(k))
@@ -349,7 +354,7 @@ class AdaptiveRun:
             self.landings += 1
             if feature is None:
                 break
-            fs = self.rules.features(q1, u1, [feature])
+            fs = features(self.rules, self.ev, q1, u1, [feature])
             g, gam = float(fs.g[0]), float(fs.gamma[0])
             if abs(g) <= G_LAND or gam >= 0.0:
                 break
@@ -359,7 +364,7 @@ class AdaptiveRun:
     # ---- the run: one step() per accepted point ---------------------------------------------
     def step(self, t_sample: float = np.inf) -> Report:
         """A fixed step in fixed mode; else, at a phase's start, the decisions there
-        (FeatureContacts.resolve), then extrapolated steps until one is accepted, lands on an event
+        (event_rules.resolve), then extrapolated steps until one is accepted, lands on an event
         or no step size passes (module doc). t_sample [s]: the next output instant (fixed steps land on it)."""
         if self.mode is _Mode.FIXED:
             return self._fixed_step(t_sample)
@@ -372,7 +377,7 @@ class AdaptiveRun:
         while True:
             self.t = t
             h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)), self._box_limit(e0),
-                    self.rules.thin_limit(u, e0.a))
+                    thin_limit(self.rules, u, e0.a))
             q1, u1, d = self._step(q, u, h, C)
             err = self._error(q, u, q1, u1, d)
             if not np.isfinite(err):  # an overflow (or a failed library call): no step size helps
@@ -432,7 +437,7 @@ class AdaptiveRun:
         """The decisions at an event (or the start, or back from fixed steps); the phase's sets."""
         t, q, u = self.state.t, self.state.q, self.state.u
         self.t = t
-        u, C, shadow, records, work = self.rules.resolve(t, q, u, self.released)
+        u, C, shadow, records, work = resolve(self.rules, self.ev, t, q, u, self.released)
         self.state = State(t, q, u)
         self.released = frozenset()
         self._phase(C, shadow)
@@ -444,9 +449,7 @@ class AdaptiveRun:
         phase's start, watched by their rise and return) and the step end e0 at the current state."""
         t, q, u = self.state.t, self.state.q, self.state.u
         if low is None:
-            free = [i for i in range(len(self.feats)) if i not in C and i not in shadow]
-            g0 = self.rules.features(q, u, free, rows=False).g if free else np.zeros(0)
-            low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES]
+            free, _, low = phase_sets(self.rules, self.ev, q, u, C, shadow)
             watch = [i for i in free if i not in low]
         self.C, self.shadow, self.low, self.watch = tuple(C), tuple(shadow), list(low), list(watch)
         self.e0 = self._end(t, q, u, C, watch + low)
@@ -517,7 +520,7 @@ class AdaptiveRun:
 
     def state_dict(self) -> dict:
         s = self.state
-        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "rules": self.rules.state_dict(),
+        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "rules": self.ev.to_json(),
                 "mode": self.mode.value, "H": self.H, "t_back": _json(self.t_back),
                 "stuck": self.stuck, "released": sorted(self.released), "burst": self.burst,
                 "back_steps": self.back_steps, "fallbacks": self.fallbacks, "previous_fresh": self.previous_fresh,
@@ -527,7 +530,7 @@ class AdaptiveRun:
     def load_state_dict(self, d: dict) -> None:
         self.state = State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float))
         self.t = float(d["t_now"])
-        self.rules.load_state_dict(d["rules"])
+        self.ev = EventState.from_json(d["rules"])
         self.mode, self.H = _Mode(d["mode"]), float(d["H"])
         self.t_back = -np.inf if d["t_back"] is None else float(d["t_back"])
         self.stuck, self.released, self.burst = int(d["stuck"]), frozenset(d["released"]), list(d["burst"])
@@ -535,17 +538,17 @@ class AdaptiveRun:
         self.previous_fresh, self.quiet = bool(d["previous_fresh"]), int(d["quiet"])
         self.events, self.accepted, self.rejected, self.fixed, self.landings = d["counts"]
         if self.mode is _Mode.PHASE:  # the step end e0 is a function of the state and the sets
-            nfev = self.rules.nfev
+            nfev = self.ev.nfev
             self._phase(tuple(d["C"]), tuple(d["shadow"]), d["low"], d["watch"])
-            self.rules.nfev = nfev
+            self.ev.nfev = nfev
 
     def meta(self, status: str, wall: float, points: int) -> dict:
         settings = {"rtol": self.rtol, "atol": self.atol, "order": self.order, "max_step": self.max_step,
                     "features": len(self.feats), "unsupported": self.unsupported, "lie_group": self.lie}
         run = {"steps": self.accepted + self.fixed, "steps_extrapolated": self.accepted,
                "steps_refused": self.rejected, "steps_landed": self.landings, "steps_fixed": self.fixed,
-               "events": self.events, "impacts": self.rules.impacts, "nfev": self.rules.nfev, "wall_seconds": wall}
-        return run_metadata(self.model, status, run, integrator="adaptive", adaptive=settings, zeno=self.rules.zeno,
+               "events": self.events, "impacts": self.ev.impacts, "nfev": self.ev.nfev, "wall_seconds": wall}
+        return run_metadata(self.model, status, run, integrator="adaptive", adaptive=settings, zeno=self.ev.zeno,
                             fallbacks=self.fallbacks)
 
 
