@@ -302,3 +302,33 @@ def test_adaptive_takes_cylinders_on_a_plane_not_on_a_box(tmp_path):
     b.add_box("table", (1.0, 1.0, 0.1))
     tr = ms.run(b.build(), integrator="adaptive")
     assert "cylinder vs box" in tr.meta["fallbacks"][0]["reason"] and tr.meta["run"]["steps_extrapolated"] == 0
+
+
+def _same(a, b) -> bool:
+    """Bitwise equality of two FeatureStates (arrays and the per-pair dicts of tuples of arrays)."""
+    def eq(x, y):
+        if isinstance(x, dict):
+            return x.keys() == y.keys() and all(eq(x[k], y[k]) for k in x)
+        if isinstance(x, tuple):
+            return len(x) == len(y) and all(eq(i, j) for i, j in zip(x, y))
+        x, y = np.asarray(x), np.asarray(y)
+        return x.shape == y.shape and x.tobytes() == y.tobytes()
+    return all(eq(getattr(a, k), getattr(b, k)) for k in a.__slots__)
+
+
+@pytest.mark.parametrize("name", ["box_drop", "box_stack_5", "quadruped_drop", "newton_cradle_5"])
+def test_gaps_are_a_function_of_q_and_u_alone(name):
+    """Gaps.features keeps nothing between calls: at each of several states (with and without
+    rows) it returns, bit for bit, what a fresh evaluator returns there, whatever was evaluated
+    before, and a later call leaves an earlier result unchanged."""
+    model = ms.build_model(scene(name))
+    rng = np.random.default_rng(2)
+    states = [(pin.integrate(model.pin, model.q0, 0.02 * rng.standard_normal(model.nv)),
+               rng.standard_normal(model.nv)) for _ in range(3)]
+    used = make_rules(model, ms.make_data(model), 0.5).gaps
+    for rows in (True, False):
+        first = [used.features(q, u, rows=rows) for q, u in states]
+        again = [used.features(q, u, rows=rows) for q, u in reversed(states)][::-1]
+        for (q, u), a, b in zip(states, first, again):
+            fresh = make_rules(model, ms.make_data(model), 0.5).gaps.features(q, u, rows=rows)
+            assert _same(a, fresh) and _same(b, fresh)
