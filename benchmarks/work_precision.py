@@ -20,7 +20,7 @@ Pinocchio's ADMM and PGS, on contact problems of our scenes (stepper.assemble: t
 free velocity, i.e. the scene's bias).
 The adaptive integrator (integrator = "adaptive", docs/theory.md §8) is one more curve,
 "moreau-sim adaptive", swept over rtol (RTOLS, atol = rtol/100; a point's "h" holds its rtol): its
-CPU time is AdaptiveRun.run's on a run recording t = 0 and T only, its error that of the same run
+CPU time is driver.drive's of AdaptiveRun on a run recording t = 0 and T only, its error that of the same run
 recorded where the case's metric reads (run_adaptive).
 Writes OUT/work_precision.json, OUT/wp_<case>.png and OUT/work_precision_table.md.
 """
@@ -136,11 +136,11 @@ def run_adaptive(model: ms.Model, rtol: float, T: float, t_eval: np.ndarray) -> 
         integ = AdaptiveRun(model, data, model.options.restitution, rtol, rtol / 100, 6, 1.0, 10 ** 6, t_end=T)
         c0 = time.process_time()
         traj = drive(integ, model, data, grid=grid)
-        return time.process_time() - c0, integ, traj
-    cpu, integ, _ = once(np.array([0.0, T]))
-    a = once(t_eval)[2].arrays
-    return {"t": a["t"], "q": a["q"], "u": a["u"], "cpu_seconds": cpu, "steps": integ.accepted + integ.fixed,
-            "steps_fixed": integ.fixed, "events": integ.events}
+        return time.process_time() - c0, traj
+    cpu, timed = once(np.array([0.0, T]))
+    a, run = once(t_eval)[1].arrays, timed.meta["run"]
+    return {"t": a["t"], "q": a["q"], "u": a["u"], "cpu_seconds": cpu, "steps": run["steps"],
+            "steps_fixed": run["steps_fixed"], "events": run["events"]}
 
 
 def adaptive_grid(case: Case, T: float) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The adaptive integrator (docs/theory.md §8): extrapolated symmetric midpoint steps with error
 control and a quintic Hermite dense output between events, impacts located on the per-feature
-gaps (gaps.py) and resolved by event_rules.FeatureContacts.resolve, fixed Moreau steps where
+gaps (gaps.py) and resolved by event_rules.resolve, fixed Moreau steps where
 those do not apply; the loop is driver.drive (§9).
 
     traj = simulate_adaptive(model)          # or ms.run(path, integrator="adaptive", rtol=..., atol=...)
@@ -8,6 +8,7 @@ those do not apply; the loop is driver.drive (§9).
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 
@@ -19,7 +20,8 @@ from .data import Data, make_data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
 from .driver import Check, drive
-from .event_rules import G_REGION, G_RES, LAM_EPS, V_TOL, FeatureContacts, sample_grid
+from .event_rules import (G_REGION, G_RES, LAM_EPS, V_TOL, EventState, dynamics, features, make_rules, phase_sets,
+                          resolve, sample_grid, thin_limit)
 from .gaps import UnsupportedModel, feature_list
 from .model import Model, initial_state
 from .options import Bias
@@ -112,6 +114,61 @@ class _Mode(Enum):
     FIXED = "fixed"
 
 
+@dataclass(eq=False)
+class Carried:
+    """What the adaptive integrator carries from one accepted point to the next (its checkpoint,
+    passed to the event rules): the state there; t [s] (the step under way); mode; H [s] (the
+    next extrapolated step); the event rules' EventState; the phase's sets (C persistent, shadow
+    its duplicate rows, watch by their gaps, low within G_RES by their rise and return) and its
+    step end e0 (not saved: a function of the state and the sets); released (at the current
+    event: not re-admitted there); the fixed-step bookkeeping (t_back: the last return, back_steps
+    quiet steps to return, quiet ones in a row, previous_fresh: the next is a stretch's first,
+    burst: the event times within the last dt, fallbacks); counters."""
+
+    state: State
+    t: float
+    mode: _Mode = _Mode.EVENT
+    H: float = 0.0
+    ev: EventState = field(default_factory=EventState)
+    C: tuple = ()
+    shadow: tuple = ()
+    watch: list = field(default_factory=list)
+    low: list = field(default_factory=list)
+    e0: _End | None = None
+    released: frozenset = frozenset()
+    t_back: float = -np.inf
+    back_steps: int = BACK_STEPS
+    quiet: int = 0
+    previous_fresh: bool = False
+    burst: list = field(default_factory=list)
+    fallbacks: list = field(default_factory=list)
+    stuck: int = 0
+    events: int = 0
+    accepted: int = 0
+    rejected: int = 0
+    fixed: int = 0
+    landings: int = 0
+
+    def to_json(self) -> dict:
+        s = self.state
+        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "rules": self.ev.to_json(),
+                "mode": self.mode.value, "H": self.H, "t_back": None if self.t_back == -np.inf else self.t_back,
+                "stuck": self.stuck, "released": sorted(self.released), "burst": self.burst,
+                "back_steps": self.back_steps, "fallbacks": self.fallbacks, "previous_fresh": self.previous_fresh,
+                "quiet": self.quiet, "counts": [self.events, self.accepted, self.rejected, self.fixed, self.landings],
+                "C": list(self.C), "shadow": list(self.shadow), "low": list(self.low), "watch": list(self.watch)}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "Carried":
+        events, accepted, rejected, fixed, landings = d["counts"]
+        return cls(State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float)), float(d["t_now"]),
+                   _Mode(d["mode"]), float(d["H"]), EventState.from_json(d["rules"]), tuple(d["C"]),
+                   tuple(d["shadow"]), list(d["watch"]), list(d["low"]), None, frozenset(d["released"]),
+                   -np.inf if d["t_back"] is None else float(d["t_back"]), int(d["back_steps"]), int(d["quiet"]),
+                   bool(d["previous_fresh"]), list(d["burst"]), list(d["fallbacks"]), int(d["stuck"]), events,
+                   accepted, rejected, fixed, landings)
+
+
 class AdaptiveRun:
     """The adaptive integrator behind the step protocol (protocol.py; the public API is
     simulate_adaptive): a step is an accepted extrapolated step, a landing on an event, or a
@@ -132,7 +189,7 @@ class AdaptiveRun:
         n = sum(f.box is None for f in feats)
         if n > MAX_FEATURES:
             feats, self.unsupported = (), f"{n} features (not counting box pairs') > MAX_FEATURES = {MAX_FEATURES}"
-        self.rules = FeatureContacts(model, data, e, feats)  # the contact decisions at events (event_rules.py)
+        self.rules = make_rules(model, data, e, feats)  # what the event rules read of the model (event_rules.py)
         self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
         self.pm, self.pd, self.nv, self.zero = model.pin, data.pin, model.nv, np.zeros(model.nv)
         self.is_box = np.array([f.box is not None for f in self.feats], bool)
@@ -144,23 +201,19 @@ class AdaptiveRun:
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         self.neutral = pin.neutral(model.pin)
         self.h_fix = model.options.dt
-        self.events = self.accepted = self.rejected = self.fixed = self.landings = 0
-        self.fallbacks: list[dict] = []
-        self.back_steps = BACK_STEPS
-        self.burst: list[float] = []  # the times of the events within the last dt
         state = state or initial_state(model, data)
-        self.state = State(float(state.t), np.array(state.q, float), np.array(state.u, float))
-        self.t0, self.t_end, self.t = self.state.t, float(t_end), self.state.t
-        self.H = min(self.max_step, 10.0 * self.h_fix)  # [s] the next extrapolated step
-        self.t_back, self.stuck = -np.inf, 0  # the last return from fixed steps; events without progress
-        self.released: frozenset = frozenset()  # released at the current event: not re-admitted there
-        self.C, self.shadow, self.low, self.watch, self.e0 = (), (), [], [], None  # the phase's sets (_phase)
-        self.previous_fresh, self.quiet = False, 0  # fixed steps: the first of a stretch; quiet ones in a row
-        self.mode = _Mode.EVENT
+        self.s = Carried(State(float(state.t), np.array(state.q, float), np.array(state.u, float)), float(state.t),
+                         H=min(self.max_step, 10.0 * self.h_fix))
+        self.t0, self.t_end = self.s.state.t, float(t_end)
         if self.unsupported is not None:
-            self.mode = _Mode.FIXED
-            self.previous_fresh = True
-            self.fallbacks.append({"t": self.t, "reason": self.unsupported})
+            self.s.mode = _Mode.FIXED
+            self.s.previous_fresh = True
+            self.s.fallbacks.append({"t": self.s.t, "reason": self.unsupported})
+
+    @property
+    def state(self) -> State:
+        """The current accepted state (protocol.Integrator.state)."""
+        return self.s.state
 
     # ---- the extrapolated step -------------------------------------------------------------
     def _midpoint(self, q, u, h, C):
@@ -174,7 +227,7 @@ class AdaptiveRun:
             u1 = free_velocity(self.model, self.data, q_m, u, h, Bias.MIDPOINT)
         else:
             def acc(v):
-                return self.rules.dynamics(q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
+                return dynamics(self.rules, self.s.ev, q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
             tol = FIXED_POINT * (self.atol + self.rtol * float(np.abs(u).max()))
             u1 = midpoint_fixed_point(acc, u, h, u + h * acc(u), tol)
         return pin.integrate(pm, q_m, 0.5 * h * u1), u1
@@ -207,10 +260,10 @@ class AdaptiveRun:
         return float(np.sqrt(np.mean((d / sc) ** 2)))
 
     def _end(self, t, q, u, C, idx) -> _End:
-        a, lam, fc = self.rules.dynamics(q, u, C)
+        a, lam, fc = dynamics(self.rules, self.s.ev, q, u, C)
         margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
         if idx:
-            fs = self.rules.features(q, u, idx)
+            fs = features(self.rules, self.s.ev, q, u, idx)
             near = self.is_box[idx] & np.isfinite(fs.margin)
             return _End(t, q, u, a, lam, fs.g, fs.gamma, fs.W.T @ a + fs.drift, margin, near)
         z = np.zeros(0)
@@ -259,7 +312,7 @@ class AdaptiveRun:
     unit = "step"
 
     def position(self) -> tuple[int, float]:
-        return self.accepted + self.rejected + self.fixed + 1, self.t
+        return self.s.accepted + self.s.rejected + self.s.fixed + 1, self.s.t
 
     # ---- events ----------------------------------------------------------------------------
     def _first_event(self, e0: _End, e1: _End, nw: int, C, watched):
@@ -279,13 +332,16 @@ class AdaptiveRun:
             if len(near):
                 at = self._dense(e0, e1)
                 ids = [watched[k] for k in near]
-                Gd = np.array([e0.g[near]] + [self.rules.features(*at(x), ids, rows=False).g for x in taus[1:-1]]
+                Gd = np.array([e0.g[near]]
+                              + [features(self.rules, self.s.ev, *at(x), ids, rows=False).g for x in taus[1:-1]]
                               + [e1.g[near]])
                 for col in np.flatnonzero((Gd < 0.0).any(axis=0)):
                     j, k = int(np.argmax(Gd[:, col] < 0.0)), int(near[col])
 
                     def fg(x, k=k):
-                        return float(self.rules.features(*at(x), [watched[k]], rows=False).g[0]) if x < 1.0 else e1.g[k]
+                        if not x < 1.0:
+                            return e1.g[k]
+                        return float(features(self.rules, self.s.ev, *at(x), [watched[k]], rows=False).g[0])
                     tau = _root(fg, taus[j - 1], taus[j], 1e-15) if j else 0.0
                     if best is None or tau < best[0]:
                         best = (tau, "gap", k)
@@ -325,7 +381,7 @@ class AdaptiveRun:
             for k in np.flatnonzero(e1.lam < -LAM_EPS):
                 def fl(x, k=k):
                     q, u = at(x)
-                    return float(self.rules.dynamics(q, u, C)[1][k]) + LAM_EPS
+                    return float(dynamics(self.rules, self.s.ev, q, u, C)[1][k]) + LAM_EPS
                 tau = _root(fl, 0.0, 1.0, 1e-13)
                 if best is None or tau < best[0]:
                     best = (tau, "release", int(k))
@@ -333,7 +389,7 @@ class AdaptiveRun:
             at = self._dense(e0, e1)
             for k in np.flatnonzero(e1.margin < -G_REGION):
                 def fm(x, k=k):
-                    return float(self.rules.dynamics(*at(x), C)[2].margin[k]) + G_REGION
+                    return float(dynamics(self.rules, self.s.ev, *at(x), C)[2].margin[k]) + G_REGION
                 tau = _root(fm, 0.0, 1.0, 1e-13)
                 if best is None or tau < best[0]:
                     best = (tau, "release", int(k))
@@ -346,10 +402,10 @@ class AdaptiveRun:
             if H <= 0.0:
                 break
             hs, (q1, u1, _) = H, self._step(e0.q, e0.u, H, C)
-            self.landings += 1
+            self.s.landings += 1
             if feature is None:
                 break
-            fs = self.rules.features(q1, u1, [feature])
+            fs = features(self.rules, self.s.ev, q1, u1, [feature])
             g, gam = float(fs.g[0]), float(fs.gamma[0])
             if abs(g) <= G_LAND or gam >= 0.0:
                 break
@@ -359,101 +415,99 @@ class AdaptiveRun:
     # ---- the run: one step() per accepted point ---------------------------------------------
     def step(self, t_sample: float = np.inf) -> Report:
         """A fixed step in fixed mode; else, at a phase's start, the decisions there
-        (FeatureContacts.resolve), then extrapolated steps until one is accepted, lands on an event
+        (event_rules.resolve), then extrapolated steps until one is accepted, lands on an event
         or no step size passes (module doc). t_sample [s]: the next output instant (fixed steps land on it)."""
-        if self.mode is _Mode.FIXED:
+        if self.s.mode is _Mode.FIXED:
             return self._fixed_step(t_sample)
         records, work = (), 0.0
-        if self.mode is _Mode.EVENT:
+        if self.s.mode is _Mode.EVENT:
             records, work = self._start_phase()
-        t, q, u, t_end = self.state.t, self.state.q, self.state.u, self.t_end
-        C, watch, low = self.C, self.watch, self.low
-        e0, H = self.e0, self.H
+        t, q, u, t_end = self.s.state.t, self.s.state.q, self.s.state.u, self.t_end
+        C, watch, low = self.s.C, self.s.watch, self.s.low
+        e0, H = self.s.e0, self.s.H
         while True:
-            self.t = t
+            self.s.t = t
             h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)), self._box_limit(e0),
-                    self.rules.thin_limit(u, e0.a))
+                    thin_limit(self.rules, u, e0.a))
             q1, u1, d = self._step(q, u, h, C)
             err = self._error(q, u, q1, u1, d)
             if not np.isfinite(err):  # an overflow (or a failed library call): no step size helps
                 raise SimulationError(f"the error estimate of an extrapolated step of {h:.3g} s is non-finite")
             if err <= 1.0:
                 break
-            self.rejected += 1
+            self.s.rejected += 1
             H = h * max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
             if H < H_MIN:  # no step size passes: fixed steps
-                self.H = min(self.max_step, 10.0 * self.h_fix)
-                self.mode = self._fall(t, self.t_back, "the error test refused every step size")
-                return Report(Status.RUNNING, t, self.state, records, work)
+                self.s.H = min(self.max_step, 10.0 * self.h_fix)
+                self.s.mode = self._fall(t, self.s.t_back, "the error test refused every step size")
+                return Report(Status.RUNNING, t, self.s.state, records, work)
         last = h >= t_end - t
         t1 = t_end if last else t + h
         e1 = self._end(t1, q1, u1, C, watch + low)
         ev = self._first_event(e0, e1, len(watch), C, watch + low)
         grow = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
         if ev is None:
-            self.accepted += 1
+            self.s.accepted += 1
             seg = self._segment(e0, e1, len(C), last)
-            self.state, self.e0 = State(t1, q1, u1), e1
-            self.H = h * grow if h >= H else H
+            self.s.state, self.s.e0 = State(t1, q1, u1), e1
+            self.s.H = h * grow if h >= H else H
             if last:
-                return Report(Status.FINISHED, t1, self.state, records, work, segments=(seg,))
+                return Report(Status.FINISHED, t1, self.s.state, records, work, segments=(seg,))
             risen = [i for k, i in enumerate(low) if e1.g[len(watch) + k] >= G_RES]
             if risen:  # a feature rose above G_RES: its gap is watched from now on
-                self.low = [i for i in low if i not in risen]
-                self.watch = watch + risen
-                self.e0 = self._end(t1, q1, u1, C, self.watch + self.low)
-            return Report(Status.RUNNING, t1, self.state, records, work, segments=(seg,))
+                self.s.low = [i for i in low if i not in risen]
+                self.s.watch = watch + risen
+                self.s.e0 = self._end(t1, q1, u1, C, self.s.watch + self.s.low)
+            return Report(Status.RUNNING, t1, self.s.state, records, work, segments=(seg,))
         tau, kind, k = ev
         feature = (watch + low)[k] if kind == "gap" else None
         hs, q1, u1 = self._land(e0, tau * h, C, feature)
         hs = min(hs, t_end - t)
         e1 = self._end(t + hs, q1, u1, C, watch + low)
         segs = (self._segment(e0, e1, len(C), False),)
-        self.stuck = self.stuck + 1 if hs < 1e-13 else 0
+        self.s.stuck = self.s.stuck + 1 if hs < 1e-13 else 0
         t = t + hs
-        self.state = State(t, q1, u1)
-        self.H = max(h, H_MIN)
-        self.released = frozenset({C[k]}) if kind == "release" else frozenset()
-        self.mode = _Mode.EVENT
+        self.s.state = State(t, q1, u1)
+        self.s.H = max(h, H_MIN)
+        self.s.released = frozenset({C[k]}) if kind == "release" else frozenset()
+        self.s.mode = _Mode.EVENT
         if not t < t_end:  # (a NaN time too: the samples left then stop the run as non-finite)
-            return Report(Status.FINISHED, t, self.state, records, work, segments=segs + self._rest())
-        self.events += 1
-        if self.events > self.max_events:
+            return Report(Status.FINISHED, t, self.s.state, records, work, segments=segs + self._rest())
+        self.s.events += 1
+        if self.s.events > self.max_events:
             raise SimulationError(f"more than {self.max_events} events")
-        self.burst.append(t)
-        while self.burst and self.burst[0] < t - self.h_fix:
-            self.burst.pop(0)
-        if len(self.burst) >= BURST_EVENTS or self.stuck > 100:
-            self.mode = self._fall(t, self.t_back, f"{len(self.burst)} events within dt = {self.h_fix:g} s"
-                                   if len(self.burst) >= BURST_EVENTS else "100 events without time advancing")
-        return Report(Status.RUNNING, t, self.state, records, work, segments=segs)
+        self.s.burst.append(t)
+        while self.s.burst and self.s.burst[0] < t - self.h_fix:
+            self.s.burst.pop(0)
+        if len(self.s.burst) >= BURST_EVENTS or self.s.stuck > 100:
+            self.s.mode = self._fall(t, self.s.t_back, f"{len(self.s.burst)} events within dt = {self.h_fix:g} s"
+                                   if len(self.s.burst) >= BURST_EVENTS else "100 events without time advancing")
+        return Report(Status.RUNNING, t, self.s.state, records, work, segments=segs)
 
     def _start_phase(self) -> tuple[tuple, float]:
         """The decisions at an event (or the start, or back from fixed steps); the phase's sets."""
-        t, q, u = self.state.t, self.state.q, self.state.u
-        self.t = t
-        u, C, shadow, records, work = self.rules.resolve(t, q, u, self.released)
-        self.state = State(t, q, u)
-        self.released = frozenset()
+        t, q, u = self.s.state.t, self.s.state.q, self.s.state.u
+        self.s.t = t
+        u, C, shadow, records, work = resolve(self.rules, self.s.ev, t, q, u, self.s.released)
+        self.s.state = State(t, q, u)
+        self.s.released = frozenset()
         self._phase(C, shadow)
-        self.mode = _Mode.PHASE
+        self.s.mode = _Mode.PHASE
         return records, work
 
     def _phase(self, C, shadow, low=None, watch=None) -> None:
         """The persistent set C, the watched features (watch; low: within G_RES of contact at the
         phase's start, watched by their rise and return) and the step end e0 at the current state."""
-        t, q, u = self.state.t, self.state.q, self.state.u
+        t, q, u = self.s.state.t, self.s.state.q, self.s.state.u
         if low is None:
-            free = [i for i in range(len(self.feats)) if i not in C and i not in shadow]
-            g0 = self.rules.features(q, u, free, rows=False).g if free else np.zeros(0)
-            low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES]
+            free, _, low = phase_sets(self.rules, self.s.ev, q, u, C, shadow)
             watch = [i for i in free if i not in low]
-        self.C, self.shadow, self.low, self.watch = tuple(C), tuple(shadow), list(low), list(watch)
-        self.e0 = self._end(t, q, u, C, watch + low)
+        self.s.C, self.s.shadow, self.s.low, self.s.watch = tuple(C), tuple(shadow), list(low), list(watch)
+        self.s.e0 = self._end(t, q, u, C, watch + low)
 
     def _rest(self) -> tuple[Segment, ...]:
         """The grid instants left at the end (the state there, no contacts)."""
-        q, u = self.state.q, self.state.u
+        q, u = self.s.state.q, self.s.state.u
         return (Segment(lambda tg: (q, u), np.inf, True, 0),)
 
     def _rise_limit(self, e0: _End, nw: int) -> float:
@@ -473,84 +527,66 @@ class AdaptiveRun:
         return BOX_TRAVEL * self.box_half / v if v > 0.0 else np.inf
 
     def _fall(self, t: float, t_back: float, reason: str) -> "_Mode":
-        if t - t_back < 10 * self.back_steps * self.h_fix:
-            self.back_steps *= 2
-        self.fallbacks.append({"t": t, "reason": reason})
-        self.previous_fresh, self.quiet = True, 0
+        if t - t_back < 10 * self.s.back_steps * self.h_fix:
+            self.s.back_steps *= 2
+        self.s.fallbacks.append({"t": t, "reason": reason})
+        self.s.previous_fresh, self.s.quiet = True, 0
         return _Mode.FIXED
 
     def _fixed_step(self, t_sample: float) -> Report:
         """A fixed midpoint Moreau step of the scene's dt (landing on the next sample instant);
         back to extrapolated steps after back_steps quiet ones when the model has features."""
-        t, q, u, t_end = self.state.t, self.state.q, self.state.u, self.t_end
-        self.t = t
+        t, q, u, t_end = self.s.state.t, self.s.state.q, self.s.state.u, self.t_end
+        self.s.t = t
         nxt = min(t_sample, t_end)
         # a step of dt, or onto the next sample instant when that is at most dt (+ round-off) away
         t1 = nxt if nxt - t <= self.h_fix * (1.0 + 1e-9) else t + self.h_fix
         h = t1 - t
-        r = step(self.model, self.data, self.state, h=h, e=self.e, t_next=t1)
+        r = step(self.model, self.data, self.s.state, h=h, e=self.e, t_next=t1)
         if r.qp is not None and not r.qp.ok:
             raise SimulationError(f"a fixed step's impact QP failed with status {r.qp.status}")
         if not r.state.finite():
             raise SimulationError("a fixed step's state became non-finite (NaN or inf)")
-        self.fixed += 1
-        rec = FixedStep(None, t + 0.5 * h, self.state, r, h, self.e, self.previous_fresh)
-        self.previous_fresh = False
+        self.s.fixed += 1
+        rec = FixedStep(None, t + 0.5 * h, self.s.state, r, h, self.e, self.s.previous_fresh)
+        self.s.previous_fresh = False
         q, u = r.state.q, r.state.u
-        self.state = State(t1, q, u)
+        self.s.state = State(t1, q, u)
         segs = (Segment(lambda tg: (q, u), t1, True, r.contacts.m),)
-        out = Report(Status.RUNNING, t1, self.state, (rec,), r.contact_work, r.correction_energy, segments=segs)
+        out = Report(Status.RUNNING, t1, self.s.state, (rec,), r.contact_work, r.correction_energy, segments=segs)
         if self.unsupported is None:
             calm = r.branch is None and (r.contacts.m == 0 or float(np.abs(r.gamma_plus).max()) <= V_BACK)
-            self.quiet = self.quiet + 1 if calm else 0
-            if self.quiet >= self.back_steps:
-                self.fallbacks.append({"t": t1, "reason": "back to extrapolated steps"})
-                self.mode, self.t_back, self.stuck = _Mode.EVENT, t1, 0
-                self.burst.clear()
+            self.s.quiet = self.s.quiet + 1 if calm else 0
+            if self.s.quiet >= self.s.back_steps:
+                self.s.fallbacks.append({"t": t1, "reason": "back to extrapolated steps"})
+                self.s.mode, self.s.t_back, self.s.stuck = _Mode.EVENT, t1, 0
+                self.s.burst.clear()
         if not t1 < t_end:
-            return Report(Status.FINISHED, t1, self.state, (rec,), r.contact_work, r.correction_energy,
+            return Report(Status.FINISHED, t1, self.s.state, (rec,), r.contact_work, r.correction_energy,
                           segments=segs + self._rest())
         return out
 
     def progress(self) -> tuple[float, float, str]:
-        return self.state.t - self.t0, self.t_end - self.t0, "s"
+        return self.s.state.t - self.t0, self.t_end - self.t0, "s"
 
     def state_dict(self) -> dict:
-        s = self.state
-        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "rules": self.rules.state_dict(),
-                "mode": self.mode.value, "H": self.H, "t_back": _json(self.t_back),
-                "stuck": self.stuck, "released": sorted(self.released), "burst": self.burst,
-                "back_steps": self.back_steps, "fallbacks": self.fallbacks, "previous_fresh": self.previous_fresh,
-                "quiet": self.quiet, "counts": [self.events, self.accepted, self.rejected, self.fixed, self.landings],
-                "C": list(self.C), "shadow": list(self.shadow), "low": list(self.low), "watch": list(self.watch)}
+        return self.s.to_json()
 
     def load_state_dict(self, d: dict) -> None:
-        self.state = State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float))
-        self.t = float(d["t_now"])
-        self.rules.load_state_dict(d["rules"])
-        self.mode, self.H = _Mode(d["mode"]), float(d["H"])
-        self.t_back = -np.inf if d["t_back"] is None else float(d["t_back"])
-        self.stuck, self.released, self.burst = int(d["stuck"]), frozenset(d["released"]), list(d["burst"])
-        self.back_steps, self.fallbacks = int(d["back_steps"]), list(d["fallbacks"])
-        self.previous_fresh, self.quiet = bool(d["previous_fresh"]), int(d["quiet"])
-        self.events, self.accepted, self.rejected, self.fixed, self.landings = d["counts"]
-        if self.mode is _Mode.PHASE:  # the step end e0 is a function of the state and the sets
-            nfev = self.rules.nfev
-            self._phase(tuple(d["C"]), tuple(d["shadow"]), d["low"], d["watch"])
-            self.rules.nfev = nfev
+        self.s = Carried.from_json(d)
+        if self.s.mode is _Mode.PHASE:  # the step end e0 is a function of the state and the sets
+            nfev = self.s.ev.nfev
+            self._phase(self.s.C, self.s.shadow, self.s.low, self.s.watch)
+            self.s.ev.nfev = nfev
 
     def meta(self, status: str, wall: float, points: int) -> dict:
         settings = {"rtol": self.rtol, "atol": self.atol, "order": self.order, "max_step": self.max_step,
                     "features": len(self.feats), "unsupported": self.unsupported, "lie_group": self.lie}
-        run = {"steps": self.accepted + self.fixed, "steps_extrapolated": self.accepted,
-               "steps_refused": self.rejected, "steps_landed": self.landings, "steps_fixed": self.fixed,
-               "events": self.events, "impacts": self.rules.impacts, "nfev": self.rules.nfev, "wall_seconds": wall}
-        return run_metadata(self.model, status, run, integrator="adaptive", adaptive=settings, zeno=self.rules.zeno,
-                            fallbacks=self.fallbacks)
-
-
-def _json(x: float) -> float | None:
-    return None if x == -np.inf else x
+        run = {"steps": self.s.accepted + self.s.fixed, "steps_extrapolated": self.s.accepted,
+               "steps_refused": self.s.rejected, "steps_landed": self.s.landings, "steps_fixed": self.s.fixed,
+               "events": self.s.events, "impacts": self.s.ev.impacts, "nfev": self.s.ev.nfev, "wall_seconds": wall}
+        return run_metadata(self.model, status, run, integrator="adaptive", adaptive=settings, zeno=self.s.ev.zeno,
+                            fallbacks=self.s.fallbacks)
 
 
 def simulate_adaptive(model: Model, *, state: State | None = None, t_end: float | None = None,

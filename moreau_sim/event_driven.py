@@ -1,12 +1,13 @@
 """The event-driven integrator (docs/theory.md §7): smooth phases integrated to tolerance by
 scipy's solve_ivp (a Lie-group chart for a free body's quaternion), impacts at located instants;
-the decisions at an event are event_rules.FeatureContacts.resolve, the loop driver.drive (§9).
+the decisions at an event are event_rules.resolve, the loop driver.drive (§9).
 
     traj = simulate_event_driven(model)            # same Trajectory arrays as ms.simulate
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,8 @@ from .errors import SimulationError
 from .checkpoint import Checkpoint
 from .driver import Check, drive
 from .event_rules import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_ZENO, LAM_EPS, V_TOL,  # noqa: F401
-                          V_ZENO, FeatureContacts, UnsupportedModel, sample_grid)
+                          V_ZENO, EventState, UnsupportedModel, dynamics, features, make_rules, phase_sets, resolve,
+                          sample_grid, thin_limit)
 from .model import Model, initial_state
 from .protocol import Report, Segment, Status
 from .recording import run_metadata
@@ -38,6 +40,34 @@ def solve_ivp(fun, t_span, y0, **kwargs):
     return ivp(fun, t_span, y0, **kwargs)
 
 
+@dataclass(eq=False)
+class Carried:
+    """What the event-driven integrator carries from one accepted point to the next (its checkpoint,
+    passed to the event rules): the state there, t [s] (the phase under way), the event rules'
+    EventState, the features released there (not re-admitted) and those whose gap jumped open
+    there, the events so far and those in a row without time advancing."""
+
+    state: State
+    t: float
+    ev: EventState = field(default_factory=EventState)
+    released: frozenset = frozenset()
+    opened: frozenset = frozenset()
+    events: int = 0
+    stuck: int = 0
+
+    def to_json(self) -> dict:
+        s = self.state
+        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "rules": self.ev.to_json(),
+                "released": sorted(self.released), "opened": sorted(self.opened),
+                "stuck": self.stuck, "events": self.events}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "Carried":
+        return cls(State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float)), float(d["t_now"]),
+                   EventState.from_json(d["rules"]), frozenset(d["released"]), frozenset(d["opened"]),
+                   int(d["events"]), int(d["stuck"]))
+
+
 class EventDrivenRun:
     """The event-driven integrator behind the step protocol (protocol.py; the public API is
     simulate_event_driven): a step is the decisions at an event and the smooth phase after it."""
@@ -47,17 +77,19 @@ class EventDrivenRun:
 
     def __init__(self, model: Model, data: Data, e: float, rtol: float, atol: float, method: str,
                  max_step: float, max_events: int, *, state: State | None = None, t_end: float = np.inf):
-        self.rules = FeatureContacts(model, data, e)  # the contact decisions at events (event_rules.py)
+        self.rules = make_rules(model, data, e)  # what the event rules read of the model (event_rules.py)
         self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
         self.pm, self.pd, self.nv = model.pin, data.pin, model.nv
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         self.rtol, self.atol, self.method, self.max_step, self.max_events = rtol, atol, method, max_step, max_events
-        self.events = self.stuck = 0
         state = state or initial_state(model, data)
-        self.state = State(float(state.t), np.array(state.q, float), np.array(state.u, float))
-        self.t0, self.t_end, self.t = self.state.t, float(t_end), self.state.t
-        self.released: frozenset = frozenset()  # released at the current event: not re-admitted there
-        self.opened: frozenset = frozenset()  # whose gap jumped open there
+        self.s = Carried(State(float(state.t), np.array(state.q, float), np.array(state.u, float)), float(state.t))
+        self.t0, self.t_end = self.s.state.t, float(t_end)
+
+    @property
+    def state(self) -> State:
+        """The current accepted state (protocol.Integrator.state)."""
+        return self.s.state
 
     # ---- dynamics --------------------------------------------------------------------------
     def q_of(self, qb: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -78,11 +110,11 @@ class EventDrivenRun:
             if key not in cache:
                 cache.clear()
                 q, u = self.q_of(qb, y[:self.nv]), y[self.nv:]
-                _, lam, fc = self.rules.dynamics(q, u, C)
+                _, lam, fc = dynamics(self.rules, self.s.ev, q, u, C)
                 margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
                 gc = fc.g if C else None  # C's gaps
-                fs = self.rules.features(q, u, watch, rows=False) if watch else None
-                fr = self.rules.features(q, u, rated) if rated else None  # with rows: gamma
+                fs = features(self.rules, self.s.ev, q, u, watch, rows=False) if watch else None
+                fr = features(self.rules, self.s.ev, q, u, rated) if rated else None  # with rows: gamma
                 cache[key] = (fs, lam, margin, fr, gc)
             return cache[key]
 
@@ -127,7 +159,7 @@ class EventDrivenRun:
         def f(t, y):
             delta, u = y[:nv], y[nv:]
             q = self.q_of(qb, delta)
-            a = self.rules.dynamics(q, u, C)[0]
+            a = dynamics(self.rules, self.s.ev, q, u, C)[0]
             if self.lie:
                 dq = np.linalg.solve(pin.dIntegrate(self.pm, qb, delta, pin.ArgumentPosition.ARG1), u)
             else:
@@ -137,14 +169,14 @@ class EventDrivenRun:
 
     def _max_step(self, q, u, C, low) -> float:
         """max_step, or less where a body could pass through a thin obstacle within one ODE step
-        (FeatureContacts.thin_limit), or while a feature that just bounced rises: its rise to G_RES
+        (event_rules.thin_limit), or while a feature that just bounced rises: its rise to G_RES
         and its fall back must not fit in one ODE step (a double crossing is invisible), so steps
         stay below half its time to apex gamma / |a_n|."""
-        limit = min(self.max_step, self.rules.thin_limit(u, self.rules.dynamics(q, u, C)[0]))
+        limit = min(self.max_step, thin_limit(self.rules, u, dynamics(self.rules, self.s.ev, q, u, C)[0]))
         if not low:
             return limit
-        fs = self.rules.features(q, u, low)
-        a_n = fs.W.T @ self.rules.dynamics(q, u, C)[0] + fs.drift
+        fs = features(self.rules, self.s.ev, q, u, low)
+        a_n = fs.W.T @ dynamics(self.rules, self.s.ev, q, u, C)[0] + fs.drift
         up = (fs.gamma > V_TOL) & (a_n < 0)
         return float(min(limit, *(0.5 * fs.gamma[up] / -a_n[up]))) if up.any() else limit
 
@@ -156,7 +188,7 @@ class EventDrivenRun:
 
         def gaps(tau):
             y = sol.sol(tau)
-            return self.rules.features(self.q_of(qb, y[:nv]), y[nv:], watch, rows=False).g
+            return features(self.rules, self.s.ev, self.q_of(qb, y[:nv]), y[nv:], watch, rows=False).g
 
         g1 = gaps(t1)
         if not (g1 < -G_RES).any():
@@ -169,16 +201,14 @@ class EventDrivenRun:
                           disp=False) for k in np.flatnonzero(g1 < -G_RES))
 
     def step(self, t_sample: float = np.inf) -> Report:
-        """The decisions at the current point (FeatureContacts.resolve: impact, persistent set),
+        """The decisions at the current point (event_rules.resolve: impact, persistent set),
         then the smooth phase to its first event or t_end (module doc)."""
-        nv, nf = self.nv, len(self.feats)
-        t, q, u = self.state.t, self.state.q, self.state.u
-        self.t = t
-        u, C, shadow, records, work = self.rules.resolve(t, q, u, self.released)
-        free = [i for i in range(nf) if i not in C and i not in shadow]
-        g0 = self.rules.features(q, u, free, rows=False).g if free else np.zeros(0)
+        nv = self.nv
+        t, q, u = self.s.state.t, self.s.state.q, self.s.state.u
+        self.s.t = t
+        u, C, shadow, records, work = resolve(self.rules, self.s.ev, t, q, u, self.s.released)
         # (a feature whose gap just jumped open is watched by its gap: it is at the jump, not near 0)
-        low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES and i not in self.opened]
+        free, g0, low = phase_sets(self.rules, self.s.ev, q, u, C, shadow, self.s.opened)
         near = {i for i, g in zip(free, g0) if 0.5 * G_RES <= g < G_DIP}
         qb = q.copy()
         events, tags = self._phase_events(qb, C, free, low, near)
@@ -202,49 +232,42 @@ class EventDrivenRun:
             return self.q_of(qb, y[:nv]), y[nv:]
         samples = (Segment(dense, t_stop, end, len(C)),)
         if end:
-            self.state = State(t_stop, self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy())
-            return Report(Status.FINISHED, t_stop, self.state, records, work, segments=samples)
-        self.t = t_stop
-        self.events += 1
-        if self.events > self.max_events:
+            self.s.state = State(t_stop, self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy())
+            return Report(Status.FINISHED, t_stop, self.s.state, records, work, segments=samples)
+        self.s.t = t_stop
+        self.s.events += 1
+        if self.s.events > self.max_events:
             raise SimulationError(f"more than {self.max_events} events")
-        self.stuck = self.stuck + 1 if tau_stop < 1e-13 else 0
-        if self.stuck > 100:
+        self.s.stuck = self.s.stuck + 1 if tau_stop < 1e-13 else 0
+        if self.s.stuck > 100:
             raise SimulationError("100 events without time advancing")
-        self.state = State(t_stop, self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy())
+        self.s.state = State(t_stop, self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy())
         stopped = [(kind, i) for (kind, i), te in zip(tags, sol.t_events)
                    if len(te) and abs(te[-1] - tau_stop) <= 1e-12]
-        self.released = frozenset(i for kind, i in stopped if kind in ("release", "open"))
-        self.opened = frozenset(i for kind, i in stopped if kind == "open")
-        return Report(Status.RUNNING, t_stop, self.state, records, work, segments=samples)
+        self.s.released = frozenset(i for kind, i in stopped if kind in ("release", "open"))
+        self.s.opened = frozenset(i for kind, i in stopped if kind == "open")
+        return Report(Status.RUNNING, t_stop, self.s.state, records, work, segments=samples)
 
     def position(self) -> tuple[int, float]:
-        return self.events + 1, self.t
+        return self.s.events + 1, self.s.t
 
     def progress(self) -> tuple[float, float, str]:
-        return self.state.t - self.t0, self.t_end - self.t0, "s"
+        return self.s.state.t - self.t0, self.t_end - self.t0, "s"
 
     def state_dict(self) -> dict:
-        s = self.state
-        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "rules": self.rules.state_dict(),
-                "released": sorted(self.released), "opened": sorted(self.opened),
-                "stuck": self.stuck, "events": self.events}
+        return self.s.to_json()
 
     def load_state_dict(self, d: dict) -> None:
-        self.state = State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float))
-        self.t = float(d["t_now"])
-        self.rules.load_state_dict(d["rules"])
-        self.released, self.opened = frozenset(d["released"]), frozenset(d["opened"])
-        self.stuck, self.events = int(d["stuck"]), int(d["events"])
+        self.s = Carried.from_json(d)
 
     def meta(self, status: str, wall: float, points: int) -> dict:
         reference = {"method": self.method, "rtol": self.rtol, "atol": self.atol, "max_step": self.max_step,
                      "gap_tol": self.gap_tol, "v_tol": V_TOL, "g_res": G_RES, "g_zeno": G_ZENO, "v_zeno": V_ZENO,
                      "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "lie_group_chart": self.lie}
-        run = {"steps": None, "events": self.events, "impacts": self.rules.impacts, "nfev": self.rules.nfev,
+        run = {"steps": None, "events": self.s.events, "impacts": self.s.ev.impacts, "nfev": self.s.ev.nfev,
                "wall_seconds": wall}
         return run_metadata(self.model, status, run, integrator="event-driven", reference=reference,
-                            zeno=self.rules.zeno)
+                            zeno=self.s.ev.zeno)
 
 
 def simulate_event_driven(model: Model, *, state: State | None = None, t_end: float | None = None,

@@ -1,8 +1,13 @@
-"""The event rules of the integrators that locate events (docs/theory.md §7, §8): the
-constrained accelerations of a persistent set, and at an event the impact (with the Zeno rule)
-and the persistent set, on the per-feature gaps of gaps.py."""
+"""The event rules of the integrators that locate events (docs/theory.md §7, §8), as plain
+functions on the per-feature gaps of gaps.py: the constrained accelerations of a persistent set
+(dynamics), the phase's watched sets (phase_sets), and at an event the impact with the Zeno rule
+and the persistent set (resolve). What they carry between accepted points is an EventState the
+integrator owns and passes in."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import coal
 import numpy as np
@@ -13,8 +18,9 @@ from .corners import MAX_PIECES, corner_law
 from .contacts import FeatureKind, detect, from_rows
 from .data import Data
 from .errors import SimulationError
-from .gaps import (BOX_FEATURES, CYLINDER_KINDS, G_RES, Feature, FeatureState, Gaps,  # noqa: F401
+from .gaps import (BOX_FEATURES, CYLINDER_KINDS, Feature, FeatureState, Gaps,  # noqa: F401
                    UnsupportedModel, feature_list)
+from .kinematics import G_RES
 from .law import impact, outcome, percussion, project
 from .model import Model
 from .protocol import Impact
@@ -30,238 +36,285 @@ G_REGION = 1e-6  # [m] ... or a persistent box feature when it passes its region
 ACC_TOL = 1e-8  # [m/s^2] relative acceleration below this (scaled): a touching contact persists
 
 
-class FeatureContacts:
-    """The contact decisions at events (module doc) on a model's features (gaps.Gaps), and what
-    they carry from one event to the next: the Zeno declarations, the last impact, the faces of
-    the persistent vertices, counters (state_dict() for checkpoints). The integrators hold one each."""
+@dataclass(frozen=True, eq=False)
+class Rules:
+    """What the event rules read of a model, fixed for a run (make_rules): its features (gaps.Gaps),
+    restitution e, gap_tol [m] (a feature at most this far is closed: the tolerance contacts.detect
+    uses), box_index (pair -> the index of its feature 0: box pairs' features are consecutive),
+    cyl_swapped (cylinder feature -> coal lists its A second)."""
 
-    def __init__(self, model: Model, data: Data, e: float, feats: tuple[Feature, ...] | None = None):
-        self.model, self.data, self.e = model, data, e
-        # a feature is closed when its gap is <= this [m]: the tolerance contacts.detect uses
-        self.gap_tol = max(model.options.contact_tolerance, G_RES)
-        self.pm, self.pd = model.pin, data.pin
-        self.nv = model.nv
-        self.feats = feature_list(model) if feats is None else feats
-        self.zero = np.zeros(self.nv)
-        self.zeno: list[dict] = []
-        self.last_impact = -np.inf
-        self.impacts = self.nfev = 0
-        self.faces: dict = {}  # (pair, vertex feature) -> its face, for the persistent vertices of a phase
-        # pair -> the column of its feature 0 in feats (box pairs' features are consecutive)
-        self.box_index = {f.pair: i for i, f in reversed(list(enumerate(self.feats))) if f.box is not None}
-        self._redundant: dict = {}  # persistent set C -> its rows are linearly dependent
-        self.gaps = Gaps(model, data, self.feats, self.gap_tol)
-        # cylinder features whose A (the cylinder of rim/side kinds, the sphere) is coal's second shape
-        first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
-        self._cyl_swapped = {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
-                             for i, f in enumerate(self.feats) if f.kind in CYLINDER_KINDS}
+    model: Model
+    data: Data
+    e: float
+    feats: tuple[Feature, ...]
+    gap_tol: float
+    gaps: Gaps
+    box_index: dict
+    cyl_swapped: dict
+    zero: np.ndarray
 
-    # ---- checkpoints (protocol.Integrator.state_dict) -----------------------------------------
-    def state_dict(self) -> dict:
-        """What the contact decisions carry between accepted points, as JSON."""
+
+def make_rules(model: Model, data: Data, e: float, feats: tuple[Feature, ...] | None = None) -> Rules:
+    """The Rules of `model` on its features (default: gaps.feature_list(model))."""
+    gap_tol = max(model.options.contact_tolerance, G_RES)
+    feats = feature_list(model) if feats is None else feats
+    first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
+    return Rules(model, data, e, feats, gap_tol, Gaps(model, data, feats, gap_tol),
+                 {f.pair: i for i, f in reversed(list(enumerate(feats))) if f.box is not None},
+                 {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
+                  for i, f in enumerate(feats) if f.kind in CYLINDER_KINDS},
+                 np.zeros(model.nv))
+
+
+@dataclass(eq=False)
+class EventState:
+    """What the event rules carry from one accepted point to the next, owned by the integrator:
+    the Zeno declarations, the last impact's time [s], counters (impacts, nfev: dynamics calls),
+    faces ((pair, vertex feature) -> the face a persistent vertex keeps through its phase),
+    redundant (persistent set -> its rows are linearly dependent, decided once per set)."""
+
+    zeno: list = field(default_factory=list)
+    last_impact: float = -np.inf
+    impacts: int = 0
+    nfev: int = 0
+    faces: dict = field(default_factory=dict)
+    redundant: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
         return {"zeno": self.zeno,
                 "last_impact": None if self.last_impact == -np.inf else self.last_impact,
                 "impacts": self.impacts, "nfev": self.nfev,
-                "redundant": [[list(C), r] for C, r in self._redundant.items()],
+                "redundant": [[list(C), r] for C, r in self.redundant.items()],
                 "faces": [[p, k, f] for (p, k), f in self.faces.items()]}
 
-    def load_state_dict(self, d: dict) -> None:
-        self.zeno = list(d["zeno"])
-        self.last_impact = -np.inf if d["last_impact"] is None else float(d["last_impact"])
-        self.impacts, self.nfev = int(d["impacts"]), int(d["nfev"])
-        self._redundant = {tuple(C): bool(r) for C, r in d["redundant"]}
-        self.faces = {(int(p), int(k)): int(f) for p, k, f in d["faces"]}
+    @classmethod
+    def from_json(cls, d: dict) -> "EventState":
+        return cls(list(d["zeno"]), -np.inf if d["last_impact"] is None else float(d["last_impact"]),
+                   int(d["impacts"]), int(d["nfev"]), {(int(p), int(k)): int(f) for p, k, f in d["faces"]},
+                   {tuple(C): bool(r) for C, r in d["redundant"]})
 
-    def features(self, q: np.ndarray, u: np.ndarray, idx=None, rows: bool = True) -> FeatureState:
-        """Gaps.features with the phase's persistent vertex faces."""
-        return self.gaps.features(q, u, idx, rows, faces=self.faces)
 
-    def thin_limit(self, u: np.ndarray, a: np.ndarray) -> float:
-        return self.gaps.thin_limit(u, a)
+class Resolution(NamedTuple):
+    """resolve()'s decisions at an event: u (after the impact, if any), C (the persistent
+    features), shadow (duplicates of C's rows), records (the impact to record, protocol.Impact),
+    work (its contact work [J])."""
 
-    def dynamics(self, q, u, C):
-        """(a, lam, fs): free accelerations (ABA) plus the bilateral forces of the persistent set C,
-        their multipliers, and C's FeatureState (None without C)."""
-        self.nfev += 1
-        a = pin.aba(self.pm, self.pd, q, u, self.zero).copy()
-        if not C:
-            return a, np.zeros(0), None
-        fs = self.features(q, u, C)
-        Minv = pin.computeMinverse(self.pm, self.pd, q)
-        MiW = Minv @ fs.W
-        G = fs.W.T @ MiW
-        rhs = -(fs.W.T @ a + fs.drift)
-        redundant = self._redundant.get(C)
-        if redundant is None:  # rows of C dependent (4 corners of a face on a face): decided once per set
-            redundant = self._redundant[C] = bool(np.linalg.matrix_rank(fs.W) < len(C))
+    u: np.ndarray
+    C: tuple
+    shadow: tuple
+    records: tuple
+    work: float
 
-        def solve(b):
-            if not redundant:
-                try:
-                    return np.linalg.solve(G, b)
-                except np.linalg.LinAlgError:
-                    pass
-            return np.linalg.lstsq(G, b, rcond=1e-12)[0]  # redundant rows: minimum-norm forces
-        lam = solve(rhs)
-        a_c = a + MiW @ lam
-        # one step of iterative refinement (as the impact's, docs/theory.md §1.5): lam ~ R m g is exact only
-        # to its own magnitude, which leaves a light body accelerating at ~R eps g along the rows it should
-        # hold; the residual W_C'a_C + drift is computed where it is ~0, accurately, and removed
-        dl = solve(-(fs.W.T @ a_c + fs.drift))
-        return a_c + MiW @ dl, lam + dl, fs
 
-    # ---- events ----------------------------------------------------------------------------
-    def resolve(self, t: float, q: np.ndarray, u: np.ndarray, released: frozenset):
-        """Impact (with the Zeno rule), then the persistent set C at (t, q, u) (module doc).
-        Returns (u, C, shadow, records, work): C persistent features, shadow: duplicates of C's
-        rows; records: the impact to record (protocol.Impact) if any, work: its contact work [J]."""
-        self.faces = {}  # chosen afresh at an event
-        fs = self.features(q, u)
-        closed = (fs.g <= self.gap_tol) & fs.smooth  # an edge pair's stand-in is never a contact (§7.1)
-        records, work = (), 0.0
-        if (closed & (fs.gamma < -V_TOL)).any():
-            u, imp, work = self._impact(t, q, u, fs)
-            records = (imp,)
-            fs = self.features(q, u)
-        # a box feature past the end of its region (margin < -G_REGION/2: a phase ends at -G_REGION, docs/theory.md
-        # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding and drift) does
-        inside = fs.margin > -0.5 * G_REGION
-        touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL) & inside) if i not in released]
-        if not touching:
-            return u, (), (), records, work
-        # distinct rows only (the front and back corners of a planar block repeat each other)
-        keep, shadow = [], []
-        scale = 1e-12 * (1.0 + np.abs(fs.W).max())
-        for i in touching:
-            (shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in keep) else keep).append(i)
-        a_free = pin.aba(self.pm, self.pd, q, u, self.zero).copy()
-        M = pin.crba(self.pm, self.pd, q)
-        Wk, dk = fs.W[:, keep], fs.drift[keep]
-        res = project(M, Wk, a_free, b=-dk)
-        if not res.ok:
-            raise SimulationError(f"the contact-force QP failed ({res.status}) at t = {t:.12g} s")
-        rel = Wk.T @ res.v + dk
-        tol = ACC_TOL * (1.0 + np.abs(dk).max() + np.abs(Wk.T @ a_free).max())
-        C = tuple(int(i) for i, r in zip(keep, rel) if r <= tol)
-        for i in C:  # a persistent vertex keeps its face through the phase (its row may not flip at a tie)
-            f = self.feats[i]
-            if f.kind == "vertex_box":
-                wv, faces = fs.faces[f.pair]
-                self.faces[(f.pair, f.feature)] = int(faces[np.searchsorted(wv, f.feature)])
-        if C:  # remove the residual normal velocity of the persistent contacts (~1e-16)
-            Minv = pin.computeMinverse(self.pm, self.pd, q)
-            W = fs.W[:, list(C)]
-            MiW = Minv @ W
-            u = u - MiW @ np.linalg.lstsq(W.T @ MiW, W.T @ u, rcond=1e-12)[0]
-            # that removal moves bodies along M^-1 W_C: where it leaves another closed feature approaching
-            # (a state handed back by fixed steps, overlapping by ~1e-8 m), the velocity is projected onto
-            # the tangent cone of all closed features (the plastic law on ~1e-9 m/s): no phase starts with
-            # a closed feature approaching, which it would watch by nothing (docs/theory.md §8)
-            if (closed & (fs.W.T @ u < -V_TOL)).any():
-                res = project(M, fs.W[:, np.flatnonzero(closed)], u)
-                if not res.ok:
-                    raise SimulationError(f"the contact QP failed ({res.status}) at t = {t:.12g} s")
-                u = res.v
-        shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in C))
-        return u, C, shadow, records, work
+def features(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, idx=None, rows: bool = True) -> FeatureState:
+    """Gaps.features with the phase's persistent vertex faces (st.faces)."""
+    return r.gaps.features(q, u, idx, rows, faces=st.faces)
 
-    def _missed_features(self, fs: FeatureState, W: np.ndarray) -> list:
-        """Contact rows (as contacts.from_rows takes them) of the closed box-box vertices and of the
-        closed, approaching active edge pairs whose row is not in the span of coal's rows W, and of
-        the closed, not separating cylinder features where their gap is the distance (§7.2: coal's
-        one witness of a cylinder on a box's edge) that are not one of those rows: an edge lying
-        across a face meets the face's edges at points coal's one witness of that segment contact
-        does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
-        an arbitrary normal (docs/theory.md §7.1). Needs fs = self.features(q, u) of all features."""
-        out = []
-        for pair, (which, P_a, P_b, nn) in fs.points.items():
-            e_which, active = fs.edges.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
-            for i, k in enumerate(which.tolist()):
-                if k >= 16 and not active[np.searchsorted(e_which, k)]:
-                    continue
-                col = self.box_index[pair] + k
-                if fs.g[col] > self.gap_tol or (k >= 16 and fs.gamma[col] >= -V_TOL):
-                    continue
-                w = fs.W[:, col]
-                if k >= 16 and W.shape[1]:  # a closed vertex's own row always replaces coal's
-                    r = w - W @ np.linalg.lstsq(W, w, rcond=1e-12)[0]
-                    if np.abs(r).max() <= 1e-9 * np.abs(w).max():
-                        continue
-                out.append((float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
-                            FeatureKind.VERTEX if k < 16 else FeatureKind.WITNESS, k))
-                W = np.column_stack((W, w))
-        # cylinder features (§7.2): coal's one witness per pair misses e.g. a cylinder's side on a box's edge
-        # touching ones too: coal's witness normal of a cylinder on an edge is off by ~1e-6, and an impact
-        # elsewhere then left the exact feature approaching at 2e-7 m/s, neither impacted nor persistent
-        for i, (pa, pb, n) in fs.witness.items():
-            if fs.g[i] > self.gap_tol or fs.gamma[i] > V_TOL or not fs.exact.get(i, False):
+
+def phase_sets(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, C, shadow, opened=frozenset()):
+    """The features a phase starting at (q, u) with the persistent set C watches: (free, g0, low),
+    free: neither in C nor shadows of it, g0 their gaps, low: those within G_RES / 2 of contact
+    (watched by their rise and return, not their gap; `opened`, whose gaps just jumped open, never)."""
+    free = [i for i in range(len(r.feats)) if i not in C and i not in shadow]
+    g0 = features(r, st, q, u, free, rows=False).g if free else np.zeros(0)
+    low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES and i not in opened]
+    return free, g0, low
+
+
+def dynamics(r: Rules, st: EventState, q, u, C):
+    """(a, lam, fs): free accelerations (ABA) plus the bilateral forces of the persistent set C,
+    their multipliers, and C's FeatureState (None without C). Counts the call in st.nfev and
+    records in st.redundant whether a new C's rows are dependent."""
+    st.nfev += 1
+    a = pin.aba(r.model.pin, r.data.pin, q, u, r.zero).copy()
+    if not C:
+        return a, np.zeros(0), None
+    fs = features(r, st, q, u, C)
+    Minv = pin.computeMinverse(r.model.pin, r.data.pin, q)
+    MiW = Minv @ fs.W
+    G = fs.W.T @ MiW
+    rhs = -(fs.W.T @ a + fs.drift)
+    redundant = st.redundant.get(C)
+    if redundant is None:  # rows of C dependent (4 corners of a face on a face): decided once per set
+        redundant = st.redundant[C] = bool(np.linalg.matrix_rank(fs.W) < len(C))
+
+    def solve(b):
+        if not redundant:
+            try:
+                return np.linalg.solve(G, b)
+            except np.linalg.LinAlgError:
+                pass
+        return np.linalg.lstsq(G, b, rcond=1e-12)[0]  # redundant rows: minimum-norm forces
+    lam = solve(rhs)
+    a_c = a + MiW @ lam
+    # one step of iterative refinement (as the impact's, docs/theory.md §1.5): lam ~ R m g is exact only
+    # to its own magnitude, which leaves a light body accelerating at ~R eps g along the rows it should
+    # hold; the residual W_C'a_C + drift is computed where it is ~0, accurately, and removed
+    dl = solve(-(fs.W.T @ a_c + fs.drift))
+    return a_c + MiW @ dl, lam + dl, fs
+
+
+def thin_limit(r: Rules, u: np.ndarray, a: np.ndarray) -> float:
+    """Gaps.thin_limit: the longest step [s] no point can cross the thinnest pair's extent in."""
+    return r.gaps.thin_limit(u, a)
+
+
+# ---- events --------------------------------------------------------------------------------
+def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, released: frozenset) -> Resolution:
+    """Impact (with the Zeno rule), then the persistent set C at (t, q, u) (module doc); features
+    in `released` (released at this event) are not re-admitted. Updates st: the faces of C's
+    vertices, and at an impact its Zeno declaration, time and count."""
+    st.faces = {}  # chosen afresh at an event
+    fs = features(r, st, q, u)
+    closed = (fs.g <= r.gap_tol) & fs.smooth  # an edge pair's stand-in is never a contact (§7.1)
+    records, work = (), 0.0
+    if (closed & (fs.gamma < -V_TOL)).any():
+        u, imp, work = _impact(r, st, t, q, u, fs)
+        records = (imp,)
+        fs = features(r, st, q, u)
+    # a box feature past the end of its region (margin < -G_REGION/2: a phase ends at -G_REGION, docs/theory.md
+    # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding and drift) does
+    inside = fs.margin > -0.5 * G_REGION
+    touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL) & inside) if i not in released]
+    if not touching:
+        return Resolution(u, (), (), records, work)
+    # distinct rows only (the front and back corners of a planar block repeat each other)
+    keep, shadow = [], []
+    scale = 1e-12 * (1.0 + np.abs(fs.W).max())
+    for i in touching:
+        (shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in keep) else keep).append(i)
+    pm, pd = r.model.pin, r.data.pin
+    a_free = pin.aba(pm, pd, q, u, r.zero).copy()
+    M = pin.crba(pm, pd, q)
+    Wk, dk = fs.W[:, keep], fs.drift[keep]
+    res = project(M, Wk, a_free, b=-dk)
+    if not res.ok:
+        raise SimulationError(f"the contact-force QP failed ({res.status}) at t = {t:.12g} s")
+    rel = Wk.T @ res.v + dk
+    tol = ACC_TOL * (1.0 + np.abs(dk).max() + np.abs(Wk.T @ a_free).max())
+    C = tuple(int(i) for i, x in zip(keep, rel) if x <= tol)
+    for i in C:  # a persistent vertex keeps its face through the phase (its row may not flip at a tie)
+        f = r.feats[i]
+        if f.kind == "vertex_box":
+            wv, faces = fs.faces[f.pair]
+            st.faces[(f.pair, f.feature)] = int(faces[np.searchsorted(wv, f.feature)])
+    if C:  # remove the residual normal velocity of the persistent contacts (~1e-16)
+        Minv = pin.computeMinverse(pm, pd, q)
+        W = fs.W[:, list(C)]
+        MiW = Minv @ W
+        u = u - MiW @ np.linalg.lstsq(W.T @ MiW, W.T @ u, rcond=1e-12)[0]
+        # that removal moves bodies along M^-1 W_C: where it leaves another closed feature approaching
+        # (a state handed back by fixed steps, overlapping by ~1e-8 m), the velocity is projected onto
+        # the tangent cone of all closed features (the plastic law on ~1e-9 m/s): no phase starts with
+        # a closed feature approaching, which it would watch by nothing (docs/theory.md §8)
+        if (closed & (fs.W.T @ u < -V_TOL)).any():
+            res = project(M, fs.W[:, np.flatnonzero(closed)], u)
+            if not res.ok:
+                raise SimulationError(f"the contact QP failed ({res.status}) at t = {t:.12g} s")
+            u = res.v
+    shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in C))
+    return Resolution(u, C, shadow, records, work)
+
+
+def missed_features(r: Rules, fs: FeatureState, W: np.ndarray) -> list:
+    """Contact rows (as contacts.from_rows takes them) of the closed box-box vertices and of the
+    closed, approaching active edge pairs whose row is not in the span of coal's rows W, and of
+    the closed, not separating cylinder features where their gap is the distance (§7.2: coal's
+    one witness of a cylinder on a box's edge) that are not one of those rows: an edge lying
+    across a face meets the face's edges at points coal's one witness of that segment contact
+    does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
+    an arbitrary normal (docs/theory.md §7.1). Needs fs = features(r, st, q, u) of all features."""
+    out = []
+    for pair, (which, P_a, P_b, nn) in fs.points.items():
+        e_which, active = fs.edges.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
+        for i, k in enumerate(which.tolist()):
+            if k >= 16 and not active[np.searchsorted(e_which, k)]:
                 continue
-            w = fs.W[:, i]
-            if W.shape[1] and (np.abs(W - w[:, None]).max(axis=0) <= 1e-9 * np.abs(w).max()).any():
-                continue  # already a row (a combination of rows would not keep it from approaching)
-            f = self.feats[i]
-            # WITNESS features 1.. (coal's own witness of the pair is 0): 1 sphere_cylinder, 1-2 rims, 3-14 sides
-            k = 1 + f.feature + (2 if f.kind == "side_edge" else 0) if f.feature >= 0 else 1
-            if self._cyl_swapped[i]:  # coal's A is the feature's B: points swapped, normal reversed
-                pa, pb, n = pb, pa, -n
-            out.append((float(fs.g[i]), pa, pb, n, f.pair, FeatureKind.WITNESS, k))
+            col = r.box_index[pair] + k
+            if fs.g[col] > r.gap_tol or (k >= 16 and fs.gamma[col] >= -V_TOL):
+                continue
+            w = fs.W[:, col]
+            if k >= 16 and W.shape[1]:  # a closed vertex's own row always replaces coal's
+                resid = w - W @ np.linalg.lstsq(W, w, rcond=1e-12)[0]
+                if np.abs(resid).max() <= 1e-9 * np.abs(w).max():
+                    continue
+            out.append((float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
+                        FeatureKind.VERTEX if k < 16 else FeatureKind.WITNESS, k))
             W = np.column_stack((W, w))
-        return out
+    # cylinder features (§7.2): coal's one witness per pair misses e.g. a cylinder's side on a box's edge
+    # touching ones too: coal's witness normal of a cylinder on an edge is off by ~1e-6, and an impact
+    # elsewhere then left the exact feature approaching at 2e-7 m/s, neither impacted nor persistent
+    for i, (pa, pb, n) in fs.witness.items():
+        if fs.g[i] > r.gap_tol or fs.gamma[i] > V_TOL or not fs.exact.get(i, False):
+            continue
+        w = fs.W[:, i]
+        if W.shape[1] and (np.abs(W - w[:, None]).max(axis=0) <= 1e-9 * np.abs(w).max()).any():
+            continue  # already a row (a combination of rows would not keep it from approaching)
+        f = r.feats[i]
+        # WITNESS features 1.. (coal's own witness of the pair is 0): 1 sphere_cylinder, 1-2 rims, 3-14 sides
+        k = 1 + f.feature + (2 if f.kind == "side_edge" else 0) if f.feature >= 0 else 1
+        if r.cyl_swapped[i]:  # coal's A is the feature's B: points swapped, normal reversed
+            pa, pb, n = pb, pa, -n
+        out.append((float(fs.g[i]), pa, pb, n, f.pair, FeatureKind.WITNESS, k))
+        W = np.column_stack((W, w))
+    return out
 
-    def _impact(self, t, q, u, fs: FeatureState) -> tuple[np.ndarray, Impact, float]:
-        """The impact law on the contacts detect() closes at q: law.impact (docs/theory.md §1), or at
-        a corner the set-valued law with the scene's selection policy (§3, §7.2). Returns (u+, the
-        impact to record, the contact work -(energy lost) [J])."""
-        pm, pd, model = self.pm, self.pd, self.model
-        # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
-        # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
-        self.data.warm_start_pairs = set(self.data.warm_start_pairs) | {
-            self.feats[i].pair for i in np.flatnonzero(fs.g <= self.gap_tol)}
-        c = detect(model, self.data, q)
-        cs = assemble_constraints(model, self.data, q, c)
-        # (at a corner the struck vertex is the corner's: its faces are the pieces, not a feature row)
-        missed = self._missed_features(fs, cs.W) if cs.pieces is None else []
-        if missed:  # they replace coal's contacts of the same vertices
-            keys = {(m[4], int(m[5]), m[6]) for m in missed}
-            keep = np.array([k not in keys for k in zip(c.pair.tolist(), c.kind.tolist(), c.feature.tolist())], bool)
-            cs = assemble_constraints(model, self.data, q, c.select(keep).concat(from_rows(model, missed)))
-        c, M, W = cs.contacts, cs.M, cs.W
-        if c.m == 0 and cs.pieces is None:
-            raise SimulationError(f"a gap event at t = {t:.12g} s but coal finds no closed contact")
-        if cs.pieces is None and not (W.T @ u < -V_TOL).any():
-            raise SimulationError(f"a feature approaches at t = {t:.12g} s (gamma = {fs.gamma.min():.3g} m/s) but "
-                                  "none of coal's closed contacts does")
-        # the Zeno rule (module doc) on the approaching features: their free normal accelerations a_n
-        appr = np.flatnonzero((fs.g <= self.gap_tol) & (fs.gamma < -V_TOL))
-        a_n = fs.W[:, appr].T @ pin.aba(pm, pd, q, u, self.zero) + fs.drift[appr]
-        speed = -fs.gamma[appr]
-        low = ((self.e * speed) ** 2 < -2.0 * a_n * G_ZENO) | (speed < V_ZENO)
-        zeno = bool(low.all()) or t - self.last_impact < DT_ZENO
-        e = 0.0 if zeno else self.e
-        if cs.pieces is None:
-            imp = impact(M, W, u, e)
-            P, v, u_plus, gm, gp, loss = imp.P, imp.qp.v, imp.u_plus, W.T @ u, W.T @ imp.u_plus, imp.energy_loss
-            branch = None
-        else:  # the set-valued law at one instant (v0 = u-), the stepper's corners.corner_law
-            cp = cs.pieces
-            law = corner_law(M, u, u, e, W, cp.pieces, cp.rows, cp.choice, selection=model.options.corner_selection)
-            if law is None:
-                raise SimulationError(f"the corner law failed (TOO_MANY_CORNER_PIECES ({len(cp.pieces)} > "
-                                      f"{MAX_PIECES})) at t = {t:.12g} s")
-            c = c.concat(*[corner_faces(cp.corners[i], np.array([f])) for i, f in law.faces], corners=())
-            v, u_plus, P = law.v, outcome(law.v, u, e), percussion(law.lam, e)
-            gm, gp = ordered(law.W.T, u), ordered(law.W.T, u_plus)
-            dv = u - v  # the impact's energy identity holds at every stationary point (§3)
-            loss = 0.5 * (1.0 - e * e) * float(dv @ M @ dv)
-            branch = None if law.u_plus is None else (law.solution, law.chosen, law.u_plus)
-        if zeno and self.e < 1.0 and len(speed):
-            k = int(np.argmax(speed))
-            dt = 2.0 * self.e * speed[k] / ((1.0 - self.e) * -a_n[k]) if a_n[k] < 0 else 0.0
-            self.zeno.append({"t": t, "t_accumulation": float(t + dt), "speed": float(speed[k]),
-                              "pairs": sorted(set(c.pair.tolist()))})
-        self.last_impact = t
-        self.impacts += 1
-        return u_plus, Impact(t, q, u, u_plus, M, v, e, c, P, gm, gp, branch), -loss
+
+def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.ndarray, Impact, float]:
+    """The impact law on the contacts detect() closes at q: law.impact (docs/theory.md §1), or at
+    a corner the set-valued law with the scene's selection policy (§3, §7.2). Returns (u+, the
+    impact to record, the contact work -(energy lost) [J])."""
+    model, data = r.model, r.data
+    pm, pd = model.pin, data.pin
+    # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
+    # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
+    data.warm_start_pairs = set(data.warm_start_pairs) | {
+        r.feats[i].pair for i in np.flatnonzero(fs.g <= r.gap_tol)}
+    c = detect(model, data, q)
+    cs = assemble_constraints(model, data, q, c)
+    # (at a corner the struck vertex is the corner's: its faces are the pieces, not a feature row)
+    missed = missed_features(r, fs, cs.W) if cs.pieces is None else []
+    if missed:  # they replace coal's contacts of the same vertices
+        keys = {(m[4], int(m[5]), m[6]) for m in missed}
+        keep = np.array([k not in keys for k in zip(c.pair.tolist(), c.kind.tolist(), c.feature.tolist())], bool)
+        cs = assemble_constraints(model, data, q, c.select(keep).concat(from_rows(model, missed)))
+    c, M, W = cs.contacts, cs.M, cs.W
+    if c.m == 0 and cs.pieces is None:
+        raise SimulationError(f"a gap event at t = {t:.12g} s but coal finds no closed contact")
+    if cs.pieces is None and not (W.T @ u < -V_TOL).any():
+        raise SimulationError(f"a feature approaches at t = {t:.12g} s (gamma = {fs.gamma.min():.3g} m/s) but "
+                              "none of coal's closed contacts does")
+    # the Zeno rule (module doc) on the approaching features: their free normal accelerations a_n
+    appr = np.flatnonzero((fs.g <= r.gap_tol) & (fs.gamma < -V_TOL))
+    a_n = fs.W[:, appr].T @ pin.aba(pm, pd, q, u, r.zero) + fs.drift[appr]
+    speed = -fs.gamma[appr]
+    low = ((r.e * speed) ** 2 < -2.0 * a_n * G_ZENO) | (speed < V_ZENO)
+    zeno = bool(low.all()) or t - st.last_impact < DT_ZENO
+    e = 0.0 if zeno else r.e
+    if cs.pieces is None:
+        imp = impact(M, W, u, e)
+        P, v, u_plus, gm, gp, loss = imp.P, imp.qp.v, imp.u_plus, W.T @ u, W.T @ imp.u_plus, imp.energy_loss
+        branch = None
+    else:  # the set-valued law at one instant (v0 = u-), the stepper's corners.corner_law
+        cp = cs.pieces
+        law = corner_law(M, u, u, e, W, cp.pieces, cp.rows, cp.choice, selection=model.options.corner_selection)
+        if law is None:
+            raise SimulationError(f"the corner law failed (TOO_MANY_CORNER_PIECES ({len(cp.pieces)} > "
+                                  f"{MAX_PIECES})) at t = {t:.12g} s")
+        c = c.concat(*[corner_faces(cp.corners[i], np.array([f])) for i, f in law.faces], corners=())
+        v, u_plus, P = law.v, outcome(law.v, u, e), percussion(law.lam, e)
+        gm, gp = ordered(law.W.T, u), ordered(law.W.T, u_plus)
+        dv = u - v  # the impact's energy identity holds at every stationary point (§3)
+        loss = 0.5 * (1.0 - e * e) * float(dv @ M @ dv)
+        branch = None if law.u_plus is None else (law.solution, law.chosen, law.u_plus)
+    if zeno and r.e < 1.0 and len(speed):
+        k = int(np.argmax(speed))
+        dt = 2.0 * r.e * speed[k] / ((1.0 - r.e) * -a_n[k]) if a_n[k] < 0 else 0.0
+        st.zeno.append({"t": t, "t_accumulation": float(t + dt), "speed": float(speed[k]),
+                          "pairs": sorted(set(c.pair.tolist()))})
+    st.last_impact = t
+    st.impacts += 1
+    return u_plus, Impact(t, q, u, u_plus, M, v, e, c, P, gm, gp, branch), -loss
 
 
 def sample_grid(model: Model, state: State, t_end: float | None, t_eval) -> tuple[float, np.ndarray]:

@@ -276,7 +276,7 @@ def test_feature_gaps_rows_and_drift_against_finite_differences(name):
     rng = np.random.default_rng(1)
     q = pin.integrate(model.pin, model.q0, 0.05 * rng.standard_normal(model.nv))
     u, a = rng.standard_normal(model.nv), rng.standard_normal(model.nv)
-    gaps = integ.rules.features
+    gaps = integ.rules.gaps.features
     fs = gaps(q, u)
     eps = 1e-4
     g = [gaps(pin.integrate(model.pin, q, s * u + 0.5 * s * s * a), u, rows=False).g for s in (-eps, eps)]

@@ -1,4 +1,4 @@
-"""The box-box feature kinds of features.py (docs/theory.md §7.1) against exact references:
+"""The box-box and cylinder feature kinds of gaps.py and box_gaps.py (docs/theory.md §7.1) against exact references:
 their gaps' first and second time derivatives against central differences along smooth motions
 (g' = w'u, g'' = w'a + drift), and their gaps against the geometry (a vertex inside the other
 box has a negative gap, equal to minus its depth below the nearest face)."""
@@ -10,8 +10,8 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.event_rules import FeatureContacts
-from moreau_sim.gaps import BOX_FEATURES, Feature, feature_list
+from moreau_sim.event_rules import make_rules
+from moreau_sim.gaps import BOX_FEATURES, Feature, Gaps, feature_list
 
 from helpers import ROOT, scene
 
@@ -52,7 +52,7 @@ def test_box_gaps_rows_and_drift_against_finite_differences(case, seed):
     every edge pair whose gap is its signed distance d (active at -eps, 0 and eps)."""
     model = two_boxes(case != "static", **(CROSSED if case == "crossed" else {}))
     scale = 0.005 if case == "crossed" else 0.05  # [m, rad] the random offset of q
-    fc = FeatureContacts(model, ms.make_data(model), 0.5)
+    fc = make_rules(model, ms.make_data(model), 0.5).gaps
     kinds = np.array([f.kind for f in fc.feats])
     rng = np.random.default_rng(seed)
     checked = edges = 0
@@ -81,7 +81,7 @@ def test_vertex_gap_is_its_depth_below_the_nearest_face():
     """A's lowest vertex pushed 1 mm into a static box's top face, away from its edges: its
     gap is -1e-3 m and its normal (the row's linear part) is the face normal +z."""
     model = two_boxes(moving_b=False, rpy_a=(0.3, 0.2, 0.1), rpy_b=(0.0, 0.0, 0.0))
-    fc = FeatureContacts(model, ms.make_data(model), 0.5)
+    fc = make_rules(model, ms.make_data(model), 0.5).gaps
     verts = model.vertices[model.pairs[0].first] if model.pairs[0].joint_first else None
     assert verts is not None
     R = pin.rpy.rpyToMatrix(0.3, 0.2, 0.1)
@@ -185,8 +185,7 @@ def test_cylinder_gaps_rows_and_drift_against_finite_differences(case, seed):
     w'u and w'a + drift."""
     rng = np.random.default_rng(seed)
     model, feats, q, exact = _cylinder_case(case, rng)
-    fc = FeatureContacts(model, ms.make_data(model), 0.5, tuple(feats))
-    fc.gaps.gap_tol = -1.0  # closed-contact checks off: gaps are evaluated anywhere here
+    fc = Gaps(model, ms.make_data(model), tuple(feats), -1.0)  # gap_tol -1: gaps are evaluated anywhere here
     # slow motions: the differences' truncation error (third derivative, ~|v|^3 / rho^2) stays << 1e-7
     u, a = 0.3 * rng.standard_normal(model.nv), 0.3 * rng.standard_normal(model.nv)
     fs = fc.features(q, u)
@@ -207,7 +206,7 @@ def test_cylinder_gaps_are_coals_distances():
 
     model = ms.build_model(scene("quadruped_drop"))
     data = ms.make_data(model)
-    fc = FeatureContacts(model, data, 0.2)
+    fc = make_rules(model, data, 0.2).gaps
     kinds = {f.kind for f in fc.feats}
     assert {"rim_plane", "sphere_cylinder"} <= kinds
     rng = np.random.default_rng(0)
@@ -303,3 +302,33 @@ def test_adaptive_takes_cylinders_on_a_plane_not_on_a_box(tmp_path):
     b.add_box("table", (1.0, 1.0, 0.1))
     tr = ms.run(b.build(), integrator="adaptive")
     assert "cylinder vs box" in tr.meta["fallbacks"][0]["reason"] and tr.meta["run"]["steps_extrapolated"] == 0
+
+
+def _same(a, b) -> bool:
+    """Bitwise equality of two FeatureStates (arrays and the per-pair dicts of tuples of arrays)."""
+    def eq(x, y):
+        if isinstance(x, dict):
+            return x.keys() == y.keys() and all(eq(x[k], y[k]) for k in x)
+        if isinstance(x, tuple):
+            return len(x) == len(y) and all(eq(i, j) for i, j in zip(x, y))
+        x, y = np.asarray(x), np.asarray(y)
+        return x.shape == y.shape and x.tobytes() == y.tobytes()
+    return all(eq(getattr(a, k), getattr(b, k)) for k in a.__slots__)
+
+
+@pytest.mark.parametrize("name", ["box_drop", "box_stack_5", "quadruped_drop", "newton_cradle_5"])
+def test_gaps_are_a_function_of_q_and_u_alone(name):
+    """Gaps.features keeps nothing between calls: at each of several states (with and without
+    rows) it returns, bit for bit, what a fresh evaluator returns there, whatever was evaluated
+    before, and a later call leaves an earlier result unchanged."""
+    model = ms.build_model(scene(name))
+    rng = np.random.default_rng(2)
+    states = [(pin.integrate(model.pin, model.q0, 0.02 * rng.standard_normal(model.nv)),
+               rng.standard_normal(model.nv)) for _ in range(3)]
+    used = make_rules(model, ms.make_data(model), 0.5).gaps
+    for rows in (True, False):
+        first = [used.features(q, u, rows=rows) for q, u in states]
+        again = [used.features(q, u, rows=rows) for q, u in reversed(states)][::-1]
+        for (q, u), a, b in zip(states, first, again):
+            fresh = make_rules(model, ms.make_data(model), 0.5).gaps.features(q, u, rows=rows)
+            assert _same(a, fresh) and _same(b, fresh)
