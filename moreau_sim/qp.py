@@ -6,11 +6,11 @@ src/step.cpp: §2.8."""
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import piqp
-import scipy.linalg.lapack
 import scipy.sparse
 
 from .options import QPForm
@@ -47,7 +47,6 @@ class QPResult:
 
 
 _STATUS = {getattr(piqp, n): n for n in dir(piqp) if n.startswith("PIQP_")}
-_gesv = scipy.linalg.lapack.dgesv
 _EMPTY = np.zeros(0)
 
 
@@ -70,17 +69,85 @@ SECOND_PASS = 1e-15  # the second pass's tolerance, relative to max|b| + max|W| 
 MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_ROW m + MOVES_EXTRA moves
 
 
-def _gesv_ok(A, rhs):
-    """x = A^-1 rhs by LAPACK's dgesv (np.linalg.solve costs ~20 us here), or None when singular or not finite."""
-    x, info = _gesv(A, rhs)[2:]
-    return x if info == 0 and np.isfinite(x).all() else None
+LU_SCALAR = 12  # up to this many unknowns _lu_solve works on Python floats (fewer calls than numpy's row operations)
+
+
+def _lu_solve(A, rhs):
+    """x = A^-1 rhs by Gaussian elimination with partial pivoting, written out so that every entry gets the same
+    operations in the same order on any CPU, with any BLAS (docs/theory.md §2.8; src/step.cpp lu_solve makes the
+    same ones): at column j the pivot is the first largest |a_ij| (i >= j), rows j and p swap, then for each
+    i > j: l = a_ij / a_jj, a_ik = a_ik - l a_jk (k > j), x_i = x_i - l x_j; back substitution by columns,
+    j = n-1 .. 0: x_j = x_j / a_jj, x_i = x_i - a_ij x_j (i < j). None at a zero or non-finite pivot (a NaN in
+    the column included) or a non-finite x. Small systems on Python floats, larger ones by numpy row operations
+    (elementwise, one rounding each): the same operations either way, tested bit for bit (tests/test_qp.py)."""
+    n = A.shape[0]
+    if n <= LU_SCALAR:
+        x = _lu_scalar(np.asarray(A, float).tolist(), np.asarray(rhs, float).tolist(), n)
+        return None if x is None else _finite(np.array(x))
+    a = np.empty((n, n + 1))  # [A | rhs]
+    a[:, :n] = A
+    a[:, n] = rhs
+    for j in range(n):
+        p = j + int(np.abs(a[j:, j]).argmax())  # the first NaN, else the first largest
+        piv = float(a[p, j])
+        if not (piv != 0.0 and math.isfinite(piv)):
+            return None
+        if p != j:
+            row = a[j, j:].copy()
+            a[j, j:] = a[p, j:]
+            a[p, j:] = row
+        if j + 1 < n:
+            S = a[j + 1:, j + 1:]
+            np.subtract(S, np.multiply.outer(a[j + 1:, j] / piv, a[j, j + 1:]), out=S)
+    u = a.tolist()
+    return _finite(np.array(_back([r[n] for r in u], u, n)))
+
+
+def _lu_scalar(a: list, x: list, n: int):
+    """_lu_solve on lists of Python floats (a: the rows of A, x: rhs; both changed); None at a bad pivot."""
+    for j in range(n):
+        p, best = j, abs(a[j][j])
+        if best == best:
+            for i in range(j + 1, n):
+                v = abs(a[i][j])
+                if v != v:  # a NaN: the pivot is no number
+                    p, best = i, v
+                    break
+                if v > best:
+                    p, best = i, v
+        piv = a[p][j]
+        if not (piv != 0.0 and math.isfinite(piv)):
+            return None
+        if p != j:
+            a[j], a[p] = a[p], a[j]
+            x[j], x[p] = x[p], x[j]
+        rj, xj = a[j][j + 1:], x[j]
+        for i in range(j + 1, n):
+            ri = a[i]
+            lo = ri[j] / piv
+            ri[j + 1:] = [s - lo * t for s, t in zip(ri[j + 1:], rj)]
+            x[i] = x[i] - lo * xj
+    return _back(x, a, n)
+
+
+def _back(x: list, u: list, n: int) -> list:
+    """Back substitution by columns on the rows u of an upper triangle (Python floats; x changed)."""
+    for j in range(n - 1, -1, -1):
+        xj = x[j] = x[j] / u[j][j]
+        for i in range(j):
+            x[i] = x[i] - u[i][j] * xj
+    return x
+
+
+def _finite(x):
+    return x if np.isfinite(x).all() else None
 
 
 def _solve(A, rhs):
-    """x = A^-1 rhs: dgesv for a dense A (_gesv_ok), SuperLU (scipy's splu, sequential: the same bits run to
+    """x = A^-1 rhs: _lu_solve for a dense A, SuperLU (scipy's splu, sequential: the same bits run to
     run) for a sparse one; None when singular or not finite."""
     if not scipy.sparse.issparse(A):
-        return _gesv_ok(A, rhs)
+        return _lu_solve(A, rhs)
     if A.shape[0] == 0:
         return np.zeros(0)
     from scipy.sparse.linalg import splu  # here: the sparse path only (issue 14: no RSS a small run never uses)
@@ -169,7 +236,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
     the round-off of G lam, else the rows cannot all be met. Returns (act, lam, moves) with every row of
     act tight, or None when the rows are infeasible, a solve is singular or it takes more than 5 m + 10
     moves. mul: the products (ordered on dense matrices, which src/step.cpp mirrors operation for
-    operation with scipy's own dgesv, so both steps decide alike; _sparse_mul on the sparse path)."""
+    operation with the same LU (_lu_solve), so both steps decide alike; _sparse_mul on the sparse path)."""
     m = r.shape[0]
     lam = np.zeros(m)
     sparse = scipy.sparse.issparse(G)
@@ -235,7 +302,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
 
 def _polish(W, v0, b, Minv, act=None):
     """The exact projection by the active set (_active_set from nothing, or warm-started from `act`; dense
-    products by `ordered`), re-solved on its final set A: G_AA lam_A = b_A - W_A'v0 (dgesv),
+    products by `ordered`), re-solved on its final set A: G_AA lam_A = b_A - W_A'v0 (_solve),
     v = v0 + M^-1 W_A lam_A. Kept only if lam_A >= 0 and W'v >= b to round-off (the KKT conditions;
     M (v - v0) = W lam holds by construction); else None."""
     m = W.shape[1]
