@@ -69,7 +69,9 @@ SECOND_PASS = 1e-15  # the second pass's tolerance, relative to max|b| + max|W| 
 MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_ROW m + MOVES_EXTRA moves
 
 
-LU_SCALAR = 12  # up to this many unknowns _lu_solve works on Python floats (fewer calls than numpy's row operations)
+LU_SCALAR = 12  # up to this many unknowns _lu_factor works on Python floats (fewer calls than numpy's row operations)
+LU_CACHE = 256  # factors kept (the active set solves with the same G_AA again: 2 of 3 solves in box_stack_5)
+_factors: dict = {}
 
 
 def _lu_solve(A, rhs):
@@ -78,69 +80,85 @@ def _lu_solve(A, rhs):
     same ones): at column j the pivot is the first largest |a_ij| (i >= j), rows j and p swap, then for each
     i > j: l = a_ij / a_jj, a_ik = a_ik - l a_jk (k > j), x_i = x_i - l x_j; back substitution by columns,
     j = n-1 .. 0: x_j = x_j / a_jj, x_i = x_i - a_ij x_j (i < j). None at a zero or non-finite pivot (a NaN in
-    the column included) or a non-finite x. Small systems on Python floats, larger ones by numpy row operations
-    (elementwise, one rounding each): the same operations either way, tested bit for bit (tests/test_qp.py)."""
+    the column included) or a non-finite x. The factors of a matrix are kept (by its bytes) and applied to the
+    next right-hand side: the same operations on x as eliminating them together. Tested bit for bit against the
+    elimination on Python floats (tests/test_qp.py) and against src/step.cpp (tests/test_compiled.py)."""
+    A = np.ascontiguousarray(A, float)
+    key = A.tobytes()
+    f = _factors.get(key, _factors)
+    if f is _factors:
+        if len(_factors) >= LU_CACHE:
+            _factors.clear()
+        f = _factors[key] = _lu_factor(A)
+    if f is None:
+        return None
+    swaps, lower, upper, diag = f
+    x = np.asarray(rhs, float).tolist()
+    for j, p in enumerate(swaps):  # P rhs (the multipliers below moved with their rows)
+        if p != j:
+            x[j], x[p] = x[p], x[j]
+    for j, col in enumerate(lower):  # L y = P rhs by columns: each entry as the rhs column of the elimination gets it
+        xj = x[j]
+        x[j + 1:] = [s - lo * xj for s, lo in zip(x[j + 1:], col)]
+    for j in range(len(x) - 1, -1, -1):  # U x = y by columns
+        xj = x[j] = x[j] / diag[j]
+        x[:j] = [s - a * xj for s, a in zip(x[:j], upper[j])]
+    return np.array(x) if all(map(math.isfinite, x)) else None
+
+
+def _lu_factor(A: np.ndarray):
+    """(the pivot row of each column, the columns of L below the diagonal, of U above it, U's diagonal) as
+    Python floats, or None at a zero or non-finite pivot: small matrices on Python floats, larger ones by
+    numpy row operations (elementwise, one rounding each), the same operations either way."""
     n = A.shape[0]
+    swaps = []
     if n <= LU_SCALAR:
-        x = _lu_scalar(np.asarray(A, float).tolist(), np.asarray(rhs, float).tolist(), n)
-        return None if x is None else _finite(np.array(x))
-    a = np.empty((n, n + 1))  # [A | rhs]
-    a[:, :n] = A
-    a[:, n] = rhs
+        a = A.tolist()
+        for j in range(n):
+            p, best = j, abs(a[j][j])
+            if best == best:
+                for i in range(j + 1, n):
+                    v = abs(a[i][j])
+                    if v != v:  # a NaN: the pivot is no number
+                        p, best = i, v
+                        break
+                    if v > best:
+                        p, best = i, v
+            piv = a[p][j]
+            if not (piv != 0.0 and math.isfinite(piv)):
+                return None
+            swaps.append(p)
+            if p != j:
+                a[j], a[p] = a[p], a[j]
+            rj = a[j][j + 1:]
+            for i in range(j + 1, n):
+                ri = a[i]
+                lo = ri[j] = ri[j] / piv
+                ri[j + 1:] = [s - lo * t for s, t in zip(ri[j + 1:], rj)]
+        return _columns(a, swaps)
+    a = A.copy()
     for j in range(n):
         p = j + int(np.abs(a[j:, j]).argmax())  # the first NaN, else the first largest
         piv = float(a[p, j])
         if not (piv != 0.0 and math.isfinite(piv)):
             return None
+        swaps.append(p)
         if p != j:
-            row = a[j, j:].copy()
-            a[j, j:] = a[p, j:]
-            a[p, j:] = row
+            row = a[j].copy()
+            a[j] = a[p]
+            a[p] = row
         if j + 1 < n:
+            lo = a[j + 1:, j] = a[j + 1:, j] / piv
             S = a[j + 1:, j + 1:]
-            np.subtract(S, np.multiply.outer(a[j + 1:, j] / piv, a[j, j + 1:]), out=S)
-    u = a.tolist()
-    return _finite(np.array(_back([r[n] for r in u], u, n)))
+            np.subtract(S, np.multiply.outer(lo, a[j, j + 1:]), out=S)
+    return _columns(a.tolist(), swaps)
 
 
-def _lu_scalar(a: list, x: list, n: int):
-    """_lu_solve on lists of Python floats (a: the rows of A, x: rhs; both changed); None at a bad pivot."""
-    for j in range(n):
-        p, best = j, abs(a[j][j])
-        if best == best:
-            for i in range(j + 1, n):
-                v = abs(a[i][j])
-                if v != v:  # a NaN: the pivot is no number
-                    p, best = i, v
-                    break
-                if v > best:
-                    p, best = i, v
-        piv = a[p][j]
-        if not (piv != 0.0 and math.isfinite(piv)):
-            return None
-        if p != j:
-            a[j], a[p] = a[p], a[j]
-            x[j], x[p] = x[p], x[j]
-        rj, xj = a[j][j + 1:], x[j]
-        for i in range(j + 1, n):
-            ri = a[i]
-            lo = ri[j] / piv
-            ri[j + 1:] = [s - lo * t for s, t in zip(ri[j + 1:], rj)]
-            x[i] = x[i] - lo * xj
-    return _back(x, a, n)
-
-
-def _back(x: list, u: list, n: int) -> list:
-    """Back substitution by columns on the rows u of an upper triangle (Python floats; x changed)."""
-    for j in range(n - 1, -1, -1):
-        xj = x[j] = x[j] / u[j][j]
-        for i in range(j):
-            x[i] = x[i] - u[i][j] * xj
-    return x
-
-
-def _finite(x):
-    return x if np.isfinite(x).all() else None
+def _columns(a: list, swaps: list):
+    """_lu_factor's result from the rows a of the factored matrix (L below the diagonal, U on and above)."""
+    cols = list(zip(*a)) if a else []
+    return swaps, [c[j + 1:] for j, c in enumerate(cols)], [c[:j] for j, c in enumerate(cols)], \
+        [a[j][j] for j in range(len(a))]
 
 
 def _solve(A, rhs):

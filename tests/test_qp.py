@@ -416,13 +416,16 @@ def lu_systems(seed):
 def test_lu_solve_is_the_stated_elimination_bit_for_bit(seed, scalar_rows, monkeypatch):
     """qp._lu_solve, the solve of the active set (no LAPACK: dgesv's bits change with the CPU OpenBLAS finds), is
     the elimination of docs/theory.md §2.8 written out on Python floats, bit for bit, on its Python-float and
-    its numpy paths alike (scalar_rows moves the switch between them), and None where a pivot is zero or no
-    number; and it solves: A x = rhs to round-off."""
+    its numpy paths alike (scalar_rows moves the switch between them), for a fresh matrix and for one whose
+    factors it kept, and None where a pivot is zero or no number; and it solves: A x = rhs to round-off."""
     monkeypatch.setattr(qp, "LU_SCALAR", scalar_rows)
+    monkeypatch.setattr(qp, "_factors", {})
+    rng = np.random.default_rng(seed)
     for A, rhs in lu_systems(seed):
-        x, ref = qp._lu_solve(A, rhs), _lu_reference(A, rhs)
-        if ref is None:
-            assert x is None
-            continue
-        assert x is not None and np.asarray(x).view(np.int64).tolist() == np.asarray(ref).view(np.int64).tolist()
-        assert np.abs(A @ x - rhs).max() <= 1e-8 * (np.abs(A).max() * np.abs(x).max() + np.abs(rhs).max())
+        for b in (rhs, rng.standard_normal(len(rhs))):  # the second: the kept factors
+            x, ref = qp._lu_solve(A, b), _lu_reference(A, b)
+            if ref is None:
+                assert x is None
+                continue
+            assert x is not None and x.view(np.int64).tolist() == np.asarray(ref).view(np.int64).tolist()
+            assert np.abs(A @ x - b).max() <= 1e-8 * (np.abs(A).max() * np.abs(x).max() + np.abs(b).max())
