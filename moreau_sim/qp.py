@@ -70,7 +70,8 @@ MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_RO
 
 
 LU_SCALAR = 12  # up to this many unknowns _lu_factor works on Python floats (fewer calls than numpy's row operations)
-LU_CACHE = 256  # factors kept (the active set solves with the same G_AA again: 2 of 3 solves in box_stack_5)
+LU_CACHE = 128  # factors kept (the active set solves with the same G_AA again: 2 of 3 solves in box_stack_5)
+LU_CACHED_ROWS = 32  # of matrices up to this many rows (at most ~4 MB of Python floats)
 _factors: dict = {}
 
 
@@ -84,12 +85,15 @@ def _lu_solve(A, rhs):
     next right-hand side: the same operations on x as eliminating them together. Tested bit for bit against the
     elimination on Python floats (tests/test_qp.py) and against src/step.cpp (tests/test_compiled.py)."""
     A = np.ascontiguousarray(A, float)
-    key = A.tobytes()
-    f = _factors.get(key, _factors)
-    if f is _factors:
-        if len(_factors) >= LU_CACHE:
-            _factors.clear()
-        f = _factors[key] = _lu_factor(A)
+    if A.shape[0] > LU_CACHED_ROWS:
+        f = _lu_factor(A)
+    else:
+        key = A.tobytes()
+        f = _factors.get(key, _factors)
+        if f is _factors:
+            if len(_factors) >= LU_CACHE:
+                _factors.clear()
+            f = _factors[key] = _lu_factor(A)
     if f is None:
         return None
     swaps, lower, upper, diag = f
