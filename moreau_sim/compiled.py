@@ -5,7 +5,6 @@ MAX_CONTACTS contacts, and hands any other step back (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
-import ctypes
 import importlib
 import warnings
 from collections import Counter
@@ -71,19 +70,6 @@ def unavailable_reason() -> str | None:
     return _reason
 
 
-def _dgesv_pointer() -> int:
-    """The address of the LAPACK dgesv that qp._polish calls through scipy (the same routine, so the
-    same LU and the same answer)."""
-    import scipy.linalg.cython_lapack as cl
-    cap = cl.__pyx_capi__["dgesv"]
-    api = ctypes.pythonapi
-    api.PyCapsule_GetName.restype = ctypes.c_char_p
-    api.PyCapsule_GetName.argtypes = [ctypes.py_object]
-    api.PyCapsule_GetPointer.restype = ctypes.c_void_p
-    api.PyCapsule_GetPointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
-    return int(api.PyCapsule_GetPointer(cap, api.PyCapsule_GetName(cap)))
-
-
 # coal's closed-form pairs (coal/internal/shape_shape_func.h's specializations, coal 3.0.3): a shape against a
 # half-space or a plane, and a sphere against these
 _HALF = (coal.Halfspace, coal.Plane)
@@ -146,7 +132,7 @@ class _Context:
                 np.asarray(model.support_mask, float), float(model.reach), float(model.thinnest_pair),
                 float(o.contact_tolerance), _TUNNELLING[o.tunnelling], o.separating is Separating.ELASTIC,
                 o.slow_impacts is SlowImpacts.PLASTIC, o.bias is Bias.MIDPOINT, bool(model.velocity_bias),
-                o.position_correction is PositionCorrection.PROJECTION, CONSTANTS, _dgesv_pointer(),
+                o.position_correction is PositionCorrection.PROJECTION, CONSTANTS,
                 np.array([(lim.pair, lim.joint, lim.idx_q, lim.idx_v, lim.sign, lim.bound) for lim in model.limits],
                          dtype=float).reshape(-1, 6))
 

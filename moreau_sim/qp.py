@@ -6,11 +6,11 @@ src/step.cpp: §2.8."""
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import piqp
-import scipy.linalg.lapack
 import scipy.sparse
 
 from .options import QPForm
@@ -47,7 +47,6 @@ class QPResult:
 
 
 _STATUS = {getattr(piqp, n): n for n in dir(piqp) if n.startswith("PIQP_")}
-_gesv = scipy.linalg.lapack.dgesv
 _EMPTY = np.zeros(0)
 
 
@@ -70,17 +69,107 @@ SECOND_PASS = 1e-15  # the second pass's tolerance, relative to max|b| + max|W| 
 MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_ROW m + MOVES_EXTRA moves
 
 
-def _gesv_ok(A, rhs):
-    """x = A^-1 rhs by LAPACK's dgesv (np.linalg.solve costs ~20 us here), or None when singular or not finite."""
-    x, info = _gesv(A, rhs)[2:]
-    return x if info == 0 and np.isfinite(x).all() else None
+LU_SCALAR = 12  # up to this many unknowns _lu_factor works on Python floats (fewer calls than numpy's row operations)
+LU_CACHE = 128  # factors kept (the active set solves with the same G_AA again: 2 of 3 solves in box_stack_5)
+LU_CACHED_ROWS = 32  # of matrices up to this many rows (at most ~4 MB of Python floats)
+_factors: dict = {}
+
+
+def _lu_solve(A, rhs):
+    """x = A^-1 rhs by Gaussian elimination with partial pivoting, written out so that every entry gets the same
+    operations in the same order on any CPU, with any BLAS (docs/theory.md §2.8; src/step.cpp lu_solve makes the
+    same ones): at column j the pivot is the first largest |a_ij| (i >= j), rows j and p swap, then for each
+    i > j: l = a_ij / a_jj, a_ik = a_ik - l a_jk (k > j), x_i = x_i - l x_j; back substitution by columns,
+    j = n-1 .. 0: x_j = x_j / a_jj, x_i = x_i - a_ij x_j (i < j). None at a zero or non-finite pivot (a NaN in
+    the column included) or a non-finite x. The factors of a matrix are kept (by its bytes) and applied to the
+    next right-hand side: the same operations on x as eliminating them together. Tested bit for bit against the
+    elimination on Python floats (tests/test_qp.py) and against src/step.cpp (tests/test_compiled.py)."""
+    A = np.ascontiguousarray(A, float)
+    if A.shape[0] > LU_CACHED_ROWS:
+        f = _lu_factor(A)
+    else:
+        key = A.tobytes()
+        f = _factors.get(key, _factors)
+        if f is _factors:
+            if len(_factors) >= LU_CACHE:
+                _factors.clear()
+            f = _factors[key] = _lu_factor(A)
+    if f is None:
+        return None
+    swaps, lower, upper, diag = f
+    x = np.asarray(rhs, float).tolist()
+    for j, p in enumerate(swaps):  # P rhs (the multipliers below moved with their rows)
+        if p != j:
+            x[j], x[p] = x[p], x[j]
+    for j, col in enumerate(lower):  # L y = P rhs by columns: each entry as the rhs column of the elimination gets it
+        xj = x[j]
+        x[j + 1:] = [s - lo * xj for s, lo in zip(x[j + 1:], col)]
+    for j in range(len(x) - 1, -1, -1):  # U x = y by columns
+        xj = x[j] = x[j] / diag[j]
+        x[:j] = [s - a * xj for s, a in zip(x[:j], upper[j])]
+    return np.array(x) if all(map(math.isfinite, x)) else None
+
+
+def _lu_factor(A: np.ndarray):
+    """(the pivot row of each column, the columns of L below the diagonal, of U above it, U's diagonal) as
+    Python floats, or None at a zero or non-finite pivot: small matrices on Python floats, larger ones by
+    numpy row operations (elementwise, one rounding each), the same operations either way."""
+    n = A.shape[0]
+    swaps = []
+    if n <= LU_SCALAR:
+        a = A.tolist()
+        for j in range(n):
+            p, best = j, abs(a[j][j])
+            if best == best:
+                for i in range(j + 1, n):
+                    v = abs(a[i][j])
+                    if v != v:  # a NaN: the pivot is no number
+                        p, best = i, v
+                        break
+                    if v > best:
+                        p, best = i, v
+            piv = a[p][j]
+            if not (piv != 0.0 and math.isfinite(piv)):
+                return None
+            swaps.append(p)
+            if p != j:
+                a[j], a[p] = a[p], a[j]
+            rj = a[j][j + 1:]
+            for i in range(j + 1, n):
+                ri = a[i]
+                lo = ri[j] = ri[j] / piv
+                ri[j + 1:] = [s - lo * t for s, t in zip(ri[j + 1:], rj)]
+        return _columns(a, swaps)
+    a = A.copy()
+    for j in range(n):
+        p = j + int(np.abs(a[j:, j]).argmax())  # the first NaN, else the first largest
+        piv = float(a[p, j])
+        if not (piv != 0.0 and math.isfinite(piv)):
+            return None
+        swaps.append(p)
+        if p != j:
+            row = a[j].copy()
+            a[j] = a[p]
+            a[p] = row
+        if j + 1 < n:
+            lo = a[j + 1:, j] = a[j + 1:, j] / piv
+            S = a[j + 1:, j + 1:]
+            np.subtract(S, np.multiply.outer(lo, a[j, j + 1:]), out=S)
+    return _columns(a.tolist(), swaps)
+
+
+def _columns(a: list, swaps: list):
+    """_lu_factor's result from the rows a of the factored matrix (L below the diagonal, U on and above)."""
+    cols = list(zip(*a)) if a else []
+    return swaps, [c[j + 1:] for j, c in enumerate(cols)], [c[:j] for j, c in enumerate(cols)], \
+        [a[j][j] for j in range(len(a))]
 
 
 def _solve(A, rhs):
-    """x = A^-1 rhs: dgesv for a dense A (_gesv_ok), SuperLU (scipy's splu, sequential: the same bits run to
+    """x = A^-1 rhs: _lu_solve for a dense A, SuperLU (scipy's splu, sequential: the same bits run to
     run) for a sparse one; None when singular or not finite."""
     if not scipy.sparse.issparse(A):
-        return _gesv_ok(A, rhs)
+        return _lu_solve(A, rhs)
     if A.shape[0] == 0:
         return np.zeros(0)
     from scipy.sparse.linalg import splu  # here: the sparse path only (issue 14: no RSS a small run never uses)
@@ -169,7 +258,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
     the round-off of G lam, else the rows cannot all be met. Returns (act, lam, moves) with every row of
     act tight, or None when the rows are infeasible, a solve is singular or it takes more than 5 m + 10
     moves. mul: the products (ordered on dense matrices, which src/step.cpp mirrors operation for
-    operation with scipy's own dgesv, so both steps decide alike; _sparse_mul on the sparse path)."""
+    operation with the same LU (_lu_solve), so both steps decide alike; _sparse_mul on the sparse path)."""
     m = r.shape[0]
     lam = np.zeros(m)
     sparse = scipy.sparse.issparse(G)
@@ -235,7 +324,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
 
 def _polish(W, v0, b, Minv, act=None):
     """The exact projection by the active set (_active_set from nothing, or warm-started from `act`; dense
-    products by `ordered`), re-solved on its final set A: G_AA lam_A = b_A - W_A'v0 (dgesv),
+    products by `ordered`), re-solved on its final set A: G_AA lam_A = b_A - W_A'v0 (_solve),
     v = v0 + M^-1 W_A lam_A. Kept only if lam_A >= 0 and W'v >= b to round-off (the KKT conditions;
     M (v - v0) = W lam holds by construction); else None."""
     m = W.shape[1]

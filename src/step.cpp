@@ -33,6 +33,7 @@
 #include <pinocchio/collision/distance.hpp>
 
 #include <algorithm>
+#include <cfloat>
 #include <cmath>
 #include <limits>
 #include <map>
@@ -112,8 +113,6 @@ struct Constants {
             {"energy_roundoff", energy_roundoff}};
   }
 };
-
-typedef void (*dgesv_t)(int *, int *, double *, int *, int *, double *, int *, int *);
 
 template <class T> T &extract_ref(nb::handle h, const char *what) {
   bp::object o{bp::handle<>(bp::borrowed(h.ptr()))};
@@ -296,20 +295,43 @@ VectorXd otimes_t(const MatrixXd &W, const VectorXd &x) {
   return y;
 }
 
-// LAPACK's dgesv (scipy's, the routine qp._gesv_ok calls) on a copy of A: x = A^-1 rhs; false when singular
-// or not finite
-bool gesv(dgesv_t dgesv, const MatrixXd &A, const VectorXd &rhs, VectorXd &x) {
-  MatrixXd lu = A;
+// qp._lu_solve: x = A^-1 rhs by Gaussian elimination with partial pivoting (the first largest |a_ij| of the
+// column; a NaN in it: no pivot), then back substitution by columns, each entry with the same operations in the
+// same order as the Python one (docs/theory.md §2.8: no LAPACK, no FMA); false at a zero or non-finite pivot,
+// or when x is not finite
+bool lu_solve(const MatrixXd &A, const VectorXd &rhs, VectorXd &x) {
+  const Eigen::Index n = A.rows();
+  MatrixXd a = A;
   x = rhs;
-  std::vector<int> piv(A.rows());
-  int n = (int)A.rows(), nrhs = 1, lda = n, ldb = n, info = 0;
-  dgesv(&n, &nrhs, lu.data(), &lda, piv.data(), x.data(), &ldb, &info);
-  return info == 0 && x.allFinite();
+  for (Eigen::Index j = 0; j < n; ++j) {
+    Eigen::Index p = j;
+    double best = std::abs(a(j, j));
+    for (Eigen::Index i = j + 1; i < n && !std::isnan(best); ++i) {
+      const double v = std::abs(a(i, j));
+      if (std::isnan(v) || v > best) best = v, p = i;
+    }
+    const double piv = a(p, j);
+    if (!(piv != 0.0 && std::isfinite(piv))) return false;
+    if (p != j) {
+      for (Eigen::Index k = j; k < n; ++k) std::swap(a(j, k), a(p, k));
+      std::swap(x[j], x[p]);
+    }
+    for (Eigen::Index i = j + 1; i < n; ++i) {
+      const double l = a(i, j) / piv;
+      for (Eigen::Index k = j + 1; k < n; ++k) a(i, k) = a(i, k) - l * a(j, k);
+      x[i] = x[i] - l * x[j];
+    }
+  }
+  for (Eigen::Index j = n - 1; j >= 0; --j) {
+    x[j] = x[j] / a(j, j);
+    for (Eigen::Index i = 0; i < j; ++i) x[i] = x[i] - a(i, j) * x[j];
+  }
+  return x.allFinite();
 }
 
 // qp._active_set cold (Goldfarb-Idnani's dual active set on min 1/2 lam'G lam - r'lam, lam >= 0), operation
 // for operation; false where qp._active_set returns None (the Python step then takes it, and piqp)
-bool active_set(const Constants &C, dgesv_t dgesv, const MatrixXd &G, const VectorXd &r, double tol, std::vector<char> &act,
+bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double tol, std::vector<char> &act,
                 VectorXd &lam) {
   const Eigen::Index m = r.size();
   const double inf = std::numeric_limits<double>::infinity();
@@ -342,7 +364,7 @@ bool active_set(const Constants &C, dgesv_t dgesv, const MatrixXd &G, const Vect
           rhs[i] = -G(idx[i], p), Gp[i] = G(p, idx[i]);
           for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
         }
-        if (!gesv(dgesv, GA, rhs, d)) return false;
+        if (!lu_solve(GA, rhs, d)) return false;
         z = G(p, p) + odot(Gp.data(), d.data(), k);
       } else {
         d.resize(0);
@@ -376,8 +398,7 @@ bool active_set(const Constants &C, dgesv_t dgesv, const MatrixXd &G, const Vect
 // qp.solve (primal form, Polish.ACTIVE_SET, at most qp.COLD_START_ROWS rows): the screen, the closed form for
 // one row, else qp._polish cold: the active set, re-solved on its final set and checked. Throws Fallback where
 // qp.solve would go on to piqp.
-Solved project(const Constants &C, dgesv_t dgesv, const MatrixXd &W, const VectorXd &v0, const VectorXd &b,
-               const MatrixXd &Minv) {
+Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv) {
   const Eigen::Index m = W.cols(), nv = W.rows();
   const VectorXd slack0 = otimes_t(W, v0) - b;
   if (slack0.minCoeff() >= -C.screen * (1.0 + v0.cwiseAbs().maxCoeff())) return {v0, VectorXd::Zero(m), Projection::ADMISSIBLE};
@@ -395,7 +416,7 @@ Solved project(const Constants &C, dgesv_t dgesv, const MatrixXd &W, const Vecto
   const VectorXd r = b - otimes_t(W, v0);
   std::vector<char> act;
   VectorXd lam;
-  if (!active_set(C, dgesv, G, r, C.screen * scale, act, lam)) throw Fallback{"active set did not settle"};
+  if (!active_set(C, G, r, C.screen * scale, act, lam)) throw Fallback{"active set did not settle"};
   std::vector<Eigen::Index> idx;
   for (Eigen::Index i = 0; i < m; ++i)
     if (act[i]) idx.push_back(i);
@@ -411,7 +432,7 @@ Solved project(const Constants &C, dgesv_t dgesv, const MatrixXd &W, const Vecto
       MiWA.col(i) = MiW.col(idx[i]);
       for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
     }
-    if (!gesv(dgesv, GA, rA, lamA) || lamA.minCoeff() < -C.accept * std::max(1.0, lamA.maxCoeff()))
+    if (!lu_solve(GA, rA, lamA) || lamA.minCoeff() < -C.accept * std::max(1.0, lamA.maxCoeff()))
       throw Fallback{"active set's final solve rejected"};
     for (Eigen::Index i = 0; i < k; ++i) lamA[i] = std::max(lamA[i], 0.0);
     vp = v0 + otimes(MiWA, lamA);
@@ -429,7 +450,7 @@ Solved project(const Constants &C, dgesv_t dgesv, const MatrixXd &W, const Vecto
       const VectorXd WPv = otimes_t(WP, vp);
       VectorXd rP(kp), dP;
       for (Eigen::Index i = 0; i < kp; ++i) rP[i] = b[iP[i]] - WPv[i];
-      if (gesv(dgesv, GP, rP, dP) && dP.cwiseAbs().maxCoeff() <= C.refine * (1.0 + lamA.maxCoeff())) {
+      if (lu_solve(GP, rP, dP) && dP.cwiseAbs().maxCoeff() <= C.refine * (1.0 + lamA.maxCoeff())) {
         for (Eigen::Index i = 0; i < kp; ++i) lamA[pi[i]] = std::max(lamA[pi[i]] + dP[i], 0.0);
         vp = vp + otimes(MiWP, dP);
       }
@@ -440,7 +461,7 @@ Solved project(const Constants &C, dgesv_t dgesv, const MatrixXd &W, const Vecto
     const double tol2 = C.second_pass * (b.cwiseAbs().maxCoeff() + W.cwiseAbs().maxCoeff() * vp.cwiseAbs().maxCoeff());
     std::vector<char> act2;
     VectorXd dl;
-    if (active_set(C, dgesv, G, r2, tol2, act2, dl)) {
+    if (active_set(C, G, r2, tol2, act2, dl)) {
       std::vector<Eigen::Index> i2;
       for (Eigen::Index i = 0; i < m; ++i)
         if (act2[i]) i2.push_back(i);
@@ -470,7 +491,7 @@ class Stepper {
           std::vector<double> bound_b, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic> pairs, MatrixXd mask,
           double reach, double thinnest_pair, double tol, int tunnelling, bool separating_elastic,
           bool slow_plastic, bool bias_midpoint, bool velocity_bias, bool projection,
-          const std::map<std::string, double> &constants, uintptr_t dgesv, MatrixXd limits)
+          const std::map<std::string, double> &constants, MatrixXd limits)
       : py_{model, data, geom_model, geom_data},
         model_(extract_ref<pinocchio::Model>(model, "pinocchio.Model")),
         data_(extract_ref<pinocchio::Data>(data, "pinocchio.Data")),
@@ -481,7 +502,7 @@ class Stepper {
         thinnest_(thinnest_pair), tol_(tol), tunnelling_(tunnelling), sep_elastic_(separating_elastic),
         slow_plastic_(slow_plastic), bias_midpoint_(bias_midpoint), velocity_bias_(velocity_bias),
         projection_(projection), C_(Constants::from(constants)),
-        dgesv_(reinterpret_cast<dgesv_t>(dgesv)), limits_(std::move(limits)) {
+        limits_(std::move(limits)) {
     if (pairs_.cols() != 5 || (Eigen::Index)gm_.collisionPairs.size() != pairs_.rows())
       throw nb::value_error("pairs: (number of collision pairs, 5) expected");
     if (mask_.rows() != model_.njoints || mask_.cols() != model_.nv) throw nb::value_error("mask: (njoints, nv)");
@@ -521,7 +542,6 @@ class Stepper {
   int tunnelling_;  // 0 swept, 1 none, 2 always
   bool sep_elastic_, slow_plastic_, bias_midpoint_, velocity_bias_, projection_;
   Constants C_;
-  dgesv_t dgesv_;
   MatrixXd limits_;  // model.limits: pair, joint, idx_q, idx_v, sign, bound per limit (moreau_sim/limits.py)
 
   // ---- pinocchio calls as the Python bindings make them (crba and Minv symmetrized)
@@ -742,7 +762,7 @@ class Stepper {
   }
 
   Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv) {
-    return ::project(C_, dgesv_, W, v0, b, Minv);
+    return ::project(C_, W, v0, b, Minv);
   }
 
   void step_(const VectorXd &q, const VectorXd &u, double h, double e, StepOut &out) {
@@ -935,7 +955,7 @@ NB_MODULE(_step, mod) {
       .def(nb::init<nb::object, nb::object, nb::object, nb::object, std::vector<MatrixXd>, std::vector<int>,
                     std::vector<Vec3>, std::vector<double>, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic>,
                     MatrixXd, double, double, double, int, bool, bool, bool, bool, bool,
-                    const std::map<std::string, double> &, uintptr_t, MatrixXd>())
+                    const std::map<std::string, double> &, MatrixXd>())
       .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"),
            nb::arg("tau") = VectorXd())
       .def_prop_ro("constants", &Stepper::constants);
@@ -946,15 +966,45 @@ NB_MODULE(_step, mod) {
   // the projection alone (tests/test_compiled.py holds it bit-identical to qp.solve): (Projection, v, lam), or
   // (None, reason, None) where qp.solve goes on to piqp
   mod.def("project", [](const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
-                        const std::map<std::string, double> &constants, uintptr_t dgesv) {
+                        const std::map<std::string, double> &constants) {
     if (W.rows() != v0.size() || b.size() != W.cols() || Minv.rows() != W.rows() || Minv.cols() != W.rows())
       throw nb::value_error("W (nv, m), v0 (nv,), b (m,), Minv (nv, nv) expected");
     const Constants C = Constants::from(constants);
     try {
-      Solved s = project(C, reinterpret_cast<dgesv_t>(dgesv), W, v0, b, Minv);
+      Solved s = project(C, W, v0, b, Minv);
       return nb::make_tuple(s.status, s.v, s.lam);
     } catch (const Fallback &f) {
       return nb::make_tuple(nb::none(), f.why, nb::none());
     }
-  }, nb::arg("W"), nb::arg("v0"), nb::arg("b"), nb::arg("Minv"), nb::arg("constants"), nb::arg("dgesv"));
+  }, nb::arg("W"), nb::arg("v0"), nb::arg("b"), nb::arg("Minv"), nb::arg("constants"));
+  // the kernels of docs/theory.md §2.8 alone (tests/test_compiled.py holds them bit-identical to qp.ordered and
+  // qp._lu_solve): ordered(A, X) = A @ X summed as odot sums, lu_solve(A, rhs) = x, or None where it fails
+  mod.def("ordered", [](const MatrixXd &A, const MatrixXd &X) {
+    if (A.cols() != X.rows()) throw nb::value_error("A (r, n), X (n, c) expected");
+    MatrixXd Y;
+    omatmul(A, X, Y);
+    return Y;
+  }, nb::arg("A"), nb::arg("X"));
+  mod.def("lu_solve", [](const MatrixXd &A, const VectorXd &rhs) -> nb::object {
+    if (A.rows() != A.cols() || A.rows() != rhs.size()) throw nb::value_error("A (n, n), rhs (n,) expected");
+    VectorXd x;
+    if (!lu_solve(A, rhs, x)) return nb::none();
+    return nb::cast(x);
+  }, nb::arg("A"), nb::arg("rhs"));
+  // how this build does floating point (docs/theory.md §2.8): the options CMakeLists.txt compiled it with, whether
+  // the target has FMA instructions, FLT_EVAL_METHOD (0: every double operation rounds to double), and a probe
+  // a * b + c on run-time values, contracted to one fused rounding only if the build contracts
+  mod.def("fp_build", []() {
+    std::map<std::string, std::string> d;
+    d["options"] = MOREAU_STEP_FP_OPTIONS;
+#ifdef __FMA__
+    d["fma_instructions"] = "yes";
+#else
+    d["fma_instructions"] = "no";
+#endif
+    d["flt_eval_method"] = std::to_string(FLT_EVAL_METHOD);
+    d["compiler"] = __VERSION__;
+    return d;
+  });
+  mod.def("fp_probe", [](double a, double b, double c) { return a * b + c; }, nb::arg("a"), nb::arg("b"), nb::arg("c"));
 }

@@ -22,7 +22,9 @@ CUBE = """<?xml version="1.0"?>
 </robot>
 """
 ORDERS = sorted(set(itertools.product((1, 100000), repeat=3)) - {(1, 1, 1), (100000, 100000, 100000)})
-LIMIT = {(1, 1, 100000), (1, 100000, 1), (1, 100000, 100000), (100000, 1, 100000)}  # at h = 1e-2 (§2.11)
+# at h = 1e-2 (§2.11); (1, 1, 1e5), (1, 1e5, 1e5) and (1e5, 1, 1e5) rest since the active set's LU is written out
+# (§2.8: drift 1e-25 m, no energy rise), which dgesv's answers did not
+LIMIT = {(1, 100000, 1)}
 CASES = [pytest.param(o, h, marks=pytest.mark.xfail(strict=True, reason="docs/theory.md §2.11"))
          if h == 1e-2 and o in LIMIT else (o, h) for h in (1e-3, 1e-2) for o in ORDERS]
 

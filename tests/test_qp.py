@@ -369,3 +369,63 @@ def test_ordered_sums_in_index_order_at_any_size_and_alignment(seed):
         assert bits(qp.ordered(A[0], X)) == bits([ref(A[0], X[:, j]) for j in range(c)])
         assert bits(qp.ordered(A, x)) == bits([ref(a, x) for a in A])
         assert bits(qp.ordered(np.zeros((r, 0)), np.zeros(0))) == bits([0.0] * r)
+
+
+def _lu_reference(A, rhs):
+    """Gaussian elimination with partial pivoting as docs/theory.md §2.8 states it, on Python floats by index."""
+    n = len(rhs)
+    a = [[float(v) for v in row] for row in A]
+    x = [float(v) for v in rhs]
+    for j in range(n):
+        col = [abs(a[i][j]) for i in range(j, n)]
+        if any(v != v for v in col):
+            return None
+        p = j + col.index(max(col))  # the first largest
+        if a[p][j] == 0.0 or abs(a[p][j]) == float("inf"):
+            return None
+        a[j], a[p], x[j], x[p] = a[p], a[j], x[p], x[j]
+        for i in range(j + 1, n):
+            lo = a[i][j] / a[j][j]
+            for k in range(j + 1, n):
+                a[i][k] = a[i][k] - lo * a[j][k]
+            x[i] = x[i] - lo * x[j]
+    for j in range(n - 1, -1, -1):
+        x[j] = x[j] / a[j][j]
+        for i in range(j):
+            x[i] = x[i] - a[i][j] * x[j]
+    return x if all(abs(v) < float("inf") for v in x) else None
+
+
+def lu_systems(seed):
+    """Random systems of 1-40 unknowns as the active set makes them (G_AA of W'M^-1 W, symmetric, some nearly
+    singular) and general ones (pivoting), with ties of |a_ij| in a column, a singular one and a NaN."""
+    rng = np.random.default_rng(seed)
+    for n in (1, 2, 3, 4, 5, 8, 11, 12, 13, 17, 25, 40):
+        B = rng.standard_normal((n + 2, n)) * 10.0 ** rng.integers(-3, 3, n)
+        yield B.T @ B, rng.standard_normal(n)  # SPD
+        A = rng.standard_normal((n, n))
+        if n > 2:
+            A[2, 0] = -A[0, 0]  # a tie in the first column: the first of the two is the pivot
+        yield A, rng.standard_normal(n)
+    yield np.array([[1.0, 2.0], [2.0, 4.0]]), np.ones(2)  # singular: a zero pivot
+    yield np.array([[1.0, 0.0], [np.nan, 1.0]]), np.ones(2)
+
+
+@pytest.mark.parametrize("scalar_rows", [0, qp.LU_SCALAR, 100])
+@pytest.mark.parametrize("seed", range(3))
+def test_lu_solve_is_the_stated_elimination_bit_for_bit(seed, scalar_rows, monkeypatch):
+    """qp._lu_solve, the solve of the active set (no LAPACK: dgesv's bits change with the CPU OpenBLAS finds), is
+    the elimination of docs/theory.md §2.8 written out on Python floats, bit for bit, on its Python-float and
+    its numpy paths alike (scalar_rows moves the switch between them), for a fresh matrix and for one whose
+    factors it kept, and None where a pivot is zero or no number; and it solves: A x = rhs to round-off."""
+    monkeypatch.setattr(qp, "LU_SCALAR", scalar_rows)
+    monkeypatch.setattr(qp, "_factors", {})
+    rng = np.random.default_rng(seed)
+    for A, rhs in lu_systems(seed):
+        for b in (rhs, rng.standard_normal(len(rhs))):  # the second: the kept factors
+            x, ref = qp._lu_solve(A, b), _lu_reference(A, b)
+            if ref is None:
+                assert x is None
+                continue
+            assert x is not None and x.view(np.int64).tolist() == np.asarray(ref).view(np.int64).tolist()
+            assert np.abs(A @ x - b).max() <= 1e-8 * (np.abs(A).max() * np.abs(x).max() + np.abs(b).max())
