@@ -60,3 +60,17 @@ def test_coordinates_carry_their_units(name, q, u):
             assert all(line.get_label().endswith("]") for line in _named(ax))  # each name with its unit
     finally:
         matplotlib.pyplot.close(fig)
+
+
+def test_joint_limit_percussions_are_named_by_joint_and_side():
+    """pendulum_limit strikes its lower limit (pair = number of pairs + the limit's index): the percussion
+    legend names it "limit pendulum/hinge lower", never "pair k"; and its dots are the logged percussions."""
+    tr = run("pendulum_limit", duration=1.0)
+    fig = plot.figure(tr, ("percussion",))
+    try:
+        dots = [line for line in _named(fig.axes[0]) if line.get_label() != "new impact"]
+        assert [line.get_label() for line in dots] == ["limit pendulum/hinge lower"]
+        lim = next(x for x in tr.meta["model"]["joint_limits"] if x["name"] == "pendulum/hinge lower")
+        assert np.array_equal(dots[0].get_ydata(), tr.arrays["log_P"][tr.arrays["log_pair"] == lim["pair"]])
+    finally:
+        matplotlib.pyplot.close(fig)
