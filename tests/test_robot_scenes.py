@@ -94,5 +94,5 @@ def test_panda_taps_the_table_under_the_law(impl):
         k = int(np.searchsorted(tr.t, t_pressed))
         assert abs(a["gap"][k].min()) < 1e-8
     assert _gain_beyond_booked(tr) <= 1e-9 * ms.ledger(tr).scale
-    assert tr.meta["status"] == "flagged" and {v["invariant"] for v in tr.meta["invariants"]} <= {
-        "ledger residual", "energy gain"}
+    # flagged like solo12_stand: the actuated steps are not energy-capped yet (docs/theory.md §2.10)
+    assert tr.meta["status"] == "flagged" and {v["invariant"] for v in tr.meta["invariants"]} == {"ledger residual"}
