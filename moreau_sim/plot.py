@@ -70,6 +70,9 @@ def _energy(ax, _, a, meta, pairs, colour):
         ledger, label = np.cumsum(a["contact_work"] + a["correction_energy"] + smooth), "Σ(W_c + corr. + smooth)"
     else:
         ledger, label = np.cumsum(a["contact_work"] + a["correction_energy"]), "Σ(W_c + corr.)"
+    for key, name in (("actuator_work", "W_a"), ("obstacle_work", "W_o")):  # work done on it (§5.5), if any
+        if key in a:
+            ledger, label = ledger + np.cumsum(a[key]), label[:-1] + f" + {name})"
     ax.plot(t, E[0] + ledger, lw=1, ls="--", color="tab:red", label=f"ledger E0 + {label}")
     ax.set_ylabel("energy [J]")
     _legend(ax)

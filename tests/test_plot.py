@@ -74,3 +74,18 @@ def test_joint_limit_percussions_are_named_by_joint_and_side():
         assert np.array_equal(dots[0].get_ydata(), tr.arrays["log_P"][tr.arrays["log_pair"] == lim["pair"]])
     finally:
         matplotlib.pyplot.close(fig)
+
+
+def test_the_ledger_curve_of_a_driven_run_books_the_work_done_on_it():
+    """A driven run (panda_tapping: PD torques) draws the ledger E0 + sum(W_c + corr. + smooth + W_a), which
+    follows T + V (to the run's own residual) where the passive ledger would not."""
+    tr = run("panda_tapping", duration=0.6)
+    fig = plot.figure(tr, ("energy",))
+    try:
+        line = next(x for x in fig.axes[0].get_lines() if x.get_label().startswith("ledger"))
+        assert "W_a" in line.get_label()
+        a = tr.arrays
+        E = a["kinetic_energy"] + a["potential_energy"]
+        assert np.abs(line.get_ydata() - E).max() <= 1e-2 * np.abs(E).max()  # the flagged residual, 1e-3 J
+    finally:
+        matplotlib.pyplot.close(fig)
