@@ -27,7 +27,7 @@ def _gain_beyond_booked(tr) -> float:
 def test_a1_drops_and_recovers_its_stance(tmp_path, impl):
     """Dropped with its feet 0.3 m up (they strike at sqrt(2 g 0.3) = 2.43 m/s), the A1 under joint PD ends
     level and at rest within 0.1 mm of the height at which it rests when started standing on the ground
-    (the static equilibrium of the same PD; measured: equal to 1e-9 m), on its four feet only; T + V never
+    (the static equilibrium of the same PD; measured: 4.7e-7 m apart), on its four feet only; T + V never
     exceeds its start plus the booked work (measured: 0 J beyond it; the actuators take 12.7 J out). The
     run is flagged for "energy gain": the energy cap (§2.10) is for passive steps (another issue's)."""
     tr = run("a1_drop_recover", step_impl=impl)
