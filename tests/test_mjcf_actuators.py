@@ -194,3 +194,19 @@ def test_info_lists_the_actuators(tmp_path):
     acts = json.loads(r.stdout)["actuators"]
     assert [a["kind"] for a in acts] == ["mjcf position", "mjcf motor", "mjcf position"]
     assert acts[1]["forcerange"] == [-0.5, 0.5] and acts[1]["gear"] == 2.0
+
+
+def test_the_bundled_servo_arm_follows_its_controls(tmp_path):
+    """models/servo_arm.xml (docs/robots.md's example): the position servo "lift" (kp 40, kv 2 from its
+    default class) gives 40 (0.8 - q) - 2 u on the hinge for ctrl 0.8 rad, the motor "push" (gear 2, ctrl 1)
+    2 N on the slide; the arm runs."""
+    p = tmp_path / "s.toml"
+    p.write_text(f'[simulation]\ndt = 1e-3\nduration = 0.2\n[[bodies]]\nname = "arm"\n'
+                 f'mjcf = "{ROOT}/models/servo_arm.xml"\nroot_joint = "fixed"\nposition = [0, 0, 1]\n'
+                 '[[actuators]]\nbody = "arm"\nmjcf = ["lift", "push"]\nctrl = [0.8, 1.0]\n')
+    m = model(p)
+    q, u = np.array([0.3, 0.1]), np.array([0.2, -0.4])
+    tau = m.actuation.torque(0.0, q, u)
+    assert tau.tolist() == pytest.approx([40.0 * (0.8 - 0.3) - 2.0 * 0.2, 2.0 * 1.0], rel=1e-15)
+    tr = ms.simulate(m, progress=False)
+    assert np.isfinite(tr.q).all() and tr.meta["status"] == "complete"
