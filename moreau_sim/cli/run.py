@@ -239,7 +239,7 @@ def _actuator(a: dict) -> str:
         lim = f"effort {a['effort']:g}" if a["effort"] is not None else ""
     else:
         what = f"gear = {a['gear']:g}" + (f", kp = {a['kp']:g}, kv = {a['kv']:g}" if "kp" in a else "")
-        what += f", ctrl from {a['ctrl']}"
+        what += ", ctrl from scene" if a["ctrl"] == "scene" else ", ctrl 0 (none given)"
         lim = ", ".join(f"{k} [{a[k][0]:g}, {a[k][1]:g}]" for k in ("ctrlrange", "forcerange") if a[k] is not None)
     if a["effort_limit"] is not None:
         lim = ", ".join(x for x in (lim, f"joint effort limit {a['effort_limit']:g}") if x)
