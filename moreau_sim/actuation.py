@@ -140,14 +140,15 @@ def build(pm, bodies, actuators, q0: np.ndarray, *, always: bool = False, mjcf: 
             root[jm.idx_v:jm.idx_v + jm.nv] = True
             names.append(pm.names[b.joints[0]])
     groups: list = []
-    controls = {}  # body -> {MJCF actuator name: ctrl schedule}
+    controls: dict[str, list] = {}  # body -> its [[actuators]] entries that give MJCF actuators' ctrl
     for a in actuators:
         if a.mjcf is not None:
             controls.setdefault(a.body, []).append(a)
     for info in bodies:
         if info.name not in (mjcf or {}):
-            for a in controls.get(info.name, []):
-                require(False, f"{a.where} mjcf", "the body is not read from an MJCF file: drive its joints with kp")
+            if info.name in controls:
+                raise SceneError(f"{controls[info.name][0].where} mjcf: the body is not read from an MJCF file: "
+                                 "drive its joints with kp and target")
             continue
         specs = mjcf_actuators.read(mjcf[info.name], f"{where} ({info.name})")
         ctrl = _controls(specs, controls.get(info.name, []))

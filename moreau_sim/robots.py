@@ -331,11 +331,12 @@ def unique_frame_names(model: pin.Model) -> None:
 
 
 # MJCF elements by what the reader does with them (docs/robots.md). READ: Pinocchio 4.1's MJCF
-# reader builds them into the model (materials colour the replay); <include> is expanded here.
+# reader builds them into the model (materials colour the replay); <include> is expanded here;
+# <motor> and <position> under <actuator> are read by mjcf_actuators.py.
 # IGNORED: ignoring them cannot change the motion (drawing, sensors, MuJoCo's own solver settings
 # and memory sizes, named poses: the scene gives q0, the step, gravity and the contact law): one
 # warning names them. Any other element is refused by name: it would change the motion (tendons,
-# equality constraints, actuators, explicit contacts, composites, height fields) and would be dropped.
+# equality constraints, other actuators, explicit contacts, composites, height fields) and would be dropped.
 MJCF_READ = frozenset({"mujoco", "compiler", "default", "asset", "mesh", "material", "worldbody", "body", "joint",
                        "freejoint", "geom", "site", "inertial", "include", "actuator", "motor", "position"})
 MJCF_IGNORED = frozenset({"visual", "statistic", "light", "camera", "texture", "skin", "sensor", "keyframe",
