@@ -1,5 +1,6 @@
-"""Joint torques tau (nv,) [N or N m] of a model: the scene's PD targets ([[actuators]], docs/scenes.md)
-and a Python controller f(t, q, u) -> tau (simulate(..., controller=f)), evaluated once per step at the
+"""Joint torques tau (nv,) [N or N m] of a model: the scene's PD targets ([[actuators]], docs/scenes.md),
+an MJCF body's <motor> and <position> actuators (mjcf_actuators.py) and a Python controller
+f(t, q, u) -> tau (simulate(..., controller=f)), evaluated once per step at the
 step's force evaluation (t_m, q_m, u_k) and clamped by the effort limits (docs/theory.md §2.1, §5.5).
 The root joint of a body that is not fixed to the world (free, planar, ...) is never actuated."""
 
@@ -10,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import mjcf_actuators
 from .errors import SceneError, SimulationError
 from .options import require
 from .prescribed import Schedule, constant, parse_schedule
@@ -31,6 +33,7 @@ class PDGroup:
     target: Schedule
     velocity: Schedule | None
     effort: float
+    joint_names: tuple[str, ...] = ()
 
     def torque(self, t: float, q: np.ndarray, u: np.ndarray) -> np.ndarray:
         x, xd = self.target.at(t)
@@ -38,6 +41,12 @@ class PDGroup:
             xd = self.velocity.at(t)[0]
         tau = self.kp * (x - q[self.q_index]) + self.kd * (xd - u[self.v_index])
         return np.clip(tau, -self.effort, self.effort)
+
+    def describe(self) -> list[dict]:
+        name = "[[actuators]]" + self.name.rpartition("[[actuators]]")[2]  # without the scene's path
+        return [{"name": name, "joint": j, "kind": "pd", "kp": self.kp, "kd": self.kd,
+                 "target": self.target.kind, "effort": None if not np.isfinite(self.effort) else self.effort}
+                for j in self.joint_names]
 
 
 class Actuation:
@@ -59,13 +68,21 @@ class Actuation:
         """tau [N or N m] at time t [s], configuration q and velocity u, clamped by the effort limits."""
         tau = np.zeros(self.nv)
         for g in self.groups:
-            tau[g.v_index] += g.torque(t, q, u)
+            np.add.at(tau, g.v_index, g.torque(t, q, u))  # two actuators on one joint add
         if self.controller is not None:
             tau += self._call(t, q, u)
         if self._clamped:
             np.minimum(tau, self.limit, out=tau)
             np.maximum(tau, -self.limit, out=tau)
         return tau
+
+    def describe(self) -> list[dict]:
+        """One dict per actuated joint of each group (moreau-sim info): name, joint, kind, gains, limits;
+        effort_limits: the model's clamp of each actuated joint (None: none)."""
+        out = [d for g in self.groups for d in g.describe()]
+        for d, vi in zip(out, [int(v) for g in self.groups for v in g.v_index]):
+            d["effort_limit"] = None if not np.isfinite(self.limit[vi]) else float(self.limit[vi])
+        return out
 
     def _call(self, t: float, q: np.ndarray, u: np.ndarray) -> np.ndarray:
         """The controller's torques, checked (one line naming what is wrong); it sees read-only views."""
@@ -108,9 +125,11 @@ def effort_limits(effort: np.ndarray) -> np.ndarray:
 _FLOATING = ("free", "planar", "translation")  # root joints that are a floating base, never actuated
 
 
-def build(pm, bodies, actuators, q0: np.ndarray, *, always: bool = False) -> Actuation | None:
-    """The Actuation of a model (None without [[actuators]]): pm the Pinocchio model, bodies the
-    model's BodyInfo, actuators the scene's, q0 the initial configuration (the default target).
+def build(pm, bodies, actuators, q0: np.ndarray, *, always: bool = False, mjcf: dict | None = None,
+          where: str = "") -> Actuation | None:
+    """The Actuation of a model (None without [[actuators]] or MJCF actuators): pm the Pinocchio model, bodies
+    the model's BodyInfo, actuators the scene's, q0 the initial configuration (the default target); mjcf: the
+    MJCF file of each body read from one (by body name), whose <actuator> is read; where: the scene file.
     always: an Actuation even without entries (a controller's). Raises SceneError naming the entry and field."""
     nv = pm.nv
     root = np.zeros(nv, bool)
@@ -120,8 +139,24 @@ def build(pm, bodies, actuators, q0: np.ndarray, *, always: bool = False) -> Act
             jm = pm.joints[b.joints[0]]
             root[jm.idx_v:jm.idx_v + jm.nv] = True
             names.append(pm.names[b.joints[0]])
-    groups = []
+    groups: list = []
+    controls: dict[str, list] = {}  # body -> its [[actuators]] entries that give MJCF actuators' ctrl
     for a in actuators:
+        if a.mjcf is not None:
+            controls.setdefault(a.body, []).append(a)
+    for info in bodies:
+        if info.name not in (mjcf or {}):
+            if info.name in controls:
+                raise SceneError(f"{controls[info.name][0].where} mjcf: the body is not read from an MJCF file: "
+                                 "drive its joints with kp and target")
+            continue
+        specs = mjcf_actuators.read(mjcf[info.name], f"{where} ({info.name})")
+        ctrl = _controls(specs, controls.get(info.name, []))
+        if specs:
+            groups.append(mjcf_actuators.build(pm, info, specs, ctrl, f"{where} ({info.name})"))
+    for a in actuators:
+        if a.mjcf is not None:
+            continue
         info = next(b for b in bodies if b.name == a.body)
         own = [j for j in info.joints if not (root[pm.joints[j].idx_v] and j == info.joints[0])]
         if a.joints is None:
@@ -145,10 +180,33 @@ def build(pm, bodies, actuators, q0: np.ndarray, *, always: bool = False) -> Act
         target = constant(q0[qi]) if a.target is None else parse_schedule(a.target, n, f"{a.where} target", key="q")
         velocity = None if a.velocity is None else parse_schedule(a.velocity, n, f"{a.where} velocity", key="u")
         groups.append(PDGroup(a.where, qi, vi, a.kp, a.kd, target, velocity,
-                              np.inf if a.effort is None else a.effort))
+                              np.inf if a.effort is None else a.effort, tuple(pm.names[j] for j in joints)))
     if not groups and not always:
         return None
     return Actuation(nv, effort_limits(pm.effortLimit), root, ", ".join(names) or "none", tuple(groups))
+
+
+def _controls(specs, entries) -> dict:
+    """{MJCF actuator name: its ctrl schedule} from the scene's [[actuators]] entries with `mjcf` of one body."""
+    out: dict = {}
+    names = [s.name for s in specs]
+    for a in entries:
+        chosen = names if a.mjcf == "all" else list(a.mjcf)
+        require(bool(chosen), f"{a.where} mjcf", "the body's MJCF file has no <actuator>")
+        for n in chosen:
+            require(n in names, f"{a.where} mjcf", f"'{n}' names no MJCF actuator of {a.body} (its actuators: {names})")
+            require(n not in out, f"{a.where} mjcf", f"'{n}' is given a ctrl by two entries")
+        sched = parse_schedule(a.ctrl, len(chosen), f"{a.where} ctrl", key="ctrl")
+        for k, n in enumerate(chosen):
+            out[n] = _component(sched, k)
+    return out
+
+
+def _component(s: Schedule, k: int) -> Schedule:
+    """Component k of a schedule, as a schedule of one component."""
+    pick = (lambda v: v[..., k:k + 1]) if s.n > 1 else (lambda v: v)
+    return Schedule(s.kind, pick(s.x), s.t, pick(s.amplitude) if s.amplitude.size else s.amplitude, s.frequency,
+                    s.phase, None if s.rate is None else pick(s.rate))
 
 
 def for_controller(pm, bodies, actuation: Actuation | None, controller: Controller | None) -> Actuation | None:

@@ -366,7 +366,8 @@ def build_model(scene: Scene) -> Model:
 
     q0, u0 = _initial(scene, model, infos, where)
     bias = _check_bodies(scene, body_models, infos, q0, where)
-    actuation = act.build(model, infos, scene.actuators, q0)
+    actuation = act.build(model, infos, scene.actuators, q0, mjcf={b.name: b.urdf for b in scene.bodies if b.mjcf},
+                          where=where)
     limited = [j for body, info in zip(scene.bodies, infos) if body.joint_limits
                for j in info.joints[(body.root_joint is not RootJoint.FIXED):]]  # a root joint has no limits
     joint_limits = limits.joint_limits(model, limited, len(pairs))

@@ -36,6 +36,9 @@ def figure(traj: Trajectory | str | Path, panels: tuple[str, ...] | list[str] = 
     pairs = list(meta.get("model", {}).get("collision_pairs", []))
     npairs = a["gap"].shape[1]
     pairs += [f"pair {k}" for k in range(len(pairs), npairs)]
+    # a joint limit's percussions are logged under pair = (number of pairs) + its index: name joint and side
+    limits = {int(lim["pair"]): f"limit {lim['name']}" for lim in meta.get("model", {}).get("joint_limits", [])}
+    pairs += [limits.get(k, f"pair {k}") for k in range(npairs, max(limits, default=npairs - 1) + 1)]
     colour = _pair_colours(a, npairs, plt)
     fig, axes = plt.subplots(len(panels), 1, figsize=(11, 2.6 * len(panels) + 0.6), sharex=True,
                              constrained_layout=True, squeeze=False)
@@ -67,6 +70,9 @@ def _energy(ax, _, a, meta, pairs, colour):
         ledger, label = np.cumsum(a["contact_work"] + a["correction_energy"] + smooth), "Σ(W_c + corr. + smooth)"
     else:
         ledger, label = np.cumsum(a["contact_work"] + a["correction_energy"]), "Σ(W_c + corr.)"
+    for key, name in (("actuator_work", "W_a"), ("obstacle_work", "W_o")):  # work done on it (§5.5), if any
+        if key in a:
+            ledger, label = ledger + np.cumsum(a[key]), label[:-1] + f" + {name})"
     ax.plot(t, E[0] + ledger, lw=1, ls="--", color="tab:red", label=f"ledger E0 + {label}")
     ax.set_ylabel("energy [J]")
     _legend(ax)
@@ -143,7 +149,7 @@ def _percussions(ax, _, a, meta, pairs, colour):
         ax.set_ylim(positive.min() / 2, positive.max() * 2)
     ax.set_ylabel("percussion P [N s]")
     more = len(ids) - len(shown)
-    _legend(ax, f"largest {len(shown)} of {len(ids)} pairs" if more else None)
+    _legend(ax, f"largest {len(shown)} of {len(ids)} pairs and joint limits" if more else None)
 
 
 def _coordinates(ax, panel, a, meta, pairs, colour):

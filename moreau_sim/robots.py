@@ -331,17 +331,24 @@ def unique_frame_names(model: pin.Model) -> None:
 
 
 # MJCF elements by what the reader does with them (docs/robots.md). READ: Pinocchio 4.1's MJCF
-# reader builds them into the model (materials colour the replay); <include> is expanded here.
+# reader builds them into the model (materials colour the replay); <include> is expanded here;
+# <motor> and <position> under <actuator> are read by mjcf_actuators.py.
 # IGNORED: ignoring them cannot change the motion (drawing, sensors, MuJoCo's own solver settings
 # and memory sizes, named poses: the scene gives q0, the step, gravity and the contact law): one
 # warning names them. Any other element is refused by name: it would change the motion (tendons,
-# equality constraints, actuators, explicit contacts, composites, height fields) and would be dropped.
+# equality constraints, other actuators, explicit contacts, composites, height fields) and would be dropped.
 MJCF_READ = frozenset({"mujoco", "compiler", "default", "asset", "mesh", "material", "worldbody", "body", "joint",
-                       "freejoint", "geom", "site", "inertial", "include"})
+                       "freejoint", "geom", "site", "inertial", "include", "actuator", "motor", "position"})
 MJCF_IGNORED = frozenset({"visual", "statistic", "light", "camera", "texture", "skin", "sensor", "keyframe",
                           "custom", "size", "option"})  # (their children are not looked at)
 MJCF_WHY = {"equality": "equality constraints", "tendon": "tendons",
-            "actuator": "MJCF actuators (not read yet: drive the joints with [[actuators]] or a controller)",
+            "general": "MJCF actuators other than <motor> and <position>",
+            "velocity": "MJCF actuators other than <motor> and <position>",
+            "intvelocity": "MJCF actuators other than <motor> and <position>",
+            "damper": "MJCF actuators other than <motor> and <position>",
+            "cylinder": "MJCF actuators other than <motor> and <position>",
+            "muscle": "MJCF actuators other than <motor> and <position>",
+            "adhesion": "MJCF actuators other than <motor> and <position>",
             "contact": "explicit contact pairs and exclusions: give them in the scene's [collisions]",
             "composite": "composite bodies", "flexcomp": "flexible bodies", "deformable": "deformable bodies",
             "hfield": "height fields", "plugin": "plugins", "extension": "plugins"}
@@ -421,7 +428,7 @@ def check_mjcf(root: ET.Element, path: Path, where: str) -> list[str]:
                 if tag not in ignored:
                     ignored.append(tag)
                 continue
-            if tag not in MJCF_READ:
+            if tag not in MJCF_READ or (tag in ("motor", "position")) != (el.tag == "actuator"):
                 why = MJCF_WHY.get(tag, "an element moreau-sim's MJCF reader does not read")
                 raise SceneError(f"{_at(child, path)}: <{tag}> is not supported ({why}); remove it [{where} mjcf]")
             if tag == "geom" and child.get("type") in ("hfield", "sdf"):

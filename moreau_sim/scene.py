@@ -71,7 +71,8 @@ class Actuator:
     target and velocity: the raw TOML values (a number, a list per joint, a time table or a sine; None:
     hold the initial positions / the target's own derivative), parsed once the joints are known
     (actuation.build); effort [N m or N]: a clamp of this entry's torques (None: the URDF's only);
-    where: the entry's place in the file, for errors."""
+    where: the entry's place in the file, for errors. An entry with `mjcf` instead gives the control signal
+    `ctrl` of MJCF actuators of the body (docs/robots.md#mjcf-actuators); kp is then 0 and unused."""
 
     body: str
     joints: tuple[str, ...] | None
@@ -80,6 +81,8 @@ class Actuator:
     target: Any = None
     velocity: Any = None
     effort: float | None = None
+    mjcf: tuple[str, ...] | str | None = None  # the MJCF actuators an entry drives (names or "all"); None: PD
+    ctrl: Any = None  # their control signal (raw TOML: number, list, table {t, ctrl} or sine)
     where: str = ""
 
 
@@ -119,6 +122,7 @@ _BODY = {"name", "urdf", "mjcf", "root_joint", "axis", "axes", "position", "rpy"
          "srdf", "joint_limits"}
 _STATIC = {"name", "shape", "normal", "offset", "size", "radius", "length", "position", "rpy", "motion"}
 _ACTUATOR = {"body", "joints", "kp", "kd", "target", "velocity", "effort"}
+_CONTROL = {"body", "mjcf", "ctrl"}  # an [[actuators]] entry driving MJCF actuators
 
 
 def _unknown(table: dict, allowed: set, where: str) -> None:
@@ -242,6 +246,19 @@ def _parse_static(t: dict, where: str) -> Static:
 
 def _parse_actuator(t: dict, where: str) -> Actuator:
     require(isinstance(t, dict), where, "must be a table")
+    if "mjcf" in t:
+        _unknown(t, _CONTROL, where)
+        for req in ("body", "ctrl"):
+            require(req in t, where, f"missing required key '{req}' (an entry with 'mjcf' takes body, mjcf, ctrl)")
+        body = _name(t["body"], f"{where} body")
+        w = f"{where} ({body})"
+        names = t["mjcf"]
+        if names != "all":
+            require(isinstance(names, list) and names and all(isinstance(n, str) and n for n in names),
+                    f"{w} mjcf", f"must be \"all\" or a non-empty list of MJCF actuator names, got {names!r}")
+            require(len(set(names)) == len(names), f"{w} mjcf", "names an actuator twice")
+            names = tuple(names)
+        return Actuator(body=body, joints=None, kp=0.0, mjcf=names, ctrl=t["ctrl"], where=w)
     _unknown(t, _ACTUATOR, where)
     for req in ("body", "kp"):
         require(req in t, where, f"missing required key '{req}'")

@@ -165,6 +165,8 @@ def test_unsupported_pair_is_named():
 
 # The bundled scenes the event-driven integrator refuses, and what it says (everything else runs).
 REFUSED: dict = {"solo12_stand": (ms.SceneError, "does not take joint torques"),
+                 "a1_drop_recover": (ms.SceneError, "does not take joint torques"),
+                 "panda_tapping": (ms.SceneError, "does not take joint torques"),
                  "vibrating_paddle": (ms.SceneError, "does not take a moving static")}
 
 

@@ -217,7 +217,6 @@ def mjcf(tmp_path, before="", inside="", name="m.xml"):
 @pytest.mark.parametrize("element, why", [
     ('<equality><joint joint1="h" joint2="h2"/></equality>', "equality constraints"),
     ('<tendon><fixed name="t"><joint joint="h" coef="1"/></fixed></tendon>', "tendons"),
-    ('<actuator><motor joint="h"/></actuator>', "actuators"),
     ('<contact><exclude body1="b" body2="b"/></contact>', "[collisions]"),
     ('<asset><hfield name="hf" nrow="2" ncol="2" size="1 1 1 1"/></asset>', "height fields"),
     ('<extension><plugin plugin="x"/></extension>', "plugins"),

@@ -60,3 +60,32 @@ def test_coordinates_carry_their_units(name, q, u):
             assert all(line.get_label().endswith("]") for line in _named(ax))  # each name with its unit
     finally:
         matplotlib.pyplot.close(fig)
+
+
+def test_joint_limit_percussions_are_named_by_joint_and_side():
+    """pendulum_limit strikes its lower limit (pair = number of pairs + the limit's index): the percussion
+    legend names it "limit pendulum/hinge lower", never "pair k"; and its dots are the logged percussions."""
+    tr = run("pendulum_limit", duration=1.0)
+    fig = plot.figure(tr, ("percussion",))
+    try:
+        dots = [line for line in _named(fig.axes[0]) if line.get_label() != "new impact"]
+        assert [line.get_label() for line in dots] == ["limit pendulum/hinge lower"]
+        lim = next(x for x in tr.meta["model"]["joint_limits"] if x["name"] == "pendulum/hinge lower")
+        assert np.array_equal(dots[0].get_ydata(), tr.arrays["log_P"][tr.arrays["log_pair"] == lim["pair"]])
+    finally:
+        matplotlib.pyplot.close(fig)
+
+
+def test_the_ledger_curve_of_a_driven_run_books_the_work_done_on_it():
+    """A driven run (panda_tapping: PD torques) draws the ledger E0 + sum(W_c + corr. + smooth + W_a), which
+    follows T + V (to the run's own residual) where the passive ledger would not."""
+    tr = run("panda_tapping", duration=0.6)
+    fig = plot.figure(tr, ("energy",))
+    try:
+        line = next(x for x in fig.axes[0].get_lines() if x.get_label().startswith("ledger"))
+        assert "W_a" in line.get_label()
+        a = tr.arrays
+        E = a["kinetic_energy"] + a["potential_energy"]
+        assert np.abs(line.get_ydata() - E).max() <= 1e-2 * np.abs(E).max()  # the flagged residual, 1e-3 J
+    finally:
+        matplotlib.pyplot.close(fig)

@@ -192,9 +192,10 @@ PAIRS_SHOWN = 10  # `info` lists this many collision pairs unless --all-pairs
                                                 f"{PAIRS_SHOWN}).")
 @click.option("--json", "as_json", is_flag=True, help="Print as JSON (every pair).")
 def info(scene, all_pairs, as_json):
-    """Dofs, bodies, joints (in the order of q and u), collision pairs, e and h of SCENE."""
+    """Dofs, bodies, joints (in the order of q and u), actuators, collision pairs, e and h of SCENE."""
     sc, model = _load(scene)
     d = model.describe()
+    d["actuators"] = [] if model.actuation is None else model.actuation.describe()
     if as_json:
         click.echo(json.dumps(d, indent=2))
         return
@@ -211,6 +212,8 @@ def info(scene, all_pairs, as_json):
     for j in d["joints"]:
         q = f"q[{j['q'][0]}]" if j["q"][1] - j["q"][0] == 1 else f"q[{j['q'][0]}:{j['q'][1]}]"
         click.echo(f"    {j['name']:<{width}}  {j['type']:<24} {q:<10} {_limits(j)}")
+    _list(f"actuators ({len(d['actuators'])}): name, joint, kind, gains, limits",
+          [_actuator(a) for a in d["actuators"]], True)
     pairs = d["collision_pairs"]
     _list(f"collision pairs ({len(pairs)}):", pairs, all_pairs)
     excluded = d["excluded_pairs"]
@@ -226,6 +229,21 @@ def _list(title: str, rows: list[str], every: bool) -> None:
         click.echo(f"    {p}")
     if len(shown) < len(rows):
         click.echo(f"    ... and {len(rows) - len(shown)} more (--all-pairs or --json lists them)")
+
+
+def _actuator(a: dict) -> str:
+    """One actuator of `info`: [[actuators]] PD (kp, kd, target) or an MJCF motor/position (gear, kp, kv,
+    ctrl and force ranges, where its ctrl comes from) and the joint's effort clamp."""
+    if a["kind"] == "pd":
+        what = f"kp = {a['kp']:g}, kd = {a['kd']:g}, target {a['target']}"
+        lim = f"effort {a['effort']:g}" if a["effort"] is not None else ""
+    else:
+        what = f"gear = {a['gear']:g}" + (f", kp = {a['kp']:g}, kv = {a['kv']:g}" if "kp" in a else "")
+        what += ", ctrl from scene" if a["ctrl"] == "scene" else ", ctrl 0 (none given)"
+        lim = ", ".join(f"{k} [{a[k][0]:g}, {a[k][1]:g}]" for k in ("ctrlrange", "forcerange") if a[k] is not None)
+    if a["effort_limit"] is not None:
+        lim = ", ".join(x for x in (lim, f"joint effort limit {a['effort_limit']:g}") if x)
+    return f"{a['name']}  {a['joint']}  {a['kind']}  {what}  ({lim or 'no clamp'})"
 
 
 def _limits(joint: dict) -> str:
