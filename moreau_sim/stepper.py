@@ -16,7 +16,7 @@ from .constraints import CornerPieces, assemble_constraints, closed_limits, corn
 from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
 from .corners import MAX_PIECES, corner_law
 from .data import Data
-from .energy import kinetic, potential, total
+from .energy import kinetic, potential
 from .errors import SimulationError
 from .law import ENERGY_ROUNDOFF, outcome, percussion, project, restitution_bounds
 from .model import Model
@@ -223,18 +223,17 @@ def cap_energy(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution
     the impact moves M(q) and V(q) along u_{k+1}, first order in h |Δu|), the velocities of the bodies in
     contact (the entries of u_{k+1} their rows involve) are scaled by the alpha in [0, 1] that brings it
     to E*; gamma_plus scales with them (signs kept). Steps that end at or below E* are returned as they are."""
-    E0 = total(model, data, pb.q, pb.u)
+    T0, V0 = kinetic(model, data, pb.q, pb.u), potential(model, data, pb.q)
     T1, V1 = kinetic(model, data, q_next, imp.u_next), potential(model, data, q_next)
-    target = (E0 + min(imp.contact_work, 0.0)) + corr
-    if T1 + V1 <= target + _roundoff(model, data, pb, T1, V1):
+    target = ((T0 + V0) + min(imp.contact_work, 0.0)) + corr
+    if T1 + V1 <= target + _roundoff(T0, V0, T1, V1):
         return imp
     u_next = _scaled(model, data, q_next, imp.u_next, (imp.W != 0.0).any(axis=1), target - V1, T1)
     return replace(imp, u_next=u_next, gamma_plus=ordered(imp.W.T, u_next))
 
 
-def _roundoff(model: Model, data: Data, pb: ContactProblem, T1: float, V1: float) -> float:
+def _roundoff(T0: float, V0: float, T1: float, V1: float) -> float:
     """ENERGY_ROUNDOFF (T_k + |V_k| + T_{k+1} + |V_{k+1}|) [J]: the round-off of a step's energy balance."""
-    T0, V0 = kinetic(model, data, pb.q, pb.u), potential(model, data, pb.q)
     return ENERGY_ROUNDOFF * (((T0 + abs(V0)) + T1) + abs(V1))
 
 

@@ -828,9 +828,7 @@ class Stepper {
   }
 
   // stepper._roundoff
-  double roundoff(const VectorXd &q, const VectorXd &u, double T1, double V1) {
-    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
-    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
+  double roundoff(double T0, double V0, double T1, double V1) const {
     return C_.energy_roundoff * (((T0 + std::abs(V0)) + T1) + std::abs(V1));
   }
   // stepper._scaled: the entries of u that W's rows involve scaled by the largest alpha in [0, 1] with
@@ -857,11 +855,12 @@ class Stepper {
   // stepper.cap_energy (docs/theory.md §2.10)
   void cap_energy(const VectorXd &q, const VectorXd &u, double work, double corr, const MatrixXd &W,
                   const VectorXd &q_next, VectorXd &u_next, VectorXd &gamma_plus) {
-    const double E0 = energy(q, u);
+    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
+    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
     const double T1 = pinocchio::computeKineticEnergy(model_, data_, q_next, u_next);
     const double V1 = pinocchio::computePotentialEnergy(model_, data_, q_next);
-    const double target = (E0 + std::min(work, 0.0)) + corr;
-    if (T1 + V1 <= target + roundoff(q, u, T1, V1)) return;
+    const double target = ((T0 + V0) + std::min(work, 0.0)) + corr;
+    if (T1 + V1 <= target + roundoff(T0, V0, T1, V1)) return;
     u_next = scaled(q_next, u_next, W, target - V1, T1);
     gamma_plus = otimes_t(W, u_next);
   }
