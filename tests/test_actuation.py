@@ -8,7 +8,6 @@ import pytest
 
 import moreau_sim as ms
 from moreau_sim import compiled
-from moreau_sim.invariants import Invariant
 
 from helpers import MODELS, inline_scene
 
