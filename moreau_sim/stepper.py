@@ -6,6 +6,7 @@ correct_positions (§2.5) -> cap_energy (§2.10). The options' rules on top of t
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -265,15 +266,23 @@ def _roundoff(T0: float, V0: float, T1: float, V1: float) -> float:
 def _trees(model: Model, involved: np.ndarray) -> np.ndarray:
     """The velocity indices of every kinematic tree (the joints below one child of the universe) that has an
     index in `involved` (docs/theory.md §2.10: its rows touch a trunk, its legs swing in the same step)."""
-    pm = model.pin
-    tree = np.empty(pm.nv, dtype=np.int64)
-    for j in range(1, pm.njoints):
-        root = j
-        while pm.parents[root] != 0:
-            root = pm.parents[root]
-        jm = pm.joints[j]
-        tree[jm.idx_v:jm.idx_v + jm.nv] = root
-    return np.isin(tree, tree[involved])
+    tree = _TREES.get(model)
+    if tree is None:  # the tree (its root joint) of each velocity index, once per model
+        pm = model.pin
+        parents, idx_v, nv = list(pm.parents), list(pm.idx_vs), list(pm.nvs)
+        tree = np.empty(pm.nv, dtype=np.int64)
+        for j in range(1, pm.njoints):
+            root = j
+            while parents[root] != 0:
+                root = parents[root]
+            tree[idx_v[j]:idx_v[j] + nv[j]] = root
+        _TREES[model] = tree
+    hit = np.zeros(model.pin.njoints, dtype=bool)
+    hit[tree[involved]] = True
+    return hit[tree]
+
+
+_TREES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _alpha(a: float, b: float, c: float, floor: float) -> float:
