@@ -176,9 +176,10 @@ def test_other_integrators_refuse_torques(tmp_path, integrator):
 def test_solo12_stands_under_pd():
     """scenes/solo12_stand.toml: Solo-12 under joint PD on the frictionless ground for 10 s at h = 1e-3: the
     base stays within 1 mm of its starting height throughout (issue 25's target; measured 0.50 mm), settles
-    (range 1e-11 m after 1 s), ends with every velocity below 1e-2 (measured 4.6e-3 rad/s), no gap deeper than
+    (range 1e-11 m after 1 s), ends with every velocity below 1e-2 (measured 1.8e-4 rad/s), no gap deeper than
     1e-6 m (the scene's contact tolerance; measured 5e-11 m); no step gains more than 1e-6 J beyond the
-    torques' booked work (the smooth error of a revolute chain under stiff PD, O(h^3) a step: 1.8e-7 J)."""
+    torques' booked work (the smooth error of a revolute chain under stiff PD, O(h^3) a step: 1.8e-7 J before
+    the energy cap of docs/theory.md §2.10 took driven contact steps, 1.1e-8 J since)."""
     tr = ms.simulate(ms.build_model(ms.load_scene(MODELS.parent / "scenes" / "solo12_stand.toml")))
     assert tr.t[-1] == pytest.approx(10.0)
     z = tr.q[:, 2]
