@@ -6,6 +6,7 @@ correct_positions (§2.5) -> cap_energy (§2.10). The options' rules on top of t
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -16,7 +17,7 @@ from .constraints import CornerPieces, assemble_constraints, closed_limits, corn
 from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
 from .corners import MAX_PIECES, corner_law
 from .data import Data
-from .energy import kinetic, potential, total
+from .energy import kinetic, potential
 from .errors import SimulationError
 from .law import ENERGY_ROUNDOFF, outcome, percussion, project, restitution_bounds
 from .model import Model
@@ -110,7 +111,7 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     corr = 0.0
     if opts.position_correction is PositionCorrection.PROJECTION and imp.qp.ok:  # a failed QP: simulate names it
         q_next, corr = correct_positions(model, data, pb, imp, q_next)
-    if imp.qp.ok and pb.tau is None and model.prescribed is None:  # a passive step (§2.10: the cap's scope)
+    if imp.qp.ok:  # §2.10: bounded by E* and the work of torques and moving statics
         imp = cap_energy(model, data, pb, imp, q_next, corr)
     return StepResult(State(t1, q_next, imp.u_next), imp.contacts, imp.P, imp.gamma_minus, imp.gamma_plus,
                       imp.contact_work, imp.qp, imp.branch, corr, u_free=pb.u_free, tau=pb.tau,
@@ -218,45 +219,80 @@ def solve_impact(pb: ContactProblem, options: Options, *, form: QPForm | None = 
 def cap_energy(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution, q_next: np.ndarray,
                corr: float = 0.0) -> ImpactSolution:
     """The energy cap of a contact step (docs/theory.md §2.10): T + V at (q_{k+1}, u_{k+1}) is never above
-    E* = E_k + min(W_c, 0) + corr beyond round-off (ENERGY_ROUNDOFF; corr [J]: the change of T + V the
-    position correction made). Where the step ends above it (the drift after
-    the impact moves M(q) and V(q) along u_{k+1}, first order in h |Δu|), the velocities of the bodies in
-    contact (the entries of u_{k+1} their rows involve) are scaled by the alpha in [0, 1] that brings it
-    to E*; gamma_plus scales with them (signs kept). Steps that end at or below E* are returned as they are."""
-    E0 = total(model, data, pb.q, pb.u)
-    T1, V1 = kinetic(model, data, q_next, imp.u_next), potential(model, data, q_next)
-    target = (E0 + min(imp.contact_work, 0.0)) + corr
-    if T1 + V1 <= target + _roundoff(model, data, pb, T1, V1):
-        return imp
-    u_next = _scaled(model, data, q_next, imp.u_next, (imp.W != 0.0).any(axis=1), target - V1, T1)
-    return replace(imp, u_next=u_next, gamma_plus=ordered(imp.W.T, u_next))
-
-
-def _roundoff(model: Model, data: Data, pb: ContactProblem, T1: float, V1: float) -> float:
-    """ENERGY_ROUNDOFF (T_k + |V_k| + T_{k+1} + |V_{k+1}|) [J]: the round-off of a step's energy balance."""
+    E* + W_a + W_o beyond round-off (E* = E_k + min(W_c, 0) + corr, corr [J] the change of T + V the position
+    correction made; W_a = h tau.(u_k + u_{k+1})/2 and W_o the work of the torques and of a moving static,
+    §5.5; ENERGY_ROUNDOFF). Where the step ends above it (the drift after the impact moves M(q) and V(q) along
+    u_{k+1}, first order in h |Δu|), the velocities of the trees in contact (every entry of u_{k+1} of a
+    kinematic tree one of the rows involves) are scaled by the alpha of _alpha; gamma_plus scales with them
+    (signs kept). Steps that end at or below the bound are returned as they are."""
     T0, V0 = kinetic(model, data, pb.q, pb.u), potential(model, data, pb.q)
+    T1, V1 = kinetic(model, data, q_next, imp.u_next), potential(model, data, q_next)
+    target = (((T0 + V0) + min(imp.contact_work, 0.0)) + corr) + imp.obstacle_work  # W_o: P fixed, no alpha
+    f = None if pb.tau is None else (0.5 * pb.h) * pb.tau  # W_a = f.(u_k + u_{k+1})
+    work = 0.0 if f is None else float(ordered(f, pb.u + imp.u_next))
+    if T1 + V1 <= (target + work) + _roundoff(T0, V0, T1, V1):
+        return imp
+    u = imp.u_next
+    involved = _trees(model, (imp.W != 0.0).any(axis=1))
+    u_S = np.where(involved, u, 0.0)
+    u_R = u - u_S
+    a = kinetic(model, data, q_next, u_S)
+    if not a > 0.0:
+        return imp
+    T_R = kinetic(model, data, q_next, u_R)
+    b = (T1 - a) - T_R
+    c = T_R - (target - V1)
+    if f is not None:  # the torques' work is linear in alpha: f.(u_k + u_R) + alpha f.u_S
+        b = b - float(ordered(f, u_S))
+        c = c - float(ordered(f, pb.u + u_R))
+    floor = 0.0
+    if pb.rate is not None and pb.pieces is None:  # a moving static: gamma = alpha W'u_S + dg/dt keeps its sign
+        wu = ordered(imp.W.T, u_S)
+        for i in np.flatnonzero((pb.rate < 0.0) & (imp.gamma_plus >= 0.0) & (wu > 0.0)):
+            floor = max(floor, float(-pb.rate[i] / wu[i]))
+    alpha = _alpha(a, b, c, min(floor, 1.0))
+    u_next = u_R + alpha * u_S
+    gamma_plus = ordered(imp.W.T, u_next)
+    if pb.rate is not None and pb.pieces is None:
+        gamma_plus = gamma_plus + pb.rate
+    return replace(imp, u_next=u_next, gamma_plus=gamma_plus)
+
+
+def _roundoff(T0: float, V0: float, T1: float, V1: float) -> float:
+    """ENERGY_ROUNDOFF (T_k + |V_k| + T_{k+1} + |V_{k+1}|) [J]: the round-off of a step's energy balance."""
     return ENERGY_ROUNDOFF * (((T0 + abs(V0)) + T1) + abs(V1))
 
 
-def _scaled(model: Model, data: Data, q: np.ndarray, u: np.ndarray, involved: np.ndarray, K: float,
-            T: float) -> np.ndarray:
-    """u with its entries `involved` scaled by the largest alpha in [0, 1] with T(q, u_R + alpha u_S) <= K
-    [J] (u_S: the involved entries, u_R the others, W'u_R = 0): T is quadratic in alpha, a alpha^2 + b alpha
-    + T_R with a = T(u_S), b = T(u) - T(u_S) - T(u_R) (Pinocchio's kinetic energy, no matrix product);
-    where no alpha in [0, 1] reaches K, the one of least T (T_R may exceed T(u) when b < 0: alpha = 0 is
-    not the least)."""
-    u_S = np.where(involved, u, 0.0)
-    u_R = u - u_S
-    a = kinetic(model, data, q, u_S)
-    if not a > 0.0:
-        return u
-    T_R = kinetic(model, data, q, u_R)
-    b = (T - a) - T_R
-    c = T_R - K
+def _trees(model: Model, involved: np.ndarray) -> np.ndarray:
+    """The velocity indices of every kinematic tree (the joints below one child of the universe) that has an
+    index in `involved` (docs/theory.md §2.10: its rows touch a trunk, its legs swing in the same step)."""
+    tree = _TREES.get(model)
+    if tree is None:  # the tree (its root joint) of each velocity index, once per model
+        pm = model.pin
+        parents, idx_v, nv = list(pm.parents), list(pm.idx_vs), list(pm.nvs)
+        tree = np.empty(pm.nv, dtype=np.int64)
+        for j in range(1, pm.njoints):
+            root = j
+            while parents[root] != 0:
+                root = parents[root]
+            tree[idx_v[j]:idx_v[j] + nv[j]] = root
+        _TREES[model] = tree
+    hit = np.zeros(model.pin.njoints, dtype=bool)
+    hit[tree[involved]] = True
+    return hit[tree]
+
+
+_TREES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _alpha(a: float, b: float, c: float, floor: float) -> float:
+    """The scale of the trees in contact (docs/theory.md §2.10): the largest root of a alpha^2 + b alpha + c
+    (the scaled step's T + V less its bound [J]) in [floor, 1]; where none is, the alpha of least value
+    -b/(2a), clipped (b < 0 where the velocities kept move against the scaled ones: alpha = 0 is not the
+    least)."""
     disc = b * b - (4.0 * a) * c
-    alpha = (math.sqrt(disc) - b) / (2.0 * a) if disc >= 0.0 else -b / (2.0 * a)  # else: T's least value
-    alpha = min(1.0, max(0.0, alpha))
-    return u_R + alpha * u_S
+    alpha = (math.sqrt(disc) - b) / (2.0 * a) if disc >= 0.0 else -b / (2.0 * a)  # else: the least value
+    return min(1.0, max(floor, alpha))
 
 
 def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution,

@@ -827,7 +827,7 @@ class Stepper {
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
     if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
-    if (tau_.size() == 0) cap_energy(q, u, work, corr, W, q_next, u_next, gamma_plus);  // passive steps (§2.10)
+    cap_energy(q, u, h, work, corr, W, q_next, u_next, gamma_plus);  // bounded with the torques' work (§2.10)
     out.outcome = Outcome::CONTACT;
     out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
     out.g = std::move(g);
@@ -848,41 +848,68 @@ class Stepper {
   }
 
   // stepper._roundoff
-  double roundoff(const VectorXd &q, const VectorXd &u, double T1, double V1) {
-    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
-    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
+  double roundoff(double T0, double V0, double T1, double V1) const {
     return C_.energy_roundoff * (((T0 + std::abs(V0)) + T1) + std::abs(V1));
   }
-  // stepper._scaled: the entries of u that W's rows involve scaled by the largest alpha in [0, 1] with
-  // T(q, u_R + alpha u_S) <= K
-  VectorXd scaled(const VectorXd &q, const VectorXd &u, const MatrixXd &W, double K, double T) {
-    VectorXd u_S = VectorXd::Zero(u.size());
-    for (Eigen::Index j = 0; j < W.rows(); ++j) {
-      bool involved = false;
-      for (Eigen::Index i = 0; i < W.cols() && !involved; ++i) involved = W(j, i) != 0.0;
-      if (involved) u_S[j] = u[j];
+  // stepper._trees: the velocity indices of every kinematic tree (the joints below one child of the universe)
+  // that W's rows involve
+  std::vector<bool> trees(const MatrixXd &W) const {
+    std::vector<int> tree(model_.nv, 0);
+    for (int j = 1; j < model_.njoints; ++j) {
+      int root = j;
+      while (model_.parents[root] != 0) root = (int)model_.parents[root];
+      const int iv = model_.joints[j].idx_v(), nvj = model_.joints[j].nv();
+      for (int k = iv; k < iv + nvj; ++k) tree[k] = root;
     }
-    const VectorXd u_R = u - u_S;
-    const double a = pinocchio::computeKineticEnergy(model_, data_, q, u_S);
-    if (!(a > 0.0)) return u;
-    const double T_R = pinocchio::computeKineticEnergy(model_, data_, q, u_R);
-    const double b = (T - a) - T_R;
-    const double c = T_R - K;
+    std::vector<bool> hit(model_.njoints, false), involved(model_.nv, false);
+    for (Eigen::Index j = 0; j < W.rows(); ++j)
+      for (Eigen::Index i = 0; i < W.cols(); ++i)
+        if (W(j, i) != 0.0) { hit[tree[j]] = true; break; }
+    for (int k = 0; k < model_.nv; ++k) involved[k] = hit[tree[k]];
+    return involved;
+  }
+  // stepper._alpha: the largest root of a alpha^2 + b alpha + c in [floor, 1], else the alpha of least value
+  static double alpha_of(double a, double b, double c, double floor) {
     const double disc = b * b - (4.0 * a) * c;
-    double alpha = disc >= 0.0 ? (std::sqrt(disc) - b) / (2.0 * a) : -b / (2.0 * a);  // else: T's least value
-    alpha = std::min(1.0, std::max(0.0, alpha));
-    return u_R + alpha * u_S;
+    const double alpha = disc >= 0.0 ? (std::sqrt(disc) - b) / (2.0 * a) : -b / (2.0 * a);  // else: the least value
+    return std::min(1.0, std::max(floor, alpha));
   }
 
-  // stepper.cap_energy (docs/theory.md §2.10)
-  void cap_energy(const VectorXd &q, const VectorXd &u, double work, double corr, const MatrixXd &W,
+  // stepper.cap_energy (docs/theory.md §2.10): T + V <= E* + W_a (tau_: the torques' work h tau.(u_k + u_{k+1})/2,
+  // linear in alpha), the trees in contact scaled by alpha where the step ends above (no moving static here)
+  void cap_energy(const VectorXd &q, const VectorXd &u, double h, double work, double corr, const MatrixXd &W,
                   const VectorXd &q_next, VectorXd &u_next, VectorXd &gamma_plus) {
-    const double E0 = energy(q, u);
+    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
+    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
     const double T1 = pinocchio::computeKineticEnergy(model_, data_, q_next, u_next);
     const double V1 = pinocchio::computePotentialEnergy(model_, data_, q_next);
-    const double target = (E0 + std::min(work, 0.0)) + corr;
-    if (T1 + V1 <= target + roundoff(q, u, T1, V1)) return;
-    u_next = scaled(q_next, u_next, W, target - V1, T1);
+    const double target = (((T0 + V0) + std::min(work, 0.0)) + corr) + 0.0;  // + W_o: none in the compiled step
+    const bool driven = tau_.size() != 0;
+    VectorXd f;
+    double wa = 0.0;
+    if (driven) {
+      f = (0.5 * h) * tau_;
+      const VectorXd s = u + u_next;
+      wa = odot(f.data(), s.data(), model_.nv);
+    }
+    if (T1 + V1 <= (target + wa) + roundoff(T0, V0, T1, V1)) return;
+    const std::vector<bool> involved = trees(W);
+    VectorXd u_S = VectorXd::Zero(u_next.size());
+    for (Eigen::Index j = 0; j < u_next.size(); ++j)
+      if (involved[j]) u_S[j] = u_next[j];
+    const VectorXd u_R = u_next - u_S;
+    const double a = pinocchio::computeKineticEnergy(model_, data_, q_next, u_S);
+    if (!(a > 0.0)) return;
+    const double T_R = pinocchio::computeKineticEnergy(model_, data_, q_next, u_R);
+    double b = (T1 - a) - T_R;
+    double c = T_R - (target - V1);
+    if (driven) {  // the torques' work f.(u_k + u_R) + alpha f.u_S
+      const VectorXd s = u + u_R;
+      b = b - odot(f.data(), u_S.data(), model_.nv);
+      c = c - odot(f.data(), s.data(), model_.nv);
+    }
+    const double alpha = alpha_of(a, b, c, 0.0);
+    u_next = u_R + alpha * u_S;
     gamma_plus = otimes_t(W, u_next);
   }
 
