@@ -240,9 +240,6 @@ FLAGGED = {
     "quadruped_drop": {"penetration"},
     # the clearance joint's sliding contact deepens step after step (the gap's curvature, the correction refused)
     "slider_crank_clearance": {"penetration"},
-    # the PD-driven landing of a1's feet; the Panda's strikes on a revolute chain under PD (to re-measure with the cap on driven steps)
-    "a1_drop_recover": {"energy gain"},
-    "panda_tapping": {"ledger residual"},
 }
 
 
