@@ -64,6 +64,7 @@ def best(f, repeat: int) -> float:
 
 
 SIZES = (10, 20, 50, 100, 200, 300, 500, 1000, 3000, 10000)
+MAX_BUILT = 1000  # larger columns are not built: the whole model and the O(N^2) pair list (issue 24 items 1, 2)
 BOXES = (8, 27, 64, 125, 343)  # MuJoCo's 1000-box pile: over 8 min for its 800 steps here
 QP_SIZES = (100, 300, 1000, 3000)
 TARGET_SLOPE = 1.1
@@ -174,9 +175,14 @@ def too_big(nv: int) -> str | None:
 
 
 def beads_one(n: int, repeat: int, n_states: int) -> dict:
-    """One column size, in this process: build, Data, steps of both step_impls, peak RSS, then MuJoCo."""
+    """One column size, in this process: build, Data, steps of both step_impls, peak RSS, then MuJoCo.
+    The Python step runs on the forest (moreau_sim/trees.py: no Data of the whole model) at every size
+    built; the compiled step only where a Data of the whole model fits (too_big)."""
     out = {"beads": n}
-    why = too_big(n)
+    why = None if n <= MAX_BUILT else (f"not built: the scene's whole Pinocchio model (pin.appendModel, "
+                                       f"superlinear in bodies) and its {n * (n + 1) // 2} pairs")
+    big = too_big(n)
+    impls = IMPLS if big is None else ("python",)
     if why is None:
         t0 = CLOCK()
         base = ms.build_model(column(n))
@@ -196,10 +202,12 @@ def beads_one(n: int, repeat: int, n_states: int) -> dict:
         from moreau_sim import broad_phase
 
         bp = broad_phase.of(base, max(base.options.contact_tolerance, ms.data.GATE_MARGIN))
-        pin.forwardKinematics(base.pin, data.pin, states[-1][0].q)
+        base.forest.place(data.kinematics, states[-1][0].q)
         out.update(nv=base.nv, pairs=len(base.pairs), contacts=statistics.median(m for _, m in states),
                    candidates=len(bp.candidates(data)) if bp else len(base.pairs), states=len(states))
-        for impl in IMPLS:
+        if big is not None:
+            out["compiled"] = {"skipped": big}
+        for impl in impls:
             model = models[impl]
             ms.step(model, data, states[0][0])  # the compiled stepper is set up at its first step: not timed
             times = [best(lambda st=st, model=model: ms.step(model, data, st), repeat) for st, _ in states]
@@ -284,7 +292,8 @@ def measured(rows: list) -> list:
 
 def slopes(data: dict) -> dict:
     b, p = measured(data["beads"]), measured(data["boxes"])
-    out = {impl: slope([r["contacts"] for r in b], [r[impl]["us"] for r in b]) for impl in IMPLS}
+    out = {impl: slope([r["contacts"] for r in b if "us" in r[impl]], [r[impl]["us"] for r in b if "us" in r[impl]])
+           for impl in IMPLS}
     above = [r for r in b if r["contacts"] > compiled.MAX_CONTACTS]
     out["python_above_compiled_limit"] = slope([r["contacts"] for r in above], [r["python"]["us"] for r in above])
     mb = [r for r in data["beads"] if "mujoco" in r]
@@ -314,7 +323,9 @@ def plot(data: dict, png: Path) -> None:
             ax.loglog(x, np.exp(t0) * np.asarray(x) ** c, "-", lw=0.8, color=line.get_color())
 
     for impl, fmt in zip(IMPLS, ("o", "s")):
-        fitted(a1, n, [r[impl]["us"] * 1e-3 for r in b], fmt, f"moreau-sim, {NAMES[impl]} step: slope {s[impl]:.2f}")
+        x = [k for k, r in zip(n, b) if "us" in r[impl]]
+        fitted(a1, x, [r[impl]["us"] * 1e-3 for r in b if "us" in r[impl]], fmt,
+               f"moreau-sim, {NAMES[impl]} step: slope {s[impl]:.2f}")
     mb = [r for r in data["beads"] if "mujoco" in r]
     fitted(a1, [r["beads"] for r in mb], [r["mujoco"]["us"] * 1e-3 for r in mb], "^",
            f"{NAMES['mujoco']}: slope {s['mujoco_beads']:.2f}")
@@ -381,9 +392,11 @@ def markdown_table(data: dict) -> str:
             why = r.get("skipped") or f"failed: {r['failed']}"
             out.append(f"| {r['beads']} | not built: {why} | | | | | | {mjs} | | | |")
             continue
-        paths = ", ".join(f"{k}: {v}" for k, v in sorted(r["compiled"]["paths"].items()))
+        c = r["compiled"]
+        paths = ", ".join(f"{k}: {v}" for k, v in sorted(c.get("paths", {}).items())) or "no Data of the whole model"
+        us = f"{c['us']:.1f}" if "us" in c else "–"
         out.append(f"| {r['beads']} | {r['pairs']} | {r['candidates']} | {r['contacts']:.0f} | "
-                   f"{r['compiled']['us']:.1f} | {paths} | {r['python']['us']:.1f} | {mjs} | {r['build_s']:.3g} | "
+                   f"{us} | {paths} | {r['python']['us']:.1f} | {mjs} | {r['build_s']:.3g} | "
                    f"{r['data_s']:.3g} | {r['peak_rss_mb']:.0f} |")
     out += ["", "| boxes | nv | pairs (model) | contacts (median; last third) | Python step | last third | "
             "MuJoCo (ncon) | ratio ours / MuJoCo | max energy gain J (E0) | max \\|u\\| at the end | build_model s | "

@@ -1,4 +1,4 @@
-"""Energies of a state (the ledger, docs/theory.md §5), on the forest (§9.1). Units: J."""
+"""Energies of a state (the ledger, docs/theory.md §5), on the forest (§2.12). Units: J."""
 
 from __future__ import annotations
 

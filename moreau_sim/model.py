@@ -1,5 +1,5 @@
 """Scene -> immutable :class:`Model`: one Pinocchio model of every body (bodies.py) and the forest of
-the bodies' own models (trees.py, docs/theory.md §9.1), coal geometry with the statics, collision
+the bodies' own models (trees.py, docs/theory.md §2.12), coal geometry with the statics, collision
 pairs, per-shape features (shapes.py), and the options (``model.options``). Per-run scratch is
 :class:`~moreau_sim.data.Data`.
 """

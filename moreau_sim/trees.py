@@ -1,6 +1,6 @@
 """The forest: one Pinocchio model per kinematic tree of the scene (each body hangs from the world),
 each with a small Data, and the dynamics and kinematics the time-stepping step needs assembled from
-the trees: M block diagonal, h, energies, joint placements and WORLD Jacobians (docs/theory.md §9.1).
+the trees: M block diagonal, h, energies, joint placements and WORLD Jacobians (docs/theory.md §2.12).
 :class:`Forest` is part of the immutable Model; :class:`Kinematics` is scratch held by the run's Data.
 """
 
@@ -31,7 +31,7 @@ class Tree:
 
 class Forest:
     """The trees of a scene in the order of q and u (the scene's model appends them in that order).
-    Built in time linear in the bodies: no Data of the whole scene (docs/theory.md §9.1)."""
+    Built in time linear in the bodies: no Data of the whole scene (docs/theory.md §2.12)."""
 
     def __init__(self, trees: list[Tree], nq: int, nv: int, njoints: int):
         self.trees = tuple(trees)

@@ -1,4 +1,4 @@
-"""The forest of models (moreau_sim/trees.py, docs/theory.md §9.1): one Pinocchio model per body.
+"""The forest of models (moreau_sim/trees.py, docs/theory.md §2.12): one Pinocchio model per body.
 
 - on every bundled scene, the forest's M(q), M(q)^-1, free acceleration, bias h(q, u), WORLD
   Jacobians, joint placements and kinetic energy equal the whole scene model's bit for bit, and its
@@ -77,9 +77,9 @@ def column(n: int, **options) -> ms.Scene:
     """n touching beads (r = 0.1 m, 1 kg) on vertical prismatic joints over the ground."""
     b = ms.SceneBuilder(f"column_{n}", folder=ROOT / "scenes", restitution=0.5, dt=5e-4, duration=0.01,
                         step_impl="python", **options)
-    b.ground(contact_radius=0.0)
-    for i in range(n):
-        b.urdf(f"bead{i}", "models/bead_z.urdf", position=(0.0, 0.0, 0.1 + 0.2 * i), root_joint="fixed")
+    for k in range(n):
+        b.add_body(f"bead{k}", "../models/ball.urdf", root_joint="prismatic", axis=(0, 0, 1), q0=[0.1 + 0.2 * k])
+    b.add_halfspace("ground")
     return b.build()
 
 
