@@ -48,7 +48,8 @@ class Data:
     def __init__(self, model: Model):
         self._model = model
         self._pin = None
-        self.kinematics = Kinematics(model.forest)
+        where = str(model.scene.path) if model.scene.path else model.scene.name
+        self.kinematics = Kinematics(model.forest, make=lambda m: new_data(m, f"{where} (a body of it)", checked=True))
         # GeometryData must be created after every geometry and pair exists (segfault otherwise).
         self.geom = pin.GeometryData(model.geom)
         # proxies of the pairs' distance results, made once: they read the live results after each

@@ -308,6 +308,11 @@ def build_model(scene: Scene) -> Model:
     # still need the whole model's Data (the compiled step, adaptive and event-driven) check its size
     # when they make it (new_data, Data.pin): refused there with one line, never here.
     forest = Forest.build(body_models, placements, scene.options.gravity)
+    if forest.trees:  # the largest tree's Data is the largest any path needs: refused here if it cannot be made
+        body, info = max(zip(scene.bodies, infos), key=lambda bi: bi[1].v_slice.stop - bi[1].v_slice.start)
+        check_data_size(max((t.model for t in forest.trees), key=lambda m: m.nv),
+                        f"{where} ({len(scene.bodies)} bodies; the largest: {body.urdf}, "
+                        f"nv = {info.v_slice.stop - info.v_slice.start})")
 
     # --- collision pairs: different joints, not both static, not a link and its parent
     gobs = list(geom.geometryObjects)
@@ -613,7 +618,7 @@ def initial_state(model: Model, data=None) -> State:
     inside another (check_start: every run from q0 starts here). data: the run's Data, whose
     forest scratch the check uses (default: a new one)."""
     where = str(model.scene.path) if model.scene.path else "<scene>"
-    kin = data.kinematics if data is not None else Kinematics(model.forest)
+    kin = data.kinematics if data is not None else Kinematics(model.forest, make=lambda m: new_data(m, where))
     check_start(model, kin, model.q0, where, model.options.contact_tolerance)
     check_limits(model.limits, model.q0, where, model.options.contact_tolerance)
     return State(0.0, model.q0.copy(), model.u0.copy())
