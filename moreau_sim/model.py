@@ -265,12 +265,11 @@ class Model:
 def build_model(scene: Scene) -> Model:
     """Build the immutable :class:`Model` of `scene`. Raises :class:`SceneError`."""
     where = str(scene.path) if scene.path else "<scene>"
-    model, geom = pin.Model(), pin.GeometryModel()
-    model.name = scene.name
-    body_of_joint: dict[int, str] = {}
-    geometry_body: list[str] = []
     infos, authored, body_models = [], [], []  # body_models: each body's own Pinocchio model (M checked on it)
-    placements = []  # each body's root placement (the forest's trees: trees.Forest.build)
+    placed = []  # each body's (model, geometry) placed in the world: the forest's trees
+    names: set[str] = set()
+    nq = nv = 0
+    nj = 1
     for i, body in enumerate(scene.bodies):
         w = f"{where} [[bodies]][{i}] ({body.name})"
         m, g, _, said = load_body(body, w)
@@ -279,22 +278,18 @@ def build_model(scene: Scene) -> Model:
         placement = pin.SE3(pin.rpy.rpyToMatrix(*body.rpy), np.array(body.position, float))
         if body.root_joint is RootJoint.FREE:
             placement = pin.SE3.Identity()  # a free body's pose is its q (world frame): see _initial
-        placements.append(placement)
-        nj0 = model.njoints
-        try:
-            model, geom = pin.appendModel(model, m, geom, g, 0, placement)
-        except ValueError as exc:  # Pinocchio: "The two models have conflicting joint names." and the like
-            raise SceneError(f"{w}: Pinocchio cannot add this body to the scene's model: {exc}") from None
-        joints = tuple(range(nj0, model.njoints))
-        for j in joints:
-            body_of_joint[j] = body.name
-        geometry_body += [body.name] * (geom.ngeoms - len(geometry_body))
-        if joints:
-            q_sl = slice(model.joints[joints[0]].idx_q, model.joints[joints[-1]].idx_q + model.joints[joints[-1]].nq)
-            v_sl = slice(model.joints[joints[0]].idx_v, model.joints[joints[-1]].idx_v + model.joints[joints[-1]].nv)
-        else:
-            q_sl = v_sl = slice(model.nq, model.nq)
-        infos.append(BodyInfo(body.name, body.root_joint, joints, q_sl, v_sl, body.urdf))
+        tm, tg = pin.appendModel(pin.Model(), m, pin.GeometryModel(), g, 0, placement)
+        clash = next((n for n in list(tm.names)[1:] if n in names), None)
+        if clash is not None:
+            raise SceneError(f"{w}: Pinocchio cannot add this body to the scene's model: "
+                             f"The two models have conflicting joint names ({clash}).")
+        names.update(list(tm.names)[1:])
+        placed.append((tm, tg, body.name))
+        infos.append(BodyInfo(body.name, body.root_joint, tuple(range(nj, nj + tm.njoints - 1)),
+                              slice(nq, nq + tm.nq), slice(nv, nv + tm.nv), body.urdf))
+        nq, nv, nj = nq + tm.nq, nv + tm.nv, nj + tm.njoints - 1
+    model, geom, geometry_body = _whole(placed, where)
+    model.name = scene.name
     first_static = geom.ngeoms
     for s in scene.statics:
         shape, placement = shapes.static_shape(s)
@@ -307,7 +302,7 @@ def build_model(scene: Scene) -> Model:
     # on each body's own model; the time-stepping step runs on the forest (trees.py). The paths that
     # still need the whole model's Data (the compiled step, adaptive and event-driven) check its size
     # when they make it (new_data, Data.pin): refused there with one line, never here.
-    forest = Forest.build(body_models, placements, scene.options.gravity)
+    forest = Forest.of_placed([tm for tm, _, _ in placed], scene.options.gravity)
     if forest.trees:  # the largest tree's Data is the largest any path needs: refused here if it cannot be made
         body, info = max(zip(scene.bodies, infos), key=lambda bi: bi[1].v_slice.stop - bi[1].v_slice.start)
         check_data_size(max((t.model for t in forest.trees), key=lambda m: m.nv),
@@ -401,6 +396,41 @@ def build_model(scene: Scene) -> Model:
                  actuation=actuation, prescribed=moving, forest=forest,
                  excluded=tuple((_pair_name(gobs, i, j), w) for (i, j), w in sorted(why.items())),
                  velocity_bias_of_bodies=bias)
+
+
+def _whole(placed: list, where: str) -> tuple[pin.Model, pin.GeometryModel, list[str]]:
+    """The scene's whole Pinocchio model and geometry from the bodies' placed (model, geometry, name),
+    as appending them one by one with pin.appendModel makes them, in O(n log n) model appends and one
+    pass over the geometries (appendModel with geometries visits every geometry at every joint: cubic
+    in bodies). The models are appended pairwise (joint and frame order as one by one: each append puts
+    both models' world frames first, then their joints in order); the geometries in appendModel's
+    order: those on the world first (body order), then those on joints (joint order)."""
+    models = [tm for tm, _, _ in placed]
+    try:
+        while len(models) > 1:
+            models = [pin.appendModel(models[k], models[k + 1], 0, pin.SE3.Identity()) if k + 1 < len(models)
+                      else models[k] for k in range(0, len(models), 2)]
+    except ValueError as exc:  # Pinocchio: "The two models have conflicting frame names." and the like
+        raise SceneError(f"{where}: Pinocchio cannot join the bodies into the scene's model: {exc}") from None
+    model = models[0] if models else pin.Model()
+    frame_id = {(f.name, int(f.type)): k for k, f in enumerate(model.frames)}
+    geom, geometry_body = pin.GeometryModel(), []
+    for on_world in (True, False):
+        offset = 0
+        for tm, tg, name in placed:
+            for go in tg.geometryObjects:
+                if (go.parentJoint == 0) != on_world:
+                    continue
+                go = go.copy()
+                if go.parentJoint:
+                    go.parentJoint = go.parentJoint + offset
+                if go.parentFrame:
+                    f = tm.frames[go.parentFrame]
+                    go.parentFrame = frame_id[(f.name, int(f.type))]
+                geom.addGeometryObject(go)
+                geometry_body.append(name)
+            offset += tm.njoints - 1
+    return model, geom, geometry_body
 
 
 def _in_scene(model: pin.Model, info: BodyInfo, pose: np.ndarray) -> np.ndarray:

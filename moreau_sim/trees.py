@@ -51,11 +51,15 @@ class Forest:
         """The forest of bodies (their own Pinocchio models and root placements, in scene order) under
         gravity [m/s^2]: each placed by pin.appendModel on an empty model, as the scene's model is built
         (model.build_model), so every joint placement is the scene model's bit for bit."""
+        return cls.of_placed([pin.appendModel(pin.Model(), m, 0, p) for m, p in zip(body_models, placements)], gravity)
+
+    @classmethod
+    def of_placed(cls, models, gravity) -> Forest:
+        """The forest of bodies' models already placed in the world (model.build_model), in scene order."""
         trees, nq, nv, nj = [], 0, 0, 1
-        for m, placement in zip(body_models, placements):
-            if m.njoints <= 1:
+        for tm in models:
+            if tm.njoints <= 1:
                 continue  # a fixed body without joints: no tree (its shapes are on the world)
-            tm = pin.appendModel(pin.Model(), m, 0, placement)
             tm.gravity.linear = np.asarray(gravity, float)
             trees.append(Tree(tm, slice(nq, nq + tm.nq), slice(nv, nv + tm.nv), nj - 1))
             nq, nv, nj = nq + tm.nq, nv + tm.nv, nj + tm.njoints - 1

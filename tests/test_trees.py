@@ -19,9 +19,11 @@ import pytest
 
 import moreau_sim as ms
 from moreau_sim import energy
+from moreau_sim.bodies import load_body
 from moreau_sim.data import make_data
 from moreau_sim.errors import SceneError
 from moreau_sim.model import DATA_LIMIT_VARIABLE, build_model, initial_state
+from moreau_sim.options import RootJoint
 from moreau_sim.scene import load_scene
 from moreau_sim.stepper import step
 
@@ -116,3 +118,24 @@ def test_column_of_1000_beads():
     model = build_model(column(1000))
     assert model.nv == 1000 and len(model.forest.trees) == 1000
     _run_column(model, 5)
+
+
+@pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
+def test_whole_model_as_appended_one_by_one(path):
+    """model._whole (pairwise appends and one pass over the geometries) makes the scene's model and
+    geometry that appending the bodies one by one with pin.appendModel makes (Pinocchio's ==)."""
+    scene = load_scene(path)
+    built = build_model(scene)
+    model, geom = pin.Model(), pin.GeometryModel()
+    for i, body in enumerate(scene.bodies):
+        m, g, _, _ = load_body(body, f"[[bodies]][{i}]")
+        placement = (pin.SE3.Identity() if body.root_joint is RootJoint.FREE else
+                     pin.SE3(pin.rpy.rpyToMatrix(*body.rpy), np.array(body.position, float)))
+        model, geom = pin.appendModel(model, m, geom, g, 0, placement)
+    model.name = scene.name
+    model.gravity.linear = np.array(scene.options.gravity, float)
+    assert model == built.pin
+    for a, b in zip(geom.geometryObjects, built.geom.geometryObjects):
+        assert (a.name, a.parentJoint, a.parentFrame) == (b.name, b.parentJoint, b.parentFrame)
+        assert np.array_equal(a.placement.homogeneous, b.placement.homogeneous)
+    assert geom.ngeoms == built.geom.ngeoms - len(scene.statics)
