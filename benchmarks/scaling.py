@@ -223,6 +223,38 @@ def beads_one(n: int, repeat: int, n_states: int) -> dict:
     return out
 
 
+def forest_one(n: int, repeat: int) -> dict:
+    """The model part of a column of n beads without its pairs (no collision pairs are made: those are
+    issue 24 item 2), in this process: each body read and placed, the forest (moreau_sim/trees.py) and
+    the whole model assembled (model._whole), the trees' Datas, and the forest's dynamics of one step
+    (M^-1 and the free acceleration at q0): CPU times and the peak RSS."""
+    from moreau_sim.bodies import load_body
+    from moreau_sim.model import _whole
+    from moreau_sim.trees import Forest, Kinematics
+
+    sc = column(n)
+    t0 = CLOCK()
+    placed = []
+    for i, body in enumerate(sc.bodies):
+        m, g, _, _ = load_body(body, f"[[bodies]][{i}]")
+        placed.append((*pin.appendModel(pin.Model(), m, pin.GeometryModel(), g, 0, pin.SE3.Identity()), body.name))
+    t1 = CLOCK()
+    forest = Forest.of_placed([tm for tm, _, _ in placed], sc.options.gravity)
+    t2 = CLOCK()
+    whole = _whole(placed, "column")[0]
+    t3 = CLOCK()
+    kin = Kinematics(forest)
+    kin.datas()
+    t4 = CLOCK()
+    q = np.concatenate([pin.neutral(tm) for tm, _, _ in placed])
+    u, tau = np.zeros(forest.nv), np.zeros(forest.nv)
+    acc = best(lambda: forest.acceleration(kin, q, u, tau), repeat)
+    blocks = best(lambda: forest.mass_blocks(kin, q), repeat)
+    return {"beads": n, "nv": forest.nv, "bodies_s": t1 - t0, "forest_s": t2 - t1, "whole_model_s": t3 - t2,
+            "whole_model_nv": whole.nv, "datas_s": t4 - t3, "aba_us": acc, "mass_blocks_us": blocks,
+            "peak_rss_mb": peak_rss_mb()}
+
+
 def boxes_one(n: int) -> dict:
     """One pile size, in this process: build, Data, a run of PILE_T s with every step timed, then MuJoCo."""
     out = {"boxes": n}
@@ -456,7 +488,8 @@ def main(argv=None) -> int:
         return 0
     if a.one:
         kind, n = a.one[0], int(a.one[1])
-        r = beads_one(n, a.repeat, a.states) if kind == "beads" else boxes_one(n)
+        r = (beads_one(n, a.repeat, a.states) if kind == "beads" else forest_one(n, a.repeat) if kind == "forest"
+             else boxes_one(n))
         print(json.dumps(r))
         return 0
     out = Path(a.out)
