@@ -155,7 +155,7 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
     V = model.vertices[g_vert]
     if not len(V):
         return
-    oMi, oMo = data.pin.oMi[joint_v], data.pin.oMi[joint_other]
+    oMi, oMo = data.kinematics.oMi[joint_v], data.kinematics.oMi[joint_other]
     Vw = V @ oMi.rotation.T + oMi.translation
     kind, a, b = model.bounds[g_other]  # a lower bound of each vertex's distance (shapes.distance_bound)
     if kind == "plane":  # a half-space: the bound is the exact signed distance, no coal query needed
@@ -215,7 +215,7 @@ def _face_axis(model: Model, data: Data, pair) -> np.ndarray:
     interpenetrating, s(n) = min_A n.x - max_B n.x largest: the normal of a face-on-face contact.
     Used instead of coal's GJK/EPA normal, which for exactly touching boxes can point anywhere
     (along a side face, 90 deg off, seen in a 10-box stack)."""
-    oa, ob = data.pin.oMi[pair.joint_first], data.pin.oMi[pair.joint_second]
+    oa, ob = data.kinematics.oMi[pair.joint_first], data.kinematics.oMi[pair.joint_second]
     Va = model.vertices[pair.first] @ oa.rotation.T + oa.translation
     Vb = model.vertices[pair.second] @ ob.rotation.T + ob.translation
     N = np.concatenate((-(model.face_normals[pair.first] @ oa.rotation.T), model.face_normals[pair.second] @ ob.rotation.T))
@@ -231,7 +231,7 @@ def _snap(model: Model, data: Data, pair, n: np.ndarray) -> np.ndarray:
     for g, j, sign in ((pair.first, pair.joint_first, -1.0), (pair.second, pair.joint_second, 1.0)):
         F = model.face_normals[g]
         if len(F):
-            Fw = sign * (F @ data.pin.oMi[j].rotation.T)  # A's outward normals point A -> B: flip
+            Fw = sign * (F @ data.kinematics.oMi[j].rotation.T)  # A's outward normals point A -> B: flip
             c = Fw @ n
             i = int(np.argmax(c))
             if c[i] > cos_best:
@@ -251,7 +251,7 @@ def _near_polytopes(model: Model, data: Data, tol: float) -> set:
         if k not in data.warm_start_pairs:
             continue
         (_, c1, r1), (_, c2, r2) = model.bounds[g1], model.bounds[g2]
-        o1, o2 = data.pin.oMi[j1], data.pin.oMi[j2]
+        o1, o2 = data.kinematics.oMi[j1], data.kinematics.oMi[j2]
         d = (o1.rotation @ c1 + o1.translation) - (o2.rotation @ c2 + o2.translation)
         if math.sqrt(d @ d) - r1 - r2 <= tol:
             out.add(k)
@@ -311,9 +311,9 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     corner_margin [m]: a vertex inside or at a box is at a corner when its signed distances to two
     or more face planes differ by at most this (default: the contact tolerance; the stepper adds
     how far the vertex can move in a step, so a corner struck within the step is seen as one).
-    Updates data.pin kinematics (oMi) and the geometry placements at q."""
-    pm, pd, gm, gd = model.pin, data.pin, model.geom, data.geom
-    pin.updateGeometryPlacements(pm, pd, gm, gd, q)
+    Updates the forest's kinematics (data.kinematics.oMi) and the geometry placements at q."""
+    gm, gd = model.geom, data.geom
+    model.forest.place(data.kinematics, q, gm, gd)
     if not model.pairs:
         return NO_CONTACTS
     tol = model.options.contact_tolerance
@@ -428,7 +428,8 @@ def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
     if not model.pairs:
         return np.zeros(0)
     fresh_guesses(data.geom.distanceRequests)
-    pin.computeDistances(model.pin, data.pin, model.geom, data.geom, q)
+    model.forest.place(data.kinematics, q, model.geom, data.geom)
+    pin.computeDistances(model.geom, data.geom)
     d = np.array([r.min_distance for r in data.distance_results])
     d[~(np.abs(d) < DISTANCE_FAILED)] = np.nan
     return d
@@ -438,4 +439,4 @@ def check_initial(model: Model, data: Data, q: np.ndarray) -> None:
     """model.check_start for a configuration q given to a run instead of the scene's q0 (a
     SceneError if a pair starts deeper than contact_tolerance inside another; docs/theory.md §2.5)."""
     where = str(model.scene.path) if model.scene.path else "<scene>"
-    check_start(model.pin, model.geom, data.pin, model.pairs, q, where, model.options.contact_tolerance)
+    check_start(model, data.kinematics, q, where, model.options.contact_tolerance)

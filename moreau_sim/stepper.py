@@ -97,7 +97,7 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     t1 = state.t + h if t_next is None else t_next
     tau = None if model.actuation is None else torque(model, state, h)  # once a step, whichever step takes it
     if (opts.step_impl is StepImpl.COMPILED and form is None and eps is None and corner_choice is None
-            and compiled.available()):
+            and compiled.available() and model.whole_data_fits()):  # (it runs on the whole model's Data)
         r = compiled.step(model, data, state, h, e, t1, tau)  # None: a step the compiled one does not cover
         if r is not None:
             return r
@@ -130,10 +130,9 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
     docs/theory.md §2.6), and if any: M, M^-1, W, corner pieces (constraints.assemble_constraints),
     u_free and v_free. Leaves data's kinematics at q_m. tau: the step's joint torques (default: the
     model's, evaluated here; torque())."""
-    pm, pd = model.pin, data.pin
     q, u = state.q, state.u
     opts = model.options
-    q_m = pin.integrate(pm, q, 0.5 * h * u)
+    q_m = pin.integrate(model.pin, q, 0.5 * h * u)
     t_m = state.t + 0.5 * h  # the force evaluation: torques and obstacles at (t_m, q_m, u_k), §2.1, §2.9
     if model.prescribed is not None:
         model.prescribed.place(model.geom, t_m)
@@ -151,7 +150,7 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
         return ContactProblem(h, e, q, u, q_m, NO_CONTACTS, free_velocity(model, data, q_m, u, h, opts.bias, tau),
                               tau=tau)
     cs = assemble_constraints(model, data, q_m, contacts)
-    Minv = pin.computeMinverse(pm, pd, q_m)
+    Minv = model.forest.inverse_mass_matrix(data.kinematics, q_m)
     u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
     v_free = (u_free + e * u) / (1.0 + e)
     rate = None if model.prescribed is None else model.prescribed.rates(model.pairs, cs.contacts, t_m)
@@ -164,13 +163,13 @@ def free_velocity(model: Model, data: Data, q_m: np.ndarray, u: np.ndarray, h: f
     point u_bar = (u_k + u_free)/2 (MIDPOINT, docs/theory.md §2.4; a few ABA calls; exact for models
     whose bias does not depend on u, where it stops after one). tau: the step's joint torques [N or N m],
     fixed over the iteration (evaluated once, at (t_m, q_m, u_k): §2.1; None: zero)."""
-    pm, pd = model.pin, data.pin
-    zero = np.zeros(pm.nv) if tau is None else tau
-    u_free = u + h * pin.aba(pm, pd, q_m, u, zero)
+    forest, kin = model.forest, data.kinematics
+    zero = np.zeros(model.nv) if tau is None else tau
+    u_free = u + h * forest.acceleration(kin, q_m, u, zero)
     if bias is Bias.EXPLICIT or not model.velocity_bias:
         return u_free
     scale = MIDPOINT_TOLERANCE * (1.0 + float(np.abs(u).max()))
-    return midpoint_fixed_point(lambda v: pin.aba(pm, pd, q_m, v, zero), u, h, u_free, scale)
+    return midpoint_fixed_point(lambda v: forest.acceleration(kin, q_m, v, zero), u, h, u_free, scale)
 
 
 def midpoint_fixed_point(acc, u: np.ndarray, h: float, u1: np.ndarray, tol: float) -> np.ndarray:
