@@ -827,7 +827,9 @@ class Stepper {
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
     if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
-    cap_energy(q, u, h, work, corr, W, q_next, u_next, gamma_plus);  // bounded with the torques' work (§2.10)
+    // stepper.bounces_under_torques: a driven step whose contacts bounce (e > 0) is not capped (§2.10)
+    const bool bounces = tau_.size() != 0 && e > 0.0 && (P.array() > 0.0).any();
+    if (!bounces) cap_energy(q, u, h, work, corr, W, q_next, u_next, gamma_plus);  // with the torques' work
     out.outcome = Outcome::CONTACT;
     out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
     out.g = std::move(g);
