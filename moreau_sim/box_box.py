@@ -1,0 +1,88 @@
+"""Edge-on-edge contacts of two boxes for the fixed step's detection (docs/theory.md §2.5, §6.2): the
+crossings of an edge of one box with an edge of the other, which no vertex of either sees (a box tipping
+over the end of a slope: the slope's end edge crosses the box's bottom face). Plain functions on arrays,
+so that src/step.cpp can mirror them one for one. coal has no query for a pair's edge crossings (its
+narrow phase reports one witness point per pair), so they are computed here in closed form.
+"""
+
+from __future__ import annotations
+
+import coal
+import numpy as np
+import pinocchio as pin
+
+CONE = 1e-9  # an edge pair's normal may leave the edges' normal cones by this (face on face: at their ends)
+EDGE_END = 1e-6  # a crossing this close (relative to the edge's length) to an edge's end is a vertex's contact
+PARALLEL = 1e-9  # |e_A x e_B| below this: parallel edges, no crossing (vertices and patches cover them)
+
+
+def box_edges(geometry: coal.Box, placement: pin.SE3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The 12 edges of a box in its joint frame: starts (12, 3) [m], unit directions (12, 3), lengths (12,)
+    [m] and the outward normals of the two faces that meet there (12, 2, 3). Edge k runs along the box's
+    axis a = k // 4 from -h_a, at the signs of the next two axes ((k % 4) // 2, k % 2: 0 is -, 1 is +)."""
+    h = np.asarray(geometry.halfSide, float)
+    R, t = placement.rotation, placement.translation
+    e0, ed, el, ef = [], [], [], []
+    for a in range(3):
+        b, c = (a + 1) % 3, (a + 2) % 3
+        for sb in (-1.0, 1.0):
+            for sc in (-1.0, 1.0):
+                x = np.zeros(3)
+                x[a], x[b], x[c] = -h[a], sb * h[b], sc * h[c]
+                e0.append(R @ x + t)
+                ed.append(R[:, a])
+                el.append(2.0 * h[a])
+                ef.append([sb * R[:, b], sc * R[:, c]])
+    return np.array(e0), np.array(ed), np.array(el), np.array(ef)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
+
+
+def world(edges: tuple, oMi: pin.SE3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """box_edges' arrays placed by the joint placement oMi (world frame)."""
+    e0, ed, el, ef = edges
+    R = oMi.rotation
+    return e0 @ R.T + oMi.translation, ed @ R.T, el, ef @ R.T
+
+
+def edge_crossings(A: tuple, B: tuple, tol: float, deepest: float) -> list[tuple]:
+    """The edge pairs of boxes A and B (world(): edges of each) that touch or cross: each a tuple
+    (g [m], p_A (3,), p_B (3,), n (3,), k, l) for A's edge k and B's edge l, in the order of 12 k + l.
+
+    With edges a0 + s e_A (0 <= s <= L_A) and b0 + t e_B: n = +-(e_A x e_B)/|e_A x e_B| oriented out of
+    B's edge (n in the cone of B's two face normals there, -n in A's, both to CONE), p_A, p_B the two
+    lines' closest points, g = n.(p_A - p_B) = n.(a0 - b0) the signed distance between the lines (> 0
+    apart, < 0 crossed). A pair counts when both closest points are inside their edges (EDGE_END of the
+    length from either end: a crossing at an end is a vertex's contact), and -deepest <= g <= tol (deeper,
+    the lines cross on the far side of a box). Parallel edges (|e_A x e_B| < PARALLEL) never count."""
+    a0, ea, la, fa = A
+    b0, eb, lb, fb = B
+    c = _cross(ea[:, None, :], eb[None, :, :])  # (12, 12, 3)
+    s = np.sqrt((c * c).sum(axis=2))
+    ok = s > PARALLEL
+    n = c / np.where(ok, s, 1.0)[:, :, None]
+    side = (n * (fb[None, :, 0, :] + fb[None, :, 1, :])).sum(axis=2)
+    n = np.where((side < 0.0)[:, :, None], -n, n)
+    ok &= ((n * fb[None, :, 0, :]).sum(axis=2) >= -CONE) & ((n * fb[None, :, 1, :]).sum(axis=2) >= -CONE)
+    ok &= ((n * fa[:, None, 0, :]).sum(axis=2) <= CONE) & ((n * fa[:, None, 1, :]).sum(axis=2) <= CONE)
+    w = a0[:, None, :] - b0[None, :, :]
+    g = (n * w).sum(axis=2)
+    ok &= (g <= tol) & (g >= -deepest)
+    if not ok.any():
+        return []
+    bb = (ea[:, None, :] * eb[None, :, :]).sum(axis=2)
+    d = (ea[:, None, :] * w).sum(axis=2)
+    e = (eb[None, :, :] * w).sum(axis=2)
+    den = np.where(ok, s * s, 1.0)  # 1 - (e_A.e_B)^2
+    sa = (bb * e - d) / den
+    tb = (e - bb * d) / den
+    ok &= (sa >= EDGE_END * la[:, None]) & (sa <= (1.0 - EDGE_END) * la[:, None])
+    ok &= (tb >= EDGE_END * lb[None, :]) & (tb <= (1.0 - EDGE_END) * lb[None, :])
+    out = []
+    for k, l in zip(*np.nonzero(ok)):
+        out.append((float(g[k, l]), a0[k] + sa[k, l] * ea[k], b0[l] + tb[k, l] * eb[l], n[k, l], int(k), int(l)))
+    return out
