@@ -83,6 +83,6 @@ def edge_crossings(A: tuple, B: tuple, tol: float, deepest: float) -> list[tuple
     ok &= (sa >= EDGE_END * la[:, None]) & (sa <= (1.0 - EDGE_END) * la[:, None])
     ok &= (tb >= EDGE_END * lb[None, :]) & (tb <= (1.0 - EDGE_END) * lb[None, :])
     out = []
-    for k, l in zip(*np.nonzero(ok)):
-        out.append((float(g[k, l]), a0[k] + sa[k, l] * ea[k], b0[l] + tb[k, l] * eb[l], n[k, l], int(k), int(l)))
+    for k, j in zip(*np.nonzero(ok)):
+        out.append((float(g[k, j]), a0[k] + sa[k, j] * ea[k], b0[j] + tb[k, j] * eb[j], n[k, j], int(k), int(j)))
     return out

@@ -203,9 +203,23 @@ def step(model, data, state: State, h: float, e: float, t1: float, tau: np.ndarr
         u = f["u_next"]
         return StepResult(State(t1, f["q_next"], u), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None, u_free=u,
                           tau=tau)
-    ctx.counts["contact"] += 1
     contacts = Contacts(*(f[k] for k in Contacts.ARRAYS))
+    if tau is None and model.prescribed is None and _left_inside(contacts.g, f["gamma_minus"], h, model.options):
+        ctx.counts["python: a penetration left by earlier steps (its lift paid with the velocities)"] += 1
+        return None
+    ctx.counts["contact"] += 1
     admissible = r.projection is _module.Projection.ADMISSIBLE
     res = QPResult(r.projection.name, True, 0, not admissible, f["v"], f["lam"], f["M"], f["W"], f["v_free"], f["b"])
     return StepResult(State(t1, f["q_next"], f["u_next"]), contacts, f["P"], f["gamma_minus"], f["gamma_plus"],
                       r.contact_work, res, None, r.correction_energy, u_free=f["u_free"], tau=tau)
+
+
+def _left_inside(g: np.ndarray, gamma_minus: np.ndarray, h: float, options) -> bool:
+    """Whether a contact at q_m is deeper than its own approach within the half step explains, g < -(h/2
+    |gamma-| + tol/2): every step where stepper.correct_positions may pay a persistent penetration's lift
+    with the velocities (docs/theory.md §2.5; it needs g + h/2 gamma+ < -(h |gamma-| + tol), and the law
+    keeps gamma+ >= -|gamma-|), which src/step.cpp does not do yet: the Python step takes those steps."""
+    if options.position_correction is not PositionCorrection.PROJECTION or not len(g):
+        return False
+    tol = options.contact_tolerance
+    return bool((g < -(0.5 * h * np.abs(gamma_minus) + 0.5 * tol)).any())

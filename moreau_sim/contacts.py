@@ -411,7 +411,7 @@ def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
     deepest = min(float(min(ga.halfSide)), float(min(gb.halfSide)))
     hits = box_box.edge_crossings(box_box.world(cache[pair.first], oMi[pair.joint_first]),
                                   box_box.world(cache[pair.second], oMi[pair.joint_second]), tol, deepest)
-    return [(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + l) for g, pa, pb, n, k, l in hits]
+    return [(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
 
 
 def _add_new(found: list, start: int, edges: list) -> None:
