@@ -315,7 +315,12 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     # the displacement only knows the closed contacts: it must not push another pair into contact
     # (a column of beads: pushing 2 off 1 pushes 1 into 0). Otherwise the step stays uncorrected.
     before, after = pair_distances(model, data, q_next), pair_distances(model, data, q_c)
-    if (after < np.minimum(before, 0.0) - tol).any():
+    floor = np.minimum(before, 0.0)
+    if u_c is not u_next:  # a paid lift: a pair it lifts may go deeper at a feature that was not closed (a box
+        # rocking across an edge: one crossing lifted presses the other), never below what it lifts (§2.5)
+        own = imp.contacts.pair < len(floor)
+        np.minimum.at(floor, imp.contacts.pair[own], g_next[own])
+    if (after < floor - tol).any():
         return q_next, 0.0, u_next
     return q_c, dE, u_c
 
