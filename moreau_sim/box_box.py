@@ -14,6 +14,7 @@ import pinocchio as pin
 CONE = 1e-9  # an edge pair's normal may leave the edges' normal cones by this (face on face: at their ends)
 EDGE_END = 1e-6  # a crossing this close (relative to the edge's length) to an edge's end is a vertex's contact
 PARALLEL = 1e-9  # |e_A x e_B| below this: parallel edges, no crossing (vertices and patches cover them)
+DEPTH_RATIO = 4.0  # a crossing deeper than this times the boxes' penetration depth is no contact (edge_crossings)
 
 
 def box_edges(geometry: coal.Box, placement: pin.SE3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -49,16 +50,32 @@ def world(edges: tuple, oMi: pin.SE3) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return e0 @ R.T + oMi.translation, ed @ R.T, el, ef @ R.T
 
 
-def edge_crossings(A: tuple, B: tuple, tol: float, deepest: float) -> list[tuple]:
-    """The edge pairs of boxes A and B (world(): edges of each) that touch or cross: each a tuple
-    (g [m], p_A (3,), p_B (3,), n (3,), k, l) for A's edge k and B's edge l, in the order of 12 k + l.
+def overlap(box_a: tuple, box_b: tuple) -> float:
+    """The boxes' penetration depth [m] (box_a, box_b: (R, c, half) in the world): the least overlap of their
+    projections over the 15 separating axes (the 6 face normals and the 9 cross products of their
+    directions); negative where an axis separates them (then not the distance, only a lower bound of it)."""
+    (Ra, ca, ha), (Rb, cb, hb) = box_a, box_b
+    c = _cross(Ra.T[:, None, :], Rb.T[None, :, :]).reshape(9, 3)
+    s = np.sqrt((c * c).sum(axis=1))
+    axes = np.concatenate((Ra.T, Rb.T, c[s > PARALLEL] / s[s > PARALLEL, None]))
+    return float((np.abs(axes @ Ra) @ ha + np.abs(axes @ Rb) @ hb - np.abs(axes @ (ca - cb))).min())
+
+
+def edge_crossings(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -> list[tuple]:
+    """The edge pairs of boxes A and B (world(): edges of each; box_a, box_b: (R, c, half) of each box in the
+    world) that touch or cross: each a tuple (g [m], p_A (3,), p_B (3,), n (3,), k, l) for A's edge k and B's
+    edge l, in the order of 12 k + l.
 
     With edges a0 + s e_A (0 <= s <= L_A) and b0 + t e_B: n = +-(e_A x e_B)/|e_A x e_B| oriented out of
     B's edge (n in the cone of B's two face normals there, -n in A's, both to CONE), p_A, p_B the two
     lines' closest points, g = n.(p_A - p_B) = n.(a0 - b0) the signed distance between the lines (> 0
     apart, < 0 crossed). A pair counts when both closest points are inside their edges (EDGE_END of the
-    length from either end: a crossing at an end is a vertex's contact), and -deepest <= g <= tol (deeper,
-    the lines cross on the far side of a box). Parallel edges (|e_A x e_B| < PARALLEL) never count."""
+    length from either end: a crossing at an end is a vertex's contact), g <= tol, and where they cross
+    (g < 0) -g <= DEPTH_RATIO overlap(box_a, box_b) + tol. With n in both cones, -g is the overlap of the
+    boxes' projections on n, so -g >= overlap(): a crossing much deeper than the boxes' penetration depth is
+    the two lines meeting far from where the boxes overlap (a box's side edge standing 3 um into a slab's top
+    face, 5 cm behind the slab's end edge, gave g = -5 cm). Parallel edges (|e_A x e_B| < PARALLEL) never
+    count."""
     a0, ea, la, fa = A
     b0, eb, lb, fb = B
     c = _cross(ea[:, None, :], eb[None, :, :])  # (12, 12, 3)
@@ -71,7 +88,7 @@ def edge_crossings(A: tuple, B: tuple, tol: float, deepest: float) -> list[tuple
     ok &= ((n * fa[:, None, 0, :]).sum(axis=2) <= CONE) & ((n * fa[:, None, 1, :]).sum(axis=2) <= CONE)
     w = a0[:, None, :] - b0[None, :, :]
     g = (n * w).sum(axis=2)
-    ok &= (g <= tol) & (g >= -deepest)
+    ok &= g <= tol
     if not ok.any():
         return []
     bb = (ea[:, None, :] * eb[None, :, :]).sum(axis=2)
@@ -82,7 +99,7 @@ def edge_crossings(A: tuple, B: tuple, tol: float, deepest: float) -> list[tuple
     tb = (e - bb * d) / den
     ok &= (sa >= EDGE_END * la[:, None]) & (sa <= (1.0 - EDGE_END) * la[:, None])
     ok &= (tb >= EDGE_END * lb[None, :]) & (tb <= (1.0 - EDGE_END) * lb[None, :])
-    out = []
-    for k, j in zip(*np.nonzero(ok)):
-        out.append((float(g[k, j]), a0[k] + sa[k, j] * ea[k], b0[j] + tb[k, j] * eb[j], n[k, j], int(k), int(j)))
-    return out
+    if (g[ok] < 0.0).any():
+        ok &= g >= -(DEPTH_RATIO * max(overlap(box_a, box_b), 0.0) + tol)
+    return [(float(g[k, j]), a0[k] + sa[k, j] * ea[k], b0[j] + tb[k, j] * eb[j], n[k, j], int(k), int(j))
+            for k, j in zip(*np.nonzero(ok))]

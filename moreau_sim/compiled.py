@@ -35,6 +35,8 @@ CONSTANTS = {
     "energy_roundoff": ENERGY_ROUNDOFF,
 }
 _EMPTY = np.zeros(0)
+# the steps handed to Python because their correction may pay a lift with the velocities (_left_inside)
+LEFT_INSIDE = "python: a penetration left by earlier steps (its lift paid with the velocities)"
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}
 
 _module = None
@@ -204,8 +206,9 @@ def step(model, data, state: State, h: float, e: float, t1: float, tau: np.ndarr
         return StepResult(State(t1, f["q_next"], u), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None, u_free=u,
                           tau=tau)
     contacts = Contacts(*(f[k] for k in Contacts.ARRAYS))
-    if tau is None and model.prescribed is None and _left_inside(contacts.g, f["gamma_minus"], h, model.options):
-        ctx.counts["python: a penetration left by earlier steps (its lift paid with the velocities)"] += 1
+    if tau is None and model.prescribed is None and _left_inside(contacts.g, f["gamma_minus"], f["gamma_plus"], h,
+                                                                        model.options):
+        ctx.counts[LEFT_INSIDE] += 1
         return None
     ctx.counts["contact"] += 1
     admissible = r.projection is _module.Projection.ADMISSIBLE
@@ -214,12 +217,14 @@ def step(model, data, state: State, h: float, e: float, t1: float, tau: np.ndarr
                       r.contact_work, res, None, r.correction_energy, u_free=f["u_free"], tau=tau)
 
 
-def _left_inside(g: np.ndarray, gamma_minus: np.ndarray, h: float, options) -> bool:
-    """Whether a contact at q_m is deeper than its own approach within the half step explains, g < -(h/2
-    |gamma-| + tol/2): every step where stepper.correct_positions may pay a persistent penetration's lift
-    with the velocities (docs/theory.md §2.5; it needs g + h/2 gamma+ < -(h |gamma-| + tol), and the law
-    keeps gamma+ >= -|gamma-|), which src/step.cpp does not do yet: the Python step takes those steps."""
+def _left_inside(g: np.ndarray, gamma_minus: np.ndarray, gamma_plus: np.ndarray, h: float, options) -> bool:
+    """Whether a contact may have a persistent penetration, the steps where stepper.correct_positions may pay
+    its lift with the velocities (docs/theory.md §2.5), which src/step.cpp does not do yet: the Python step
+    takes them. Python's test is g + h/2 gamma+ < -(h |gamma-| + tol) with the law's gamma+; the cap (§2.10)
+    may have scaled the returned gamma+ towards 0, so a negative one is taken at its least, -|gamma-|."""
     if options.position_correction is not PositionCorrection.PROJECTION or not len(g):
         return False
     tol = options.contact_tolerance
-    return bool((g < -(0.5 * h * np.abs(gamma_minus) + 0.5 * tol)).any())
+    a = np.abs(gamma_minus)
+    least = np.where(gamma_plus >= 0.0, gamma_plus, -a)
+    return bool((g + 0.5 * h * least < -(h * a + 0.5 * tol)).any())

@@ -397,8 +397,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
 
 def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
     """The edge crossings of a pair of two boxes (box_box.edge_crossings, docs/theory.md §6.2) as contact
-    rows (g, p_A, p_B, n, pair, EDGE, 12 k + l); [] for any other pair. Deeper than the smaller box's
-    smallest half side, the lines cross on the far side of a box and are no contact."""
+    rows (g, p_A, p_B, n, pair, EDGE, 12 k + l); [] for any other pair."""
     shapes = data.shapes
     ga, gb = shapes[pair.first], shapes[pair.second]
     if not (isinstance(ga, coal.Box) and isinstance(gb, coal.Box)):
@@ -407,10 +406,12 @@ def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
     for g, geo in ((pair.first, ga), (pair.second, gb)):
         if g not in cache:
             cache[g] = box_box.box_edges(geo, model.geom.geometryObjects[g].placement)
-    oMi = data.pin.oMi
-    deepest = min(float(min(ga.halfSide)), float(min(gb.halfSide)))
+    oMi, oMg = data.pin.oMi, data.geom.oMg
+    fa, fb = oMg[pair.first], oMg[pair.second]
     hits = box_box.edge_crossings(box_box.world(cache[pair.first], oMi[pair.joint_first]),
-                                  box_box.world(cache[pair.second], oMi[pair.joint_second]), tol, deepest)
+                                  box_box.world(cache[pair.second], oMi[pair.joint_second]),
+                                  (fa.rotation, fa.translation, np.asarray(ga.halfSide)),
+                                  (fb.rotation, fb.translation, np.asarray(gb.halfSide)), tol)
     return [(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
 
 
