@@ -13,8 +13,10 @@ Method (general, no special case per shape pair): for every collision pair whose
      patch, the polygon where the faces overlap (two equal boxes stacked with a yaw touch only
      along the octagon of their overlap: no vertex of either lies on the other), except those
      that are already vertex contacts; they carry the pair's depth, exact for parallel faces;
-  3. otherwise, when steps 1-2 found nothing, coal's closest-point contact (edge on edge,
-     smooth shapes: spheres, capsules, cylinders, curved meshes).
+  3. for two boxes, the crossings of an edge of one with an edge of the other (box_box.py), except
+     at points that are already contacts;
+  4. otherwise, when steps 1-3 found nothing, coal's closest-point contact (smooth shapes: spheres,
+     capsules, cylinders, curved meshes; edge on edge of other polytopes).
 A box lying on a face therefore has its 4 corners as contacts with their exact gaps; a
 tilted box its lowest corner(s) with their own gaps, never one depth shared by a polygon.
 
