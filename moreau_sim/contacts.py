@@ -352,6 +352,10 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, pair.joint_first, tol,
                              found, pair.index, na, False, corner_list, margin)
         edges = _edge_contacts(model, data, pair, tol)
+        if edges and len(corner_list) > start_c:  # a crossing within the corner margin of a corner is that corner's
+            at = np.array([c[1] for c in corner_list[start_c:]] + [c[2] for c in corner_list[start_c:]])
+            edges = [r for r in edges if min(np.abs(at - r[1]).max(axis=1).min(), np.abs(at - r[2]).max(axis=1).min())
+                     > margin]
         if len(corner_list) > start_c:
             if len(found) == start and not edges:
                 continue  # the corner is the contact of this pair: no patch, no witness
