@@ -424,9 +424,13 @@ def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
 def _add_new(found: list, start: int, edges: list) -> None:
     """Append the edge contacts of a pair whose point on A is not already one of its contacts (a patch
     corner of two yawed faces is also the crossing of their edges)."""
-    for row in edges:
-        if all(np.abs(f[1] - row[1]).max() > _SAME_POINT for f in found[start:]):
-            found.append(row)
+    if not edges:
+        return
+    if len(found) > start:
+        pa, known = np.array([r[1] for r in edges]), np.array([f[1] for f in found[start:]])
+        new = np.abs(pa[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > _SAME_POINT
+        edges = [r for r, k in zip(edges, new.tolist()) if k]
+    found.extend(edges)
 
 
 def from_rows(model: Model, rows: list, corners: tuple = ()) -> Contacts:
