@@ -317,9 +317,12 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     before, after = pair_distances(model, data, q_next), pair_distances(model, data, q_c)
     floor = np.minimum(before, 0.0)
     if u_c is not u_next:  # a paid lift: a pair it lifts may go deeper at a feature that was not closed (a box
-        # rocking across an edge: one crossing lifted presses the other), never below what it lifts (§2.5)
+        # rocking across an edge: one crossing lifted presses the other), by at most half the depth it lifts,
+        # so that the next steps' lifts converge (§2.5)
         own = imp.contacts.pair < len(floor)
-        np.minimum.at(floor, imp.contacts.pair[own], g_next[own])
+        lifted = np.zeros(len(floor))
+        np.minimum.at(lifted, imp.contacts.pair[own], g_next[own])
+        floor += 0.5 * lifted
     if (after < floor - tol).any():
         return q_next, 0.0, u_next
     return q_c, dE, u_c
