@@ -35,8 +35,6 @@ CONSTANTS = {
     "energy_roundoff": ENERGY_ROUNDOFF,
 }
 _EMPTY = np.zeros(0)
-# the steps handed to Python because their correction may pay a lift with the velocities (_left_inside)
-LEFT_INSIDE = "python: a penetration left by earlier steps (its lift paid with the velocities)"
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}
 
 _module = None
@@ -205,26 +203,9 @@ def step(model, data, state: State, h: float, e: float, t1: float, tau: np.ndarr
         u = f["u_next"]
         return StepResult(State(t1, f["q_next"], u), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None, u_free=u,
                           tau=tau)
-    contacts = Contacts(*(f[k] for k in Contacts.ARRAYS))
-    if tau is None and model.prescribed is None and _left_inside(contacts.g, f["gamma_minus"], f["gamma_plus"], h,
-                                                                        model.options):
-        ctx.counts[LEFT_INSIDE] += 1
-        return None
     ctx.counts["contact"] += 1
+    contacts = Contacts(*(f[k] for k in Contacts.ARRAYS))
     admissible = r.projection is _module.Projection.ADMISSIBLE
     res = QPResult(r.projection.name, True, 0, not admissible, f["v"], f["lam"], f["M"], f["W"], f["v_free"], f["b"])
     return StepResult(State(t1, f["q_next"], f["u_next"]), contacts, f["P"], f["gamma_minus"], f["gamma_plus"],
                       r.contact_work, res, None, r.correction_energy, u_free=f["u_free"], tau=tau)
-
-
-def _left_inside(g: np.ndarray, gamma_minus: np.ndarray, gamma_plus: np.ndarray, h: float, options) -> bool:
-    """Whether a contact may have a persistent penetration, the steps where stepper.correct_positions may pay
-    its lift with the velocities (docs/theory.md §2.5), which src/step.cpp does not do yet: the Python step
-    takes them. Python's test is g + h/2 gamma+ < -(h |gamma-| + tol) with the law's gamma+; the cap (§2.10)
-    may have scaled the returned gamma+ towards 0, so a negative one is taken at its least, -|gamma-|."""
-    if options.position_correction is not PositionCorrection.PROJECTION or not len(g):
-        return False
-    tol = options.contact_tolerance
-    a = np.abs(gamma_minus)
-    least = np.where(gamma_plus >= 0.0, gamma_plus, -a)
-    return bool((g + 0.5 * h * least < -(h * a + 0.5 * tol)).any())

@@ -270,8 +270,8 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     exceed T + V at the start of the step: the correction may give back energy the step dissipated,
     never more - except where every penetrating contact ends the step resting (_resting): then
     alpha = 1 and the potential energy the lift adds is booked as correction energy (§2.5, §5);
-    and except a persistent penetration (deeper than the step's own approach can make, h |gamma_minus|
-    + tol) in a step that did not gain: it is removed in full, the lift beyond the budget paid with the
+    and except a persistent penetration between two polytopes (deeper than the step's own approach can
+    make, h |gamma_minus| + tol) in a passive step that did not gain: it is removed in full, the lift beyond the budget paid with the
     kinetic energy of the bodies in contact (their velocities scaled, _scaled) so that T + V still ends
     at most at its start, where they have enough.
     Returns (q, the change of T + V it made [J], u_{k+1}: imp.u_next itself unless the lift was paid)."""
@@ -290,8 +290,11 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     if budget <= 0.0 and not resting:  # the step gained (the cap of §2.10 takes it back): nothing to spend
         return q_next, 0.0, u_next
     # paid only in a passive step: the scaling's bound would need the torques' work at the scaled velocity
-    persistent = (pb.tau is None and model.prescribed is None
-                  and bool((g_next < -(pb.h * np.abs(imp.gamma_minus) + tol)).any()))
+    deep = g_next < -(pb.h * np.abs(imp.gamma_minus) + tol)
+    # only between two polytopes (box faces sliding, a box rocking across an edge): in a column of beads the lift
+    # paid with the velocities of beads falling together kept the top bead bouncing past its rest (§2.5)
+    persistent = (pb.tau is None and model.prescribed is None and bool(deep.any())
+                  and all(p in model.polytope_pair_set for p in imp.contacts.pair[deep].tolist()))
     res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
     if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)
         raise SimulationError(f"the position-correction QP failed with status {res.status} "
