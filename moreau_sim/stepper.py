@@ -271,9 +271,9 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     never more - except where every penetrating contact ends the step resting (_resting): then
     alpha = 1 and the potential energy the lift adds is booked as correction energy (§2.5, §5);
     and except a persistent penetration between two polytopes (deeper than the step's own approach can
-    make, h |gamma_minus| + tol) in a passive step that did not gain: it is removed in full, the lift beyond the budget paid with the
-    kinetic energy of the bodies in contact (their velocities scaled, _scaled) so that T + V still ends
-    at most at its start, where they have enough.
+    make, h |gamma_minus| + tol) in a passive step that did not gain: it is removed in full, the lift
+    beyond the budget paid with the kinetic energy of the bodies in contact (their velocities scaled,
+    _scaled) so that T + V still ends at most at its start, where they have enough.
     Returns (q, the change of T + V it made [J], u_{k+1}: imp.u_next itself unless the lift was paid)."""
     tol = model.options.contact_tolerance
     u_next = imp.u_next
