@@ -13,8 +13,10 @@ Method (general, no special case per shape pair): for every collision pair whose
      patch, the polygon where the faces overlap (two equal boxes stacked with a yaw touch only
      along the octagon of their overlap: no vertex of either lies on the other), except those
      that are already vertex contacts; they carry the pair's depth, exact for parallel faces;
-  3. otherwise, when steps 1-2 found nothing, coal's closest-point contact (edge on edge,
-     smooth shapes: spheres, capsules, cylinders, curved meshes).
+  3. for two boxes, the crossings of an edge of one with an edge of the other (box_box.py), except
+     at points that are already contacts;
+  4. otherwise, when steps 1-3 found nothing, coal's closest-point contact (smooth shapes: spheres,
+     capsules, cylinders, curved meshes; edge on edge of other polytopes).
 A box lying on a face therefore has its 4 corners as contacts with their exact gaps; a
 tilted box its lowest corner(s) with their own gaps, never one depth shared by a polygon.
 
@@ -33,7 +35,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from . import broad_phase
+from . import box_box, broad_phase
 from .data import GATE_MARGIN, Data
 from .model import DISTANCE_FAILED, Model, check_start
 
@@ -48,6 +50,7 @@ class FeatureKind(enum.IntEnum):
     CORNER = 3  # face `feature` of a corner: the way of staying apart that pushed (docs/theory.md §3)
     SWEPT = 4  # found by the swept test along a fast motion (tunnelling.py; feature 0)
     JOINT_LIMIT = 5  # a joint's lower or upper position limit (limits.py; feature = the Pinocchio joint id)
+    EDGE = 6  # two boxes' edges crossing (box_box.py): feature 12 k + l, A's edge k and B's edge l
 
 
 _SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact
@@ -348,12 +351,18 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
         if nb:
             _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, pair.joint_first, tol,
                              found, pair.index, na, False, corner_list, margin)
+        edges = _edge_contacts(model, data, pair, tol)
+        if edges and len(corner_list) > start_c:  # a crossing within the corner margin of a corner is that corner's
+            at = np.array([c[1] for c in corner_list[start_c:]] + [c[2] for c in corner_list[start_c:]])
+            edges = [r for r in edges if min(np.abs(at - r[1]).max(axis=1).min(), np.abs(at - r[2]).max(axis=1).min())
+                     > margin]
         if len(corner_list) > start_c:
-            if len(found) == start:
+            if len(found) == start and not edges:
                 continue  # the corner is the contact of this pair: no patch, no witness
             # a corner beside smooth contacts of the same pair (a face resting on an edge): keep both
         if not hit:
-            continue  # examined for its vertices only (coal saw no collision): no patch, no witness
+            _add_new(found, start, edges)
+            continue  # examined for its vertices and edges only (coal saw no collision): no patch, no witness
         c = res.getContact(0)
         n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
         fallback = not (abs(c.penetration_depth) < 1e100 and math.isfinite(n @ n))
@@ -381,14 +390,47 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             for k in np.flatnonzero(new):
                 found.append((c.penetration_depth, P1[k], np.array(patch.getPointShape2(int(k))), n_face, pair.index,
                               FeatureKind.PATCH, int(k)))
-        elif len(found) == start and c.penetration_depth <= tol:  # no vertex: edge-edge, smooth shapes
+        elif len(found) == start and not edges and c.penetration_depth <= tol:  # no vertex: smooth shapes
             found.append((c.penetration_depth, np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2()),
                           n, pair.index, FeatureKind.WITNESS, 0))
+        _add_new(found, start, edges)
     corners = _merge_corners(model, corner_list, margin) if corner_list else ()
     data.warm_start_pairs = {f[4] for f in found} | {c[4] for c in corner_list}
     if not found:
         return Contacts.empty(corners) if corners else NO_CONTACTS
     return from_rows(model, found, corners)
+
+
+def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
+    """The edge crossings of a pair of two boxes (box_box.edge_crossings, docs/theory.md §6.2) as contact
+    rows (g, p_A, p_B, n, pair, EDGE, 12 k + l); [] for any other pair."""
+    shapes = data.shapes
+    ga, gb = shapes[pair.first], shapes[pair.second]
+    if not (isinstance(ga, coal.Box) and isinstance(gb, coal.Box)):
+        return []
+    cache = data.__dict__.setdefault("_box_edges", {})  # per geometry, in its joint frame
+    for g, geo in ((pair.first, ga), (pair.second, gb)):
+        if g not in cache:
+            cache[g] = box_box.box_edges(geo, model.geom.geometryObjects[g].placement)
+    oMi, oMg = data.pin.oMi, data.geom.oMg
+    fa, fb = oMg[pair.first], oMg[pair.second]
+    hits = box_box.edge_crossings(box_box.world(cache[pair.first], oMi[pair.joint_first]),
+                                  box_box.world(cache[pair.second], oMi[pair.joint_second]),
+                                  (fa.rotation, fa.translation, np.asarray(ga.halfSide)),
+                                  (fb.rotation, fb.translation, np.asarray(gb.halfSide)), tol)
+    return [(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
+
+
+def _add_new(found: list, start: int, edges: list) -> None:
+    """Append the edge contacts of a pair whose point on A is not already one of its contacts (a patch
+    corner of two yawed faces is also the crossing of their edges)."""
+    if not edges:
+        return
+    if len(found) > start:
+        pa, known = np.array([r[1] for r in edges]), np.array([f[1] for f in found[start:]])
+        new = np.abs(pa[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > _SAME_POINT
+        edges = [r for r, k in zip(edges, new.tolist()) if k]
+    found.extend(edges)
 
 
 def from_rows(model: Model, rows: list, corners: tuple = ()) -> Contacts:

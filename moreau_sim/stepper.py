@@ -108,14 +108,17 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
                           u_free=pb.u_free, tau=pb.tau)
     imp = solve_impact(pb, opts, form=form, eps=eps, corner_choice=corner_choice)
     q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
-    corr = 0.0
+    corr, u_law = 0.0, None
     if opts.position_correction is PositionCorrection.PROJECTION and imp.qp.ok:  # a failed QP: simulate names it
-        q_next, corr = correct_positions(model, data, pb, imp, q_next)
+        q_next, corr, u_c = correct_positions(model, data, pb, imp, q_next)
+        if u_c is not imp.u_next:  # a paid lift (§2.5): the ledger measures the law on u_{k+1} before it (§5.2)
+            u_law = imp.u_next
+            imp = replace(imp, u_next=u_c, gamma_plus=ordered(imp.W.T, u_c))
     if imp.qp.ok and not bounces_under_torques(pb, imp):  # §2.10: bounded by E* and the work of torques and statics
         imp = cap_energy(model, data, pb, imp, q_next, corr)
     return StepResult(State(t1, q_next, imp.u_next), imp.contacts, imp.P, imp.gamma_minus, imp.gamma_plus,
                       imp.contact_work, imp.qp, imp.branch, corr, u_free=pb.u_free, tau=pb.tau,
-                      obstacle_work=imp.obstacle_work)
+                      obstacle_work=imp.obstacle_work, u_law=u_law)
 
 
 def torque(model: Model, state: State, h: float) -> np.ndarray:
@@ -303,44 +306,72 @@ def _alpha(a: float, b: float, c: float, floor: float) -> float:
 
 
 def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution,
-                      q_next: np.ndarray) -> tuple[np.ndarray, float]:
+                      q_next: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     """PositionCorrection.PROJECTION (docs/theory.md §2.5): dq = argmin 1/2 dq'M dq s.t.
     g_i + w_i'dq >= 0 on the closed contacts (g_i: gaps at q_{k+1} linearized from q_m), applied
     as q_{k+1} (+) alpha dq with alpha <= 1 the largest step for which T + V at the end does not
     exceed T + V at the start of the step: the correction may give back energy the step dissipated,
     never more - except where every penetrating contact ends the step resting (_resting): then
-    alpha = 1 and the potential energy the lift adds is booked as correction energy (§2.5, §5).
-    Returns (q, the change of T + V it made [J])."""
+    alpha = 1 and the potential energy the lift adds is booked as correction energy (§2.5, §5);
+    and except a persistent penetration between two polytopes (deeper than the step's own approach can
+    make, h |gamma_minus| + tol) in a passive step that did not gain: it is removed in full, the lift
+    beyond the budget paid with the kinetic energy of the bodies in contact (their velocities scaled,
+    _scaled) so that T + V still ends at most at its start, where they have enough.
+    Returns (q, the change of T + V it made [J], u_{k+1}: imp.u_next itself unless the lift was paid)."""
     tol = model.options.contact_tolerance
+    u_next = imp.u_next
     g_next = imp.contacts.g + 0.5 * pb.h * imp.gamma_plus
     if not len(g_next) or g_next.min() >= -tol:
-        return q_next, 0.0
-    q, u, u_next = pb.q, pb.u, imp.u_next
+        return q_next, 0.0, u_next
+    q, u = pb.q, pb.u
     E0 = kinetic(model, data, q, u) + potential(model, data, q)
     E1 = kinetic(model, data, q_next, u_next) + potential(model, data, q_next)
     budget = E0 - E1 + imp.obstacle_work  # what the step dissipated beyond the work done on it (§5.5)
     if pb.tau is not None:
         budget += 0.5 * pb.h * float(ordered(pb.tau, u + u_next))
     resting = _resting(pb, imp, g_next < -tol)
-    if budget <= 0.0 and not resting:
-        return q_next, 0.0
+    if budget <= 0.0 and not resting:  # the step gained (the cap of §2.10 takes it back): nothing to spend
+        return q_next, 0.0, u_next
+    # paid only in a passive step: the scaling's bound would need the torques' work at the scaled velocity
+    deep = g_next < -(pb.h * np.abs(imp.gamma_minus) + tol)
+    # only between two polytopes (box faces sliding, a box rocking across an edge): in a column of beads the lift
+    # paid with the velocities of beads falling together kept the top bead bouncing past its rest (§2.5)
+    persistent = (pb.tau is None and model.prescribed is None and bool(deep.any())
+                  and all(p in model.polytope_pair_set for p in imp.contacts.pair[deep].tolist()))
     res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
     if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)
         raise SimulationError(f"the position-correction QP failed with status {res.status} "
                               f"({imp.contacts.m} closed contacts)")
     q_c = pin.integrate(model.pin, q_next, res.v)
-    dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
+    T_c, V_c = kinetic(model, data, q_c, u_next), potential(model, data, q_c)
+    dE = T_c + V_c - E1
+    u_c = u_next
     if dE > budget and not resting:
-        q_c = pin.integrate(model.pin, q_next, (budget / dE) * res.v)  # E is ~linear in dq here
-        dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
-        if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
-            return q_next, 0.0
+        paid = False
+        if persistent:  # the full lift, paid with the kinetic energy of the bodies in contact
+            u_c = _scaled(model, data, q_c, u_next, (imp.W != 0.0).any(axis=1), E0 - V_c, T_c)
+            dE = kinetic(model, data, q_c, u_c) + V_c - E1
+            paid = dE <= budget + _roundoff(model, data, pb, T_c, V_c)
+        if not paid:
+            u_c = u_next
+            q_c = pin.integrate(model.pin, q_next, (budget / dE) * res.v)  # E is ~linear in dq here
+            dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
+            if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
+                return q_next, 0.0, u_next
     # the displacement only knows the closed contacts: it must not push another pair into contact
     # (a column of beads: pushing 2 off 1 pushes 1 into 0). Otherwise the step stays uncorrected.
     before, after = pair_distances(model, data, q_next), pair_distances(model, data, q_c)
-    if (after < np.minimum(before, 0.0) - tol).any():
-        return q_next, 0.0
-    return q_c, dE
+    floor = np.minimum(before, 0.0)
+    if u_c is not u_next:  # a paid lift: a pair it lifts may go deeper at a feature that was not closed (a box
+        # rocking across an edge: one crossing lifted presses the other), by at most half the depth it lifts,
+        # so that the next steps' lifts converge (§2.5)
+        own = imp.contacts.pair < len(floor)
+        lifted = np.zeros(len(floor))
+        np.minimum.at(lifted, imp.contacts.pair[own], g_next[own])
+        floor += 0.5 * lifted
+    if (after < floor - tol).any():
+        return q_next, 0.0, u_next
+    return q_c, dE, u_c
 
 
 def _resting(pb: ContactProblem, imp: ImpactSolution, pen: np.ndarray) -> bool:
