@@ -38,6 +38,7 @@ import pinocchio as pin
 from . import box_box, broad_phase
 from .data import GATE_MARGIN, Data
 from .model import DISTANCE_FAILED, Model, check_start
+from .qp import ordered
 
 
 
@@ -159,11 +160,11 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
     if not len(V):
         return
     oMi, oMo = data.kinematics.oMi[joint_v], data.kinematics.oMi[joint_other]
-    Vw = V @ oMi.rotation.T + oMi.translation
+    Vw = ordered(V, oMi.rotation.T) + oMi.translation  # ordered: src/step.cpp makes the same sums (§2.8)
     kind, a, b = model.bounds[g_other]  # a lower bound of each vertex's distance (shapes.distance_bound)
     if kind == "plane":  # a half-space: the bound is the exact signed distance, no coal query needed
-        n = oMo.rotation @ a
-        est = Vw @ n - (b + n @ oMo.translation)
+        n = ordered(oMo.rotation, a)
+        est = ordered(Vw, n) - (b + ordered(n, oMo.translation))
         for i in np.flatnonzero(est <= tol):
             d = float(est[i])
             if v_is_a:
@@ -171,7 +172,7 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
             else:
                 out.append((d, Vw[i] - d * n, Vw[i], -n, pair, FeatureKind.VERTEX, offset + i))
         return
-    est = np.sqrt(((Vw - (oMo.rotation @ a + oMo.translation)) ** 2).sum(axis=1)) - b
+    est = np.sqrt(((Vw - (ordered(oMo.rotation, a) + oMo.translation)) ** 2).sum(axis=1)) - b
     cand = np.flatnonzero(est <= tol)
     if not len(cand):
         return

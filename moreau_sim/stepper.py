@@ -305,6 +305,19 @@ def _alpha(a: float, b: float, c: float, floor: float) -> float:
     return min(1.0, max(floor, alpha))
 
 
+def _scaled(model: Model, data: Data, q: np.ndarray, u: np.ndarray, involved: np.ndarray, K: float,
+            T: float) -> np.ndarray:
+    """u with the velocities of the trees in contact (_trees of `involved`) scaled so that T(q, u) <= K [J]
+    (T = T(q, u) given): T is quadratic in the scale, a alpha^2 + b alpha + T_R (_alpha, floor 0)."""
+    u_S = np.where(_trees(model, involved), u, 0.0)
+    u_R = u - u_S
+    a = kinetic(model, data, q, u_S)
+    if not a > 0.0:
+        return u
+    T_R = kinetic(model, data, q, u_R)
+    return u_R + _alpha(a, (T - a) - T_R, T_R - K, 0.0) * u_S
+
+
 def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution,
                       q_next: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     """PositionCorrection.PROJECTION (docs/theory.md §2.5): dq = argmin 1/2 dq'M dq s.t.
@@ -324,7 +337,8 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     if not len(g_next) or g_next.min() >= -tol:
         return q_next, 0.0, u_next
     q, u = pb.q, pb.u
-    E0 = kinetic(model, data, q, u) + potential(model, data, q)
+    T0, V0 = kinetic(model, data, q, u), potential(model, data, q)
+    E0 = T0 + V0
     E1 = kinetic(model, data, q_next, u_next) + potential(model, data, q_next)
     budget = E0 - E1 + imp.obstacle_work  # what the step dissipated beyond the work done on it (§5.5)
     if pb.tau is not None:
@@ -351,7 +365,7 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
         if persistent:  # the full lift, paid with the kinetic energy of the bodies in contact
             u_c = _scaled(model, data, q_c, u_next, (imp.W != 0.0).any(axis=1), E0 - V_c, T_c)
             dE = kinetic(model, data, q_c, u_c) + V_c - E1
-            paid = dE <= budget + _roundoff(model, data, pb, T_c, V_c)
+            paid = dE <= budget + _roundoff(T0, V0, T_c, V_c)
         if not paid:
             u_c = u_next
             q_c = pin.integrate(model.pin, q_next, (budget / dE) * res.v)  # E is ~linear in dq here

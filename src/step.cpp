@@ -121,35 +121,6 @@ template <class T> T &extract_ref(nb::handle h, const char *what) {
   return x();
 }
 
-// numpy's small products of contacts._vertex_contacts (3-vectors), operation by operation (measured against
-// numpy 2 with its OpenBLAS on this AVX-512 machine, tests/test_compiled.py); every other product of the
-// step is qp.ordered's (odot below: the same bits on any CPU and at any size), every other sum is written
-// out in numpy's order.
-// a 1-d @ 1-d dot (ddot, n < 16): left to right, separate multiply and add
-inline double ddot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
-  double s = 0.0;
-  for (Eigen::Index k = 0; k < n; ++k) s += a[k * sa] * b[k * sb];
-  return s;
-}
-// an entry of a row-major 2-d @ 1-d product with 2 or more rows (dgemv "t" kernel): four fused lanes
-// over the blocks of 4, reduced as (l0 + l2) + (l1 + l3), then the tail of 1-3 terms
-inline double gemv_dot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
-  const Eigen::Index nb = n & ~Eigen::Index(3);
-  double s = 0.0;
-  bool block = nb > 0;
-  if (block) {
-    double l[4] = {0.0, 0.0, 0.0, 0.0};
-    for (Eigen::Index k = 0; k < nb; ++k) l[k & 3] = std::fma(a[k * sa], b[k * sb], l[k & 3]);
-    s = (l[0] + l[2]) + (l[1] + l[3]);
-  }
-  const Eigen::Index r = n - nb;
-  if (r == 0) return s;
-  if (r == 1) return block ? std::fma(a[nb * sa], b[nb * sb], s) : 0.0 + a[nb * sa] * b[nb * sb];
-  double t = std::fma(a[nb * sa], b[nb * sb], a[(nb + 1) * sa] * b[(nb + 1) * sb]);
-  if (r == 3) t = std::fma(a[(nb + 2) * sa], b[(nb + 2) * sb], t);
-  return block ? s + t : 0.0 + t;
-}
-
 // coal warm-starts GJK's support search from the previous call of the same pair (a hint kept in the
 // collision functor's solver, a protected member): a step handed to Python must find the hints as the
 // Python step would have left them, so they are saved before detection and restored on a fallback.
@@ -635,21 +606,19 @@ class Stepper {
     const auto &oMi = data_.oMi[joint_v], &oMo = data_.oMi[joint_other];
     const Eigen::Matrix3d &R = oMi.rotation();
     const Vec3 &t = oMi.translation();
-    MatrixXd Vw(V.rows(), 3);  // V @ R.T + t
+    MatrixXd Vw(V.rows(), 3);  // ordered(V, R.T) + t
     for (Eigen::Index i = 0; i < V.rows(); ++i)
-      for (int j = 0; j < 3; ++j)
-        Vw(i, j) = std::fma(V(i, 2), R(j, 2), std::fma(V(i, 1), R(j, 1), V(i, 0) * R(j, 0))) + t[j];
+      for (int j = 0; j < 3; ++j) Vw(i, j) = odot(&V(i, 0), R.data() + j, 3, V.rows(), 3) + t[j];
     const Vec3 &a = bound_a_[g_other];
     const double b = bound_b_[g_other];
     const Eigen::Matrix3d &Ro = oMo.rotation();
     const Vec3 &to = oMo.translation();
     if (bound_kind_[g_other] == 0) {  // a half-space: exact signed distances
-      Vec3 n;
-      for (int j = 0; j < 3; ++j) n[j] = (Ro(j, 0) * a[0] + Ro(j, 1) * a[1]) + Ro(j, 2) * a[2];
-      const double c = b + ddot(n.data(), to.data(), 3);
+      Vec3 n;  // ordered(Ro, a)
+      for (int j = 0; j < 3; ++j) n[j] = odot(Ro.data() + j, a.data(), 3, 3, 1);
+      const double c = b + odot(n.data(), to.data(), 3);
       for (Eigen::Index i = 0; i < V.rows(); ++i) {
-        const double vn = V.rows() == 1 ? ddot(&Vw(i, 0), n.data(), 3, V.rows(), 1) : gemv_dot(&Vw(i, 0), n.data(), 3, V.rows(), 1);
-        const double d = vn - c;
+        const double d = odot(&Vw(i, 0), n.data(), 3, V.rows(), 1) - c;  // ordered(Vw, n) - c
         if (!(d <= tol_)) continue;
         Vec3 p = Vw.row(i).transpose();
         Vec3 dn = d * n;
@@ -662,7 +631,7 @@ class Stepper {
     }
     // a bounding sphere: the vertices near it need coal's point queries (and corner tests): Python
     Vec3 ctr;
-    for (int j = 0; j < 3; ++j) ctr[j] = ((Ro(j, 0) * a[0] + Ro(j, 1) * a[1]) + Ro(j, 2) * a[2]) + to[j];
+    for (int j = 0; j < 3; ++j) ctr[j] = odot(Ro.data() + j, a.data(), 3, 3, 1) + to[j];
     for (Eigen::Index i = 0; i < V.rows(); ++i) {
       const double est = (Vw.row(i).transpose() - ctr).norm() - b;
       if (est <= tol_ + 1e-9 * (1.0 + std::abs(b))) throw Fallback{"vertex near a shape that is no half-space"};
