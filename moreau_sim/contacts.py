@@ -413,7 +413,7 @@ def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
     for g, geo in ((pair.first, ga), (pair.second, gb)):
         if g not in cache:
             cache[g] = box_box.box_edges(geo, model.geom.geometryObjects[g].placement)
-    oMi, oMg = data.pin.oMi, data.geom.oMg
+    oMi, oMg = data.kinematics.oMi, data.geom.oMg
     fa, fb = oMg[pair.first], oMg[pair.second]
     hits = box_box.edge_crossings(box_box.world(cache[pair.first], oMi[pair.joint_first]),
                                   box_box.world(cache[pair.second], oMi[pair.joint_second]),

@@ -8,6 +8,7 @@ import pytest
 
 import moreau_sim as ms
 from moreau_sim import compiled
+from moreau_sim.invariants import Invariant
 
 from helpers import MODELS, inline_scene
 
@@ -213,21 +214,18 @@ def test_pd_held_double_pendulum(tmp_path):
 
 def test_driven_pendulum_energy_ledger(energy_ledger):
     """A controller swings the double pendulum into its wall (a sine torque on the shoulder): the regression
-    fixture (docs/regression.md) checks the run's invariants and the ledger against its baseline, actuator work
-    included; every impact dissipates at least the law's figure."""
+    fixture (docs/regression.md) checks every contact step against the law and the ledger against its
+    baseline, actuator work included."""
     traj = ms.run(MODELS.parent / "scenes" / "pendulum_wall.toml", duration=1.0,
                   controller=lambda t, q, u: np.array([20.0 * np.sin(6.0 * t), 0.0]))
     led = ms.ledger(traj)
     assert led.actuator_work != 0.0
-    # the energy cap (docs/theory.md §2.10) bounds a driven contact step by E* plus the torques' work, so the impact
-    # step at 0.931 s no longer gains (before: flagged, the ledger 0.36 J high); what the contact steps leave in the
-    # residual is the step's first-order error where it loses (-6.8e-3 J at 0.589 s), never a gain
-    assert traj.meta["status"] == "complete"
-    assert -1e-4 * led.scale <= led.residual <= 1e-12 * led.scale
-    # each impact dissipates at least what the law says, more where the cap took back the step's gain (§2.10:
-    # 0.37 J at 0.931 s); then the fixture: the run's invariants and its baseline
-    assert all(r.difference >= -1e-9 * led.scale for r in led.impacts)
-    energy_ledger.check(traj, law_rtol=None)
+    # flagged: the energy cap (docs/theory.md §2.10) leaves a driven step whose contacts bounce (e = 0.9) as the law
+    # gives it, so the impact step at 0.931 s keeps the step's first-order gain where M depends on q: the ledger
+    # closes 0.36 J high (capped, that impact dissipated 0.37 J more than the law's figure)
+    assert traj.meta["status"] == "flagged"
+    assert {v["invariant"] for v in traj.meta["invariants"]} == {Invariant.LEDGER.value} and led.residual > 0.1
+    energy_ledger.check(led)  # the law in every contact step and the baseline, on the ledger (which has no status)
 
 
 def test_vibrating_paddle_energy_ledger(energy_ledger):

