@@ -94,4 +94,6 @@ def test_panda_taps_the_table_under_the_law(impl):
         k = int(np.searchsorted(tr.t, t_pressed))
         assert abs(a["gap"][k].min()) < 1e-8
     assert _gain_beyond_booked(tr) <= 1e-9 * ms.ledger(tr).scale
-    assert tr.meta["status"] == "complete"  # every invariant held (the cap takes driven steps, §2.10)
+    # flagged: the cap leaves a driven step whose contacts bounce as the law gives it (docs/theory.md §2.10), so the
+    # strikes keep the step's first-order error, which the ledger shows (1e-3 J at the first strike)
+    assert tr.meta["status"] == "flagged" and {v["invariant"] for v in tr.meta["invariants"]} == {"ledger residual"}
