@@ -31,7 +31,8 @@ class StepResult:
     u_free: the velocity the smooth forces alone give, u_k + h M(q_m)^-1 f [velocity] (the ledger's smooth
     motion, §5.3; u_{k+1} itself on a step without contact).
     tau: the joint torques of the step [N or N m] (actuation.py, evaluated at t_m, q_m, u_k; None: none);
-    obstacle_work: the work of the prescribed motion of statics, -sum_i P_i dg_i/dt [J] (§2.9, §5.5)."""
+    obstacle_work: the work of prescribed motion, -sum_i P_i dg_i/dt [J] of moving statics and driven joints plus
+    the driven joints' work W_p (§2.9, §2.12, §5.5); drive_work_free: W_p of the step without its contacts [J]."""
 
     state: State
     contacts: Contacts
@@ -45,3 +46,4 @@ class StepResult:
     u_free: np.ndarray | None = None
     tau: np.ndarray | None = None
     obstacle_work: float = 0.0
+    drive_work_free: float = 0.0
