@@ -164,6 +164,10 @@ def build(model) -> Drive | None:
         if jm.idx_v in acted:
             raise SceneError(f"{s.where} joint: '{s.joint}' also has an actuator ([[actuators]]): "
                              "a driven joint takes none")
+        xdot0 = float(s.motion.at(0.0)[1][0])
+        if model.u0[jm.idx_v] != xdot0:
+            raise SceneError(f"{s.where} motion: the body's u0 for '{s.joint}' ({model.u0[jm.idx_v]:.6g}) must be the "
+                             f"motion's velocity at t = 0 ({xdot0!r}): give it in the body's u0")
         seen[jm.idx_v] = s.where
         d = Driven(pm.names[j], jm.idx_q, jm.idx_v, float(model.q0[jm.idx_q]), s.motion)
         _check_range(d, s, pm, model.scene.options.duration,

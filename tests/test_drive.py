@@ -87,3 +87,56 @@ def test_driven_paddle_under_gravity_ledger_closes(tmp_path, e, h):
     gap = tr.q[:, 0] - tr.q[:, 1] - 0.15  # ball centre less the paddle's top and the radius [m]
     assert gap.min() >= -h * abs(tr.log_gamma_minus).max()  # within a step of its approach speed
     assert gap[-1] >= -1e-9  # and none persists
+
+
+PENDULUM = """
+[scene]
+name = "driven_pendulum_test"
+[simulation]
+restitution = {e}
+dt = {h}
+duration = 0.3
+gravity = [0, 0, 0]
+[[bodies]]
+name = "pendulum"
+urdf = "{models}/pendulum_limit.urdf"
+root_joint = "fixed"
+position = [0.0, 0.0, 1.0]
+q0 = [0.3]
+u0 = [{w}]
+joint_limits = false
+[[bodies]]
+name = "ball"
+urdf = "{models}/ball.urdf"
+root_joint = "free"
+position = [0.16, 0.0, {zb}]
+[[drives]]
+body = "pendulum"
+joint = "hinge"
+motion = {{ velocity = {w} }}
+"""
+
+
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("h", [1e-3, 2e-4])
+def test_driven_pendulum_strikes_ball_as_infinite_mass(tmp_path, e, h):
+    """A pendulum (hinge at z = 1 m, bob 0.5 m below, r = 0.05 m) driven at omega = -2 rad/s strikes a free ball
+    (r = 0.1 m, at rest, no gravity): the ball leaves with (1 + e) (n . v_c) n, v_c = omega y x (c_bob - pivot),
+    n from the bob's centre to the ball's at the step's midpoint (the striker's mass does not enter)."""
+    w = -2.0
+    tr = ms.simulate(ms.build_model(inline_scene(PENDULUM.format(e=e, h=h, w=w, zb=0.52, models=MODELS), tmp_path)))
+    assert tr.impacts == 1
+    v = tr.u[:, 1:4]  # the ball's linear velocity (world)
+    k = int(np.flatnonzero(np.abs(v).max(axis=1) > 0)[0]) - 1  # the impact step: sample k -> k + 1
+    theta = tr.q[k, 0] + 0.5 * h * w
+    pivot = np.array([0.0, 0.0, 1.0])
+    c_bob = pivot + 0.5 * np.array([-math.sin(theta), 0.0, -math.cos(theta)])
+    c_ball = tr.q[k, 1:4] + 0.5 * h * tr.u[k, 1:4]
+    n = (c_ball - c_bob) / np.linalg.norm(c_ball - c_bob)
+    v_c = np.cross([0.0, w, 0.0], c_bob - pivot)
+    expected = (1.0 + e) * float(n @ v_c) * n
+    assert np.allclose(v[k + 1], expected, rtol=0, atol=1e-12 * np.linalg.norm(v_c))
+    assert np.allclose(tr.u[:, 0], w)  # the drive holds the pendulum's velocity
+    assert tr.q[-1, 0] == pytest.approx(0.3 + w * tr.t[-1], abs=1e-12)
+    L = ms.ledger(tr)
+    assert abs(L.residual) <= 1e-9 * L.scale  # a rotating driven link: the smooth error of M(q) is in S_k
