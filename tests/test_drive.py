@@ -139,4 +139,39 @@ def test_driven_pendulum_strikes_ball_as_infinite_mass(tmp_path, e, h):
     assert np.allclose(tr.u[:, 0], w)  # the drive holds the pendulum's velocity
     assert tr.q[-1, 0] == pytest.approx(0.3 + w * tr.t[-1], abs=1e-12)
     L = ms.ledger(tr)
-    assert abs(L.residual) <= 1e-9 * L.scale  # a rotating driven link: the smooth error of M(q) is in S_k
+    assert abs(L.residual) <= 1e-12 * L.scale
+
+
+def _pendulum(tmp_path, extra="", **kw):
+    args = dict(e=0.5, h=1e-3, w=-2.0, zb=0.52, models=MODELS) | kw
+    return inline_scene(PENDULUM.format(**args) + extra, tmp_path)
+
+
+@pytest.mark.parametrize("change, field", [
+    (lambda s: s + '[[actuators]]\nbody = "pendulum"\nkp = 10.0\n', "also has an actuator"),
+    (lambda s: s.replace("joint_limits = false\n", "").replace("q0 = [0.3]", "q0 = [1.0]"),
+     "leaves the joint's limits"),
+    (lambda s: s.replace('joint = "hinge"', 'joint = "nope"'), "names no joint"),
+    (lambda s: s.replace("u0 = [-2.0]\n", ""), "u0"),
+    (lambda s: s.replace('body = "pendulum"\njoint = "hinge"', 'body = "ball"\njoint = "root"'),
+     "floating base"),
+    (lambda s: s.replace("motion = { velocity = -2.0 }", "motion = 3"), "motion"),
+])
+def test_driven_joint_refusals_name_the_field(tmp_path, change, field):
+    text = change(PENDULUM.format(e=0.5, h=1e-3, w=-2.0, zb=0.52, models=MODELS))
+    with pytest.raises(SceneError, match=field) as exc:
+        ms.simulate(ms.build_model(inline_scene(text, tmp_path)))
+    assert "\n" not in str(exc.value) and "[[drives]][0]" in str(exc.value)
+
+
+@pytest.mark.parametrize("integrator", ["adaptive", "event-driven"])
+def test_other_integrators_refuse_a_driven_joint(tmp_path, integrator):
+    model = ms.build_model(_pendulum(tmp_path).with_options(integrator=integrator))
+    with pytest.raises(SceneError, match="driven joint"):
+        ms.simulate(model)
+
+
+def test_compiled_step_hands_driven_steps_back(tmp_path):
+    from moreau_sim import compiled
+    model = ms.build_model(_pendulum(tmp_path))
+    assert compiled.unsupported(model) == "a driven joint ([[drives]])"
