@@ -165,7 +165,7 @@ def build(model) -> Drive | None:
             raise SceneError(f"{s.where} joint: '{s.joint}' also has an actuator ([[actuators]]): "
                              "a driven joint takes none")
         xdot0 = float(s.motion.at(0.0)[1][0])
-        if model.u0[jm.idx_v] != xdot0:
+        if abs(model.u0[jm.idx_v] - xdot0) > 1e-12 * (1.0 + abs(xdot0)):
             raise SceneError(f"{s.where} motion: the body's u0 for '{s.joint}' ({model.u0[jm.idx_v]:.6g}) must be the "
                              f"motion's velocity at t = 0 ({xdot0!r}): give it in the body's u0")
         seen[jm.idx_v] = s.where
