@@ -14,7 +14,6 @@ from moreau_sim.errors import SceneError
 
 from helpers import MODELS, SCENES, inline_scene
 
-
 PADDLE = """
 [scene]
 name = "driven_paddle_test"
