@@ -55,15 +55,27 @@ class DriveStep:
         return float(ordered(ubar, (self.M @ (u_next - self.u_f))[self.d]))
 
     def reduced(self, pb):
-        """The problem in r-space: M_rr, W_r, u_r, u_free_r, v_free_r, and the rate W_d' xdot added (§2.9)."""
+        """The problem in r-space: M_rr, W_r, u_r, u_free_r, v_free_r, and the rate W_d' xdot added (§2.9).
+        A contact that only driven rows move (W_r = 0) is left out where it opens or holds (rate >= 0); where
+        the drive closes it (rate < 0) nothing can stop it: SimulationError naming the pair."""
         if pb.pieces is not None:
             raise SimulationError("a corner impact (docs/theory.md §3) with a driven joint: not supported")
         r, d = self.r, self.d
         Mrr = pb.M[np.ix_(r, r)]
         rate = pb.W[d].T @ self.xdot
         rate = rate if pb.rate is None else pb.rate + rate
+        W, contacts = pb.W[r], pb.contacts
+        rigid = ~(W != 0.0).any(axis=0)
+        if rigid.any():
+            if (rate[rigid] < 0.0).any():
+                i = int(np.flatnonzero(rigid & (rate < 0.0))[0])
+                raise SimulationError(f"a driven joint drives collision pair {int(contacts.pair[i])} (contact gap "
+                                      f"{contacts.g[i]:.3g} m) into an obstacle that nothing else can move: a "
+                                      "prescribed motion cannot be stopped (change the trajectory or the scene)")
+            keep = ~rigid
+            W, contacts, rate = W[:, keep], contacts.select(keep), rate[keep]
         return replace(pb, u=pb.u[r], u_free=pb.u_free[r], v_free=pb.v_free[r], M=Mrr, Minv=np.linalg.inv(Mrr),
-                       W=pb.W[r], rate=rate)
+                       W=W, rate=rate, contacts=contacts)
 
     def expanded(self, pb, imp):
         """The r-space solution made whole: u_{k+1} = (u_r^{k+1}, xdot), W with its driven rows zeroed (the

@@ -195,3 +195,14 @@ def test_bundled_driven_paddle_juggles_by_the_law():
     assert np.abs(tr.q[:, 1] - A * np.sin(w * tr.t)).max() <= 1.01 * h * A * w
     gap = tr.q[:, 0] - tr.q[:, 1] - 0.15
     assert gap.min() >= -h * abs(tr.log_gamma_minus).max() and gap[-1] >= -1e-9
+
+
+def test_a_drive_into_an_obstacle_stops_the_run_by_name(tmp_path):
+    """The driven pendulum swung into a static sphere (nothing free to give way): one line naming the pair."""
+    text = PENDULUM.format(e=0.5, h=1e-3, w=-2.0, zb=0.52, models=MODELS).replace(
+        '[[bodies]]\nname = "ball"\nurdf = "{}/ball.urdf"\nroot_joint = "free"\nposition = [0.16, 0.0, 0.52]\n'
+        .format(MODELS), '[[statics]]\nname = "post"\nshape = "sphere"\nradius = 0.1\nposition = [0.16, 0.0, 0.52]\n')
+    assert "post" in text
+    with pytest.raises(ms.SimulationError, match="cannot be stopped") as exc:
+        ms.simulate(ms.build_model(inline_scene(text, tmp_path)))
+    assert "\n" not in str(exc.value)
