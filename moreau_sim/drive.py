@@ -1,6 +1,6 @@
 """Prescribed joint motion, the rheonomic joint (docs/theory.md §2.12): a 1-dof joint whose q follows a
 schedule ([[drives]], docs/scenes.md). A step splits the velocity rows into free (r) and driven (d) ones,
-holds u_d = xdot(t_m) at both ends of the step, solves the impact law in r-space with the driven rows'
+takes u_d from xdot(t_k) to xdot(t_{k+1}), solves the impact law in r-space with the driven rows'
 contribution as a constraint rate (§2.9), and books the drive's work (§5.5)."""
 
 from __future__ import annotations
@@ -11,6 +11,8 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import SceneError, SimulationError
+from .options import Bias
+from .results import MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE
 from .limits import UNLIMITED
 from .qp import ordered
 from .prescribed import Schedule
@@ -36,8 +38,8 @@ class Driven:
 @dataclass(frozen=True)
 class DriveStep:
     """What a driven step knows (stepper.assemble): the driven rows d (indices) and free rows r, the
-    driven velocity xdot = xdot(t_m) [m/s or rad/s], M = M(q_m), the unconstrained free velocity u_f,
-    the driven one u_c (u_c,d = xdot), u_k; work_free: the drive's work in the contact-free step [J]."""
+    driven velocity at the step's end xdot = xdot(t_{k+1}) [m/s or rad/s], M = M(q_m), the unconstrained free
+    velocity u_f, the driven one u_c (u_c,d = xdot), u_k; work_free: the drive's work in the contact-free step [J]."""
 
     r: np.ndarray
     d: np.ndarray
@@ -55,14 +57,15 @@ class DriveStep:
         return float(ordered(ubar, (self.M @ (u_next - self.u_f))[self.d]))
 
     def reduced(self, pb):
-        """The problem in r-space: M_rr, W_r, u_r, u_free_r, v_free_r, and the rate W_d' xdot added (§2.9).
+        """The problem in r-space: M_rr, W_r, u_r, u_free_r, v_free_r, and the rate W_d' (xdot + e u_d^k)/(1 + e)
+        added (§2.9, §2.12).
         A contact that only driven rows move (W_r = 0) is left out where it opens or holds (rate >= 0); where
         the drive closes it (rate < 0) nothing can stop it: SimulationError naming the pair."""
         if pb.pieces is not None:
             raise SimulationError("a corner impact (docs/theory.md §3) with a driven joint: not supported")
         r, d = self.r, self.d
         Mrr = pb.M[np.ix_(r, r)]
-        rate = pb.W[d].T @ self.xdot
+        rate = pb.W[d].T @ ((self.xdot + pb.e * self.u_k[d]) / (1.0 + pb.e))  # (gamma^{k+1} + e gamma^k)/(1 + e)
         rate = rate if pb.rate is None else pb.rate + rate
         W, contacts = pb.W[r], pb.contacts
         rigid = ~(W != 0.0).any(axis=0)
@@ -121,19 +124,31 @@ class Drive:
     def velocity(self, t: float) -> np.ndarray:
         return np.array([float(j.schedule.at(t)[1][0]) for j in self.joints])
 
-    def start(self, model, data, q_m: np.ndarray, u: np.ndarray, u_free: np.ndarray, t_m: float,
-              M: np.ndarray | None = None) -> DriveStep:
-        """The driven step at (t_m, q_m, u_k) from the unconstrained free velocity u_free:
-        u_c,r = u_f,r + M_rr^-1 M_rd (u_f,d - xdot), u_c,d = xdot (M_rr (u_c,r - u_k,r) = h (tau_r - b_r)
-        - M_rd (xdot - u_k,d))."""
+    def start(self, model, data, q_m: np.ndarray, u: np.ndarray, u_free: np.ndarray, t_m: float, h: float,
+              M: np.ndarray | None = None, tau: np.ndarray | None = None) -> DriveStep:
+        """The driven step at (t_m, q_m, u_k) of size h [s] from the unconstrained free velocity u_free:
+        u_c,r = u_f,r + M_rr^-1 M_rd (u_f,d - xdot), u_c,d = xdot = xdot(t_{k+1}) (M_rr (u_c,r - u_k,r) =
+        h (tau_r - b_r) - M_rd (xdot - u_k,d)); with the midpoint bias b at the driven step's own mean velocity
+        (a fixed point, as stepper.free_velocity's). tau: the step's torques (None: none)."""
         if M is None:
             M = pin.crba(model.pin, data.pin, q_m)
             M = np.triu(M) + np.triu(M, 1).T
         r, d = self.r, self.d
-        xdot = self.velocity(t_m)
+        xdot = self.velocity(t_m + 0.5 * h)
+        Mrr, Mrd = M[np.ix_(r, r)], M[np.ix_(r, d)]
         u_c = np.empty_like(u_free)
         u_c[d] = xdot
-        u_c[r] = u_free[r] + np.linalg.solve(M[np.ix_(r, r)], M[np.ix_(r, d)] @ (u_free[d] - xdot))
+        u_c[r] = u_free[r] + np.linalg.solve(Mrr, Mrd @ (u_free[d] - xdot))
+        if model.velocity_bias and model.options.bias is Bias.MIDPOINT:  # b at the driven step's own mean (§2.4)
+            zero = np.zeros(len(u)) if tau is None else tau
+            scale = MIDPOINT_TOLERANCE * (1.0 + float(np.abs(u).max()))
+            for _ in range(MIDPOINT_ITERATIONS):
+                u_free = u + h * pin.aba(model.pin, data.pin, q_m, 0.5 * (u + u_c), zero)
+                nxt = u_free[r] + np.linalg.solve(Mrr, Mrd @ (u_free[d] - xdot))
+                done = float(np.abs(nxt - u_c[r]).max(initial=0.0)) <= scale
+                u_c[r] = nxt
+                if done:
+                    break
         ubar = 0.5 * (u[d] + xdot)
         work_free = float(ordered(ubar, (M @ (u_c - u_free))[d]))
         return DriveStep(r, d, xdot, M, u_free, u_c, u, work_free)

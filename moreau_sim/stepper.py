@@ -37,7 +37,7 @@ class ContactProblem:
     pieces (or None), v_free = (u_free + e u_k)/(1 + e). Without a closed contact those are None.
     tau: the joint torques of the step [N or N m] (None: no actuation); rate: dg_i/dt of the
     contacts against a moving static [m/s] (None: none; docs/theory.md §2.9); drive: the driven joints' step
-    (drive.DriveStep; u_free then has u_d = xdot(t_m), §2.12; None: none)."""
+    (drive.DriveStep; u_free then has u_d = xdot(t_{k+1}), §2.12; None: none)."""
 
     h: float
     e: float
@@ -107,7 +107,7 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
         q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * pb.u_free)
         return StepResult(State(t1, q_next, pb.u_free), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None,
                           u_free=pb.u_free, tau=pb.tau, obstacle_work=0.0 if pb.drive is None else pb.drive.work_free)
-    ds = pb.drive  # a driven joint (§2.12): the law in the free rows, then u_{k+1} = (u_r, xdot(t_m))
+    ds = pb.drive  # a driven joint (§2.12): the law in the free rows, then u_{k+1} = (u_r, xdot(t_{k+1}))
     imp = solve_impact(pb if ds is None else ds.reduced(pb), opts, form=form, eps=eps, corner_choice=corner_choice)
     imp = imp if ds is None else ds.expanded(pb, imp)
     q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
@@ -153,12 +153,12 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
     drive = drives.of(model)
     if contacts.m == 0 and not contacts.corners:
         u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
-        ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m)  # §2.12: u_d = xdot(t_m)
+        ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, tau=tau)  # §2.12
         return ContactProblem(h, e, q, u, q_m, NO_CONTACTS, u_free if ds is None else ds.u_c, tau=tau, drive=ds)
     cs = assemble_constraints(model, data, q_m, contacts)
     Minv = pin.computeMinverse(pm, pd, q_m)
     u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
-    ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, cs.M)  # §2.12: u_d = xdot(t_m)
+    ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, cs.M, tau)  # §2.12
     u_free = u_free if ds is None else ds.u_c
     v_free = (u_free + e * u) / (1.0 + e)
     rate = None if model.prescribed is None else model.prescribed.rates(model.pairs, cs.contacts, t_m)
