@@ -18,8 +18,11 @@ For each: the model's build time (build_model), the Data's (make_data), the peak
 after stepping, and MuJoCo (peers.mujoco's soft contacts, condim 1) on the same scene in the same
 child: mj_step timed in a Python loop after the same warm-up, its contact count (ncon). Sizes whose
 Pinocchio Data would take more than half the free memory (32 nv^3 bytes, stack-of-tasks/pinocchio#2949)
-are not built; MuJoCo still runs them. Also the impact QP alone (no model) to 3000 beads. The slope
-of log(cost) against log(contacts) is fitted by least squares (target <= 1.1: linear).
+are not run with the compiled step (it needs a Data of the whole model); the Python step runs on the
+forest of the bodies' own models (moreau_sim/trees.py) at every size built. Columns over MAX_BUILT
+beads are not built (their N (N + 1) / 2 pairs); MuJoCo still runs them. Also the impact QP alone
+(no model) to 3000 beads. The slope of log(cost) against log(contacts) is fitted by least squares
+(target <= 1.1: linear).
 Writes scaling.json and scaling.png to out/ (--out docs/bench: the committed files).
 
     python -m benchmarks.scaling [--out docs/bench] [--sizes 10 100 500] [--boxes 8 27] [--mujoco-boxes 125 1000]
@@ -64,6 +67,7 @@ def best(f, repeat: int) -> float:
 
 
 SIZES = (10, 20, 50, 100, 200, 300, 500, 1000, 3000, 10000)
+MAX_BUILT = 1000  # larger columns are not built: their O(N^2) pair list (issue 24 item 2)
 BOXES = (8, 27, 64, 125, 343)  # MuJoCo's 1000-box pile: over 8 min for its 800 steps here
 QP_SIZES = (100, 300, 1000, 3000)
 TARGET_SLOPE = 1.1
@@ -174,9 +178,13 @@ def too_big(nv: int) -> str | None:
 
 
 def beads_one(n: int, repeat: int, n_states: int) -> dict:
-    """One column size, in this process: build, Data, steps of both step_impls, peak RSS, then MuJoCo."""
+    """One column size, in this process: build, Data, steps of both step_impls, peak RSS, then MuJoCo.
+    The Python step runs on the forest (moreau_sim/trees.py: no Data of the whole model) at every size
+    built; the compiled step only where a Data of the whole model fits (too_big)."""
     out = {"beads": n}
-    why = too_big(n)
+    why = None if n <= MAX_BUILT else f"its {n * (n + 1) // 2} collision pairs (issue 24 item 2)"
+    big = too_big(n)
+    impls = IMPLS if big is None else ("python",)
     if why is None:
         t0 = CLOCK()
         base = ms.build_model(column(n))
@@ -196,10 +204,12 @@ def beads_one(n: int, repeat: int, n_states: int) -> dict:
         from moreau_sim import broad_phase
 
         bp = broad_phase.of(base, max(base.options.contact_tolerance, ms.data.GATE_MARGIN))
-        pin.forwardKinematics(base.pin, data.pin, states[-1][0].q)
+        base.forest.place(data.kinematics, states[-1][0].q)
         out.update(nv=base.nv, pairs=len(base.pairs), contacts=statistics.median(m for _, m in states),
                    candidates=len(bp.candidates(data)) if bp else len(base.pairs), states=len(states))
-        for impl in IMPLS:
+        if big is not None:
+            out["compiled"] = {"skipped": big}
+        for impl in impls:
             model = models[impl]
             ms.step(model, data, states[0][0])  # the compiled stepper is set up at its first step: not timed
             times = [best(lambda st=st, model=model: ms.step(model, data, st), repeat) for st, _ in states]
@@ -213,10 +223,42 @@ def beads_one(n: int, repeat: int, n_states: int) -> dict:
     return out
 
 
+def forest_one(n: int, repeat: int) -> dict:
+    """The model part of a column of n beads without its pairs (no collision pairs are made: those are
+    issue 24 item 2), in this process: each body read and placed, the forest (moreau_sim/trees.py) and
+    the whole model assembled (model._whole), the trees' Datas, and the forest's dynamics of one step
+    (M^-1 and the free acceleration at q0): CPU times and the peak RSS."""
+    from moreau_sim.bodies import load_body
+    from moreau_sim.model import _whole
+    from moreau_sim.trees import Forest, Kinematics
+
+    sc = column(n)
+    t0 = CLOCK()
+    placed = []
+    for i, body in enumerate(sc.bodies):
+        m, g, _, _ = load_body(body, f"[[bodies]][{i}]")
+        placed.append((*pin.appendModel(pin.Model(), m, pin.GeometryModel(), g, 0, pin.SE3.Identity()), body.name))
+    t1 = CLOCK()
+    forest = Forest.of_placed([tm for tm, _, _ in placed], sc.options.gravity)
+    t2 = CLOCK()
+    whole = _whole(placed, "column")[0]
+    t3 = CLOCK()
+    kin = Kinematics(forest)
+    kin.datas()
+    t4 = CLOCK()
+    q = np.concatenate([pin.neutral(tm) for tm, _, _ in placed])
+    u, tau = np.zeros(forest.nv), np.zeros(forest.nv)
+    acc = best(lambda: forest.acceleration(kin, q, u, tau), repeat)
+    blocks = best(lambda: forest.mass_blocks(kin, q), repeat)
+    return {"beads": n, "nv": forest.nv, "bodies_s": t1 - t0, "forest_s": t2 - t1, "whole_model_s": t3 - t2,
+            "whole_model_nv": whole.nv, "datas_s": t4 - t3, "aba_us": acc, "mass_blocks_us": blocks,
+            "peak_rss_mb": peak_rss_mb()}
+
+
 def boxes_one(n: int) -> dict:
     """One pile size, in this process: build, Data, a run of PILE_T s with every step timed, then MuJoCo."""
     out = {"boxes": n}
-    why = too_big(6 * n)
+    why = None  # the Python step only: on the forest (moreau_sim/trees.py), no Data of the whole model
     if why is None:
         t0 = CLOCK()
         model = ms.build_model(pile(n))
@@ -284,7 +326,8 @@ def measured(rows: list) -> list:
 
 def slopes(data: dict) -> dict:
     b, p = measured(data["beads"]), measured(data["boxes"])
-    out = {impl: slope([r["contacts"] for r in b], [r[impl]["us"] for r in b]) for impl in IMPLS}
+    out = {impl: slope([r["contacts"] for r in b if "us" in r[impl]], [r[impl]["us"] for r in b if "us" in r[impl]])
+           for impl in IMPLS}
     above = [r for r in b if r["contacts"] > compiled.MAX_CONTACTS]
     out["python_above_compiled_limit"] = slope([r["contacts"] for r in above], [r["python"]["us"] for r in above])
     mb = [r for r in data["beads"] if "mujoco" in r]
@@ -314,7 +357,9 @@ def plot(data: dict, png: Path) -> None:
             ax.loglog(x, np.exp(t0) * np.asarray(x) ** c, "-", lw=0.8, color=line.get_color())
 
     for impl, fmt in zip(IMPLS, ("o", "s")):
-        fitted(a1, n, [r[impl]["us"] * 1e-3 for r in b], fmt, f"moreau-sim, {NAMES[impl]} step: slope {s[impl]:.2f}")
+        x = [k for k, r in zip(n, b) if "us" in r[impl]]
+        fitted(a1, x, [r[impl]["us"] * 1e-3 for r in b if "us" in r[impl]], fmt,
+               f"moreau-sim, {NAMES[impl]} step: slope {s[impl]:.2f}")
     mb = [r for r in data["beads"] if "mujoco" in r]
     fitted(a1, [r["beads"] for r in mb], [r["mujoco"]["us"] * 1e-3 for r in mb], "^",
            f"{NAMES['mujoco']}: slope {s['mujoco_beads']:.2f}")
@@ -381,9 +426,11 @@ def markdown_table(data: dict) -> str:
             why = r.get("skipped") or f"failed: {r['failed']}"
             out.append(f"| {r['beads']} | not built: {why} | | | | | | {mjs} | | | |")
             continue
-        paths = ", ".join(f"{k}: {v}" for k, v in sorted(r["compiled"]["paths"].items()))
+        c = r["compiled"]
+        paths = ", ".join(f"{k}: {v}" for k, v in sorted(c.get("paths", {}).items())) or "no Data of the whole model"
+        us = f"{c['us']:.1f}" if "us" in c else "–"
         out.append(f"| {r['beads']} | {r['pairs']} | {r['candidates']} | {r['contacts']:.0f} | "
-                   f"{r['compiled']['us']:.1f} | {paths} | {r['python']['us']:.1f} | {mjs} | {r['build_s']:.3g} | "
+                   f"{us} | {paths} | {r['python']['us']:.1f} | {mjs} | {r['build_s']:.3g} | "
                    f"{r['data_s']:.3g} | {r['peak_rss_mb']:.0f} |")
     out += ["", "| boxes | nv | pairs (model) | contacts (median; last third) | Python step | last third | "
             "MuJoCo (ncon) | ratio ours / MuJoCo | max energy gain J (E0) | max \\|u\\| at the end | build_model s | "
@@ -441,7 +488,8 @@ def main(argv=None) -> int:
         return 0
     if a.one:
         kind, n = a.one[0], int(a.one[1])
-        r = beads_one(n, a.repeat, a.states) if kind == "beads" else boxes_one(n)
+        r = (beads_one(n, a.repeat, a.states) if kind == "beads" else forest_one(n, a.repeat) if kind == "forest"
+             else boxes_one(n))
         print(json.dumps(r))
         return 0
     out = Path(a.out)

@@ -57,7 +57,8 @@ def bench_scene(name: str, repeat: int, n_states: int) -> dict:
     traj = ms.simulate(model, progress=False)
     data = ms.make_data(model)
     idx = np.unique(np.linspace(0, len(traj.t) - 2, min(n_states, len(traj.t) - 1)).astype(int))
-    pm, pd, gm, gd = model.pin, data.pin, model.geom, data.geom
+    pm, gm, gd = model.pin, model.geom, data.geom
+    forest, kin = model.forest, data.kinematics  # the Python step's dynamics and kinematics (trees.py)
     rows = {"flight": [], "contact": []}
     qp_forms = {"primal": [], "dual": []}
     for i in idx:
@@ -73,8 +74,8 @@ def bench_scene(name: str, repeat: int, n_states: int) -> dict:
                                 pin.integrate(pm, qm, 0.5 * h * u)), repeat)
             qp_t = 0.0
         else:
-            dyn = best(lambda: (pin.integrate(pm, q, 0.5 * h * u), pin.crba(pm, pd, qm, pin.Convention.WORLD),
-                                pin.computeMinverse(pm, pd, qm), free_velocity(model, data, qm, u, h, bias),
+            dyn = best(lambda: (pin.integrate(pm, q, 0.5 * h * u), forest.mass_matrix(kin, qm),
+                                forest.inverse_mass_matrix(kin, qm), free_velocity(model, data, qm, u, h, bias),
                                 pin.integrate(pm, qm, 0.5 * h * u)), repeat)
             p = assemble(model, data, st, h=h, e=e)
             M, W, Minv, v_free = p.M, p.W, p.Minv, p.v_free
@@ -85,7 +86,7 @@ def bench_scene(name: str, repeat: int, n_states: int) -> dict:
                     qp_forms[form.value].append(best(lambda: ms.project(M, W, v_free, Minv=Minv, form=form), repeat))
 
         def coll():
-            pin.updateGeometryPlacements(pm, pd, gm, gd, qm)
+            forest.place(kin, qm, gm, gd)
             if pin.computeCollisions(gm, gd, False) and kind == "contact":
                 pin.computeContactPatches(gm, gd)
         coll_t = best(coll, repeat)

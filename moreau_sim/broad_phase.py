@@ -71,9 +71,9 @@ class BroadPhase:
         self.always = np.array([k for k in np.flatnonzero(~both).tolist() if k not in with_half], dtype=np.int64)
 
     def candidates(self, data) -> np.ndarray:
-        """Sorted indices of the pairs whose inflated boxes overlap at the configuration of data.pin.oMi
+        """Sorted indices of the pairs whose inflated boxes overlap at the configuration of data.kinematics.oMi
         (contacts.detect has placed it)."""
-        oMi = data.pin.oMi
+        oMi = data.kinematics.oMi
         R = np.array([o.rotation for o in oMi])
         p = np.array([o.translation for o in oMi])
         Rg, pg = R[self.joint], p[self.joint]

@@ -5,8 +5,8 @@ at corners (docs/theory.md §1, §3, §6).
     assemble_constraints(model, data, q, contacts) -> Constraints(contacts, M, W, pieces)
 
 is the one assembly every caller uses (the stepper, the outcome analysis, the event-driven
-integrator, the benchmarks): M(q) by CRBA (which also fills the WORLD joint Jacobians the rows
-need), the rows (joint limits' among them, limits.py), distinct rows, then the corner pieces.
+integrator, the benchmarks): M(q) by CRBA tree by tree (trees.py; which also fills the WORLD joint
+Jacobians the rows need), the rows (joint limits' among them, limits.py), distinct rows, then the corner pieces.
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from .contacts import NO_CONTACTS, Contacts, Corner, FeatureKind
 from .data import Data
@@ -27,14 +26,14 @@ from .qp import ordered
 def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
     """W = [w_1 ... w_m] (nv, m), the gradients of the gaps mapped to velocity space.
 
-    Needs data.pin.J = the WORLD joint Jacobians at the same q as `contacts`
-    (pin.crba(..., Convention.WORLD) or pin.computeJointJacobians fill it).
+    Needs data.kinematics.J = the WORLD joint Jacobians at the same q as `contacts`
+    (the forest's mass_matrix fills it: trees.py).
     w_i = n_i' (J_A(p_A) - J_B(p_B)) = n' J_lin + (p x n)' J_ang: the unit wrench [n; p x n] at the
     world origin applied to the WORLD Jacobian, masked to the joints that move each body."""
     m = contacts.m
     if m == 0:
         return np.zeros((model.nv, 0))
-    J = data.pin.J.reshape(6, -1)  # (Pinocchio hands a 1-dof model's J over as shape (6,))
+    J = data.kinematics.J
     n = contacts.normal
     nn = np.concatenate((n, n))
     p = np.concatenate((contacts.point_a, contacts.point_b))
@@ -187,7 +186,7 @@ class Constraints:
 def assemble_constraints(model: Model, data: Data, q: np.ndarray, contacts: Contacts) -> Constraints:
     """M(q), the rows of `contacts` (detected at q) and of the joint limits closed at q (added unless
     `contacts` has them already), distinct rows, corner pieces."""
-    M = pin.crba(model.pin, data.pin, q, pin.Convention.WORLD)  # also fills data.J (WORLD) for the rows
+    M = model.forest.mass_matrix(data.kinematics, q)  # also fills the WORLD Jacobians for the rows
     if model.limits and not (contacts.kind == FeatureKind.JOINT_LIMIT).any():
         contacts = contacts.concat(closed_limits(model, q, model.options.contact_tolerance))
     contacts, W = distinct(contacts, contact_rows(model, data, contacts))

@@ -13,8 +13,10 @@ Method (general, no special case per shape pair): for every collision pair whose
      patch, the polygon where the faces overlap (two equal boxes stacked with a yaw touch only
      along the octagon of their overlap: no vertex of either lies on the other), except those
      that are already vertex contacts; they carry the pair's depth, exact for parallel faces;
-  3. otherwise, when steps 1-2 found nothing, coal's closest-point contact (edge on edge,
-     smooth shapes: spheres, capsules, cylinders, curved meshes).
+  3. for two boxes, the crossings of an edge of one with an edge of the other (box_box.py), except
+     at points that are already contacts;
+  4. otherwise, when steps 1-3 found nothing, coal's closest-point contact (smooth shapes: spheres,
+     capsules, cylinders, curved meshes; edge on edge of other polytopes).
 A box lying on a face therefore has its 4 corners as contacts with their exact gaps; a
 tilted box its lowest corner(s) with their own gaps, never one depth shared by a polygon.
 
@@ -33,9 +35,10 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from . import broad_phase
+from . import box_box, broad_phase
 from .data import GATE_MARGIN, Data
 from .model import DISTANCE_FAILED, Model, check_start
+from .qp import ordered
 
 
 
@@ -48,6 +51,7 @@ class FeatureKind(enum.IntEnum):
     CORNER = 3  # face `feature` of a corner: the way of staying apart that pushed (docs/theory.md §3)
     SWEPT = 4  # found by the swept test along a fast motion (tunnelling.py; feature 0)
     JOINT_LIMIT = 5  # a joint's lower or upper position limit (limits.py; feature = the Pinocchio joint id)
+    EDGE = 6  # two boxes' edges crossing (box_box.py): feature 12 k + l, A's edge k and B's edge l
 
 
 _SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact
@@ -155,12 +159,12 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
     V = model.vertices[g_vert]
     if not len(V):
         return
-    oMi, oMo = data.pin.oMi[joint_v], data.pin.oMi[joint_other]
-    Vw = V @ oMi.rotation.T + oMi.translation
+    oMi, oMo = data.kinematics.oMi[joint_v], data.kinematics.oMi[joint_other]
+    Vw = ordered(V, oMi.rotation.T) + oMi.translation  # ordered: src/step.cpp makes the same sums (§2.8)
     kind, a, b = model.bounds[g_other]  # a lower bound of each vertex's distance (shapes.distance_bound)
     if kind == "plane":  # a half-space: the bound is the exact signed distance, no coal query needed
-        n = oMo.rotation @ a
-        est = Vw @ n - (b + n @ oMo.translation)
+        n = ordered(oMo.rotation, a)
+        est = ordered(Vw, n) - (b + ordered(n, oMo.translation))
         for i in np.flatnonzero(est <= tol):
             d = float(est[i])
             if v_is_a:
@@ -168,7 +172,7 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
             else:
                 out.append((d, Vw[i] - d * n, Vw[i], -n, pair, FeatureKind.VERTEX, offset + i))
         return
-    est = np.sqrt(((Vw - (oMo.rotation @ a + oMo.translation)) ** 2).sum(axis=1)) - b
+    est = np.sqrt(((Vw - (ordered(oMo.rotation, a) + oMo.translation)) ** 2).sum(axis=1)) - b
     cand = np.flatnonzero(est <= tol)
     if not len(cand):
         return
@@ -215,7 +219,7 @@ def _face_axis(model: Model, data: Data, pair) -> np.ndarray:
     interpenetrating, s(n) = min_A n.x - max_B n.x largest: the normal of a face-on-face contact.
     Used instead of coal's GJK/EPA normal, which for exactly touching boxes can point anywhere
     (along a side face, 90 deg off, seen in a 10-box stack)."""
-    oa, ob = data.pin.oMi[pair.joint_first], data.pin.oMi[pair.joint_second]
+    oa, ob = data.kinematics.oMi[pair.joint_first], data.kinematics.oMi[pair.joint_second]
     Va = model.vertices[pair.first] @ oa.rotation.T + oa.translation
     Vb = model.vertices[pair.second] @ ob.rotation.T + ob.translation
     N = np.concatenate((-(model.face_normals[pair.first] @ oa.rotation.T), model.face_normals[pair.second] @ ob.rotation.T))
@@ -231,7 +235,7 @@ def _snap(model: Model, data: Data, pair, n: np.ndarray) -> np.ndarray:
     for g, j, sign in ((pair.first, pair.joint_first, -1.0), (pair.second, pair.joint_second, 1.0)):
         F = model.face_normals[g]
         if len(F):
-            Fw = sign * (F @ data.pin.oMi[j].rotation.T)  # A's outward normals point A -> B: flip
+            Fw = sign * (F @ data.kinematics.oMi[j].rotation.T)  # A's outward normals point A -> B: flip
             c = Fw @ n
             i = int(np.argmax(c))
             if c[i] > cos_best:
@@ -251,7 +255,7 @@ def _near_polytopes(model: Model, data: Data, tol: float) -> set:
         if k not in data.warm_start_pairs:
             continue
         (_, c1, r1), (_, c2, r2) = model.bounds[g1], model.bounds[g2]
-        o1, o2 = data.pin.oMi[j1], data.pin.oMi[j2]
+        o1, o2 = data.kinematics.oMi[j1], data.kinematics.oMi[j2]
         d = (o1.rotation @ c1 + o1.translation) - (o2.rotation @ c2 + o2.translation)
         if math.sqrt(d @ d) - r1 - r2 <= tol:
             out.add(k)
@@ -311,9 +315,9 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     corner_margin [m]: a vertex inside or at a box is at a corner when its signed distances to two
     or more face planes differ by at most this (default: the contact tolerance; the stepper adds
     how far the vertex can move in a step, so a corner struck within the step is seen as one).
-    Updates data.pin kinematics (oMi) and the geometry placements at q."""
-    pm, pd, gm, gd = model.pin, data.pin, model.geom, data.geom
-    pin.updateGeometryPlacements(pm, pd, gm, gd, q)
+    Updates the forest's kinematics (data.kinematics.oMi) and the geometry placements at q."""
+    gm, gd = model.geom, data.geom
+    model.forest.place(data.kinematics, q, gm, gd)
     if not model.pairs:
         return NO_CONTACTS
     tol = model.options.contact_tolerance
@@ -348,12 +352,18 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
         if nb:
             _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, pair.joint_first, tol,
                              found, pair.index, na, False, corner_list, margin)
+        edges = _edge_contacts(model, data, pair, tol)
+        if edges and len(corner_list) > start_c:  # a crossing within the corner margin of a corner is that corner's
+            at = np.array([c[1] for c in corner_list[start_c:]] + [c[2] for c in corner_list[start_c:]])
+            edges = [r for r in edges if min(np.abs(at - r[1]).max(axis=1).min(), np.abs(at - r[2]).max(axis=1).min())
+                     > margin]
         if len(corner_list) > start_c:
-            if len(found) == start:
+            if len(found) == start and not edges:
                 continue  # the corner is the contact of this pair: no patch, no witness
             # a corner beside smooth contacts of the same pair (a face resting on an edge): keep both
         if not hit:
-            continue  # examined for its vertices only (coal saw no collision): no patch, no witness
+            _add_new(found, start, edges)
+            continue  # examined for its vertices and edges only (coal saw no collision): no patch, no witness
         c = res.getContact(0)
         n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
         fallback = not (abs(c.penetration_depth) < 1e100 and math.isfinite(n @ n))
@@ -381,14 +391,47 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             for k in np.flatnonzero(new):
                 found.append((c.penetration_depth, P1[k], np.array(patch.getPointShape2(int(k))), n_face, pair.index,
                               FeatureKind.PATCH, int(k)))
-        elif len(found) == start and c.penetration_depth <= tol:  # no vertex: edge-edge, smooth shapes
+        elif len(found) == start and not edges and c.penetration_depth <= tol:  # no vertex: smooth shapes
             found.append((c.penetration_depth, np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2()),
                           n, pair.index, FeatureKind.WITNESS, 0))
+        _add_new(found, start, edges)
     corners = _merge_corners(model, corner_list, margin) if corner_list else ()
     data.warm_start_pairs = {f[4] for f in found} | {c[4] for c in corner_list}
     if not found:
         return Contacts.empty(corners) if corners else NO_CONTACTS
     return from_rows(model, found, corners)
+
+
+def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
+    """The edge crossings of a pair of two boxes (box_box.edge_crossings, docs/theory.md §6.2) as contact
+    rows (g, p_A, p_B, n, pair, EDGE, 12 k + l); [] for any other pair."""
+    shapes = data.shapes
+    ga, gb = shapes[pair.first], shapes[pair.second]
+    if not (isinstance(ga, coal.Box) and isinstance(gb, coal.Box)):
+        return []
+    cache = data.__dict__.setdefault("_box_edges", {})  # per geometry, in its joint frame
+    for g, geo in ((pair.first, ga), (pair.second, gb)):
+        if g not in cache:
+            cache[g] = box_box.box_edges(geo, model.geom.geometryObjects[g].placement)
+    oMi, oMg = data.pin.oMi, data.geom.oMg
+    fa, fb = oMg[pair.first], oMg[pair.second]
+    hits = box_box.edge_crossings(box_box.world(cache[pair.first], oMi[pair.joint_first]),
+                                  box_box.world(cache[pair.second], oMi[pair.joint_second]),
+                                  (fa.rotation, fa.translation, np.asarray(ga.halfSide)),
+                                  (fb.rotation, fb.translation, np.asarray(gb.halfSide)), tol)
+    return [(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
+
+
+def _add_new(found: list, start: int, edges: list) -> None:
+    """Append the edge contacts of a pair whose point on A is not already one of its contacts (a patch
+    corner of two yawed faces is also the crossing of their edges)."""
+    if not edges:
+        return
+    if len(found) > start:
+        pa, known = np.array([r[1] for r in edges]), np.array([f[1] for f in found[start:]])
+        new = np.abs(pa[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > _SAME_POINT
+        edges = [r for r, k in zip(edges, new.tolist()) if k]
+    found.extend(edges)
 
 
 def from_rows(model: Model, rows: list, corners: tuple = ()) -> Contacts:
@@ -428,7 +471,8 @@ def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
     if not model.pairs:
         return np.zeros(0)
     fresh_guesses(data.geom.distanceRequests)
-    pin.computeDistances(model.pin, data.pin, model.geom, data.geom, q)
+    model.forest.place(data.kinematics, q, model.geom, data.geom)
+    pin.computeDistances(model.geom, data.geom)
     d = np.array([r.min_distance for r in data.distance_results])
     d[~(np.abs(d) < DISTANCE_FAILED)] = np.nan
     return d
@@ -438,4 +482,4 @@ def check_initial(model: Model, data: Data, q: np.ndarray) -> None:
     """model.check_start for a configuration q given to a run instead of the scene's q0 (a
     SceneError if a pair starts deeper than contact_tolerance inside another; docs/theory.md §2.5)."""
     where = str(model.scene.path) if model.scene.path else "<scene>"
-    check_start(model.pin, model.geom, data.pin, model.pairs, q, where, model.options.contact_tolerance)
+    check_start(model, data.kinematics, q, where, model.options.contact_tolerance)

@@ -8,6 +8,7 @@ import numpy as np
 import pinocchio as pin
 
 from .model import Model, new_data
+from .trees import Kinematics
 
 GJK_TOLERANCE = 1e-12  # coal's GJK/EPA tolerances for the contact normal (default 1e-6 is too coarse)
 # Faces parallel to within this [m] over their extent form a contact patch. Coal's EPA normal of
@@ -35,7 +36,9 @@ _pin_box_support()
 
 
 class Data:
-    """Scratch reused by every step: Pinocchio data, coal results, cached queries, and the
+    """Scratch reused by every step: the forest's kinematics (`kinematics`: each tree's Pinocchio
+    Data, trees.py), the whole model's Pinocchio data (`pin`, made at first use: the compiled step
+    and the adaptive and event-driven integrators), coal results, cached queries, and the
     detection's warm start `warm_start_pairs`, the pairs that had contacts at the last detection
     (it keeps a resting pair examined when coal's narrow phase misses it for a step,
     contacts._near_polytopes).
@@ -43,8 +46,10 @@ class Data:
     Create one per thread and per run with :func:`make_data`; the state itself is in State."""
 
     def __init__(self, model: Model):
+        self._model = model
+        self._pin = None
         where = str(model.scene.path) if model.scene.path else model.scene.name
-        self.pin = new_data(model.pin, f"{where} ({len(model.bodies)} bodies)")  # or a SceneError naming its size
+        self.kinematics = Kinematics(model.forest, make=lambda m: new_data(m, f"{where} (a body of it)", checked=True))
         # GeometryData must be created after every geometry and pair exists (segfault otherwise).
         self.geom = pin.GeometryData(model.geom)
         # proxies of the pairs' distance results, made once: they read the live results after each
@@ -79,6 +84,16 @@ class Data:
         self._point_queries: dict[int, coal.ComputeDistance] = {}
         geoms = model.geom.geometryObjects
         self.shapes = [g.geometry for g in geoms]
+
+    @property
+    def pin(self) -> pin.Data:
+        """The whole model's Pinocchio Data, made at first use; a SceneError naming its size when it
+        exceeds the memory limit (model.check_data_size: Pinocchio 4.1's Data is nv^3)."""
+        if self._pin is None:
+            model = self._model
+            where = str(model.scene.path) if model.scene.path else model.scene.name
+            self._pin = new_data(model.pin, f"{where} ({len(model.bodies)} bodies)")
+        return self._pin
 
     def _guess_holders(self) -> list:
         """Every coal request and result that carries a GJK guess from one call to the next."""

@@ -1,4 +1,4 @@
-"""Prescribed joint motion, the rheonomic joint (docs/theory.md §2.12): a 1-dof joint whose q follows a
+"""Prescribed joint motion, the rheonomic joint (docs/theory.md §2.13): a 1-dof joint whose q follows a
 schedule ([[drives]], docs/scenes.md). A step splits the velocity rows into free (r) and driven (d) ones,
 takes u_d from xdot(t_k) to xdot(t_{k+1}), solves the impact law in r-space with the driven rows'
 contribution as a constraint rate (§2.9), and books the drive's work (§5.5)."""
@@ -8,7 +8,6 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-import pinocchio as pin
 
 from .errors import SceneError, SimulationError
 from .options import Bias
@@ -58,7 +57,7 @@ class DriveStep:
 
     def reduced(self, pb):
         """The problem in r-space: M_rr, W_r, u_r, u_free_r, v_free_r, and the rate W_d' (xdot + e u_d^k)/(1 + e)
-        added (§2.9, §2.12).
+        added (§2.9, §2.13).
         A contact that only driven rows move (W_r = 0) is left out where it opens or holds (rate >= 0); where
         the drive closes it (rate < 0) nothing can stop it: SimulationError naming the pair."""
         if pb.pieces is not None:
@@ -131,8 +130,7 @@ class Drive:
         h (tau_r - b_r) - M_rd (xdot - u_k,d)); with the midpoint bias b at the driven step's own mean velocity
         (a fixed point, as stepper.free_velocity's). tau: the step's torques (None: none)."""
         if M is None:
-            M = pin.crba(model.pin, data.pin, q_m)
-            M = np.triu(M) + np.triu(M, 1).T
+            M = model.forest.mass_matrix(data.kinematics, q_m)
         r, d = self.r, self.d
         xdot = self.velocity(t_m + 0.5 * h)
         Mrr, Mrd = M[np.ix_(r, r)], M[np.ix_(r, d)]
@@ -143,7 +141,7 @@ class Drive:
             zero = np.zeros(len(u)) if tau is None else tau
             scale = MIDPOINT_TOLERANCE * (1.0 + float(np.abs(u).max()))
             for _ in range(MIDPOINT_ITERATIONS):
-                u_free = u + h * pin.aba(model.pin, data.pin, q_m, 0.5 * (u + u_c), zero)
+                u_free = u + h * model.forest.acceleration(data.kinematics, q_m, 0.5 * (u + u_c), zero)
                 nxt = u_free[r] + np.linalg.solve(Mrr, Mrd @ (u_free[d] - xdot))
                 done = float(np.abs(nxt - u_c[r]).max(initial=0.0)) <= scale
                 u_c[r] = nxt

@@ -1,6 +1,7 @@
-"""Scene -> immutable :class:`Model`: one Pinocchio model of every body (bodies.py), coal
-geometry with the statics, collision pairs, per-shape features (shapes.py), and the options
-(``model.options``). Per-run scratch is :class:`~moreau_sim.data.Data`.
+"""Scene -> immutable :class:`Model`: one Pinocchio model of every body (bodies.py) and the forest of
+the bodies' own models (trees.py, docs/theory.md §2.12), coal geometry with the statics, collision
+pairs, per-shape features (shapes.py), and the options (``model.options``). Per-run scratch is
+:class:`~moreau_sim.data.Data`.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from .options import Options, RootJoint
 from .prescribed import Prescribed
 from .scene import Scene
 from .state import State
+from .trees import Forest, Kinematics
 
 
 @dataclass(frozen=True)
@@ -70,7 +72,8 @@ class Model:
     limits: the joint limits (limits.JointLimit: unilateral constraints of the same law, pair indices
     after the pairs');
     actuation: the joint torques (actuation.py; None: none); prescribed: the statics that move
-    (prescribed.py; None: none).
+    (prescribed.py; None: none); forest: one Pinocchio model per body (trees.py: the Python
+    time-stepping step's dynamics and kinematics; None: one tree, the whole model).
     """
 
     scene: Scene
@@ -91,10 +94,13 @@ class Model:
     limits: tuple = ()  # limits.JointLimit of every limited joint of the bodies with joint_limits on
     actuation: Actuation | None = None
     prescribed: Prescribed | None = None
+    forest: Forest | None = None
     scratch: InitVar[pin.Data | None] = None  # a Data of `pin` for the velocity-bias probe below, if not given
     velocity_bias_of_bodies: InitVar[bool | None] = None  # that probe made body by body (build_model)
 
     def __post_init__(self, scratch, velocity_bias_of_bodies):
+        if self.forest is None:  # a Model made by hand: the whole model is the forest's one tree
+            object.__setattr__(self, "forest", Forest.build([self.pin], [pin.SE3.Identity()], self.pin.gravity.linear))
         pj = np.array([(p.joint_first, p.joint_second) for p in self.pairs], dtype=np.int64).reshape(-1, 2)
         pj.setflags(write=False)
         object.__setattr__(self, "_pair_joints", pj)
@@ -118,10 +124,23 @@ class Model:
             and len(self.vertices[p.first]) and len(self.vertices[p.second])))
         # does h(q, u) depend on u (Coriolis, gyroscopic)? A random state tells (structurally zero
         # for translations and prismatic chains); stepper.free_velocity skips the midpoint iteration.
-        if velocity_bias_of_bodies is None:
-            d = scratch if scratch is not None else new_data(self.pin, self.scene.name)
-            velocity_bias_of_bodies = _velocity_bias(self.pin, d)
+        if velocity_bias_of_bodies is None:  # tree by tree: no Data of the whole model
+            velocity_bias_of_bodies = (_velocity_bias(self.pin, scratch) if scratch is not None else
+                                       any(_velocity_bias(t.model, t.model.createData()) for t in self.forest.trees))
         object.__setattr__(self, "_velocity_bias", bool(velocity_bias_of_bodies))
+
+    def whole_data_fits(self) -> bool:
+        """Whether one Data of the whole model (pin) fits the memory limit (check_data_size): the
+        compiled step needs it; the Python time-stepping step runs on the forest without it."""
+        fits = self.__dict__.get("_whole_data_fits")
+        if fits is None:
+            try:
+                check_data_size(self.pin, self.scene.name)
+                fits = True
+            except SceneError:
+                fits = False
+            object.__setattr__(self, "_whole_data_fits", fits)
+        return fits
 
     @property
     def options(self) -> Options:
@@ -246,11 +265,11 @@ class Model:
 def build_model(scene: Scene) -> Model:
     """Build the immutable :class:`Model` of `scene`. Raises :class:`SceneError`."""
     where = str(scene.path) if scene.path else "<scene>"
-    model, geom = pin.Model(), pin.GeometryModel()
-    model.name = scene.name
-    body_of_joint: dict[int, str] = {}
-    geometry_body: list[str] = []
     infos, authored, body_models = [], [], []  # body_models: each body's own Pinocchio model (M checked on it)
+    placed = []  # each body's (model, geometry) placed in the world: the forest's trees
+    names: set[str] = set()
+    nq = nv = 0
+    nj = 1
     for i, body in enumerate(scene.bodies):
         w = f"{where} [[bodies]][{i}] ({body.name})"
         m, g, _, said = load_body(body, w)
@@ -259,21 +278,18 @@ def build_model(scene: Scene) -> Model:
         placement = pin.SE3(pin.rpy.rpyToMatrix(*body.rpy), np.array(body.position, float))
         if body.root_joint is RootJoint.FREE:
             placement = pin.SE3.Identity()  # a free body's pose is its q (world frame): see _initial
-        nj0 = model.njoints
-        try:
-            model, geom = pin.appendModel(model, m, geom, g, 0, placement)
-        except ValueError as exc:  # Pinocchio: "The two models have conflicting joint names." and the like
-            raise SceneError(f"{w}: Pinocchio cannot add this body to the scene's model: {exc}") from None
-        joints = tuple(range(nj0, model.njoints))
-        for j in joints:
-            body_of_joint[j] = body.name
-        geometry_body += [body.name] * (geom.ngeoms - len(geometry_body))
-        if joints:
-            q_sl = slice(model.joints[joints[0]].idx_q, model.joints[joints[-1]].idx_q + model.joints[joints[-1]].nq)
-            v_sl = slice(model.joints[joints[0]].idx_v, model.joints[joints[-1]].idx_v + model.joints[joints[-1]].nv)
-        else:
-            q_sl = v_sl = slice(model.nq, model.nq)
-        infos.append(BodyInfo(body.name, body.root_joint, joints, q_sl, v_sl, body.urdf))
+        tm, tg = pin.appendModel(pin.Model(), m, pin.GeometryModel(), g, 0, placement)
+        clash = next((n for n in list(tm.names)[1:] if n in names), None)
+        if clash is not None:
+            raise SceneError(f"{w}: Pinocchio cannot add this body to the scene's model: "
+                             f"The two models have conflicting joint names ({clash}).")
+        names.update(list(tm.names)[1:])
+        placed.append((tm, tg, body.name))
+        infos.append(BodyInfo(body.name, body.root_joint, tuple(range(nj, nj + tm.njoints - 1)),
+                              slice(nq, nq + tm.nq), slice(nv, nv + tm.nv), body.urdf))
+        nq, nv, nj = nq + tm.nq, nv + tm.nv, nj + tm.njoints - 1
+    model, geom, geometry_body = _whole(placed, where)
+    model.name = scene.name
     first_static = geom.ngeoms
     for s in scene.statics:
         shape, placement = shapes.static_shape(s)
@@ -282,11 +298,16 @@ def build_model(scene: Scene) -> Model:
     model.gravity.linear = np.array(scene.options.gravity, float)
     if model.nv == 0:
         raise SceneError(f"{where} [[bodies]]: nothing moves (every body has a fixed root and no joints)")
-    # no Data of the whole model here: its size is checked (refused by estimate, before any O(nv^2)
-    # work); the mass matrix and the velocity bias are checked body by body, on each body's own model
-    body, info = max(zip(scene.bodies, infos), key=lambda bi: bi[1].v_slice.stop - bi[1].v_slice.start)
-    check_data_size(model, f"{where} ({len(scene.bodies)} bodies; the largest: {body.urdf}, "
-                           f"nv = {info.v_slice.stop - info.v_slice.start})")
+    # no Data of the whole model here: the mass matrix and the velocity bias are checked body by body,
+    # on each body's own model; the time-stepping step runs on the forest (trees.py). The paths that
+    # still need the whole model's Data (the compiled step, adaptive and event-driven) check its size
+    # when they make it (new_data, Data.pin): refused there with one line, never here.
+    forest = Forest.of_placed([tm for tm, _, _ in placed], scene.options.gravity)
+    if forest.trees:  # the largest tree's Data is the largest any path needs: refused here if it cannot be made
+        body, info = max(zip(scene.bodies, infos), key=lambda bi: bi[1].v_slice.stop - bi[1].v_slice.start)
+        check_data_size(max((t.model for t in forest.trees), key=lambda m: m.nv),
+                        f"{where} ({len(scene.bodies)} bodies; the largest: {body.urdf}, "
+                        f"nv = {info.v_slice.stop - info.v_slice.start})")
 
     # --- collision pairs: different joints, not both static, not a link and its parent
     gobs = list(geom.geometryObjects)
@@ -325,7 +346,7 @@ def build_model(scene: Scene) -> Model:
             why[ij] = "[collisions] exclude"
     poses = [[(name, _in_scene(model, info, pose)) for name, pose in said.poses] for info, said in zip(infos, authored)]
     own = {(i, j) for i, j in chosen - included if geometry_body[i] == geometry_body[j]}  # self pairs
-    d = new_data(model, where, checked=True) if own else None  # a Data of the whole model only for them
+    d = new_data(model, where) if own else None  # a Data of the whole model only for them
     for body, found in zip(scene.bodies, [] if not own else self_pairs.leave_out_overlapping(
             model, d, geom, [b.name for b in scene.bodies], poses, geometry_body, own,
             scene.options.contact_tolerance)):
@@ -373,9 +394,44 @@ def build_model(scene: Scene) -> Model:
     joint_limits = limits.joint_limits(model, limited, len(pairs))
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, limits=joint_limits,
-                 actuation=actuation, prescribed=moving,
+                 actuation=actuation, prescribed=moving, forest=forest,
                  excluded=tuple((_pair_name(gobs, i, j), w) for (i, j), w in sorted(why.items())),
                  velocity_bias_of_bodies=bias)
+
+
+def _whole(placed: list, where: str) -> tuple[pin.Model, pin.GeometryModel, list[str]]:
+    """The scene's whole Pinocchio model and geometry from the bodies' placed (model, geometry, name),
+    as appending them one by one with pin.appendModel makes them, in O(n log n) model appends and one
+    pass over the geometries (appendModel with geometries visits every geometry at every joint: cubic
+    in bodies). The models are appended pairwise (joint and frame order as one by one: each append puts
+    both models' world frames first, then their joints in order); the geometries in appendModel's
+    order: those on the world first (body order), then those on joints (joint order)."""
+    models = [tm for tm, _, _ in placed]
+    try:
+        while len(models) > 1:
+            models = [pin.appendModel(models[k], models[k + 1], 0, pin.SE3.Identity()) if k + 1 < len(models)
+                      else models[k] for k in range(0, len(models), 2)]
+    except ValueError as exc:  # Pinocchio: "The two models have conflicting frame names." and the like
+        raise SceneError(f"{where}: Pinocchio cannot join the bodies into the scene's model: {exc}") from None
+    model = models[0] if models else pin.Model()
+    frame_id = {(f.name, int(f.type)): k for k, f in enumerate(model.frames)}
+    geom, geometry_body = pin.GeometryModel(), []
+    for on_world in (True, False):
+        offset = 0
+        for tm, tg, name in placed:
+            for go in tg.geometryObjects:
+                if (go.parentJoint == 0) != on_world:
+                    continue
+                go = go.copy()
+                if go.parentJoint:
+                    go.parentJoint = go.parentJoint + offset
+                if go.parentFrame:
+                    f = tm.frames[go.parentFrame]
+                    go.parentFrame = frame_id[(f.name, int(f.type))]
+                geom.addGeometryObject(go)
+                geometry_body.append(name)
+            offset += tm.njoints - 1
+    return model, geom, geometry_body
 
 
 def _in_scene(model: pin.Model, info: BodyInfo, pose: np.ndarray) -> np.ndarray:
@@ -536,17 +592,19 @@ def _check_mass_matrix(model: pin.Model, data: pin.Data, q0: np.ndarray, where: 
 DISTANCE_FAILED = 1e100  # [m] coal's distance of a failed GJK/EPA query is -DBL_MAX: no distance at all
 
 
-def check_start(model: pin.Model, geom: pin.GeometryModel, data: pin.Data, pairs, q: np.ndarray, where: str,
-                tol: float) -> None:
+def check_start(model: Model, kin: Kinematics, q: np.ndarray, where: str, tol: float) -> None:
     """A start with a pair deeper than `tol` [m] (the contact tolerance) inside another is bad
     input: no rule removes such a depth honestly (the rest rule of docs/theory.md §2.5 is for the
     step's own penetration of about h/2 |gamma|: it would lift any depth in one step and book the
     energy; a moving body keeps it). One SceneError naming the pair and its depth. initial_state
-    checks q0 with it; contacts.check_initial is the same rule for a state given to a run."""
+    checks q0 with it; contacts.check_initial is the same rule for a state given to a run. kin: the
+    forest's scratch (placements at q)."""
+    pairs = model.pairs
     if not pairs:
         return
-    gd = pin.GeometryData(geom)  # fresh coal requests: coal's default tolerances, no cached guess
-    pin.computeDistances(model, data, geom, gd, q)
+    gd = pin.GeometryData(model.geom)  # fresh coal requests: coal's default tolerances, no cached guess
+    model.forest.place(kin, q, model.geom, gd)
+    pin.computeDistances(model.geom, gd)
     g = np.array([r.min_distance for r in gd.distanceResults])
     g[~(np.abs(g) < DISTANCE_FAILED)] = np.nan  # a failed query proves nothing: the run's records report it
     deep = np.flatnonzero(g < -tol)
@@ -589,10 +647,10 @@ def _initial(scene: Scene, model: pin.Model, infos, where: str) -> tuple[np.ndar
 def initial_state(model: Model, data=None) -> State:
     """The scene's initial state; a SceneError if it starts a pair deeper than contact_tolerance
     inside another (check_start: every run from q0 starts here). data: the run's Data, whose
-    Pinocchio data the check uses as scratch (default: a new one)."""
+    forest scratch the check uses (default: a new one)."""
     where = str(model.scene.path) if model.scene.path else "<scene>"
-    pd = data.pin if data is not None else new_data(model.pin, where)
-    check_start(model.pin, model.geom, pd, model.pairs, model.q0, where, model.options.contact_tolerance)
+    kin = data.kinematics if data is not None else Kinematics(model.forest, make=lambda m: new_data(m, where))
+    check_start(model, kin, model.q0, where, model.options.contact_tolerance)
     check_limits(model.limits, model.q0, where, model.options.contact_tolerance)
     return State(0.0, model.q0.copy(), model.u0.copy())
 

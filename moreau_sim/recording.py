@@ -340,9 +340,11 @@ class Recorder:
             self._rise = (rise, float(r.state.t))
         res = r.qp
         if res is None or res.M is None:
-            self._smooth += E1 - E0 - act - r.obstacle_work  # a contact-free step is smooth motion only (§2.12)
+            self._smooth += E1 - E0 - act - r.obstacle_work  # a contact-free step is smooth motion only (§2.13)
         else:  # the projection's problem: M, v_free = v0, b; and the step's own u_free
-            T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u1, e, r.P, res.b)
+            # the law's u_{k+1}: before a lift the correction paid with the velocities, booked as correction (§2.5)
+            u_law = u1 if r.u_law is None else r.u_law
+            T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u_law, e, r.P, res.b)
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * r.u_free)
             act_free = 0.0 if tau is None else 0.5 * h * float(tau @ (u0 + r.u_free))  # the torques' work there
             S = total(m, d, q_free, r.u_free) - E0 - act_free - r.drive_work_free

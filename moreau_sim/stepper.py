@@ -6,6 +6,7 @@ correct_positions (§2.5) -> cap_energy (§2.10). The options' rules on top of t
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -16,7 +17,7 @@ from .constraints import CornerPieces, assemble_constraints, closed_limits, corn
 from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
 from .corners import MAX_PIECES, corner_law
 from .data import Data
-from .energy import kinetic, potential, total
+from .energy import kinetic, potential
 from .errors import SimulationError
 from .law import ENERGY_ROUNDOFF, outcome, percussion, project, restitution_bounds
 from .model import Model
@@ -37,7 +38,7 @@ class ContactProblem:
     pieces (or None), v_free = (u_free + e u_k)/(1 + e). Without a closed contact those are None.
     tau: the joint torques of the step [N or N m] (None: no actuation); rate: dg_i/dt of the
     contacts against a moving static [m/s] (None: none; docs/theory.md §2.9); drive: the driven joints' step
-    (drive.DriveStep; u_free then has u_d = xdot(t_{k+1}), §2.12; None: none)."""
+    (drive.DriveStep; u_free then has u_d = xdot(t_{k+1}), §2.13; None: none)."""
 
     h: float
     e: float
@@ -53,7 +54,7 @@ class ContactProblem:
     pieces: CornerPieces | None = None
     tau: np.ndarray | None = None
     rate: np.ndarray | None = None
-    drive: drives.DriveStep | None = None  # a step with a driven joint (drive.py, docs/theory.md §2.12)
+    drive: drives.DriveStep | None = None  # a step with a driven joint (drive.py, docs/theory.md §2.13)
 
     @property
     def closed(self) -> bool:
@@ -98,7 +99,7 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     t1 = state.t + h if t_next is None else t_next
     tau = None if model.actuation is None else torque(model, state, h)  # once a step, whichever step takes it
     if (opts.step_impl is StepImpl.COMPILED and form is None and eps is None and corner_choice is None
-            and compiled.available()):
+            and compiled.available() and model.whole_data_fits()):  # (it runs on the whole model's Data)
         r = compiled.step(model, data, state, h, e, t1, tau)  # None: a step the compiled one does not cover
         if r is not None:
             return r
@@ -107,18 +108,22 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
         q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * pb.u_free)
         return StepResult(State(t1, q_next, pb.u_free), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None,
                           u_free=pb.u_free, tau=pb.tau, obstacle_work=0.0 if pb.drive is None else pb.drive.work_free)
-    ds = pb.drive  # a driven joint (§2.12): the law in the free rows, then u_{k+1} = (u_r, xdot(t_{k+1}))
+    ds = pb.drive  # a driven joint (§2.13): the law in the free rows, then u_{k+1} = (u_r, xdot(t_{k+1}))
     imp = solve_impact(pb if ds is None else ds.reduced(pb), opts, form=form, eps=eps, corner_choice=corner_choice)
     imp = imp if ds is None else ds.expanded(pb, imp)
     q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
-    corr = 0.0
+    corr, u_law = 0.0, None
     if opts.position_correction is PositionCorrection.PROJECTION and imp.qp.ok:  # a failed QP: simulate names it
-        q_next, corr = correct_positions(model, data, pb if ds is None else ds.for_correction(pb), imp, q_next)
-    if imp.qp.ok and pb.tau is None and model.prescribed is None and ds is None:  # passive (§2.10: the cap's scope)
+        q_next, corr, u_c = correct_positions(model, data, pb if ds is None else ds.for_correction(pb), imp, q_next)
+        if u_c is not imp.u_next:  # a paid lift (§2.5): the ledger measures the law on u_{k+1} before it (§5.2)
+            u_law = imp.u_next
+            imp = replace(imp, u_next=u_c, gamma_plus=ordered(imp.W.T, u_c))
+    if imp.qp.ok and ds is None and not bounces_under_torques(pb, imp):  # §2.10 (a driven joint: §2.13)
         imp = cap_energy(model, data, pb, imp, q_next, corr)
     return StepResult(State(t1, q_next, imp.u_next), imp.contacts, imp.P, imp.gamma_minus, imp.gamma_plus,
                       imp.contact_work, imp.qp, imp.branch, corr, u_free=pb.u_free, tau=pb.tau,
-                      obstacle_work=imp.obstacle_work, drive_work_free=0.0 if ds is None else ds.work_free)
+                      obstacle_work=imp.obstacle_work, u_law=u_law,
+                      drive_work_free=0.0 if ds is None else ds.work_free)
 
 
 def torque(model: Model, state: State, h: float) -> np.ndarray:
@@ -133,10 +138,9 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
     docs/theory.md §2.6), and if any: M, M^-1, W, corner pieces (constraints.assemble_constraints),
     u_free and v_free. Leaves data's kinematics at q_m. tau: the step's joint torques (default: the
     model's, evaluated here; torque())."""
-    pm, pd = model.pin, data.pin
     q, u = state.q, state.u
     opts = model.options
-    q_m = pin.integrate(pm, q, 0.5 * h * u)
+    q_m = pin.integrate(model.pin, q, 0.5 * h * u)
     t_m = state.t + 0.5 * h  # the force evaluation: torques and obstacles at (t_m, q_m, u_k), §2.1, §2.9
     if model.prescribed is not None:
         model.prescribed.place(model.geom, t_m)
@@ -153,12 +157,12 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
     drive = drives.of(model)
     if contacts.m == 0 and not contacts.corners:
         u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
-        ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, tau=tau)  # §2.12
+        ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, tau=tau)  # §2.13
         return ContactProblem(h, e, q, u, q_m, NO_CONTACTS, u_free if ds is None else ds.u_c, tau=tau, drive=ds)
     cs = assemble_constraints(model, data, q_m, contacts)
-    Minv = pin.computeMinverse(pm, pd, q_m)
+    Minv = model.forest.inverse_mass_matrix(data.kinematics, q_m)
     u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
-    ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, cs.M, tau)  # §2.12
+    ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, cs.M, tau)  # §2.13
     u_free = u_free if ds is None else ds.u_c
     v_free = (u_free + e * u) / (1.0 + e)
     rate = None if model.prescribed is None else model.prescribed.rates(model.pairs, cs.contacts, t_m)
@@ -171,13 +175,13 @@ def free_velocity(model: Model, data: Data, q_m: np.ndarray, u: np.ndarray, h: f
     point u_bar = (u_k + u_free)/2 (MIDPOINT, docs/theory.md §2.4; a few ABA calls; exact for models
     whose bias does not depend on u, where it stops after one). tau: the step's joint torques [N or N m],
     fixed over the iteration (evaluated once, at (t_m, q_m, u_k): §2.1; None: zero)."""
-    pm, pd = model.pin, data.pin
-    zero = np.zeros(pm.nv) if tau is None else tau
-    u_free = u + h * pin.aba(pm, pd, q_m, u, zero)
+    forest, kin = model.forest, data.kinematics
+    zero = np.zeros(model.nv) if tau is None else tau
+    u_free = u + h * forest.acceleration(kin, q_m, u, zero)
     if bias is Bias.EXPLICIT or not model.velocity_bias:
         return u_free
     scale = MIDPOINT_TOLERANCE * (1.0 + float(np.abs(u).max()))
-    return midpoint_fixed_point(lambda v: pin.aba(pm, pd, q_m, v, zero), u, h, u_free, scale)
+    return midpoint_fixed_point(lambda v: forest.acceleration(kin, q_m, v, zero), u, h, u_free, scale)
 
 
 def midpoint_fixed_point(acc, u: np.ndarray, h: float, u1: np.ndarray, tol: float) -> np.ndarray:
@@ -226,86 +230,171 @@ def solve_impact(pb: ContactProblem, options: Options, *, form: QPForm | None = 
 def cap_energy(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution, q_next: np.ndarray,
                corr: float = 0.0) -> ImpactSolution:
     """The energy cap of a contact step (docs/theory.md §2.10): T + V at (q_{k+1}, u_{k+1}) is never above
-    E* = E_k + min(W_c, 0) + corr beyond round-off (ENERGY_ROUNDOFF; corr [J]: the change of T + V the
-    position correction made). Where the step ends above it (the drift after
-    the impact moves M(q) and V(q) along u_{k+1}, first order in h |Δu|), the velocities of the bodies in
-    contact (the entries of u_{k+1} their rows involve) are scaled by the alpha in [0, 1] that brings it
-    to E*; gamma_plus scales with them (signs kept). Steps that end at or below E* are returned as they are."""
-    E0 = total(model, data, pb.q, pb.u)
-    T1, V1 = kinetic(model, data, q_next, imp.u_next), potential(model, data, q_next)
-    target = (E0 + min(imp.contact_work, 0.0)) + corr
-    if T1 + V1 <= target + _roundoff(model, data, pb, T1, V1):
-        return imp
-    u_next = _scaled(model, data, q_next, imp.u_next, (imp.W != 0.0).any(axis=1), target - V1, T1)
-    return replace(imp, u_next=u_next, gamma_plus=ordered(imp.W.T, u_next))
-
-
-def _roundoff(model: Model, data: Data, pb: ContactProblem, T1: float, V1: float) -> float:
-    """ENERGY_ROUNDOFF (T_k + |V_k| + T_{k+1} + |V_{k+1}|) [J]: the round-off of a step's energy balance."""
+    E* + W_a + W_o beyond round-off (E* = E_k + min(W_c, 0) + corr, corr [J] the change of T + V the position
+    correction made; W_a = h tau.(u_k + u_{k+1})/2 and W_o the work of the torques and of a moving static,
+    §5.5; ENERGY_ROUNDOFF). Where the step ends above it (the drift after the impact moves M(q) and V(q) along
+    u_{k+1}, first order in h |Δu|), the velocities of the trees in contact (every entry of u_{k+1} of a
+    kinematic tree one of the rows involves) are scaled by the alpha of _alpha; gamma_plus scales with them
+    (signs kept). Steps that end at or below the bound are returned as they are."""
     T0, V0 = kinetic(model, data, pb.q, pb.u), potential(model, data, pb.q)
+    T1, V1 = kinetic(model, data, q_next, imp.u_next), potential(model, data, q_next)
+    target = (((T0 + V0) + min(imp.contact_work, 0.0)) + corr) + imp.obstacle_work  # W_o: P fixed, no alpha
+    f = None if pb.tau is None else (0.5 * pb.h) * pb.tau  # W_a = f.(u_k + u_{k+1})
+    work = 0.0 if f is None else float(ordered(f, pb.u + imp.u_next))
+    if T1 + V1 <= (target + work) + _roundoff(T0, V0, T1, V1):
+        return imp
+    u = imp.u_next
+    involved = _trees(model, (imp.W != 0.0).any(axis=1))
+    u_S = np.where(involved, u, 0.0)
+    u_R = u - u_S
+    a = kinetic(model, data, q_next, u_S)
+    if not a > 0.0:
+        return imp
+    T_R = kinetic(model, data, q_next, u_R)
+    b = (T1 - a) - T_R
+    c = T_R - (target - V1)
+    if f is not None:  # the torques' work is linear in alpha: f.(u_k + u_R) + alpha f.u_S
+        b = b - float(ordered(f, u_S))
+        c = c - float(ordered(f, pb.u + u_R))
+    floor = 0.0
+    if pb.rate is not None and pb.pieces is None:  # a moving static: gamma = alpha W'u_S + dg/dt keeps its sign
+        wu = ordered(imp.W.T, u_S)
+        for i in np.flatnonzero((pb.rate < 0.0) & (imp.gamma_plus >= 0.0) & (wu > 0.0)):
+            floor = max(floor, float(-pb.rate[i] / wu[i]))
+    alpha = _alpha(a, b, c, min(floor, 1.0))
+    u_next = u_R + alpha * u_S
+    gamma_plus = ordered(imp.W.T, u_next)
+    if pb.rate is not None and pb.pieces is None:
+        gamma_plus = gamma_plus + pb.rate
+    return replace(imp, u_next=u_next, gamma_plus=gamma_plus)
+
+
+def bounces_under_torques(pb: ContactProblem, imp: ImpactSolution) -> bool:
+    """Whether the cap leaves this step alone (docs/theory.md §2.10, its scope): a step with torques in which
+    a contact with a percussion leaves with gamma+ = -e gamma- != 0 (e > 0). Scaling its velocities would
+    take the smooth step's error out of that bounce's restitution; such a gain is left to the run's
+    invariants to report."""
+    return pb.tau is not None and pb.e > 0.0 and bool((imp.P > 0.0).any())
+
+
+def _roundoff(T0: float, V0: float, T1: float, V1: float) -> float:
+    """ENERGY_ROUNDOFF (T_k + |V_k| + T_{k+1} + |V_{k+1}|) [J]: the round-off of a step's energy balance."""
     return ENERGY_ROUNDOFF * (((T0 + abs(V0)) + T1) + abs(V1))
+
+
+def _trees(model: Model, involved: np.ndarray) -> np.ndarray:
+    """The velocity indices of every kinematic tree (the joints below one child of the universe) that has an
+    index in `involved` (docs/theory.md §2.10: its rows touch a trunk, its legs swing in the same step)."""
+    tree = _TREES.get(model)
+    if tree is None:  # the tree (its root joint) of each velocity index, once per model
+        pm = model.pin
+        parents, idx_v, nv = list(pm.parents), list(pm.idx_vs), list(pm.nvs)
+        tree = np.empty(pm.nv, dtype=np.int64)
+        for j in range(1, pm.njoints):
+            root = j
+            while parents[root] != 0:
+                root = parents[root]
+            tree[idx_v[j]:idx_v[j] + nv[j]] = root
+        _TREES[model] = tree
+    hit = np.zeros(model.pin.njoints, dtype=bool)
+    hit[tree[involved]] = True
+    return hit[tree]
+
+
+_TREES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _alpha(a: float, b: float, c: float, floor: float) -> float:
+    """The scale of the trees in contact (docs/theory.md §2.10): the largest root of a alpha^2 + b alpha + c
+    (the scaled step's T + V less its bound [J]) in [floor, 1]; where none is, the alpha of least value
+    -b/(2a), clipped (b < 0 where the velocities kept move against the scaled ones: alpha = 0 is not the
+    least)."""
+    disc = b * b - (4.0 * a) * c
+    alpha = (math.sqrt(disc) - b) / (2.0 * a) if disc >= 0.0 else -b / (2.0 * a)  # else: the least value
+    return min(1.0, max(floor, alpha))
 
 
 def _scaled(model: Model, data: Data, q: np.ndarray, u: np.ndarray, involved: np.ndarray, K: float,
             T: float) -> np.ndarray:
-    """u with its entries `involved` scaled by the largest alpha in [0, 1] with T(q, u_R + alpha u_S) <= K
-    [J] (u_S: the involved entries, u_R the others, W'u_R = 0): T is quadratic in alpha, a alpha^2 + b alpha
-    + T_R with a = T(u_S), b = T(u) - T(u_S) - T(u_R) (Pinocchio's kinetic energy, no matrix product);
-    where no alpha in [0, 1] reaches K, the one of least T (T_R may exceed T(u) when b < 0: alpha = 0 is
-    not the least)."""
-    u_S = np.where(involved, u, 0.0)
+    """u with the velocities of the trees in contact (_trees of `involved`) scaled so that T(q, u) <= K [J]
+    (T = T(q, u) given): T is quadratic in the scale, a alpha^2 + b alpha + T_R (_alpha, floor 0)."""
+    u_S = np.where(_trees(model, involved), u, 0.0)
     u_R = u - u_S
     a = kinetic(model, data, q, u_S)
     if not a > 0.0:
         return u
     T_R = kinetic(model, data, q, u_R)
-    b = (T - a) - T_R
-    c = T_R - K
-    disc = b * b - (4.0 * a) * c
-    alpha = (math.sqrt(disc) - b) / (2.0 * a) if disc >= 0.0 else -b / (2.0 * a)  # else: T's least value
-    alpha = min(1.0, max(0.0, alpha))
-    return u_R + alpha * u_S
+    return u_R + _alpha(a, (T - a) - T_R, T_R - K, 0.0) * u_S
 
 
 def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution,
-                      q_next: np.ndarray) -> tuple[np.ndarray, float]:
+                      q_next: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     """PositionCorrection.PROJECTION (docs/theory.md §2.5): dq = argmin 1/2 dq'M dq s.t.
     g_i + w_i'dq >= 0 on the closed contacts (g_i: gaps at q_{k+1} linearized from q_m), applied
     as q_{k+1} (+) alpha dq with alpha <= 1 the largest step for which T + V at the end does not
     exceed T + V at the start of the step: the correction may give back energy the step dissipated,
     never more - except where every penetrating contact ends the step resting (_resting): then
-    alpha = 1 and the potential energy the lift adds is booked as correction energy (§2.5, §5).
-    Returns (q, the change of T + V it made [J])."""
+    alpha = 1 and the potential energy the lift adds is booked as correction energy (§2.5, §5);
+    and except a persistent penetration between two polytopes (deeper than the step's own approach can
+    make, h |gamma_minus| + tol) in a passive step that did not gain: it is removed in full, the lift
+    beyond the budget paid with the kinetic energy of the bodies in contact (their velocities scaled,
+    _scaled) so that T + V still ends at most at its start, where they have enough.
+    Returns (q, the change of T + V it made [J], u_{k+1}: imp.u_next itself unless the lift was paid)."""
     tol = model.options.contact_tolerance
+    u_next = imp.u_next
     g_next = imp.contacts.g + 0.5 * pb.h * imp.gamma_plus
     if not len(g_next) or g_next.min() >= -tol:
-        return q_next, 0.0
-    q, u, u_next = pb.q, pb.u, imp.u_next
-    E0 = kinetic(model, data, q, u) + potential(model, data, q)
+        return q_next, 0.0, u_next
+    q, u = pb.q, pb.u
+    T0, V0 = kinetic(model, data, q, u), potential(model, data, q)
+    E0 = T0 + V0
     E1 = kinetic(model, data, q_next, u_next) + potential(model, data, q_next)
     budget = E0 - E1 + imp.obstacle_work  # what the step dissipated beyond the work done on it (§5.5)
     if pb.tau is not None:
         budget += 0.5 * pb.h * float(ordered(pb.tau, u + u_next))
     resting = _resting(pb, imp, g_next < -tol)
-    if budget <= 0.0 and not resting:
-        return q_next, 0.0
+    if budget <= 0.0 and not resting:  # the step gained (the cap of §2.10 takes it back): nothing to spend
+        return q_next, 0.0, u_next
+    # paid only in a passive step: the scaling's bound would need the torques' work at the scaled velocity
+    deep = g_next < -(pb.h * np.abs(imp.gamma_minus) + tol)
+    # only between two polytopes (box faces sliding, a box rocking across an edge): in a column of beads the lift
+    # paid with the velocities of beads falling together kept the top bead bouncing past its rest (§2.5)
+    persistent = (pb.tau is None and model.prescribed is None and pb.drive is None and bool(deep.any())
+                  and all(p in model.polytope_pair_set for p in imp.contacts.pair[deep].tolist()))
     res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
     if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)
         raise SimulationError(f"the position-correction QP failed with status {res.status} "
                               f"({imp.contacts.m} closed contacts)")
     q_c = pin.integrate(model.pin, q_next, res.v)
-    dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
+    T_c, V_c = kinetic(model, data, q_c, u_next), potential(model, data, q_c)
+    dE = T_c + V_c - E1
+    u_c = u_next
     if dE > budget and not resting:
-        q_c = pin.integrate(model.pin, q_next, (budget / dE) * res.v)  # E is ~linear in dq here
-        dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
-        if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
-            return q_next, 0.0
+        paid = False
+        if persistent:  # the full lift, paid with the kinetic energy of the bodies in contact
+            u_c = _scaled(model, data, q_c, u_next, (imp.W != 0.0).any(axis=1), E0 - V_c, T_c)
+            dE = kinetic(model, data, q_c, u_c) + V_c - E1
+            paid = dE <= budget + _roundoff(T0, V0, T_c, V_c)
+        if not paid:
+            u_c = u_next
+            q_c = pin.integrate(model.pin, q_next, (budget / dE) * res.v)  # E is ~linear in dq here
+            dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
+            if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
+                return q_next, 0.0, u_next
     # the displacement only knows the closed contacts: it must not push another pair into contact
     # (a column of beads: pushing 2 off 1 pushes 1 into 0). Otherwise the step stays uncorrected.
     before, after = pair_distances(model, data, q_next), pair_distances(model, data, q_c)
-    if (after < np.minimum(before, 0.0) - tol).any():
-        return q_next, 0.0
-    return q_c, dE
+    floor = np.minimum(before, 0.0)
+    if u_c is not u_next:  # a paid lift: a pair it lifts may go deeper at a feature that was not closed (a box
+        # rocking across an edge: one crossing lifted presses the other), by at most half the depth it lifts,
+        # so that the next steps' lifts converge (§2.5)
+        own = imp.contacts.pair < len(floor)
+        lifted = np.zeros(len(floor))
+        np.minimum.at(lifted, imp.contacts.pair[own], g_next[own])
+        floor += 0.5 * lifted
+    if (after < floor - tol).any():
+        return q_next, 0.0, u_next
+    return q_c, dE, u_c
 
 
 def _resting(pb: ContactProblem, imp: ImpactSolution, pen: np.ndarray) -> bool:

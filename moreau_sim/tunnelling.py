@@ -66,7 +66,7 @@ def pair_distance(model: Model, data: Data, q: np.ndarray, pair: int) -> coal.Di
     """Coal's signed distance of collision pair `pair` at q (updates the geometry placements).
     Returns coal's DistanceResult (min_distance [m], normal from the first shape to the second,
     nearest points)."""
-    pin.updateGeometryPlacements(model.pin, data.pin, model.geom, data.geom, q)
+    model.forest.place(data.kinematics, q, model.geom, data.geom)
     return pin.computeDistance(model.geom, data.geom, pair)
 
 
@@ -94,7 +94,7 @@ def motion_bounds(model: Model, data: Data, q0: np.ndarray, q1: np.ndarray) -> n
     its shape's bounding radius. Exact for one body; conservative for chains."""
     pm = model.pin
     dq = pin.difference(pm, q0, q1)
-    pin.forwardKinematics(pm, data.pin, q0)
+    model.forest.place(data.kinematics, q0)
     ngeom = model.geom.ngeoms
     mu = np.zeros(ngeom)
     # per joint: speed coefficients (linear, angular) of its velocity columns
@@ -102,7 +102,7 @@ def motion_bounds(model: Model, data: Data, q0: np.ndarray, q1: np.ndarray) -> n
     ang = {}
     for j in range(1, pm.njoints):
         jm = pm.joints[j]
-        S = np.asarray(data.pin.joints[j].S).reshape(6, -1)
+        S = model.forest.motion_subspace(data.kinematics, j)
         lin[j] = np.abs(dq[jm.idx_v:jm.idx_v + jm.nv]) @ np.linalg.norm(S[:3], axis=0)
         ang[j] = np.abs(dq[jm.idx_v:jm.idx_v + jm.nv]) @ np.linalg.norm(S[3:], axis=0)
     disp = {}  # bound of a joint's own translation along the path (prismatic-like coordinates)
@@ -186,10 +186,11 @@ def _carry(model: Model, data: Data, joint: int, q_from: np.ndarray, p: np.ndarr
     """World point p attached to `joint` at q_from, carried rigidly to q_to (joint 0: fixed)."""
     if joint == 0:
         return p
-    pin.forwardKinematics(model.pin, data.pin, q_from)
-    local = data.pin.oMi[joint].actInv(p)
-    pin.forwardKinematics(model.pin, data.pin, q_to)
-    return data.pin.oMi[joint].act(local)
+    kin = data.kinematics
+    model.forest.place(kin, q_from)
+    local = kin.oMi[joint].actInv(p)
+    model.forest.place(kin, q_to)
+    return kin.oMi[joint].act(local)
 
 
 def swept_detect(model: Model, data: Data, q: np.ndarray, u: np.ndarray, h: float, q_m: np.ndarray,
@@ -241,8 +242,7 @@ def swept_detect(model: Model, data: Data, q: np.ndarray, u: np.ndarray, h: floa
                 continue  # the next step's midpoint takes it, as now
         drop.add(c.pair)
         extra.append((g_m, pa, pb, c.normal, c.pair, FeatureKind.SWEPT, 0))
-    pin.forwardKinematics(model.pin, data.pin, q_m)
-    pin.updateGeometryPlacements(model.pin, data.pin, model.geom, data.geom, q_m)
+    model.forest.place(data.kinematics, q_m, model.geom, data.geom)
     if not extra:
         return contacts
     keep = ~np.isin(contacts.pair, list(drop))

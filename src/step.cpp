@@ -121,35 +121,6 @@ template <class T> T &extract_ref(nb::handle h, const char *what) {
   return x();
 }
 
-// numpy's small products of contacts._vertex_contacts (3-vectors), operation by operation (measured against
-// numpy 2 with its OpenBLAS on this AVX-512 machine, tests/test_compiled.py); every other product of the
-// step is qp.ordered's (odot below: the same bits on any CPU and at any size), every other sum is written
-// out in numpy's order.
-// a 1-d @ 1-d dot (ddot, n < 16): left to right, separate multiply and add
-inline double ddot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
-  double s = 0.0;
-  for (Eigen::Index k = 0; k < n; ++k) s += a[k * sa] * b[k * sb];
-  return s;
-}
-// an entry of a row-major 2-d @ 1-d product with 2 or more rows (dgemv "t" kernel): four fused lanes
-// over the blocks of 4, reduced as (l0 + l2) + (l1 + l3), then the tail of 1-3 terms
-inline double gemv_dot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
-  const Eigen::Index nb = n & ~Eigen::Index(3);
-  double s = 0.0;
-  bool block = nb > 0;
-  if (block) {
-    double l[4] = {0.0, 0.0, 0.0, 0.0};
-    for (Eigen::Index k = 0; k < nb; ++k) l[k & 3] = std::fma(a[k * sa], b[k * sb], l[k & 3]);
-    s = (l[0] + l[2]) + (l[1] + l[3]);
-  }
-  const Eigen::Index r = n - nb;
-  if (r == 0) return s;
-  if (r == 1) return block ? std::fma(a[nb * sa], b[nb * sb], s) : 0.0 + a[nb * sa] * b[nb * sb];
-  double t = std::fma(a[nb * sa], b[nb * sb], a[(nb + 1) * sa] * b[(nb + 1) * sb]);
-  if (r == 3) t = std::fma(a[(nb + 2) * sa], b[(nb + 2) * sb], t);
-  return block ? s + t : 0.0 + t;
-}
-
 // coal warm-starts GJK's support search from the previous call of the same pair (a hint kept in the
 // collision functor's solver, a protected member): a step handed to Python must find the hints as the
 // Python step would have left them, so they are saved before detection and restored on a fallback.
@@ -635,21 +606,19 @@ class Stepper {
     const auto &oMi = data_.oMi[joint_v], &oMo = data_.oMi[joint_other];
     const Eigen::Matrix3d &R = oMi.rotation();
     const Vec3 &t = oMi.translation();
-    MatrixXd Vw(V.rows(), 3);  // V @ R.T + t
+    MatrixXd Vw(V.rows(), 3);  // ordered(V, R.T) + t
     for (Eigen::Index i = 0; i < V.rows(); ++i)
-      for (int j = 0; j < 3; ++j)
-        Vw(i, j) = std::fma(V(i, 2), R(j, 2), std::fma(V(i, 1), R(j, 1), V(i, 0) * R(j, 0))) + t[j];
+      for (int j = 0; j < 3; ++j) Vw(i, j) = odot(&V(i, 0), R.data() + j, 3, V.rows(), 3) + t[j];
     const Vec3 &a = bound_a_[g_other];
     const double b = bound_b_[g_other];
     const Eigen::Matrix3d &Ro = oMo.rotation();
     const Vec3 &to = oMo.translation();
     if (bound_kind_[g_other] == 0) {  // a half-space: exact signed distances
-      Vec3 n;
-      for (int j = 0; j < 3; ++j) n[j] = (Ro(j, 0) * a[0] + Ro(j, 1) * a[1]) + Ro(j, 2) * a[2];
-      const double c = b + ddot(n.data(), to.data(), 3);
+      Vec3 n;  // ordered(Ro, a)
+      for (int j = 0; j < 3; ++j) n[j] = odot(Ro.data() + j, a.data(), 3, 3, 1);
+      const double c = b + odot(n.data(), to.data(), 3);
       for (Eigen::Index i = 0; i < V.rows(); ++i) {
-        const double vn = V.rows() == 1 ? ddot(&Vw(i, 0), n.data(), 3, V.rows(), 1) : gemv_dot(&Vw(i, 0), n.data(), 3, V.rows(), 1);
-        const double d = vn - c;
+        const double d = odot(&Vw(i, 0), n.data(), 3, V.rows(), 1) - c;  // ordered(Vw, n) - c
         if (!(d <= tol_)) continue;
         Vec3 p = Vw.row(i).transpose();
         Vec3 dn = d * n;
@@ -662,7 +631,7 @@ class Stepper {
     }
     // a bounding sphere: the vertices near it need coal's point queries (and corner tests): Python
     Vec3 ctr;
-    for (int j = 0; j < 3; ++j) ctr[j] = ((Ro(j, 0) * a[0] + Ro(j, 1) * a[1]) + Ro(j, 2) * a[2]) + to[j];
+    for (int j = 0; j < 3; ++j) ctr[j] = odot(Ro.data() + j, a.data(), 3, 3, 1) + to[j];
     for (Eigen::Index i = 0; i < V.rows(); ++i) {
       const double est = (Vw.row(i).transpose() - ctr).norm() - b;
       if (est <= tol_ + 1e-9 * (1.0 + std::abs(b))) throw Fallback{"vertex near a shape that is no half-space"};
@@ -827,7 +796,9 @@ class Stepper {
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
     if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
-    if (tau_.size() == 0) cap_energy(q, u, work, corr, W, q_next, u_next, gamma_plus);  // passive steps (§2.10)
+    // stepper.bounces_under_torques: a driven step whose contacts bounce (e > 0) is not capped (§2.10)
+    const bool bounces = tau_.size() != 0 && e > 0.0 && (P.array() > 0.0).any();
+    if (!bounces) cap_energy(q, u, h, work, corr, W, q_next, u_next, gamma_plus);  // with the torques' work
     out.outcome = Outcome::CONTACT;
     out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
     out.g = std::move(g);
@@ -848,41 +819,68 @@ class Stepper {
   }
 
   // stepper._roundoff
-  double roundoff(const VectorXd &q, const VectorXd &u, double T1, double V1) {
-    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
-    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
+  double roundoff(double T0, double V0, double T1, double V1) const {
     return C_.energy_roundoff * (((T0 + std::abs(V0)) + T1) + std::abs(V1));
   }
-  // stepper._scaled: the entries of u that W's rows involve scaled by the largest alpha in [0, 1] with
-  // T(q, u_R + alpha u_S) <= K
-  VectorXd scaled(const VectorXd &q, const VectorXd &u, const MatrixXd &W, double K, double T) {
-    VectorXd u_S = VectorXd::Zero(u.size());
-    for (Eigen::Index j = 0; j < W.rows(); ++j) {
-      bool involved = false;
-      for (Eigen::Index i = 0; i < W.cols() && !involved; ++i) involved = W(j, i) != 0.0;
-      if (involved) u_S[j] = u[j];
+  // stepper._trees: the velocity indices of every kinematic tree (the joints below one child of the universe)
+  // that W's rows involve
+  std::vector<bool> trees(const MatrixXd &W) const {
+    std::vector<int> tree(model_.nv, 0);
+    for (int j = 1; j < model_.njoints; ++j) {
+      int root = j;
+      while (model_.parents[root] != 0) root = (int)model_.parents[root];
+      const int iv = model_.joints[j].idx_v(), nvj = model_.joints[j].nv();
+      for (int k = iv; k < iv + nvj; ++k) tree[k] = root;
     }
-    const VectorXd u_R = u - u_S;
-    const double a = pinocchio::computeKineticEnergy(model_, data_, q, u_S);
-    if (!(a > 0.0)) return u;
-    const double T_R = pinocchio::computeKineticEnergy(model_, data_, q, u_R);
-    const double b = (T - a) - T_R;
-    const double c = T_R - K;
+    std::vector<bool> hit(model_.njoints, false), involved(model_.nv, false);
+    for (Eigen::Index j = 0; j < W.rows(); ++j)
+      for (Eigen::Index i = 0; i < W.cols(); ++i)
+        if (W(j, i) != 0.0) { hit[tree[j]] = true; break; }
+    for (int k = 0; k < model_.nv; ++k) involved[k] = hit[tree[k]];
+    return involved;
+  }
+  // stepper._alpha: the largest root of a alpha^2 + b alpha + c in [floor, 1], else the alpha of least value
+  static double alpha_of(double a, double b, double c, double floor) {
     const double disc = b * b - (4.0 * a) * c;
-    double alpha = disc >= 0.0 ? (std::sqrt(disc) - b) / (2.0 * a) : -b / (2.0 * a);  // else: T's least value
-    alpha = std::min(1.0, std::max(0.0, alpha));
-    return u_R + alpha * u_S;
+    const double alpha = disc >= 0.0 ? (std::sqrt(disc) - b) / (2.0 * a) : -b / (2.0 * a);  // else: the least value
+    return std::min(1.0, std::max(floor, alpha));
   }
 
-  // stepper.cap_energy (docs/theory.md §2.10)
-  void cap_energy(const VectorXd &q, const VectorXd &u, double work, double corr, const MatrixXd &W,
+  // stepper.cap_energy (docs/theory.md §2.10): T + V <= E* + W_a (tau_: the torques' work h tau.(u_k + u_{k+1})/2,
+  // linear in alpha), the trees in contact scaled by alpha where the step ends above (no moving static here)
+  void cap_energy(const VectorXd &q, const VectorXd &u, double h, double work, double corr, const MatrixXd &W,
                   const VectorXd &q_next, VectorXd &u_next, VectorXd &gamma_plus) {
-    const double E0 = energy(q, u);
+    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
+    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
     const double T1 = pinocchio::computeKineticEnergy(model_, data_, q_next, u_next);
     const double V1 = pinocchio::computePotentialEnergy(model_, data_, q_next);
-    const double target = (E0 + std::min(work, 0.0)) + corr;
-    if (T1 + V1 <= target + roundoff(q, u, T1, V1)) return;
-    u_next = scaled(q_next, u_next, W, target - V1, T1);
+    const double target = (((T0 + V0) + std::min(work, 0.0)) + corr) + 0.0;  // + W_o: none in the compiled step
+    const bool driven = tau_.size() != 0;
+    VectorXd f;
+    double wa = 0.0;
+    if (driven) {
+      f = (0.5 * h) * tau_;
+      const VectorXd s = u + u_next;
+      wa = odot(f.data(), s.data(), model_.nv);
+    }
+    if (T1 + V1 <= (target + wa) + roundoff(T0, V0, T1, V1)) return;
+    const std::vector<bool> involved = trees(W);
+    VectorXd u_S = VectorXd::Zero(u_next.size());
+    for (Eigen::Index j = 0; j < u_next.size(); ++j)
+      if (involved[j]) u_S[j] = u_next[j];
+    const VectorXd u_R = u_next - u_S;
+    const double a = pinocchio::computeKineticEnergy(model_, data_, q_next, u_S);
+    if (!(a > 0.0)) return;
+    const double T_R = pinocchio::computeKineticEnergy(model_, data_, q_next, u_R);
+    double b = (T1 - a) - T_R;
+    double c = T_R - (target - V1);
+    if (driven) {  // the torques' work f.(u_k + u_R) + alpha f.u_S
+      const VectorXd s = u + u_R;
+      b = b - odot(f.data(), u_S.data(), model_.nv);
+      c = c - odot(f.data(), s.data(), model_.nv);
+    }
+    const double alpha = alpha_of(a, b, c, 0.0);
+    u_next = u_R + alpha * u_S;
     gamma_plus = otimes_t(W, u_next);
   }
 

@@ -67,7 +67,7 @@ def test_every_pair_the_narrow_phase_closes_is_a_candidate(scale):
             q[s + 3:s + 7] = pin.Quaternion(pin.rpy.rpyToMatrix(*rng.uniform(-np.pi, np.pi, 3))).coeffs()
         closed = all_pair_hits(model, ms.make_data(model), q)
         data = ms.make_data(model)
-        pin.forwardKinematics(model.pin, data.pin, q)
+        model.forest.place(data.kinematics, q)
         cand = broad_phase.of(model, max(model.options.contact_tolerance, GATE_MARGIN)).candidates(data)
         assert closed <= set(cand.tolist())
         assert np.all(np.diff(cand) > 0)  # sorted, distinct: the narrow phase sees them in pair order

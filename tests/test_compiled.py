@@ -190,10 +190,7 @@ np.savez(sys.argv[4], **{k: np.asarray(tr.arrays[k]) for k in sys.argv[5].split(
 @pytest.mark.slow
 @pytest.mark.parametrize("name,duration", [
     ("newton_cradle_5", 0.3), ("box_stack_5", 0.3),
-    pytest.param("box_drop", 1.5, marks=pytest.mark.xfail(strict=True, reason=(
-        "contacts._vertex_contacts sums its 3-vector products by numpy's @ (OpenBLAS's kernel: FMA or not), which "
-        "src/step.cpp imitates for FMA kernels; under Sandybridge's the Python step moves by 3e-6 m. The rule "
-        "needs them qp.ordered (contacts.py, and odot in step.cpp vertex_contacts)")))])
+    ("box_drop", 1.5)])
 def test_same_bits_whatever_blas_kernel(name, duration, tmp_path):
     """The rule of §2.8 does not lean on one machine's BLAS: OpenBLAS (DYNAMIC_ARCH) picks its kernels by the CPU,
     and OPENBLAS_CORETYPE makes it take another's (Sandybridge: no FMA; Haswell; SkylakeX) - dgesv's answers and

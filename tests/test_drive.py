@@ -1,4 +1,4 @@
-"""Prescribed joint motion, the rheonomic joint (moreau_sim/drive.py, docs/theory.md §2.12): the driven rows
+"""Prescribed joint motion, the rheonomic joint (moreau_sim/drive.py, docs/theory.md §2.13): the driven rows
 hold u_d = xdot(t_m) in a step, the law is solved in the free rows with the driven rows' share as the
 constraint's rate. Closed forms: a ball struck by a paddle on a driven prismatic joint at constant V reverses
 its relative velocity with factor e; a pendulum driven at constant angular velocity strikes a free ball as an
@@ -181,7 +181,7 @@ def test_bundled_driven_paddle_juggles_by_the_law():
     """scenes/driven_paddle.toml: the paddle's joint follows 0.03 sin(2 pi 3 t) m; every impact step (above the
     slow-impact threshold) reverses the ball's velocity relative to the paddle with factor e, the ledger with the
     drive's work closes to round-off, the driven joint tracks its trajectory to second order (the trapezoid of
-    the step's end velocities, §2.12: within h^2 A omega^2), and no penetration persists."""
+    the step's end velocities, §2.13: within h^2 A omega^2), and no penetration persists."""
     tr = ms.run(SCENES / "driven_paddle.toml", progress=False)
     sc = ms.load_scene(SCENES / "driven_paddle.toml")
     e, h = sc.options.restitution, sc.options.dt

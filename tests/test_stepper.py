@@ -2,12 +2,15 @@
 solve_impact, correct_positions, step; the discrete law on multi-contact steps; the energy ledger
 (docs/theory.md §5) step by step."""
 
+from dataclasses import replace
+
 import numpy as np
 import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
 from moreau_sim.law import restitution_bounds
+from moreau_sim.qp import ordered
 from moreau_sim.stepper import cap_energy
 
 from helpers import run, scene
@@ -66,7 +69,9 @@ def test_step_is_its_stages(name, duration):
             q = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
             corr = 0.0
             if model.options.position_correction is ms.PositionCorrection.PROJECTION:
-                q, corr = ms.correct_positions(model, data, pb, imp, q)
+                q, corr, u_c = ms.correct_positions(model, data, pb, imp, q)
+                if u_c is not imp.u_next:  # a lift paid with the velocities (docs/theory.md §2.5)
+                    imp = replace(imp, u_next=u_c, gamma_plus=ordered(imp.W.T, u_c))
             imp = cap_energy(model, data, pb, imp, q, corr)
             np.testing.assert_array_equal(r.P, imp.P)
             assert r.contact_work == imp.contact_work and r.correction_energy == corr
@@ -97,7 +102,8 @@ def test_correct_positions_lifts_within_the_step_budget():
     imp = ms.solve_impact(pb, model.options)
     q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
     assert q_next[0] - 0.1 < -1e-3
-    q_c, dE = ms.correct_positions(model, data, pb, imp, q_next)
+    q_c, dE, u_c = ms.correct_positions(model, data, pb, imp, q_next)
+    assert u_c is imp.u_next  # within the budget: no velocity paid
     assert q_c[0] == 0.1  # the centre at its radius: gap exactly 0
     E0 = 0.5 * state.u[0] ** 2 + G * state.q[0]
     E1 = 0.5 * imp.u_next[0] ** 2 + G * q_next[0]
