@@ -16,6 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from .actuation import refuse_driven
+from .drive import refuse as refuse_drives
 from .data import Data, make_data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
@@ -610,6 +611,7 @@ def simulate_adaptive(model: Model, *, state: State | None = None, t_end: float 
     "zeno", "fallbacks", "run" (steps extrapolated / refused / fixed, events, impacts,
     wall_seconds). Raises SimulationError (with .trajectory up to the failure)."""
     refuse_driven(model, "adaptive")
+    refuse_drives(model, "adaptive")
     data = data or make_data(model)
     state = state or initial_state(model, data)
     opts = model.options

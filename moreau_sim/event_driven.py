@@ -14,6 +14,7 @@ import numpy as np
 import pinocchio as pin
 
 from .actuation import refuse_driven
+from .drive import refuse as refuse_drives
 from .data import Data, make_data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
@@ -295,6 +296,7 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     thresholds), "run" (events, impacts, nfev, wall_seconds). Raises UnsupportedModel for a pair
     without an analytic gap, SimulationError (with .trajectory up to the failure) otherwise."""
     refuse_driven(model, "event-driven")
+    refuse_drives(model, "event-driven")
     data = data or make_data(model)
     state = state or initial_state(model, data)
     t_end, t_grid = sample_grid(model, state, t_end, t_eval)

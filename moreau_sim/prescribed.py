@@ -71,7 +71,8 @@ def parse_schedule(value, n: int, where: str, *, key: str = "x", moves: bool = F
     require(len(kinds) == 1, where, f"give exactly one of {['t', 'sine'] + (['velocity'] if moves else [])}")
     if kinds[0] == "velocity":
         require(set(value) == {"velocity"}, where, "a constant-velocity motion takes only 'velocity'")
-        rate = np.array(finite_vector(value["velocity"], n, f"{where} velocity"))
+        v = value["velocity"]
+        rate = np.array(finite_vector([v] if n == 1 and not isinstance(v, list) else v, n, f"{where} velocity"))
         return Schedule("constant", np.zeros((1, n)), rate=rate)
     if kinds[0] == "sine":
         require(set(value) == {"sine"}, where, "a sine takes only the 'sine' table")

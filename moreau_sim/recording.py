@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from . import trajectory
+from . import drive, trajectory
 from .contacts import Contacts, pair_distances
 from .data import Data
 from .energy import kinetic, potential, total
@@ -235,7 +235,8 @@ class Recorder:
     def __init__(self, model: Model, data: Data, n_samples: int = 1, *, spill: str | Path | None = None):
         self.model, self.data = model, data
         sizes = {"nq": model.nq, "nv": model.nv, "pairs": len(model.pairs)}
-        self._external = model.actuation is not None or model.prescribed is not None  # the EXTERNAL columns
+        driven = drive.of(model) is not None  # built here, before the run: a bad [[drives]] is a SceneError
+        self._external = model.actuation is not None or model.prescribed is not None or driven  # the EXTERNAL columns
         schema = {**trajectory.SAMPLES, **trajectory.EXTERNAL} if self._external else trajectory.SAMPLES
         self._samples = _Columns(schema, sizes, n_samples, spill)
         self._act = self._obs = 0.0  # actuator and obstacle work since the previous sample [J] (§5.5)
@@ -339,14 +340,14 @@ class Recorder:
             self._rise = (rise, float(r.state.t))
         res = r.qp
         if res is None or res.M is None:
-            self._smooth += E1 - E0 - act  # a contact-free step is smooth motion only
+            self._smooth += E1 - E0 - act - r.obstacle_work  # a contact-free step is smooth motion only (§2.13)
         else:  # the projection's problem: M, v_free = v0, b; and the step's own u_free
             # the law's u_{k+1}: before a lift the correction paid with the velocities, booked as correction (§2.5)
             u_law = u1 if r.u_law is None else r.u_law
             T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u_law, e, r.P, res.b)
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * r.u_free)
             act_free = 0.0 if tau is None else 0.5 * h * float(tau @ (u0 + r.u_free))  # the torques' work there
-            S = total(m, d, q_free, r.u_free) - E0 - act_free
+            S = total(m, d, q_free, r.u_free) - E0 - act_free - r.drive_work_free
             self._smooth += S
             if S < 0.0:
                 self.smooth_deficit -= S

@@ -31,7 +31,8 @@ class StepResult:
     u_free: the velocity the smooth forces alone give, u_k + h M(q_m)^-1 f [velocity] (the ledger's smooth
     motion, §5.3; u_{k+1} itself on a step without contact).
     tau: the joint torques of the step [N or N m] (actuation.py, evaluated at t_m, q_m, u_k; None: none);
-    obstacle_work: the work of the prescribed motion of statics, -sum_i P_i dg_i/dt [J] (§2.9, §5.5).
+    obstacle_work: the work of prescribed motion, -sum_i P_i dg_i/dt [J] of moving statics and driven joints plus
+    the driven joints' work W_p (§2.9, §2.13, §5.5); drive_work_free: W_p of the step without its contacts [J].
     u_law: the law's u_{k+1} where the position correction paid a lift with the velocities (§2.5), which the
     ledger measures the impact on (§5.2); None where state.u is the law's (or the cap's, §2.10)."""
 
@@ -48,3 +49,4 @@ class StepResult:
     tau: np.ndarray | None = None
     obstacle_work: float = 0.0
     u_law: np.ndarray | None = None
+    drive_work_free: float = 0.0

@@ -87,6 +87,17 @@ class Actuator:
 
 
 @dataclass(frozen=True, kw_only=True)
+class DriveSpec:
+    """A joint whose motion is prescribed (docs/scenes.md, [[drives]]; drive.py): the body, the joint's name,
+    its motion x(t) (a schedule of one component: {velocity}, {sine} or a table {t, q}): q(t) = q(0) + x(t) - x(0)."""
+
+    body: str
+    joint: str
+    motion: Schedule
+    where: str = ""
+
+
+@dataclass(frozen=True, kw_only=True)
 class Collisions:
     """Which collision pairs exist beyond the automatic rule (docs/scenes.md, [collisions])."""
 
@@ -103,6 +114,7 @@ class Scene:
     statics: tuple[Static, ...] = ()
     collisions: Collisions = field(default_factory=Collisions)
     actuators: tuple[Actuator, ...] = ()
+    drives: tuple[DriveSpec, ...] = ()
     output: str | None = None  # default output file (relative to the working directory)
     path: Path | None = None  # the file it was read from
     source: str = ""  # the TOML text, kept so outputs describe themselves
@@ -112,7 +124,7 @@ class Scene:
         return dataclasses.replace(self, options=self.options.replace(**changes))
 
 
-_TOP = {"scene", "simulation", "output", "bodies", "statics", "collisions", "actuators"}
+_TOP = {"scene", "simulation", "output", "bodies", "statics", "collisions", "actuators", "drives"}
 _SIM = {"restitution": "restitution", "dt": "dt", "duration": "duration", "gravity": "gravity",
         "contact_tolerance": "contact_tolerance", "qp_form": "qp_form", "qp_tolerance": "qp_tolerance",
         "separating": "separating", "corner_selection": "corner_selection", "bias": "bias",
@@ -284,6 +296,20 @@ def _parse_actuator(t: dict, where: str) -> Actuator:
     return Actuator(**kw)
 
 
+def _parse_drive(t: dict, where: str) -> DriveSpec:
+    require(isinstance(t, dict), where, "must be a table")
+    _unknown(t, {"body", "joint", "motion"}, where)
+    for req in ("body", "joint", "motion"):
+        require(req in t, where, f"missing required key '{req}'")
+    body = _name(t["body"], f"{where} body")
+    w = f"{where} ({body})"
+    joint = t["joint"]
+    require(isinstance(joint, str) and joint, f"{w} joint", f"must be a joint name, got {joint!r}")
+    require(isinstance(t["motion"], dict), f"{w} motion", "must be a table {velocity}, {sine} or {t, q}")
+    return DriveSpec(body=body, joint=joint, motion=parse_schedule(t["motion"], 1, f"{w} motion", key="q",
+                                                                    moves=True), where=w)
+
+
 def _parse_pairs(value, where: str) -> tuple[tuple[str, str], ...]:
     require(isinstance(value, list), where, "must be a list of [name, name] pairs")
     out = []
@@ -332,8 +358,13 @@ def parse_scene(text: str, *, path: Path | str | None = None) -> Scene:
     actuators = tuple(_parse_actuator(t, f"{where} [[actuators]][{i}]") for i, t in enumerate(act_t))
     for a in actuators:
         require(a.body in [b.name for b in bodies], f"{a.where} body", f"names no body of the scene ({a.body!r})")
+    drive_t = doc.get("drives", [])
+    require(isinstance(drive_t, list), f"{where} [[drives]]", "must be an array of tables")
+    drives = tuple(_parse_drive(t, f"{where} [[drives]][{i}]") for i, t in enumerate(drive_t))
+    for dr in drives:
+        require(dr.body in [b.name for b in bodies], f"{dr.where} body", f"names no body of the scene ({dr.body!r})")
     return Scene(name=name, description=description, options=options, bodies=bodies, statics=statics,
-                 collisions=collisions, actuators=actuators, output=output,
+                 collisions=collisions, actuators=actuators, drives=drives, output=output,
                  path=real_path(Path(path), where) if path else None, source=text)
 
 

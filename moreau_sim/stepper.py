@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 
-from . import compiled, qp
+from . import compiled, drive as drives, qp
 from .constraints import CornerPieces, assemble_constraints, closed_limits, corner_faces
 from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
 from .corners import MAX_PIECES, corner_law
@@ -37,7 +37,8 @@ class ContactProblem:
     (`closed`): M = M(q_m), Minv, W (nv, m) the rows of the distinct smooth contacts, the corner
     pieces (or None), v_free = (u_free + e u_k)/(1 + e). Without a closed contact those are None.
     tau: the joint torques of the step [N or N m] (None: no actuation); rate: dg_i/dt of the
-    contacts against a moving static [m/s] (None: none; docs/theory.md §2.9)."""
+    contacts against a moving static [m/s] (None: none; docs/theory.md §2.9); drive: the driven joints' step
+    (drive.DriveStep; u_free then has u_d = xdot(t_{k+1}), §2.13; None: none)."""
 
     h: float
     e: float
@@ -53,6 +54,7 @@ class ContactProblem:
     pieces: CornerPieces | None = None
     tau: np.ndarray | None = None
     rate: np.ndarray | None = None
+    drive: drives.DriveStep | None = None  # a step with a driven joint (drive.py, docs/theory.md §2.13)
 
     @property
     def closed(self) -> bool:
@@ -105,20 +107,23 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     if not pb.closed:
         q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * pb.u_free)
         return StepResult(State(t1, q_next, pb.u_free), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None,
-                          u_free=pb.u_free, tau=pb.tau)
-    imp = solve_impact(pb, opts, form=form, eps=eps, corner_choice=corner_choice)
+                          u_free=pb.u_free, tau=pb.tau, obstacle_work=0.0 if pb.drive is None else pb.drive.work_free)
+    ds = pb.drive  # a driven joint (§2.13): the law in the free rows, then u_{k+1} = (u_r, xdot(t_{k+1}))
+    imp = solve_impact(pb if ds is None else ds.reduced(pb), opts, form=form, eps=eps, corner_choice=corner_choice)
+    imp = imp if ds is None else ds.expanded(pb, imp)
     q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
     corr, u_law = 0.0, None
     if opts.position_correction is PositionCorrection.PROJECTION and imp.qp.ok:  # a failed QP: simulate names it
-        q_next, corr, u_c = correct_positions(model, data, pb, imp, q_next)
+        q_next, corr, u_c = correct_positions(model, data, pb if ds is None else ds.for_correction(pb), imp, q_next)
         if u_c is not imp.u_next:  # a paid lift (§2.5): the ledger measures the law on u_{k+1} before it (§5.2)
             u_law = imp.u_next
             imp = replace(imp, u_next=u_c, gamma_plus=ordered(imp.W.T, u_c))
-    if imp.qp.ok and not bounces_under_torques(pb, imp):  # §2.10: bounded by E* and the work of torques and statics
+    if imp.qp.ok and ds is None and not bounces_under_torques(pb, imp):  # §2.10 (a driven joint: §2.13)
         imp = cap_energy(model, data, pb, imp, q_next, corr)
     return StepResult(State(t1, q_next, imp.u_next), imp.contacts, imp.P, imp.gamma_minus, imp.gamma_plus,
                       imp.contact_work, imp.qp, imp.branch, corr, u_free=pb.u_free, tau=pb.tau,
-                      obstacle_work=imp.obstacle_work, u_law=u_law)
+                      obstacle_work=imp.obstacle_work, u_law=u_law,
+                      drive_work_free=0.0 if ds is None else ds.work_free)
 
 
 def torque(model: Model, state: State, h: float) -> np.ndarray:
@@ -149,15 +154,19 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
         contacts = swept_detect(model, data, q, u, h, q_m, contacts)  # a thin obstacle crossed in the step
     if model.limits:  # the joint limits closed at q_m: constraints of the same law (limits.py)
         contacts = contacts.concat(closed_limits(model, q_m, opts.contact_tolerance))
+    drive = drives.of(model)
     if contacts.m == 0 and not contacts.corners:
-        return ContactProblem(h, e, q, u, q_m, NO_CONTACTS, free_velocity(model, data, q_m, u, h, opts.bias, tau),
-                              tau=tau)
+        u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
+        ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, tau=tau)  # §2.13
+        return ContactProblem(h, e, q, u, q_m, NO_CONTACTS, u_free if ds is None else ds.u_c, tau=tau, drive=ds)
     cs = assemble_constraints(model, data, q_m, contacts)
     Minv = model.forest.inverse_mass_matrix(data.kinematics, q_m)
     u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
+    ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, cs.M, tau)  # §2.13
+    u_free = u_free if ds is None else ds.u_c
     v_free = (u_free + e * u) / (1.0 + e)
     rate = None if model.prescribed is None else model.prescribed.rates(model.pairs, cs.contacts, t_m)
-    return ContactProblem(h, e, q, u, q_m, cs.contacts, u_free, v_free, cs.M, Minv, cs.W, cs.pieces, tau, rate)
+    return ContactProblem(h, e, q, u, q_m, cs.contacts, u_free, v_free, cs.M, Minv, cs.W, cs.pieces, tau, rate, ds)
 
 
 def free_velocity(model: Model, data: Data, q_m: np.ndarray, u: np.ndarray, h: float, bias: Bias,
@@ -350,7 +359,7 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     deep = g_next < -(pb.h * np.abs(imp.gamma_minus) + tol)
     # only between two polytopes (box faces sliding, a box rocking across an edge): in a column of beads the lift
     # paid with the velocities of beads falling together kept the top bead bouncing past its rest (§2.5)
-    persistent = (pb.tau is None and model.prescribed is None and bool(deep.any())
+    persistent = (pb.tau is None and model.prescribed is None and pb.drive is None and bool(deep.any())
                   and all(p in model.polytope_pair_set for p in imp.contacts.pair[deep].tolist()))
     res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
     if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)

@@ -150,7 +150,7 @@ def test_fallback_to_fixed_steps_and_back():
 def test_every_bundled_scene_runs(name):
     sc = scene(name)
     T = min(sc.options.duration, 0.15)
-    if sc.actuators or any(s.motion for s in sc.statics):  # refused by name: time-stepping only
+    if sc.actuators or sc.drives or any(s.motion for s in sc.statics):  # refused by name: time-stepping only
         with pytest.raises(SceneError, match="does not take"):
             ms.run(sc, integrator="adaptive", duration=T)
         return

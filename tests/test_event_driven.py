@@ -167,7 +167,8 @@ def test_unsupported_pair_is_named():
 REFUSED: dict = {"solo12_stand": (ms.SceneError, "does not take joint torques"),
                  "a1_drop_recover": (ms.SceneError, "does not take joint torques"),
                  "panda_tapping": (ms.SceneError, "does not take joint torques"),
-                 "vibrating_paddle": (ms.SceneError, "does not take a moving static")}
+                 "vibrating_paddle": (ms.SceneError, "does not take a moving static"),
+                 "driven_paddle": (ms.SceneError, "does not take a driven joint")}
 
 
 @pytest.mark.parametrize("name", BUNDLED)
