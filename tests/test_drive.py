@@ -225,3 +225,22 @@ def test_driven_double_pendulum_smooth_error_is_second_order(tmp_path):
         lag.append(np.abs(tr.q[:, 0] - (math.pi / 2 + 1.2 * np.sin(math.pi * tr.t))).max())
     assert 3.5 < S[0] / S[1] < 4.5 and abs(S[0]) < 1e-4
     assert 3.5 < lag[0] / lag[1] < 4.5
+
+
+def test_info_lists_the_driven_joints():
+    """`moreau-sim info` names each [[drives]] entry: body, joint and motion (text and --json)."""
+    import json
+    import subprocess
+    import sys
+
+    root = SCENES.parent
+    env = {"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"}
+    args = [sys.executable, "-m", "moreau_sim", "info"]
+    r = subprocess.run(args + [str(SCENES / "driven_paddle.toml")], capture_output=True, text=True, env=env,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "driven joints (1)" in r.stdout and "paddle  root  sine: amplitude 0.03, 3 Hz, phase 0 rad" in r.stdout
+    r = subprocess.run(args + ["--json", str(SCENES / "driven_paddle.toml")], capture_output=True, text=True,
+                       env=env, timeout=120)
+    assert json.loads(r.stdout)["drives"] == [
+        {"body": "paddle", "joint": "root", "motion": "sine: amplitude 0.03, 3 Hz, phase 0 rad"}]

@@ -196,6 +196,7 @@ def info(scene, all_pairs, as_json):
     sc, model = _load(scene)
     d = model.describe()
     d["actuators"] = [] if model.actuation is None else model.actuation.describe()
+    d["drives"] = [_drive(dr) for dr in sc.drives]
     if as_json:
         click.echo(json.dumps(d, indent=2))
         return
@@ -214,6 +215,8 @@ def info(scene, all_pairs, as_json):
         click.echo(f"    {j['name']:<{width}}  {j['type']:<24} {q:<10} {_limits(j)}")
     _list(f"actuators ({len(d['actuators'])}): name, joint, kind, gains, limits",
           [_actuator(a) for a in d["actuators"]], True)
+    _list(f"driven joints ({len(d['drives'])}): body, joint, prescribed motion x(t), q(t) = q(0) + x(t) - x(0)",
+          [f"{dr['body']}  {dr['joint']}  {dr['motion']}" for dr in d["drives"]], True)
     pairs = d["collision_pairs"]
     _list(f"collision pairs ({len(pairs)}):", pairs, all_pairs)
     excluded = d["excluded_pairs"]
@@ -229,6 +232,20 @@ def _list(title: str, rows: list[str], every: bool) -> None:
         click.echo(f"    {p}")
     if len(shown) < len(rows):
         click.echo(f"    ... and {len(rows) - len(shown)} more (--all-pairs or --json lists them)")
+
+
+def _drive(dr) -> dict:
+    """One [[drives]] entry of `info`: its body, joint and motion (docs/scenes.md)."""
+    m = dr.motion
+    if m.kind == "sine":
+        motion = f"sine: amplitude {float(m.amplitude[0]):g}, {m.frequency:g} Hz, phase {m.phase:g} rad"
+    elif m.rate is not None:
+        motion = f"velocity {float(m.rate[0]):g}"
+    elif m.kind == "table":
+        motion = f"table of {len(m.t)} rows over [{float(m.t[0]):g}, {float(m.t[-1]):g}] s"
+    else:
+        motion = f"{m.kind} {float(m.x[0][0]):g}"
+    return {"body": dr.body, "joint": dr.joint, "motion": motion}
 
 
 def _actuator(a: dict) -> str:
