@@ -11,6 +11,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from .kinematics import cross_rows
+
 CONE = 1e-9  # an edge pair's normal may leave the edges' normal cones by this (face on face: at their ends)
 EDGE_END = 1e-6  # a crossing this close (relative to the edge's length) to an edge's end is a vertex's contact
 PARALLEL = 1e-9  # |e_A x e_B| below this: parallel edges, no crossing (vertices and patches cover them)
@@ -38,12 +40,6 @@ def box_edges(geometry: coal.Box, placement: pin.SE3) -> tuple[np.ndarray, np.nd
     return np.array(e0), np.array(ed), np.array(el), np.array(ef)
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
-
-
 def world(edges: tuple, oMi: pin.SE3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """box_edges' arrays placed by the joint placement oMi (world frame)."""
     e0, ed, el, ef = edges
@@ -56,7 +52,7 @@ def overlap(box_a: tuple, box_b: tuple) -> float:
     projections over the 15 separating axes (the 6 face normals and the 9 cross products of their
     directions); negative where an axis separates them (then not the distance, only a lower bound of it)."""
     (Ra, ca, ha), (Rb, cb, hb) = box_a, box_b
-    c = _cross(Ra.T[:, None, :], Rb.T[None, :, :]).reshape(9, 3)
+    c = cross_rows(Ra.T[:, None, :], Rb.T[None, :, :]).reshape(9, 3)
     s = np.sqrt((c * c).sum(axis=1))
     axes = np.concatenate((Ra.T, Rb.T, c[s > PARALLEL] / s[s > PARALLEL, None]))
     return float((np.abs(axes @ Ra) @ ha + np.abs(axes @ Rb) @ hb - np.abs(axes @ (ca - cb))).min())
@@ -80,7 +76,7 @@ def edge_crossings(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -
     a0, ea, la, fa = A
     b0, eb, lb, fb = B
     # a box's edges run along its 3 axes (edge k along axis k // 4): the 144 cross products are 9
-    c = _cross(ea[::4, None, :], eb[None, ::4, :])[_AXIS[:, None], _AXIS[None, :]]  # (12, 12, 3)
+    c = cross_rows(ea[::4, None, :], eb[None, ::4, :])[_AXIS[:, None], _AXIS[None, :]]  # (12, 12, 3)
     s = np.sqrt(np.einsum("klx,klx->kl", c, c))
     ok = s > PARALLEL
     n = c / np.where(ok, s, 1.0)[:, :, None]

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import box_box
 from .kinematics import G_RES, Kinematics, cross_rows
 from .model import Model
 
@@ -43,21 +44,11 @@ class _Box:
 def box_geometry(model: Model, g: int, joint: int) -> _Box:
     go = model.geom.geometryObjects[g]
     h = np.asarray(go.geometry.halfSide, float)
-    Rg, tg = go.placement.rotation, go.placement.translation
-    e0, ed, el, ef = [], [], [], []
-    for a in range(3):  # the 4 edges along axis a, at the signs (sb, sc) of the other two axes
-        b, c = (a + 1) % 3, (a + 2) % 3
-        for sb in (-1.0, 1.0):
-            for sc in (-1.0, 1.0):
-                x = np.zeros(3)
-                x[a], x[b], x[c] = -h[a], sb * h[b], sc * h[c]
-                e0.append(Rg @ x + tg)
-                ed.append(Rg[:, a].copy())
-                el.append(2.0 * h[a])
-                ef.append([sb * Rg[:, b], sc * Rg[:, c]])
+    tg = go.placement.translation
+    e0, ed, el, ef = box_box.box_edges(go.geometry, go.placement)  # the 12 edges in the joint frame
     fn, fd = model.face_planes[g]
     return _Box(joint, np.asarray(model.vertices[g]), np.asarray(model.vertex_edges[g]), np.asarray(fn),
-                np.asarray(fd), np.array(e0), np.array(ed), np.array(el), np.array(ef), tg.copy(),
+                np.asarray(fd), e0, ed, el, ef, tg.copy(),
                 float(np.linalg.norm(h)), float(h.min()))
 
 

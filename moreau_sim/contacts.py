@@ -409,7 +409,7 @@ def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
     ga, gb = shapes[pair.first], shapes[pair.second]
     if not (isinstance(ga, coal.Box) and isinstance(gb, coal.Box)):
         return []
-    cache = data.__dict__.setdefault("_box_edges", {})  # per geometry, in its joint frame
+    cache = data.box_edges  # per geometry, in its joint frame
     for g, geo in ((pair.first, ga), (pair.second, gb)):
         if g not in cache:
             cache[g] = box_box.box_edges(geo, model.geom.geometryObjects[g].placement)

@@ -52,6 +52,7 @@ class Data:
         self.kinematics = Kinematics(model.forest, make=lambda m: new_data(m, f"{where} (a body of it)", checked=True))
         # GeometryData must be created after every geometry and pair exists (segfault otherwise).
         self.geom = pin.GeometryData(model.geom)
+        self.box_edges: dict = {}  # geometry index -> its box's 12 edges in the joint frame (contacts, filled lazily)
         # proxies of the pairs' distance results, made once: they read the live results after each
         # computeDistances (contacts.pair_distances), where indexing the vector anew costs ~1 us a pair
         self.distance_results = list(self.geom.distanceResults)

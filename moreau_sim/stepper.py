@@ -243,14 +243,9 @@ def cap_energy(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution
     work = 0.0 if f is None else float(ordered(f, pb.u + imp.u_next))
     if T1 + V1 <= (target + work) + _roundoff(T0, V0, T1, V1):
         return imp
-    u = imp.u_next
-    involved = _trees(model, (imp.W != 0.0).any(axis=1))
-    u_S = np.where(involved, u, 0.0)
-    u_R = u - u_S
-    a = kinetic(model, data, q_next, u_S)
+    u_S, u_R, a, T_R = _split(model, data, q_next, imp.u_next, (imp.W != 0.0).any(axis=1))
     if not a > 0.0:
         return imp
-    T_R = kinetic(model, data, q_next, u_R)
     b = (T1 - a) - T_R
     c = T_R - (target - V1)
     if f is not None:  # the torques' work is linear in alpha: f.(u_k + u_R) + alpha f.u_S
@@ -318,13 +313,20 @@ def _scaled(model: Model, data: Data, q: np.ndarray, u: np.ndarray, involved: np
             T: float) -> np.ndarray:
     """u with the velocities of the trees in contact (_trees of `involved`) scaled so that T(q, u) <= K [J]
     (T = T(q, u) given): T is quadratic in the scale, a alpha^2 + b alpha + T_R (_alpha, floor 0)."""
+    u_S, u_R, a, T_R = _split(model, data, q, u, involved)
+    if not a > 0.0:
+        return u
+    return u_R + _alpha(a, (T - a) - T_R, T_R - K, 0.0) * u_S
+
+
+def _split(model: Model, data: Data, q: np.ndarray, u: np.ndarray, involved: np.ndarray) -> tuple:
+    """u = u_S + u_R with u_S the velocities of the trees in contact (_trees of `involved`), and T(q, u_S),
+    T(q, u_R) [J]: the terms of T(q, u_R + alpha u_S) = a alpha^2 + b alpha + T_R (§2.10); T_R is not
+    evaluated (nan) where a is not positive."""
     u_S = np.where(_trees(model, involved), u, 0.0)
     u_R = u - u_S
     a = kinetic(model, data, q, u_S)
-    if not a > 0.0:
-        return u
-    T_R = kinetic(model, data, q, u_R)
-    return u_R + _alpha(a, (T - a) - T_R, T_R - K, 0.0) * u_S
+    return u_S, u_R, a, (kinetic(model, data, q, u_R) if a > 0.0 else float("nan"))
 
 
 def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution,
