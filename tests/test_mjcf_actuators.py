@@ -73,8 +73,9 @@ def test_torques_are_mujocos_by_hand(tmp_path, q, u, c):
 
 
 def test_torques_equal_mujocos_qfrc_actuator(tmp_path):
-    """The same model in MuJoCo itself: qfrc_actuator equals our tau (to round-off)."""
-    mujoco = pytest.importorskip("mujoco")
+    """The same model in MuJoCo itself: qfrc_actuator equals our tau (to round-off). MuJoCo is in the `test`
+    extra: a missing one fails here rather than skipping."""
+    import mujoco
     mm = mujoco.MjModel.from_xml_string(ARM.format(actuators=ACTS))
     d = mujoco.MjData(mm)
     m = model(arm(tmp_path, extra=CTRL.format(2.0, 3.0, 0.4)))
