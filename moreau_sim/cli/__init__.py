@@ -8,6 +8,7 @@ import click
 from .. import interrupts
 from .common import fail
 
+from .chart import chart
 from .regress import regress
 from .run import info, outcomes, plot, run
 from .sweep import sweep
@@ -35,7 +36,7 @@ def main():
     """Rigid multibody impacts: Glocker's impact law in a midpoint Moreau time-stepper."""
 
 
-for _command in (run, info, outcomes, plot, sweep, view, regress):
+for _command in (run, info, outcomes, plot, sweep, view, regress, chart):
     main.add_command(_command)
 
 __all__ = ["main"]
