@@ -242,27 +242,32 @@ def _tolerances(tols, name: str) -> tuple[float, ...]:
 
 
 # ---------------------------------------------------------------- runs
-def _options(model: Model, **changes) -> Model:
-    return build_model(dataclasses.replace(model.scene, options=model.options.replace(**changes)))
-
-
-def _run(model: Model, integrator: str, setting: float, grid: np.ndarray, *, order: int = DEFAULT_ORDER):
-    """One run sampled at `grid`, through the calls ms.simulate makes (with its invariant checks):
-    returns (Trajectory, CPU seconds)."""
-    step = grid[1] - grid[0]
-    if integrator == Integrator.TIME_STEPPING.value:
-        m = _options(model, dt=setting, save_every=int(round(step / setting)), integrator=Integrator.TIME_STEPPING)
-        c0 = time.process_time()
-        traj = simulate(m, progress=False)
-        return traj, time.process_time() - c0
-    rtol, atol = setting, setting * ATOL_RATIO
-    check = Invariants(model, rtol=rtol)
-    if integrator == Integrator.ADAPTIVE.value:
-        c0 = time.process_time()
-        traj = simulate_adaptive(model, rtol=rtol, atol=atol, order=order, t_eval=grid, check=check)
+def _configured(model: Model, integrator: str, setting: float, grid: np.ndarray) -> Model:
+    """The model of one point: `integrator` at dt = setting [s] recording every grid step
+    (time-stepping), or at rtol = setting, atol = setting * ATOL_RATIO (the scene's dt kept for the
+    adaptive integrator's fixed steps); the invariant checks read these options."""
+    kind = Integrator(integrator)
+    if kind is Integrator.TIME_STEPPING:
+        changes = {"dt": setting, "save_every": int(round((grid[1] - grid[0]) / setting))}
     else:
+        changes = {"rtol": setting, "atol": setting * ATOL_RATIO}
+    return build_model(dataclasses.replace(model.scene, options=model.options.replace(integrator=kind, **changes)))
+
+
+def _run(model: Model, grid: np.ndarray, *, order: int = DEFAULT_ORDER, method: str = "DOP853"):
+    """One run of a _configured model sampled at `grid`, through the calls ms.simulate makes (with
+    its invariant checks; the event integrators given the grid as t_eval): (Trajectory, CPU [s])."""
+    opts = model.options
+    if opts.integrator is Integrator.TIME_STEPPING:
         c0 = time.process_time()
-        traj = simulate_event_driven(model, rtol=rtol, atol=atol, t_eval=grid, check=check)
+        traj = simulate(model, progress=False)
+        return traj, time.process_time() - c0
+    check = Invariants(model, rtol=opts.rtol)
+    c0 = time.process_time()
+    if opts.integrator is Integrator.ADAPTIVE:
+        traj = simulate_adaptive(model, order=order, t_eval=grid, check=check)
+    else:
+        traj = simulate_event_driven(model, rtol=opts.rtol, atol=opts.atol, method=method, t_eval=grid, check=check)
     return traj, time.process_time() - c0
 
 
@@ -305,8 +310,9 @@ def _measure(res: ChartResult, model: Model, grid, names, dts, tols, ref_rtol, l
                 run.status = "reference"
                 continue
             try:
+                point = _configured(model, name, setting, grid)
                 for _ in range(repeats):
-                    traj, cpu = _run(model, name, setting, grid)
+                    traj, cpu = _run(point, grid)
                     run.cpu_seconds.append(cpu)
             except (SceneError, UnsupportedModel) as exc:  # refused: the integrator's ladder ends
                 res.runs.pop()
@@ -333,7 +339,9 @@ def _measure(res: ChartResult, model: Model, grid, names, dts, tols, ref_rtol, l
     if any(r.branching_steps for r in res.runs) or (res.reference and res.reference.branching_steps):
         res.notes.append("the scene has corner impacts with several admissible outcomes (branching steps logged): "
                          "methods may follow different outcomes, and an error after such an impact then measures "
-                         "the choice of outcome, not the accuracy (docs/corner-law.md)")
+                         "the choice of outcome, not the accuracy (docs/corner-law.md)"
+                         + ("; the two reference methods disagree, possibly for this reason"
+                            if res.reference and res.reference.uncertain else ""))
 
 
 def _reference(res: ChartResult, model: Model, grid, dts, rtol, level, say):
@@ -341,7 +349,7 @@ def _reference(res: ChartResult, model: Model, grid, dts, rtol, level, say):
     runs = {}
     for name in (Integrator.EVENT_DRIVEN.value, Integrator.ADAPTIVE.value):
         try:
-            runs[name] = _run(model, name, rtol, grid)[0]
+            runs[name] = _run(_configured(model, name, rtol, grid), grid)[0]
             say(f"reference {name} rtol = {rtol:g}: {runs[name].meta.get('status')}")
         except (SceneError, UnsupportedModel) as exc:
             res.refused[name] = str(exc)
@@ -358,7 +366,7 @@ def _reference(res: ChartResult, model: Model, grid, dts, rtol, level, say):
     elif "adaptive" in runs:
         ref = runs["adaptive"]
         try:
-            other = _run(model, "adaptive", rtol, grid, order=8)[0]
+            other = _run(_configured(model, "adaptive", rtol, grid), grid, order=8)[0]
         except SimulationError as exc:
             res.notes.append(f"no reference: adaptive at order 8 failed: {exc}")
             return None, None
@@ -368,8 +376,7 @@ def _reference(res: ChartResult, model: Model, grid, dts, rtol, level, say):
     elif "event-driven" in runs:
         ref = runs["event-driven"]
         try:
-            other = simulate_event_driven(model, rtol=rtol, atol=rtol * ATOL_RATIO, method="RK45", t_eval=grid,
-                                          check=Invariants(model, rtol=rtol))
+            other = _run(_configured(model, "event-driven", rtol, grid), grid, method="RK45")[0]
         except SimulationError as exc:
             res.notes.append(f"no reference: event-driven with Radau failed: {exc}")
             return None, None
@@ -381,8 +388,8 @@ def _reference(res: ChartResult, model: Model, grid, dts, rtol, level, say):
             return None, None
         h1, h2 = dts[-1], dts[-2]
         try:
-            ref = _run(model, "time-stepping", h1, grid)[0]
-            other = _run(model, "time-stepping", h2, grid)[0]
+            ref = _run(_configured(model, "time-stepping", h1, grid), grid)[0]
+            other = _run(_configured(model, "time-stepping", h2, grid), grid)[0]
         except SimulationError as exc:
             res.notes.append(f"no reference: time-stepping at dt {h1:g} or {h2:g} s failed: {exc}")
             return None, None
