@@ -457,7 +457,7 @@ def table(res: ChartResult) -> str:
 
 COLOURS = {"time-stepping": "tab:blue", "adaptive": "tab:orange", "event-driven": "tab:green"}
 FLOOR = 1e-16  # errors below this (exact to round-off) are drawn at it
-LABEL_AT = {"time-stepping": (4, 4), "adaptive": (4, -11), "event-driven": (4, -11)}  # [points] a label's offset
+LABEL_AT = {"time-stepping": (4, 7), "adaptive": (7, 0), "event-driven": (7, 0)}  # [points] a label's offset
 
 
 def figure(res: ChartResult):
@@ -469,8 +469,9 @@ def figure(res: ChartResult):
     import matplotlib.pyplot as plt
     from matplotlib import ticker
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5.2), constrained_layout=True)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5.6), layout="constrained")
     ref = res.reference
+    floored = False
     for ax, attr, agree, label in ((axes[0], "q_error", "q_agreement", "q error, max over samples [m, rad]"),
                                    (axes[1], "u_error", "u_agreement", "u error, mean over samples [m/s, rad/s]")):
         for name in INTEGRATORS:
@@ -479,7 +480,9 @@ def figure(res: ChartResult):
                 continue
             x = [r.cpu_per_second * 1e3 for r in pts]
             y = [max(getattr(r, attr), FLOOR) for r in pts]
-            ax.plot(x, y, "o-", color=COLOURS[name], label=f"{name} (points: {pts[0].setting_name})", ms=5)
+            floored |= min(y) <= FLOOR
+            ax.plot(x, y, "o-", color=COLOURS[name], label=f"{name} (points labelled with {pts[0].setting_name})",
+                    ms=5)
             below = [k for k, r in enumerate(pts) if ref is not None and ref.uncertain
                      and getattr(r, attr) < getattr(ref, agree)]
             if below:  # not resolved by the reference: drawn hollow
@@ -487,24 +490,33 @@ def figure(res: ChartResult):
             for group in _coinciding(pts, x, y):
                 text = ", ".join(f"{pts[k].setting:g}" for k in group)
                 ax.annotate(text, (x[group[0]], y[group[0]]), textcoords="offset points", xytext=LABEL_AT[name],
-                            fontsize=7, color=COLOURS[name])
+                            fontsize=7, color=COLOURS[name], va="center")
         if ref is not None and np.isfinite(getattr(ref, agree)):
             level = max(getattr(ref, agree), FLOOR)
-            ax.axhline(level, color="k", ls="--", lw=0.8,
-                       label=f"reference agreement {getattr(ref, agree):.1e}" + (" (UNCERTAIN: hollow points "
-                                                                                 "below it)" if ref.uncertain else ""))
+            ax.axhline(level, color="k", ls="--", lw=0.8, label="reference agreement (the two reference runs' "
+                       "difference)" + ("; UNCERTAIN: hollow points lie below it" if ref.uncertain else ""))
+            ax.set_title(f"the reference runs differ by {getattr(ref, agree):.1e} (dashed)", fontsize=8)
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.xaxis.set_major_locator(ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
         ax.xaxis.set_major_formatter(ticker.FuncFormatter(lambda v, _pos: f"{v:g}"))
         ax.xaxis.set_minor_formatter(ticker.NullFormatter())
         lo, hi = ax.get_ylim()
-        ax.set_ylim(min(lo, FLOOR / 3), max(hi, 10 * lo))
-        ax.set_xlabel(f"CPU time per simulated second [ms/s] (errors below {FLOOR:.0e} drawn at it)")
+        ax.set_ylim(lo, max(hi, 10 * lo))
+        lo, hi = ax.get_xlim()
+        ax.set_xlim(lo, hi * 3)  # room for the labels of the costliest points
+        ax.set_xlabel("CPU time per simulated second [ms/s]")
         ax.set_ylabel(label)
         ax.grid(True, which="both", lw=0.3, alpha=0.5)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=8, loc="best")
+    handles = {}
+    for ax in axes:
+        for h, text in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(text, h)
+    if floored:
+        handles[f"errors below {FLOOR:.0e} (exact to round-off) drawn at {FLOOR:.0e}"] = \
+            plt.Line2D([], [], ls="none")
+    if handles:
+        fig.legend(handles.values(), handles.keys(), loc="outside lower center", ncol=2, fontsize=8, frameon=False)
     title = f"{res.scene}: work-precision over {res.duration:g} s, samples every {res.sample_step:g} s"
     sub = ref.sentence() if ref is not None else "no reference: errors not measured"
     extra = [f"{n} refused" for n in res.refused] + (["corner impacts: methods may pick different outcomes"]
