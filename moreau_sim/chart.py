@@ -69,7 +69,7 @@ class Run:
     u_error: float | None = None
     u_error_max: float | None = None
     branching_steps: int = 0
-    below_reference: bool = False  # its error is below the reference's uncertainty: not resolved
+    below_reference: bool = False  # its q error is below the reference runs' difference, which is beyond the level
 
     @property
     def setting_name(self) -> str:
@@ -155,11 +155,11 @@ def chart(scene: Scene | str | os.PathLike, *, out_dir: str | os.PathLike | None
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     if options:
         sc = sc.with_options(**options)
-    T = sc.options.duration if duration is None else _positive(duration, "duration")
-    step = _sample_step(T) if sample_step is None else _positive(sample_step, "sample_step")
-    if step > T:
-        raise SceneError(f"sample_step: {step:g} s is longer than the duration {T:g} s")
-    n = max(1, int(math.floor(T / step + 1e-9)))
+    asked = sc.options.duration if duration is None else _positive(duration, "duration")
+    step = _sample_step(asked) if sample_step is None else _positive(sample_step, "sample_step")
+    if step > asked:
+        raise SceneError(f"sample_step: {step:g} s is longer than the duration {asked:g} s")
+    n = max(1, int(math.floor(asked / step + 1e-9)))
     T = n * step
     names = _integrators(integrators)
     dts = _dts(dts, step, T)
@@ -171,8 +171,8 @@ def chart(scene: Scene | str | os.PathLike, *, out_dir: str | os.PathLike | None
     base = build_model(sc.with_options(duration=T))
     grid = np.arange(n + 1) * step
     res = ChartResult(sc.name, T, step, None, [], {}, [], repeats)
-    if T != sc.options.duration:
-        res.notes.append(f"duration {T:g} s: the scene's {sc.options.duration:g} s rounded down to the sample grid")
+    if abs(T - asked) > 1e-9 * asked:
+        res.notes.append(f"duration {T:g} s: {asked:g} s rounded down to the sample grid")
     try:
         _measure(res, base, grid, names, dts, tols, reference_rtol, agreement, repeats, say)
     except (KeyboardInterrupt, SimulationInterrupted):
@@ -306,9 +306,6 @@ def _measure(res: ChartResult, model: Model, grid, names, dts, tols, ref_rtol, l
         for setting in ladders[name]:
             run = Run(name, setting)
             res.runs.append(run)
-            if ref_run is not None and (name, setting) == ref_run:
-                run.status = "reference"
-                continue
             try:
                 point = _configured(model, name, setting, grid)
                 for _ in range(repeats):
@@ -329,13 +326,18 @@ def _measure(res: ChartResult, model: Model, grid, names, dts, tols, ref_rtol, l
             run.status = traj.meta.get("status", "complete")
             run.cpu_per_second = min(run.cpu_seconds) / res.duration
             run.branching_steps = _branching(traj)
+            if ref_run is not None and (name, setting) == ref_run:  # the reference itself: its cost only
+                run.status = "reference"
+                say(f"{name} {run.setting_name} = {setting:g}: {1e3 * run.cpu_per_second:.3g} ms CPU per simulated s "
+                    "(the reference)")
+                continue
             if ref_samples is not None:
                 run.q_error, run.q_error_mean, run.u_error, run.u_error_max = _errors(
                     model, _samples(traj, grid), ref_samples)
                 ref = res.reference
                 run.below_reference = ref.uncertain and run.q_error < ref.q_agreement
             say(f"{name} {run.setting_name} = {setting:g}: {1e3 * run.cpu_per_second:.3g} ms CPU per simulated s, "
-                f"q error {run.q_error:.2e}, u error {run.u_error:.2e}")
+                f"q error {_fmt(run.q_error)}, u error {_fmt(run.u_error)}")
     if any(r.branching_steps for r in res.runs) or (res.reference and res.reference.branching_steps):
         res.notes.append("the scene has corner impacts with several admissible outcomes (branching steps logged): "
                          "methods may follow different outcomes, and an error after such an impact then measures "
@@ -378,7 +380,7 @@ def _reference(res: ChartResult, model: Model, grid, dts, rtol, level, say):
         try:
             other = _run(_configured(model, "event-driven", rtol, grid), grid, method="RK45")[0]
         except SimulationError as exc:
-            res.notes.append(f"no reference: event-driven with Radau failed: {exc}")
+            res.notes.append(f"no reference: event-driven with RK45 failed: {exc}")
             return None, None
         r = Reference("one method, two ODE solvers", f"event-driven (DOP853) at rtol {rtol:g}",
                       "event-driven with RK45", "the adaptive integrator refused the scene", level=level)
