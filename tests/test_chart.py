@@ -42,7 +42,7 @@ def ball_closed_form(e: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("e", [0.5, 0.8, 1.0])
 def test_reference_is_the_closed_form_of_the_ball(e, tmp_path):
-    res = chart(BALL, out_dir=tmp_path, integrators=["time-stepping"], dts=[1e-2], duration=1.5, repeats=1,
+    res = chart(BALL, out_dir=tmp_path, dts=[1e-2], tolerances=[1e-4], duration=1.5, repeats=1,
                 options={"restitution": e})
     ref = res.reference
     assert ref.kind == "two methods" and not ref.uncertain and max(ref.q_agreement, ref.u_agreement) < 1e-9
@@ -57,9 +57,11 @@ def test_errors_fall_along_the_dt_ladder_at_first_order(e):
     (docs/theory.md §4): error <= C h, C depending on where the impact falls in its step (within a
     factor ~3 here), so on a ladder of ratio 4 the error falls at every rung, by about 4."""
     dts = (1e-2 / 2, 1e-2 / 8, 1e-2 / 32, 1e-2 / 128)
-    res = chart(BALL, integrators=["time-stepping"], dts=dts, duration=1.0, repeats=1, options={"restitution": e})
-    err = np.array([r.q_error for r in res.runs])
-    assert [r.setting for r in res.runs] == list(dts) and np.all(np.diff(err) < 0), err
+    res = chart(BALL, integrators=["time-stepping", "adaptive"], dts=dts, tolerances=[1e-4], duration=1.0,
+                repeats=1, options={"restitution": e})
+    runs = [r for r in res.runs if r.integrator == "time-stepping"]
+    err = np.array([r.q_error for r in runs])
+    assert [r.setting for r in runs] == list(dts) and np.all(np.diff(err) < 0), err
     order = np.polyfit(np.log(dts), np.log(err), 1)[0]
     assert 0.8 < order < 1.3, (order, err)
     assert (err / dts).max() < 3 * (err / dts).min(), err / dts
@@ -91,9 +93,22 @@ def test_driven_scene_uses_time_stepping_and_says_why(tmp_path):
     assert "UNCERTAIN" in res.reference.sentence()
 
 
+@pytest.mark.parametrize("names, kind", [
+    (["time-stepping", "adaptive"], "one method, two orders"),
+    (["time-stepping", "event-driven"], "one method, two ODE solvers"),
+    (["time-stepping"], "two smallest dt, Richardson-style"),
+])
+def test_reference_uses_only_the_integrators_asked_for(names, kind):
+    res = chart(BALL, integrators=names, dts=[1e-2, 5e-3], tolerances=[1e-6], duration=0.6, repeats=1)
+    assert res.reference.kind == kind and not res.refused
+    assert "not among the integrators asked for" in res.reference.sentence()
+    assert {r.integrator for r in res.runs} == set(names)
+    if len(names) > 1:  # the ball's free flights: any two event methods agree to round-off
+        assert not res.reference.uncertain and res.runs[-1].q_error < 1e-9
+
+
 def test_corner_scene_says_methods_may_disagree():
-    res = chart(ROOT / "scenes" / "corner_point.toml", integrators=["time-stepping"], dts=[1e-2], duration=0.2,
-                repeats=1)
+    res = chart(ROOT / "scenes" / "corner_point.toml", dts=[1e-2], tolerances=[1e-4], duration=0.2, repeats=1)
     assert any("several admissible outcomes" in n for n in res.notes)
 
 
@@ -102,7 +117,7 @@ def test_interrupt_keeps_the_runs_so_far(tmp_path):
 
     def log(msg):
         said.append(msg)
-        if len(said) == 5:  # two reference runs, their agreement, two ladder runs: then Ctrl-C
+        if len(said) == 3:  # the reference's sentence, two ladder runs: then Ctrl-C
             raise KeyboardInterrupt
 
     with pytest.raises(ChartInterrupted) as exc:
