@@ -69,6 +69,7 @@ class Run:
     u_error: float | None = None
     u_error_max: float | None = None
     branching_steps: int = 0
+    fixed_steps: int = 0  # the adaptive integrator's fixed midpoint steps of the scene's dt (its fallback)
     below_reference: bool = False  # its q error is below the reference runs' difference, which is beyond the level
 
     @property
@@ -242,15 +243,15 @@ def _tolerances(tols, name: str) -> tuple[float, ...]:
 
 
 # ---------------------------------------------------------------- runs
-def _configured(model: Model, integrator: str, setting: float, grid: np.ndarray) -> Model:
+def _configured(model: Model, integrator: str, setting: float, grid: np.ndarray, *, dt: float | None = None) -> Model:
     """The model of one point: `integrator` at dt = setting [s] recording every grid step
-    (time-stepping), or at rtol = setting, atol = setting * ATOL_RATIO (the scene's dt kept for the
-    adaptive integrator's fixed steps); the invariant checks read these options."""
+    (time-stepping), or at rtol = setting, atol = setting * ATOL_RATIO (the adaptive integrator's
+    fixed steps at the scene's dt, or `dt` [s]); the invariant checks read these options."""
     kind = Integrator(integrator)
     if kind is Integrator.TIME_STEPPING:
         changes = {"dt": setting, "save_every": int(round((grid[1] - grid[0]) / setting))}
     else:
-        changes = {"rtol": setting, "atol": setting * ATOL_RATIO}
+        changes = {"rtol": setting, "atol": setting * ATOL_RATIO} | ({"dt": dt} if dt else {})
     return build_model(dataclasses.replace(model.scene, options=model.options.replace(integrator=kind, **changes)))
 
 
@@ -296,6 +297,22 @@ def _branching(traj: Trajectory) -> int:
     return int(len(traj.arrays["branch_step"]))
 
 
+def _fixed(traj: Trajectory) -> int:
+    """The adaptive integrator's fixed steps (0 for the others)."""
+    return int(traj.meta.get("run", {}).get("steps_fixed") or 0) if traj.meta.get("integrator") == "adaptive" else 0
+
+
+def _fallback(traj: Trajectory, dt: float) -> str:
+    """What an adaptive run's fixed steps were, for a sentence ("" when it took none)."""
+    n = _fixed(traj)
+    if not n:
+        return ""
+    back = "back to extrapolated steps"
+    reasons = sorted({f["reason"] for f in traj.meta.get("fallbacks", []) if f["reason"] != back})
+    return (f"the adaptive run took {n} of its {traj.meta['run'].get('steps')} steps as fixed midpoint steps of the "
+            f"scene's dt = {dt:g} s ({'; '.join(reasons) or 'fallback'}), where its rtol does not act")
+
+
 def _measure(res: ChartResult, model: Model, grid, names, dts, tols, ref_rtol, level, repeats, say) -> None:
     """Reference first (it also finds which integrators accept the scene), then every ladder."""
     ref_samples, ref_run = _reference(res, model, grid, names, dts, ref_rtol, level, say)
@@ -326,6 +343,7 @@ def _measure(res: ChartResult, model: Model, grid, names, dts, tols, ref_rtol, l
             run.status = traj.meta.get("status", "complete")
             run.cpu_per_second = min(run.cpu_seconds) / res.duration
             run.branching_steps = _branching(traj)
+            run.fixed_steps = _fixed(traj)
             if ref_run is not None and (name, setting) == ref_run:  # the reference itself: its cost only
                 run.status = "reference"
                 say(f"{name} {run.setting_name} = {setting:g}: {1e3 * run.cpu_per_second:.3g} ms CPU per simulated s "
@@ -338,6 +356,12 @@ def _measure(res: ChartResult, model: Model, grid, names, dts, tols, ref_rtol, l
                 run.below_reference = ref.uncertain and run.q_error < ref.q_agreement
             say(f"{name} {run.setting_name} = {setting:g}: {1e3 * run.cpu_per_second:.3g} ms CPU per simulated s, "
                 f"q error {_fmt(run.q_error)}, u error {_fmt(run.u_error)}")
+    fixed = [r for r in res.runs if r.fixed_steps]
+    if fixed:
+        counts = ", ".join(f"rtol {r.setting:g}: {r.fixed_steps}" for r in fixed)
+        res.notes.append(f"adaptive runs took fixed midpoint steps of the scene's dt = {model.options.dt:g} s where "
+                         f"they could not extrapolate ({counts}): there they are the time-stepper at that dt, and "
+                         "their rtol does not act")
     if any(r.branching_steps for r in res.runs) or (res.reference and res.reference.branching_steps):
         res.notes.append("the scene has corner impacts with several admissible outcomes (branching steps logged): "
                          "methods may follow different outcomes, and an error after such an impact then measures "
@@ -364,19 +388,25 @@ def _reference(res: ChartResult, model: Model, grid, names, dts, rtol, level, sa
             res.notes.append(f"reference {name} at rtol {rtol:g} failed: {exc}")
             say(res.notes[-1])
     ladder_run = None
+    dt = model.options.dt
+    fallback = _fallback(runs["adaptive"], dt) if "adaptive" in runs else ""
     if len(runs) == 2:
         ref, other = runs["event-driven"], runs["adaptive"]
-        r = Reference("two methods", f"event-driven at rtol {rtol:g}", f"adaptive at rtol {rtol:g}", level=level)
+        r = Reference("two methods", f"event-driven at rtol {rtol:g}", f"adaptive at rtol {rtol:g}", fallback,
+                      level=level)
     elif "adaptive" in runs:
         ref = runs["adaptive"]
+        # with fixed steps, the check halves them (else both runs would take the same fixed steps)
+        check = _configured(model, "adaptive", rtol, grid, dt=dt / 2 if fallback else None)
         try:
-            other = _run(_configured(model, "adaptive", rtol, grid), grid, order=8)[0]
+            other = _run(check, grid, order=8)[0]
         except SimulationError as exc:
             res.notes.append(f"no reference: adaptive at order 8 failed: {exc}")
             return None, None
         r = Reference("one method, two orders", f"adaptive at rtol {rtol:g} (order {DEFAULT_ORDER})",
-                      "the same at order 8", f"a self-consistency check: the event-driven integrator "
-                      f"{_absent('event-driven', res, names)}", level=level)
+                      "the same at order 8" + (f" with its fixed steps at dt = {dt / 2:g} s" if fallback else ""),
+                      f"a self-consistency check: the event-driven integrator {_absent('event-driven', res, names)}"
+                      + (f"; {fallback}" if fallback else ""), level=level)
     elif "event-driven" in runs:
         ref = runs["event-driven"]
         try:
@@ -461,7 +491,8 @@ def table(res: ChartResult) -> str:
     lines += ["", "| integrator | dt [s] or rtol | CPU per simulated s [ms] | q error (max) | u error (mean) "
                   "| u error (max) | status |", "|---|---|---|---|---|---|---|"]
     for r in res.runs:
-        status = r.status + (" (below the reference's uncertainty)" if r.below_reference else "")
+        status = r.status + (f", {r.fixed_steps} fixed steps" if r.fixed_steps else "") + (
+            " (below the reference's uncertainty)" if r.below_reference else "")
         cpu = None if r.cpu_per_second is None else 1e3 * r.cpu_per_second
         lines.append(f"| {r.integrator} | {r.setting_name} = {r.setting:g} | {_fmt(cpu, '.3g')} | {_fmt(r.q_error)} "
                      f"| {_fmt(r.u_error)} | {_fmt(r.u_error_max)} | {status} |")

@@ -107,6 +107,18 @@ def test_reference_uses_only_the_integrators_asked_for(names, kind):
         assert not res.reference.uncertain and res.runs[-1].q_error < 1e-9
 
 
+def test_adaptive_fixed_steps_are_said_and_the_check_halves_them():
+    """solo_drop has too many features to extrapolate: the adaptive integrator takes fixed midpoint
+    steps of the scene's dt, so its two orders would take the same steps; the check halves them."""
+    res = chart(ROOT / "scenes" / "solo_drop.toml", integrators=["time-stepping", "adaptive"], dts=[1e-3],
+                tolerances=[1e-6], duration=0.05, repeats=1)
+    ref, dt = res.reference, 1e-3  # the scene's dt
+    assert ref.kind == "one method, two orders" and f"fixed steps at dt = {dt / 2:g} s" in ref.check
+    assert "fixed midpoint steps" in ref.why and any("rtol does not act" in n for n in res.notes)
+    adaptive = [r for r in res.runs if r.integrator == "adaptive"]
+    assert adaptive[0].fixed_steps == 50 and ref.q_agreement > 0  # 0.05 s in steps of 1 ms
+
+
 def test_corner_scene_says_methods_may_disagree():
     res = chart(ROOT / "scenes" / "corner_point.toml", dts=[1e-2], tolerances=[1e-4], duration=0.2, repeats=1)
     assert any("several admissible outcomes" in n for n in res.notes)
