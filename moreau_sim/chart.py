@@ -518,27 +518,35 @@ def figure(res: ChartResult):
     floored = False
     for ax, attr, agree, label in ((axes[0], "q_error", "q_agreement", "q error, max over samples [m, rad]"),
                                    (axes[1], "u_error", "u_agreement", "u error, mean over samples [m/s, rad/s]")):
+        # an uncertain reference resolves no error below its runs' difference: such points sit on it
+        lowest = max(getattr(ref, agree), FLOOR) if ref is not None and ref.uncertain else FLOOR
+        drawn = [r for r in res.runs if getattr(r, attr) is not None]
+        if drawn:  # the panel's extent in decades (x: with the room for labels), for grouping labels
+            cpu = [r.cpu_per_second for r in drawn]
+            err = [max(getattr(r, attr), lowest) for r in drawn]
+            spans = (math.log10(3 * max(cpu) / min(cpu)) + 0.2, max(1.0, math.log10(max(err) / min(err))))
         for name in INTEGRATORS:
             pts = [r for r in res.runs if r.integrator == name and getattr(r, attr) is not None]
             if not pts:
                 continue
             x = [r.cpu_per_second * 1e3 for r in pts]
-            y = [max(getattr(r, attr), FLOOR) for r in pts]
+            y = [max(getattr(r, attr), lowest) for r in pts]
             floored |= min(y) <= FLOOR
             ax.plot(x, y, "o-", color=COLOURS[name], label=f"{name} (points labelled with {pts[0].setting_name})",
                     ms=5)
             below = [k for k, r in enumerate(pts) if ref is not None and ref.uncertain
                      and getattr(r, attr) < getattr(ref, agree)]
-            if below:  # not resolved by the reference: drawn hollow
+            if below:  # not resolved by the reference: drawn hollow, on its line
                 ax.plot([x[k] for k in below], [y[k] for k in below], "o", mfc="white", color=COLOURS[name], ms=5)
-            for group in _coinciding(pts, x, y):
+            for group in _coinciding(pts, x, y, spans):
                 text = ", ".join(f"{pts[k].setting:g}" for k in group)
                 ax.annotate(text, (x[group[0]], y[group[0]]), textcoords="offset points", xytext=LABEL_AT[name],
                             fontsize=7, color=COLOURS[name], va="center")
         if ref is not None and np.isfinite(getattr(ref, agree)):
             level = max(getattr(ref, agree), FLOOR)
             ax.axhline(level, color="k", ls="--", lw=0.8, label="reference agreement (the two reference runs' "
-                       "difference)" + ("; UNCERTAIN: hollow points lie below it" if ref.uncertain else ""))
+                       "difference)" + ("; UNCERTAIN: errors below it are not resolved, drawn on it, hollow"
+                                      if ref.uncertain else ""))
             ax.set_title(f"the reference runs differ by {getattr(ref, agree):.1e} (dashed)", fontsize=8)
         ax.set_xscale("log")
         ax.set_yscale("log")
@@ -569,14 +577,14 @@ def figure(res: ChartResult):
     return fig
 
 
-def _coinciding(pts, x, y) -> list[list[int]]:
-    """Indices of the points grouped where they overlap on the log-log chart (within 0.05 decade
-    of CPU and 0.3 decade of error): one label per group."""
+def _coinciding(pts, x, y, spans) -> list[list[int]]:
+    """Indices of the points grouped where they overlap on the log-log chart (within 3 % of the
+    panel's decades of CPU and 4 % of its decades of error, `spans`): one label per group."""
     groups: list[list[int]] = []
     for k in range(len(pts)):
         for g in groups:
             j = g[0]
-            if abs(math.log10(x[k] / x[j])) < 0.05 and abs(math.log10(y[k] / y[j])) < 0.3:
+            if abs(math.log10(x[k] / x[j])) < 0.03 * spans[0] and abs(math.log10(y[k] / y[j])) < 0.04 * spans[1]:
                 g.append(k)
                 break
         else:
