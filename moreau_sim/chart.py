@@ -539,7 +539,8 @@ def figure(res: ChartResult):
             if below:  # not resolved by the reference: drawn hollow, on its line
                 ax.plot([x[k] for k in below], [y[k] for k in below], "o", mfc="white", color=COLOURS[name], ms=5)
             for group in _coinciding(pts, x, y, spans):
-                text = ", ".join(f"{pts[k].setting:g}" for k in group)
+                values = [f"{pts[k].setting:g}" for k in group]
+                text = ", ".join(values) if len(values) <= 2 else f"{values[0]} ... {values[-1]}"
                 ax.annotate(text, (x[group[0]], y[group[0]]), textcoords="offset points", xytext=LABEL_AT[name],
                             fontsize=7, color=COLOURS[name], va="center")
         if ref is not None and np.isfinite(getattr(ref, agree)):
@@ -578,13 +579,14 @@ def figure(res: ChartResult):
 
 
 def _coinciding(pts, x, y, spans) -> list[list[int]]:
-    """Indices of the points grouped where they overlap on the log-log chart (within 3 % of the
-    panel's decades of CPU and 4 % of its decades of error, `spans`): one label per group."""
+    """Indices of the points grouped where they overlap on the log-log chart (within 5 % of the
+    panel's decades of CPU and 4 % of its decades of error, `spans`): one label per group,
+    "first ... last" beyond two."""
     groups: list[list[int]] = []
     for k in range(len(pts)):
         for g in groups:
             j = g[0]
-            if abs(math.log10(x[k] / x[j])) < 0.03 * spans[0] and abs(math.log10(y[k] / y[j])) < 0.04 * spans[1]:
+            if abs(math.log10(x[k] / x[j])) < 0.05 * spans[0] and abs(math.log10(y[k] / y[j])) < 0.04 * spans[1]:
                 g.append(k)
                 break
         else:
