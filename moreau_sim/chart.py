@@ -1,7 +1,8 @@
 """Speed against accuracy for one scene: each integrator that accepts it over a ladder of steps
 (time-stepping) or tolerances (adaptive, event-driven), its error against a reference on a common
 sample grid and its CPU time per simulated second, as a work-precision chart (PNG), a JSON file
-and a Markdown table (docs/cli.md, "chart"; the integrators: docs/theory.md §7-§8).
+and a Markdown table (docs/cli.md, "chart"; the integrators: docs/theory.md §2, §7, §8; the
+checks each run makes of itself: §10).
 
 The reference is the agreement of two methods at tight tolerance (event-driven and adaptive), or,
 for a scene only the time-stepper takes (actuators, drives), of its two smallest steps; how well
@@ -350,8 +351,12 @@ def _measure(res: ChartResult, model: Model, grid, names, dts, tols, ref_rtol, l
                     "(the reference)")
                 continue
             if ref_samples is not None:
-                run.q_error, run.q_error_mean, run.u_error, run.u_error_max = _errors(
-                    model, _samples(traj, grid), ref_samples)
+                try:
+                    samples = _samples(traj, grid)
+                except SimulationError as exc:  # a run that stopped short of the grid
+                    run.status = f"failed: {exc}"
+                    continue
+                run.q_error, run.q_error_mean, run.u_error, run.u_error_max = _errors(model, samples, ref_samples)
                 ref = res.reference
                 run.below_reference = ref.uncertain and run.q_error < ref.q_agreement
             say(f"{name} {run.setting_name} = {setting:g}: {1e3 * run.cpu_per_second:.3g} ms CPU per simulated s, "
