@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 
-from . import compiled, drive as drives, qp
+from . import compiled, drive_step, qp
 from .constraints import CornerPieces, assemble_constraints, closed_limits, corner_faces
 from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
 from .corners import MAX_PIECES, corner_law
@@ -38,7 +38,7 @@ class ContactProblem:
     pieces (or None), v_free = (u_free + e u_k)/(1 + e). Without a closed contact those are None.
     tau: the joint torques of the step [N or N m] (None: no actuation); rate: dg_i/dt of the
     contacts against a moving static [m/s] (None: none; docs/theory.md §2.9); drive: the driven joints' step
-    (drive.DriveStep; u_free then has u_d = xdot(t_{k+1}), §2.13; None: none)."""
+    (drive_step.DriveStep; u_free then has u_d = xdot(t_{k+1}), §2.13; None: none)."""
 
     h: float
     e: float
@@ -54,7 +54,7 @@ class ContactProblem:
     pieces: CornerPieces | None = None
     tau: np.ndarray | None = None
     rate: np.ndarray | None = None
-    drive: drives.DriveStep | None = None  # a step with a driven joint (drive.py, docs/theory.md §2.13)
+    drive: drive_step.DriveStep | None = None  # a step with a driven joint (drive_step.py, docs/theory.md §2.13)
 
     @property
     def closed(self) -> bool:
@@ -154,15 +154,15 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
         contacts = swept_detect(model, data, q, u, h, q_m, contacts)  # a thin obstacle crossed in the step
     if model.limits:  # the joint limits closed at q_m: constraints of the same law (limits.py)
         contacts = contacts.concat(closed_limits(model, q_m, opts.contact_tolerance))
-    drive = drives.of(model)
+    drive = model.drive
     if contacts.m == 0 and not contacts.corners:
         u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
-        ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, tau=tau)  # §2.13
+        ds = None if drive is None else drive_step.start(drive, model, data, q_m, u, u_free, t_m, h, tau=tau)
         return ContactProblem(h, e, q, u, q_m, NO_CONTACTS, u_free if ds is None else ds.u_c, tau=tau, drive=ds)
     cs = assemble_constraints(model, data, q_m, contacts)
     Minv = model.forest.inverse_mass_matrix(data.kinematics, q_m)
     u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
-    ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, cs.M, tau)  # §2.13
+    ds = None if drive is None else drive_step.start(drive, model, data, q_m, u, u_free, t_m, h, cs.M, tau)
     u_free = u_free if ds is None else ds.u_c
     v_free = (u_free + e * u) / (1.0 + e)
     rate = None if model.prescribed is None else model.prescribed.rates(model.pairs, cs.contacts, t_m)
