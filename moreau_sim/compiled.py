@@ -13,7 +13,7 @@ import coal
 import numpy as np
 import pinocchio
 
-from . import constraints, drive, qp
+from . import constraints, qp
 from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, Contacts, FeatureKind
 from .law import ENERGY_ROUNDOFF
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts
@@ -97,7 +97,7 @@ def unsupported(model) -> str | None:
     o = model.options
     if model.prescribed is not None:
         return "a static with prescribed motion"
-    if drive.of(model) is not None:
+    if model.drive is not None:
         return "a driven joint ([[drives]])"
     geoms = model.geom.geometryObjects
     if not all(_analytic(geoms[p.first].geometry, geoms[p.second].geometry) for p in model.pairs):

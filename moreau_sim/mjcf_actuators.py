@@ -1,7 +1,8 @@
 """MJCF ``<actuator>`` read onto the joint torques of actuation.py: ``<motor>`` and ``<position>`` on hinge and
 slide joints, as MuJoCo computes them (docs/robots.md#mjcf-actuators): the control c clamped to ctrlrange,
 the actuator force F = gain c + b1 (gear q) + b2 (gear u) clamped to forcerange, the joint torque
-tau = gear F (motor: gain 1, b = 0; position: gain kp, b1 = -kp, b2 = -kv). c comes from the scene
+tau = gear F (motor: gain 1, b = 0; position: gain kp, b1 = -kp, b2 = -kv), and the sum of a joint's
+actuators clamped to that joint's actuatorfrcrange (MuJoCo's qfrc_actuator). c comes from the scene
 ([[actuators]] mjcf/ctrl), 0 when not given (MuJoCo's default). Anything else under <actuator> (other kinds,
 transmissions, activation dynamics) is refused with file:line."""
 
@@ -15,7 +16,7 @@ import numpy as np
 
 from .errors import SceneError
 from .prescribed import Schedule
-from .robots import _at, _mjcf_expanded
+from .robots import _at, _joint_defaults, _mjcf_expanded
 
 KINDS = frozenset({"motor", "position"})
 # attributes of a motor / position that are read; harmless ones (drawing, user data) are skipped
@@ -28,7 +29,9 @@ _HARMLESS = {"name", "class", "group", "user"}
 class MJCFActuator:
     """One MJCF actuator: name (the MJCF name, else "actuator K" by its place in <actuator>), kind ("motor" |
     "position"), joint (the MJCF joint name), gear (its first entry), kp [N/rad or N/m per unit of gear]
-    and kv (position; 0 for a motor), ctrl and force ranges (-inf, inf: unlimited), where: file:line."""
+    and kv (position; 0 for a motor), ctrl and force ranges (-inf, inf: unlimited), where: file:line;
+    jointrange: its joint's actuatorfrcrange [N m or N], the clamp of the sum of the joint's actuators (-inf, inf:
+    none)."""
 
     name: str
     kind: str
@@ -39,6 +42,7 @@ class MJCFActuator:
     ctrlrange: tuple[float, float]
     forcerange: tuple[float, float]
     where: str
+    jointrange: tuple[float, float] = (-np.inf, np.inf)
 
 
 def _defaults(tree: ET.Element) -> dict[str, dict[str, tuple[str, ET.Element]]]:
@@ -76,6 +80,28 @@ def _range(a: dict, key: str, auto: bool, at: str, where: str) -> tuple[float, f
     return lo, hi
 
 
+def _joint_ranges(tree: ET.Element, path: Path, auto: bool, where: str) -> dict[str, tuple[float, float]]:
+    """{joint name: its actuatorfrcrange} of every joint that has one under MuJoCo's limited rule
+    (actuatorfrclimited; the joint's attributes over its class's: class, else the nearest childclass above it,
+    as robots.mjcf_joint_limits reads range)."""
+    defaults = _joint_defaults(tree)
+    out: dict[str, tuple[float, float]] = {}
+
+    def visit(el: ET.Element, childclass: str) -> None:
+        for child in el:
+            if child.tag == "body":
+                visit(child, child.get("childclass", childclass))
+            elif child.tag == "joint":
+                a = {**defaults.get(child.get("class", childclass), {}), **child.attrib}
+                rng = _range(a, "actuatorfrcrange", auto, f"{_at(child, path)}: joint '{a.get('name', '?')}'", where)
+                if np.isfinite(rng[0]):
+                    out[a.get("name", "?")] = rng
+
+    for w in tree.findall("worldbody"):
+        visit(w, "main")
+    return out
+
+
 def _number(a: dict, key: str, default: float, at: str, where: str) -> float:
     text = a.get(key)
     if text is None:
@@ -99,6 +125,7 @@ def read(path: Path, where: str) -> tuple[MJCFActuator, ...]:
         compiler.update(c.attrib)
     auto = compiler.get("autolimits", "true") == "true"
     defaults = _defaults(tree)
+    joint_ranges = _joint_ranges(tree, path, auto, where)
     out: list[MJCFActuator] = []
     for block in tree.findall("actuator"):
         for el in block:
@@ -135,7 +162,8 @@ def read(path: Path, where: str) -> tuple[MJCFActuator, ...]:
             if kp < 0 or kv < 0:
                 raise SceneError(f"{at}: kp and kv must be >= 0 [{where} mjcf]")
             out.append(MJCFActuator(name, el.tag, a["joint"], gear, kp, kv, _range(a, "ctrlrange", auto, at, where),
-                                    _range(a, "forcerange", auto, at, where), at))
+                                    _range(a, "forcerange", auto, at, where), at,
+                                    joint_ranges.get(a["joint"], (-np.inf, np.inf))))
     names = [x.name for x in out]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -159,6 +187,11 @@ class Servos:
         self.flo, self.fhi = (np.array([s.forcerange[i] for s in specs]) for i in (0, 1))
         self.ctrl = ctrl
         self._zero = all(c is None for c in ctrl)
+        self._joint_clamps = []  # each joint with an actuatorfrcrange: (its actuators' indices, (lower, upper))
+        for v in dict.fromkeys(self.v_index.tolist()):
+            idx = np.flatnonzero(self.v_index == v)
+            if np.isfinite(specs[idx[0]].jointrange[0]):
+                self._joint_clamps.append((idx, specs[idx[0]].jointrange))
 
     def control(self, t: float) -> np.ndarray:
         """c(t), clamped to ctrlrange."""
@@ -170,15 +203,25 @@ class Servos:
         return np.clip(c, self.clo, self.chi)
 
     def torque(self, t: float, q: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """tau of each actuator (on v_index; two on one joint add), [N m or N]."""
+        """tau of each actuator (on v_index; two on one joint add), [N m or N]. On a joint with an
+        actuatorfrcrange the sum of its actuators (in their order) clamped to it is the first one's entry and
+        the others' are 0 (MuJoCo clamps qfrc_actuator, the sum, not each actuator's force)."""
         g = self.gear
         f = self.gain * self.control(t) - self.kp * (g * q[self.q_index]) - self.kv * (g * u[self.v_index])
-        return g * np.clip(f, self.flo, self.fhi)
+        tau = g * np.clip(f, self.flo, self.fhi)
+        for idx, (lo, hi) in self._joint_clamps:
+            total = 0.0
+            for i in idx:
+                total += float(tau[i])
+            tau[idx] = 0.0
+            tau[idx[0]] = min(max(total, lo), hi)
+        return tau
 
     def describe(self) -> list[dict]:
         return [{"name": f"{self.name}/{s.name}", "joint": j, "kind": f"mjcf {s.kind}", "gear": s.gear,
                  **({"kp": s.kp, "kv": s.kv} if s.kind == "position" else {}),
                  "ctrlrange": _finite(s.ctrlrange), "forcerange": _finite(s.forcerange),
+                 **({"actuatorfrcrange": _finite(s.jointrange)} if np.isfinite(s.jointrange[0]) else {}),
                  "ctrl": "scene" if c is not None else "0"}
                 for s, j, c in zip(self.specs, self.joint_names, self.ctrl)]
 

@@ -16,7 +16,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from . import actuation as act, limits, prescribed as presc, self_pairs, shapes
+from . import actuation as act, drive as drives, limits, prescribed as presc, self_pairs, shapes
 from .actuation import Actuation
 from .bodies import load_body
 from .errors import SceneError
@@ -71,9 +71,9 @@ class Model:
     pose, the scene's [collisions] exclude);
     limits: the joint limits (limits.JointLimit: unilateral constraints of the same law, pair indices
     after the pairs');
-    actuation: the joint torques (actuation.py; None: none); prescribed: the statics that move
-    (prescribed.py; None: none); forest: one Pinocchio model per body (trees.py: the Python
-    time-stepping step's dynamics and kinematics; None: one tree, the whole model).
+    actuation, drive, prescribed: the joint torques (actuation.py), the driven joints ([[drives]], drive.py), the
+    statics that move (prescribed.py), each None where there is none; forest: one Pinocchio model per body
+    (trees.py: the Python time-stepping step's dynamics and kinematics; None: one tree, the whole model).
     """
 
     scene: Scene
@@ -93,6 +93,7 @@ class Model:
     excluded: tuple[tuple[str, str], ...] = ()  # (pair name, why): automatic pairs left out (build_model)
     limits: tuple = ()  # limits.JointLimit of every limited joint of the bodies with joint_limits on
     actuation: Actuation | None = None
+    drive: drives.Drive | None = None
     prescribed: Prescribed | None = None
     forest: Forest | None = None
     scratch: InitVar[pin.Data | None] = None  # a Data of `pin` for the velocity-bias probe below, if not given
@@ -395,6 +396,7 @@ def build_model(scene: Scene) -> Model:
     return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, limits=joint_limits,
                  actuation=actuation, prescribed=moving, forest=forest,
+                 drive=drives.build(scene, model, infos, actuation, q0, u0, joint_limits),
                  excluded=tuple((_pair_name(gobs, i, j), w) for (i, j), w in sorted(why.items())),
                  velocity_bias_of_bodies=bias)
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from . import drive, trajectory
+from . import trajectory
 from .contacts import Contacts, pair_distances
 from .data import Data
 from .energy import kinetic, potential, total
@@ -235,8 +235,8 @@ class Recorder:
     def __init__(self, model: Model, data: Data, n_samples: int = 1, *, spill: str | Path | None = None):
         self.model, self.data = model, data
         sizes = {"nq": model.nq, "nv": model.nv, "pairs": len(model.pairs)}
-        driven = drive.of(model) is not None  # built here, before the run: a bad [[drives]] is a SceneError
-        self._external = model.actuation is not None or model.prescribed is not None or driven  # the EXTERNAL columns
+        self._external = (model.actuation is not None or model.prescribed is not None
+                          or model.drive is not None)  # the EXTERNAL columns
         schema = {**trajectory.SAMPLES, **trajectory.EXTERNAL} if self._external else trajectory.SAMPLES
         self._samples = _Columns(schema, sizes, n_samples, spill)
         self._act = self._obs = 0.0  # actuator and obstacle work since the previous sample [J] (§5.5)

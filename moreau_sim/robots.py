@@ -475,7 +475,9 @@ def mjcf_joint_limits(tree: ET.Element, m: pin.Model, path: Path, where: str) ->
     limited when a range is given unless ``<compiler autolimits="false">``; a hinge's range in
     degrees unless ``<compiler angle="radian">``, a slide's in metres. Unlimited: -inf, inf.
     Pinocchio 4.1's reader alone converts a slide's range from degrees and keeps the range of a
-    joint with ``limited="false"``. A limited ball joint (a cone) is refused by name."""
+    joint with ``limited="false"``. A limited ball joint (a cone) is refused by name. No effort limit:
+    Pinocchio's reader puts a joint's ``actuatorfrcrange`` upper bound there (a symmetric clamp of every torque,
+    whatever ``actuatorfrclimited`` says); mjcf_actuators clamps the joint's actuators' sum to it as MuJoCo does."""
     compiler: dict[str, str] = {}
     for c in tree.findall("compiler"):
         compiler.update(c.attrib)
@@ -528,6 +530,7 @@ def mjcf_joint_limits(tree: ET.Element, m: pin.Model, path: Path, where: str) ->
             lower[k], upper[k] = lo, up
         k += n
     m.lowerPositionLimit, m.upperPositionLimit = lower, upper
+    m.effortLimit = np.full(m.nv, np.inf)
 
 
 def load_mjcf(path: Path, root, where: str,

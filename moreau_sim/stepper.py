@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 
-from . import compiled, drive as drives, qp
+from . import compiled, drive_step, qp
 from .constraints import CornerPieces, assemble_constraints, closed_limits, corner_faces
 from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
 from .corners import MAX_PIECES, corner_law
@@ -38,7 +38,7 @@ class ContactProblem:
     pieces (or None), v_free = (u_free + e u_k)/(1 + e). Without a closed contact those are None.
     tau: the joint torques of the step [N or N m] (None: no actuation); rate: dg_i/dt of the
     contacts against a moving static [m/s] (None: none; docs/theory.md §2.9); drive: the driven joints' step
-    (drive.DriveStep; u_free then has u_d = xdot(t_{k+1}), §2.13; None: none)."""
+    (drive_step.DriveStep; u_free then has u_d = xdot(t_{k+1}), §2.13; None: none)."""
 
     h: float
     e: float
@@ -54,7 +54,7 @@ class ContactProblem:
     pieces: CornerPieces | None = None
     tau: np.ndarray | None = None
     rate: np.ndarray | None = None
-    drive: drives.DriveStep | None = None  # a step with a driven joint (drive.py, docs/theory.md §2.13)
+    drive: drive_step.DriveStep | None = None  # a step with a driven joint (drive_step.py, docs/theory.md §2.13)
 
     @property
     def closed(self) -> bool:
@@ -118,7 +118,7 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
         if u_c is not imp.u_next:  # a paid lift (§2.5): the ledger measures the law on u_{k+1} before it (§5.2)
             u_law = imp.u_next
             imp = replace(imp, u_next=u_c, gamma_plus=ordered(imp.W.T, u_c))
-    if imp.qp.ok and ds is None and not bounces_under_torques(pb, imp):  # §2.10 (a driven joint: §2.13)
+    if imp.qp.ok and ds is None:  # §2.10 (a driven joint: §2.13)
         imp = cap_energy(model, data, pb, imp, q_next, corr)
     return StepResult(State(t1, q_next, imp.u_next), imp.contacts, imp.P, imp.gamma_minus, imp.gamma_plus,
                       imp.contact_work, imp.qp, imp.branch, corr, u_free=pb.u_free, tau=pb.tau,
@@ -154,15 +154,15 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
         contacts = swept_detect(model, data, q, u, h, q_m, contacts)  # a thin obstacle crossed in the step
     if model.limits:  # the joint limits closed at q_m: constraints of the same law (limits.py)
         contacts = contacts.concat(closed_limits(model, q_m, opts.contact_tolerance))
-    drive = drives.of(model)
+    drive = model.drive
     if contacts.m == 0 and not contacts.corners:
         u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
-        ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, tau=tau)  # §2.13
+        ds = None if drive is None else drive_step.start(drive, model, data, q_m, u, u_free, t_m, h, tau=tau)
         return ContactProblem(h, e, q, u, q_m, NO_CONTACTS, u_free if ds is None else ds.u_c, tau=tau, drive=ds)
     cs = assemble_constraints(model, data, q_m, contacts)
     Minv = model.forest.inverse_mass_matrix(data.kinematics, q_m)
     u_free = free_velocity(model, data, q_m, u, h, opts.bias, tau)
-    ds = None if drive is None else drive.start(model, data, q_m, u, u_free, t_m, h, cs.M, tau)  # §2.13
+    ds = None if drive is None else drive_step.start(drive, model, data, q_m, u, u_free, t_m, h, cs.M, tau)
     u_free = u_free if ds is None else ds.u_c
     v_free = (u_free + e * u) / (1.0 + e)
     rate = None if model.prescribed is None else model.prescribed.rates(model.pairs, cs.contacts, t_m)
@@ -232,13 +232,16 @@ def cap_energy(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution
     """The energy cap of a contact step (docs/theory.md §2.10): T + V at (q_{k+1}, u_{k+1}) is never above
     E* + W_a + W_o beyond round-off (E* = E_k + min(W_c, 0) + corr, corr [J] the change of T + V the position
     correction made; W_a = h tau.(u_k + u_{k+1})/2 and W_o the work of the torques and of a moving static,
-    §5.5; ENERGY_ROUNDOFF). Where the step ends above it (the drift after the impact moves M(q) and V(q) along
-    u_{k+1}, first order in h |Δu|), the velocities of the trees in contact (every entry of u_{k+1} of a
-    kinematic tree one of the rows involves) are scaled by the alpha of _alpha; gamma_plus scales with them
-    (signs kept). Steps that end at or below the bound are returned as they are."""
+    §5.5; ENERGY_ROUNDOFF), plus max(S_k, 0) in a step that bounces under torques (bounces_under_torques; S_k
+    the free step's own error, smooth_error). Where the step ends above it (the drift after the impact moves M(q)
+    and V(q) along u_{k+1}, first order in h |Δu|), the velocities of the trees in contact (every entry of
+    u_{k+1} of a kinematic tree one of the rows involves) are scaled by the alpha of _alpha; gamma_plus scales
+    with them (signs kept). Steps that end at or below the bound are returned as they are."""
     T0, V0 = kinetic(model, data, pb.q, pb.u), potential(model, data, pb.q)
     T1, V1 = kinetic(model, data, q_next, imp.u_next), potential(model, data, q_next)
     target = (((T0 + V0) + min(imp.contact_work, 0.0)) + corr) + imp.obstacle_work  # W_o: P fixed, no alpha
+    if bounces_under_torques(pb, imp):  # the smooth step's gain is the integrator's, not the impact's (§2.10)
+        target = target + max(smooth_error(model, data, pb, T0 + V0), 0.0)
     f = None if pb.tau is None else (0.5 * pb.h) * pb.tau  # W_a = f.(u_k + u_{k+1})
     work = 0.0 if f is None else float(ordered(f, pb.u + imp.u_next))
     if T1 + V1 <= (target + work) + _roundoff(T0, V0, T1, V1):
@@ -265,11 +268,21 @@ def cap_energy(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution
 
 
 def bounces_under_torques(pb: ContactProblem, imp: ImpactSolution) -> bool:
-    """Whether the cap leaves this step alone (docs/theory.md §2.10, its scope): a step with torques in which
-    a contact with a percussion leaves with gamma+ = -e gamma- != 0 (e > 0). Scaling its velocities would
-    take the smooth step's error out of that bounce's restitution; such a gain is left to the run's
-    invariants to report."""
+    """Whether the cap's bound allows the smooth step's gain (docs/theory.md §2.10): a step with torques in which
+    a contact with a percussion leaves with gamma+ = -e gamma- != 0 (e > 0). Scaling it changes that bounce's
+    restitution, which only the impact's own error, not the integrator's, may do."""
     return pb.tau is not None and pb.e > 0.0 and bool((imp.P > 0.0).any())
+
+
+def smooth_error(model: Model, data: Data, pb: ContactProblem, E: float) -> float:
+    """S_k [J] (docs/theory.md §5.3, §5.5): T + V at the free step's end (q_m (+) h/2 u_free, u_free) less
+    E = T_k + V_k and the torques' work h tau.(u_k + u_free)/2 there: the smooth integrator's error in the step,
+    as the ledger measures it (recording.account_step)."""
+    q_free = pin.integrate(model.pin, pb.q_m, (0.5 * pb.h) * pb.u_free)
+    S = (kinetic(model, data, q_free, pb.u_free) + potential(model, data, q_free)) - E
+    if pb.tau is not None:
+        S = S - float(ordered((0.5 * pb.h) * pb.tau, pb.u + pb.u_free))
+    return S
 
 
 def _roundoff(T0: float, V0: float, T1: float, V1: float) -> float:

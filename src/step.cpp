@@ -796,9 +796,7 @@ class Stepper {
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
     if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
-    // stepper.bounces_under_torques: a driven step whose contacts bounce (e > 0) is not capped (§2.10)
-    const bool bounces = tau_.size() != 0 && e > 0.0 && (P.array() > 0.0).any();
-    if (!bounces) cap_energy(q, u, h, work, corr, W, q_next, u_next, gamma_plus);  // with the torques' work
+    cap_energy(q, u, q_m, u_free, h, e, P, work, corr, W, q_next, u_next, gamma_plus);  // with the torques' work
     out.outcome = Outcome::CONTACT;
     out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
     out.g = std::move(g);
@@ -847,15 +845,20 @@ class Stepper {
   }
 
   // stepper.cap_energy (docs/theory.md §2.10): T + V <= E* + W_a (tau_: the torques' work h tau.(u_k + u_{k+1})/2,
-  // linear in alpha), the trees in contact scaled by alpha where the step ends above (no moving static here)
-  void cap_energy(const VectorXd &q, const VectorXd &u, double h, double work, double corr, const MatrixXd &W,
-                  const VectorXd &q_next, VectorXd &u_next, VectorXd &gamma_plus) {
+  // linear in alpha), + max(S_k, 0) in a step that bounces under torques; the trees in contact scaled by alpha
+  // where the step ends above (no moving static here)
+  void cap_energy(const VectorXd &q, const VectorXd &u, const VectorXd &q_m, const VectorXd &u_free, double h,
+                  double e, const VectorXd &P, double work, double corr, const MatrixXd &W, const VectorXd &q_next,
+                  VectorXd &u_next, VectorXd &gamma_plus) {
     const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
     const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
     const double T1 = pinocchio::computeKineticEnergy(model_, data_, q_next, u_next);
     const double V1 = pinocchio::computePotentialEnergy(model_, data_, q_next);
-    const double target = (((T0 + V0) + std::min(work, 0.0)) + corr) + 0.0;  // + W_o: none in the compiled step
+    double target = (((T0 + V0) + std::min(work, 0.0)) + corr) + 0.0;  // + W_o: none in the compiled step
     const bool driven = tau_.size() != 0;
+    // stepper.bounces_under_torques: a driven step whose contacts bounce (e > 0) may keep the smooth step's gain
+    if (driven && e > 0.0 && (P.array() > 0.0).any())
+      target = target + std::max(smooth_error(q_m, u, u_free, h, T0 + V0), 0.0);
     VectorXd f;
     double wa = 0.0;
     if (driven) {
@@ -882,6 +885,19 @@ class Stepper {
     const double alpha = alpha_of(a, b, c, 0.0);
     u_next = u_R + alpha * u_S;
     gamma_plus = otimes_t(W, u_next);
+  }
+
+  // stepper.smooth_error (docs/theory.md §5.3, §5.5): T + V at (q_m (+) h/2 u_free, u_free) less E = T_k + V_k and
+  // the torques' work h tau.(u_k + u_free)/2
+  double smooth_error(const VectorXd &q_m, const VectorXd &u, const VectorXd &u_free, double h, double E) {
+    const VectorXd q_free = pinocchio::integrate(model_, q_m, (0.5 * h) * u_free);
+    double S = energy(q_free, u_free) - E;
+    if (tau_.size() != 0) {
+      const VectorXd f = (0.5 * h) * tau_;
+      const VectorXd s = u + u_free;
+      S = S - odot(f.data(), s.data(), model_.nv);
+    }
+    return S;
   }
 
   // stepper.correct_positions

@@ -160,8 +160,21 @@ def _pendulum(tmp_path, extra="", **kw):
 def test_driven_joint_refusals_name_the_field(tmp_path, change, field):
     text = change(PENDULUM.format(e=0.5, h=1e-3, w=-2.0, zb=0.52, models=MODELS))
     with pytest.raises(SceneError, match=field) as exc:
-        ms.simulate(ms.build_model(inline_scene(text, tmp_path)))
+        ms.build_model(inline_scene(text, tmp_path))  # the model refuses it: its Drive is built with it
     assert "\n" not in str(exc.value) and "[[drives]][0]" in str(exc.value)
+
+
+def test_the_drive_is_a_declared_field_of_the_model(tmp_path):
+    """build_model makes the model's Drive (Model.drive, a field of the frozen Model, None without [[drives]]):
+    a run sets nothing on the model for it, and a copy made with dataclasses.replace keeps it."""
+    import dataclasses
+    model = ms.build_model(_pendulum(tmp_path))
+    assert "drive" in {f.name for f in dataclasses.fields(model)}
+    assert [j.name for j in model.drive.joints] == ["pendulum/hinge"] and model.drive.d.tolist() == [0]
+    ms.simulate(model, progress=False)
+    assert {k for k in vars(model) if "drive" in k} == {"drive"}  # no cache set on the frozen model (it was)
+    assert dataclasses.replace(model).drive is model.drive
+    assert ms.build_model(ms.load_scene(SCENES / "pendulum_wall.toml")).drive is None
 
 
 @pytest.mark.parametrize("integrator", ["adaptive", "event-driven"])

@@ -85,6 +85,53 @@ def test_torques_equal_mujocos_qfrc_actuator(tmp_path):
         assert m.actuation.torque(0.0, np.array(q), np.array(u)) == pytest.approx(d.qfrc_actuator, rel=1e-12)
 
 
+# the joints' actuatorfrcrange: on the slide k its own, on the hinge j its class's (b); MuJoCo clamps the sum of a
+# joint's actuators (qfrc_actuator), not each actuator's force
+CLAMPED = (ARM.replace('<motor gear="2"/></default>', '<motor gear="2"/><joint actuatorfrcrange="-4 4"/></default>')
+           .replace('<joint name="j" type="hinge"', '<joint name="j" class="b" type="hinge"')
+           .replace('type="slide" axis="1 0 0"', 'type="slide" axis="1 0 0" actuatorfrcrange="-2 1.5"'))
+
+
+@pytest.mark.parametrize("c", [(2.0, 3.0, 0.4), (0.01, 0.02, 0.01), (-1.0, -3.0, -0.2)])
+def test_joint_actuator_force_range_is_mujocos(tmp_path, c):
+    """A joint's actuatorfrcrange clamps the sum of its actuators' torques as MuJoCo's qfrc_actuator does (the
+    slide's motor + servo sum to 25.6 N at the first state: 1.5 N), inside the range nothing changes: our tau
+    equals MuJoCo's to round-off, clamped or not, for the joint's own range and its class's."""
+    import mujoco
+    mm = mujoco.MjModel.from_xml_string(CLAMPED.format(actuators=ACTS))
+    assert mm.jnt_actfrclimited.tolist() == [1, 1]
+    d = mujoco.MjData(mm)
+    m = model(arm(tmp_path, extra=CTRL.format(*c), xml=CLAMPED))
+    clamped = free = 0
+    for q, u in [((0.2, 0.1), (0.5, -0.3)), ((1.1, -0.7), (-2.0, 0.4)), ((0.0, 0.001), (0.01, 0.0)),
+                 ((-1.0, -0.06), (0.0, 0.0))]:
+        d.qpos[:], d.qvel[:], d.ctrl[:] = q, u, c
+        mujoco.mj_forward(mm, d)
+        tau = m.actuation.torque(0.0, np.array(q), np.array(u))
+        assert tau == pytest.approx(d.qfrc_actuator, rel=1e-12, abs=1e-15), (q, u, tau, d.qfrc_actuator)
+        raw = np.zeros(2)  # the joints' sums before MuJoCo's clamp
+        np.add.at(raw, mm.actuator_trnid[:, 0], mm.actuator_gear[:, 0] * d.actuator_force)
+        hit = np.abs(raw - d.qfrc_actuator) > 1e-9
+        clamped, free = clamped + int(hit.sum()), free + int((~hit).sum())
+    assert clamped >= 2 and free >= 1  # the clamp acted, and left sums inside the range alone
+
+
+def test_joint_actuator_force_range_clamps_the_motion(tmp_path):
+    """Two motors asking 10 N and 5 N of a 2 kg vertical slider whose joint has actuatorfrcrange [-3, 3]: the joint
+    gets 3 N in all, so it accelerates at 3/2 - g0 exactly; with actuatorfrclimited="false" the range is not read
+    (15/2 - g0); a limited joint without its range is one line with file:line."""
+    acts = '<motor name="a" joint="z"/><motor name="b" joint="z"/>'
+    ctrl = '[[actuators]]\nbody = "arm"\nmjcf = "all"\nctrl = [10.0, 5.0]\n'
+    for flag, force in [("", 3.0), (' actuatorfrclimited="false"', 15.0)]:
+        xml = SLIDER.replace('axis="0 0 1"', f'axis="0 0 1" actuatorfrcrange="-3 3"{flag}')
+        tr = ms.simulate(model(arm(tmp_path, acts, ctrl, T=0.1, xml=xml)), progress=False)
+        assert tr.u[-1, 0] == pytest.approx(0.1 * (force / 2.0 - G), rel=1e-12)
+    with pytest.raises(ms.SceneError) as info:
+        model(arm(tmp_path, acts, ctrl, xml=SLIDER.replace('axis="0 0 1"', 'axis="0 0 1" actuatorfrclimited="true"')))
+    assert "\n" not in str(info.value) and "arm.xml:2: joint 'z': actuatorfrcrange=None is not two numbers" in str(
+        info.value), str(info.value)
+
+
 def test_ctrl_defaults_to_zero_and_follows_a_schedule(tmp_path):
     """Without a ctrl the control is 0 (MuJoCo's default): the hinge servo pulls to q = 0. A sine ctrl for
     one actuator: c(t) = 0.5 sin(2 pi t) reaches the torque at t = 0.25 s."""

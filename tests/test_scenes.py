@@ -239,8 +239,6 @@ FLAGGED = {
     "quadruped_drop": {"penetration"},
     # the clearance joint's sliding contact deepens step after step (the gap's curvature, the correction refused)
     "slider_crank_clearance": {"penetration"},
-    # the Panda's strikes under PD (e = 0.5): the cap leaves a driven step whose contacts bounce as the law gives it
-    "panda_tapping": {"ledger residual"},
 }
 
 
