@@ -266,6 +266,7 @@ class EventDrivenRun:
                      "gap_tol": self.gap_tol, "v_tol": V_TOL, "g_res": G_RES, "g_zeno": G_ZENO, "v_zeno": V_ZENO,
                      "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "lie_group_chart": self.lie}
         run = {"steps": None, "events": self.s.events, "impacts": self.s.ev.impacts, "nfev": self.s.ev.nfev,
+               "nfev_constrained": self.s.ev.constrained,
                "wall_seconds": wall}
         return run_metadata(self.model, status, run, integrator="event-driven", reference=reference,
                             zeno=self.s.ev.zeno)
