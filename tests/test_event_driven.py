@@ -65,7 +65,8 @@ def test_touching_cradle_simultaneous(e, expected):
     assert tr.complete and tr.meta["run"]["impacts"] == 1
     assert np.abs(tr.u[-1] - expected).max() < 1e-12
     assert np.abs(tr.log_t).max() == 0.0  # the impact is at t = 0
-    assert np.all(tr.n_contacts[1:] == 3)  # balls 1-4 keep touching: neutral persistent contacts
+    # balls 1-4 keep touching, idle (zero force, zero relative acceleration: docs/theory.md §7), not held
+    assert np.abs(tr.gap[1:, 1:]).max() < 1e-15 and np.all(tr.n_contacts[1:] == 0)
     assert abs(tr.u[-1].sum() - 1.0) < 1e-12  # momentum
 
 
@@ -508,7 +509,8 @@ q0 = [{x}]
 u0 = [{1.0 if i == 0 else 0.0}]
 """ for i, x in enumerate((-0.001, 0.2, 0.4, 0.6000000000000001, 0.8))) + """
 [collisions]
-exclude = [["ball0", "ball2"], ["ball0", "ball3"], ["ball0", "ball4"], ["ball1", "ball3"], ["ball1", "ball4"], ["ball2", "ball4"]]
+exclude = [["ball0", "ball2"], ["ball0", "ball3"], ["ball0", "ball4"], ["ball1", "ball3"], ["ball1", "ball4"],
+           ["ball2", "ball4"]]
 """
 
 
@@ -533,3 +535,15 @@ def test_touching_cradle_after_the_strike_is_free_flight(integrate):
     assert np.abs(tr.u[-1] - [-0.6, 0.4, 0.4, 0.4, 0.4]).max() < 1e-15
     assert np.abs(np.diff(tr.q[:, 1:], axis=1) - 0.2).max() < 1e-14
     assert tr.meta["run"]["nfev_constrained"] == 0
+
+
+def test_slider_crank_corners_idle_after_their_accumulation_point():
+    """After the accumulation point at 9.13 ms the slider's two corners touch the guide at zero force
+    (idle, docs/theory.md §7): both integrators let them separate and agree through the next 17 impacts
+    (held bilaterally, the event-driven run kept them and missed those impacts, 1 cm off)."""
+    model = ms.build_model(scene("slider_crank_clearance", duration=0.05))
+    grid = np.linspace(0.0, 0.05, 51)
+    a = simulate_event_driven(model, t_eval=grid)
+    b = simulate_adaptive(model, t_eval=grid)
+    assert a.meta["run"]["impacts"] == b.meta["run"]["impacts"] == 29
+    assert np.abs(a.q - b.q).max() < 1e-7 and np.abs(a.log_t - b.log_t).max() < 1e-9
