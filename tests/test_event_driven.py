@@ -547,3 +547,16 @@ def test_slider_crank_corners_idle_after_their_accumulation_point():
     b = simulate_adaptive(model, t_eval=grid)
     assert a.meta["run"]["impacts"] == b.meta["run"]["impacts"] == 29
     assert np.abs(a.q - b.q).max() < 1e-7 and np.abs(a.log_t - b.log_t).max() < 1e-9
+
+
+def test_a_zero_multiplier_of_dependent_rows_is_not_idle():
+    """A box resting flat on the ground: four corner rows of rank 3, the acceleration QP puts m g / 2 on two
+    of the corners and 0 on the others; forces of dependent rows are not unique, so none is idle and all
+    four stay in C (docs/theory.md §7, "Idle contacts")."""
+    from moreau_sim.event_rules import EventState, make_rules, resolve
+
+    model = ms.build_model(scene("resting_box"))
+    data = ms.make_data(model)
+    st = ms.initial_state(model, data)
+    res = resolve(make_rules(model, data, 0.5), EventState(), 0.0, st.q, st.u, frozenset())
+    assert len(res.C) == 4 and not res.records
