@@ -119,7 +119,8 @@ def bench_case(case: Case, repeat: int) -> dict:
                   for _ in range(repeat))
         tr = simulate_adaptive(m, t_end=T, rtol=rtol, atol=rtol / 100, t_eval=case.grid)
         out["adaptive"].append({"rtol": rtol, "cpu_per_sim_s": cpu / T, "error": case.error(tr),
-                                "impacts": tr.meta["run"]["impacts"], "events": tr.meta["run"]["events"]})
+                                "impacts": tr.meta["run"]["impacts"], "events": tr.meta["run"]["events"],
+                                "nfev": tr.meta["run"]["nfev"], "nfev_constrained": tr.meta["run"]["nfev_constrained"]})
     cpu = min(_run_cpu(m, T, lambda mm, d, T: EventDrivenRun(mm, d, e, 1e-12, 1e-12, "DOP853", 1e-2, 100_000, t_end=T))
               for _ in range(repeat))
     tr = simulate_event_driven(m, t_end=T, t_eval=case.grid)

@@ -576,16 +576,17 @@ class AdaptiveRun:
     def load_state_dict(self, d: dict) -> None:
         self.s = Carried.from_json(d)
         if self.s.mode is _Mode.PHASE:  # the step end e0 is a function of the state and the sets
-            nfev = self.s.ev.nfev
+            nfev, constrained = self.s.ev.nfev, self.s.ev.constrained
             self._phase(self.s.C, self.s.shadow, self.s.low, self.s.watch)
-            self.s.ev.nfev = nfev
+            self.s.ev.nfev, self.s.ev.constrained = nfev, constrained
 
     def meta(self, status: str, wall: float, points: int) -> dict:
         settings = {"rtol": self.rtol, "atol": self.atol, "order": self.order, "max_step": self.max_step,
                     "features": len(self.feats), "unsupported": self.unsupported, "lie_group": self.lie}
         run = {"steps": self.s.accepted + self.s.fixed, "steps_extrapolated": self.s.accepted,
                "steps_refused": self.s.rejected, "steps_landed": self.s.landings, "steps_fixed": self.s.fixed,
-               "events": self.s.events, "impacts": self.s.ev.impacts, "nfev": self.s.ev.nfev, "wall_seconds": wall}
+               "events": self.s.events, "impacts": self.s.ev.impacts, "nfev": self.s.ev.nfev,
+               "nfev_constrained": self.s.ev.constrained, "wall_seconds": wall}
         return run_metadata(self.model, status, run, integrator="adaptive", adaptive=settings, zeno=self.s.ev.zeno,
                             fallbacks=self.s.fallbacks)
 

@@ -19,7 +19,7 @@ from .data import Data, make_data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
 from .driver import Check, drive
-from .event_rules import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_ZENO, LAM_EPS, V_TOL,  # noqa: F401
+from .event_rules import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_ZENO, IDLE_TOL, LAM_EPS, V_TOL,  # noqa: F401
                           V_ZENO, EventState, UnsupportedModel, dynamics, features, make_rules, phase_sets, resolve,
                           sample_grid, thin_limit)
 from .model import Model, initial_state
@@ -264,8 +264,9 @@ class EventDrivenRun:
     def meta(self, status: str, wall: float, points: int) -> dict:
         reference = {"method": self.method, "rtol": self.rtol, "atol": self.atol, "max_step": self.max_step,
                      "gap_tol": self.gap_tol, "v_tol": V_TOL, "g_res": G_RES, "g_zeno": G_ZENO, "v_zeno": V_ZENO,
-                     "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "lie_group_chart": self.lie}
+                     "dt_zeno": DT_ZENO, "lam_eps": LAM_EPS, "idle_tol": IDLE_TOL, "lie_group_chart": self.lie}
         run = {"steps": None, "events": self.s.events, "impacts": self.s.ev.impacts, "nfev": self.s.ev.nfev,
+               "nfev_constrained": self.s.ev.constrained,
                "wall_seconds": wall}
         return run_metadata(self.model, status, run, integrator="event-driven", reference=reference,
                             zeno=self.s.ev.zeno)

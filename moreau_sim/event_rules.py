@@ -34,6 +34,7 @@ DT_ZENO = 1e-12  # [s] nor an impact this soon after the previous one
 LAM_EPS = 1e-9  # [N] a persistent contact is released when its multiplier falls below -LAM_EPS
 G_REGION = 1e-6  # [m] ... or a persistent box feature when it passes its region's end by this (§7.1)
 ACC_TOL = 1e-8  # [m/s^2] relative acceleration below this (scaled): a touching contact persists
+IDLE_TOL = 1e-12  # [m/s^2] a persistent contact's force acting on itself below this (scaled): idle, not in C (§7)
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,7 +70,8 @@ def make_rules(model: Model, data: Data, e: float, feats: tuple[Feature, ...] | 
 @dataclass(eq=False)
 class EventState:
     """What the event rules carry from one accepted point to the next, owned by the integrator:
-    the Zeno declarations, the last impact's time [s], counters (impacts, nfev: dynamics calls),
+    the Zeno declarations, the last impact's time [s], counters (impacts, nfev: dynamics calls,
+    constrained: those with a persistent set C),
     faces ((pair, vertex feature) -> the face a persistent vertex keeps through its phase),
     redundant (persistent set -> its rows are linearly dependent, decided once per set)."""
 
@@ -77,21 +79,22 @@ class EventState:
     last_impact: float = -np.inf
     impacts: int = 0
     nfev: int = 0
+    constrained: int = 0
     faces: dict = field(default_factory=dict)
     redundant: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return {"zeno": self.zeno,
                 "last_impact": None if self.last_impact == -np.inf else self.last_impact,
-                "impacts": self.impacts, "nfev": self.nfev,
+                "impacts": self.impacts, "nfev": self.nfev, "constrained": self.constrained,
                 "redundant": [[list(C), r] for C, r in self.redundant.items()],
                 "faces": [[p, k, f] for (p, k), f in self.faces.items()]}
 
     @classmethod
     def from_json(cls, d: dict) -> "EventState":
         return cls(list(d["zeno"]), -np.inf if d["last_impact"] is None else float(d["last_impact"]),
-                   int(d["impacts"]), int(d["nfev"]), {(int(p), int(k)): int(f) for p, k, f in d["faces"]},
-                   {tuple(C): bool(r) for C, r in d["redundant"]})
+                   int(d["impacts"]), int(d["nfev"]), int(d.get("constrained", 0)),
+                   {(int(p), int(k)): int(f) for p, k, f in d["faces"]}, {tuple(C): bool(r) for C, r in d["redundant"]})
 
 
 class Resolution(NamedTuple):
@@ -123,12 +126,13 @@ def phase_sets(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, C, shadow
 
 def dynamics(r: Rules, st: EventState, q, u, C):
     """(a, lam, fs): free accelerations (ABA) plus the bilateral forces of the persistent set C,
-    their multipliers, and C's FeatureState (None without C). Counts the call in st.nfev and
-    records in st.redundant whether a new C's rows are dependent."""
+    their multipliers, and C's FeatureState (None without C). Counts the call in st.nfev (and
+    st.constrained with C) and records in st.redundant whether a new C's rows are dependent."""
     st.nfev += 1
     a = pin.aba(r.model.pin, r.data.pin, q, u, r.zero).copy()
     if not C:
         return a, np.zeros(0), None
+    st.constrained += 1
     fs = features(r, st, q, u, C)
     Minv = pin.computeMinverse(r.model.pin, r.data.pin, q)
     MiW = Minv @ fs.W
@@ -191,15 +195,17 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
     if not res.ok:
         raise SimulationError(f"the contact-force QP failed ({res.status}) at t = {t:.12g} s")
     rel = Wk.T @ res.v + dk
-    tol = ACC_TOL * (1.0 + np.abs(dk).max() + np.abs(Wk.T @ a_free).max())
+    acc_scale = 1.0 + np.abs(dk).max() + np.abs(Wk.T @ a_free).max()  # [m/s^2]
+    tol = ACC_TOL * acc_scale
     C = tuple(int(i) for i, x in zip(keep, rel) if x <= tol)
+    Minv = pin.computeMinverse(pm, pd, q) if C else None
+    lam = res.lam
     for i in C:  # a persistent vertex keeps its face through the phase (its row may not flip at a tie)
         f = r.feats[i]
         if f.kind == "vertex_box":
             wv, faces = fs.faces[f.pair]
             st.faces[(f.pair, f.feature)] = int(faces[np.searchsorted(wv, f.feature)])
-    if C:  # remove the residual normal velocity of the persistent contacts (~1e-16)
-        Minv = pin.computeMinverse(pm, pd, q)
+    if C:  # remove the residual normal velocity of the touching contacts, idle ones too (~1e-16)
         W = fs.W[:, list(C)]
         MiW = Minv @ W
         u = u - MiW @ np.linalg.lstsq(W.T @ MiW, W.T @ u, rcond=1e-12)[0]
@@ -212,8 +218,39 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
             if not res.ok:
                 raise SimulationError(f"the contact QP failed ({res.status}) at t = {t:.12g} s")
             u = res.v
-    shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in C))
-    return Resolution(u, C, shadow, records, work)
+    A = _carrying(r, st, q, u, C, keep, lam, fs, Minv, IDLE_TOL * acc_scale)
+    shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in A))
+    return Resolution(u, A, shadow, records, work)
+
+
+def _carrying(r: Rules, st: EventState, q, u, C: tuple, keep: list, lam: np.ndarray, fs: FeatureState, Minv,
+              tol: float) -> tuple:
+    """The contacts of the touching set C that carry something (docs/theory.md §7, "Idle contacts"):
+    C without the idle ones, whose force changes their own relative acceleration by at most tol
+    [m/s^2] (lam_i w_i'M^-1 w_i <= tol, tol = IDLE_TOL scaled), provided that C's rows are
+    independent (its forces unique) and that under the phase's own
+    accelerations on the rest (dynamics) none of them accelerates towards contact by more than
+    tol; else C. keep, lam: the acceleration QP's rows and multipliers [N]; fs: all features at
+    (q, u); drops the idle vertices' faces from st.faces."""
+    if not C:
+        return C
+    W = fs.W[:, list(C)]
+    redundant = st.redundant.get(C)
+    if redundant is None:  # as dynamics decides it, once per set
+        redundant = st.redundant[C] = bool(np.linalg.matrix_rank(W) < len(C))
+    if redundant:
+        return C  # dependent rows: their forces are not unique, a zero multiplier says nothing
+    at = {i: k for k, i in enumerate(keep)}
+    idle = lam[[at[i] for i in C]] * np.einsum("ij,ij->j", W, Minv @ W) <= tol
+    if not idle.any():
+        return C
+    A = tuple(i for i, x in zip(C, idle) if not x)
+    out = [i for i, x in zip(C, idle) if x]
+    if (fs.W[:, out].T @ dynamics(r, st, q, u, A)[0] + fs.drift[out] < -tol).any():
+        return C
+    for i in out:
+        st.faces.pop((r.feats[i].pair, r.feats[i].feature), None)
+    return A
 
 
 def missed_features(r: Rules, fs: FeatureState, W: np.ndarray) -> list:
