@@ -242,7 +242,8 @@ def markdown_table(res: dict) -> str:
 def whole_run_table(res: dict) -> str:
     """Whole runs, wall per step: ms.simulate (recording included) against the peers' whole runs."""
     sic, mj = res.get("siconos"), res.get("mujoco")
-    out = [f"Wall time of the whole run over its number of steps, µs, the best of {res.get('repeat', '?')} rounds "
+    rounds = res.get("whole_runs_repeat", res.get("repeat", "?"))
+    out = [f"Wall time of the whole run over its number of steps, µs, the best of {rounds} rounds "
            "that run every side in turn: "
            "`ms.simulate` (the `Trajectory` recorded: the compiled step in the compiled run loop, the default; the "
            "compiled step in the Python loop, `python_run=True`; the Python step) and a bare Python loop "
@@ -322,7 +323,10 @@ def plot(res: dict, path: Path) -> None:
     ax.set_yscale("log")
     ax.set_ylim(top=8 * max(max(v for v in g[1:] if v is not None) for g in groups))  # room for the legend
     ax.set_ylabel("µs per step (median; whole runs: wall / steps)")
-    ax.set_title(f"One step, side by side in one run ({res['cpus']} cores, load {res['load']:.1f})", fontsize=9)
+    runs_load = (f"; whole runs in a run of their own, load {res['whole_runs_load']:.1f}"
+                 if "whole_runs_load" in res else "")
+    ax.set_title(f"One step, side by side in one run ({res['cpus']} cores, load {res['load']:.1f}{runs_load})",
+                 fontsize=9)
     ax.grid(axis="y", which="both", alpha=0.3)
     ax.legend(fontsize=7, ncol=3, loc="upper center")
     fig.tight_layout()
@@ -384,18 +388,17 @@ def main(argv=None) -> None:
                 "settings": {s: r["settings"] for (q, s), r in peer_runs.items() if q == p and "why" not in r},
                 "not_expressible": {s: r["why"] for (q, s), r in peer_runs.items() if q == p and "why" in r}}
 
-    kept = a.out / "compiled_costs.json"
-    if a.whole_runs and kept.exists():  # only the whole runs measured: the JSON's per-step cases are kept
-        old = json.loads(kept.read_text())
-        cases = old["cases"]
-        peer_runs.update({(p, "kept"): {"version": old[p]["version"], "timer": old[p]["timer"],
-                                        "settings": {}} for p in PEERS if old.get(p)})
     res = {"cases": cases, "whole_runs": runs, **{p: peer_info(p) for p in PEERS},
            "machine": platform.processor() or platform.machine(), "python": platform.python_version(),
            "cpus": os.cpu_count(), "load": os.getloadavg()[0], "nice": os.nice(0), "repeat": a.repeat,
            "versions": versions(),
            "note": "us per step: moreau-sim the median over states of the best of `repeat` timings; peers the "
                    "median over the phase's steps of the best of `repeat` timed whole runs; whole runs wall / steps"}
+    kept = a.out / "compiled_costs.json"
+    if a.whole_runs and kept.exists():  # only the whole runs measured: the JSON's per-step cases are kept
+        old = json.loads(kept.read_text())
+        res = {**old, "whole_runs": runs, "whole_runs_repeat": a.repeat, "whole_runs_load": res["load"],
+               "whole_runs_versions": res["versions"]}
     res["verdicts"] = verdicts(res)
     for v in res["verdicts"]:
         print(f"{v['target']:55s} {v['shown']:40s} {'-' if v['met'] is None else ('met' if v['met'] else 'MISSED')}")
