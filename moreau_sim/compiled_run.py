@@ -15,7 +15,7 @@ import os
 import numpy as np
 
 from . import compiled, invariants
-from .invariants import Invariants
+from .invariants import Invariant, Invariants
 from .options import StepImpl
 from .recording import LOG_RELATIVE
 from .state import State
@@ -70,6 +70,8 @@ _REC = {"smooth": "_smooth", "diss": "_diss", "law": "_law", "E": "_E", "smooth_
 _INV = ("E0", "E", "Ehat", "Emin", "scale", "booked", "external", "residual", "Es", "v_app", "deep_points",
         "deep_samples", "last_depth", "last_allowed", "points")
 _INTS = ("deep_points", "deep_samples", "points")
+_WORSE = {"w_gain": Invariant.ENERGY_GAIN, "w_speed": Invariant.SPEED, "w_depth": Invariant.PENETRATION,
+          "w_ledger": Invariant.LEDGER}
 
 
 class CompiledRun:
@@ -150,6 +152,9 @@ class CompiledRun:
         d["work"], d["corr"], d["points"] = float(loop.work), float(loop.corr), float(loop.points)
         for k in _INV:
             d["i_" + k] = float(getattr(c, k)) if c is not None else 0.0
+        reported = c.reported if c is not None else {}
+        for k, what in _WORSE.items():  # what Invariants._violate would report again (bigger than this)
+            d[k] = invariants.WORSEN * reported.get(what.value, 0.0)
         return d
 
     def _store(self, d: dict, previous: list, held: list) -> None:

@@ -131,6 +131,8 @@ class Runner {
     double i_E0 = 0, i_E = 0, i_Ehat = 0, i_Emin = 0, i_scale = 0, i_booked = 0, i_external = 0, i_residual = 0;
     double i_Es = 0, i_v_app = 0, i_deep_points = 0, i_deep_samples = 0, i_last_depth = 0, i_last_allowed = 0;
     double i_points = 0;
+    // WORSEN times the size each invariant was last reported at (Invariants._violate reports nothing below it)
+    double w_gain = 0, w_speed = 0, w_depth = 0, w_ledger = 0;
     std::vector<std::array<int64_t, 3>> previous;  // _Loop.previous: (pair, kind, feature) of the last step
     std::vector<std::pair<int64_t, double>> held;  // Invariants.held: pair -> allowance [m]
 
@@ -138,7 +140,7 @@ class Runner {
   X(smooth) X(diss) X(law) X(E) X(T) X(V) X(rise) X(t_rise) X(law_diff) X(t_law_diff) X(new_impact)                \
   X(contact_steps) X(smooth_deficit) X(work) X(corr) X(points) X(i_E0) X(i_E) X(i_Ehat) X(i_Emin) X(i_scale)      \
   X(i_booked) X(i_external) X(i_residual) X(i_Es) X(i_v_app) X(i_deep_points) X(i_deep_samples) X(i_last_depth)  \
-  X(i_last_allowed) X(i_points)
+  X(i_last_allowed) X(i_points) X(w_gain) X(w_speed) X(w_depth) X(w_ledger)
     std::map<std::string, double> as_dict() const {
       std::map<std::string, double> d;
 #define MOREAU_PUT(f) d[#f] = f;
@@ -378,7 +380,7 @@ class Runner {
         if (Es == Es) {
           const double residual = c.i_residual = c.i_residual + ((T1 + V1) - Es - (work + corr + smooth + 0.0));
           const double bound = rel_ledger_ * c.i_scale;
-          if (residual - c.smooth_deficit > bound) fire = true;
+          if (residual - c.smooth_deficit > bound && std::abs(residual) > c.w_ledger) fire = true;
           if (s_gap.row) {
             double gmin = gap[0];
             for (int64_t j = 1; j < s_gap.row; ++j) gmin = std::min(gmin, gap[j]);
@@ -387,7 +389,7 @@ class Runner {
             if (depth > allowed) {
               c.i_deep_samples += 1;
               c.i_last_depth = depth, c.i_last_allowed = allowed;
-              if (c.i_deep_samples >= persist_) fire = true;
+              if (c.i_deep_samples >= persist_ && depth > c.w_depth) fire = true;
             } else if (c.i_deep_samples != 0.0) {
               c.i_deep_samples = 0;
             }
@@ -438,19 +440,19 @@ class Runner {
       const double bound = rel_ * c.i_scale;
       if (Ehat < c.i_Emin)
         c.i_Emin = Ehat;
-      else if (Ehat - c.i_Emin > bound)
+      else if (Ehat - c.i_Emin > bound && Ehat - c.i_Emin > c.w_gain)
         fire = true;
       const double budget = c.i_E0 - V + c.i_booked + c.i_external + bound;
-      if (T > budget) fire = true;
+      if (T > budget && T - budget > c.w_speed) fire = true;
       if (deep > allowed) {
         c.i_deep_points += 1;
         c.i_last_depth = deep, c.i_last_allowed = allowed;
-        if (c.i_deep_points >= persist_) fire = true;
+        if (c.i_deep_points >= persist_ && deep > c.w_depth) fire = true;
       } else if (c.i_deep_points != 0.0) {
         c.i_deep_points = 0;
       }
     }
-    if (fire) return false;  // the Python run takes this step and reports what the check found
+    if (fire) return false;  // a violation to report: the Python run takes this step and reports it
     c.points += 1;
     // commit
     c_ = std::move(c);

@@ -158,6 +158,30 @@ def test_spilled_compiled_run(tmp_path, monkeypatch):
     assert _arrays_differ(ref, new) == [] and ref.meta["ledger"] == new.meta["ledger"]
 
 
+@pytest.mark.parametrize("strict", [False, True])
+def test_a_run_that_breaks_an_invariant(strict):
+    """quadruped_drop breaks the penetration invariant (flagged): the step where a check reports goes to the
+    Python loop (its message, its strict error), the rest stay compiled; the same arrays, violations, status."""
+    sc = ms.load_scene(Path(__file__).resolve().parent.parent / "scenes" / "quadruped_drop.toml")
+    got = []
+    for python_run in (True, False):
+        try:
+            got.append(_run(sc, python_run, strict=strict))
+        except ms.SimulationError as exc:
+            assert strict
+            got.append(exc)
+    ref, new = got
+    if strict:
+        assert str(ref) == str(new)
+        ref, new = ref.trajectory, new.trajectory
+    else:
+        assert ref.meta["status"] == new.meta["status"] == "flagged"
+        assert ref.meta["invariants"] == new.meta["invariants"]
+        assert new.meta["run"]["python_steps"] <= 2 * len(new.meta["invariants"])
+    assert _arrays_differ(ref, new) == [] and ref.meta["ledger"] == new.meta["ledger"]
+    assert new.meta["run"]["loop"] == "compiled" and ref.meta["status"] == new.meta["status"]
+
+
 def test_the_python_step_in_between(monkeypatch):
     """Steps handed back to Python (here at every 3rd call of the Runner) leave the run unchanged."""
     sc = ms.load_scene(Path(__file__).resolve().parent.parent / "scenes" / "newton_cradle_5.toml")
