@@ -45,7 +45,8 @@ CASES = (("ball, flight", "bouncing_ball", "flight"),
          ("ten boxes, resting", "box_stack_10", "late-contact"),
          ("100 beads, in contact", "column_of_beads_100", "contact"),
          ("quadruped, resting", "quadruped_drop", "late-contact"))
-WHOLE_RUNS = ("bouncing_ball", "zeno_ball")  # ms.simulate, recording included
+# ms.simulate, recording included: (scene, duration s or None for the scene's own)
+WHOLE_RUNS = (("bouncing_ball", None), ("zeno_ball", 6.0), ("zeno_ball", None), ("newton_cradle_5", None))
 PEERS = ("siconos", "mujoco")
 PEER_NAMES = {"siconos": "Siconos", "mujoco": "MuJoCo"}
 # The cost targets: (what, kind, case or scene, bound). kind "us": the compiled step's median
@@ -53,7 +54,10 @@ PEER_NAMES = {"siconos": "Siconos", "mujoco": "MuJoCo"}
 # ms.simulate's wall per step (compiled) over Siconos's whole run per step <= bound.
 TARGETS = (("ball contact step <= 1.5x Siconos", "x siconos", "zeno_ball", 1.5),
            ("whole run of the ball scene <= 1.5x Siconos per step", "run x siconos", "bouncing_ball", 1.5),
+           ("whole run of the ball, 6 s (bounces, then rests) <= 1.5x Siconos per step", "run x siconos",
+            "zeno_ball 6 s", 1.5),
            ("whole run of the resting ball <= 1.5x Siconos per step", "run x siconos", "zeno_ball", 1.5),
+           ("whole run of the cradle <= 1.5x Siconos per step", "run x siconos", "newton_cradle_5", 1.5),
            ("cradle <= Siconos per step", "x siconos", "newton_cradle_5", 1.0),
            ("box_drop resting <= 20 µs", "us", "box_drop", 20.0),
            ("box_stack_10 resting <= 0.5 ms", "us", "box_stack_10", 500.0),
@@ -101,13 +105,19 @@ def bench_case(label: str, scene: str, which: str, repeat: int, n_states: int) -
     return out
 
 
-def run_peer(peer: str, scene: str, repeat: int) -> dict:
+def load(scene: str, duration: float | None = None) -> ms.Scene:
+    """A bundled scene, its duration replaced by `duration` (s) if given."""
+    sc = ms.load_scene(scene_path(scene))
+    return sc if duration is None else sc.with_options(duration=duration)
+
+
+def run_peer(peer: str, scene: str, repeat: int, duration: float | None = None) -> dict:
     """The peer's timed runs of the scene (its runner's `timing`), or {"why": ...} if it cannot run it."""
     from .peers import run
     from .spec import PeerError, make_spec
 
     try:
-        res = run(peer, make_spec(ms.build_model(ms.load_scene(scene_path(scene)))), timing_repeats=repeat)
+        res = run(peer, make_spec(ms.build_model(load(scene, duration))), timing_repeats=repeat)
     except PeerError as err:  # NotExpressible included
         return {"why": str(err).splitlines()[0]}
     tm = res["timing"]
@@ -127,16 +137,19 @@ def peer_phase(run: dict, which: str) -> dict | None:
             "contacts": float(np.median(run["contacts"][mask]))}
 
 
-def whole_run(scene: str, repeat: int, peers: tuple) -> dict:
-    """ms.simulate of the scene (recording included), wall per step, both steps, and a bare Python
-    loop of the compiled ms.step over the same steps (nothing recorded: the difference is what
-    ms.simulate adds), against each peer's whole run of the same scene per step (`peers`: those
+def whole_run(scene: str, repeat: int, peers: tuple, duration: float | None = None) -> dict:
+    """ms.simulate of the scene (recording included), wall per step: the compiled step in the compiled run
+    loop (compiled_run.py, the default), the compiled step in the Python loop (python_run=True), the Python
+    step; and a bare Python loop of the compiled ms.step over the same steps (nothing recorded), against
+    each peer's whole run of the same scene per step (`peers`: those
     available): `repeat` rounds, each running every side once in turn (so that all see the same
-    load), the best round of each side."""
-    sc = ms.load_scene(scene_path(scene))
+    load), the best round of each side. `duration` (s): the scene's own if None."""
+    sc = load(scene, duration)
     n = int(round(sc.options.duration / sc.options.dt))
     models = {impl: ms.build_model(sc.with_options(step_impl=impl)) for impl in ("compiled", "python")}
-    walls: dict = {side: [] for side in (*models, "step_loop", *PEERS)}
+    loops = {"compiled": False, "compiled_python_loop": True, "python": True}  # side: python_run
+    walls: dict = {side: [] for side in (*loops, "step_loop", *PEERS)}
+    versions_: dict = {}
     h, e = sc.options.dt, sc.options.restitution
 
     loop_data = ms.make_data(models["compiled"])
@@ -147,14 +160,19 @@ def whole_run(scene: str, repeat: int, peers: tuple) -> dict:
             st = ms.step(model, data, st, h=h, e=e).state
 
     for _ in range(repeat):
-        for impl, model in models.items():
-            walls[impl].append(best(lambda model=model: ms.simulate(model, progress=False), 1) / n)
+        for side, python_run in loops.items():
+            model = models["python" if side == "python" else "compiled"]
+            walls[side].append(best(lambda model=model, p=python_run: ms.simulate(model, progress=False,
+                                                                                  python_run=p), 1) / n)
         walls["step_loop"].append(best(step_loop, 1) / n)
         for peer in peers:
-            r = run_peer(peer, scene, 1)
+            r = run_peer(peer, scene, 1, duration)
             if "why" not in r:
                 walls[peer].append(r["wall_seconds"] * 1e6 / r["steps"])
-    return {"scene": scene, "steps": n, **{side: min(w) if w else None for side, w in walls.items()}}
+                versions_[peer] = r["version"]
+    key = scene if duration is None else f"{scene} {duration:g} s"
+    return {"scene": key, "steps": n, **{side: min(w) if w else None for side, w in walls.items()},
+            "peer_versions": versions_}
 
 
 def verdicts(res: dict) -> list[dict]:
@@ -224,18 +242,22 @@ def markdown_table(res: dict) -> str:
 def whole_run_table(res: dict) -> str:
     """Whole runs, wall per step: ms.simulate (recording included) against the peers' whole runs."""
     sic, mj = res.get("siconos"), res.get("mujoco")
-    out = [f"Wall time of the whole run over its number of steps, µs, the best of {res.get('repeat', '?')} rounds "
+    rounds = res.get("whole_runs_repeat", res.get("repeat", "?"))
+    out = [f"Wall time of the whole run over its number of steps, µs, the best of {rounds} rounds "
            "that run every side in turn: "
-           "`ms.simulate` (the `Trajectory` recorded) and a bare Python loop `state = ms.step(...).state` over the "
+           "`ms.simulate` (the `Trajectory` recorded: the compiled step in the compiled run loop, the default; the "
+           "compiled step in the Python loop, `python_run=True`; the Python step) and a bare Python loop "
+           "`state = ms.step(...).state` over the "
            "same steps (nothing recorded), Siconos's stepping loop with its recording of q and v "
            "(the runner's), MuJoCo's `mujoco.rollout` (a C loop storing the full state):", "",
-           "| scene | steps | compiled `ms.simulate` | Python `ms.simulate` | a bare loop of the compiled `ms.step` "
-           "| Siconos whole run | compiled / Siconos | MuJoCo rollout | compiled / MuJoCo |",
-           "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+           "| scene | steps | compiled run | compiled step, Python loop | Python step | a bare loop of the compiled "
+           "`ms.step` | Siconos whole run | compiled run / Siconos | MuJoCo rollout | compiled run / MuJoCo |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for w in res.get("whole_runs", []):
         s = w["siconos"] if sic else None
         m = w["mujoco"] if mj else None
-        out.append(f"| `{w['scene']}` | {w['steps']} | {w['compiled']:.2f} | {w['python']:.2f} | "
+        out.append(f"| `{w['scene']}` | {w['steps']} | {w['compiled']:.2f} | "
+                   f"{_fmt(w.get('compiled_python_loop'), 2)} | {w['python']:.2f} | "
                    f"{_fmt(w.get('step_loop'), 2)} | {_fmt(s, 2)} | "
                    f"{_ratio(w['compiled'], s)} | {_fmt(m, 2)} | {_ratio(w['compiled'], m)} |")
     return "\n".join(out)
@@ -301,7 +323,10 @@ def plot(res: dict, path: Path) -> None:
     ax.set_yscale("log")
     ax.set_ylim(top=8 * max(max(v for v in g[1:] if v is not None) for g in groups))  # room for the legend
     ax.set_ylabel("µs per step (median; whole runs: wall / steps)")
-    ax.set_title(f"One step, side by side in one run ({res['cpus']} cores, load {res['load']:.1f})", fontsize=9)
+    runs_load = (f"; whole runs in a run of their own, load {res['whole_runs_load']:.1f}"
+                 if "whole_runs_load" in res else "")
+    ax.set_title(f"One step, side by side in one run ({res['cpus']} cores, load {res['load']:.1f}{runs_load})",
+                 fontsize=9)
     ax.grid(axis="y", which="both", alpha=0.3)
     ax.legend(fontsize=7, ncol=3, loc="upper center")
     fig.tight_layout()
@@ -321,6 +346,8 @@ def main(argv=None) -> None:
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--states", type=int, default=200)
+    ap.add_argument("--whole-runs", action="store_true",
+                    help="only the whole runs (the per-step cases of an existing JSON in --out are kept)")
     add_table_option(ap, "compiled_costs.json", "docs/benchmarks.md")
     add_plot_option(ap, "compiled_costs.json")
     a = ap.parse_args(argv)
@@ -334,11 +361,11 @@ def main(argv=None) -> None:
     for p in PEERS:
         if avail[p]:
             print(f"{PEER_NAMES[p]} skipped: {avail[p]}")
-    scenes = dict.fromkeys([s for _, s, _ in CASES] + list(WHOLE_RUNS))
+    scenes = [] if a.whole_runs else [s for _, s, _ in CASES]
     peer_runs = {(p, s): run_peer(p, s, a.repeat) if avail[p] is None else {"why": avail[p]}
                  for p in PEERS for s in scenes}
     cases = []
-    for label, scene, which in CASES:
+    for label, scene, which in [] if a.whole_runs else CASES:
         c = bench_case(label, scene, which, a.repeat, a.states)
         for p in PEERS:
             c[p] = peer_phase(peer_runs[p, scene], which)
@@ -346,15 +373,17 @@ def main(argv=None) -> None:
               f"({c['states']} states, {c['contacts']:g} contacts, {100 * c['compiled_share']:.0f} % compiled)  "
               + "  ".join(f"{p} {_fmt(c[p] and c[p]['us'], 2)}" for p in PEERS))
         cases.append(c)
-    runs = [whole_run(s, a.repeat, tuple(p for p in PEERS if avail[p] is None)) for s in WHOLE_RUNS]
-    for w in runs:
-        print(f"whole run {w['scene']:14s} compiled {w['compiled']:.2f}  python {w['python']:.2f}  "
+    runs = []
+    for s, duration in WHOLE_RUNS:
+        runs.append(w := whole_run(s, a.repeat, tuple(p for p in PEERS if avail[p] is None), duration))
+        print(f"whole run {w['scene']:20s} compiled {w['compiled']:.2f}  python {w['python']:.2f}  "
               f"siconos {_fmt(w['siconos'], 2)}  mujoco {_fmt(w['mujoco'], 2)} us per step")
 
     def peer_info(p):
         done = [r for (q, _), r in peer_runs.items() if q == p and "why" not in r]
-        if not done:
-            return None
+        if not done:  # only whole runs (--whole-runs): the version they ran
+            v = next((w["peer_versions"][p] for w in runs if p in w["peer_versions"]), None)
+            return None if v is None else {"version": v, "timer": None, "settings": {}, "not_expressible": {}}
         return {"version": done[0]["version"], "timer": done[0]["timer"],
                 "settings": {s: r["settings"] for (q, s), r in peer_runs.items() if q == p and "why" not in r},
                 "not_expressible": {s: r["why"] for (q, s), r in peer_runs.items() if q == p and "why" in r}}
@@ -365,6 +394,11 @@ def main(argv=None) -> None:
            "versions": versions(),
            "note": "us per step: moreau-sim the median over states of the best of `repeat` timings; peers the "
                    "median over the phase's steps of the best of `repeat` timed whole runs; whole runs wall / steps"}
+    kept = a.out / "compiled_costs.json"
+    if a.whole_runs and kept.exists():  # only the whole runs measured: the JSON's per-step cases are kept
+        old = json.loads(kept.read_text())
+        res = {**old, "whole_runs": runs, "whole_runs_repeat": a.repeat, "whole_runs_load": res["load"],
+               "whole_runs_versions": res["versions"]}
     res["verdicts"] = verdicts(res)
     for v in res["verdicts"]:
         print(f"{v['target']:55s} {v['shown']:40s} {'-' if v['met'] is None else ('met' if v['met'] else 'MISSED')}")

@@ -40,12 +40,14 @@ Check = Callable[[str, State, "Report | None", Recorder], "dict | None"]
 
 def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | None = None,
           progress: bool = False, checkpoint: Checkpoint | None = None, spill: str | Path | None = None,
-          check: Check | None = None, capacity: int = 1) -> Trajectory:
+          check: Check | None = None, capacity: int = 1, fast: Callable | None = None) -> Trajectory:
     """Run `integ` from its state to its end. grid: the output instants [s] of an
     integrator that samples through dense output (else it marks its samples, Report.due);
     checkpoint: save every so often at accepted points and/or resume (bit-identical); spill: a
     folder for the recorded rows (recording.Recorder); check: the invariant hook (above);
-    capacity: the expected number of samples. Returns the Trajectory, or raises SimulationError
+    capacity: the expected number of samples; fast: fast(integ, rec, loop, check) -> a runner of compiled
+    steps or None (compiled_run.runner: runner.advance(t_stop) takes steps until a poll, -> (t, finished), or
+    None where the next step is the Python run's). Returns the Trajectory, or raises SimulationError
     (SimulationInterrupted on Ctrl-C) with .trajectory up to the stop."""
     rec = Recorder(model, data, capacity, spill=spill)
     loop = _Loop(integ, rec, grid, check)
@@ -73,20 +75,27 @@ def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | Non
         try:
             if not resume:
                 loop.start(integ.state)
+            runner = None if fast is None else fast(integ, rec, loop, check)
             while True:
-                before = integ.position()
-                rep = integ.step(grid[loop.gi] if grid is not None and loop.gi < len(grid) else np.inf)
-                if rep.status is Status.FAILED:
-                    raise SimulationError(rep.message, step=before[0], t=rep.t)
-                at[0] = before
-                loop.account(rep)
-                at[0] = None
-                if rep.status is Status.FINISHED:
+                got = None if runner is None else runner.advance(next_ck)
+                if got is None:
+                    before = integ.position()
+                    rep = integ.step(grid[loop.gi] if grid is not None and loop.gi < len(grid) else np.inf)
+                    if rep.status is Status.FAILED:
+                        raise SimulationError(rep.message, step=before[0], t=rep.t)
+                    at[0] = before
+                    loop.account(rep)
+                    at[0] = None
+                    if runner is not None:
+                        runner.python_step()
+                    got = rep.t, rep.status is Status.FINISHED
+                t, finished = got
+                if finished:
                     _show(bar, integ, wall0)
                     break
-                if rep.t >= next_ck:
-                    loop.t_ck = rep.t
-                    next_ck = rep.t + every
+                if t >= next_ck:
+                    loop.t_ck = t
+                    next_ck = t + every
                     ckpt.save(Path(checkpoint.path), rec, loop.meta("checkpoint", wall()), integ=integ,
                               loop=loop.state_dict(), data=data)
                 if time.perf_counter() >= refresh:  # ~50 ns a step: the bar moves with wall time, not steps

@@ -130,8 +130,20 @@ class _Columns:
             self._resize(i + min(max(i, 64), BLOCK_ROWS))
         return i
 
-    def commit(self) -> None:
-        self.n += 1
+    def commit(self, rows: int = 1) -> None:
+        self.n += rows
+
+    def reserve(self, rows: int) -> int:
+        """Index in cols of the next row, with at least `rows` rows free from it (grown or spilled as free()
+        does); commit(k) once k of them are written (compiled_run.py writes them in C++)."""
+        i = self.free()
+        while len(next(iter(self.cols.values()))) - i < rows:
+            if self._files is not None and i > 0:
+                self._spill()
+                i = 0
+            else:
+                self._resize(i + max(rows, min(max(i, 64), BLOCK_ROWS)))
+        return i
 
     @property
     def last(self) -> int:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from .actuation import Controller, for_controller
 from .adaptive import simulate_adaptive
+from . import compiled_run
 from .checkpoint import Checkpoint
 from .data import Data, make_data
 from .driver import Check, drive
@@ -28,7 +29,7 @@ _EVENT_RTOL = inspect.signature(simulate_event_driven).parameters["rtol"].defaul
 def simulate(model: Model, *, data: Data | None = None, state: State | None = None,
              progress: bool = True, checkpoint: Checkpoint | None = None,
              spill: str | Path | None = None, check: Check | None = None, strict: bool = False,
-             controller: Controller | None = None) -> Trajectory:
+             controller: Controller | None = None, python_run: bool = False) -> Trajectory:
     """Run the scene's options (integrator, restitution, dt, duration) from `state` (default: the
     scene's initial state). Returns a complete :class:`Trajectory` or raises :class:`SimulationError`
     (naming the step and time) whose ``.trajectory`` holds the samples up to the failure,
@@ -51,7 +52,10 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
 
     controller: f(t, q, u) -> tau (nv,) [N or N m], joint torques added to the scene's PD targets,
     called once per step at (t_m, q_m, u_k) (docs/theory.md §2.1; actuation.py). Torques and
-    prescribed motion run with the time-stepping integrator only."""
+    prescribed motion run with the time-stepping integrator only.
+
+    python_run: a time-stepping run steps and records in Python even where the compiled run loop takes it
+    (compiled_run.py; meta["run"]["loop"] says which ran)."""
     if controller is not None:
         model = dataclasses.replace(model, actuation=for_controller(model.pin, model.bodies, model.actuation,
                                                                     controller))
@@ -69,7 +73,8 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
                                  spill=spill, check=check)
     n, every = opts.n_steps, opts.save_every
     return drive(TimeStepping(model, data, state), model, data, progress=progress, checkpoint=checkpoint,
-                 spill=spill, check=check, capacity=min(1 + n // every + 1, 1 << 16))  # columns grow beyond this
+                 spill=spill, check=check, capacity=min(1 + n // every + 1, 1 << 16),  # columns grow beyond this
+                 fast=None if python_run else compiled_run.runner)
 
 
 def run(scene: Scene | str | Path, *, dt: float | None = None, duration: float | None = None,

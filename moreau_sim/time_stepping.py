@@ -29,6 +29,7 @@ class TimeStepping:
         self.t_end = state.t + self.n * self.h
         self.state = state
         self.k = 0  # steps done
+        self.loop_meta: dict = {"loop": "python"}  # meta["run"]: the run loop (compiled_run.runner sets it)
 
     def step(self, t_sample: float = np.inf) -> Report:
         k, state, h, e = self.k, self.state, self.h, self.e
@@ -61,6 +62,8 @@ class TimeStepping:
         self.state = State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float))
 
     def meta(self, status: str, wall: float, points: int) -> dict:
-        """meta["run"]["steps"]: the steps recorded (a step whose sample failed is not one)."""
+        """meta["run"]["steps"]: the steps recorded (a step whose sample failed is not one); "loop": the run
+        loop, "compiled" (with "python_steps": the steps the Python run took in it) or "python" (and "why")."""
         return run_metadata(self.model, status, {"steps": points, "wall_seconds": wall,
-                                                 "us_per_step": 1e6 * wall / points if points else None})
+                                                 "us_per_step": 1e6 * wall / points if points else None,
+                                                 **self.loop_meta})

@@ -456,6 +456,8 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
 }  // namespace
 
 class Stepper {
+  friend class Runner;  // the run loop (src/run.cpp) calls the step and reads its model and geometry
+
  public:
   Stepper(nb::object model, nb::object data, nb::object geom_model, nb::object geom_data,
           std::vector<MatrixXd> vertices, std::vector<int> bound_kind, std::vector<Vec3> bound_a,
@@ -946,6 +948,8 @@ class Stepper {
   }
 };
 
+#include "run.cpp"  // the run loop over a Stepper (moreau_sim/compiled_run.py)
+
 NB_MODULE(_step, mod) {
   mod.doc() = "The compiled midpoint Moreau contact step (moreau_sim/compiled.py).";
   nb::enum_<Outcome>(mod, "Outcome", "What a compiled step did: FLIGHT, CONTACT, or FALLBACK (the Python step takes it)")
@@ -973,6 +977,7 @@ NB_MODULE(_step, mod) {
       .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"),
            nb::arg("tau") = VectorXd())
       .def_prop_ro("constants", &Stepper::constants);
+  bind_run(mod);
   // the names the constants dict must hold (moreau_sim/compiled.py CONSTANTS), and a dict as the step reads it
   mod.def("constant_names", []() { return Constants::keys(); });
   mod.def("read_constants", [](const std::map<std::string, double> &d) { return Constants::from(d).as_dict(); },
