@@ -1,0 +1,72 @@
+"""The compiled step on pairs of two boxes (src/step.cpp detect, src/box_box.hpp): it takes the steps of a resting
+stack of boxes itself, and its trajectory is the Python step's bit for bit (docs/theory.md §2.8); the steps it
+hands back (a vertex at a box's edge or corner, edge contacts, a paid position lift, more than
+compiled.MAX_CONTACTS contacts) leave coal's warm start and the detection's warm start (data.warm_start_pairs)
+as the Python step finds them, so the Python step that takes them continues the same trajectory."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import moreau_sim as ms
+import moreau_sim.compiled as compiled
+from moreau_sim.data import make_data
+from moreau_sim.model import build_model
+from moreau_sim.options import StepImpl
+from moreau_sim.scene import load_scene
+
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
+
+
+def _model(name: str, impl: StepImpl, **options):
+    return build_model(load_scene(SCENES / f"{name}.toml").with_options(step_impl=impl.value, **options))
+
+
+def _steps(name: str, impl: StepImpl, n: int, **options):
+    """n steps from the scene's start: (states, the detection's warm start after each step, counts)."""
+    model = _model(name, impl, **options)
+    data = make_data(model)
+    st = ms.initial_state(model)
+    states, warm = [], []
+    for _ in range(n):
+        st = ms.step(model, data, st).state
+        states.append(st)
+        warm.append(sorted(data.warm_start_pairs))
+    return states, warm, compiled.counts(data)
+
+
+def test_box_models_are_compiled():
+    """Two boxes are no reason to hand a model to Python any more (coal's GJK/EPA on them runs on the same
+    GeometryData both ways)."""
+    assert compiled.unsupported(_model("box_stack_5", StepImpl.COMPILED)) is None
+
+
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("h", [1e-2, 1e-3])
+def test_resting_stack_every_step_compiled_and_identical(e, h):
+    """box_stack_5 at rest (32 patch corners and 4 ground vertices a step, m = 36 <= MAX_CONTACTS): every step
+    compiled, and q, u and the detection's warm start equal to the Python step's, bit for bit."""
+    n = 20
+    ref, ref_warm, py = _steps("box_stack_5", StepImpl.PYTHON, n, restitution=e, dt=h)
+    got, got_warm, counts = _steps("box_stack_5", StepImpl.COMPILED, n, restitution=e, dt=h)
+    assert not py
+    assert counts["contact"] == n, dict(counts)
+    assert got_warm == ref_warm
+    for a, b in zip(ref, got):
+        assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
+
+
+def test_stack_beyond_max_contacts_hands_back():
+    """box_stack_10 at rest has 76 contacts, more than compiled.MAX_CONTACTS (= qp.COLD_START_ROWS: above it
+    qp.solve starts its active set from piqp's answer, which the compiled step does not run): every step goes to
+    Python, and the trajectory is the Python step's."""
+    n = 5
+    ref, ref_warm, _ = _steps("box_stack_10", StepImpl.PYTHON, n)
+    got, got_warm, counts = _steps("box_stack_10", StepImpl.COMPILED, n)
+    assert counts == {"python: more contacts than the compiled step takes": n}
+    assert got_warm == ref_warm
+    for a, b in zip(ref, got):
+        assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
