@@ -1,7 +1,7 @@
 """The compiled contact step (moreau_sim._step, src/step.cpp): its guard, its constants, and its typed result
 made a results.StepResult. It must load against exactly the Pinocchio and coal it was built with (else the
-Python step runs, with one warning); it mirrors stepper.step for coal's closed-form pairs and up to
-MAX_CONTACTS contacts, and hands any other step back (docs/theory.md §2.8)."""
+Python step runs, with one warning); it mirrors stepper.step for coal's closed-form pairs and pairs of two boxes,
+up to MAX_CONTACTS contacts, and hands any other step back (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
@@ -113,6 +113,10 @@ def unsupported(model) -> str | None:
     if any(not _boxes(geoms[p.first].geometry, geoms[p.second].geometry)
            for p in model.pairs if p.index in model.polytope_pair_set):
         return "pairs of two polytopes other than two boxes"
+    if any(isinstance(go.geometry, coal.Box) and not np.isin(model.face_normals[g], (-1.0, 0.0, 1.0)).all()
+           for g, go in enumerate(geoms)) and model.polytope_pair_set:
+        # the face axis of two boxes becomes the patch's normal: exact both ways only for faces along the axes
+        return "a box turned in its joint frame (pairs of two boxes)"
     if model.polytope_pair_set and len(model.pairs) > broad_phase.MIN_PAIRS:
         # the broad phase skips far pairs, whose GJK warm start then ages; the compiled step queries every pair
         return "pairs of two boxes under the broad phase"
@@ -121,6 +125,15 @@ def unsupported(model) -> str | None:
     if o.qp_form is not QPForm.PRIMAL:
         return "qp_form dual"
     return None
+
+
+def _blas_fma() -> bool:
+    """Whether numpy's matmul of 3-term products fuses them, fma(a2, b2, fma(a1, b1, a0 b0)) (OpenBLAS's FMA
+    kernels), as contacts._face_axis's products run (8 x 3 by 3 x 12): then a0 b0 + a1 b1 is -2^-60 here, else 0."""
+    x = 1.0 + 2.0 ** -30
+    a = np.tile([x, x, 0.0], (8, 1))
+    b = np.tile([[x], [-x], [0.0]], (1, 12))
+    return bool((a @ b)[0, 0] != 0.0)
 
 
 class _Context:
@@ -168,8 +181,10 @@ class _Context:
         self.stepper.boxes(queries, [np.asarray(f, float).reshape(-1, 3) for f in model.face_normals],
                            [np.asarray(n, float).reshape(-1, 3) for n, _ in planes],
                            [np.asarray(d, float) for _, d in planes], edges,
+                           [np.zeros((0, 3)) if e is None or not isinstance(gobs[g].geometry, coal.Box)
+                            else np.asarray(e, float).reshape(-1, 3) for g, e in enumerate(model.vertex_edges)],
                            [int(p.index in model.polytope_pair_set) for p in model.pairs],
-                           data.distance_request, data.distance_result, data.patch_request)
+                           data.distance_request, data.distance_result, data.patch_request, _blas_fma())
 
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its two buffers, laid out as r.layout()

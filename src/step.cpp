@@ -4,13 +4,15 @@
 //
 // It mirrors stepper.step stage by stage and operation by operation (the same products and sums in
 // the same order, no FMA contraction: docs/theory.md §2.8), for the contacts of coal's closed-form pairs
-// (moreau_sim/compiled.py _analytic), any number of velocities: polytope vertices against a half-space
+// (moreau_sim/compiled.py _analytic) and pairs of two boxes (src/box_box.hpp: point queries, contact patches, the
+// warm start of contacts.detect), any number of velocities: polytope vertices against a half-space
 // (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight steps; the
 // restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed form for one
 // contact, else qp._active_set's dual active set from nothing, re-solved and checked as qp._polish does);
 // the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with
-// a reason and the Python step (the reference) takes the step: corners, point queries against
-// non-half-spaces, contact patches, swept detection, coal's EPA fallback, more than max_contacts contacts
+// a reason and the Python step (the reference) takes the step: corners, edge contacts of two boxes, a paid
+// position lift, point queries and contact patches against other shapes than boxes, swept detection, coal's EPA
+// fallback, more than max_contacts contacts
 // (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp).
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
@@ -512,26 +514,31 @@ class Stepper {
   // The box-box detection's data (moreau_sim/compiled.py): per geometry, a box's point query (data.point_query, the
   // same coal functor Python calls; None: no box), its face normals (k, 3), face planes (normals (6, 3), offsets)
   // and edges (box_box.box_edges: starts, directions, lengths, the two face normals, (12, 12)) in its joint frame;
-  // per pair whether both are polytopes (model.polytope_pair_set); the coal request and result objects Python's
-  // detection uses (data.distance_request, data.distance_result, data.patch_request)
+  // the edges leaving each of a box's vertices ((8 3, 3): model.vertex_edges); per pair whether both are polytopes (model.polytope_pair_set); the coal request and result objects Python's
+  // detection uses (data.distance_request, data.distance_result, data.patch_request); whether numpy's matmul fuses
+// its 3-term products (compiled._blas_fma)
   void boxes(std::vector<nb::object> queries, std::vector<MatrixXd> face_normals, std::vector<MatrixXd> plane_n,
-             std::vector<VectorXd> plane_d, std::vector<MatrixXd> edges, std::vector<int> polytope, nb::object dreq,
-             nb::object dres, nb::object preq) {
+             std::vector<VectorXd> plane_d, std::vector<MatrixXd> edges, std::vector<MatrixXd> vertex_edges,
+             std::vector<int> polytope, nb::object dreq, nb::object dres, nb::object preq, bool blas_fma) {
+    blas_fma_ = blas_fma;
     const size_t G = gm_.geometryObjects.size();
     if (queries.size() != G || face_normals.size() != G || plane_n.size() != G || plane_d.size() != G ||
-        edges.size() != G || (Eigen::Index)polytope.size() != pairs_.rows())
+        edges.size() != G || vertex_edges.size() != G || (Eigen::Index)polytope.size() != pairs_.rows())
       throw nb::value_error("boxes: one entry per geometry (per pair: polytope) expected");
     keep_.assign({dreq, dres, preq});
     dreq_ = &extract_ref<coal::DistanceRequest>(dreq, "coal.DistanceRequest");
     dres_ = &extract_ref<coal::DistanceResult>(dres, "coal.DistanceResult");
     preq_ = &extract_ref<coal::ContactPatchRequest>(preq, "coal.ContactPatchRequest");
     query_.assign(G, nullptr), face_n_.resize(G), plane_n_.resize(G), plane_d_ = std::move(plane_d), edges_.resize(G);
-    half_.assign(G, Vec3::Zero());
+    half_.assign(G, Vec3::Zero()), vedges_.resize(G);
     for (size_t g = 0; g < G; ++g) {
       if (!queries[g].is_none()) {
         keep_.push_back(queries[g]);
         query_[g] = &extract_ref<coal::ComputeDistance>(queries[g], "coal.ComputeDistance");
         if (edges[g].rows() != 12 || edges[g].cols() != 13) throw nb::value_error("boxes: edges (12, 13) per box");
+        if (vertex_edges[g].rows() != 24 || vertex_edges[g].cols() != 3)
+          throw nb::value_error("boxes: vertex edges (24, 3) per box");
+        vedges_[g] = vertex_edges[g];
         boxbox::Edges &E = edges_[g];
         E.e0 = edges[g].leftCols(3), E.ed = edges[g].middleCols(3, 3), E.el = edges[g].col(6);
         E.f0 = edges[g].middleCols(7, 3), E.f1 = edges[g].rightCols(3);
@@ -565,13 +572,13 @@ class Stepper {
   Constants C_;
   MatrixXd limits_;  // model.limits: pair, joint, idx_q, idx_v, sign, bound per limit (moreau_sim/limits.py)
   // the box-box detection (boxes())
-  bool boxes_ = false;
+  bool boxes_ = false, blas_fma_ = false;  // blas_fma_: numpy's 3-term matmul fuses (boxbox::blas3)
   std::vector<nb::object> keep_;
   coal::DistanceRequest *dreq_ = nullptr;
   coal::DistanceResult *dres_ = nullptr;
   coal::ContactPatchRequest *preq_ = nullptr;
   std::vector<coal::ComputeDistance *> query_;
-  std::vector<boxbox::RowsX3> face_n_, plane_n_;
+  std::vector<boxbox::RowsX3> face_n_, plane_n_, vedges_;
   std::vector<VectorXd> plane_d_;
   std::vector<boxbox::Edges> edges_;
   std::vector<Vec3> half_;  // a box's half sides
@@ -729,18 +736,38 @@ class Stepper {
       const coal::Transform3s tf_other(oMg.rotation(), oMg.translation());
       const double d = (*query)(tf, tf_other, *dreq_, *dres_);
       if (!(d <= tol_)) continue;
-      const Vec3 nrm = dres_->normal;  // from the vertex towards the box
+      const Vec3 nrm_coal = dres_->normal;  // from the vertex towards the box
       const Vec3 p_other = dres_->nearest_points[1];
-      if (!(nrm.allFinite() && std::abs(d) < 1e100)) throw Fallback{"a vertex on a box's surface (no coal normal)"};
+      if (!(nrm_coal.allFinite() && std::abs(d) < 1e100)) throw Fallback{"a vertex on a box's surface (no coal normal)"};
       // contacts._corner_normals: the faces within margin of the largest signed distance; two or more: Python
       const Vec3 pl = Ro.transpose() * (Vw.row(i).transpose() - to);
       const boxbox::RowsX3 &Pn = plane_n_[g_other];
       const VectorXd &Pd = plane_d_[g_other];
       VectorXd sd(Pn.rows());
       for (Eigen::Index f = 0; f < Pn.rows(); ++f) sd[f] = ((Pn(f, 0) * pl[0] + Pn(f, 1) * pl[1]) + Pn(f, 2) * pl[2]) - Pd[f];
-      int on = 0;
-      for (Eigen::Index f = 0; f < sd.size(); ++f) on += sd[f] >= sd.maxCoeff() - margin;
-      if (on >= 2) throw Fallback{"a vertex at a box's edge or corner"};
+      // of those, the faces whose planes leave the vertex's own cone (its edges, vedges_) outside: two or more
+      // make a corner (Python's set-valued law); one gives the contact its face normal; none, coal's normal
+      Vec3 nrm = nrm_coal;
+      std::vector<Eigen::Index> on;
+      for (Eigen::Index f = 0; f < sd.size(); ++f)
+        if (sd[f] >= sd.maxCoeff() - margin) on.push_back(f);
+      if (on.size() >= 2) {
+        const Eigen::Matrix3d &Rv = oMi.rotation();
+        const boxbox::RowsX3 &VE = vedges_[g_vert];  // (8 * 3, 3): vertex i's edges in rows 3 i .. 3 i + 2
+        int ok = 0;
+        Vec3 first;
+        for (Eigen::Index f : on) {
+          const Vec3 nw = boxbox::row_rt(Pn, f, Ro);
+          double lo = INFINITY;
+          for (int k = 0; k < 3; ++k) lo = std::min(lo, boxbox::dot3(nw, boxbox::row_rt(VE, 3 * i + k, Rv)));
+          if (lo >= -1e-9) {  // contacts._corner_normals' literal
+            if (!ok) first = nw;
+            ++ok;
+          }
+        }
+        if (ok >= 2) throw Fallback{"a vertex at a box's edge or corner"};
+        if (ok == 1) nrm = -first;
+      }
       const Vec3 p = Vw.row(i).transpose();
       if (v_is_a)
         out.push_back({d, p, p_other, -nrm, pair, C_.vertex, offset + (int)i});
@@ -814,7 +841,7 @@ class Stepper {
         if (patch && depth <= tol_) {
           if (!poly) throw Fallback{"contact patch"};
           const Vec3 n_face = boxbox::face_axis(vertices_[first], rot(jf), trans(jf), face_n_[first], vertices_[second],
-                                                rot(js), trans(js), face_n_[second]);
+                                                rot(js), trans(js), face_n_[second], blas_fma_);
           // with vertex contacts, the patch must lie in their plane (contacts.detect's literal 1 - 1e-9)
           if (found.size() == start || n_face.dot(found[start].n) >= 1.0 - 1e-9) {
             coal::CollisionResult cres;
