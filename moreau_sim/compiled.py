@@ -1,7 +1,7 @@
 """The compiled contact step (moreau_sim._step, src/step.cpp): its guard, its constants, and its typed result
 made a results.StepResult. It must load against exactly the Pinocchio and coal it was built with (else the
-Python step runs, with one warning); it mirrors stepper.step for coal's closed-form pairs and up to
-MAX_CONTACTS contacts, and hands any other step back (docs/theory.md §2.8)."""
+Python step runs, with one warning); it mirrors stepper.step for coal's closed-form pairs and pairs of two boxes,
+up to MAX_CONTACTS contacts, and hands any other step back (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import coal
 import numpy as np
 import pinocchio
 
-from . import constraints, qp
-from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, Contacts, FeatureKind
+from . import box_box, broad_phase, constraints, qp
+from .contacts import _SAME_POINT, DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, Contacts, FeatureKind
 from .law import ENERGY_ROUNDOFF
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts
 from .qp import QPResult
@@ -31,7 +31,9 @@ CONSTANTS = {
     "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA,
     "distinct": constraints.DISTINCT, "guess_min": GUESS_MIN, "distance_failed": DISTANCE_FAILED,
     "joint_limit": int(FeatureKind.JOINT_LIMIT),
-    "energy_roundoff": ENERGY_ROUNDOFF,
+    "energy_roundoff": ENERGY_ROUNDOFF, "patch": int(FeatureKind.PATCH), "same_point": _SAME_POINT,
+    "cone": box_box.CONE, "edge_end": box_box.EDGE_END, "parallel": box_box.PARALLEL,
+    "depth_ratio": box_box.DEPTH_RATIO,
 }
 _EMPTY = np.zeros(0)
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}
@@ -92,23 +94,46 @@ def _analytic(a, b) -> bool:
     return False
 
 
+def _boxes(a, b) -> bool:
+    return isinstance(a, coal.Box) and isinstance(b, coal.Box)
+
+
 def unsupported(model) -> str | None:
-    """Why the compiled step never takes this model's steps (None: it takes the ones it covers)."""
+    """Why the compiled step never takes this model's steps (None: it takes the ones it covers). Two boxes: coal's
+    GJK/EPA runs on the same GeometryData on both sides, its warm start restored where a step is handed back."""
     o = model.options
     if model.prescribed is not None:
         return "a static with prescribed motion"
     if model.drive is not None:
         return "a driven joint ([[drives]])"
     geoms = model.geom.geometryObjects
-    if not all(_analytic(geoms[p.first].geometry, geoms[p.second].geometry) for p in model.pairs):
+    if not all(_analytic(a, b) or _boxes(a, b)
+               for a, b in ((geoms[p.first].geometry, geoms[p.second].geometry) for p in model.pairs)):
         return "a pair coal resolves by GJK/EPA (warm-started from its previous call)"
-    if model.polytope_pairs:
-        return "pairs of two polytopes (their detection keeps a warm start)"
+    if any(not _boxes(geoms[p.first].geometry, geoms[p.second].geometry)
+           for p in model.pairs if p.index in model.polytope_pair_set):
+        return "pairs of two polytopes other than two boxes"
+    if any(isinstance(go.geometry, coal.Box) and not np.isin(model.face_normals[g], (-1.0, 0.0, 1.0)).all()
+           for g, go in enumerate(geoms)) and model.polytope_pair_set:
+        # the face axis of two boxes becomes the patch's normal: exact both ways only for faces along the axes
+        return "a box turned in its joint frame (pairs of two boxes)"
+    if model.polytope_pair_set and len(model.pairs) > broad_phase.MIN_PAIRS:
+        # the broad phase skips far pairs, whose GJK warm start then ages; the compiled step queries every pair
+        return "pairs of two boxes under the broad phase"
     if o.tunnelling is Tunnelling.ALWAYS:
         return "swept detection on every step"
     if o.qp_form is not QPForm.PRIMAL:
         return "qp_form dual"
     return None
+
+
+def _blas_fma() -> bool:
+    """Whether numpy's matmul of 3-term products fuses them, fma(a2, b2, fma(a1, b1, a0 b0)) (OpenBLAS's FMA
+    kernels), as contacts._face_axis's products run (8 x 3 by 3 x 12): then a0 b0 + a1 b1 is -2^-60 here, else 0."""
+    x = 1.0 + 2.0 ** -30
+    a = np.tile([x, x, 0.0], (8, 1))
+    b = np.tile([[x], [-x], [0.0]], (1, 12))
+    return bool((a @ b)[0, 0] != 0.0)
 
 
 class _Context:
@@ -137,6 +162,29 @@ class _Context:
                 o.position_correction is PositionCorrection.PROJECTION, CONSTANTS,
                 np.array([(lim.pair, lim.joint, lim.idx_q, lim.idx_v, lim.sign, lim.bound) for lim in model.limits],
                          dtype=float).reshape(-1, 6))
+            if model.polytope_pair_set:
+                self._boxes(model, data)
+
+    def _boxes(self, model, data) -> None:
+        """The box-box detection's data (src/step.cpp Stepper::boxes): the coal objects Python's detection uses."""
+        gobs = model.geom.geometryObjects
+        queries, edges = [], []
+        for g, go in enumerate(gobs):
+            if isinstance(go.geometry, coal.Box):
+                queries.append(data.point_query(g))
+                e0, ed, el, ef = box_box.box_edges(go.geometry, go.placement)
+                edges.append(np.column_stack((e0, ed, el, ef[:, 0], ef[:, 1])))
+            else:
+                queries.append(None)
+                edges.append(np.zeros((0, 13)))
+        planes = [p if p is not None else (np.zeros((0, 3)), np.zeros(0)) for p in model.face_planes]
+        self.stepper.boxes(queries, [np.asarray(f, float).reshape(-1, 3) for f in model.face_normals],
+                           [np.asarray(n, float).reshape(-1, 3) for n, _ in planes],
+                           [np.asarray(d, float) for _, d in planes], edges,
+                           [np.zeros((0, 3)) if e is None or not isinstance(gobs[g].geometry, coal.Box)
+                            else np.asarray(e, float).reshape(-1, 3) for g, e in enumerate(model.vertex_edges)],
+                           [int(p.index in model.polytope_pair_set) for p in model.pairs],
+                           data.distance_request, data.distance_result, data.patch_request, _blas_fma())
 
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its two buffers, laid out as r.layout()
@@ -173,6 +221,9 @@ def step(model, data, state: State, h: float, e: float, t1: float, tau: np.ndarr
     if ctx.stepper is None:
         ctx.counts[f"python: {ctx.why}"] += 1
         return None
+    boxes = bool(model.polytope_pair_set)
+    if boxes:  # contacts.detect's warm start, kept in data between steps whichever step takes them
+        ctx.stepper.warm = sorted(data.warm_start_pairs)
     if tau is None:
         r = ctx.stepper.step(state.q, state.u, h, e)
     else:
@@ -185,6 +236,8 @@ def step(model, data, state: State, h: float, e: float, t1: float, tau: np.ndarr
     if r.outcome is Outcome.FALLBACK:
         ctx.counts[f"python: {r.reason}"] += 1
         return None
+    if boxes:
+        data.warm_start_pairs = set(ctx.stepper.warm)
     f = ctx.arrays(r)
     if r.outcome is Outcome.FLIGHT:
         ctx.counts["flight"] += 1

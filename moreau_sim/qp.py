@@ -57,7 +57,8 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
     return float(max(r, -slack.min(initial=0.0), -lam.min(initial=0.0), abs(lam @ slack)))
 
 
-COLD_START_ROWS = 64  # up to this many rows the active set starts from nothing, and piqp is only its fallback
+COLD_START_ROWS = 100  # up to this many rows (= SPARSE_ROWS) the active set starts from nothing, and piqp is only its
+# fallback; the compiled step takes as many (compiled.MAX_CONTACTS): it runs this method, not piqp (docs/theory.md §1.3)
 SPARSE_ROWS = 100  # above this many rows the sparse path (_solve_sparse) solves; below it dense is cheaper
 # The active set's tolerances (src/step.cpp receives them from compiled.CONSTANTS):
 SCREEN = 1e-13  # v0 is admissible, and a row of the active set met, when W'v - b >= -SCREEN (1 + max|v0|)

@@ -4,13 +4,15 @@
 //
 // It mirrors stepper.step stage by stage and operation by operation (the same products and sums in
 // the same order, no FMA contraction: docs/theory.md §2.8), for the contacts of coal's closed-form pairs
-// (moreau_sim/compiled.py _analytic), any number of velocities: polytope vertices against a half-space
+// (moreau_sim/compiled.py _analytic) and pairs of two boxes (src/box_box.hpp: point queries, contact patches, the
+// warm start of contacts.detect), any number of velocities: polytope vertices against a half-space
 // (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight steps; the
 // restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed form for one
 // contact, else qp._active_set's dual active set from nothing, re-solved and checked as qp._polish does);
 // the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with
-// a reason and the Python step (the reference) takes the step: corners, point queries against
-// non-half-spaces, contact patches, swept detection, coal's EPA fallback, more than max_contacts contacts
+// a reason and the Python step (the reference) takes the step: corners, edge contacts of two boxes, a paid
+// position lift, point queries and contact patches against other shapes than boxes, swept detection, coal's EPA
+// fallback, more than max_contacts contacts
 // (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp).
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
@@ -31,6 +33,12 @@
 #include <pinocchio/algorithm/geometry.hpp>
 #include <pinocchio/collision/collision.hpp>
 #include <pinocchio/collision/distance.hpp>
+
+#include <coal/contact_patch.h>
+#include <coal/distance.h>
+#include <coal/shape/geometric_shapes.h>
+
+#include "box_box.hpp"
 
 #include <algorithm>
 #include <cfloat>
@@ -68,13 +76,16 @@ struct Constants {
   double distinct;  // constraints.distinct's relative tolerance
   double guess_min, distance_failed;  // contacts.GUESS_MIN, DISTANCE_FAILED
   double energy_roundoff;  // law.ENERGY_ROUNDOFF
+  int patch;  // contacts.FeatureKind.PATCH
+  double same_point, cone, edge_end, parallel, depth_ratio;  // contacts._SAME_POINT; box_box's CONE, EDGE_END,
+                                                             // PARALLEL, DEPTH_RATIO
 
   static const std::vector<std::string> &keys() {
     static const std::vector<std::string> k = {
         "midpoint_iterations", "midpoint_tolerance", "resting", "vertex", "witness", "max_contacts", "screen",
         "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct",
         "guess_min", "distance_failed", "joint_limit",
-        "energy_roundoff"};
+        "energy_roundoff", "patch", "same_point", "cone", "edge_end", "parallel", "depth_ratio"};
     return k;
   }
   // from a dict holding exactly keys() (a missing or an unknown name is an error: nothing is left to a default)
@@ -101,6 +112,8 @@ struct Constants {
     c.guess_min = get("guess_min"), c.distance_failed = get("distance_failed");
     c.joint_limit = geti("joint_limit");
     c.energy_roundoff = get("energy_roundoff");
+    c.patch = geti("patch"), c.same_point = get("same_point"), c.cone = get("cone"), c.edge_end = get("edge_end");
+    c.parallel = get("parallel"), c.depth_ratio = get("depth_ratio");
     return c;
   }
   std::map<std::string, double> as_dict() const {
@@ -110,7 +123,8 @@ struct Constants {
             {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra},
             {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed},
             {"joint_limit", joint_limit},
-            {"energy_roundoff", energy_roundoff}};
+            {"energy_roundoff", energy_roundoff}, {"patch", patch}, {"same_point", same_point}, {"cone", cone},
+            {"edge_end", edge_end}, {"parallel", parallel}, {"depth_ratio", depth_ratio}};
   }
 };
 
@@ -488,6 +502,7 @@ class Stepper {
     tau_ = tau;  // the step's joint torques (actuation.py), evaluated by Python at (t_m, q_m, u_k); empty: none
     try {
       step_(q, u, h, e, out);
+      warm_.swap(next_warm_);  // the pairs with contacts at this detection (contacts.detect's warm start)
     } catch (const Fallback &f) {
       restore_guesses();
       out = StepOut();
@@ -497,6 +512,48 @@ class Stepper {
   }
 
   std::map<std::string, double> constants() const { return C_.as_dict(); }
+
+  // The box-box detection's data (moreau_sim/compiled.py): per geometry, a box's point query (data.point_query, the
+  // same coal functor Python calls; None: no box), its face normals (k, 3), face planes (normals (6, 3), offsets)
+  // and edges (box_box.box_edges: starts, directions, lengths, the two face normals, (12, 12)) in its joint frame;
+  // the edges leaving each of a box's vertices ((8 3, 3): model.vertex_edges); per pair whether both are polytopes (model.polytope_pair_set); the coal request and result objects Python's
+  // detection uses (data.distance_request, data.distance_result, data.patch_request); whether numpy's matmul fuses
+// its 3-term products (compiled._blas_fma)
+  void boxes(std::vector<nb::object> queries, std::vector<MatrixXd> face_normals, std::vector<MatrixXd> plane_n,
+             std::vector<VectorXd> plane_d, std::vector<MatrixXd> edges, std::vector<MatrixXd> vertex_edges,
+             std::vector<int> polytope, nb::object dreq, nb::object dres, nb::object preq, bool blas_fma) {
+    blas_fma_ = blas_fma;
+    const size_t G = gm_.geometryObjects.size();
+    if (queries.size() != G || face_normals.size() != G || plane_n.size() != G || plane_d.size() != G ||
+        edges.size() != G || vertex_edges.size() != G || (Eigen::Index)polytope.size() != pairs_.rows())
+      throw nb::value_error("boxes: one entry per geometry (per pair: polytope) expected");
+    keep_.assign({dreq, dres, preq});
+    dreq_ = &extract_ref<coal::DistanceRequest>(dreq, "coal.DistanceRequest");
+    dres_ = &extract_ref<coal::DistanceResult>(dres, "coal.DistanceResult");
+    preq_ = &extract_ref<coal::ContactPatchRequest>(preq, "coal.ContactPatchRequest");
+    query_.assign(G, nullptr), face_n_.resize(G), plane_n_.resize(G), plane_d_ = std::move(plane_d), edges_.resize(G);
+    half_.assign(G, Vec3::Zero()), vedges_.resize(G);
+    for (size_t g = 0; g < G; ++g) {
+      if (!queries[g].is_none()) {
+        keep_.push_back(queries[g]);
+        query_[g] = &extract_ref<coal::ComputeDistance>(queries[g], "coal.ComputeDistance");
+        if (edges[g].rows() != 12 || edges[g].cols() != 13) throw nb::value_error("boxes: edges (12, 13) per box");
+        if (vertex_edges[g].rows() != 24 || vertex_edges[g].cols() != 3)
+          throw nb::value_error("boxes: vertex edges (24, 3) per box");
+        vedges_[g] = vertex_edges[g];
+        boxbox::Edges &E = edges_[g];
+        E.e0 = edges[g].leftCols(3), E.ed = edges[g].middleCols(3, 3), E.el = edges[g].col(6);
+        E.f0 = edges[g].middleCols(7, 3), E.f1 = edges[g].rightCols(3);
+        half_[g] = static_cast<const coal::Box *>(gm_.geometryObjects[g].geometry.get())->halfSide;
+      }
+      face_n_[g] = face_normals[g], plane_n_[g] = plane_n[g];
+    }
+    polytope_.assign(polytope.begin(), polytope.end());
+    boxes_ = true;
+  }
+  // contacts.detect's warm start (data.warm_start_pairs): set before a step, read after it
+  std::vector<int> warm() const { return warm_; }
+  void set_warm(std::vector<int> w) { warm_ = std::move(w); }
 
  private:
   nb::object py_[4];  // keeps the Python objects (and so the C++ ones) alive
@@ -516,6 +573,20 @@ class Stepper {
   bool sep_elastic_, slow_plastic_, bias_midpoint_, velocity_bias_, projection_;
   Constants C_;
   MatrixXd limits_;  // model.limits: pair, joint, idx_q, idx_v, sign, bound per limit (moreau_sim/limits.py)
+  // the box-box detection (boxes())
+  bool boxes_ = false, blas_fma_ = false;  // blas_fma_: numpy's 3-term matmul fuses (boxbox::blas3)
+  std::vector<nb::object> keep_;
+  coal::DistanceRequest *dreq_ = nullptr;
+  coal::DistanceResult *dres_ = nullptr;
+  coal::ContactPatchRequest *preq_ = nullptr;
+  std::vector<coal::ComputeDistance *> query_;
+  std::vector<boxbox::RowsX3> face_n_, plane_n_, vedges_;
+  std::vector<VectorXd> plane_d_;
+  std::vector<boxbox::Edges> edges_;
+  std::vector<Vec3> half_;  // a box's half sides
+  std::vector<char> polytope_;
+  std::vector<int> warm_, next_warm_;  // sorted pair indices
+  coal::DistanceResult saved_dres_;
 
   // ---- pinocchio calls as the Python bindings make them (crba and Minv symmetrized)
   const MatrixXd &crba_world(const VectorXd &q) {
@@ -573,13 +644,30 @@ class Stepper {
       const coal::GJKSolver &sv = gd_.collision_functors[k].*mem;
       saved_guess_[k] = sv.cached_guess, saved_hint_[k] = sv.support_func_cached_guess;
     }
+    // the requests' and results' guesses (what Python's detection, rerun after a fallback, starts from)
+    saved_req_.resize(n), saved_res_.resize(n);
+    for (size_t k = 0; k < n; ++k) {
+      const auto &rq = gd_.collisionRequests[k];
+      const auto &rs = gd_.collisionResults[k];
+      saved_req_[k] = {rq.cached_gjk_guess, rq.cached_support_func_guess};
+      saved_res_[k] = {rs.cached_gjk_guess, rs.cached_support_func_guess};
+    }
+    if (dres_) saved_dres_ = *dres_;
   }
+  std::vector<std::pair<coal::Vec3s, coal::support_func_guess_t>> saved_req_, saved_res_;
   void restore_guesses() {
     const auto mem = SolverOf::member();
     for (size_t k = 0; k < saved_guess_.size() && k < gd_.collision_functors.size(); ++k) {
       coal::GJKSolver &sv = gd_.collision_functors[k].*mem;
       sv.cached_guess = saved_guess_[k], sv.support_func_cached_guess = saved_hint_[k];
     }
+    for (size_t k = 0; k < saved_req_.size() && k < gd_.collisionRequests.size(); ++k) {
+      auto &rq = gd_.collisionRequests[k];
+      auto &rs = gd_.collisionResults[k];
+      rq.cached_gjk_guess = saved_req_[k].first, rq.cached_support_func_guess = saved_req_[k].second;
+      rs.cached_gjk_guess = saved_res_[k].first, rs.cached_support_func_guess = saved_res_[k].second;
+    }
+    if (dres_) *dres_ = saved_dres_;
   }
 
   // stepper.free_velocity (tau_: the step's joint torques, or zero)
@@ -602,7 +690,7 @@ class Stepper {
 
   // contacts._vertex_contacts for one geometry's vertices against another
   void vertex_contacts(int g_vert, int joint_v, int g_other, int joint_other, std::vector<Found> &out, int pair,
-                       int offset, bool v_is_a) {
+                       int offset, bool v_is_a, double margin) {
     const MatrixXd &V = vertices_[g_vert];
     if (V.rows() == 0) return;
     const auto &oMi = data_.oMi[joint_v], &oMo = data_.oMi[joint_other];
@@ -631,41 +719,165 @@ class Stepper {
       }
       return;
     }
-    // a bounding sphere: the vertices near it need coal's point queries (and corner tests): Python
+    // a bounding sphere: the vertices within tol of it get coal's point query (a box: the functor Python calls,
+    // data.point_query); a vertex at two or more of the box's faces (a corner, _corner_normals) goes to Python
     Vec3 ctr;
     for (int j = 0; j < 3; ++j) ctr[j] = odot(Ro.data() + j, a.data(), 3, 3, 1) + to[j];
+    coal::ComputeDistance *query = boxes_ ? query_[g_other] : nullptr;
     for (Eigen::Index i = 0; i < V.rows(); ++i) {
-      const double est = (Vw.row(i).transpose() - ctr).norm() - b;
-      if (est <= tol_ + 1e-9 * (1.0 + std::abs(b))) throw Fallback{"vertex near a shape that is no half-space"};
+      const Vec3 dv = Vw.row(i).transpose() - ctr;
+      const double est = std::sqrt((dv[0] * dv[0] + dv[1] * dv[1]) + dv[2] * dv[2]) - b;
+      if (!query) {
+        if (est <= tol_ + 1e-9 * (1.0 + std::abs(b))) throw Fallback{"vertex near a shape that is no half-space"};
+        continue;
+      }
+      if (!(est <= tol_)) continue;
+      coal::Transform3s tf;  // data.point_tf: identity rotation, the vertex's translation
+      tf.setTranslation(Vw.row(i).transpose());
+      const auto &oMg = gd_.oMg[g_other];
+      const coal::Transform3s tf_other(oMg.rotation(), oMg.translation());
+      const double d = (*query)(tf, tf_other, *dreq_, *dres_);
+      if (!(d <= tol_)) continue;
+      const Vec3 nrm_coal = dres_->normal;  // from the vertex towards the box
+      const Vec3 p_other = dres_->nearest_points[1];
+      if (!(nrm_coal.allFinite() && std::abs(d) < 1e100)) throw Fallback{"a vertex on a box's surface (no coal normal)"};
+      // contacts._corner_normals: the faces within margin of the largest signed distance; two or more: Python
+      const Vec3 pl = Ro.transpose() * (Vw.row(i).transpose() - to);
+      const boxbox::RowsX3 &Pn = plane_n_[g_other];
+      const VectorXd &Pd = plane_d_[g_other];
+      VectorXd sd(Pn.rows());
+      for (Eigen::Index f = 0; f < Pn.rows(); ++f) sd[f] = ((Pn(f, 0) * pl[0] + Pn(f, 1) * pl[1]) + Pn(f, 2) * pl[2]) - Pd[f];
+      // of those, the faces whose planes leave the vertex's own cone (its edges, vedges_) outside: two or more
+      // make a corner (Python's set-valued law); one gives the contact its face normal; none, coal's normal
+      Vec3 nrm = nrm_coal;
+      std::vector<Eigen::Index> on;
+      for (Eigen::Index f = 0; f < sd.size(); ++f)
+        if (sd[f] >= sd.maxCoeff() - margin) on.push_back(f);
+      if (on.size() >= 2) {
+        const Eigen::Matrix3d &Rv = oMi.rotation();
+        const boxbox::RowsX3 &VE = vedges_[g_vert];  // (8 * 3, 3): vertex i's edges in rows 3 i .. 3 i + 2
+        int ok = 0;
+        Vec3 first;
+        for (Eigen::Index f : on) {
+          const Vec3 nw = boxbox::row_rt(Pn, f, Ro);
+          double lo = INFINITY;
+          for (int k = 0; k < 3; ++k) lo = std::min(lo, boxbox::dot3(nw, boxbox::row_rt(VE, 3 * i + k, Rv)));
+          if (lo >= -1e-9) {  // contacts._corner_normals' literal
+            if (!ok) first = nw;
+            ++ok;
+          }
+        }
+        if (ok >= 2) throw Fallback{"a vertex at a box's edge or corner"};
+        if (ok == 1) nrm = -first;
+      }
+      const Vec3 p = Vw.row(i).transpose();
+      if (v_is_a)
+        out.push_back({d, p, p_other, -nrm, pair, C_.vertex, offset + (int)i});
+      else
+        out.push_back({d, p_other, p, nrm, pair, C_.vertex, offset + (int)i});
     }
   }
 
-  // contacts.detect (without the polytope warm start: such models are not compiled)
-  std::vector<Found> detect(const VectorXd &q_m) {
+  // whether point p (on A) is farther than C_.same_point (max-norm) from every point on A of found[start:]
+  bool new_point(const std::vector<Found> &found, size_t start, const Vec3 &p) const {
+    for (size_t j = start; j < found.size(); ++j)
+      if ((found[j].pa - p).cwiseAbs().maxCoeff() <= C_.same_point) return false;
+    return true;
+  }
+  const Eigen::Matrix3d &rot(int joint) const { return data_.oMi[joint].rotation(); }
+  const Vec3 &trans(int joint) const { return data_.oMi[joint].translation(); }
+
+  // contacts.detect: coal's narrow phase on every pair, and (box models) the box pairs with contacts at the last
+  // detection still within tol (_near_polytopes, warm_); margin: the corner margin max(tol, travel)
+  std::vector<Found> detect(const VectorXd &q_m, double travel) {
     std::vector<Found> found;
     pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q_m);
+    next_warm_ = warm_;
     if (pairs_.rows() == 0) return found;
     save_guesses();
     fresh_guesses(gd_.collisionRequests);
-    const bool coll = pinocchio::computeCollisions(gm_, gd_, false);
-    if (!coll) return found;
-    for (Eigen::Index k = 0; k < pairs_.rows(); ++k) {
+    pinocchio::computeCollisions(gm_, gd_, false);
+    const Eigen::Index np = pairs_.rows();
+    std::vector<char> near(np, 0);
+    for (int k : warm_) {  // _near_polytopes
+      if (k >= np || !boxes_ || !polytope_[k]) continue;
+      const int g1 = (int)pairs_(k, 0), g2 = (int)pairs_(k, 1), j1 = (int)pairs_(k, 2), j2 = (int)pairs_(k, 3);
+      if (bound_kind_[g1] != 1 || bound_kind_[g2] != 1) continue;
+      const Vec3 d = (rot(j1) * bound_a_[g1] + trans(j1)) - (rot(j2) * bound_a_[g2] + trans(j2));
+      near[k] = std::sqrt(d.dot(d)) - bound_b_[g1] - bound_b_[g2] <= tol_;
+    }
+    const double margin = std::max(tol_, travel);
+    for (Eigen::Index k = 0; k < np; ++k) {
       const auto &res = gd_.collisionResults[k];
-      if (!res.isCollision()) continue;
+      const bool hit = res.isCollision();
+      if (!hit && !near[k]) continue;
       const int first = (int)pairs_(k, 0), second = (int)pairs_(k, 1), jf = (int)pairs_(k, 2), js = (int)pairs_(k, 3);
       const bool patch = pairs_(k, 4) != 0;
       const size_t start = found.size();
       const int na = (int)vertices_[first].rows(), nb_ = (int)vertices_[second].rows();
-      if (na) vertex_contacts(first, jf, second, js, found, (int)k, 0, true);
-      if (nb_) vertex_contacts(second, js, first, jf, found, (int)k, na, false);
-      const auto &c = res.getContact(0);
-      const Vec3 n = -c.normal;
-      const double depth = c.penetration_depth;
-      if (!(std::abs(depth) < 1e100 && std::isfinite(n.dot(n)))) throw Fallback{"coal's contact needs the EPA fallback"};
-      if (patch && depth <= tol_) throw Fallback{"contact patch"};
-      if (found.size() == start && depth <= tol_)
-        found.push_back({depth, c.nearest_points[0], c.nearest_points[1], n, (int)k, C_.witness, 0});
+      if (na) vertex_contacts(first, jf, second, js, found, (int)k, 0, true, margin);
+      if (nb_) vertex_contacts(second, js, first, jf, found, (int)k, na, false, margin);
+      std::vector<Vec3> edges;  // box_box.edge_crossings: any that is no known point goes to Python
+      if (boxes_ && query_[first] && query_[second]) {
+        const auto cands = boxbox::edge_candidates(edges_[first], rot(jf), trans(jf), edges_[second], rot(js),
+                                                   trans(js), tol_, C_.cone, C_.edge_end, C_.parallel);
+        double floor = -INFINITY;  // crossed far deeper than the boxes' penetration depth: no contact
+        bool crossed = false;
+        for (const auto &x : cands) crossed = crossed || x.g < 0.0;
+        if (crossed) {
+          const auto &o1 = gd_.oMg[first], &o2 = gd_.oMg[second];
+          const double ov = boxbox::overlap(o1.rotation(), o1.translation(), half_[first], o2.rotation(),
+                                            o2.translation(), half_[second], C_.parallel);
+          floor = -(C_.depth_ratio * std::max(ov, 0.0) + tol_);
+        }
+        for (const auto &x : cands)
+          if (x.g >= floor) edges.push_back(x.pa);
+      }
+      if (hit) {
+        const auto &c = res.getContact(0);
+        const Vec3 n = -c.normal;
+        const double depth = c.penetration_depth;
+        if (!(std::abs(depth) < 1e100 && std::isfinite(n.dot(n)))) throw Fallback{"coal's contact needs the EPA fallback"};
+        size_t k_patch = 0;
+        const bool poly = boxes_ && polytope_[k];
+        if (patch && depth <= tol_) {
+          if (!poly) throw Fallback{"contact patch"};
+          const Vec3 n_face = boxbox::face_axis(vertices_[first], rot(jf), trans(jf), face_n_[first], vertices_[second],
+                                                rot(js), trans(js), face_n_[second], blas_fma_);
+          // with vertex contacts, the patch must lie in their plane (contacts.detect's literal 1 - 1e-9)
+          if (found.size() == start || n_face.dot(found[start].n) >= 1.0 - 1e-9) {
+            coal::CollisionResult cres;
+            const coal::CollisionGeometry *g1 = gm_.geometryObjects[first].geometry.get();
+            const coal::CollisionGeometry *g2 = gm_.geometryObjects[second].geometry.get();
+            cres.addContact(coal::Contact(g1, g2, -1, -1, c.pos, -n_face, depth));
+            coal::ContactPatchResult pres(*preq_);
+            const auto &o1 = gd_.oMg[first], &o2 = gd_.oMg[second];
+            coal::computeContactPatch(g1, coal::Transform3s(o1.rotation(), o1.translation()), g2,
+                                      coal::Transform3s(o2.rotation(), o2.translation()), cres, *preq_, pres);
+            const coal::ContactPatch &pt = pres.getContactPatch(0);
+            k_patch = pt.size();
+            if (k_patch > 1) {
+              std::vector<Vec3> P1(k_patch);
+              std::vector<char> fresh(k_patch);
+              for (size_t i = 0; i < k_patch; ++i) P1[i] = pt.getPointShape1(i), fresh[i] = new_point(found, start, P1[i]);
+              for (size_t i = 0; i < k_patch; ++i)
+                if (fresh[i]) found.push_back({depth, P1[i], pt.getPointShape2(i), n_face, (int)k, C_.patch, (int)i});
+            }
+          }
+        }
+        if (k_patch <= 1 && found.size() == start && depth <= tol_) {
+          if (!edges.empty()) throw Fallback{"edge contacts of two boxes"};
+          found.push_back({depth, c.nearest_points[0], c.nearest_points[1], n, (int)k, C_.witness, 0});
+        }
+      }
+      for (const Vec3 &p : edges)
+        if (new_point(found, start, p)) throw Fallback{"edge contacts of two boxes"};
     }
+    next_warm_.clear();
+    for (const Found &f : found)
+      if (next_warm_.empty() || next_warm_.back() != f.pair) next_warm_.push_back(f.pair);
+    std::sort(next_warm_.begin(), next_warm_.end());
+    next_warm_.erase(std::unique(next_warm_.begin(), next_warm_.end()), next_warm_.end());
     return found;
   }
 
@@ -741,7 +953,7 @@ class Stepper {
     if (q.size() != model_.nq || u.size() != nv) throw nb::value_error("q, u: sizes nq, nv expected");
     VectorXd q_m = pinocchio::integrate(model_, q, (0.5 * h) * u);
     const double travel = h * (nv ? u.cwiseAbs().maxCoeff() : 0.0) * reach_;
-    std::vector<Found> found = detect(q_m);
+    std::vector<Found> found = detect(q_m, travel);
     if (tunnelling_ == 2 || (tunnelling_ == 0 && travel > thinnest_)) throw Fallback{"swept detection"};
     closed_limits(q_m, found);
     if (found.empty()) {
@@ -797,7 +1009,7 @@ class Stepper {
     double corr = 0.0;
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
-    if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr);
+    if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr, gamma_minus, con);
     cap_energy(q, u, q_m, u_free, h, e, P, work, corr, W, q_next, u_next, gamma_plus);  // with the torques' work
     out.outcome = Outcome::CONTACT;
     out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
@@ -905,7 +1117,8 @@ class Stepper {
   // stepper.correct_positions
   void correct_positions(const VectorXd &q, const VectorXd &u, const VectorXd &u_free, double h, const VectorXd &g,
                          const VectorXd &gamma_plus, const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W,
-                         const MatrixXd &Minv, VectorXd &q_next, double &corr) {
+                         const MatrixXd &Minv, VectorXd &q_next, double &corr, const VectorXd &gamma_minus,
+                         const std::vector<Found> &con) {
     (void)M;
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
@@ -936,6 +1149,15 @@ class Stepper {
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
     double dE = energy(q_c, u_next) - E1;
     if (dE > budget && !resting) {
+      // stepper.correct_positions' paid lift: a persistent penetration between two polytopes (deeper than
+      // h |gamma_minus| + tol) in a passive step is lifted in full, paid with the velocities: Python takes it
+      bool deep = false, persistent = tau_.size() == 0;
+      for (Eigen::Index i = 0; i < m && persistent; ++i)
+        if (g_next[i] < -(h * std::abs(gamma_minus[i]) + tol_)) {
+          deep = true;
+          persistent = con[i].kind != C_.joint_limit && con[i].pair < (int)polytope_.size() && polytope_[con[i].pair];
+        }
+      if (deep && persistent) throw Fallback{"a paid position lift"};
       q_c = pinocchio::integrate(model_, q_next, (budget / dE) * res.v);
       dE = energy(q_c, u_next) - E1;
       if (dE > budget) return;
@@ -976,7 +1198,9 @@ NB_MODULE(_step, mod) {
                     const std::map<std::string, double> &, MatrixXd>())
       .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"),
            nb::arg("tau") = VectorXd())
-      .def_prop_ro("constants", &Stepper::constants);
+      .def_prop_ro("constants", &Stepper::constants)
+      .def("boxes", &Stepper::boxes)
+      .def_prop_rw("warm", &Stepper::warm, &Stepper::set_warm);
   bind_run(mod);
   // the names the constants dict must hold (moreau_sim/compiled.py CONSTANTS), and a dict as the step reads it
   mod.def("constant_names", []() { return Constants::keys(); });

@@ -17,10 +17,13 @@ on an FMA machine (src/step.cpp gemv_dot). Within 1e-12 would not be enough: the
 moves box_drop by 1e-5 m. The constants both steps use are passed from Python
 (compiled.CONSTANTS), and the step's result crosses by name (src/step.cpp StepOut).
 
-A scene none of whose steps the compiled step takes (pairs of two polytopes, pairs coal resolves by
-GJK/EPA) runs the Python step both ways; its detection (contacts.py's polytope paths, corners) still has
+A scene none of whose steps the compiled step takes (pairs coal resolves by GJK/EPA other than two boxes, a
+driven joint) runs the Python step both ways; its detection (contacts.py's polytope paths, corners) still has
 numpy products of its own, and two runs of heavy_on_light_box_10000 in one pytest process have been seen
-to differ by 5e-27 m (alone they do not: the arrays' alignment). There, within 1e-12 is required.
+to differ by 5e-27 m (alone they do not: the arrays' alignment). There, within 1e-12 is required. So it is
+for heavy_on_light_box_10000 compiled (PYTHON_VARIES): the compiled step gives the same bits in every run, the
+Python step's own run varies by 1.4e-48 m with what ran before it in the process (tests/test_compiled_boxes.py
+holds the 100:1 stack bit-identical).
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ MUST_COMPILE = {"bouncing_ball", "zeno_ball", "newton_cradle_5", "box_drop", "co
 # CI-sized durations [s]: long enough for the first impacts (and box_drop to settle on a face)
 DURATION = {"bouncing_ball": 1.0, "zeno_ball": 1.5, "box_drop": 1.5, "newton_cradle_5": 0.3}
 MAX_STEPS = 300  # other scenes: at most this many steps
+PYTHON_VARIES = {"heavy_on_light_box_10000"}  # the Python step's own runs differ in one process (module docstring)
 COMPARED = ("t", "q", "u", "kinetic_energy", "potential_energy", "contact_work", "correction_energy", "gap",
             "n_contacts", "smooth_error", "dissipation", "law_dissipation", "impact_t", "impact_dissipation")
 
@@ -92,7 +96,7 @@ def test_same_trajectory_both_ways(path):
     for key in COMPARED:
         x, y = np.asarray(a[key]), np.asarray(b[key])
         assert x.shape == y.shape, key
-        if done or key in ("t", "n_contacts"):
+        if (done and scene.name not in PYTHON_VARIES) or key in ("t", "n_contacts"):
             assert np.array_equal(x, y), (key, float(np.abs(x - y).max(initial=0.0)))
         else:  # Python both ways: as reproducible as the Python step itself (module docstring)
             # the ledger's energy differences (smooth_error, dissipation, ...) are at the round-off of T + V

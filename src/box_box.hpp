@@ -1,0 +1,142 @@
+// The box-box pieces of the compiled detection (included by src/step.cpp): what contacts.detect does for a
+// pair of two boxes (moreau_sim/contacts.py _near_polytopes, _face_axis, the edge crossings of
+// moreau_sim/box_box.py edge_crossings, docs/theory.md §6.2), as plain functions on the joint placements.
+// Values that become contact data (the face normal of a patch) are exact here and in Python (±1 entries of an
+// axis-aligned face normal times a rotation); the rest only feeds decisions (argmax, thresholds), and
+// Stepper::box_pair hands back every step whose outcome these could change (corners, edge contacts).
+#pragma once
+
+#include <Eigen/Dense>
+#include <cmath>
+#include <vector>
+
+namespace boxbox {
+
+using Vec3 = Eigen::Vector3d;
+using Mat3 = Eigen::Matrix3d;
+using RowsX3 = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+
+// a row of F (k, 3) times R.T: sum_j F_fj R_ij in index order (numpy's F @ R.T for one row)
+inline Vec3 row_rt(const RowsX3 &F, Eigen::Index f, const Mat3 &R) {
+  Vec3 out;
+  for (int i = 0; i < 3; ++i) out[i] = (F(f, 0) * R(i, 0) + F(f, 1) * R(i, 1)) + F(f, 2) * R(i, 2);
+  return out;
+}
+inline double dot3(const Vec3 &a, const Vec3 &b) { return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]; }
+inline Vec3 cross3(const Vec3 &a, const Vec3 &b) {
+  return Vec3(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]);
+}
+
+// a 3-term product as numpy's matmul makes it (contacts._face_axis: V @ R.T, F @ R.T, Va @ N.T): with an FMA BLAS
+// kernel (OpenBLAS's Haswell and later, probed by moreau_sim/compiled.py) fma(a2, b2, fma(a1, b1, a0 b0)), else in
+// index order
+inline double blas3(const double *a, const double *b, Eigen::Index sa, Eigen::Index sb, bool fma) {
+  if (fma) return std::fma(a[2 * sa], b[2 * sb], std::fma(a[sa], b[sb], a[0] * b[0]));
+  return (a[0] * b[0] + a[sa] * b[sb]) + a[2 * sa] * b[2 * sb];
+}
+// a row of F times R.T as numpy's matmul makes it
+inline Vec3 row_rt_blas(const RowsX3 &F, Eigen::Index f, const Mat3 &R, bool fma) {
+  Vec3 out;
+  for (int i = 0; i < 3; ++i) out[i] = blas3(&F(f, 0), &R(i, 0), 1, 3, fma);  // R column-major: R(i, k) at i + 3 k
+  return out;
+}
+
+// contacts._face_axis: among the outward face normals of A (negated) and B (oriented B -> A), the one of largest
+// s(n) = min_A n.x - max_B n.x (the first such); VA, VB: the boxes' vertices in their joint frames, FA, FB: face
+// normals in the joint frames, (RA, tA), (RB, tB): the joint placements
+// (ties: two equal boxes face on face; the products are numpy's, blas3, so that a tie breaks alike)
+inline Vec3 face_axis(const RowsX3 &VA, const Mat3 &RA, const Vec3 &tA, const RowsX3 &FA, const RowsX3 &VB,
+                      const Mat3 &RB, const Vec3 &tB, const RowsX3 &FB, bool fma) {
+  std::vector<Vec3> N;
+  for (Eigen::Index f = 0; f < FA.rows(); ++f) N.push_back(-row_rt_blas(FA, f, RA, fma));
+  for (Eigen::Index f = 0; f < FB.rows(); ++f) N.push_back(row_rt_blas(FB, f, RB, fma));
+  std::vector<Vec3> wa, wb;
+  for (Eigen::Index i = 0; i < VA.rows(); ++i) wa.push_back(row_rt_blas(VA, i, RA, fma) + tA);
+  for (Eigen::Index i = 0; i < VB.rows(); ++i) wb.push_back(row_rt_blas(VB, i, RB, fma) + tB);
+  size_t best = 0;
+  double best_sep = -INFINITY;
+  for (size_t f = 0; f < N.size(); ++f) {
+    double lo = INFINITY, hi = -INFINITY;
+    for (const Vec3 &x : wa) lo = std::min(lo, blas3(x.data(), N[f].data(), 1, 1, fma));
+    for (const Vec3 &x : wb) hi = std::max(hi, blas3(x.data(), N[f].data(), 1, 1, fma));
+    const double sep = lo - hi;
+    if (f == 0 || sep > best_sep) best_sep = sep, best = f;
+  }
+  return N[best];
+}
+
+// One box's 12 edges (box_box.box_edges) in its joint frame: starts, unit directions, lengths, the normals of
+// the two faces that meet there
+struct Edges {
+  RowsX3 e0, ed;
+  Eigen::VectorXd el;
+  RowsX3 f0, f1;
+};
+
+// box_box.edge_crossings before its depth test against the boxes' overlap (applied by the caller): (g, the point on
+// A) of the edge pairs (k, l) whose normal lies in both edges' normal cones (to cone), whose lines are within tol (g <= tol)
+// and whose closest points are inside both edges (edge_end of the length from either end); parallel edges
+// (|e_A x e_B| <= parallel) never count.
+// box_box.overlap: the boxes' penetration depth (the least overlap of their projections over the 15 separating
+// axes; negative where one separates them); (R, c, half) of each box in the world
+inline double overlap(const Mat3 &Ra, const Vec3 &ca, const Vec3 &ha, const Mat3 &Rb, const Vec3 &cb, const Vec3 &hb,
+                      double parallel) {
+  std::vector<Vec3> axes;
+  for (int i = 0; i < 3; ++i) axes.push_back(Ra.col(i));
+  for (int i = 0; i < 3; ++i) axes.push_back(Rb.col(i));
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) {
+      const Vec3 c = cross3(Ra.col(i), Rb.col(j));
+      const double s = std::sqrt(dot3(c, c));
+      if (s > parallel) axes.push_back(c / s);
+    }
+  const Vec3 d = ca - cb;
+  double out = INFINITY;
+  for (const Vec3 &a : axes) {
+    double pa = 0.0, pb = 0.0;
+    for (int j = 0; j < 3; ++j) pa = pa + std::abs(dot3(a, Ra.col(j))) * ha[j], pb = pb + std::abs(dot3(a, Rb.col(j))) * hb[j];
+    out = std::min(out, (pa + pb) - std::abs(dot3(a, d)));
+  }
+  return out;
+}
+
+struct Crossing {
+  double g;
+  Vec3 pa;
+};
+
+inline std::vector<Crossing> edge_candidates(const Edges &A, const Mat3 &RA, const Vec3 &tA, const Edges &B,
+                                         const Mat3 &RB, const Vec3 &tB, double tol, double cone, double edge_end,
+                                         double parallel) {
+  std::vector<Crossing> out;
+  Vec3 a0[12], ea[12], fa[12][2], b0[12], eb[12], fb[12][2];
+  for (int k = 0; k < 12; ++k) {
+    a0[k] = row_rt(A.e0, k, RA) + tA, ea[k] = row_rt(A.ed, k, RA);
+    fa[k][0] = row_rt(A.f0, k, RA), fa[k][1] = row_rt(A.f1, k, RA);
+    b0[k] = row_rt(B.e0, k, RB) + tB, eb[k] = row_rt(B.ed, k, RB);
+    fb[k][0] = row_rt(B.f0, k, RB), fb[k][1] = row_rt(B.f1, k, RB);
+  }
+  for (int k = 0; k < 12; ++k)
+    for (int l = 0; l < 12; ++l) {
+      const Vec3 c = cross3(ea[k], eb[l]);
+      const double s = std::sqrt(dot3(c, c));
+      if (!(s > parallel)) continue;
+      Vec3 n = c / s;
+      double nb0 = dot3(n, fb[l][0]), nb1 = dot3(n, fb[l][1]);
+      if (nb0 + nb1 < 0.0) n = -n, nb0 = -nb0, nb1 = -nb1;
+      const double na0 = dot3(n, fa[k][0]), na1 = dot3(n, fa[k][1]);
+      if (!(std::min(nb0, nb1) >= -cone && std::max(na0, na1) <= cone)) continue;
+      const Vec3 w = a0[k] - b0[l];
+      const double g = dot3(n, w);
+      if (!(g <= tol)) continue;
+      const double bb = dot3(ea[k], eb[l]), d = dot3(ea[k], w), e = dot3(eb[l], w), den = s * s;
+      const double sa = (bb * e - d) / den, tb = (e - bb * d) / den;
+      const double la = A.el[k], lb = B.el[l];
+      if (!(sa >= edge_end * la && sa <= (1.0 - edge_end) * la)) continue;
+      if (!(tb >= edge_end * lb && tb <= (1.0 - edge_end) * lb)) continue;
+      out.push_back({g, a0[k] + sa * ea[k]});
+    }
+  return out;
+}
+
+}  // namespace boxbox

@@ -1,0 +1,107 @@
+"""The compiled step on pairs of two boxes (src/step.cpp detect, src/box_box.hpp): it takes the steps of a resting
+stack of boxes itself, and its trajectory is the Python step's bit for bit (docs/theory.md §2.8); the steps it
+hands back (a vertex at a box's corner, edge contacts, a paid position lift, more than compiled.MAX_CONTACTS
+contacts) leave coal's warm start and the detection's warm start (data.warm_start_pairs)
+as the Python step finds them, so the Python step that takes them continues the same trajectory."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import moreau_sim as ms
+import moreau_sim.compiled as compiled
+from moreau_sim.data import make_data
+from moreau_sim.model import build_model
+from moreau_sim.options import StepImpl
+from moreau_sim.scene import load_scene
+
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
+
+
+def _model(name: str, impl: StepImpl, **options):
+    return build_model(load_scene(SCENES / f"{name}.toml").with_options(step_impl=impl.value, **options))
+
+
+def _steps(name: str, impl: StepImpl, n: int, **options):
+    """n steps from the scene's start: (states, the detection's warm start after each step, counts)."""
+    model = _model(name, impl, **options)
+    data = make_data(model)
+    st = ms.initial_state(model)
+    states, warm = [], []
+    for _ in range(n):
+        st = ms.step(model, data, st).state
+        states.append(st)
+        warm.append(sorted(data.warm_start_pairs))
+    return states, warm, compiled.counts(data)
+
+
+def test_box_models_are_compiled():
+    """Two boxes are no reason to hand a model to Python any more (coal's GJK/EPA on them runs on the same
+    GeometryData both ways)."""
+    assert compiled.unsupported(_model("box_stack_5", StepImpl.COMPILED)) is None
+
+
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("h", [1e-2, 1e-3])
+def test_resting_stack_every_step_compiled_and_identical(e, h):
+    """box_stack_5 at rest (32 patch corners and 4 ground vertices a step, m = 36 <= MAX_CONTACTS): every step
+    compiled, and q, u and the detection's warm start equal to the Python step's, bit for bit."""
+    n = 20
+    ref, ref_warm, py = _steps("box_stack_5", StepImpl.PYTHON, n, restitution=e, dt=h)
+    got, got_warm, counts = _steps("box_stack_5", StepImpl.COMPILED, n, restitution=e, dt=h)
+    assert not py
+    assert counts["contact"] == n, dict(counts)
+    assert got_warm == ref_warm
+    for a, b in zip(ref, got):
+        assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
+
+
+def test_ten_box_stack_every_step_compiled_and_identical():
+    """box_stack_10 at rest has 76 contacts (above the former 64-row limit; compiled.MAX_CONTACTS =
+    qp.COLD_START_ROWS = 100 now, the cold active set on both sides): every step compiled, bit for bit the
+    Python step."""
+    n = 5
+    ref, ref_warm, _ = _steps("box_stack_10", StepImpl.PYTHON, n)
+    got, got_warm, counts = _steps("box_stack_10", StepImpl.COMPILED, n)
+    assert counts["contact"] == n, dict(counts)
+    assert got_warm == ref_warm
+    for a, b in zip(ref, got):
+        assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
+
+
+def test_heavy_box_on_light_box_compiled_and_identical():
+    """heavy_on_light_box_100: equal boxes face on face, each vertex of the top one at an edge of the one below
+    (three face planes within the margin, one of them separating: a smooth contact with that face's normal,
+    contacts._corner_normals) and a face axis tied between the two boxes (contacts._face_axis: broken alike only
+    with numpy's own products, compiled._blas_fma): compiled, and bit for bit the Python step."""
+    n = 30
+    ref, ref_warm, _ = _steps("heavy_on_light_box_100", StepImpl.PYTHON, n)
+    got, got_warm, counts = _steps("heavy_on_light_box_100", StepImpl.COMPILED, n)
+    assert counts["contact"] == n, dict(counts)
+    assert got_warm == ref_warm
+    for a, b in zip(ref, got):
+        assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
+
+
+def test_blas_probe_matches_numpy():
+    """compiled._blas_fma says how numpy's matmul rounds the 3-term products of contacts._face_axis's shapes:
+    every entry of random (8, 3) @ (3, 12) products equals the fused chain fma(a2, b2, fma(a1, b1, a0 b0)) if
+    it says so, else the sum in index order (each computed exactly with fractions, then rounded once)."""
+    from fractions import Fraction
+
+    def fma(a, b, c):
+        return float(Fraction(a) * Fraction(b) + Fraction(c))
+
+    fused = compiled._blas_fma()
+    rng = np.random.default_rng(7)
+    A, B = rng.standard_normal((8, 3)), rng.standard_normal((3, 12))
+    C = A @ B
+    for i in range(8):
+        for j in range(12):
+            a, b = A[i], B[:, j]
+            want = (fma(a[2], b[2], fma(a[1], b[1], a[0] * b[0])) if fused
+                    else (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2])
+            assert C[i, j] == want
