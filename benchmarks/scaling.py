@@ -226,11 +226,10 @@ def beads_one(n: int, repeat: int, n_states: int) -> dict:
 def forest_one(n: int, repeat: int) -> dict:
     """The model part of a column of n beads without its pairs (no collision pairs are made: those are
     issue 24 item 2), in this process: each body read and placed, the forest (moreau_sim/trees.py) and
-    the whole model assembled (model._whole), the trees' Datas, and the forest's dynamics of one step
+    the whole model assembled (trees.whole_model), the trees' Datas, and the forest's dynamics of one step
     (M^-1 and the free acceleration at q0): CPU times and the peak RSS."""
     from moreau_sim.bodies import load_body
-    from moreau_sim.model import _whole
-    from moreau_sim.trees import Forest, Kinematics
+    from moreau_sim.trees import Forest, Kinematics, whole_model
 
     sc = column(n)
     t0 = CLOCK()
@@ -241,7 +240,7 @@ def forest_one(n: int, repeat: int) -> dict:
     t1 = CLOCK()
     forest = Forest.of_placed([tm for tm, _, _ in placed], sc.options.gravity)
     t2 = CLOCK()
-    whole = _whole(placed, "column")[0]
+    whole = whole_model(placed, "column")[0]
     t3 = CLOCK()
     kin = Kinematics(forest)
     kin.datas()
