@@ -66,7 +66,7 @@ def test_forest_equals_whole_model(path):
         pin.updateGeometryPlacements(pm, pd, model.geom, data.geom, q)
         oMg = [np.array(o.homogeneous) for o in data.geom.oMg]
         oMi = [np.array(o.homogeneous) for o in pd.oMi]
-        f.place(kin, q, model.geom, data.geom)
+        f.place(kin, q, model.geometries, data.geom.oMg)
         assert all(np.array_equal(a, o.homogeneous) for a, o in zip(oMi, kin.oMi))
         assert all(np.array_equal(a, o.homogeneous) for a, o in zip(oMg, data.geom.oMg))
         W = np.random.default_rng(1).standard_normal((model.nv, 4))
