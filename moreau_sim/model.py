@@ -299,7 +299,25 @@ class Model:
 
 
 def build_model(scene: Scene) -> Model:
-    """Build the immutable :class:`Model` of `scene`. Raises :class:`SceneError`."""
+    """Build the immutable :class:`Model` of `scene`. Raises :class:`SceneError`: one line naming the
+    scene and its size when memory runs out (out_of_memory)."""
+    try:
+        return _build_model(scene)
+    except (MemoryError, RuntimeError) as exc:
+        if isinstance(exc, RuntimeError) and "alloc" not in str(exc):
+            raise
+        raise SceneError(out_of_memory(scene, "building its model")) from None
+
+
+def out_of_memory(scene: Scene, doing: str, model: Model | None = None) -> str:
+    """The one line of a failed allocation (MemoryError, std::bad_alloc): the scene and its size."""
+    where = str(scene.path) if scene.path else scene.name
+    size = (f"{len(scene.bodies)} bodies, {len(scene.statics)} statics" if model is None else
+            f"{len(model.bodies)} bodies, nv = {model.nv}, {len(model.pairs)} collision pairs")
+    return f"{where}: out of memory {doing} ({size})"
+
+
+def _build_model(scene: Scene) -> Model:
     where = str(scene.path) if scene.path else "<scene>"
     infos, authored, body_models = [], [], []  # body_models: each body's own Pinocchio model (M checked on it)
     placed = []  # each body's (model, geometry) placed in the world: the forest's trees

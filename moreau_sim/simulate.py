@@ -11,9 +11,10 @@ from .adaptive import simulate_adaptive
 from .checkpoint import Checkpoint
 from .data import Data, make_data
 from .driver import Check, drive
+from .errors import SimulationError
 from .event_driven import simulate_event_driven
 from .invariants import Invariants
-from .model import Model, build_model, initial_state
+from .model import Model, build_model, initial_state, out_of_memory
 from .options import Integrator
 from .scene import Scene, load_scene
 from .state import State
@@ -55,6 +56,15 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     if controller is not None:
         model = dataclasses.replace(model, actuation=for_controller(model.pin, model.bodies, model.actuation,
                                                                     controller))
+    try:
+        return _simulate(model, data, state, progress, checkpoint, spill, check, strict)
+    except (MemoryError, RuntimeError) as exc:  # a failed allocation: one line naming the scene and its size
+        if isinstance(exc, RuntimeError) and (isinstance(exc, SimulationError) or "alloc" not in str(exc)):
+            raise
+        raise SimulationError(out_of_memory(model.scene, "running it", model)) from None
+
+
+def _simulate(model, data, state, progress, checkpoint, spill, check, strict) -> Trajectory:
     data = data or make_data(model)
     state = state or initial_state(model, data)
     opts = model.options
