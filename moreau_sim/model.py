@@ -20,7 +20,7 @@ import pinocchio as pin
 from . import actuation as act, broad_phase, limits, pair_table, prescribed as presc, self_pairs, shapes
 from .actuation import Actuation
 from .bodies import load_body
-from .errors import SceneError
+from .errors import SceneError, out_of_memory
 from .limits import UNLIMITED
 from .options import Options, RootJoint
 from .pair_table import Pair, PairTable
@@ -44,7 +44,7 @@ class BodyInfo:
 class Model:
     """What the scene is. Never modified after :func:`build_model`.
 
-    pin: Pinocchio model (gravity set from the scene); geom: coal geometry + pairs;
+    pin: Pinocchio model (gravity set from the scene); geom (geometry_model): coal geometry + pairs;
     pairs: the collision pairs; vertices[g]: (k, 3) polytope vertices of geometry g in its
     joint frame (empty for smooth shapes); bounds[g]: a cheap lower bound of the distance from a
     point to geometry g, ("sphere", centre, radius) in its joint frame or ("plane", n, d) for a
@@ -153,9 +153,8 @@ class Model:
 
     @property
     def geom(self) -> pin.GeometryModel:
-        """coal geometry and the pairs as one Pinocchio GeometryModel: in a scene of many pairs made at
-        first use (the compiled step, the event integrators, every pair's distance), never by the
-        Python time-stepping step, which queries coal pair by pair (data.Data.collide)."""
+        """coal geometry and the pairs as one Pinocchio GeometryModel; without a list of pairs (listed) made
+        at first use (compiled step, event integrators): the Python step queries coal (data.Data.collide)."""
         gm = self.geometry_model
         if gm is None:
             gm = pair_table.geometry_model(self.geometry_objects, self.pairs)
@@ -169,8 +168,7 @@ class Model:
 
     @property
     def listed(self) -> bool:
-        """Whether the pairs are a list (a GeometryModel and GeometryData of them made with the model and
-        Data), or a PairTable of more than LAZY_PAIRS (coal queried pair by pair, data.Data.collide)."""
+        """Whether the pairs are a list (with a GeometryModel and GeometryData), not a PairTable (> LAZY_PAIRS)."""
         return isinstance(self.pairs, tuple)
 
     @property
@@ -300,21 +298,15 @@ class Model:
 
 def build_model(scene: Scene) -> Model:
     """Build the immutable :class:`Model` of `scene`. Raises :class:`SceneError`: one line naming the
-    scene and its size when memory runs out (out_of_memory)."""
+    scene and its size when memory runs out (errors.out_of_memory)."""
     try:
         return _build_model(scene)
     except (MemoryError, RuntimeError) as exc:
-        if isinstance(exc, RuntimeError) and "alloc" not in str(exc):
+        msg = out_of_memory(exc, str(scene.path or scene.name), "building its model",
+                            f"{len(scene.bodies)} bodies, {len(scene.statics)} statics")
+        if msg is None:
             raise
-        raise SceneError(out_of_memory(scene, "building its model")) from None
-
-
-def out_of_memory(scene: Scene, doing: str, model: Model | None = None) -> str:
-    """The one line of a failed allocation (MemoryError, std::bad_alloc): the scene and its size."""
-    where = str(scene.path) if scene.path else scene.name
-    size = (f"{len(scene.bodies)} bodies, {len(scene.statics)} statics" if model is None else
-            f"{len(model.bodies)} bodies, nv = {model.nv}, {len(model.pairs)} collision pairs")
-    return f"{where}: out of memory {doing} ({size})"
+        raise SceneError(msg) from None
 
 
 def _build_model(scene: Scene) -> Model:
@@ -612,12 +604,10 @@ def check_start(model: Model, kin: Kinematics, q: np.ndarray, where: str, tol: f
     else:  # many pairs: coal's distance of those whose boxes come within tol (the others are apart)
         oMg = [pin.SE3.Identity()] * len(model.geometries)
         model.forest.place(kin, q, model.geometries, oMg)
-        shape = [go.geometry for go in model.geometries]
-        g = np.full(len(pairs), np.inf)
+        shape, g = [go.geometry for go in model.geometries], np.full(len(pairs), np.inf)
         for k in broad_phase.of(model, tol).candidates_at(kin.oMi).tolist():
-            p, res = pairs[k], coal.DistanceResult()
-            g[k] = coal.distance(shape[p.first], coal.Transform3s(oMg[p.first]), shape[p.second],
-                                 coal.Transform3s(oMg[p.second]), coal.DistanceRequest(), res)
+            p, tf = pairs[k], [coal.Transform3s(oMg[x]) for x in (pairs[k].first, pairs[k].second)]
+            g[k] = coal.distance(shape[p.first], tf[0], shape[p.second], tf[1], coal.DistanceRequest(), coal.DistanceResult())
     g[~(np.abs(g) < DISTANCE_FAILED)] = np.nan  # a failed query proves nothing: the run's records report it
     deep = np.flatnonzero(g < -tol)
     if len(deep):

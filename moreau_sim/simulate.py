@@ -11,10 +11,10 @@ from .adaptive import simulate_adaptive
 from .checkpoint import Checkpoint
 from .data import Data, make_data
 from .driver import Check, drive
-from .errors import SimulationError
+from .errors import SimulationError, out_of_memory
 from .event_driven import simulate_event_driven
 from .invariants import Invariants
-from .model import Model, build_model, initial_state, out_of_memory
+from .model import Model, build_model, initial_state
 from .options import Integrator
 from .scene import Scene, load_scene
 from .state import State
@@ -59,9 +59,11 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     try:
         return _simulate(model, data, state, progress, checkpoint, spill, check, strict)
     except (MemoryError, RuntimeError) as exc:  # a failed allocation: one line naming the scene and its size
-        if isinstance(exc, RuntimeError) and (isinstance(exc, SimulationError) or "alloc" not in str(exc)):
+        msg = out_of_memory(exc, str(model.scene.path or model.scene.name), "running it",
+                            f"{len(model.bodies)} bodies, nv = {model.nv}, {len(model.pairs)} collision pairs")
+        if msg is None:
             raise
-        raise SimulationError(out_of_memory(model.scene, "running it", model)) from None
+        raise SimulationError(msg) from None
 
 
 def _simulate(model, data, state, progress, checkpoint, spill, check, strict) -> Trajectory:
