@@ -394,7 +394,7 @@ def plot(data: dict, png: Path) -> None:
     a2.set_title(f"a pile of N cubes dropped into a bin, {PILE_T} s at h = {PILE_H}\n(red dashes: not built)",
                  fontsize=9)
     fitted(a3, n, [r["build_s"] for r in b], "o", f"beads: build_model s (slope {s['build_beads']:.2f})")
-    a3.loglog(n, [r["data_s"] for r in b], "o--", label="beads: make_data s (the nv^3 Data)")
+    a3.loglog(n, [r["data_s"] for r in b], "o--", label="beads: make_data s")
     a3.loglog(n, [r["peak_rss_mb"] / 1024 for r in b], "d-", label="beads: peak RSS GB (after stepping)")
     a3.loglog(n, [r["build_rss_mb"] / 1024 for r in b if "build_rss_mb" in r], "d--",
               label="beads: peak RSS GB after build_model")
@@ -403,7 +403,7 @@ def plot(data: dict, png: Path) -> None:
                   label="pile: peak RSS GB (at nv = 6 N)")
     a3.set_xlabel("nv")
     a3.set_ylabel("s / GB")
-    a3.set_title("model building and memory (a forest, the pairs as a table; target 10,000 beads: 5 s, 1 GB)",
+    a3.set_title("model building and memory\n(a forest, the pairs a table; target at 10,000 beads: 5 s, 1 GB)",
                  fontsize=9)
     for ax in (a1, a2, a3):
         ax.grid(True, which="both", alpha=0.3)
