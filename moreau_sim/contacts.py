@@ -463,14 +463,15 @@ def _merge_corners(model: Model, items: list, margin: float) -> tuple:
     return tuple(out)
 
 
-def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
+def pair_distances(model: Model, data: Data, q: np.ndarray, *, near: bool = False) -> np.ndarray:
     """Signed distance [m] of every collision pair at q (for records and plots, and the position
     correction's check); NaN where coal's query failed (its -DBL_MAX is never passed on as a
-    distance). A model of a pair table (no list: model.listed false) queries only the broad phase's
-    candidates at the detection's gate and gives +inf for the others, whose boxes are apart."""
+    distance). near: for a model of a pair table (no list: model.listed false) query only the broad
+    phase's candidates at the detection's gate and give +inf for the others, whose boxes are apart
+    (the correction's check: only distances below zero count); a listed model ignores it."""
     if not model.pairs:
         return np.zeros(0)
-    if model.listed:
+    if model.listed or not near:
         fresh_guesses(data.geom.distanceRequests)
         model.forest.place(data.kinematics, q, model.geometries, data.geom.oMg)
         pin.computeDistances(model.geom, data.geom)
