@@ -219,7 +219,7 @@ class Model:
 
     @property
     def pair_joints(self) -> np.ndarray:
-        """(pairs, 2) int array: the joints of each pair's first and second geometry."""
+        """(pairs, 2) int array: the joints of each pair's first and second geometry (a pair table: made per index)."""
         return self._pair_joints
 
     @property
