@@ -5,10 +5,10 @@ process of its own (its peak RSS is that size's alone):
 
 - a column of N beads: column_of_beads_100's construction (balls r = 0.1 m, 1 kg, each on a vertical
   prismatic joint, over the ground; e = 0.9, h = 5e-4) started touching, with no [collisions] list:
-  the model has N (N - 1) / 2 + N pairs and the detection's broad phase (moreau_sim/broad_phase.py)
-  keeps the neighbours. Every step of a short run from rest closes all N contacts. `ms.step` is timed
-  on those states (best of `repeat` per state, median over states) with each step_impl, saying which
-  path took the steps (compiled.counts);
+  the model has N (N - 1) / 2 + N pairs, above model.LAZY_PAIRS never listed (moreau_sim/pair_table.py),
+  and the detection's broad phase (moreau_sim/broad_phase.py) keeps the neighbours. Every step of a
+  short run from rest closes all N contacts. `ms.step` is timed on those states (best of `repeat` per
+  state, median over states) with each step_impl, saying which path took the steps (compiled.counts);
 - a pile of N free 0.1 m cubes (1 kg) dropped from a grid into a bin (the ground and four walls,
   half-spaces), e = 0.5, h = 1e-3, run for T seconds with the Python step (the compiled step hands
   box-box pairs back): every step timed, the contacts counted, the total energy checked against its
@@ -19,8 +19,9 @@ after stepping, and MuJoCo (peers.mujoco's soft contacts, condim 1) on the same 
 child: mj_step timed in a Python loop after the same warm-up, its contact count (ncon). Sizes whose
 Pinocchio Data would take more than half the free memory (32 nv^3 bytes, stack-of-tasks/pinocchio#2949)
 are not run with the compiled step (it needs a Data of the whole model); the Python step runs on the
-forest of the bodies' own models (moreau_sim/trees.py) at every size built. Columns over MAX_BUILT
-beads are not built (their N (N + 1) / 2 pairs); MuJoCo still runs them. Also the impact QP alone
+forest of the bodies' own models (moreau_sim/trees.py) at every size, with coal queried pair by pair
+on the broad phase's candidates (no GeometryModel of the pairs). Columns over LARGE beads are timed on
+fewer states (3, best of 1). The peak RSS is also taken right after build_model. Also the impact QP alone
 (no model) to 3000 beads. The slope of log(cost) against log(contacts) is fitted by least squares
 (target <= 1.1: linear).
 Writes scaling.json and scaling.png to out/ (--out docs/bench: the committed files).
@@ -66,8 +67,8 @@ def best(f, repeat: int) -> float:
     return min(out) * 1e6
 
 
-SIZES = (10, 20, 50, 100, 200, 300, 500, 1000, 3000, 10000)
-MAX_BUILT = 1000  # larger columns are not built: their O(N^2) pair list (issue 24 item 2)
+SIZES = (10, 30, 100, 300, 1000, 3000, 10000)
+LARGE = 1000  # above this many beads: fewer states and repeats (a step takes seconds)
 BOXES = (8, 27, 64, 125, 343)  # MuJoCo's 1000-box pile: over 8 min for its 800 steps here
 QP_SIZES = (100, 300, 1000, 3000)
 TARGET_SLOPE = 1.1
@@ -182,13 +183,16 @@ def beads_one(n: int, repeat: int, n_states: int) -> dict:
     The Python step runs on the forest (moreau_sim/trees.py: no Data of the whole model) at every size
     built; the compiled step only where a Data of the whole model fits (too_big)."""
     out = {"beads": n}
-    why = None if n <= MAX_BUILT else f"its {n * (n + 1) // 2} collision pairs (issue 24 item 2)"
+    why = None
+    if n > LARGE:
+        repeat, n_states = 1, min(n_states, 3)
     big = too_big(n)
     impls = IMPLS if big is None else ("python",)
     if why is None:
         t0 = CLOCK()
         base = ms.build_model(column(n))
         out["build_s"] = CLOCK() - t0
+        out["build_rss_mb"] = peak_rss_mb()
         t0 = CLOCK()
         data = ms.make_data(base)
         out["data_s"] = CLOCK() - t0
@@ -205,7 +209,8 @@ def beads_one(n: int, repeat: int, n_states: int) -> dict:
 
         bp = broad_phase.of(base, max(base.options.contact_tolerance, ms.data.GATE_MARGIN))
         base.forest.place(data.kinematics, states[-1][0].q)
-        out.update(nv=base.nv, pairs=len(base.pairs), contacts=statistics.median(m for _, m in states),
+        out.update(nv=base.nv, pairs=len(base.pairs), listed=base.listed,
+                   contacts=statistics.median(m for _, m in states),
                    candidates=len(bp.candidates(data)) if bp else len(base.pairs), states=len(states))
         if big is not None:
             out["compiled"] = {"skipped": big}
@@ -219,18 +224,17 @@ def beads_one(n: int, repeat: int, n_states: int) -> dict:
         del data, models, base
     else:
         out["skipped"] = why
-    out["mujoco"] = mujoco_run("beads", n, warm=200, timed=200) if n <= 1000 else mujoco_run("beads", n, 20, 10)
+    out["mujoco"] = mujoco_run("beads", n, warm=200, timed=200) if n <= LARGE else mujoco_run("beads", n, 20, 10)
     return out
 
 
 def forest_one(n: int, repeat: int) -> dict:
     """The model part of a column of n beads without its pairs (no collision pairs are made: those are
     issue 24 item 2), in this process: each body read and placed, the forest (moreau_sim/trees.py) and
-    the whole model assembled (model._whole), the trees' Datas, and the forest's dynamics of one step
+    the whole model assembled (trees.whole_model), the trees' Datas, and the forest's dynamics of one step
     (M^-1 and the free acceleration at q0): CPU times and the peak RSS."""
     from moreau_sim.bodies import load_body
-    from moreau_sim.model import _whole
-    from moreau_sim.trees import Forest, Kinematics
+    from moreau_sim.trees import Forest, Kinematics, whole_model
 
     sc = column(n)
     t0 = CLOCK()
@@ -241,7 +245,7 @@ def forest_one(n: int, repeat: int) -> dict:
     t1 = CLOCK()
     forest = Forest.of_placed([tm for tm, _, _ in placed], sc.options.gravity)
     t2 = CLOCK()
-    whole = _whole(placed, "column")[0]
+    whole = whole_model(placed, "column")[0]
     t3 = CLOCK()
     kin = Kinematics(forest)
     kin.datas()
@@ -373,7 +377,7 @@ def plot(data: dict, png: Path) -> None:
     a1.axvline(data["compiled_limit"] + 0.5, color="grey", lw=0.8, ls="-.")
     a1.set_xlabel("beads N (= contacts)")
     a1.set_ylabel("ms per step")
-    a1.set_title(f"column of N touching beads (red dashes: not built, Data too big)\n"
+    a1.set_title(f"column of N touching beads (red dashes: not built)\n"
                  f"target slope ≤ {TARGET_SLOPE}; dash-dot: compiled step up to {data['compiled_limit']} contacts",
                  fontsize=9)
     p = measured(data["boxes"])
@@ -390,14 +394,17 @@ def plot(data: dict, png: Path) -> None:
     a2.set_title(f"a pile of N cubes dropped into a bin, {PILE_T} s at h = {PILE_H}\n(red dashes: not built)",
                  fontsize=9)
     fitted(a3, n, [r["build_s"] for r in b], "o", f"beads: build_model s (slope {s['build_beads']:.2f})")
-    a3.loglog(n, [r["data_s"] for r in b], "o--", label="beads: make_data s (the nv^3 Data)")
-    a3.loglog(n, [r["peak_rss_mb"] / 1024 for r in b], "d-", label="beads: peak RSS GB")
+    a3.loglog(n, [r["data_s"] for r in b], "o--", label="beads: make_data s")
+    a3.loglog(n, [r["peak_rss_mb"] / 1024 for r in b], "d-", label="beads: peak RSS GB (after stepping)")
+    a3.loglog(n, [r["build_rss_mb"] / 1024 for r in b if "build_rss_mb" in r], "d--",
+              label="beads: peak RSS GB after build_model")
     if p:
         a3.loglog([r["boxes"] * 6 for r in p], [r["peak_rss_mb"] / 1024 for r in p], "d:",
                   label="pile: peak RSS GB (at nv = 6 N)")
     a3.set_xlabel("nv")
     a3.set_ylabel("s / GB")
-    a3.set_title("model building and memory (one Pinocchio model)", fontsize=9)
+    a3.set_title("model building and memory\n(a forest, the pairs a table; target at 10,000 beads: 5 s, 1 GB)",
+                 fontsize=9)
     for ax in (a1, a2, a3):
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
@@ -417,21 +424,21 @@ def markdown_table(data: dict) -> str:
            f"the run's {int(round(PILE_T / PILE_H))} steps; MuJoCo: median of `mj_step` timed in a Python loop "
            "after the same warm-up. Peak RSS of a child process per size (moreau-sim's part, before MuJoCo runs).",
            "", "| beads | pairs (model) | broad-phase candidates | contacts | compiled | paths (compiled) | Python | "
-           "MuJoCo (ncon) | build_model s | make_data s | peak RSS MB |",
-           "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
+           "MuJoCo (ncon) | build_model s | make_data s | peak RSS MB after build_model | peak RSS MB |",
+           "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|"]
     for r in data["beads"]:
         mj = r.get("mujoco")
         mjs = f"{mj['us']:.1f} ({mj['contacts']:.0f})" if mj else "–"
         if "skipped" in r or "failed" in r:
             why = r.get("skipped") or f"failed: {r['failed']}"
-            out.append(f"| {r['beads']} | not built: {why} | | | | | | {mjs} | | | |")
+            out.append(f"| {r['beads']} | not built: {why} | | | | | | {mjs} | | | | |")
             continue
         c = r["compiled"]
         paths = ", ".join(f"{k}: {v}" for k, v in sorted(c.get("paths", {}).items())) or "no Data of the whole model"
         us = f"{c['us']:.1f}" if "us" in c else "–"
         out.append(f"| {r['beads']} | {r['pairs']} | {r['candidates']} | {r['contacts']:.0f} | "
                    f"{us} | {paths} | {r['python']['us']:.1f} | {mjs} | {r['build_s']:.3g} | "
-                   f"{r['data_s']:.3g} | {r['peak_rss_mb']:.0f} |")
+                   f"{r['data_s']:.3g} | {_f(r.get('build_rss_mb'), '{:.0f}')} | {r['peak_rss_mb']:.0f} |")
     out += ["", "| boxes | nv | pairs (model) | contacts (median; last third) | Python step | last third | "
             "MuJoCo (ncon) | ratio ours / MuJoCo | max energy gain J (E0) | max \\|u\\| at the end | build_model s | "
             "make_data s | peak RSS MB |",

@@ -86,7 +86,7 @@ def bench_scene(name: str, repeat: int, n_states: int) -> dict:
                     qp_forms[form.value].append(best(lambda: ms.project(M, W, v_free, Minv=Minv, form=form), repeat))
 
         def coll():
-            forest.place(kin, qm, gm, gd)
+            forest.place(kin, qm, gm.geometryObjects, gd.oMg)
             if pin.computeCollisions(gm, gd, False) and kind == "contact":
                 pin.computeContactPatches(gm, gd)
         coll_t = best(coll, repeat)

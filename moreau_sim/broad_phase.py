@@ -21,8 +21,6 @@ import weakref
 import coal
 import numpy as np
 
-from .model import Model
-
 MIN_PAIRS = 64  # models with more collision pairs than this use the broad phase (below: all pairs, one call)
 SLACK = 1e-6  # [m] added to the margin: the boxes' round-off never drops a pair within the margin
 
@@ -30,12 +28,14 @@ _tables: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 class BroadPhase:
-    """What the sweep-and-prune needs of a model, made once: every geometry's box in its joint's
-    frame (centre, half extents), the half-spaces' planes, and the pairs keyed by geometries."""
+    """What the sweep-and-prune needs of a model (model.Model), made once and linear in geometries: every
+    geometry's box in its joint's frame (centre, half extents), the half-spaces' planes, and the model's
+    pair table (pair_table.PairTable: which geometries pair, and the pair index of each two)."""
 
-    def __init__(self, model: Model, margin: float):
-        gobs = list(model.geom.geometryObjects)
+    def __init__(self, model, margin: float):
+        gobs = list(model.geometries)
         G = len(gobs)
+        self.table = t = model.pair_table
         self.margin = float(margin) + SLACK
         self.joint = np.array([go.parentJoint for go in gobs], dtype=np.int64)
         self.centre, self.half = np.zeros((G, 3)), np.zeros((G, 3))
@@ -47,33 +47,34 @@ class BroadPhase:
                 continue
             geo.computeLocalAABB()
             lo, hi = np.array(geo.aabb_local.min_), np.array(geo.aabb_local.max_)
-            R, t = go.placement.rotation, go.placement.translation
-            self.centre[g] = R @ (0.5 * (lo + hi)) + t
+            R, tr = go.placement.rotation, go.placement.translation
+            self.centre[g] = R @ (0.5 * (lo + hi)) + tr
             self.half[g] = np.abs(R) @ (0.5 * (hi - lo))
-        first = np.array([p.first for p in model.pairs], dtype=np.int64)
-        second = np.array([p.second for p in model.pairs], dtype=np.int64)
-        both = bounded[first] & bounded[second]
-        key = np.minimum(first, second) * G + np.maximum(first, second)
-        order = np.argsort(key[both], kind="stable")
-        self.keys = key[both][order]
-        self.key_pairs = np.flatnonzero(both)[order]
         self.G, self.bounded = G, np.flatnonzero(bounded)
         # pairs with a half-space {n.x <= d} (n, d in its joint's frame): (pair, half-space, other)
-        half = [(k, a, b) for k, (a, b) in enumerate(zip(first.tolist(), second.tolist()))
-                for a, b in ((a, b), (b, a)) if isinstance(gobs[a].geometry, coal.Halfspace) and bounded[b]]
-        self.half_pairs = np.array([k for k, _, _ in half], dtype=np.int64)
-        self.half_geom = np.array([a for _, a, _ in half], dtype=np.int64)
-        self.half_other = np.array([b for _, _, b in half], dtype=np.int64)
-        self.half_n = np.array([model.bounds[a][1] for _, a, _ in half], float).reshape(-1, 3)
-        self.half_d = np.array([model.bounds[a][2] for _, a, _ in half], float)
+        spaces = [a for a in np.flatnonzero(~bounded).tolist() if isinstance(gobs[a].geometry, coal.Halfspace)]
+        bb = self.bounded
+        half = [(a, b) for a in spaces for b in bb[t.chosen(np.full(len(bb), a), bb)].tolist()]
+        self.half_geom = np.array([a for a, _ in half], dtype=np.int64)
+        self.half_other = np.array([b for _, b in half], dtype=np.int64)
+        self.half_pairs = t.index(self.half_geom, self.half_other).astype(np.int64)
+        self.half_n = np.array([model.bounds[a][1] for a, _ in half], float).reshape(-1, 3)
+        self.half_d = np.array([model.bounds[a][2] for a, _ in half], float)
         # any other pair with an unbounded shape (a two-sided plane): always examined
-        with_half = set(self.half_pairs.tolist())
-        self.always = np.array([k for k in np.flatnonzero(~both).tolist() if k not in with_half], dtype=np.int64)
+        every = np.arange(G)
+        unbounded = [t.index(np.full(int(ok.sum()), a), every[ok]) for a in np.flatnonzero(~bounded).tolist()
+                     for ok in [t.chosen(np.full(G, a), every)]]
+        unbounded = np.concatenate([np.zeros(0, np.int64), *unbounded]).astype(np.int64)
+        self.always = np.setdiff1d(unbounded, self.half_pairs)
+        self.any_bounded = bool(len(t)) and len(self.bounded) >= 2
 
     def candidates(self, data) -> np.ndarray:
         """Sorted indices of the pairs whose inflated boxes overlap at the configuration of data.kinematics.oMi
         (contacts.detect has placed it)."""
-        oMi = data.kinematics.oMi
+        return self.candidates_at(data.kinematics.oMi)
+
+    def candidates_at(self, oMi) -> np.ndarray:
+        """candidates() at the joint placements oMi (the scene's joint ids)."""
         R = np.array([o.rotation for o in oMi])
         p = np.array([o.translation for o in oMi])
         Rg, pg = R[self.joint], p[self.joint]
@@ -92,7 +93,7 @@ class BroadPhase:
         """Pairs of bounded geometries whose boxes, inflated by the margin, overlap: sorted along the
         axis where the centres spread most, each box against those starting before it ends."""
         b = self.bounded
-        if len(b) < 2 or not len(self.keys):
+        if not self.any_bounded:
             return np.zeros(0, dtype=np.int64)
         lo, hi = c[b] - h[b] - self.margin, c[b] + h[b] + self.margin
         axis = int(np.argmax(c[b].var(axis=0)))
@@ -105,12 +106,11 @@ class BroadPhase:
         i, j = order[a], order[k]
         overlap = ((lo[i] <= hi[j]) & (lo[j] <= hi[i])).all(axis=1)
         gi, gj = b[i[overlap]], b[j[overlap]]
-        key = np.minimum(gi, gj) * self.G + np.maximum(gi, gj)
-        pos = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
-        return self.key_pairs[pos[self.keys[pos] == key]]
+        ok = self.table.chosen(gi, gj)
+        return self.table.index(gi[ok], gj[ok]).astype(np.int64)
 
 
-def of(model: Model, margin: float) -> BroadPhase | None:
+def of(model, margin: float) -> BroadPhase | None:
     """The model's broad phase for the narrow phase's security margin [m] (made once per model), or
     None when the model has at most MIN_PAIRS pairs (coal's narrow phase on all of them is cheaper)."""
     if len(model.pairs) <= MIN_PAIRS:

@@ -177,7 +177,7 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
     if not len(cand):
         return
     query = data.point_query(g_other)
-    tf_other = data.geom.oMg[g_other]
+    tf_other = data.oMg[g_other]
     tf, req, res = data.point_tf, data.distance_request, data.distance_result
     for i in cand:
         tf.setTranslation(Vw[i])
@@ -251,9 +251,8 @@ def _near_polytopes(model: Model, data: Data, tol: float) -> set:
     out = set()
     if not data.warm_start_pairs:
         return out
-    for k, g1, g2, j1, j2 in model.polytope_pairs:
-        if k not in data.warm_start_pairs:
-            continue
+    for k in model.polytope_pair_ids.keys() & data.warm_start_pairs:  # the warm pairs, not every polytope pair
+        g1, g2, j1, j2 = model.polytope_pair_ids[k]
         (_, c1, r1), (_, c2, r2) = model.bounds[g1], model.bounds[g2]
         o1, o2 = data.kinematics.oMi[j1], data.kinematics.oMi[j2]
         d = (o1.rotation @ c1 + o1.translation) - (o2.rotation @ c2 + o2.translation)
@@ -270,8 +269,8 @@ def _patch(data: Data, pair, c, n: np.ndarray):
     res.addContact(coal.Contact(g1, g2, -1, -1, np.asarray(c.pos), -n, c.penetration_depth))
     out = data.patch_result
     out.clear()
-    coal.computeContactPatch(g1, coal.Transform3s(data.geom.oMg[pair.first]), g2,
-                             coal.Transform3s(data.geom.oMg[pair.second]), res, data.patch_request, out)
+    coal.computeContactPatch(g1, coal.Transform3s(data.oMg[pair.first]), g2,
+                             coal.Transform3s(data.oMg[pair.second]), res, data.patch_request, out)
     return out.getContactPatch(0)
 
 
@@ -280,7 +279,7 @@ def _fallback_contact(data: Data, pair):
     res = data.fallback_result
     res.clear()
     g1, g2 = data.shapes[pair.first], data.shapes[pair.second]
-    if coal.collide(g1, coal.Transform3s(data.geom.oMg[pair.first]), g2, coal.Transform3s(data.geom.oMg[pair.second]),
+    if coal.collide(g1, coal.Transform3s(data.oMg[pair.first]), g2, coal.Transform3s(data.oMg[pair.second]),
                     data.fallback_request, res) == 0:
         return None
     c = res.getContact(0)
@@ -316,21 +315,20 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     or more face planes differ by at most this (default: the contact tolerance; the stepper adds
     how far the vertex can move in a step, so a corner struck within the step is seen as one).
     Updates the forest's kinematics (data.kinematics.oMi) and the geometry placements at q."""
-    gm, gd = model.geom, data.geom
-    model.forest.place(data.kinematics, q, gm, gd)
+    model.forest.place(data.kinematics, q, model.geometries, data.oMg)
     if not model.pairs:
         return NO_CONTACTS
     tol = model.options.contact_tolerance
     bp = broad_phase.of(model, max(tol, GATE_MARGIN))
     if bp is None:  # few pairs: coal's narrow phase on all of them in one call
+        gm, gd = model.geom, data.geom
         fresh_guesses(gd.collisionRequests)
         pin.computeCollisions(gm, gd, False)
         hits = [p.index for p in model.pairs if gd.collisionResults[p.index].isCollision()]
     else:  # the narrow phase on the broad phase's candidates, in pair order (the same results)
-        reqs = gd.collisionRequests
         cand = bp.candidates(data).tolist()
-        fresh_guesses([reqs[k] for k in cand])
-        hits = [k for k in cand if pin.computeCollision(gm, gd, k)]
+        fresh_guesses([data.collision_request(k) for k in cand])
+        hits = [k for k in cand if data.collide(k)]
     near = _near_polytopes(model, data, tol)
     if not hits and not near:
         data.warm_start_pairs = set()
@@ -341,7 +339,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     hit_set = set(hits)
     for k in sorted(hit_set | near):
         pair = model.pairs[k]
-        res = gd.collisionResults[k]
+        res = data.collision_result(k)
         hit = k in hit_set
         start = len(found)
         na, nb = len(model.vertices[pair.first]), len(model.vertices[pair.second])
@@ -412,8 +410,8 @@ def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
     cache = data.box_edges  # per geometry, in its joint frame
     for g, geo in ((pair.first, ga), (pair.second, gb)):
         if g not in cache:
-            cache[g] = box_box.box_edges(geo, model.geom.geometryObjects[g].placement)
-    oMi, oMg = data.kinematics.oMi, data.geom.oMg
+            cache[g] = box_box.box_edges(geo, model.geometries[g].placement)
+    oMi, oMg = data.kinematics.oMi, data.oMg
     fa, fb = oMg[pair.first], oMg[pair.second]
     hits = box_box.edge_crossings(box_box.world(cache[pair.first], oMi[pair.joint_first]),
                                   box_box.world(cache[pair.second], oMi[pair.joint_second]),
@@ -465,16 +463,26 @@ def _merge_corners(model: Model, items: list, margin: float) -> tuple:
     return tuple(out)
 
 
-def pair_distances(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
-    """Signed distance [m] of every collision pair at q (for records and plots, not the step);
-    NaN where coal's query failed (its -DBL_MAX is never passed on as a distance)."""
+def pair_distances(model: Model, data: Data, q: np.ndarray, *, near: bool = False) -> np.ndarray:
+    """Signed distance [m] of every collision pair at q (for records and plots, and the position
+    correction's check); NaN where coal's query failed (its -DBL_MAX is never passed on as a
+    distance). near: for a model of a pair table (no list: model.listed false) query only the broad
+    phase's candidates at the detection's gate and give +inf for the others, whose boxes are apart
+    (the correction's check: only distances below zero count); a listed model ignores it."""
     if not model.pairs:
         return np.zeros(0)
-    fresh_guesses(data.geom.distanceRequests)
-    model.forest.place(data.kinematics, q, model.geom, data.geom)
-    pin.computeDistances(model.geom, data.geom)
-    d = np.array([r.min_distance for r in data.distance_results])
-    d[~(np.abs(d) < DISTANCE_FAILED)] = np.nan
+    if model.listed or not near:
+        fresh_guesses(data.geom.distanceRequests)
+        model.forest.place(data.kinematics, q, model.geometries, data.geom.oMg)
+        pin.computeDistances(model.geom, data.geom)
+        d = np.array([r.min_distance for r in data.distance_results])
+    else:
+        model.forest.place(data.kinematics, q, model.geometries, data.oMg)
+        d = np.full(len(model.pairs), np.inf)
+        cand = broad_phase.of(model, max(model.options.contact_tolerance, GATE_MARGIN)).candidates(data).tolist()
+        fresh_guesses([data.distance_query(k)[0] for k in cand])
+        d[cand] = [data.distance(k) for k in cand]
+    d[~(np.abs(d) < DISTANCE_FAILED) & ~np.isposinf(d)] = np.nan
     return d
 
 

@@ -3,6 +3,8 @@ queries, the detection's warm start). One per thread and per run; the state itse
 
 from __future__ import annotations
 
+import warnings
+
 import coal
 import numpy as np
 import pinocchio as pin
@@ -50,24 +52,16 @@ class Data:
         self._pin = None
         where = str(model.scene.path) if model.scene.path else model.scene.name
         self.kinematics = Kinematics(model.forest, make=lambda m: new_data(m, f"{where} (a body of it)", checked=True))
-        # GeometryData must be created after every geometry and pair exists (segfault otherwise).
-        self.geom = pin.GeometryData(model.geom)
-        self.box_edges: dict = {}  # geometry index -> its box's 12 edges in the joint frame (contacts, filled lazily)
-        # proxies of the pairs' distance results, made once: they read the live results after each
-        # computeDistances (contacts.pair_distances), where indexing the vector anew costs ~1 us a pair
-        self.distance_results = list(self.geom.distanceResults)
         tol = model.options.contact_tolerance
-        for req in self.geom.collisionRequests:
-            # gate of the active set: a pair is examined when coal puts it within GATE_MARGIN (its
-            # contacts are then kept where g <= tol); coal's narrow phase misses exactly touching
-            # coplanar boxes now and then at a margin of 1e-9 m (gap -5e-12 reported as apart)
-            req.security_margin = max(tol, GATE_MARGIN)
-            req.num_max_contacts = 1
-            req.enable_contact = True  # normal, depth and witness points (EPA when penetrating)
-            # GJK/EPA default tolerances (1e-6) tilt the normal of exactly touching boxes by ~5 deg
-            req.gjk_tolerance = req.epa_tolerance = GJK_TOLERANCE
-        for preq in self.geom.contactPatchRequests:
-            preq.setPatchTolerance(PATCH_TOLERANCE)
+        self._geom = None
+        self._coal: dict[int, tuple] = {}  # pair -> (request, result, coal functor): a PairTable's pairs (collide)
+        self._coal_distance: dict[int, tuple] = {}  # the same for their distances (distance)
+        if model.listed:
+            self._make_geom()
+            self.oMg = self._geom.oMg  # the geometries' world placements (trees.Forest.place)
+        else:  # many pairs: no GeometryData of them all unless something asks for it (geom)
+            self.oMg = [pin.SE3.Identity()] * len(model.geometries)
+        self.box_edges: dict = {}  # geometry index -> its box's 12 edges in the joint frame (contacts, filled lazily)
         # the detection's warm start: the pairs with contacts at the last detection (contacts._near_polytopes)
         self.warm_start_pairs: set = set()
         self.patch_request = coal.ContactPatchRequest()
@@ -83,8 +77,85 @@ class Data:
         self.distance_request = coal.DistanceRequest()
         self.distance_result = coal.DistanceResult()
         self._point_queries: dict[int, coal.ComputeDistance] = {}
-        geoms = model.geom.geometryObjects
-        self.shapes = [g.geometry for g in geoms]
+        self.shapes = [g.geometry for g in model.geometries]
+
+    def _make_geom(self) -> None:
+        model = self._model
+        # GeometryData must be created after every geometry and pair exists (segfault otherwise).
+        self._geom = pin.GeometryData(model.geom)
+        # proxies of the pairs' distance results, made once: they read the live results after each
+        # computeDistances (contacts.pair_distances), where indexing the vector anew costs ~1 us a pair
+        self.distance_results = list(self._geom.distanceResults)
+        for req in self._geom.collisionRequests:
+            _gate(req, model.options.contact_tolerance)
+        for preq in self._geom.contactPatchRequests:
+            preq.setPatchTolerance(PATCH_TOLERANCE)
+
+    @property
+    def geom(self) -> pin.GeometryData:
+        """Pinocchio's GeometryData of every pair (coal requests and results, placements oMg): made with
+        the Data for a model whose pairs are listed, else at first use (the compiled step, distances of
+        every pair, the swept test), when its placements are its own, not oMg's."""
+        if self._geom is None:
+            self._make_geom()
+        return self._geom
+
+    def collide(self, k: int) -> bool:
+        """coal's collision query of pair k at the placements oMg (after fresh_guesses on its request):
+        pin.computeCollision's for a listed model; else the same query on coal directly (the same
+        request settings, pinocchio's distance_upper_bound, a cleared result, coal's functor)."""
+        model = self._model
+        if model.listed:
+            return pin.computeCollision(model.geom, self._geom, k)
+        req, res, f = self.pair_query(k)
+        p = model.pairs[k]
+        req.distance_upper_bound = req.security_margin + 1e-6  # as pinocchio's computeCollision
+        res.clear()
+        f(coal.Transform3s(self.oMg[p.first]), coal.Transform3s(self.oMg[p.second]), req, res)
+        return res.isCollision()
+
+    def collision_request(self, k: int) -> coal.CollisionRequest:
+        return self._geom.collisionRequests[k] if self._model.listed else self.pair_query(k)[0]
+
+    def collision_result(self, k: int) -> coal.CollisionResult:
+        return self._geom.collisionResults[k] if self._model.listed else self.pair_query(k)[1]
+
+    def pair_query(self, k: int) -> tuple:
+        """(request, result, coal.ComputeCollision) of pair k of a PairTable, made at its first query as
+        pinocchio's GeometryData makes them (CollisionRequest(NO_REQUEST, 1), cached GJK guess) and gated."""
+        out = self._coal.get(k)
+        if out is None:
+            p, shapes = self._model.pairs[k], self.shapes
+            req = coal.CollisionRequest(coal.CollisionRequestFlag.NO_REQUEST, 1)
+            with warnings.catch_warnings():  # coal deprecates the flag pinocchio's GeometryData sets
+                warnings.simplefilter("ignore", DeprecationWarning)
+                req.enable_cached_gjk_guess = True
+            _gate(req, self._model.options.contact_tolerance)
+            f = coal.ComputeCollision(shapes[p.first], shapes[p.second])
+            out = self._coal[k] = (req, coal.CollisionResult(), f)
+        return out
+
+    def distance(self, k: int) -> float:
+        """coal's signed distance [m] of pair k of a PairTable at the placements oMg: pin.computeDistance's
+        query on coal directly (the request pinocchio's GeometryData makes, a cleared result)."""
+        req, res, f = self.distance_query(k)
+        p = self._model.pairs[k]
+        res.clear()
+        f(coal.Transform3s(self.oMg[p.first]), coal.Transform3s(self.oMg[p.second]), req, res)
+        return res.min_distance
+
+    def distance_query(self, k: int) -> tuple:
+        """(request, result, coal.ComputeDistance) of pair k of a PairTable, made at first use."""
+        out = self._coal_distance.get(k)
+        if out is None:
+            p, shapes = self._model.pairs[k], self.shapes
+            req = coal.DistanceRequest(True)
+            with warnings.catch_warnings():  # coal deprecates the flag pinocchio's GeometryData sets
+                warnings.simplefilter("ignore", DeprecationWarning)
+                req.enable_cached_gjk_guess = True
+            f = coal.ComputeDistance(shapes[p.first], shapes[p.second])
+            out = self._coal_distance[k] = (req, coal.DistanceResult(), f)
+        return out
 
     @property
     def pin(self) -> pin.Data:
@@ -98,7 +169,7 @@ class Data:
 
     def _guess_holders(self) -> list:
         """Every coal request and result that carries a GJK guess from one call to the next."""
-        g = self.geom
+        g = self.geom  # a PairTable's pairs queried on coal directly are not in it (checkpoint: listed pairs only)
         return [*g.collisionRequests, *g.collisionResults, *g.distanceRequests, *g.distanceResults,
                 self.patch_collision, self.fallback_request, self.fallback_result, self.distance_request,
                 self.distance_result]
@@ -124,6 +195,18 @@ class Data:
         if f is None:
             f = self._point_queries[g] = coal.ComputeDistance(self.point, self.shapes[g])
         return f
+
+
+def _gate(req: coal.CollisionRequest, tol: float) -> None:
+    """The detection's settings of a pair's collision request (tol: the contact tolerance [m])."""
+    # gate of the active set: a pair is examined when coal puts it within GATE_MARGIN (its
+    # contacts are then kept where g <= tol); coal's narrow phase misses exactly touching
+    # coplanar boxes now and then at a margin of 1e-9 m (gap -5e-12 reported as apart)
+    req.security_margin = max(tol, GATE_MARGIN)
+    req.num_max_contacts = 1
+    req.enable_contact = True  # normal, depth and witness points (EPA when penetrating)
+    # GJK/EPA default tolerances (1e-6) tilt the normal of exactly touching boxes by ~5 deg
+    req.gjk_tolerance = req.epa_tolerance = GJK_TOLERANCE
 
 
 def make_data(model: Model) -> Data:

@@ -30,6 +30,14 @@ class SimulationInterrupted(SimulationError):
     """The run was interrupted (Ctrl-C, SIGTERM): ``trajectory`` holds the samples so far."""
 
 
+def out_of_memory(exc: BaseException, where: str, doing: str, size: str) -> str | None:
+    """The one line of a failed allocation (a MemoryError, or std::bad_alloc as a RuntimeError that is
+    not one of ours) naming the scene `where` and its `size`; None for any other exception."""
+    if isinstance(exc, MoreauSimError) or not (isinstance(exc, MemoryError) or "alloc" in str(exc)):
+        return None
+    return f"{where}: out of memory {doing} ({size})"
+
+
 def one_line(message: object, n: int = 300) -> str:
     """A message (often a library's multi-line C++ text) on one line of at most n characters."""
     text = " ".join(str(message).split())

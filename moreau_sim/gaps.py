@@ -59,7 +59,7 @@ class Feature:
 def feature_list(model: Model) -> tuple[Feature, ...]:
     """The gap functions of every collision pair (UnsupportedModel for other pair types)."""
     out = []
-    gobs = model.geom.geometryObjects
+    gobs = model.geometries
     for pair in model.pairs:
         ga, gb = gobs[pair.first], gobs[pair.second]
         sa, sb = ga.geometry, gb.geometry
@@ -109,7 +109,7 @@ def _cylinder_features(model: Model, pair) -> list[Feature] | None:
     without them: a moving cylinder's two cap rims (feature 0: the cap at +halfLength along its
     axis, 1: at -halfLength) against a static half-space or box (and its side against the box's
     edges); a sphere against a cylinder (either moving). Gaps and rows do not depend on which shape coal lists first."""
-    gobs = model.geom.geometryObjects
+    gobs = model.geometries
     ends = [(pair.first, pair.joint_first), (pair.second, pair.joint_second)]
     if not isinstance(gobs[ends[0][0]].geometry, coal.Cylinder):
         ends.reverse()

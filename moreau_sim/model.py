@@ -11,37 +11,23 @@ import os
 import warnings
 from dataclasses import InitVar, dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import coal
 import numpy as np
 import pinocchio as pin
 
-from . import actuation as act, drive as drives, limits, prescribed as presc, self_pairs, shapes
+from . import actuation as act, broad_phase, drive as drives, limits, pair_table, prescribed as presc, self_pairs, shapes
 from .actuation import Actuation
 from .bodies import load_body
-from .errors import SceneError
+from .errors import SceneError, out_of_memory
 from .limits import UNLIMITED
 from .options import Options, RootJoint
+from .pair_table import Pair, PairTable
 from .prescribed import Prescribed
 from .scene import Scene
 from .state import State
-from .trees import Forest, Kinematics
-
-
-@dataclass(frozen=True)
-class Pair:
-    """A collision pair: geometry ids (first = coal's shape 1), their joints, its name, and
-    whether contacts.py asks coal for the contact patch: only when both shapes have flat faces,
-    and not when one is a half-space and the other a polytope (the overlap of a face with a
-    half-space is that face, whose corners are already vertex contacts)."""
-
-    index: int
-    first: int
-    second: int
-    joint_first: int
-    joint_second: int
-    name: str
-    patch: bool = True
+from .trees import Forest, Kinematics, whole_model
 
 
 @dataclass(frozen=True)
@@ -58,14 +44,14 @@ class BodyInfo:
 class Model:
     """What the scene is. Never modified after :func:`build_model`.
 
-    pin: Pinocchio model (gravity set from the scene); geom: coal geometry + pairs;
+    pin: Pinocchio model (gravity set from the scene); geom (geometry_model): coal geometry + pairs;
     pairs: the collision pairs; vertices[g]: (k, 3) polytope vertices of geometry g in its
     joint frame (empty for smooth shapes); bounds[g]: a cheap lower bound of the distance from a
     point to geometry g, ("sphere", centre, radius) in its joint frame or ("plane", n, d) for a
     half-space {n.x <= d} (contacts.py uses it to skip far vertices); face_normals[g]: outward
     face normals of a polytope in its joint frame (empty otherwise); face_planes[g]: a box's
     (normals, offsets) in its joint frame, else None; vertex_edges[g]: the edge directions leaving
-    each vertex (corner detection in contacts.py); support_mask[j]: 1 on the
+    each vertex (corner detection in contacts.py); support_mask[j] (a property): 1 on the
     velocity indices that move joint j; q0/u0: the initial state; excluded: the pairs the
     automatic rule would make that are left out, each with why (the SRDF, an overlap at a reference
     pose, the scene's [collisions] exclude);
@@ -78,14 +64,13 @@ class Model:
 
     scene: Scene
     pin: pin.Model
-    geom: pin.GeometryModel
-    pairs: tuple[Pair, ...]
+    geometry_model: pin.GeometryModel | None  # None: made at first use of `geom` (a scene of many pairs)
+    pairs: tuple[Pair, ...] | PairTable
     vertices: tuple[np.ndarray, ...]
     bounds: tuple[tuple, ...]
     face_normals: tuple[np.ndarray, ...]
     face_planes: tuple
     vertex_edges: tuple
-    support_mask: np.ndarray
     bodies: tuple[BodyInfo, ...]
     geometry_body: tuple[str, ...]
     q0: np.ndarray
@@ -96,33 +81,41 @@ class Model:
     drive: drives.Drive | None = None
     prescribed: Prescribed | None = None
     forest: Forest | None = None
+    pair_table: PairTable | None = None  # the pairs without their list (pair_table.py); None: made from pairs
+    geometry_objects: tuple = ()  # every geometry object when geometry_model is None (then `geometries`)
     scratch: InitVar[pin.Data | None] = None  # a Data of `pin` for the velocity-bias probe below, if not given
     velocity_bias_of_bodies: InitVar[bool | None] = None  # that probe made body by body (build_model)
 
     def __post_init__(self, scratch, velocity_bias_of_bodies):
         if self.forest is None:  # a Model made by hand: the whole model is the forest's one tree
             object.__setattr__(self, "forest", Forest.build([self.pin], [pin.SE3.Identity()], self.pin.gravity.linear))
-        pj = np.array([(p.joint_first, p.joint_second) for p in self.pairs], dtype=np.int64).reshape(-1, 2)
-        pj.setflags(write=False)
+        if self.pair_table is None:  # a Model made by hand: its pairs' table from the list
+            object.__setattr__(self, "pair_table", pair_table.table_of(self.geom, self.pairs))
+        listed = isinstance(self.pairs, tuple)
+        pj = pair_table.PairJoints(self.pair_table)
+        if listed:
+            pj = np.array([(p.joint_first, p.joint_second) for p in self.pairs], dtype=np.int64).reshape(-1, 2)
+            pj.setflags(write=False)
         object.__setattr__(self, "_pair_joints", pj)
         reach = max([float(np.linalg.norm(V, axis=1).max()) for V in self.vertices if len(V)] + [1.0])
         object.__setattr__(self, "_reach", reach)
-        def extent(g):
-            geo = self.geom.geometryObjects[g].geometry
+        def extent(go):
+            geo = go.geometry
             if isinstance(geo, (coal.Halfspace, coal.Plane)):
                 return np.inf
             geo.computeLocalAABB()
             b = geo.aabb_local
             return float(min(b.width(), b.height(), b.depth()))
-        ext = [extent(g) for g in range(len(self.geom.geometryObjects))]  # once per geometry, not per pair
-        object.__setattr__(self, "_thinnest_pair", min([ext[p.first] + ext[p.second] for p in self.pairs] + [np.inf]))
+        ext = [extent(go) for go in self.geometries]  # once per geometry, not per pair
+        t = self.pair_table
+        object.__setattr__(self, "_thinnest_pair", min([ext[p.first] + ext[p.second] for p in self.pairs] + [np.inf])
+                           if listed else pair_table.thinnest(t, np.array(ext)))
+        poly = [g for g in range(t.G) if len(self.vertices[g]) and self.bounds[g][0] == "sphere"]
         object.__setattr__(self, "_polytope_pairs", tuple(
-            (p.index, p.first, p.second, p.joint_first, p.joint_second) for p in self.pairs
-            if len(self.vertices[p.first]) and len(self.vertices[p.second])
-            and self.bounds[p.first][0] == "sphere" and self.bounds[p.second][0] == "sphere"))
-        object.__setattr__(self, "_polytope_pair_set", frozenset(
-            p.index for p in self.pairs if len(self.face_normals[p.first]) and len(self.face_normals[p.second])
-            and len(self.vertices[p.first]) and len(self.vertices[p.second])))
+            (p.index, p.first, p.second, p.joint_first, p.joint_second) for p in pair_table.pairs_among(t, poly)))
+        object.__setattr__(self, "_polytope_pair_ids", {p[0]: p[1:] for p in self._polytope_pairs})
+        faces = [g for g in range(t.G) if len(self.face_normals[g]) and len(self.vertices[g])]
+        object.__setattr__(self, "_polytope_pair_set", frozenset(p.index for p in pair_table.pairs_among(t, faces)))
         # does h(q, u) depend on u (Coriolis, gyroscopic)? A random state tells (structurally zero
         # for translations and prismatic chains); stepper.free_velocity skips the midpoint iteration.
         if velocity_bias_of_bodies is None:  # tree by tree: no Data of the whole model
@@ -142,6 +135,41 @@ class Model:
                 fits = False
             object.__setattr__(self, "_whole_data_fits", fits)
         return fits
+
+    @property
+    def support_mask(self) -> np.ndarray:
+        """(njoints, nv), made at first use (a dense njoints x nv: 800 MB at 10,000 joints)."""
+        mask = self.__dict__.get("_support_mask")
+        if mask is None:
+            model = self.pin
+            mask = np.zeros((model.njoints, model.nv))
+            for j in range(1, model.njoints):
+                for s in model.supports[j][1:]:
+                    jm = model.joints[s]
+                    mask[j, jm.idx_v:jm.idx_v + jm.nv] = 1.0
+            mask.setflags(write=False)
+            object.__setattr__(self, "_support_mask", mask)
+        return mask
+
+    @property
+    def geom(self) -> pin.GeometryModel:
+        """coal geometry and the pairs as one Pinocchio GeometryModel; without a list of pairs (listed) made
+        at first use (compiled step, event integrators): the Python step queries coal (data.Data.collide)."""
+        gm = self.geometry_model
+        if gm is None:
+            gm = pair_table.geometry_model(self.geometry_objects, self.pairs)
+            object.__setattr__(self, "geometry_model", gm)
+        return gm
+
+    @property
+    def geometries(self):
+        """Every geometry object (coal shape, parent joint, placement in it) by geometry id."""
+        return self.geometry_objects if self.geometry_objects else self.geom.geometryObjects
+
+    @property
+    def listed(self) -> bool:
+        """Whether the pairs are a list (with a GeometryModel and GeometryData), not a PairTable (> LAZY_PAIRS)."""
+        return isinstance(self.pairs, tuple)
 
     @property
     def options(self) -> Options:
@@ -175,6 +203,11 @@ class Model:
         return self._polytope_pairs
 
     @property
+    def polytope_pair_ids(self) -> dict:
+        """polytope_pairs by pair index: {pair: (geometry 1, geometry 2, joint 1, joint 2)}."""
+        return self._polytope_pair_ids
+
+    @property
     def polytope_pair_set(self) -> frozenset:
         """Indices of the pairs of two polytopes (contacts._face_axis)."""
         return self._polytope_pair_set
@@ -186,7 +219,7 @@ class Model:
 
     @property
     def pair_joints(self) -> np.ndarray:
-        """(pairs, 2) int array: the joints of each pair's first and second geometry."""
+        """(pairs, 2) int array: the joints of each pair's first and second geometry (a pair table: made per index)."""
         return self._pair_joints
 
     @property
@@ -252,7 +285,7 @@ class Model:
                         "srdf": None if s.srdf is None else str(s.srdf),
                         "joints": [self.pin.names[j] for j in b.joints]}
                        for b, s in zip(self.bodies, self.scene.bodies)],
-            "geometries": [g.name for g in self.geom.geometryObjects],
+            "geometries": [g.name for g in self.geometries],
             "collision_pairs": list(self.pair_names),
             "excluded_pairs": [{"pair": name, "why": why} for name, why in self.excluded],
             "joint_limits": [{"pair": lim.pair, "name": lim.name, "bound": lim.bound} for lim in self.limits],
@@ -264,7 +297,19 @@ class Model:
 
 
 def build_model(scene: Scene) -> Model:
-    """Build the immutable :class:`Model` of `scene`. Raises :class:`SceneError`."""
+    """Build the immutable :class:`Model` of `scene`. Raises :class:`SceneError`: one line naming the
+    scene and its size when memory runs out (errors.out_of_memory)."""
+    try:
+        return _build_model(scene)
+    except (MemoryError, RuntimeError) as exc:
+        msg = out_of_memory(exc, str(scene.path or scene.name), "building its model",
+                            f"{len(scene.bodies)} bodies, {len(scene.statics)} statics")
+        if msg is None:
+            raise
+        raise SceneError(msg) from None
+
+
+def _build_model(scene: Scene) -> Model:
     where = str(scene.path) if scene.path else "<scene>"
     infos, authored, body_models = [], [], []  # body_models: each body's own Pinocchio model (M checked on it)
     placed = []  # each body's (model, geometry) placed in the world: the forest's trees
@@ -289,12 +334,12 @@ def build_model(scene: Scene) -> Model:
         infos.append(BodyInfo(body.name, body.root_joint, tuple(range(nj, nj + tm.njoints - 1)),
                               slice(nq, nq + tm.nq), slice(nv, nv + tm.nv), body.urdf))
         nq, nv, nj = nq + tm.nq, nv + tm.nv, nj + tm.njoints - 1
-    model, geom, geometry_body = _whole(placed, where)
+    model, gobs, geometry_body = whole_model(placed, where)
     model.name = scene.name
-    first_static = geom.ngeoms
+    first_static = len(gobs)
     for s in scene.statics:
         shape, placement = shapes.static_shape(s)
-        geom.addGeometryObject(pin.GeometryObject(s.name, 0, 0, placement, shape))
+        gobs.append(pin.GeometryObject(s.name, 0, 0, placement, shape))
         geometry_body.append(s.name)
     model.gravity.linear = np.array(scene.options.gravity, float)
     if model.nv == 0:
@@ -311,7 +356,6 @@ def build_model(scene: Scene) -> Model:
                         f"nv = {info.v_slice.stop - info.v_slice.start})")
 
     # --- collision pairs: different joints, not both static, not a link and its parent
-    gobs = list(geom.geometryObjects)
     links = [model.frames[go.parentFrame].name if go.parentFrame < model.nframes else go.name for go in gobs]
     named: dict[str, list[int]] = {}  # a name (geometry, body or link) -> its geometries: one look-up per rule
     for k, go in enumerate(gobs):
@@ -325,34 +369,41 @@ def build_model(scene: Scene) -> Model:
                 raise SceneError(f"{where} [collisions] {key}: '{name}' names no body, static, link or geometry")
         return [(min(x, y), max(x, y)) for x in ia for y in ib if x != y]
 
-    chosen, why = set(), {}
+    # the pairs are every two geometries less `removed` (pair_table.PairTable): never listed one by one
+    removed, why = pair_table.rule_removed(model, gobs, geometry_body), {}
+    chosen = lambda i, j: i != j and (min(i, j), max(i, j)) not in removed  # noqa: E731
     disabled = frozenset().union(*(a.disabled for a in authored))
-    for i, j in _default_pairs(model, gobs, geometry_body):
-        if frozenset((gobs[i].name, gobs[j].name)) in disabled:
-            why[(i, j)] = "disabled by the SRDF"
-            continue  # the robot's author disabled it (self_pairs.read_authored)
-        chosen.add((i, j))
+    by_name: dict[str, list[int]] = {}
+    for k, go in enumerate(gobs):
+        by_name.setdefault(go.name, []).append(k)
+    for names in disabled:
+        a, b = (*names, *names)[:2]
+        for i, j in {(min(x, y), max(x, y)) for x in by_name.get(a, []) for y in by_name.get(b, [])}:
+            if chosen(i, j):
+                removed.add((i, j))
+                why[(i, j)] = "disabled by the SRDF"  # the robot's author disabled it (self_pairs.read_authored)
     included = set()
     for a, b in scene.collisions.include:
         for i, j in pairs_matching(a, b, "include"):
             if gobs[i].parentJoint == gobs[j].parentJoint:
                 raise SceneError(f"{where} [collisions] include: {gobs[i].name} and {gobs[j].name} "
                                  "are on one rigid body (or both static) and can never touch")
-            chosen.add((i, j))
+            removed.discard((i, j))
             included.add((i, j))
             why.pop((i, j), None)
     for a, b in scene.collisions.exclude:
-        for ij in set(pairs_matching(a, b, "exclude")) & chosen:
-            chosen.discard(ij)
-            why[ij] = "[collisions] exclude"
+        for ij in set(pairs_matching(a, b, "exclude")):
+            if chosen(*ij):
+                removed.add(ij)
+                why[ij] = "[collisions] exclude"
     poses = [[(name, _in_scene(model, info, pose)) for name, pose in said.poses] for info, said in zip(infos, authored)]
-    own = {(i, j) for i, j in chosen - included if geometry_body[i] == geometry_body[j]}  # self pairs
+    own = {ij for ij in pair_table.same_body(geometry_body) if chosen(*ij) and ij not in included}  # self pairs
     d = new_data(model, where) if own else None  # a Data of the whole model only for them
     for body, found in zip(scene.bodies, [] if not own else self_pairs.leave_out_overlapping(
-            model, d, geom, [b.name for b in scene.bodies], poses, geometry_body, own,
-            scene.options.contact_tolerance)):
+            model, d, SimpleNamespace(geometryObjects=gobs), [b.name for b in scene.bodies], poses, geometry_body,
+            own, scene.options.contact_tolerance)):
         for ij, (dist, pose) in found.items():
-            chosen.discard(ij)
+            removed.add(ij)
             why[ij] = f"overlaps {-dist:.3g} m at the reference pose {pose}"
         if found:
             listed = ", ".join(f"{_pair_name(gobs, i, j)} ({-dist * 1e3:.3g} mm at {pose})"
@@ -360,31 +411,22 @@ def build_model(scene: Scene) -> Model:
             warnings.warn_explicit(f"{len(found)} self pair(s) of body {body.name} overlap at its reference pose(s) "
                                    f"and are left out: {listed}; to keep one, name it in [collisions] include "
                                    f"[{where}]", UserWarning, str(body.urdf), 0)
-    pairs = []
-    geom.removeAllCollisionPairs()  # appendModel pairs the bodies' geometries itself: start clean
     half = [isinstance(go.geometry, (coal.Halfspace, coal.Plane)) for go in gobs]
     poly = [len(shapes.vertices(go.geometry, go.placement)) > 0 for go in gobs]
     flat = [isinstance(go.geometry, shapes.FLAT) for go in gobs]  # a patch needs two flat faces
-    for k, (i, j) in enumerate(sorted(chosen)):
-        # shape 1 = the moving one with the larger joint id: normals then point from it to the other
-        if gobs[i].parentJoint < gobs[j].parentJoint:
-            i, j = j, i
-        geom.addCollisionPair(pin.CollisionPair(i, j))
-        patch = flat[i] and flat[j] and not ((half[i] and poly[j]) or (half[j] and poly[i]))
-        pairs.append(Pair(k, i, j, gobs[i].parentJoint, gobs[j].parentJoint, _pair_name(gobs, i, j), patch))
+    G = len(gobs)
+    table = PairTable([go.parentJoint for go in gobs], [go.name for go in gobs], half, poly, flat,
+                      [i * G + j for i, j in removed])
+    lazy = len(table) > LAZY_PAIRS and not any(s.motion is not None for s in scene.statics)
+    pairs = table if lazy else tuple(table)
+    geom = None if lazy else pair_table.geometry_model(gobs, pairs)
 
     vertices = tuple(shapes.vertices(go.geometry, go.placement) for go in gobs)
-    moving = presc.build(geom, scene.statics, first_static, pairs, vertices, where)  # placed at t = 0
+    moving = None if lazy else presc.build(geom, scene.statics, first_static, pairs, vertices, where)  # at t = 0
     bounds = tuple(shapes.distance_bound(go.geometry, go.placement) for go in gobs)
     face_normals = tuple(shapes.face_normals(go.geometry, go.placement) for go in gobs)
     face_planes = tuple(shapes.face_planes(go.geometry, go.placement) for go in gobs)
     vertex_edges = tuple(shapes.vertex_edges(go.geometry, go.placement) for go in gobs)
-    mask = np.zeros((model.njoints, model.nv))
-    for j in range(1, model.njoints):
-        for s in model.supports[j][1:]:
-            jm = model.joints[s]
-            mask[j, jm.idx_v:jm.idx_v + jm.nv] = 1.0
-    mask.setflags(write=False)
 
     q0, u0 = _initial(scene, model, infos, where)
     bias = _check_bodies(scene, body_models, infos, q0, where)
@@ -393,47 +435,13 @@ def build_model(scene: Scene) -> Model:
     limited = [j for body, info in zip(scene.bodies, infos) if body.joint_limits
                for j in info.joints[(body.root_joint is not RootJoint.FIXED):]]  # a root joint has no limits
     joint_limits = limits.joint_limits(model, limited, len(pairs))
-    return Model(scene=scene, pin=model, geom=geom, pairs=tuple(pairs), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges, support_mask=mask,
+    return Model(scene=scene, pin=model, geometry_model=geom, pairs=pairs, pair_table=table,
+                 geometry_objects=tuple(gobs) if lazy else (), vertices=vertices, bounds=bounds, face_normals=face_normals, face_planes=face_planes, vertex_edges=vertex_edges,
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, limits=joint_limits,
                  actuation=actuation, prescribed=moving, forest=forest,
                  drive=drives.build(scene, model, infos, actuation, q0, u0, joint_limits),
                  excluded=tuple((_pair_name(gobs, i, j), w) for (i, j), w in sorted(why.items())),
                  velocity_bias_of_bodies=bias)
-
-
-def _whole(placed: list, where: str) -> tuple[pin.Model, pin.GeometryModel, list[str]]:
-    """The scene's whole Pinocchio model and geometry from the bodies' placed (model, geometry, name),
-    as appending them one by one with pin.appendModel makes them, in O(n log n) model appends and one
-    pass over the geometries (appendModel with geometries visits every geometry at every joint: cubic
-    in bodies). The models are appended pairwise (joint and frame order as one by one: each append puts
-    both models' world frames first, then their joints in order); the geometries in appendModel's
-    order: those on the world first (body order), then those on joints (joint order)."""
-    models = [tm for tm, _, _ in placed]
-    try:
-        while len(models) > 1:
-            models = [pin.appendModel(models[k], models[k + 1], 0, pin.SE3.Identity()) if k + 1 < len(models)
-                      else models[k] for k in range(0, len(models), 2)]
-    except ValueError as exc:  # Pinocchio: "The two models have conflicting frame names." and the like
-        raise SceneError(f"{where}: Pinocchio cannot join the bodies into the scene's model: {exc}") from None
-    model = models[0] if models else pin.Model()
-    frame_id = {(f.name, int(f.type)): k for k, f in enumerate(model.frames)}
-    geom, geometry_body = pin.GeometryModel(), []
-    for on_world in (True, False):
-        offset = 0
-        for tm, tg, name in placed:
-            for go in tg.geometryObjects:
-                if (go.parentJoint == 0) != on_world:
-                    continue
-                go = go.copy()
-                if go.parentJoint:
-                    go.parentJoint = go.parentJoint + offset
-                if go.parentFrame:
-                    f = tm.frames[go.parentFrame]
-                    go.parentFrame = frame_id[(f.name, int(f.type))]
-                geom.addGeometryObject(go)
-                geometry_body.append(name)
-            offset += tm.njoints - 1
-    return model, geom, geometry_body
 
 
 def _in_scene(model: pin.Model, info: BodyInfo, pose: np.ndarray) -> np.ndarray:
@@ -449,22 +457,7 @@ def _pair_name(gobs, i: int, j: int) -> str:
     return f"{gobs[i].name}|{gobs[j].name}"
 
 
-def _default_pairs(model: pin.Model, gobs: list, geometry_body: list) -> list[tuple[int, int]]:
-    """(i, j), i < j, of every two geometries on different joints (not both static) that are not a
-    link and its parent in one body: the pairs of a scene without [collisions] (the detection's
-    broad phase, broad_phase.py, keeps the narrow phase to the pairs that are near)."""
-    G = len(gobs)
-    if G < 2:
-        return []
-    joint = np.array([go.parentJoint for go in gobs], dtype=np.int64)
-    parent = np.array(list(model.parents), dtype=np.int64)[joint]
-    _, body = np.unique(np.array(geometry_body, dtype=object).astype(str), return_inverse=True)
-    out: list[tuple[int, int]] = []
-    for i in range(G - 1):  # a row at a time: O(G) memory besides the pairs themselves
-        j = np.arange(i + 1, G)
-        keep = (joint[j] != joint[i]) & ~((body[j] == body[i]) & ((parent[j] == joint[i]) | (parent[i] == joint[j])))
-        out += [(i, int(k)) for k in j[keep]]
-    return out
+LAZY_PAIRS = 20_000  # above this many pairs no list, GeometryModel nor GeometryData of them is made with the model
 
 
 DATA_BYTES_PER_NV3 = 32  # Pinocchio 4.1's Data: four nv x nv x nv tensors of doubles (second-order derivatives)
@@ -604,10 +597,18 @@ def check_start(model: Model, kin: Kinematics, q: np.ndarray, where: str, tol: f
     pairs = model.pairs
     if not pairs:
         return
-    gd = pin.GeometryData(model.geom)  # fresh coal requests: coal's default tolerances, no cached guess
-    model.forest.place(kin, q, model.geom, gd)
-    pin.computeDistances(model.geom, gd)
-    g = np.array([r.min_distance for r in gd.distanceResults])
+    if model.listed:
+        gd = pin.GeometryData(model.geom)  # fresh coal requests: coal's default tolerances, no cached guess
+        model.forest.place(kin, q, model.geometries, gd.oMg)
+        pin.computeDistances(model.geom, gd)
+        g = np.array([r.min_distance for r in gd.distanceResults])
+    else:  # many pairs: coal's distance of those whose boxes come within tol (the others are apart)
+        oMg = [pin.SE3.Identity()] * len(model.geometries)
+        model.forest.place(kin, q, model.geometries, oMg)
+        shape, g = [go.geometry for go in model.geometries], np.full(len(pairs), np.inf)
+        for k in broad_phase.of(model, tol).candidates_at(kin.oMi).tolist():
+            p, tf = pairs[k], [coal.Transform3s(oMg[x]) for x in (pairs[k].first, pairs[k].second)]
+            g[k] = coal.distance(shape[p.first], tf[0], shape[p.second], tf[1], coal.DistanceRequest(), coal.DistanceResult())
     g[~(np.abs(g) < DISTANCE_FAILED)] = np.nan  # a failed query proves nothing: the run's records report it
     deep = np.flatnonzero(g < -tol)
     if len(deep):

@@ -12,6 +12,7 @@ from . import compiled_run
 from .checkpoint import Checkpoint
 from .data import Data, make_data
 from .driver import Check, drive
+from .errors import SimulationError, out_of_memory
 from .event_driven import simulate_event_driven
 from .invariants import Invariants
 from .model import Model, build_model, initial_state
@@ -59,6 +60,17 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     if controller is not None:
         model = dataclasses.replace(model, actuation=for_controller(model.pin, model.bodies, model.actuation,
                                                                     controller))
+    try:
+        return _simulate(model, data, state, progress, checkpoint, spill, check, strict, python_run)
+    except (MemoryError, RuntimeError) as exc:  # a failed allocation: one line naming the scene and its size
+        msg = out_of_memory(exc, str(model.scene.path or model.scene.name), "running it",
+                            f"{len(model.bodies)} bodies, nv = {model.nv}, {len(model.pairs)} collision pairs")
+        if msg is None:
+            raise
+        raise SimulationError(msg) from None
+
+
+def _simulate(model, data, state, progress, checkpoint, spill, check, strict, python_run) -> Trajectory:
     data = data or make_data(model)
     state = state or initial_state(model, data)
     opts = model.options

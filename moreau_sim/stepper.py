@@ -398,7 +398,7 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
                 return q_next, 0.0, u_next
     # the displacement only knows the closed contacts: it must not push another pair into contact
     # (a column of beads: pushing 2 off 1 pushes 1 into 0). Otherwise the step stays uncorrected.
-    before, after = pair_distances(model, data, q_next), pair_distances(model, data, q_c)
+    before, after = pair_distances(model, data, q_next, near=True), pair_distances(model, data, q_c, near=True)
     floor = np.minimum(before, 0.0)
     if u_c is not u_next:  # a paid lift: a pair it lifts may go deeper at a feature that was not closed (a box
         # rocking across an edge: one crossing lifted presses the other), by at most half the depth it lifts,

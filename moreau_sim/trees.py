@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from .errors import SceneError
+
 
 @dataclass(frozen=True)
 class Tree:
@@ -137,15 +139,15 @@ class Forest:
         return s
 
     # ---- kinematics ------------------------------------------------------------------------------------
-    def place(self, kin: Kinematics, q: np.ndarray, geom=None, gdata=None) -> None:
-        """Forward kinematics of every tree at q (kin.oMi, the scene's joint ids), and when geom and
-        gdata are given the geometry placements oMg = oMi[joint] * placement, as
-        pin.updateGeometryPlacements makes them."""
+    def place(self, kin: Kinematics, q: np.ndarray, geometries=None, oMg=None) -> None:
+        """Forward kinematics of every tree at q (kin.oMi, the scene's joint ids), and when geometries
+        (model.Model.geometries) and oMg (their world placements, data.Data.oMg) are given, those
+        placements oMg[g] = oMi[joint] * placement, as pin.updateGeometryPlacements makes them."""
         for tr, d in zip(self.trees, kin.datas()):
             pin.forwardKinematics(tr.model, d, q[tr.q])
-        if geom is not None:
-            oMi, oMg = kin.oMi, gdata.oMg
-            for g, go in enumerate(geom.geometryObjects):
+        if geometries is not None:
+            oMi = kin.oMi
+            for g, go in enumerate(geometries):
                 oMg[g] = oMi[go.parentJoint] * go.placement if go.parentJoint else go.placement
 
     def motion_subspace(self, kin: Kinematics, joint: int) -> np.ndarray:
@@ -176,3 +178,38 @@ class Kinematics:
                     oMi[tr.offset + k] = d.oMi[k]  # a reference into the tree's Data
             self.oMi = oMi
         return self._datas
+
+
+def whole_model(placed: list, where: str) -> tuple[pin.Model, list, list[str]]:
+    """The scene's whole Pinocchio model and geometry from the bodies' placed (model, geometry, name),
+    as appending them one by one with pin.appendModel makes them, in O(n log n) model appends and one
+    pass over the geometries (appendModel with geometries visits every geometry at every joint: cubic
+    in bodies). The models are appended pairwise (joint and frame order as one by one: each append puts
+    both models' world frames first, then their joints in order); the geometries in appendModel's
+    order: those on the world first (body order), then those on joints (joint order)."""
+    models = [tm for tm, _, _ in placed]
+    try:
+        while len(models) > 1:
+            models = [pin.appendModel(models[k], models[k + 1], 0, pin.SE3.Identity()) if k + 1 < len(models)
+                      else models[k] for k in range(0, len(models), 2)]
+    except ValueError as exc:  # Pinocchio: "The two models have conflicting frame names." and the like
+        raise SceneError(f"{where}: Pinocchio cannot join the bodies into the scene's model: {exc}") from None
+    model = models[0] if models else pin.Model()
+    frame_id = {(f.name, int(f.type)): k for k, f in enumerate(model.frames)}
+    geom, geometry_body = [], []
+    for on_world in (True, False):
+        offset = 0
+        for tm, tg, name in placed:
+            for go in tg.geometryObjects:
+                if (go.parentJoint == 0) != on_world:
+                    continue
+                go = go.copy()
+                if go.parentJoint:
+                    go.parentJoint = go.parentJoint + offset
+                if go.parentFrame:
+                    f = tm.frames[go.parentFrame]
+                    go.parentFrame = frame_id[(f.name, int(f.type))]
+                geom.append(go)
+                geometry_body.append(name)
+            offset += tm.njoints - 1
+    return model, geom, geometry_body

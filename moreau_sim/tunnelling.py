@@ -66,7 +66,7 @@ def pair_distance(model: Model, data: Data, q: np.ndarray, pair: int) -> coal.Di
     """Coal's signed distance of collision pair `pair` at q (updates the geometry placements).
     Returns coal's DistanceResult (min_distance [m], normal from the first shape to the second,
     nearest points)."""
-    model.forest.place(data.kinematics, q, model.geom, data.geom)
+    model.forest.place(data.kinematics, q, model.geometries, data.geom.oMg)
     return pin.computeDistance(model.geom, data.geom, pair)
 
 
@@ -242,7 +242,7 @@ def swept_detect(model: Model, data: Data, q: np.ndarray, u: np.ndarray, h: floa
                 continue  # the next step's midpoint takes it, as now
         drop.add(c.pair)
         extra.append((g_m, pa, pb, c.normal, c.pair, FeatureKind.SWEPT, 0))
-    model.forest.place(data.kinematics, q_m, model.geom, data.geom)
+    model.forest.place(data.kinematics, q_m, model.geometries, data.geom.oMg)
     if not extra:
         return contacts
     keep = ~np.isin(contacts.pair, list(drop))

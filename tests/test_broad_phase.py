@@ -10,6 +10,8 @@ import moreau_sim as ms
 from moreau_sim import broad_phase
 from moreau_sim.data import GATE_MARGIN
 
+from helpers import BUNDLED, scene
+
 ROOT = ms.__file__.rsplit("/", 2)[0]
 
 
@@ -110,3 +112,86 @@ def test_a_column_needs_no_exclude_list(e, h):
         sf, sl = rf.state, rl.state
         assert np.array_equal(sf.q, sl.q) and np.array_equal(sf.u, sl.u)
     assert np.all(np.diff(sf.q) > 0.2 - 1e-6)  # still a column, in order
+
+
+def _squeezed(model, scale):
+    """q0 with every free or prismatic root moved towards the origin by `scale` (pairs close)."""
+    q = model.q0.copy()
+    for b in model.bodies:
+        if b.root_joint.value in ("free", "prismatic"):
+            s = b.q_slice.start
+            q[s:s + (3 if b.root_joint.value == "free" else 1)] *= scale
+    return q
+
+
+@pytest.mark.parametrize("name", BUNDLED)
+def test_the_pair_table_and_the_broad_phase_keep_every_pair_of_a_bundled_scene(name, monkeypatch):
+    """Every bundled scene: the pair table (no list, model.pair_table) names exactly the listed pairs in
+    their order (each pair's index, geometries, joints, name, patch flag), none of those the scene or
+    the rule leaves out; and the broad phase's candidates at q0 and squeezed are pairs of the model,
+    sorted, and hold every pair the narrow phase closes when it examines them all."""
+    model = ms.build_model(scene(name))
+    t = model.pair_table
+    assert model.listed and list(t) == list(model.pairs) and len(t) == len(model.pairs)
+    assert [t[k] for k in range(len(t))] == list(model.pairs)  # made from the index alone
+    for p in model.pairs:
+        assert int(t.index(p.first, p.second)) == p.index and t.chosen(p.second, p.first)
+    assert not {p.name for p in model.pairs} & {n for n, _ in model.excluded}
+    if not model.pairs:
+        return
+    monkeypatch.setattr(broad_phase, "MIN_PAIRS", 0)
+    bp = broad_phase.of(model, max(model.options.contact_tolerance, GATE_MARGIN))
+    for scale in (1.0, 0.8):
+        q = _squeezed(model, scale)
+        data = ms.make_data(model)
+        closed = all_pair_hits(model, data, q)
+        model.forest.place(data.kinematics, q)
+        cand = bp.candidates(data)
+        assert np.all(np.diff(cand) > 0) and (not len(cand) or 0 <= cand[0] and cand[-1] < len(model.pairs))
+        assert closed <= set(cand.tolist()), name
+
+
+def _run(model, steps):
+    data = ms.make_data(model)
+    st, out = ms.initial_state(model, data), []
+    for _ in range(steps):
+        r = ms.step(model, data, st)
+        out.append((r.state.q.copy(), r.state.u.copy(), r.contacts.pair.copy(), r.contacts.normal.copy()))
+        st = r.state
+    return out
+
+
+@pytest.mark.parametrize("make, steps", [(lambda: column(30, exclude=False), 30), (lambda: pile(27), 160)],
+                         ids=["column", "pile"])
+def test_a_table_of_pairs_steps_as_their_list(make, steps, monkeypatch):
+    """A scene built above model.LAZY_PAIRS (no list of pairs, no GeometryModel nor GeometryData of
+    them: coal queried pair by pair, data.Data.collide) steps bit for bit as the same scene built with
+    its pairs listed (pinocchio's computeCollision): the same contacts, q and u at every step."""
+    listed = ms.build_model(make())
+    monkeypatch.setattr(ms.model, "LAZY_PAIRS", 10)
+    table = ms.build_model(make())
+    assert listed.listed and not table.listed and table.geometry_model is None
+    a, b = _run(listed, steps), _run(table, steps)
+    assert table.geometry_model is None  # the Python step never made it
+    for (qa, ua, pa, na), (qb, ub, pb, nb) in zip(a, b):
+        assert np.array_equal(qa, qb) and np.array_equal(ua, ub)
+        assert np.array_equal(pa, pb) and np.array_equal(na, nb)
+    assert any(len(p) for _, _, p, _ in a)
+    assert table.thinnest_pair == listed.thinnest_pair
+    assert table.polytope_pairs == listed.polytope_pairs and table.polytope_pair_set == listed.polytope_pair_set
+    assert list(table.pairs) == list(listed.pairs)
+
+
+@pytest.mark.parametrize("integrator", ["time-stepping", "adaptive"])
+def test_a_table_of_pairs_runs_as_their_list(integrator, monkeypatch):
+    """A whole run (ms.simulate: the records' distances of every pair, the adaptive integrator's
+    GeometryModel made at first use) of a scene built as a pair table equals the run of the same
+    scene with its pairs listed, bit for bit."""
+    sc = column(20, exclude=False).with_options(integrator=integrator, duration=0.01)
+    listed = ms.simulate(ms.build_model(sc), progress=False)
+    monkeypatch.setattr(ms.model, "LAZY_PAIRS", 10)
+    model = ms.build_model(sc)
+    table = ms.simulate(model, progress=False)
+    assert not model.listed and table.meta["status"] == listed.meta["status"] == "complete"
+    for f in ("t", "q", "u"):
+        assert np.array_equal(getattr(table, f), getattr(listed, f)), f

@@ -66,7 +66,7 @@ def test_forest_equals_whole_model(path):
         pin.updateGeometryPlacements(pm, pd, model.geom, data.geom, q)
         oMg = [np.array(o.homogeneous) for o in data.geom.oMg]
         oMi = [np.array(o.homogeneous) for o in pd.oMi]
-        f.place(kin, q, model.geom, data.geom)
+        f.place(kin, q, model.geometries, data.geom.oMg)
         assert all(np.array_equal(a, o.homogeneous) for a, o in zip(oMi, kin.oMi))
         assert all(np.array_equal(a, o.homogeneous) for a, o in zip(oMg, data.geom.oMg))
         W = np.random.default_rng(1).standard_normal((model.nv, 4))
@@ -139,3 +139,34 @@ def test_whole_model_as_appended_one_by_one(path):
         assert (a.name, a.parentJoint, a.parentFrame) == (b.name, b.parentJoint, b.parentFrame)
         assert np.array_equal(a.placement.homogeneous, b.placement.homogeneous)
     assert geom.ngeoms == built.geom.ngeoms - len(scene.statics)
+
+
+@pytest.mark.parametrize("where", ["build", "run"])
+def test_a_failed_allocation_is_one_line_naming_the_scene_and_its_size(where, monkeypatch):
+    """A MemoryError (or std::bad_alloc as a RuntimeError) while the model is built or while it runs is
+    a SceneError / SimulationError of one line naming the scene and its size, never a traceback."""
+    import importlib
+
+    model_module, simulate_module = (importlib.import_module(f"moreau_sim.{m}") for m in ("model", "simulate"))
+
+    def fail(*a, **k):
+        raise MemoryError
+
+    sc = load_scene(ROOT / "scenes" / "column_of_beads.toml")
+    if where == "build":
+        monkeypatch.setattr(model_module, "whole_model", fail)
+        with pytest.raises(SceneError) as ei:
+            build_model(sc)
+        assert "out of memory building its model" in str(ei.value)
+    else:
+        model = build_model(sc)
+        def bad_alloc(*a, **k):
+            raise RuntimeError("std::bad_alloc")
+
+        monkeypatch.setattr(simulate_module, "drive", bad_alloc)
+        with pytest.raises(ms.SimulationError) as ei:
+            ms.simulate(model, progress=False)
+        assert f"nv = {model.nv}" in str(ei.value) and f"{len(model.pairs)} collision pairs" in str(ei.value)
+    msg = str(ei.value)
+    assert "column_of_beads" in msg and "bodies" in msg and "\n" not in msg
+    assert ei.value.__cause__ is None and ei.value.__suppress_context__
