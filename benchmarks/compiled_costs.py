@@ -299,7 +299,7 @@ def plot(res: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    groups = [(f"{c['scene']}\n{c['label'].split(', ', 1)[-1]}"
+    groups = [(c["scene"].replace("_of_", "_of_\n") + f"\n{c['label'].split(', ', 1)[-1]}"
                + ("" if c["compiled_share"] == 1 else f"\n({100 * c['compiled_share']:.0f} % in C++)"),
                c["python"], c["compiled"],
                (c.get("siconos") or {}).get("us"), (c.get("mujoco") or {}).get("us")) for c in res["cases"]]
@@ -317,6 +317,9 @@ def plot(res: dict, path: Path) -> None:
     ext = [(x[i] - 0.1, c["extension"]) for i, c in enumerate(res["cases"]) if c.get("extension")]
     if ext:
         ax.plot(*zip(*ext), "k_", ms=14, mew=2, label="compiled step: the C++ call alone, no Python around it")
+    inplace = [(x[i] - 0.1, c["in_place"]) for i, c in enumerate(res["cases"]) if c.get("in_place")]
+    if inplace:
+        ax.plot(*zip(*inplace), "k^", ms=6, label="compiled step: ms.step_in_place, no result objects")
     bare = [(x[len(res["cases"]) + i] - 0.1, w["step_loop"]) for i, w in enumerate(res.get("whole_runs", []))
             if w.get("step_loop")]
     if bare:
