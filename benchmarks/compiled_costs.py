@@ -53,6 +53,7 @@ PEER_NAMES = {"siconos": "Siconos", "mujoco": "MuJoCo"}
 # (us) <= bound; "x siconos": the compiled step over Siconos's per step <= bound; "run x siconos":
 # ms.simulate's wall per step (compiled) over Siconos's whole run per step <= bound.
 TARGETS = (("ball contact step <= 1.5x Siconos", "x siconos", "zeno_ball", 1.5),
+           ("ball contact step in place (ms.step_in_place) <= 1.5x Siconos", "in place x siconos", "zeno_ball", 1.5),
            ("whole run of the ball scene <= 1.5x Siconos per step", "run x siconos", "bouncing_ball", 1.5),
            ("whole run of the ball, 6 s (bounces, then rests) <= 1.5x Siconos per step", "run x siconos",
             "zeno_ball 6 s", 1.5),
@@ -94,6 +95,15 @@ def bench_case(label: str, scene: str, which: str, repeat: int, n_states: int) -
         m, d = mods[impl], datas[impl]
         t = [best(lambda st=states[i], m=m, d=d: ms.step(m, d, st, h=h, e=e), repeat) for i in idx]
         out[impl] = statistics.median(t)
+    # ms.step_in_place: the same step, q and u overwritten, no result objects (reset to the state each call)
+    m, d = mods["compiled"], datas["compiled"]
+    q, u = np.empty(m.nq), np.empty(m.nv)
+
+    def in_place(st):
+        q[:], u[:] = st.q, st.u
+        ms.step_in_place(m, d, st.t, q, u, h=h, e=e)
+
+    out["in_place"] = statistics.median(best(lambda st=states[i]: in_place(st), repeat) for i in idx)
     c = compiled.counts(datas["compiled"])  # every timed call of the compiled model's step
     # the extension's call alone (no ms.step around it, no StepResult), where it takes every step
     stepper = compiled._context(mods["compiled"], ms.make_data(mods["compiled"])).stepper
@@ -192,6 +202,10 @@ def verdicts(res: dict) -> list[dict]:
             shown = f"{value:.2f}× ({c['compiled']:.1f} against {c['siconos']['us']:.2f} µs)"
             if c.get("extension"):
                 shown += f"; the extension call alone {c['extension'] / c['siconos']['us']:.2f}×"
+        elif kind == "in place x siconos" and (cases.get(key) or {}).get("siconos") and cases[key].get("in_place"):
+            c = cases[key]
+            value = c["in_place"] / c["siconos"]["us"]
+            shown = f"{value:.2f}× ({c['in_place']:.1f} against {c['siconos']['us']:.2f} µs)"
         elif kind == "run x siconos" and (runs.get(key) or {}).get("siconos"):
             w = runs[key]
             value = w["compiled"] / w["siconos"]
@@ -222,17 +236,17 @@ def markdown_table(res: dict) -> str:
            "`nextStep`; MuJoCo: `mj_step`, both called from Python), per step the best of the runs, median "
            "over the steps of the same phase by the peer's own contact count (contacts: the median number in the "
            "step, ours detected, Siconos's in its LCP, MuJoCo's `ncon`). " + peers + ":", "",
-           "| case | contacts (ours / Siconos / MuJoCo) | Python step | compiled step | its extension call alone "
-           "| Python / compiled | steps taken compiled | Siconos | compiled / Siconos | MuJoCo mj_step "
-           "| compiled / MuJoCo |",
-           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+           "| case | contacts (ours / Siconos / MuJoCo) | Python step | compiled step | `ms.step_in_place` "
+           "| its extension call alone | Python / compiled | steps taken compiled | Siconos | compiled / Siconos "
+           "| MuJoCo mj_step | compiled / MuJoCo |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for c in res["cases"]:
         sic = c.get("siconos") if have["siconos"] else None
         mj = c.get("mujoco") if have["mujoco"] else None
         contacts = " / ".join(f"{x:g}" if x is not None else "–"
                               for x in (c["contacts"], sic and sic["contacts"], mj and mj["contacts"]))
         out.append(f"| `{c['scene']}`: {c['label']} | {contacts} | {c['python']:.1f} | {c['compiled']:.1f} | "
-                   f"{_fmt(c.get('extension'))} | {c['python'] / c['compiled']:.1f} | "
+                   f"{_fmt(c.get('in_place'))} | {_fmt(c.get('extension'))} | {c['python'] / c['compiled']:.1f} | "
                    f"{100 * c['compiled_share']:.1f} % | "
                    f"{_fmt(sic and sic['us'], 2)} | {_ratio(c['compiled'], sic and sic['us'])} | "
                    f"{_fmt(mj and mj['us'], 2)} | {_ratio(c['compiled'], mj and mj['us'])} |")

@@ -458,12 +458,21 @@ def markdown_table(data: dict) -> str:
             f"{measured(data['beads'])[0]['beads']}–{measured(data['beads'])[-1]['beads']}: compiled "
             f"{s['compiled']:.2f}, Python {s['python']:.2f} (above {data['compiled_limit']} contacts, every step the "
             f"Python step: {s['python_above_compiled_limit']:.2f}); MuJoCo {s['mujoco_beads']:.2f}; target ≤ "
-            f"{TARGET_SLOPE}. build_model against beads: {s['build_beads']:.2f}. Pile, per step against boxes: "
-            f"ours {s['pile']:.2f}, MuJoCo {s['mujoco_pile']:.2f}."]
+            f"{TARGET_SLOPE}. build_model against beads: {s['build_beads']:.2f}. " + _pile_slopes(data, s)]
     if data.get("qp_alone"):
         out += ["", "The impact QP alone (the column's rows, M = I, no model; ms per solve): "
                 + ", ".join(f"{r['beads']} beads {r['us'] * 1e-3:.2f}" for r in data["qp_alone"]) + "."]
     return "\n".join(out)
+
+
+def _pile_slopes(data: dict, s: dict) -> str:
+    """The pile's slopes, or in words why there are none (fewer than two sizes ran)."""
+    ran = [r["boxes"] for r in data["boxes"] if "skipped" not in r and "failed" not in r]
+    if len(ran) >= 2:
+        return f"Pile, per step against boxes: ours {s['pile']:.2f}, MuJoCo {s['mujoco_pile']:.2f}."
+    failed = [str(r["boxes"]) for r in data["boxes"] if "failed" in r]
+    return (f"Pile: no slope, {len(ran)} size ran" + (f"; {', '.join(failed)} boxes failed (the row says how)"
+                                                       if failed else "") + ".")
 
 
 def doc_tables(data: dict) -> dict[str, str]:

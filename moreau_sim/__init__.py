@@ -33,7 +33,8 @@ from .scene import Scene, load_scene, parse_scene
 from .simulate import run, simulate, summary
 from .state import State
 from .results import StepResult
-from .stepper import ContactProblem, ImpactSolution, assemble, correct_positions, solve_impact, step
+from .stepper import (ContactProblem, ImpactSolution, StepView, assemble, correct_positions, solve_impact, step,
+                      step_in_place)
 from .trajectory import Trajectory, load_trajectory
 
 __version__ = "0.1.0"
@@ -42,10 +43,10 @@ __all__ = [
     "Bias", "ContactProblem", "Constraints", "Contacts", "Data", "FeatureKind", "Impact", "ImpactSolution",
     "Integrator", "Ledger", "MeshMode", "Model", "MoreauSimError", "Options", "Outcome", "PositionCorrection", "QPForm",
     "QPResult", "Recorder", "RootJoint", "Scene", "SceneBuilder", "SceneError", "Selection", "Separating",
-    "SimulationError", "SlowImpacts", "State", "StaticShape", "StepResult", "Trajectory", "Tunnelling",
+    "SimulationError", "SlowImpacts", "State", "StaticShape", "StepResult", "StepView", "Trajectory", "Tunnelling",
     "UnsupportedModel",
     "assemble", "assemble_constraints", "build_model", "contact_rows", "correct_positions", "detect", "impact",
     "impact_outcomes", "initial_state", "ledger", "load_scene", "load_trajectory", "make_data", "outcome",
     "pair_distances", "parse_scene", "percussion", "project", "run", "simulate", "simulate_event_driven",
-    "solve_impact", "step", "summary",
+    "solve_impact", "step", "step_in_place", "summary",
 ]

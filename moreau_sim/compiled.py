@@ -130,10 +130,11 @@ def unsupported(model) -> str | None:
 class _Context:
     """The compiled stepper of one (model, data) and the count of steps by the way they went."""
 
-    __slots__ = ("model", "stepper", "counts", "why", "_layouts")
+    __slots__ = ("model", "stepper", "counts", "why", "_layouts", "boxes", "nq", "nv")
 
     def __init__(self, model, data):
         self.model = model
+        self.boxes, self.nq, self.nv = bool(model.polytope_pair_set), model.nq, model.nv
         self._layouts: dict[tuple, list] = {}  # (outcome, m) -> the step's named arrays in its two buffers
         self.counts: Counter = Counter()
         self.why = unsupported(model)
@@ -205,37 +206,54 @@ def counts(data) -> Counter:
     return Counter() if ctx is None else ctx.counts
 
 
-def step(model, data, state: State, h: float, e: float, t1: float, tau: np.ndarray | None = None) -> StepResult | None:
-    """stepper.step in C++, or None where the Python step must take it (counted in counts(data)). tau: the
-    step's joint torques [N or N m] (stepper.torque; None: none), entering the free velocity on both sides."""
+def raw_step(model, data, q: np.ndarray, u: np.ndarray, h: float, e: float, tau: np.ndarray | None = None):
+    """The extension's step from (q, u): its StepOut (outcome FLIGHT or CONTACT), or None where the Python step
+    must take it (counted in counts(data)); the one call both step() and stepper.step_in_place make."""
     ctx = _context(model, data)
     if ctx.stepper is None:
         ctx.counts[f"python: {ctx.why}"] += 1
         return None
-    boxes = bool(model.polytope_pair_set)
+    boxes = ctx.boxes
     if boxes:  # contacts.detect's warm start, kept in data between steps whichever step takes them
         ctx.stepper.warm = sorted(data.warm_start_pairs)
     if tau is None:
-        r = ctx.stepper.step(state.q, state.u, h, e)
+        r = ctx.stepper.step(q, u, h, e)
     else:
         try:
-            r = ctx.stepper.step(state.q, state.u, h, e, tau)
+            r = ctx.stepper.step(q, u, h, e, tau)
         except TypeError:  # an extension built before torques: the Python step takes them
             ctx.counts["python: joint torques (the compiled step predates them: rebuild)"] += 1
             return None
-    Outcome = _module.Outcome
-    if r.outcome is Outcome.FALLBACK:
+    if r.outcome is _module.Outcome.FALLBACK:
         ctx.counts[f"python: {r.reason}"] += 1
         return None
     if boxes:
         data.warm_start_pairs = set(ctx.stepper.warm)
+    ctx.counts["flight" if r.outcome is _module.Outcome.FLIGHT else "contact"] += 1
+    return r
+
+
+def next_state(data, r) -> tuple[np.ndarray, np.ndarray]:
+    """Views of q_{k+1} and u_{k+1} in the StepOut r's buffer (StepOut::visit lays them out first, either outcome)."""
+    ctx, f = data._compiled_step, r.floats
+    return f[:ctx.nq], f[ctx.nq:ctx.nq + ctx.nv]
+
+
+def step(model, data, state: State, h: float, e: float, t1: float, tau: np.ndarray | None = None) -> StepResult | None:
+    """stepper.step in C++, or None where the Python step must take it (counted in counts(data)). tau: the
+    step's joint torques [N or N m] (stepper.torque; None: none), entering the free velocity on both sides."""
+    r = raw_step(model, data, state.q, state.u, h, e, tau)
+    return None if r is None else result(model, data, r, t1, tau)
+
+
+def result(model, data, r, t1: float, tau: np.ndarray | None = None) -> StepResult:
+    """The StepResult of the extension's StepOut r (views of its buffers), the new state at time t1 [s]."""
+    ctx = _context(model, data)
     f = ctx.arrays(r)
-    if r.outcome is Outcome.FLIGHT:
-        ctx.counts["flight"] += 1
+    if r.outcome is _module.Outcome.FLIGHT:
         u = f["u_next"]
         return StepResult(State(t1, f["q_next"], u), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None, u_free=u,
                           tau=tau)
-    ctx.counts["contact"] += 1
     contacts = Contacts(*(f[k] for k in Contacts.ARRAYS))
     admissible = r.projection is _module.Projection.ADMISSIBLE
     res = QPResult(r.projection.name, True, 0, not admissible, f["v"], f["lam"], f["M"], f["W"], f["v_free"], f["b"])

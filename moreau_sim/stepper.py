@@ -132,6 +132,52 @@ def torque(model: Model, state: State, h: float) -> np.ndarray:
     return model.actuation.torque(state.t + 0.5 * h, q_m, state.u)
 
 
+def step_in_place(model: Model, data: Data, t: float, q: np.ndarray, u: np.ndarray, *, h: float | None = None,
+                  e: float | None = None) -> StepView:
+    """step() without its result objects: overwrites q and u (float arrays of nq and nv) with q_{k+1}, u_{k+1}
+    of the step from time t [s] (h [s], e: default the model's options) and returns a StepView of what the
+    step did. Where the compiled step takes the step (§2.8) nothing else is built; elsewhere it is step()
+    itself. Same numbers as step(), bit for bit."""
+    opts = model.options
+    h = opts.dt if h is None else h
+    e = opts.restitution if e is None else e
+    tau = None if model.actuation is None else torque(model, State(t, q, u), h)
+    if opts.step_impl is StepImpl.COMPILED and compiled.available() and model.whole_data_fits():
+        r = compiled.raw_step(model, data, q, u, h, e, tau)
+        if r is not None:
+            q[:], u[:] = compiled.next_state(data, r)
+            return StepView(model, data, t + h, r, None, tau)
+    res = step(model, data, State(t, q.copy(), u.copy()), h=h, e=e)
+    q[:], u[:] = res.state.q, res.state.u
+    return StepView(model, data, t + h, None, res, tau)
+
+
+class StepView:
+    """What step_in_place did: the new time `t` [s], how many contacts were closed, whether the step's QPs
+    succeeded, and the whole StepResult built on demand (`result()`; the compiled step's arrays are its own
+    buffers, one pair per step, so a view stays valid after the next step)."""
+
+    __slots__ = ("_model", "_data", "t", "_r", "_res", "_tau")
+
+    def __init__(self, model: Model, data: Data, t: float, r, res: StepResult | None, tau: np.ndarray | None):
+        self._model, self._data, self.t, self._r, self._res, self._tau = model, data, t, r, res, tau
+
+    @property
+    def n_contacts(self) -> int:
+        return self._r.m if self._res is None else self._res.contacts.m
+
+    @property
+    def ok(self) -> bool:
+        """False where a QP of the step failed (step(): qp.ok); simulate turns that into an error."""
+        return self._res is None or self._res.qp is None or self._res.qp.ok
+
+    def result(self) -> StepResult:
+        """The step's StepResult, as step() returns it."""
+        if self._res is None:
+            self._res = compiled.result(self._model, self._data, self._r, self.t, self._tau)
+        return self._res
+
+
 def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
              tau: np.ndarray | None = None) -> ContactProblem:
     """The step's problem: q_m, the contacts closed at q_m (swept ones added where the options ask,

@@ -59,27 +59,20 @@ def test_resting_stack_every_step_compiled_and_identical(e, h):
         assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
 
 
-def test_ten_box_stack_every_step_compiled_and_identical():
-    """box_stack_10 at rest has 76 contacts (above the former 64-row limit; compiled.MAX_CONTACTS =
-    qp.COLD_START_ROWS = 100 now, the cold active set on both sides): every step compiled, bit for bit the
-    Python step."""
-    n = 5
-    ref, ref_warm, _ = _steps("box_stack_10", StepImpl.PYTHON, n)
-    got, got_warm, counts = _steps("box_stack_10", StepImpl.COMPILED, n)
-    assert counts["contact"] == n, dict(counts)
-    assert got_warm == ref_warm
-    for a, b in zip(ref, got):
-        assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
-
-
-def test_heavy_box_on_light_box_compiled_and_identical():
-    """heavy_on_light_box_100: equal boxes face on face, each vertex of the top one at an edge of the one below
-    (three face planes within the margin, one of them separating: a smooth contact with that face's normal,
-    contacts._corner_normals) and a face axis tied between the two boxes (contacts._face_axis: broken alike by
-    qp.ordered's products on both sides): compiled, and bit for bit the Python step."""
-    n = 30
-    ref, ref_warm, _ = _steps("heavy_on_light_box_100", StepImpl.PYTHON, n)
-    got, got_warm, counts = _steps("heavy_on_light_box_100", StepImpl.COMPILED, n)
+@pytest.mark.parametrize("name, n", [
+    # box_stack_10 at rest has 76 contacts (above the former 64-row limit; compiled.MAX_CONTACTS =
+    # qp.COLD_START_ROWS = 100 now, the cold active set on both sides)
+    ("box_stack_10", 5),
+    # heavy_on_light_box_100: equal boxes face on face, each vertex of the top one at an edge of the one below
+    # (three face planes within the margin, one of them separating: a smooth contact with that face's normal,
+    # contacts._corner_normals) and a face axis tied between the two boxes (contacts._face_axis: broken alike
+    # by qp.ordered's products on both sides)
+    ("heavy_on_light_box_100", 30),
+])
+def test_every_step_compiled_and_identical(name, n):
+    """Every step of the scene compiled, bit for bit the Python step, the warm start alike."""
+    ref, ref_warm, _ = _steps(name, StepImpl.PYTHON, n)
+    got, got_warm, counts = _steps(name, StepImpl.COMPILED, n)
     assert counts["contact"] == n, dict(counts)
     assert got_warm == ref_warm
     for a, b in zip(ref, got):
