@@ -127,15 +127,6 @@ def unsupported(model) -> str | None:
     return None
 
 
-def _blas_fma() -> bool:
-    """Whether numpy's matmul of 3-term products fuses them, fma(a2, b2, fma(a1, b1, a0 b0)) (OpenBLAS's FMA
-    kernels), as contacts._face_axis's products run (8 x 3 by 3 x 12): then a0 b0 + a1 b1 is -2^-60 here, else 0."""
-    x = 1.0 + 2.0 ** -30
-    a = np.tile([x, x, 0.0], (8, 1))
-    b = np.tile([[x], [-x], [0.0]], (1, 12))
-    return bool((a @ b)[0, 0] != 0.0)
-
-
 class _Context:
     """The compiled stepper of one (model, data) and the count of steps by the way they went."""
 
@@ -185,7 +176,7 @@ class _Context:
                            [np.zeros((0, 3)) if e is None or not isinstance(gobs[g].geometry, coal.Box)
                             else np.asarray(e, float).reshape(-1, 3) for g, e in enumerate(model.vertex_edges)],
                            [int(p.index in model.polytope_pair_set) for p in model.pairs],
-                           data.distance_request, data.distance_result, data.patch_request, _blas_fma())
+                           data.distance_request, data.distance_result, data.patch_request)
 
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its two buffers, laid out as r.layout()

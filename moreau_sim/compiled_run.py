@@ -8,12 +8,6 @@ Python objects at each return, so a checkpoint or an error sees the Python run's
 
 from __future__ import annotations
 
-import ctypes
-import glob
-import os
-
-import numpy as np
-
 from . import compiled, invariants
 from .invariants import Invariant, Invariants
 from .options import StepImpl
@@ -22,27 +16,6 @@ from .state import State
 
 POLL_SECONDS = 0.05  # [s of wall time] the Runner returns to the driver at least this often
 MAX_BACKOFF = 256  # steps: the most the Python run takes in a row before the Runner tries again
-
-_blas: tuple[int, int] | str | None = None  # (ddot, dgemv) addresses, or why there are none
-
-
-def numpy_blas() -> tuple[int, int] | str:
-    """The addresses of cblas_ddot and cblas_dgemv in numpy's own BLAS (its wheel's scipy-openblas64, 64-bit
-    integers): ledger.impact_terms's products are numpy's matmul, which calls them; the Runner calls the same.
-    A string: why they are not found (another numpy build; the Python run is then used)."""
-    global _blas
-    if _blas is None:
-        libs = sorted(glob.glob(os.path.join(os.path.dirname(np.__file__), os.pardir, "numpy.libs", "*openblas64*")))
-        _blas = "numpy's BLAS is not its wheel's scipy-openblas64"
-        for path in libs:
-            try:
-                lib = ctypes.CDLL(path)
-                _blas = (ctypes.cast(lib.scipy_cblas_ddot64_, ctypes.c_void_p).value,
-                         ctypes.cast(lib.scipy_cblas_dgemv64_, ctypes.c_void_p).value)
-                break
-            except (OSError, AttributeError):
-                continue
-    return _blas
 
 
 def unsupported(model, check) -> str | None:
@@ -66,8 +39,7 @@ def unsupported(model, check) -> str | None:
         return "pairs of two boxes (the run loop does not carry their detection's warm start)"
     if check is not None and type(check) is not Invariants:
         return "an invariant hook of the caller's"
-    blas = numpy_blas()
-    return blas if isinstance(blas, str) else None
+    return None
 
 
 _REC = {"smooth": "_smooth", "diss": "_diss", "law": "_law", "E": "_E", "smooth_deficit": "smooth_deficit"}
@@ -93,9 +65,8 @@ class CompiledRun:
                   "gap_round_off": invariants.GAP_ROUND_OFF, "persist": invariants.PERSIST,
                   "rel": c.rel if c else 0.0, "rel_ledger": c.rel_ledger if c else 0.0, "tol": c.tol if c else 0.0,
                   "g": c.g if c else 0.0}
-        ddot, dgemv = numpy_blas()
         self.runner = compiled._module.Runner(stepper, trees, forest.tree_of_joint.tolist(),
-                                              forest.local_joint.tolist(), ddot, dgemv, consts, c is not None)
+                                              forest.local_joint.tolist(), consts, c is not None)
         self.python_steps = 0  # steps the Python run took in this run
         self._skip = 0  # steps the Python run takes before the Runner tries again
         self._misses = 0  # hand-backs in a row without a compiled step

@@ -220,10 +220,11 @@ def _face_axis(model: Model, data: Data, pair) -> np.ndarray:
     Used instead of coal's GJK/EPA normal, which for exactly touching boxes can point anywhere
     (along a side face, 90 deg off, seen in a 10-box stack)."""
     oa, ob = data.kinematics.oMi[pair.joint_first], data.kinematics.oMi[pair.joint_second]
-    Va = model.vertices[pair.first] @ oa.rotation.T + oa.translation
-    Vb = model.vertices[pair.second] @ ob.rotation.T + ob.translation
-    N = np.concatenate((-(model.face_normals[pair.first] @ oa.rotation.T), model.face_normals[pair.second] @ ob.rotation.T))
-    sep = (Va @ N.T).min(axis=0) - (Vb @ N.T).max(axis=0)
+    Va = ordered(model.vertices[pair.first], oa.rotation.T) + oa.translation  # ordered: src/box_box.hpp face_axis
+    Vb = ordered(model.vertices[pair.second], ob.rotation.T) + ob.translation
+    N = np.concatenate((-ordered(model.face_normals[pair.first], oa.rotation.T),
+                        ordered(model.face_normals[pair.second], ob.rotation.T)))
+    sep = ordered(Va, N.T).min(axis=0) - ordered(Vb, N.T).max(axis=0)
     return N[int(np.argmax(sep))]
 
 

@@ -12,7 +12,8 @@ One step from (q_k, u_k), with the law's frame at the midpoint q_m, M = M(q_m):
 and the budget E_end - E_0 = sum W_c + sum correction + sum S + sum W_a + sum W_o + residual, with the
 work done on the system (§5.5): the torques' W_a = h tau.(u_k + u_{k+1})/2 and the moving statics'
 W_o = -P.dg/dt (S is then the contact-free step's change less its own torque work). Recorder fills the
-arrays (recording.py); this module reads them. Units: J, s.
+arrays (recording.py); this module reads them. Its products are qp.ordered's (docs/theory.md §2.8), which the
+compiled run loop (src/run.cpp) sums alike. Units: J, s.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .qp import ordered
 from .trajectory import Trajectory
 
 BASELINE_SAMPLES = 100  # at most this many samples of E(t) go into a baseline record
@@ -34,10 +36,15 @@ def impact_terms(M: np.ndarray, v_free: np.ndarray, v: np.ndarray, u_k: np.ndarr
     step applied the law, to the QP's accuracy otherwise."""
     u_plus = u_next - e * (v_free - u_k)
     r = v_free - v
-    law = 0.5 * (1.0 - e * e) * float(r @ M @ r)
+    law = 0.5 * (1.0 - e * e) * _quad(M, r)
     if b is not None and len(b):
-        law -= float(P @ b)
-    return 0.5 * float(v_free @ M @ v_free), 0.5 * float(u_plus @ M @ u_plus), law
+        law -= float(ordered(P, b))
+    return 0.5 * _quad(M, v_free), 0.5 * _quad(M, u_plus), law
+
+
+def _quad(M: np.ndarray, x: np.ndarray) -> float:
+    """x'Mx as (x'M) x, each product summed in index order (qp.ordered; src/run.cpp quad: the same sums)."""
+    return float(ordered(ordered(x, M), x))
 
 
 @dataclass(frozen=True, slots=True)

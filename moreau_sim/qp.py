@@ -218,8 +218,9 @@ def ordered(A, x):
     """A @ x (A 1-d or 2-d, x 1-d or 2-d) summed over the inner index in order from its first product, one
     rounding per product and per sum (no BLAS kernel, no FMA), then + 0.0: the same bits on every CPU, at
     every size and memory alignment, and the same as src/step.cpp's odot / omatmul. The one product of the
-    step's stages (stepper, law, constraints, this module): numpy's own products follow OpenBLAS's kernels,
-    whose order changes with the size, the machine and the arrays' alignment (docs/theory.md §2.8).
+    step's stages (stepper, law, constraints, this module) and of the ledger (ledger.impact_terms): numpy's
+    own products follow OpenBLAS's kernels, whose order changes with the size, the machine and the arrays'
+    alignment (docs/theory.md §2.8).
     np.add.accumulate adds in index order by definition (reductions need not). The final + 0.0 turns a -0.0
     into +0.0 and changes nothing else; after it, leaving out products that are exact zeros (A finite, x_k = 0)
     cannot change a bit, as adding a signed zero changes at most the sign of a zero sum: the large 2-d

@@ -27,38 +27,35 @@ inline Vec3 cross3(const Vec3 &a, const Vec3 &b) {
   return Vec3(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]);
 }
 
-// a 3-term product as numpy's matmul makes it (contacts._face_axis: V @ R.T, F @ R.T, Va @ N.T): with an FMA BLAS
-// kernel (OpenBLAS's Haswell and later, probed by moreau_sim/compiled.py) fma(a2, b2, fma(a1, b1, a0 b0)), else in
-// index order
-inline double blas3(const double *a, const double *b, Eigen::Index sa, Eigen::Index sb, bool fma) {
-  if (fma) return std::fma(a[2 * sa], b[2 * sb], std::fma(a[sa], b[sb], a[0] * b[0]));
-  return (a[0] * b[0] + a[sa] * b[sb]) + a[2 * sa] * b[2 * sb];
+// a 3-term product as qp.ordered sums it (contacts._face_axis: V R', F R', Va N'): in index order, then + 0.0
+inline double ordered3(const double *a, const double *b, Eigen::Index sa, Eigen::Index sb) {
+  return ((a[0] * b[0] + a[sa] * b[sb]) + a[2 * sa] * b[2 * sb]) + 0.0;
 }
-// a row of F times R.T as numpy's matmul makes it
-inline Vec3 row_rt_blas(const RowsX3 &F, Eigen::Index f, const Mat3 &R, bool fma) {
+// a row of F times R.T as qp.ordered sums it
+inline Vec3 row_rt_ordered(const RowsX3 &F, Eigen::Index f, const Mat3 &R) {
   Vec3 out;
-  for (int i = 0; i < 3; ++i) out[i] = blas3(&F(f, 0), &R(i, 0), 1, 3, fma);  // R column-major: R(i, k) at i + 3 k
+  for (int i = 0; i < 3; ++i) out[i] = ordered3(&F(f, 0), &R(i, 0), 1, 3);  // R column-major: R(i, k) at i + 3 k
   return out;
 }
 
 // contacts._face_axis: among the outward face normals of A (negated) and B (oriented B -> A), the one of largest
 // s(n) = min_A n.x - max_B n.x (the first such); VA, VB: the boxes' vertices in their joint frames, FA, FB: face
 // normals in the joint frames, (RA, tA), (RB, tB): the joint placements
-// (ties: two equal boxes face on face; the products are numpy's, blas3, so that a tie breaks alike)
+// (ties: two equal boxes face on face; the products are qp.ordered's, ordered3, so that a tie breaks alike)
 inline Vec3 face_axis(const RowsX3 &VA, const Mat3 &RA, const Vec3 &tA, const RowsX3 &FA, const RowsX3 &VB,
-                      const Mat3 &RB, const Vec3 &tB, const RowsX3 &FB, bool fma) {
+                      const Mat3 &RB, const Vec3 &tB, const RowsX3 &FB) {
   std::vector<Vec3> N;
-  for (Eigen::Index f = 0; f < FA.rows(); ++f) N.push_back(-row_rt_blas(FA, f, RA, fma));
-  for (Eigen::Index f = 0; f < FB.rows(); ++f) N.push_back(row_rt_blas(FB, f, RB, fma));
+  for (Eigen::Index f = 0; f < FA.rows(); ++f) N.push_back(-row_rt_ordered(FA, f, RA));
+  for (Eigen::Index f = 0; f < FB.rows(); ++f) N.push_back(row_rt_ordered(FB, f, RB));
   std::vector<Vec3> wa, wb;
-  for (Eigen::Index i = 0; i < VA.rows(); ++i) wa.push_back(row_rt_blas(VA, i, RA, fma) + tA);
-  for (Eigen::Index i = 0; i < VB.rows(); ++i) wb.push_back(row_rt_blas(VB, i, RB, fma) + tB);
+  for (Eigen::Index i = 0; i < VA.rows(); ++i) wa.push_back(row_rt_ordered(VA, i, RA) + tA);
+  for (Eigen::Index i = 0; i < VB.rows(); ++i) wb.push_back(row_rt_ordered(VB, i, RB) + tB);
   size_t best = 0;
   double best_sep = -INFINITY;
   for (size_t f = 0; f < N.size(); ++f) {
     double lo = INFINITY, hi = -INFINITY;
-    for (const Vec3 &x : wa) lo = std::min(lo, blas3(x.data(), N[f].data(), 1, 1, fma));
-    for (const Vec3 &x : wb) hi = std::max(hi, blas3(x.data(), N[f].data(), 1, 1, fma));
+    for (const Vec3 &x : wa) lo = std::min(lo, ordered3(x.data(), N[f].data(), 1, 1));
+    for (const Vec3 &x : wb) hi = std::max(hi, ordered3(x.data(), N[f].data(), 1, 1));
     const double sep = lo - hi;
     if (f == 0 || sep > best_sep) best_sep = sep, best = f;
   }

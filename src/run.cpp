@@ -2,8 +2,8 @@
 // Included by step.cpp after its Stepper (the same extension, the same translation unit): it loops the compiled
 // step and records into the columns Python hands it (recording._Columns), mirroring operation by operation, in the
 // same order, what the Python run does per step (time_stepping.TimeStepping.step, driver._Loop.account):
-// recording.Recorder.log_percussions, .account_step (ledger.impact_terms's products through numpy's own BLAS
-// calls, whose addresses Python passes), .sample (contacts.pair_distances on the forest, trees.Forest's
+// recording.Recorder.log_percussions, .account_step (ledger.impact_terms's products summed in index order as
+// qp.ordered sums them: odot, docs/theory.md §2.8), .sample (contacts.pair_distances on the forest, trees.Forest's
 // energies), and invariants.Invariants's "sample" and "point" checks. Every figure it carries between steps comes
 // in from the Python objects and goes back to them at each return (carry()), so that checkpoints, interrupts and
 // the Python step in between see exactly the Python run's state. A step it cannot finish as the Python run would
@@ -22,11 +22,6 @@ namespace run_loop {
 
 // Why Runner.advance returned (moreau_sim._step.Stop)
 enum class Stop { FINISHED, POLL, CHECKPOINT, FULL, HAND_BACK };
-
-using Ddot = double (*)(int64_t, const double *, int64_t, const double *, int64_t);
-using Dgemv = void (*)(int, int, int64_t, int64_t, double, const double *, int64_t, const double *, int64_t, double,
-                       double *, int64_t);
-constexpr int kRowMajor = 101, kTrans = 112;  // CBLAS_ORDER, CBLAS_TRANSPOSE
 
 // one column of a _Columns group: its data and the length of one row
 template <class T> struct Col {
@@ -49,14 +44,13 @@ using run_loop::Stop;
 class Runner {
  public:
   // stepper: the run's compiled Stepper; trees: (pin.Model, pin.Data, q start, nq, v start, nv) per tree of the
-  // forest (trees.Forest, its Kinematics' datas); tree_of_joint, local_joint: the forest's maps; ddot, dgemv: the
-  // addresses of numpy's cblas_ddot / cblas_dgemv (compiled_run.py); constants: the Python run's (by name)
+  // forest (trees.Forest, its Kinematics' datas); tree_of_joint, local_joint: the forest's maps; constants: the
+  // Python run's (by name)
   Runner(nb::object stepper, std::vector<std::tuple<nb::object, nb::object, int64_t, int64_t, int64_t, int64_t>> trees,
-         std::vector<int64_t> tree_of_joint, std::vector<int64_t> local_joint, uintptr_t ddot, uintptr_t dgemv,
+         std::vector<int64_t> tree_of_joint, std::vector<int64_t> local_joint,
          const std::map<std::string, double> &constants, bool checks)
       : py_stepper_(stepper), S_(nb::cast<Stepper &>(stepper)), tree_of_joint_(std::move(tree_of_joint)),
-        local_joint_(std::move(local_joint)), ddot_(reinterpret_cast<run_loop::Ddot>(ddot)),
-        dgemv_(reinterpret_cast<run_loop::Dgemv>(dgemv)), checks_(checks) {
+        local_joint_(std::move(local_joint)), checks_(checks) {
     for (auto &t : trees) {
       py_trees_.push_back(std::get<0>(t)), py_trees_.push_back(std::get<1>(t));
       Tree tr{&extract_ref<pinocchio::Model>(std::get<0>(t), "pinocchio.Model"),
@@ -166,8 +160,6 @@ class Runner {
   Stepper &S_;
   std::vector<Tree> trees_;
   std::vector<int64_t> tree_of_joint_, local_joint_;
-  run_loop::Ddot ddot_;
-  run_loop::Dgemv dgemv_;
   bool checks_;
   double log_relative_, acceleration_, gap_round_off_, rel_, rel_ledger_, tol_, g_;
   int64_t persist_;
@@ -248,22 +240,14 @@ class Runner {
     }
   }
 
-  // ---- numpy's products (ledger.impact_terms): float(x @ M @ x) and float(P @ b) as numpy's matmul calls BLAS --
-  double np_dot(const double *x, const double *y, int64_t n) const {  // numpy DOUBLE_dot
-    double s = 0.0;
-    s += ddot_(n, x, 1, y, 1);
-    return s;
-  }
-  // float(x @ M @ x), M (n, n) in C order (StepOut's M, as compiled.py hands it to the ledger): x @ M is numpy's
-  // vector-matrix gemv (a dot where n = 1), then a dot
-  double quad(const double *M, const VectorXd &x, VectorXd &tmp) const {
-    const int64_t n = x.size();
+  // ---- ledger.impact_terms's products: x'Mx as ledger._quad sums it, (x'M) x, each entry in index order (odot) --
+  // M (n, n) in C order (StepOut's M, as compiled.py hands it to the ledger)
+  static double quad(const double *M, const VectorXd &x, VectorXd &tmp) {
+    const Eigen::Index n = x.size();
+    if (n == 0) return 0.0;
     tmp.resize(n);
-    if (n == 1)
-      tmp[0] = np_dot(x.data(), M, 1);
-    else
-      dgemv_(run_loop::kRowMajor, run_loop::kTrans, n, n, 1.0, M, n, x.data(), 1, 0.0, tmp.data(), 1);
-    return np_dot(tmp.data(), x.data(), n);
+    for (Eigen::Index j = 0; j < n; ++j) tmp[j] = odot(x.data(), M + j, n, 1, n);
+    return odot(tmp.data(), x.data(), n);
   }
 
   static double pymax(double a, double b) { return b > a ? b : a; }  // Python's max(a, b)
@@ -325,7 +309,7 @@ class Runner {
       const VectorXd u_plus = r.u_next - e * (r.v_free - u_);
       const VectorXd res = r.v_free - r.v;
       double law = 0.5 * (1.0 - e * e) * quad(M, res, tmp);
-      law -= np_dot(r.P.data(), r.b.data(), m);  // b: the restitution bounds (zeros without)
+      law -= odot(r.P.data(), r.b.data(), m);  // b: the restitution bounds (zeros without; P.0 = +0.0)
       const double T_minus = 0.5 * quad(M, r.v_free, tmp), T_plus = 0.5 * quad(M, u_plus, tmp);
       const VectorXd q_half = pinocchio::integrate(S_.model_, q_, (0.5 * h) * u_);
       const VectorXd q_free = pinocchio::integrate(S_.model_, q_half, (0.5 * h) * r.u_free);
@@ -472,7 +456,7 @@ void bind_run(nb::module_ &mod) {
       .value("HAND_BACK", Stop::HAND_BACK);
   nb::class_<Runner>(mod, "Runner", "The time-stepping run loop over a Stepper (src/run.cpp)")
       .def(nb::init<nb::object, std::vector<std::tuple<nb::object, nb::object, int64_t, int64_t, int64_t, int64_t>>,
-                    std::vector<int64_t>, std::vector<int64_t>, uintptr_t, uintptr_t,
+                    std::vector<int64_t>, std::vector<int64_t>,
                     const std::map<std::string, double> &, bool>())
       .def("advance", &Runner::advance)
       .def("carry", &Runner::carry)

@@ -517,12 +517,10 @@ class Stepper {
   // same coal functor Python calls; None: no box), its face normals (k, 3), face planes (normals (6, 3), offsets)
   // and edges (box_box.box_edges: starts, directions, lengths, the two face normals, (12, 12)) in its joint frame;
   // the edges leaving each of a box's vertices ((8 3, 3): model.vertex_edges); per pair whether both are polytopes (model.polytope_pair_set); the coal request and result objects Python's
-  // detection uses (data.distance_request, data.distance_result, data.patch_request); whether numpy's matmul fuses
-// its 3-term products (compiled._blas_fma)
+  // detection uses (data.distance_request, data.distance_result, data.patch_request)
   void boxes(std::vector<nb::object> queries, std::vector<MatrixXd> face_normals, std::vector<MatrixXd> plane_n,
              std::vector<VectorXd> plane_d, std::vector<MatrixXd> edges, std::vector<MatrixXd> vertex_edges,
-             std::vector<int> polytope, nb::object dreq, nb::object dres, nb::object preq, bool blas_fma) {
-    blas_fma_ = blas_fma;
+             std::vector<int> polytope, nb::object dreq, nb::object dres, nb::object preq) {
     const size_t G = gm_.geometryObjects.size();
     if (queries.size() != G || face_normals.size() != G || plane_n.size() != G || plane_d.size() != G ||
         edges.size() != G || vertex_edges.size() != G || (Eigen::Index)polytope.size() != pairs_.rows())
@@ -574,7 +572,7 @@ class Stepper {
   Constants C_;
   MatrixXd limits_;  // model.limits: pair, joint, idx_q, idx_v, sign, bound per limit (moreau_sim/limits.py)
   // the box-box detection (boxes())
-  bool boxes_ = false, blas_fma_ = false;  // blas_fma_: numpy's 3-term matmul fuses (boxbox::blas3)
+  bool boxes_ = false;
   std::vector<nb::object> keep_;
   coal::DistanceRequest *dreq_ = nullptr;
   coal::DistanceResult *dres_ = nullptr;
@@ -843,7 +841,7 @@ class Stepper {
         if (patch && depth <= tol_) {
           if (!poly) throw Fallback{"contact patch"};
           const Vec3 n_face = boxbox::face_axis(vertices_[first], rot(jf), trans(jf), face_n_[first], vertices_[second],
-                                                rot(js), trans(js), face_n_[second], blas_fma_);
+                                                rot(js), trans(js), face_n_[second]);
           // with vertex contacts, the patch must lie in their plane (contacts.detect's literal 1 - 1e-9)
           if (found.size() == start || n_face.dot(found[start].n) >= 1.0 - 1e-9) {
             coal::CollisionResult cres;

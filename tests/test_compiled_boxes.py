@@ -66,7 +66,7 @@ def test_resting_stack_every_step_compiled_and_identical(e, h):
     # heavy_on_light_box_100: equal boxes face on face, each vertex of the top one at an edge of the one below
     # (three face planes within the margin, one of them separating: a smooth contact with that face's normal,
     # contacts._corner_normals) and a face axis tied between the two boxes (contacts._face_axis: broken alike
-    # only with numpy's own products, compiled._blas_fma)
+    # by qp.ordered's products on both sides)
     ("heavy_on_light_box_100", 30),
 ])
 def test_every_step_compiled_and_identical(name, n):
@@ -79,22 +79,3 @@ def test_every_step_compiled_and_identical(name, n):
         assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
 
 
-def test_blas_probe_matches_numpy():
-    """compiled._blas_fma says how numpy's matmul rounds the 3-term products of contacts._face_axis's shapes:
-    every entry of random (8, 3) @ (3, 12) products equals the fused chain fma(a2, b2, fma(a1, b1, a0 b0)) if
-    it says so, else the sum in index order (each computed exactly with fractions, then rounded once)."""
-    from fractions import Fraction
-
-    def fma(a, b, c):
-        return float(Fraction(a) * Fraction(b) + Fraction(c))
-
-    fused = compiled._blas_fma()
-    rng = np.random.default_rng(7)
-    A, B = rng.standard_normal((8, 3)), rng.standard_normal((3, 12))
-    C = A @ B
-    for i in range(8):
-        for j in range(12):
-            a, b = A[i], B[:, j]
-            want = (fma(a[2], b[2], fma(a[1], b[1], a[0] * b[0])) if fused
-                    else (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2])
-            assert C[i, j] == want

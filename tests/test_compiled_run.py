@@ -3,9 +3,9 @@ ledger figures bit for bit on every bundled scene (short runs), through checkpoi
 entry saying which loop ran.
 
 The Runner records what driver._Loop.account records per step, operation by operation: the ledger's
-products (ledger.impact_terms's x @ M @ x and P @ b) are numpy's matmul, which calls its OpenBLAS's
-cblas_dgemv / cblas_ddot; the Runner calls the same functions of the same library (their addresses from
-numpy's wheel), so that the sums are the same at every size on any CPU (test_numpy_blas_is_numpys_matmul).
+products (ledger.impact_terms's x'Mx and P.b) are summed in index order on both sides (qp.ordered, src/run.cpp
+quad / odot; docs/theory.md §2.8), so that the sums are the same at every size on any CPU
+(test_ledger_products_are_ordered).
 A scene the compiled step does not take (polytope pairs, GJK/EPA pairs, drives, torques, prescribed
 motion) runs the Python loop; its meta says so and why.
 """
@@ -201,28 +201,34 @@ def test_the_python_step_in_between(monkeypatch):
     assert _arrays_differ(ref, new) == [] and ref.meta["ledger"] == new.meta["ledger"]
 
 
-def test_numpy_blas_is_numpys_matmul():
-    """The BLAS functions the Runner calls give numpy's float(x @ M @ x) bit for bit at every size."""
-    import ctypes
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+def test_ledger_products_are_ordered(e):
+    """ledger.impact_terms's products, which src/run.cpp's quad and odot sum alike, are sums in index order with
+    one rounding each, at every size (qp.ordered's small and large paths): x'Mx as (x'M)x, and P.b."""
+    from moreau_sim.ledger import impact_terms
 
-    addr = compiled_run.numpy_blas()
-    assert not isinstance(addr, str), addr
-    ddot = ctypes.CFUNCTYPE(ctypes.c_double, ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p,
-                            ctypes.c_int64)(addr[0])
-    gemv = ctypes.CFUNCTYPE(None, ctypes.c_int, ctypes.c_int, ctypes.c_int64, ctypes.c_int64, ctypes.c_double,
-                            ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64, ctypes.c_double,
-                            ctypes.c_void_p, ctypes.c_int64)(addr[1])
+    def dot(a, b):
+        s = a[0] * b[0]
+        for k in range(1, len(a)):
+            s = s + a[k] * b[k]
+        return s + 0.0
+
+    def quad(M, x):
+        return dot([dot(x, M[:, j]) for j in range(len(x))], x)
+
     rng = np.random.default_rng(0)
-    for n in list(range(1, 40)) * 20:
+    for n in [*range(1, 20), 63, 64, 65, 80, 120]:
         A = rng.standard_normal((n, n))
         M = A @ A.T
-        x = rng.standard_normal(n)
-        y = np.empty(n)
-        if n == 1:
-            y[0] = 0.0 + ddot(1, x.ctypes.data, 1, M.ctypes.data, 1)
-        else:
-            gemv(101, 112, n, n, 1.0, M.ctypes.data, n, x.ctypes.data, 1, 0.0, y.ctypes.data, 1)
-        assert 0.0 + ddot(n, y.ctypes.data, 1, x.ctypes.data, 1) == float(x @ M @ x)
+        if n > 64:  # a banded M (many bodies): qp.ordered's large path sums over the nonzero entries only
+            i = np.arange(n)
+            M = np.where(abs(i[:, None] - i[None, :]) < 6, M, 0.0)
+        v_free, v, u_k, u_next = rng.standard_normal((4, n))
+        P, b = rng.random(n), rng.standard_normal(n)
+        u_plus = u_next - e * (v_free - u_k)
+        T_minus, T_plus, law = impact_terms(M, v_free, v, u_k, u_next, e, P, b)
+        assert T_minus == 0.5 * quad(M, v_free) and T_plus == 0.5 * quad(M, u_plus)
+        assert law == 0.5 * (1.0 - e * e) * quad(M, v_free - v) - dot(P, b)
 
 
 def test_the_meta_says_which_loop():
