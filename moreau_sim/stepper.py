@@ -399,7 +399,8 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     and except a persistent penetration between two polytopes (deeper than the step's own approach can
     make, h |gamma_minus| + tol) in a passive step that did not gain: it is removed in full, the lift
     beyond the budget paid with the kinetic energy of the bodies in contact (their velocities scaled,
-    _scaled) so that T + V still ends at most at its start, where they have enough.
+    _scaled) so that T + V still ends at most at its start, where they have enough. Rows no dq meets (a body
+    deep inside another) are relaxed by the least uniform residual (shortfall, §2.5) and the rest is as above.
     Returns (q, the change of T + V it made [J], u_{k+1}: imp.u_next itself unless the lift was paid)."""
     tol = model.options.contact_tolerance
     u_next = imp.u_next
@@ -423,6 +424,8 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     persistent = (pb.tau is None and model.prescribed is None and pb.drive is None and bool(deep.any())
                   and all(p in model.polytope_pair_set for p in imp.contacts.pair[deep].tolist()))
     res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
+    if res.status == INFEASIBLE:  # rows that contradict (a box pushed into another): the least residual (§2.5)
+        res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-(g_next + shortfall(imp.W, g_next, tol)), Minv=pb.Minv)
     if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)
         raise SimulationError(f"the position-correction QP failed with status {res.status} "
                               f"({imp.contacts.m} closed contacts)")
@@ -456,6 +459,25 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     if (after < floor - tol).any():
         return q_next, 0.0, u_next
     return q_c, dE, u_c
+
+
+INFEASIBLE = "PIQP_PRIMAL_INFEASIBLE"  # qp.solve's status where no dq meets every linearized row
+
+
+def shortfall(W: np.ndarray, g: np.ndarray, tol: float) -> np.ndarray:
+    """The least uniform residual penetration t* [m] the linearized rows g_i + w_i'dq >= 0 allow (docs/theory.md
+    §2.5): t* = min t s.t. g_i + w_i'dq + t >= 0 on the penetrating rows (g_i < 0), g_i + w_i'dq >= 0 on the
+    others (a linear programme, HiGHS); returned as the row shifts s_i = t* + tol on the penetrating rows, 0
+    elsewhere, so that g + s + W'dq >= 0 is feasible (dq = 0, t = max(-g) always is)."""
+    from scipy.optimize import linprog  # here: infeasible corrections only (scipy.optimize's RSS, as corners.py)
+
+    nv, pen = W.shape[0], (g < 0.0).astype(float)
+    c = np.zeros(nv + 1)
+    c[-1] = 1.0
+    lp = linprog(c, A_ub=-np.column_stack([W.T, pen]), b_ub=g, bounds=[(None, None)] * nv + [(0.0, None)],
+                 method="highs")
+    t = float(lp.x[-1]) if lp.status == 0 else float(-g.min())
+    return pen * (t + tol)
 
 
 def _resting(pb: ContactProblem, imp: ImpactSolution, pen: np.ndarray) -> bool:
