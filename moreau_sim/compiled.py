@@ -14,7 +14,7 @@ import numpy as np
 import pinocchio
 
 from . import box_box, broad_phase, constraints, qp
-from .contacts import _SAME_POINT, DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, Contacts, FeatureKind
+from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, SAME_POINT, Contacts, FeatureKind
 from .law import ENERGY_ROUNDOFF
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts
 from .qp import QPResult
@@ -31,7 +31,7 @@ CONSTANTS = {
     "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA,
     "distinct": constraints.DISTINCT, "guess_min": GUESS_MIN, "distance_failed": DISTANCE_FAILED,
     "joint_limit": int(FeatureKind.JOINT_LIMIT),
-    "energy_roundoff": ENERGY_ROUNDOFF, "patch": int(FeatureKind.PATCH), "same_point": _SAME_POINT,
+    "energy_roundoff": ENERGY_ROUNDOFF, "patch": int(FeatureKind.PATCH), "same_point": SAME_POINT,
     "cone": box_box.CONE, "edge_end": box_box.EDGE_END, "parallel": box_box.PARALLEL,
     "depth_ratio": box_box.DEPTH_RATIO,
 }

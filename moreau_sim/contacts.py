@@ -54,7 +54,7 @@ class FeatureKind(enum.IntEnum):
     EDGE = 6  # two boxes' edges crossing (box_box.py): feature 12 k + l, A's edge k and B's edge l
 
 
-_SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact
+SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact
 
 
 @dataclass(frozen=True, slots=True)
@@ -386,7 +386,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             new = np.ones(k_patch, bool)
             if len(found) > start:
                 known = np.array([f[1] for f in found[start:]])
-                new = np.abs(P1[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > _SAME_POINT
+                new = np.abs(P1[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > SAME_POINT
             for k in np.flatnonzero(new):
                 found.append((c.penetration_depth, P1[k], np.array(patch.getPointShape2(int(k))), n_face, pair.index,
                               FeatureKind.PATCH, int(k)))
@@ -428,7 +428,7 @@ def _add_new(found: list, start: int, edges: list) -> None:
         return
     if len(found) > start:
         pa, known = np.array([r[1] for r in edges]), np.array([f[1] for f in found[start:]])
-        new = np.abs(pa[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > _SAME_POINT
+        new = np.abs(pa[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > SAME_POINT
         edges = [r for r, k in zip(edges, new.tolist()) if k]
     found.extend(edges)
 

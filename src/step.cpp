@@ -77,7 +77,7 @@ struct Constants {
   double guess_min, distance_failed;  // contacts.GUESS_MIN, DISTANCE_FAILED
   double energy_roundoff;  // law.ENERGY_ROUNDOFF
   int patch;  // contacts.FeatureKind.PATCH
-  double same_point, cone, edge_end, parallel, depth_ratio;  // contacts._SAME_POINT; box_box's CONE, EDGE_END,
+  double same_point, cone, edge_end, parallel, depth_ratio;  // contacts.SAME_POINT; box_box's CONE, EDGE_END,
                                                              // PARALLEL, DEPTH_RATIO
 
   static const std::vector<std::string> &keys() {
