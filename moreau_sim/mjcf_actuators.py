@@ -16,7 +16,7 @@ import numpy as np
 
 from .errors import SceneError
 from .prescribed import Schedule
-from .robots import _at, _joint_defaults, _mjcf_expanded
+from .robots import _at, _joint_defaults, _mjcf_expanded, default_classes
 
 KINDS = frozenset({"motor", "position"})
 # attributes of a motor / position that are read; harmless ones (drawing, user data) are skipped
@@ -45,24 +45,16 @@ class MJCFActuator:
     jointrange: tuple[float, float] = (-np.inf, np.inf)
 
 
+_ACTUATOR_TAGS = ("general", "motor", "position", "velocity", "intvelocity", "damper", "cylinder", "muscle",
+                  "adhesion")
+
+
 def _defaults(tree: ET.Element) -> dict[str, dict[str, tuple[str, ET.Element]]]:
     """The actuator attributes each <default> class gives (MuJoCo keeps one actuator default per class, set by
-    any of <general>, <motor>, <position>, ...; nested classes inherit), each with the element that set it."""
-    out: dict[str, dict[str, tuple[str, ET.Element]]] = {"main": {}}
-
-    def walk(d: ET.Element, inherited: dict, name: str) -> None:
-        attrs = dict(inherited)
-        for el in d:
-            if el.tag in ("general", "motor", "position", "velocity", "intvelocity", "damper", "cylinder",
-                          "muscle", "adhesion"):
-                attrs.update({k: (v, el) for k, v in el.attrib.items()})
-        out[name] = attrs
-        for child in d.findall("default"):
-            walk(child, attrs, child.get("class", "main"))
-
-    for d in tree.findall("default"):
-        walk(d, {}, d.get("class", "main"))
-    return out
+    any of <general>, <motor>, <position>, ...; nested classes inherit: robots.default_classes), each with the
+    element that set it."""
+    return default_classes(tree, lambda d: {k: (v, el) for el in d if el.tag in _ACTUATOR_TAGS
+                                            for k, v in el.attrib.items()})
 
 
 def _range(a: dict, key: str, auto: bool, at: str, where: str) -> tuple[float, float]:

@@ -447,22 +447,24 @@ def check_mjcf(root: ET.Element, path: Path, where: str) -> list[str]:
     return ignored
 
 
-def _joint_defaults(tree: ET.Element) -> dict[str, dict[str, str]]:
-    """The <joint> attributes each <default> class gives (nested classes inherit their parent's),
-    by class name; the top class is "main" (MuJoCo's rule)."""
-    out: dict[str, dict[str, str]] = {"main": {}}
+def default_classes(tree: ET.Element, own) -> dict[str, dict]:
+    """The attributes each <default> class gives, by class name (nested classes inherit their parent's; the top
+    class is "main": MuJoCo's rule); own(d): the attributes the class element d sets itself (a dict)."""
+    out: dict[str, dict] = {"main": {}}
 
     def walk(d: ET.Element, inherited: dict, name: str) -> None:
-        attrs = dict(inherited)
-        for j in d.findall("joint"):
-            attrs.update(j.attrib)
-        out[name] = attrs
+        out[name] = attrs = {**inherited, **own(d)}
         for child in d.findall("default"):
             walk(child, attrs, child.get("class", "main"))
 
     for d in tree.findall("default"):
         walk(d, {}, d.get("class", "main"))
     return out
+
+
+def _joint_defaults(tree: ET.Element) -> dict[str, dict[str, str]]:
+    """The <joint> attributes each <default> class gives (default_classes)."""
+    return default_classes(tree, lambda d: {k: v for j in d.findall("joint") for k, v in j.attrib.items()})
 
 
 _JOINT_NQ = {"free": 7, "ball": 4, "hinge": 1, "slide": 1}
