@@ -92,10 +92,11 @@ class Model:
         if self.pair_table is None:  # a Model made by hand: its pairs' table from the list
             object.__setattr__(self, "pair_table", pair_table.table_of(self.geom, self.pairs))
         listed = isinstance(self.pairs, tuple)
-        pj = pair_table.PairJoints(self.pair_table)
         if listed:
             pj = np.array([(p.joint_first, p.joint_second) for p in self.pairs], dtype=np.int64).reshape(-1, 2)
             pj.setflags(write=False)
+        else:
+            pj = pair_table.PairJoints(self.pair_table)
         object.__setattr__(self, "_pair_joints", pj)
         reach = max([float(np.linalg.norm(V, axis=1).max()) for V in self.vertices if len(V)] + [1.0])
         object.__setattr__(self, "_reach", reach)
@@ -276,9 +277,7 @@ class Model:
         """A JSON-able summary (for `moreau-sim info` and output metadata)."""
         o = self.options
         return {
-            "scene": self.scene.name,
-            "nq": self.nq,
-            "nv": self.nv,
+            "scene": self.scene.name, "nq": self.nq, "nv": self.nv,
             "joints": self.joints(),
             "bodies": [{"name": b.name, "root_joint": b.root_joint.value, "nq": b.q_slice.stop - b.q_slice.start,
                         "nv": b.v_slice.stop - b.v_slice.start, "urdf": str(b.urdf),
