@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from . import compiled_events
 from .actuation import refuse_driven
 from .drive import refuse as refuse_drives
 from .data import Data, make_data
@@ -199,7 +200,12 @@ class AdaptiveRun:
             raise ValueError(f"order must be one of {ORDERS}, got {order!r}")
         self.rtol, self.atol, self.order, self.max_step, self.max_events = rtol, atol, order, max_step, max_events
         self.seq = tuple(range(1, order // 2 + 1))
+        seq = self.seq  # the extrapolation's divisors: ratios[j][m - 1] = (seq[j] / seq[j - m])^2 - 1
+        self.ratios = tuple(tuple((seq[j] / seq[j - m]) ** 2 - 1.0 for m in range(1, j + 1)) for j in range(len(seq)))
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
+        # the compiled _step without a persistent set (src/events.hpp; None: the Python one, step_impl = "python")
+        self.extrapolate = compiled_events.extrapolator(model, seq=self.seq, ratios=self.ratios, lie=self.lie,
+                                                        rtol=rtol, atol=atol, fixed_point=FIXED_POINT)
         self.neutral = pin.neutral(model.pin)
         self.h_fix = model.options.dt
         state = state or initial_state(model, data)
@@ -237,7 +243,10 @@ class AdaptiveRun:
         return pin.difference(self.pm, q0, q) if self.lie else q - q0
 
     def _step(self, q0, u0, H, C):
-        """The extrapolated step of size H: (q1, u1, error estimate in (delta, u) coordinates)."""
+        """The extrapolated step of size H: (q1, u1, error estimate in (delta, u) coordinates); without C
+        compiled where it applies (compiled_events: the same floats)."""
+        if not C and self.extrapolate is not None:
+            return self.extrapolate(q0, u0, H)
         seq, nv = self.seq, self.nv
         rows = []
         for j, n in enumerate(seq):
@@ -247,8 +256,7 @@ class AdaptiveRun:
                 q, u = self._midpoint(q, u, h, C)
             row = [np.concatenate((self._delta(q0, q), u))]
             for m in range(1, j + 1):
-                r = (seq[j] / seq[j - m]) ** 2 - 1.0
-                row.append(row[m - 1] + (row[m - 1] - rows[j - 1][m - 1]) / r)
+                row.append(row[m - 1] + (row[m - 1] - rows[j - 1][m - 1]) / self.ratios[j][m - 1])
             rows.append(row)
         y = rows[-1][-1]
         q1 = pin.integrate(self.pm, q0, y[:nv]) if self.lie else q0 + y[:nv]

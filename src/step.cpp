@@ -1169,6 +1169,7 @@ class Stepper {
 };
 
 #include "run.cpp"  // the run loop over a Stepper (moreau_sim/compiled_run.py)
+#include "events.hpp"  // the adaptive integrator's extrapolated step (moreau_sim/compiled_events.py)
 
 NB_MODULE(_step, mod) {
   mod.doc() = "The compiled midpoint Moreau contact step (moreau_sim/compiled.py).";
@@ -1200,6 +1201,7 @@ NB_MODULE(_step, mod) {
       .def("boxes", &Stepper::boxes)
       .def_prop_rw("warm", &Stepper::warm, &Stepper::set_warm);
   bind_run(mod);
+  bind_events(mod);
   // the names the constants dict must hold (moreau_sim/compiled.py CONSTANTS), and a dict as the step reads it
   mod.def("constant_names", []() { return Constants::keys(); });
   mod.def("read_constants", [](const std::map<std::string, double> &d) { return Constants::from(d).as_dict(); },
