@@ -111,11 +111,10 @@ class Model:
         object.__setattr__(self, "_thinnest_pair", min([ext[p.first] + ext[p.second] for p in self.pairs] + [np.inf])
                            if listed else pair_table.thinnest(t, np.array(ext)))
         poly = [g for g in range(t.G) if len(self.vertices[g]) and self.bounds[g][0] == "sphere"]
-        object.__setattr__(self, "_polytope_pairs", tuple(
-            (p.index, p.first, p.second, p.joint_first, p.joint_second) for p in pair_table.pairs_among(t, poly)))
+        object.__setattr__(self, "_polytope_pairs", tuple(map(tuple, pair_table.pairs_among(t, poly).tolist())))
         object.__setattr__(self, "_polytope_pair_ids", {p[0]: p[1:] for p in self._polytope_pairs})
         faces = [g for g in range(t.G) if len(self.face_normals[g]) and len(self.vertices[g])]
-        object.__setattr__(self, "_polytope_pair_set", frozenset(p.index for p in pair_table.pairs_among(t, faces)))
+        object.__setattr__(self, "_polytope_pair_set", frozenset(pair_table.pairs_among(t, faces)[:, 0].tolist()))
         # does h(q, u) depend on u (Coriolis, gyroscopic)? A random state tells (structurally zero
         # for translations and prismatic chains); stepper.free_velocity skips the midpoint iteration.
         if velocity_bias_of_bodies is None:  # tree by tree: no Data of the whole model
