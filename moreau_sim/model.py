@@ -1,23 +1,22 @@
 """Scene -> immutable :class:`Model`: one Pinocchio model of every body (bodies.py) and the forest of
 the bodies' own models (trees.py, docs/theory.md §2.12), coal geometry with the statics, collision
-pairs, per-shape features (shapes.py), and the options (``model.options``). Per-run scratch is
-:class:`~moreau_sim.data.Data`.
+pairs (chosen by pair_rules.py), per-shape features (shapes.py), and the options (``model.options``).
+Per-run scratch is :class:`~moreau_sim.data.Data`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
-import warnings
 from dataclasses import InitVar, dataclass
 from pathlib import Path
-from types import SimpleNamespace
 
 import coal
 import numpy as np
 import pinocchio as pin
 
-from . import actuation as act, broad_phase, drive as drives, limits, pair_table, prescribed as presc, self_pairs, shapes
+from . import actuation as act, broad_phase, drive as drives, limits, pair_rules, pair_table, prescribed as presc, self_pairs, shapes
 from .actuation import Actuation
 from .bodies import load_body
 from .errors import SceneError, out_of_memory
@@ -112,11 +111,10 @@ class Model:
         object.__setattr__(self, "_thinnest_pair", min([ext[p.first] + ext[p.second] for p in self.pairs] + [np.inf])
                            if listed else pair_table.thinnest(t, np.array(ext)))
         poly = [g for g in range(t.G) if len(self.vertices[g]) and self.bounds[g][0] == "sphere"]
-        object.__setattr__(self, "_polytope_pairs", tuple(
-            (p.index, p.first, p.second, p.joint_first, p.joint_second) for p in pair_table.pairs_among(t, poly)))
+        object.__setattr__(self, "_polytope_pairs", tuple(map(tuple, pair_table.pairs_among(t, poly).tolist())))
         object.__setattr__(self, "_polytope_pair_ids", {p[0]: p[1:] for p in self._polytope_pairs})
         faces = [g for g in range(t.G) if len(self.face_normals[g]) and len(self.vertices[g])]
-        object.__setattr__(self, "_polytope_pair_set", frozenset(p.index for p in pair_table.pairs_among(t, faces)))
+        object.__setattr__(self, "_polytope_pair_set", frozenset(pair_table.pairs_among(t, faces)[:, 0].tolist()))
         # does h(q, u) depend on u (Coriolis, gyroscopic)? A random state tells (structurally zero
         # for translations and prismatic chains); stepper.free_velocity skips the midpoint iteration.
         if velocity_bias_of_bodies is None:  # tree by tree: no Data of the whole model
@@ -311,13 +309,14 @@ def build_model(scene: Scene) -> Model:
 def _build_model(scene: Scene) -> Model:
     where = str(scene.path) if scene.path else "<scene>"
     infos, authored, body_models = [], [], []  # body_models: each body's own Pinocchio model (M checked on it)
+    loaded: dict = {}  # each URDF as loaded once (_load)
     placed = []  # each body's (model, geometry) placed in the world: the forest's trees
     names: set[str] = set()
     nq = nv = 0
     nj = 1
     for i, body in enumerate(scene.bodies):
         w = f"{where} [[bodies]][{i}] ({body.name})"
-        m, g, _, said = load_body(body, w)
+        m, g, said = _load(body, w, loaded)
         authored.append(said)
         body_models.append(m)
         placement = pin.SE3(pin.rpy.rpyToMatrix(*body.rpy), np.array(body.position, float))
@@ -354,73 +353,13 @@ def _build_model(scene: Scene) -> Model:
                         f"{where} ({len(scene.bodies)} bodies; the largest: {body.urdf}, "
                         f"nv = {info.v_slice.stop - info.v_slice.start})")
 
-    # --- collision pairs: different joints, not both static, not a link and its parent
-    links = [model.frames[go.parentFrame].name if go.parentFrame < model.nframes else go.name for go in gobs]
-    named: dict[str, list[int]] = {}  # a name (geometry, body or link) -> its geometries: one look-up per rule
-    for k, go in enumerate(gobs):
-        for name in dict.fromkeys((go.name, geometry_body[k], links[k])):
-            named.setdefault(name, []).append(k)
-
-    def pairs_matching(a: str, b: str, key: str) -> list[tuple[int, int]]:
-        ia, ib = named.get(a, []), named.get(b, [])
-        for name, found in ((a, ia), (b, ib)):
-            if not found:
-                raise SceneError(f"{where} [collisions] {key}: '{name}' names no body, static, link or geometry")
-        return [(min(x, y), max(x, y)) for x in ia for y in ib if x != y]
-
-    # the pairs are every two geometries less `removed` (pair_table.PairTable): never listed one by one
-    removed, why = pair_table.rule_removed(model, gobs, geometry_body), {}
-    chosen = lambda i, j: i != j and (min(i, j), max(i, j)) not in removed  # noqa: E731
-    disabled = frozenset().union(*(a.disabled for a in authored))
-    by_name: dict[str, list[int]] = {}
-    for k, go in enumerate(gobs):
-        by_name.setdefault(go.name, []).append(k)
-    for names in disabled:
-        a, b = (*names, *names)[:2]
-        for i, j in {(min(x, y), max(x, y)) for x in by_name.get(a, []) for y in by_name.get(b, [])}:
-            if chosen(i, j):
-                removed.add((i, j))
-                why[(i, j)] = "disabled by the SRDF"  # the robot's author disabled it (self_pairs.read_authored)
-    included = set()
-    for a, b in scene.collisions.include:
-        for i, j in pairs_matching(a, b, "include"):
-            if gobs[i].parentJoint == gobs[j].parentJoint:
-                raise SceneError(f"{where} [collisions] include: {gobs[i].name} and {gobs[j].name} "
-                                 "are on one rigid body (or both static) and can never touch")
-            removed.discard((i, j))
-            included.add((i, j))
-            why.pop((i, j), None)
-    for a, b in scene.collisions.exclude:
-        for ij in set(pairs_matching(a, b, "exclude")):
-            if chosen(*ij):
-                removed.add(ij)
-                why[ij] = "[collisions] exclude"
-    poses = [[(name, _in_scene(model, info, pose)) for name, pose in said.poses] for info, said in zip(infos, authored)]
-    own = {ij for ij in pair_table.same_body(geometry_body) if chosen(*ij) and ij not in included}  # self pairs
-    d = new_data(model, where) if own else None  # a Data of the whole model only for them
-    for body, found in zip(scene.bodies, [] if not own else self_pairs.leave_out_overlapping(
-            model, d, SimpleNamespace(geometryObjects=gobs), [b.name for b in scene.bodies], poses, geometry_body,
-            own, scene.options.contact_tolerance)):
-        for ij, (dist, pose) in found.items():
-            removed.add(ij)
-            why[ij] = f"overlaps {-dist:.3g} m at the reference pose {pose}"
-        if found:
-            listed = ", ".join(f"{_pair_name(gobs, i, j)} ({-dist * 1e3:.3g} mm at {pose})"
-                               for (i, j), (dist, pose) in sorted(found.items()))
-            warnings.warn_explicit(f"{len(found)} self pair(s) of body {body.name} overlap at its reference pose(s) "
-                                   f"and are left out: {listed}; to keep one, name it in [collisions] include "
-                                   f"[{where}]", UserWarning, str(body.urdf), 0)
-    half = [isinstance(go.geometry, (coal.Halfspace, coal.Plane)) for go in gobs]
-    poly = [len(shapes.vertices(go.geometry, go.placement)) > 0 for go in gobs]
-    flat = [isinstance(go.geometry, shapes.FLAT) for go in gobs]  # a patch needs two flat faces
-    G = len(gobs)
-    table = PairTable([go.parentJoint for go in gobs], [go.name for go in gobs], half, poly, flat,
-                      [i * G + j for i, j in removed])
+    vertices = tuple(shapes.vertices(go.geometry, go.placement) for go in gobs)
+    table, why = pair_rules.choose(scene, model, gobs, geometry_body, authored, [info.q_slice for info in infos],
+                                   vertices, lambda: new_data(model, where), where)
     lazy = len(table) > LAZY_PAIRS and not any(s.motion is not None for s in scene.statics)
     pairs = table if lazy else tuple(table)
     geom = None if lazy else pair_table.geometry_model(gobs, pairs)
 
-    vertices = tuple(shapes.vertices(go.geometry, go.placement) for go in gobs)
     moving = None if lazy else presc.build(geom, scene.statics, first_static, pairs, vertices, where)  # at t = 0
     bounds = tuple(shapes.distance_bound(go.geometry, go.placement) for go in gobs)
     face_normals = tuple(shapes.face_normals(go.geometry, go.placement) for go in gobs)
@@ -439,21 +378,36 @@ def _build_model(scene: Scene) -> Model:
                  bodies=tuple(infos), geometry_body=tuple(geometry_body), q0=q0, u0=u0, limits=joint_limits,
                  actuation=actuation, prescribed=moving, forest=forest,
                  drive=drives.build(scene, model, infos, actuation, q0, u0, joint_limits),
-                 excluded=tuple((_pair_name(gobs, i, j), w) for (i, j), w in sorted(why.items())),
+                 excluded=tuple((pair_rules.pair_name(gobs, i, j), w) for (i, j), w in sorted(why.items())),
                  velocity_bias_of_bodies=bias)
 
 
-def _in_scene(model: pin.Model, info: BodyInfo, pose: np.ndarray) -> np.ndarray:
-    """A body's pose (its own q) as the scene's q: the other bodies at their neutral q."""
-    q = pin.neutral(model)
-    q[info.q_slice] = pose
-    return q
-
-
-def _pair_name(gobs, i: int, j: int) -> str:
-    """"first|second": the geometry on the larger joint id first (shape 1 of the pair: build_model)."""
-    i, j = (j, i) if gobs[i].parentJoint < gobs[j].parentJoint else (i, j)
-    return f"{gobs[i].name}|{gobs[j].name}"
+def _load(body, where: str, loaded: dict) -> tuple[pin.Model, pin.GeometryModel, self_pairs.Authored]:
+    """bodies.load_body's model, geometry and SRDF of a body; a URDF body loaded as another before it
+    (the same file, root joint, axes, meshes, package folders and SRDF: a column's beads, a pile's boxes)
+    is a copy of that one renamed (its names' prefix, its coal shapes cloned): reading and checking
+    each file once, not once per body (0.5 ms a body)."""
+    key = None if body.mjcf else (body.urdf, body.root_joint, body.axis, body.axes, body.package_dirs, body.meshes,
+                                  body.srdf)
+    first = loaded.get(key)
+    if first is None:
+        m, g, _, said = load_body(body, where)
+        if key is not None:
+            loaded[key] = (m, g, said, f"{body.name}/")
+        return m, g, said
+    m0, g0, said0, p0 = first
+    p, k = f"{body.name}/", len(p0)
+    m, g = pin.Model(m0), pin.GeometryModel()
+    for i in range(1, m.njoints):
+        m.names[i] = p + m.names[i][k:]
+    for i in range(1, m.nframes):
+        m.frames[i].name = p + m.frames[i].name[k:]
+    for go in g0.geometryObjects:
+        go = go.copy()
+        go.name, go.geometry = p + go.name[k:], go.geometry.clone()
+        g.addGeometryObject(go)
+    disabled = frozenset(frozenset(p + n[k:] for n in pair) for pair in said0.disabled)
+    return m, g, dataclasses.replace(said0, disabled=disabled)
 
 
 LAZY_PAIRS = 20_000  # above this many pairs no list, GeometryModel nor GeometryData of them is made with the model

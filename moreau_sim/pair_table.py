@@ -160,13 +160,20 @@ def thinnest(t: PairTable, ext: np.ndarray) -> float:
     return float(best.min(initial=np.inf))
 
 
-def pairs_among(t: PairTable, geoms: list) -> list:
-    """The pairs of t between geometries `geoms`, in pair order."""
+def pairs_among(t: PairTable, geoms: list) -> np.ndarray:
+    """(n, 5) rows (pair index, first, second, joint first, joint second) of the pairs of t between
+    geometries `geoms`, in pair order, first and second as PairTable's Pair has them (the geometry on
+    the larger joint first): in arrays, without making a Pair of each (a pile's boxes: N^2 / 2 pairs)."""
     g = np.asarray(geoms, dtype=np.int64)
     i, j = np.triu_indices(len(g), 1)
     i, j = g[i], g[j]
     ok = t.chosen(i, j)
-    return [t[k] for k in np.sort(t.index(i[ok], j[ok])).tolist()]
+    lo, hi = np.minimum(i[ok], j[ok]), np.maximum(i[ok], j[ok])
+    k = t.index(lo, hi).astype(np.int64)
+    swap = t.joint[lo] < t.joint[hi]
+    first, second = np.where(swap, hi, lo), np.where(swap, lo, hi)
+    order = np.argsort(k, kind="stable")
+    return np.stack([k, first, second, t.joint[first], t.joint[second]], axis=1).reshape(-1, 5)[order]
 
 
 def rule_removed(model: pin.Model, gobs: list, geometry_body: list) -> set[tuple[int, int]]:

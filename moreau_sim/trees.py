@@ -182,19 +182,19 @@ class Kinematics:
 
 def whole_model(placed: list, where: str) -> tuple[pin.Model, list, list[str]]:
     """The scene's whole Pinocchio model and geometry from the bodies' placed (model, geometry, name),
-    as appending them one by one with pin.appendModel makes them, in O(n log n) model appends and one
-    pass over the geometries (appendModel with geometries visits every geometry at every joint: cubic
-    in bodies). The models are appended pairwise (joint and frame order as one by one: each append puts
-    both models' world frames first, then their joints in order); the geometries in appendModel's
+    as main's pairwise pin.appendModel of them made them (Pinocchio's ==: names, parents, placements,
+    inertias, frames, limits), in time linear in the bodies but for Pinocchio's own addJoint (which
+    resizes every joint's sparsity pattern: ~2 s at 10,000 joints): each tree's joints, bodies and frames
+    added to one model (assembled). appendModel is quadratic in the two models' sizes (it scans every
+    frame at every joint and checks names by linear search): 17 s at 10,000 beads pairwise. Trees with
+    mimic joints are appended (appended). The geometries in appendModel's
     order: those on the world first (body order), then those on joints (joint order)."""
     models = [tm for tm, _, _ in placed]
     try:
-        while len(models) > 1:
-            models = [pin.appendModel(models[k], models[k + 1], 0, pin.SE3.Identity()) if k + 1 < len(models)
-                      else models[k] for k in range(0, len(models), 2)]
+        model = assembled(models) if len(models) > 1 and not any(len(tm.mimicking_joints) for tm in models) \
+            else appended(models)
     except ValueError as exc:  # Pinocchio: "The two models have conflicting frame names." and the like
         raise SceneError(f"{where}: Pinocchio cannot join the bodies into the scene's model: {exc}") from None
-    model = models[0] if models else pin.Model()
     frame_id = {(f.name, int(f.type)): k for k, f in enumerate(model.frames)}
     geom, geometry_body = [], []
     for on_world in (True, False):
@@ -213,3 +213,109 @@ def whole_model(placed: list, where: str) -> tuple[pin.Model, list, list[str]]:
                 geometry_body.append(name)
             offset += tm.njoints - 1
     return model, geom, geometry_body
+
+
+def appended(models: list) -> pin.Model:
+    """The models appended pairwise with pin.appendModel (O(log n) levels, each quadratic in its
+    models' sizes): the reference assembled() reproduces. One model: itself; none: an empty one."""
+    while len(models) > 1:
+        models = [pin.appendModel(models[k], models[k + 1], 0, pin.SE3.Identity()) if k + 1 < len(models)
+                  else models[k] for k in range(0, len(models), 2)]
+    return models[0] if models else pin.Model()
+
+
+def assembled(models: list) -> pin.Model:
+    """appended(models) (two or more, without mimic joints) built by adding
+    every joint, body and frame once, as appendModel adds them at its last append of a left part L
+    (the first trees) and a right part R: L's world frames, L's joints each with its frames, R's world
+    frames, R's joints each with its frames (a part's frames keep its trees' order: appendModel regroups
+    them the same way at every level); the world's inertia summed as the appends sum it; a reference
+    configuration of some trees (an MJCF's qpos0) is theirs on their joints, neutral on the others'.
+    Raises ValueError with Pinocchio's words for two joints or two frames of one name and type."""
+    n = len(models)
+    ident = pin.SE3.Identity()
+    scratch = pin.Model()  # one joint whose inertia takes appendBodyToJoint's sums, bit for bit
+    scratch.addJoint(0, pin.JointModelRX(), ident, "scratch")
+
+    def appended_to(*inertias):
+        scratch.inertias[1] = pin.Inertia.Zero()
+        for Y in inertias:
+            scratch.appendBodyToJoint(1, Y, ident)
+        return pin.Inertia(scratch.inertias[1])
+
+    # the pairwise appends' parts level by level, each part's world inertia as its append sums it, and
+    # how many appends each tree goes through (each adds its joints' inertias to zero again: rounding)
+    segments, sums, appends = [(k, k + 1) for k in range(n)], [tm.inertias[0] for tm in models], [0] * n
+    while len(segments) > 1:
+        pairs = range(0, len(segments), 2)
+        for k in pairs[:len(segments) // 2]:
+            for t in range(segments[k][0], segments[k + 1][1]):
+                appends[t] += 1
+        if len(segments) > 2:
+            sums = [appended_to(sums[k], sums[k + 1]) if k + 1 < len(sums) else sums[k] for k in pairs]
+            segments = [(segments[k][0], segments[k + 1][1]) if k + 1 < len(segments) else segments[k]
+                        for k in pairs]
+        else:
+            break
+    split = segments[0][1]
+    model = pin.Model()
+    joint_names = {model.names[0]}
+    frame_id = {(f.name, int(f.type)): k for k, f in enumerate(model.frames)}
+    offsets = np.cumsum([0] + [tm.njoints - 1 for tm in models])
+
+    def add_frame(tm, f, parent_joint: int, on_world: bool) -> None:
+        key = (f.name, int(f.type))
+        if key in frame_id:
+            raise ValueError("The two models have conflicting frame names.")
+        f = pin.Frame(f)
+        f.parentJoint = parent_joint
+        if f.parentFrame:
+            up = tm.frames[f.parentFrame]
+            f.parentFrame = frame_id[(up.name, int(up.type))]  # added before (appendModel's getFrameId)
+        if on_world:
+            f.placement = ident * f.placement  # appendModel: (world frame's placement * aMb) * placement
+        frame_id[key] = model.addFrame(f, False)
+
+    for part, world in ((range(split), sums[0]), (range(split, n), sums[1])):
+        if world == world:  # appendModel adds a part's world inertia unless NaN
+            model.appendBodyToJoint(0, world, ident)
+        for t in part:
+            tm = models[t]
+            for f in list(tm.frames)[1:]:
+                if f.parentJoint == 0:
+                    add_frame(tm, f, 0, True)
+        for t in part:
+            tm, off = models[t], int(offsets[t])
+            frames = list(tm.frames)
+            by_joint: dict[int, list] = {}
+            for f in frames[1:]:
+                if f.parentJoint:
+                    by_joint.setdefault(f.parentJoint, []).append(f)
+            for j in range(1, tm.njoints):
+                name = tm.names[j]
+                if name in joint_names:
+                    raise ValueError("The two models have conflicting joint names.")
+                joint_names.add(name)
+                jm = tm.joints[j]
+                q, v = slice(jm.idx_q, jm.idx_q + jm.nq), slice(jm.idx_v, jm.idx_v + jm.nv)
+                parent = tm.parents[j]
+                k = model.addJoint(off + parent if parent else 0, jm, ident * tm.jointPlacements[j], name,
+                                   tm.lowerEffortLimit[v], tm.upperEffortLimit[v], tm.lowerVelocityLimit[v],
+                                   tm.upperVelocityLimit[v], tm.lowerPositionLimit[q], tm.upperPositionLimit[q],
+                                   tm.positionLimitMargin[q], tm.lowerDryFrictionLimit[v],
+                                   tm.upperDryFrictionLimit[v], tm.damping[v])
+                Y = tm.inertias[j]
+                for _ in range(appends[t] - 1):  # the appends before the last: stop where the sum stays
+                    Y, last = appended_to(Y), Y
+                    if Y == last:
+                        break
+                model.appendBodyToJoint(k, Y, ident)
+                for f in by_joint.get(j, ()):
+                    add_frame(tm, f, k, False)
+    model.rotorInertia = np.concatenate([tm.rotorInertia for tm in models])
+    model.rotorGearRatio = np.concatenate([tm.rotorGearRatio for tm in models])
+    for key in sorted({e.key() for tm in models for e in tm.referenceConfigurations}):
+        model.referenceConfigurations[key] = np.concatenate([tm.referenceConfigurations[key]
+                                                             if key in tm.referenceConfigurations else pin.neutral(tm)
+                                                             for tm in models])
+    return model

@@ -18,7 +18,7 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import energy
+from moreau_sim import energy, trees
 from moreau_sim.bodies import load_body
 from moreau_sim.data import make_data
 from moreau_sim.errors import SceneError
@@ -122,7 +122,7 @@ def test_column_of_1000_beads():
 
 @pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
 def test_whole_model_as_appended_one_by_one(path):
-    """model._whole (pairwise appends and one pass over the geometries) makes the scene's model and
+    """trees.whole_model (the trees assembled, one pass over the geometries) makes the scene's model and
     geometry that appending the bodies one by one with pin.appendModel makes (Pinocchio's ==)."""
     scene = load_scene(path)
     built = build_model(scene)
@@ -141,7 +141,86 @@ def test_whole_model_as_appended_one_by_one(path):
     assert geom.ngeoms == built.geom.ngeoms - len(scene.statics)
 
 
-@pytest.mark.parametrize("where", ["build", "run"])
+def _placed(scene) -> list:
+    """Each body's model placed in the world as build_model places it (its tree)."""
+    out = []
+    for i, body in enumerate(scene.bodies):
+        m, _, _, _ = load_body(body, f"[[bodies]][{i}]")
+        placement = (pin.SE3.Identity() if body.root_joint is RootJoint.FREE else
+                     pin.SE3(pin.rpy.rpyToMatrix(*body.rpy), np.array(body.position, float)))
+        out.append(pin.appendModel(pin.Model(), m, 0, placement))
+    return out
+
+
+MIX = (("double_pendulum.urdf", "fixed"), ("ball.urdf", "free"), ("panda_arm_collision.urdf", "fixed"),
+       ("servo_arm.xml", "fixed"), ("slider_crank.urdf", "fixed"), ("box.urdf", "prismatic"),
+       ("double_pendulum.urdf", "revolute"), ("panda_arm_collision.urdf", "revolute"))
+
+
+def mixed(n: int) -> ms.Scene:
+    """n bodies cycling through MIX: fixed multi-link bodies (links on the world) between moving ones, an
+    MJCF body (its qpos0 reference configuration), links with their centres of mass off their joints."""
+    b = ms.SceneBuilder(f"mixed_{n}", folder=ROOT / "scenes")
+    for k in range(n):
+        f, rj = MIX[(3 * k + n) % len(MIX)]
+        where = {} if rj == "free" else {"position": (k, 0.3 * k, 0.1), "rpy": (0.1 * k, 0.2, 0.3)}
+        if f.endswith(".xml"):
+            b.add_body(f"b{k}", mjcf=ROOT / "models" / f, root_joint=rj, **where)
+        else:
+            b.add_body(f"b{k}", ROOT / "models" / f, root_joint=rj, **where)
+    return b.build()
+
+
+@pytest.mark.parametrize("make", [*(lambda p=p: load_scene(p) for p in SCENES), *(lambda n=n: mixed(n) for n in
+                                                                                   (2, 3, 5, 8, 13))],
+                         ids=[p.stem for p in SCENES] + [f"mixed_{n}" for n in (2, 3, 5, 8, 13)])
+def test_whole_model_assembled_as_appendmodel_makes_it(make):
+    """trees.assembled (each tree's joints, bodies and frames added once: linear but for Pinocchio's addJoint)
+    makes main's pairwise pin.appendModel of the trees (trees.appended) byte for byte (Pinocchio's
+    serialization: names, parents, placements, inertias as those appends re-sum them, frames in their
+    order, limits, reference configurations), on every bundled scene and on mixes of fixed multi-link
+    bodies, moving ones and an MJCF body."""
+    models = _placed(make())
+    if len(models) < 2:
+        return
+    a, b = trees.appended(models), trees.assembled(models)
+    assert a == b
+    assert a.saveToString() == b.saveToString()
+
+
+def test_whole_model_refuses_two_frames_of_one_name_in_one_line():
+    """Two bodies' frames of one name and type (names are prefixed by the body: only a hand-made
+    model has them): one SceneError naming the scene, as appendModel's refusal was."""
+    m = pin.Model()
+    m.addFrame(pin.Frame("x", 0, 0, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
+    with pytest.raises(SceneError, match="^here: Pinocchio cannot join .*conflicting frame names"):
+        trees.whole_model([(m, pin.GeometryModel(), "a"), (pin.Model(m), pin.GeometryModel(), "b")], "here")
+
+
+@pytest.mark.parametrize("make", [lambda: column(5), lambda: mixed(13),
+                                  lambda: load_scene(ROOT / "scenes" / "box_stack_10.toml")],
+                         ids=["column", "mixed", "box_stack_10"])
+def test_a_repeated_body_is_the_first_one_copied(make, monkeypatch):
+    """A URDF body loaded as one before it (model._load: a renamed copy) builds the model that
+    loading every body from its file builds: the same Pinocchio model byte for byte, geometries,
+    shapes, pairs and those left out."""
+    import moreau_sim.model as model_module
+
+    scene = make()
+    copied = build_model(scene)
+    monkeypatch.setattr(model_module, "_load", lambda body, where, loaded: (lambda m, g, _, s: (m, g, s))(
+        *load_body(body, where)))
+    read = build_model(scene)
+    assert copied.pin.saveToString() == read.pin.saveToString()
+    for a, b in zip(copied.geometries, read.geometries, strict=True):
+        assert (a.name, a.parentJoint, a.parentFrame) == (b.name, b.parentJoint, b.parentFrame)
+        assert np.array_equal(a.placement.homogeneous, b.placement.homogeneous)
+        assert type(a.geometry) is type(b.geometry) and a.geometry is not b.geometry
+    assert copied.pair_names == read.pair_names and copied.excluded == read.excluded
+    assert all(np.array_equal(x, y) for x, y in zip(copied.vertices, read.vertices, strict=True))
+
+
+@pytest.mark.parametrize("where", ["build", "assemble", "run"])
 def test_a_failed_allocation_is_one_line_naming_the_scene_and_its_size(where, monkeypatch):
     """A MemoryError (or std::bad_alloc as a RuntimeError) while the model is built or while it runs is
     a SceneError / SimulationError of one line naming the scene and its size, never a traceback."""
@@ -153,8 +232,12 @@ def test_a_failed_allocation_is_one_line_naming_the_scene_and_its_size(where, mo
         raise MemoryError
 
     sc = load_scene(ROOT / "scenes" / "column_of_beads.toml")
-    if where == "build":
-        monkeypatch.setattr(model_module, "whole_model", fail)
+    if where in ("build", "assemble"):
+        if where == "build":
+            monkeypatch.setattr(model_module, "whole_model", fail)
+        else:  # Pinocchio's std::bad_alloc while the whole model is assembled
+            monkeypatch.setattr(pin.Model, "addJoint", lambda *a, **k: (_ for _ in ()).throw(
+                RuntimeError("std::bad_alloc")))
         with pytest.raises(SceneError) as ei:
             build_model(sc)
         assert "out of memory building its model" in str(ei.value)
