@@ -58,6 +58,7 @@ class Actuation:
                  controller: Controller | None = None):
         self.nv, self.limit, self.root, self.root_names = nv, limit, root, root_names
         self.groups, self.controller = groups, controller
+        self.replay: tuple | None = None  # (t, q, u, tau) of a step the compiled run handed back (compiled_run.py)
         self._clamped = bool(np.isfinite(limit).any())
         self._rooted = bool(root.any())
 
@@ -86,6 +87,11 @@ class Actuation:
 
     def _call(self, t: float, q: np.ndarray, u: np.ndarray) -> np.ndarray:
         """The controller's torques, checked (one line naming what is wrong); it sees read-only views."""
+        if self.replay is not None:  # the compiled run asked the controller for this step already
+            t0, q0, u0, f0 = self.replay
+            self.replay = None
+            if t0 == t and np.array_equal(q0, q) and np.array_equal(u0, u):
+                return f0
         qc, uc = q.view(), u.view()
         qc.flags.writeable = uc.flags.writeable = False
         try:

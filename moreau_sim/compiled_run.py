@@ -4,11 +4,16 @@ ledger, samples, the invariant checks), operation by operation, so that the arra
 bit. It returns to the driver at a coarse poll (progress, Ctrl-C, checkpoints), when a group of columns is full,
 at the run's end, and for each step it hands back (the compiled step's fallback, a failure, a check that
 fires): the Python run takes that step, then the Runner resumes. Every figure the run carries goes back to the
-Python objects at each return, so a checkpoint or an error sees the Python run's state."""
+Python objects at each return, so a checkpoint or an error sees the Python run's state. Joint torques are
+evaluated in the Runner (src/actuation.hpp, the Python run's actuation.py operation by operation); a Python
+controller is called back from it once per step, its errors raised here as the Python run raises them."""
 
 from __future__ import annotations
 
+import numpy as np
+
 from . import compiled, invariants
+from .actuation import PDGroup
 from .invariants import Invariant, Invariants
 from .options import StepImpl
 from .recording import LOG_RELATIVE
@@ -31,8 +36,6 @@ def unsupported(model, check) -> str | None:
     why = compiled.unsupported(model)
     if why is not None:
         return why
-    if model.actuation is not None:
-        return "joint torques (actuators or a controller)"
     if model.polytope_pair_set:
         # a step the Runner undoes (a check that fires) has moved coal's GJK guesses and the warm start of the
         # box pairs' detection, which the Python step retaking it would not see
@@ -42,7 +45,8 @@ def unsupported(model, check) -> str | None:
     return None
 
 
-_REC = {"smooth": "_smooth", "diss": "_diss", "law": "_law", "E": "_E", "smooth_deficit": "smooth_deficit"}
+_REC = {"smooth": "_smooth", "diss": "_diss", "law": "_law", "E": "_E", "smooth_deficit": "smooth_deficit",
+        "act": "_act"}
 _INV = ("E0", "E", "Ehat", "Emin", "scale", "booked", "external", "residual", "Es", "v_app", "deep_points",
         "deep_samples", "last_depth", "last_allowed", "points")
 _INTS = ("deep_points", "deep_samples", "points")
@@ -65,15 +69,18 @@ class CompiledRun:
                   "gap_round_off": invariants.GAP_ROUND_OFF, "persist": invariants.PERSIST,
                   "rel": c.rel if c else 0.0, "rel_ledger": c.rel_ledger if c else 0.0, "tol": c.tol if c else 0.0,
                   "g": c.g if c else 0.0}
+        self.controller = None if m.actuation is None or m.actuation.controller is None else _Callback(m.actuation)
         self.runner = compiled._module.Runner(stepper, trees, forest.tree_of_joint.tolist(),
-                                              forest.local_joint.tolist(), consts, c is not None)
+                                              forest.local_joint.tolist(), consts, c is not None,
+                                              _actuation(m.actuation, self.controller))
         self.python_steps = 0  # steps the Python run took in this run
         self._skip = 0  # steps the Python run takes before the Runner tries again
         self._misses = 0  # hand-backs in a row without a compiled step
         self._loop_meta()
 
     def _loop_meta(self) -> None:
-        self.integ.loop_meta = {"loop": "compiled", "python_steps": self.python_steps}
+        self.integ.loop_meta = {"loop": "compiled", "python_steps": self.python_steps,
+                                **({"python_calls": "the controller, once a step"} if self.controller else {})}
 
     def python_step(self) -> None:
         """The driver took one step through the Python run."""
@@ -99,6 +106,12 @@ class CompiledRun:
                          POLL_SECONDS, *(g.cols for g in groups), starts, rooms)
         t, q, u, k = r.where()
         handed = stop is compiled._module.Stop.HAND_BACK
+        failed = None if self.controller is None else self.controller.take_error()
+        if handed and failed is None and self.controller is not None:
+            # the Python run retakes the step: the controller's answer is replayed, not asked again
+            integ.model.actuation.replay = self.controller.last
+        if failed is not None and k == integ.k:
+            raise failed
         if k == integ.k:  # not one step: the Python run takes the next ones, fewer as misses repeat
             self._misses += 1
             self._skip = min(1 << (self._misses - 1), MAX_BACKOFF) - 1
@@ -113,6 +126,8 @@ class CompiledRun:
         cnt["contact"] += contact
         integ.state, integ.k = State(t, q, u), k
         rec._at = (q, u)
+        if failed is not None:  # the steps before it are recorded; the error names the step the controller failed in
+            raise failed
         if handed:
             self._skip = 1
         return t, stop is compiled._module.Stop.FINISHED
@@ -145,6 +160,56 @@ class CompiledRun:
             for k in _INV:
                 setattr(c, k, int(d["i_" + k]) if k in _INTS else d["i_" + k])
             c.held = {int(p): float(a) for p, a in held}
+
+
+class _Callback:
+    """The controller as the Runner calls it: actuation.Actuation's checked call (its one-line errors), the error
+    kept for compiled_run to raise (the Runner returns None to C++ instead) and the last answer kept for a step the
+    Runner hands back."""
+
+    def __init__(self, actuation):
+        self.actuation = actuation
+        self.error: BaseException | None = None
+        self.last: tuple | None = None
+
+    def __call__(self, t: float, q: np.ndarray, u: np.ndarray) -> np.ndarray | None:
+        try:
+            f = np.ascontiguousarray(self.actuation._call(t, q, u), dtype=float)
+        except BaseException as exc:  # noqa: BLE001 - raised by advance once the steps before are recorded
+            self.error = exc
+            return None
+        self.last = (t, q, u, f)
+        return f
+
+    def take_error(self) -> BaseException | None:
+        err, self.error = self.error, None
+        return err
+
+
+def _schedule(s) -> tuple | None:
+    """A prescribed.Schedule as src/actuation.hpp's Schedule reads it."""
+    if s is None:
+        return None
+    return (s.kind, np.atleast_2d(s.x).tolist(), s.t.tolist(), np.asarray(s.amplitude, float).tolist(),
+            float(s.frequency), float(s.phase), None if s.rate is None else np.asarray(s.rate, float).tolist())
+
+
+def _actuation(act, controller) -> tuple | None:
+    """The model's actuation.Actuation as src/actuation.hpp's Actuation reads it (None: no torques)."""
+    if act is None:
+        return None
+    groups = []
+    for g in act.groups:
+        if isinstance(g, PDGroup):
+            groups.append(("pd", g.q_index.tolist(), g.v_index.tolist(), float(g.kp), float(g.kd), float(g.effort),
+                           _schedule(g.target), _schedule(g.velocity)))
+        else:  # mjcf_actuators.Servos
+            groups.append(("mjcf", g.q_index.tolist(), g.v_index.tolist(),
+                           *(np.asarray(a, float).tolist() for a in (g.gear, g.gain, g.kp, g.kv, g.clo, g.chi, g.flo,
+                                                                      g.fhi)),
+                           [_schedule(c) for c in g.ctrl],
+                           [(idx.tolist(), float(lo), float(hi)) for idx, (lo, hi) in g._joint_clamps]))
+    return act.nv, np.asarray(act.limit, float).tolist(), groups, controller
 
 
 def runner(integ, rec, loop, check) -> CompiledRun | None:

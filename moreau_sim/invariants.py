@@ -17,6 +17,7 @@ from .energy import kinetic, potential
 from .errors import SimulationError
 from .model import Model
 from .options import Integrator
+from .qp import ordered
 from .protocol import FixedStep, Impact, Report, RunStatus
 from .recording import Recorder
 from .state import State
@@ -135,7 +136,7 @@ class Invariants:
             if type(r) is FixedStep:
                 res = r.result
                 if res.tau is not None:
-                    ext += 0.5 * r.h * float(res.tau @ (r.before.u + res.state.u))
+                    ext += 0.5 * r.h * float(ordered(res.tau, r.before.u + res.state.u))
                 ext += res.obstacle_work
                 if res.contacts.m:
                     # a contact's transient at the midpoint, h/2 (|gamma-| + 2 h |g|), and as much again that the

@@ -28,6 +28,7 @@ from .energy import kinetic, potential, total
 from .errors import SimulationError
 from .ledger import impact_terms
 from .model import Model
+from .qp import ordered
 from .state import State
 from .trajectory import Trajectory
 
@@ -349,7 +350,7 @@ class Recorder:
         E1 = T1 + V1
         # the work done on the system (§5.5): torques over the step's mean velocity, the moving statics' push
         tau = r.tau
-        act = 0.0 if tau is None else 0.5 * h * float(tau @ (u0 + u1))
+        act = 0.0 if tau is None else 0.5 * h * float(ordered(tau, u0 + u1))  # summed in index order (§2.8)
         self._act += act
         self._obs += r.obstacle_work
         # a rise the position correction made and booked (the lift of bodies at rest, docs/theory.md
@@ -365,7 +366,7 @@ class Recorder:
             u_law = u1 if r.u_law is None else r.u_law
             T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u_law, e, r.P, res.b)
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * r.u_free)
-            act_free = 0.0 if tau is None else 0.5 * h * float(tau @ (u0 + r.u_free))  # the torques' work there
+            act_free = 0.0 if tau is None else 0.5 * h * float(ordered(tau, u0 + r.u_free))  # the torques' work
             S = total(m, d, q_free, r.u_free) - E0 - act_free - r.drive_work_free
             self._smooth += S
             if S < 0.0:

@@ -15,6 +15,8 @@
 
 #include <pinocchio/algorithm/kinematics.hpp>
 
+#include "actuation.hpp"
+
 #include <array>
 #include <chrono>
 
@@ -45,12 +47,13 @@ class Runner {
  public:
   // stepper: the run's compiled Stepper; trees: (pin.Model, pin.Data, q start, nq, v start, nv) per tree of the
   // forest (trees.Forest, its Kinematics' datas); tree_of_joint, local_joint: the forest's maps; constants: the
-  // Python run's (by name)
+  // Python run's (by name); torques: the model's joint torques (src/actuation.hpp's Actuation), None: none
   Runner(nb::object stepper, std::vector<std::tuple<nb::object, nb::object, int64_t, int64_t, int64_t, int64_t>> trees,
          std::vector<int64_t> tree_of_joint, std::vector<int64_t> local_joint,
-         const std::map<std::string, double> &constants, bool checks)
+         const std::map<std::string, double> &constants, bool checks, nb::object torques)
       : py_stepper_(stepper), S_(nb::cast<Stepper &>(stepper)), tree_of_joint_(std::move(tree_of_joint)),
         local_joint_(std::move(local_joint)), checks_(checks) {
+    if (!torques.is_none()) act_.emplace(nb::cast<nb::tuple>(torques));
     for (auto &t : trees) {
       py_trees_.push_back(std::get<0>(t)), py_trees_.push_back(std::get<1>(t));
       Tree tr{&extract_ref<pinocchio::Model>(std::get<0>(t), "pinocchio.Model"),
@@ -120,6 +123,7 @@ class Runner {
     double smooth = 0, diss = 0, law = 0, E = 0, T = 0, V = 0, rise = 0, t_rise = 0, law_diff = 0, t_law_diff = 0;
     double new_impact = 0, contact_steps = 0, smooth_deficit = 0;
     double work = 0, corr = 0, points = 0;  // _Loop: work, corr, points
+    double act = 0;  // Recorder._act
     // Invariants: E0, E, Ehat, Emin, scale, booked, external, residual, Es, v_app, deep_points, deep_samples,
     // last_depth, last_allowed, points
     double i_E0 = 0, i_E = 0, i_Ehat = 0, i_Emin = 0, i_scale = 0, i_booked = 0, i_external = 0, i_residual = 0;
@@ -134,7 +138,7 @@ class Runner {
   X(smooth) X(diss) X(law) X(E) X(T) X(V) X(rise) X(t_rise) X(law_diff) X(t_law_diff) X(new_impact)                \
   X(contact_steps) X(smooth_deficit) X(work) X(corr) X(points) X(i_E0) X(i_E) X(i_Ehat) X(i_Emin) X(i_scale)      \
   X(i_booked) X(i_external) X(i_residual) X(i_Es) X(i_v_app) X(i_deep_points) X(i_deep_samples) X(i_last_depth)  \
-  X(i_last_allowed) X(i_points) X(w_gain) X(w_speed) X(w_depth) X(w_ledger)
+  X(i_last_allowed) X(i_points) X(w_gain) X(w_speed) X(w_depth) X(w_ledger) X(act)
     std::map<std::string, double> as_dict() const {
       std::map<std::string, double> d;
 #define MOREAU_PUT(f) d[#f] = f;
@@ -169,6 +173,8 @@ class Runner {
   int64_t k_ = 0;
   std::array<int64_t, 3> written_{0, 0, 0};
   int64_t flight_ = 0, contact_ = 0;
+  std::optional<actuation::Actuation> act_;  // the joint torques (none: a passive run)
+  Col<double> s_act, s_obs;  // the EXTERNAL columns (trajectory.EXTERNAL) of an actuated run
   // the columns (trajectory.SAMPLES, LOG, IMPACTS)
   Col<double> s_t, s_q, s_u, s_T, s_V, s_work, s_corr, s_gap, s_smooth, s_diss, s_law;
   Col<int64_t> s_n;
@@ -185,6 +191,7 @@ class Runner {
     s_gap = run_loop::column<double>(s, "gap"), s_n = run_loop::column<int64_t>(s, "n_contacts");
     s_smooth = run_loop::column<double>(s, "smooth_error"), s_diss = run_loop::column<double>(s, "dissipation");
     s_law = run_loop::column<double>(s, "law_dissipation");
+    if (act_) s_act = run_loop::column<double>(s, "actuator_work"), s_obs = run_loop::column<double>(s, "obstacle_work");
     l_step = run_loop::column<int64_t>(l, "log_step"), l_t = run_loop::column<double>(l, "log_t"), l_pair = run_loop::column<int64_t>(l, "log_pair");
     l_kind = run_loop::column<int64_t>(l, "log_kind"), l_feature = run_loop::column<int64_t>(l, "log_feature");
     l_gap = run_loop::column<double>(l, "log_gap"), l_P = run_loop::column<double>(l, "log_P");
@@ -254,7 +261,10 @@ class Runner {
 
   // one step k -> k + 1; false: handed back, nothing committed
   bool step(int64_t k, int64_t n, int64_t every, double h, double e, double t0, const std::array<int64_t, 3> &starts) {
-    StepOut r = S_.step(q_, u_, h, e, VectorXd());
+    VectorXd tau;  // stepper.torque: at (t_m, q_m, u_k), once a step (empty: none)
+    if (act_ && !act_->torque(t_ + 0.5 * h, pinocchio::integrate(S_.model_, q_, (0.5 * h) * u_), u_, tau))
+      return false;  // the controller failed: compiled_run.py raises its error (nothing committed)
+    StepOut r = S_.step(q_, u_, h, e, tau);
     if (r.outcome == Outcome::FALLBACK) return false;
     if (!(r.q_next.allFinite() && r.u_next.allFinite())) return false;  // TimeStepping.step: FAILED
     Carry c = c_;
@@ -297,7 +307,10 @@ class Runner {
     const double T1 = kinetic(r.q_next, r.u_next), V1 = potential(r.q_next);
     if (!(std::isfinite(T1) && std::isfinite(V1))) return false;  // an overflow: the Python run names it
     const double E1 = T1 + V1;
-    const double act = 0.0, obstacle = 0.0;  // no torques, no moving statics in a compiled run
+    const double obstacle = 0.0;  // no moving statics in a compiled run
+    // the torques' work h tau.(u_k + u_{k+1})/2 (qp.ordered: odot)
+    const double act = tau.size() ? (0.5 * h) * odot(tau.data(), VectorXd(u_ + r.u_next).data(), tau.size()) : 0.0;
+    c.act += act;
     const double rise = E1 - E0 - pymax(r.correction_energy, 0.0) - act - obstacle;
     if (rise > c.rise) c.rise = rise, c.t_rise = t1;
     int64_t nimp = 0;
@@ -313,7 +326,9 @@ class Runner {
       const double T_minus = 0.5 * quad(M, r.v_free, tmp), T_plus = 0.5 * quad(M, u_plus, tmp);
       const VectorXd q_half = pinocchio::integrate(S_.model_, q_, (0.5 * h) * u_);
       const VectorXd q_free = pinocchio::integrate(S_.model_, q_half, (0.5 * h) * r.u_free);
-      const double act_free = 0.0, drive_free = 0.0;
+      const double act_free =
+          tau.size() ? (0.5 * h) * odot(tau.data(), VectorXd(u_ + r.u_free).data(), tau.size()) : 0.0;
+      const double drive_free = 0.0;
       const double S = (kinetic(q_free, r.u_free) + potential(q_free)) - E0 - act_free - drive_free;
       c.smooth += S;
       if (S < 0.0) c.smooth_deficit -= S;
@@ -353,8 +368,10 @@ class Runner {
       c.smooth += E - c.E;
       if (E - c.E > c.rise) c.rise = E - c.E, c.t_rise = t1;
       *s_smooth.at(row) = c.smooth, *s_diss.at(row) = c.diss, *s_law.at(row) = c.law;
+      double external = 0.0;  // Recorder.last_sample's actuator + obstacle work
+      if (act_) *s_act.at(row) = c.act, *s_obs.at(row) = 0.0, external = c.act + 0.0;
       const double work = c.work, corr = c.corr, smooth = c.smooth;
-      c.smooth = c.diss = c.law = 0.0;
+      c.smooth = c.diss = c.law = c.act = 0.0;
       c.E = E;
       c.work = c.corr = 0.0;
       nsamp = 1;
@@ -362,7 +379,7 @@ class Runner {
         const double Es = c.i_Es;
         c.i_Es = T1 + V1;
         if (Es == Es) {
-          const double residual = c.i_residual = c.i_residual + ((T1 + V1) - Es - (work + corr + smooth + 0.0));
+          const double residual = c.i_residual = c.i_residual + ((T1 + V1) - Es - (work + corr + smooth + external));
           const double bound = rel_ledger_ * c.i_scale;
           if (residual - c.smooth_deficit > bound && std::abs(residual) > c.w_ledger) fire = true;
           if (s_gap.row) {
@@ -387,6 +404,7 @@ class Runner {
       const double dE = E - c.i_E;
       double booked = r.correction_energy;
       double ext = 0.0;
+      if (tau.size()) ext += act;
       ext += obstacle;
       double deep = 0.0, allowed = 0.0;
       if (m) {
@@ -457,7 +475,9 @@ void bind_run(nb::module_ &mod) {
   nb::class_<Runner>(mod, "Runner", "The time-stepping run loop over a Stepper (src/run.cpp)")
       .def(nb::init<nb::object, std::vector<std::tuple<nb::object, nb::object, int64_t, int64_t, int64_t, int64_t>>,
                     std::vector<int64_t>, std::vector<int64_t>,
-                    const std::map<std::string, double> &, bool>())
+                    const std::map<std::string, double> &, bool, nb::object>(),
+           nb::arg("stepper"), nb::arg("trees"), nb::arg("tree_of_joint"), nb::arg("local_joint"),
+           nb::arg("constants"), nb::arg("checks"), nb::arg("torques").none())
       .def("advance", &Runner::advance)
       .def("carry", &Runner::carry)
       .def("load", &Runner::load)

@@ -1,0 +1,212 @@
+// The joint torques of the run loop (src/run.cpp's Runner): moreau_sim/actuation.py's Actuation.torque in C++, the
+// scene's PD targets (PDGroup) and an MJCF body's <motor>/<position> actuators (mjcf_actuators.Servos) with their
+// schedules (prescribed.Schedule), the effort clamps, and a Python controller called back once per step; each
+// operation as numpy does it, in the same order, so that tau is the Python run's bit for bit (docs/theory.md §2.1,
+// §5.5). Read from the Python objects by compiled_run._actuation. Included by run.cpp.
+#include <nanobind/ndarray.h>
+
+#include <cmath>
+#include <optional>
+#include <vector>
+
+namespace actuation {
+
+// numpy's float minimum, maximum and clip (NaN propagates; on ties the first operand, as numpy's scalar loops)
+inline double np_minimum(double a, double b) { return (a <= b || std::isnan(a)) ? a : b; }
+inline double np_maximum(double a, double b) { return (a >= b || std::isnan(a)) ? a : b; }
+inline double np_clip(double x, double lo, double hi) {
+  const double y = std::isnan(x) ? x : (x > lo ? x : lo);
+  return std::isnan(y) ? y : (y < hi ? y : hi);
+}
+// Python's max(a, b) and min(a, b) (the first unless the second is strictly beyond it)
+inline double py_max(double a, double b) { return b > a ? b : a; }
+inline double py_min(double a, double b) { return b < a ? b : a; }
+
+// prescribed.Schedule: x(t) and dx/dt(t) of n components
+struct Schedule {
+  enum class Kind { CONSTANT, TABLE, SINE } kind = Kind::CONSTANT;
+  std::vector<std::vector<double>> x;  // rows (constant, sine: one row, the offset)
+  std::vector<double> t, amplitude, rate;  // table times [s]; sine amplitudes; constant velocity (has_rate)
+  double frequency = 0.0, phase = 0.0;
+  bool has_rate = false;
+  size_t n = 0;
+
+  // (kind, x rows, t, amplitude, frequency, phase, rate or None), compiled_run._schedule
+  static Schedule from(const nb::handle &h) {
+    auto tp = nb::cast<nb::tuple>(h);
+    Schedule s;
+    const auto kind = nb::cast<std::string>(tp[0]);
+    if (kind == "constant") s.kind = Kind::CONSTANT;
+    else if (kind == "table") s.kind = Kind::TABLE;
+    else if (kind == "sine") s.kind = Kind::SINE;
+    else throw nb::value_error(("schedule kind: " + kind).c_str());
+    s.x = nb::cast<std::vector<std::vector<double>>>(tp[1]);
+    s.t = nb::cast<std::vector<double>>(tp[2]);
+    s.amplitude = nb::cast<std::vector<double>>(tp[3]);
+    s.frequency = nb::cast<double>(tp[4]);
+    s.phase = nb::cast<double>(tp[5]);
+    s.has_rate = !tp[6].is_none();
+    if (s.has_rate) s.rate = nb::cast<std::vector<double>>(tp[6]);
+    s.n = s.x.empty() ? 0 : s.x[0].size();
+    return s;
+  }
+
+  // Schedule.at(t) into x, xd (n each)
+  void at(double tq, double *xo, double *xd) const {
+    const std::vector<double> &x0 = x[0];
+    if (kind == Kind::SINE) {
+      const double w = (2.0 * M_PI) * frequency;
+      const double s = w * tq + phase;
+      const double sn = std::sin(s), cs = std::cos(s);
+      for (size_t j = 0; j < n; ++j) xo[j] = x0[j] + amplitude[j] * sn, xd[j] = amplitude[j] * (w * cs);
+      return;
+    }
+    if (has_rate) {
+      for (size_t j = 0; j < n; ++j) xo[j] = x0[j] + rate[j] * tq, xd[j] = rate[j];
+      return;
+    }
+    if (kind == Kind::CONSTANT || tq < t[0]) {
+      for (size_t j = 0; j < n; ++j) xo[j] = x0[j], xd[j] = 0.0;
+      return;
+    }
+    size_t right = 0;  // np.searchsorted(t, tq, side="right"): the times <= tq
+    while (right < t.size() && !(tq < t[right])) ++right;
+    const size_t k = right - 1;
+    if (k >= t.size() - 1) {
+      for (size_t j = 0; j < n; ++j) xo[j] = x.back()[j], xd[j] = 0.0;
+      return;
+    }
+    const double dt = t[k + 1] - t[k];
+    for (size_t j = 0; j < n; ++j) {
+      const double v = (x[k + 1][j] - x[k][j]) / dt;
+      xo[j] = x[k][j] + v * (tq - t[k]), xd[j] = v;
+    }
+  }
+};
+
+// one group of Actuation.groups: a PDGroup ("pd") or an MJCF body's Servos ("mjcf"); torque(): its torque on each
+// of its entries (v_index: the velocity row of each)
+struct Group {
+  bool pd = true;
+  std::vector<int64_t> qi, vi;
+  // PDGroup
+  double kp = 0, kd = 0, effort = 0;
+  Schedule target;
+  std::optional<Schedule> velocity;
+  // Servos
+  std::vector<double> gear, gain, kps, kvs, clo, chi, flo, fhi;
+  std::vector<std::optional<Schedule>> ctrl;
+  std::vector<std::tuple<std::vector<int64_t>, double, double>> clamps;  // (indices, lower, upper)
+  mutable std::vector<double> x_, xd_, c_;
+
+  void torque(double t, const VectorXd &q, const VectorXd &u, std::vector<double> &tau) const {
+    const size_t n = qi.size();
+    tau.resize(n);
+    if (pd) {  // PDGroup.torque
+      x_.resize(n), xd_.resize(n), c_.resize(n);
+      target.at(t, x_.data(), xd_.data());
+      if (velocity) velocity->at(t, xd_.data(), c_.data());
+      for (size_t j = 0; j < n; ++j)
+        tau[j] = np_clip(kp * (x_[j] - q[qi[j]]) + kd * (xd_[j] - u[vi[j]]), -effort, effort);
+      return;
+    }
+    // Servos.torque: c = clip(c(t), ctrlrange); tau = gear clip(gain c - kp (gear q) - kv (gear u), forcerange)
+    for (size_t i = 0; i < n; ++i) {
+      double c = 0.0;
+      if (ctrl[i]) {
+        x_.resize(ctrl[i]->n), xd_.resize(ctrl[i]->n);
+        ctrl[i]->at(t, x_.data(), xd_.data());
+        c = x_[0];
+      }
+      c = np_clip(c, clo[i], chi[i]);
+      const double g = gear[i];
+      const double f = gain[i] * c - kps[i] * (g * q[qi[i]]) - kvs[i] * (g * u[vi[i]]);
+      tau[i] = g * np_clip(f, flo[i], fhi[i]);
+    }
+    for (const auto &[idx, lo, hi] : clamps) {  // the joint's actuatorfrcrange on the sum of its actuators
+      double total = 0.0;
+      for (int64_t i : idx) total += tau[(size_t)i];
+      for (int64_t i : idx) tau[(size_t)i] = 0.0;
+      tau[(size_t)idx[0]] = py_min(py_max(total, lo), hi);
+    }
+  }
+
+  // ("pd", qi, vi, kp, kd, effort, target, velocity or None) or
+  // ("mjcf", qi, vi, gear, gain, kp, kv, clo, chi, flo, fhi, [ctrl or None], [(indices, lower, upper)])
+  static Group from(const nb::handle &h) {
+    auto tp = nb::cast<nb::tuple>(h);
+    Group g;
+    g.pd = nb::cast<std::string>(tp[0]) == "pd";
+    g.qi = nb::cast<std::vector<int64_t>>(tp[1]);
+    g.vi = nb::cast<std::vector<int64_t>>(tp[2]);
+    if (g.pd) {
+      g.kp = nb::cast<double>(tp[3]), g.kd = nb::cast<double>(tp[4]), g.effort = nb::cast<double>(tp[5]);
+      g.target = Schedule::from(tp[6]);
+      if (!tp[7].is_none()) g.velocity = Schedule::from(tp[7]);
+      return g;
+    }
+    std::vector<double> *arrays[] = {&g.gear, &g.gain, &g.kps, &g.kvs, &g.clo, &g.chi, &g.flo, &g.fhi};
+    for (size_t k = 0; k < 8; ++k) *arrays[k] = nb::cast<std::vector<double>>(tp[3 + k]);
+    for (auto c : nb::cast<nb::list>(tp[11]))
+      g.ctrl.push_back(c.is_none() ? std::nullopt : std::optional<Schedule>(Schedule::from(c)));
+    g.clamps = nb::cast<std::vector<std::tuple<std::vector<int64_t>, double, double>>>(tp[12]);
+    return g;
+  }
+};
+
+// Actuation.torque of one model: the groups' torques added on their rows (np.add.at), the controller's added, the
+// effort limits clamped
+class Actuation {
+ public:
+  // (nv, limit, groups, controller or None), compiled_run._actuation; controller(t, q_m, u) -> tau (nv,) float64,
+  // C-contiguous, checked (actuation.Actuation._call), or None where it failed (the caller holds the error)
+  explicit Actuation(const nb::tuple &a) {
+    nv_ = nb::cast<int64_t>(a[0]);
+    limit_ = nb::cast<std::vector<double>>(a[1]);
+    for (double l : limit_) clamped_ = clamped_ || std::isfinite(l);
+    for (auto g : nb::cast<nb::list>(a[2])) groups_.push_back(Group::from(g));
+    controller_ = nb::borrow(a[3]);
+  }
+
+  bool calls_python() const { return !controller_.is_none(); }
+
+  // tau at (t [s], q, u) [N or N m]; false: the controller failed (tau undefined)
+  bool torque(double t, const VectorXd &q, const VectorXd &u, VectorXd &tau) {
+    tau = VectorXd::Zero(nv_);
+    for (const auto &g : groups_) {
+      g.torque(t, q, u, part_);
+      for (size_t j = 0; j < g.vi.size(); ++j) tau[g.vi[j]] = tau[g.vi[j]] + part_[j];
+    }
+    if (!controller_.is_none()) {
+      nb::object f = controller_(t, array(q), array(u));
+      if (f.is_none()) return false;
+      auto a = nb::cast<nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>>(f);
+      if ((int64_t)a.shape(0) != nv_) throw nb::value_error("controller: (nv,) expected");
+      const double *p = a.data();
+      for (int64_t i = 0; i < nv_; ++i) tau[i] = tau[i] + p[i];
+    }
+    if (clamped_) {
+      for (int64_t i = 0; i < nv_; ++i) tau[i] = np_minimum(tau[i], limit_[i]);
+      for (int64_t i = 0; i < nv_; ++i) tau[i] = np_maximum(tau[i], -limit_[i]);
+    }
+    return true;
+  }
+
+ private:
+  int64_t nv_ = 0;
+  std::vector<double> limit_;
+  bool clamped_ = false;
+  std::vector<Group> groups_;
+  nb::object controller_;
+  std::vector<double> part_;
+
+  // a new numpy array holding a copy of x (the controller may keep what it is given, as in the Python run)
+  static nb::object array(const VectorXd &x) {
+    double *buf = new double[(size_t)x.size()];
+    std::copy(x.data(), x.data() + x.size(), buf);
+    nb::capsule owner(buf, [](void *p) noexcept { delete[] static_cast<double *>(p); });
+    return nb::cast(nb::ndarray<nb::numpy, double, nb::ndim<1>>(buf, {(size_t)x.size()}, owner));
+  }
+};
+
+}  // namespace actuation
