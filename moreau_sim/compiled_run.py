@@ -33,10 +33,6 @@ def unsupported(model, check) -> str | None:
         return why
     if model.actuation is not None:
         return "joint torques (actuators or a controller)"
-    if model.polytope_pair_set:
-        # a step the Runner undoes (a check that fires) has moved coal's GJK guesses and the warm start of the
-        # box pairs' detection, which the Python step retaking it would not see
-        return "pairs of two boxes (the run loop does not carry their detection's warm start)"
     if check is not None and type(check) is not Invariants:
         return "an invariant hook of the caller's"
     return None
@@ -65,6 +61,7 @@ class CompiledRun:
                   "gap_round_off": invariants.GAP_ROUND_OFF, "persist": invariants.PERSIST,
                   "rel": c.rel if c else 0.0, "rel_ledger": c.rel_ledger if c else 0.0, "tol": c.tol if c else 0.0,
                   "g": c.g if c else 0.0}
+        self.stepper, self.boxes = stepper, bool(m.polytope_pair_set)
         self.runner = compiled._module.Runner(stepper, trees, forest.tree_of_joint.tolist(),
                                               forest.local_joint.tolist(), consts, c is not None)
         self.python_steps = 0  # steps the Python run took in this run
@@ -95,8 +92,13 @@ class CompiledRun:
         groups = (rec._samples, rec._log, rec._impacts)
         starts = [g.reserve(k) for g, k in zip(groups, (1, compiled.MAX_CONTACTS, 1))]
         rooms = [len(next(iter(g.cols.values()))) - i for g, i in zip(groups, starts)]
+        data = integ.data
+        if self.boxes:  # contacts.detect's warm start, kept in data between steps whichever loop takes them
+            self.stepper.warm = sorted(data.warm_start_pairs)
         stop = r.advance(st.t, st.q, st.u, integ.k, integ.n, integ.every, integ.h, integ.e, integ.t0, t_stop,
                          POLL_SECONDS, *(g.cols for g in groups), starts, rooms)
+        if self.boxes:  # as the last step the Runner kept left it (a step it undoes leaves it as it was)
+            data.warm_start_pairs = set(self.stepper.warm)
         t, q, u, k = r.where()
         handed = stop is compiled._module.Stop.HAND_BACK
         if k == integ.k:  # not one step: the Python run takes the next ones, fewer as misses repeat
