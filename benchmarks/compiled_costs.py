@@ -12,9 +12,11 @@ phase (the phase rule `phase` applied to the peer's own contact count per step).
 scene by ms.simulate (recording included, compiled and Python step) against the peers' whole runs
 of the same scene and step size (their loop with its recording), wall time per step, the best of
 `repeat` rounds that run every side in turn. The cost targets (TARGETS) get their verdicts from
-these figures. Writes compiled_costs.json and compiled_costs.png to out/ (or --out).
+these figures. The 10^6-step run (--million): a ball run of MILLION steps with the default sampling through
+ms.run against Siconos's loop over the same steps, CPU per step and peak memory, each side in a child process
+of its own (its VmHWM). Writes compiled_costs.json and compiled_costs.png to out/ (or --out).
 
-    python -m benchmarks.compiled_costs [--out docs/bench] [--repeat 7] [--states 200]
+    python -m benchmarks.compiled_costs [--out docs/bench] [--repeat 7] [--states 200] [--million]
     python -m benchmarks.compiled_costs --table docs/bench/compiled_costs.json docs/benchmarks.md
     python -m benchmarks.compiled_costs --plot docs/bench/compiled_costs.json   # redraw the chart from the JSON
 """
@@ -26,6 +28,8 @@ import json
 import os
 import platform
 import statistics
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +50,13 @@ CASES = (("ball, flight", "bouncing_ball", "flight"),
          ("100 beads, in contact", "column_of_beads_100", "contact"),
          ("quadruped, resting", "quadruped_drop", "late-contact"))
 # ms.simulate, recording included: (scene, duration s or None for the scene's own)
-WHOLE_RUNS = (("bouncing_ball", None), ("zeno_ball", 6.0), ("zeno_ball", None), ("newton_cradle_5", None))
+WHOLE_RUNS = (("bouncing_ball", None), ("zeno_ball", 6.0), ("zeno_ball", None), ("newton_cradle_5", None),
+              ("box_drop", None), ("quadruped_drop", None), ("box_stack_10", None))
+# What a peer's figure on a scene is, where it is not the same model (peers.siconos's module doc)
+PEER_NOTES = {("siconos", "box_drop"): "Siconos's mechanics toolbox (Bullet detection, FrictionContact(3) with "
+                                       "mu = 0 by NSGS in a Newton loop): a different formulation"}
+MILLION = 10**6  # steps of the 10^6-step run (--million)
+MILLION_SCENE = "bouncing_ball"
 PEERS = ("siconos", "mujoco")
 PEER_NAMES = {"siconos": "Siconos", "mujoco": "MuJoCo"}
 # The cost targets: (what, kind, case or scene, bound). kind "us": the compiled step's median
@@ -62,7 +72,10 @@ TARGETS = (("ball contact step <= 1.5x Siconos", "x siconos", "zeno_ball", 1.5),
            ("cradle <= Siconos per step", "x siconos", "newton_cradle_5", 1.0),
            ("box_drop resting <= 20 µs", "us", "box_drop", 20.0),
            ("box_stack_10 resting <= 0.5 ms", "us", "box_stack_10", 500.0),
-           ("quadruped resting <= 60 µs", "us", "quadruped_drop", 60.0))
+           ("quadruped resting <= 60 µs", "us", "quadruped_drop", 60.0),
+           ("10^6 ball steps (ms.run, default sampling) <= 1.5x Siconos's loop, CPU per step", "million x siconos",
+            MILLION_SCENE, 1.5),
+           ("10^6 ball steps: peak memory <= 200 MiB", "million MiB", MILLION_SCENE, 200.0))
 
 
 def phase(contacts, which: str) -> np.ndarray:
@@ -169,6 +182,7 @@ def whole_run(scene: str, repeat: int, peers: tuple, duration: float | None = No
         for _ in range(n):
             st = ms.step(model, data, st, h=h, e=e).state
 
+    why: dict = {}
     for _ in range(repeat):
         for side, python_run in loops.items():
             model = models["python" if side == "python" else "compiled"]
@@ -180,9 +194,101 @@ def whole_run(scene: str, repeat: int, peers: tuple, duration: float | None = No
             if "why" not in r:
                 walls[peer].append(r["wall_seconds"] * 1e6 / r["steps"])
                 versions_[peer] = r["version"]
+            else:
+                why[peer] = r["why"]
+        peers = tuple(p for p in peers if p not in why)  # a peer that cannot express it is asked once
     key = scene if duration is None else f"{scene} {duration:g} s"
+    notes = {p: PEER_NOTES[p, scene] for p in PEERS if (p, scene) in PEER_NOTES and walls[p]}
     return {"scene": key, "steps": n, **{side: min(w) if w else None for side, w in walls.items()},
-            "peer_versions": versions_}
+            "peer_versions": versions_, "not_expressible": why, "peer_notes": notes}
+
+
+# Peak memory: the process's VmHWM (/proc/self/status), the high-water mark of its own address space since its
+# exec; not getrusage's maxrss, which keeps the parent's resident size at the fork (Linux carries it over exec).
+_HWM = """
+def _hwm_kib():
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1])
+"""
+_CHILD_OURS = _HWM + """
+import json, sys, time
+import moreau_sim as ms
+scene, steps = sys.argv[1], int(sys.argv[2])
+sc = ms.load_scene(scene)
+duration = steps * sc.options.dt
+hwm0 = _hwm_kib()
+c0, w0 = time.process_time(), time.perf_counter()
+tr = ms.run(scene, duration=duration)
+cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+print(json.dumps({"cpu_seconds": cpu, "wall_seconds": wall, "steps": tr.meta["run"]["steps"],
+                  "samples": len(tr.arrays["t"]), "log_rows": len(tr.arrays["log_t"]), "run": tr.meta["run"],
+                  "hwm_kib": _hwm_kib(), "hwm_before_kib": hwm0}))
+"""
+# the peers' subprocess (peers._CHILD in Siconos's interpreter), its VmHWM on stderr as it exits
+_CHILD_SICONOS = _HWM + """
+import atexit, sys
+atexit.register(lambda: print(f"VmHWM-KIB {_hwm_kib()}", file=sys.stderr))
+"""
+
+
+def _ours(scene: Path, steps: int) -> dict:
+    """ms.run of the scene for `steps` steps in a fresh interpreter (this repository on its path)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (str(Path(__file__).resolve().parents[1]),
+                                                                      os.environ.get("PYTHONPATH"))))}
+    cp = subprocess.run([sys.executable, "-c", _CHILD_OURS, str(scene), str(steps)], capture_output=True, text=True,
+                        env=env)
+    if cp.returncode != 0:
+        raise SystemExit(f"the 10^6-step run failed: {(cp.stderr.strip().splitlines() or ['?'])[-1]}")
+    return json.loads(cp.stdout.strip().splitlines()[-1])
+
+
+def _siconos(scene: Path, steps: int) -> dict:
+    """Siconos's runner (peers.siconos, its defaults) on the scene for `steps` steps, in its interpreter as
+    peers.run starts it (the series returned every steps/1000-th step): its loop's CPU, its process's VmHWM."""
+    from .peers import _CHILD, _PACKAGE_ROOT, SICONOS_PYTHON
+    from .spec import from_jsonable, make_spec, to_jsonable
+
+    sc = ms.load_scene(scene)
+    spec = make_spec(ms.build_model(sc.with_options(duration=steps * sc.options.dt)), stride=max(1, steps // 1000))
+    cp = subprocess.run([SICONOS_PYTHON, "-P", "-c", _CHILD_SICONOS + _CHILD, str(_PACKAGE_ROOT), "siconos", "{}"],
+                        input=json.dumps(to_jsonable(spec)), capture_output=True, text=True)
+    hwm = [ln for ln in cp.stderr.splitlines() if ln.startswith("VmHWM-KIB ")]
+    if cp.returncode != 0 or not hwm:
+        raise SystemExit(f"Siconos's 10^6-step run failed: {(cp.stderr.strip().splitlines() or ['?'])[-1]}")
+    res = from_jsonable(json.loads(cp.stdout))
+    return {"cpu_seconds": res["cpu_seconds"], "wall_seconds": res["wall_seconds"], "version": res["version"],
+            "hwm_kib": int(hwm[-1].split()[1])}
+
+
+def million(repeat: int, siconos: bool, steps: int = MILLION, scene: str = MILLION_SCENE) -> dict:
+    """The 10^6-step run: ms.run of the scene for `steps` steps (the default sampling: every step recorded)
+    in a child process, against Siconos's loop over the same steps (its runner's recording of q and v) in
+    another; `repeat` rounds, each side in turn. CPU per step: the best round (ours: process_time around
+    ms.run, loading and building the scene included; Siconos: its loop's process_time); peak memory: the
+    process's VmHWM (ours: the whole interpreter, Pinocchio and coal included, its part before the run
+    apart), the largest of the rounds."""
+    path = scene_path(scene)
+    ours, sic = [], []
+    for _ in range(repeat):
+        ours.append(_ours(path, steps))
+        if siconos:
+            sic.append(_siconos(path, steps))
+    best_ours = min(ours, key=lambda r: r["cpu_seconds"])
+    out = {"scene": scene, "steps": steps, "rounds": repeat, "us_per_step": 1e6 * best_ours["cpu_seconds"] / steps,
+           "loop_us_per_step": best_ours["run"]["us_per_step"],
+           "wall_us_per_step": 1e6 * best_ours["wall_seconds"] / steps,
+           "samples": best_ours["samples"], "log_rows": best_ours["log_rows"], "loop": best_ours["run"].get("loop"),
+           "python_steps": best_ours["run"].get("python_steps"),
+           "peak_mib": max(r["hwm_kib"] for r in ours) / 1024,
+           "before_run_mib": max(r["hwm_before_kib"] for r in ours) / 1024,
+           "memory": "VmHWM of the process (/proc/self/status)",
+           "siconos": None, "siconos_peak_mib": None, "siconos_version": None}
+    if sic:
+        b = min(sic, key=lambda r: r["cpu_seconds"])
+        out.update(siconos=1e6 * b["cpu_seconds"] / steps, siconos_peak_mib=max(r["hwm_kib"] for r in sic) / 1024,
+                   siconos_version=b["version"])
+    return out
 
 
 def verdicts(res: dict) -> list[dict]:
@@ -210,6 +316,14 @@ def verdicts(res: dict) -> list[dict]:
             w = runs[key]
             value = w["compiled"] / w["siconos"]
             shown = f"{value:.2f}× ({w['compiled']:.1f} against {w['siconos']:.2f} µs per step)"
+        elif kind == "million x siconos" and (res.get("million") or {}).get("siconos"):
+            mm = res["million"]
+            value = mm["us_per_step"] / mm["siconos"]
+            shown = f"{value:.2f}× ({mm['us_per_step']:.2f} against {mm['siconos']:.2f} µs of CPU per step)"
+        elif kind == "million MiB" and res.get("million"):
+            mm = res["million"]
+            value = mm["peak_mib"]
+            shown = f"{value:.0f} MiB peak ({mm['before_run_mib']:.0f} MiB of it before the run)"
         out.append({"target": what, "value": value, "shown": shown if value is not None else "not measured",
                     "met": None if value is None else bool(value <= bound)})
     return out
@@ -267,13 +381,48 @@ def whole_run_table(res: dict) -> str:
            "| scene | steps | compiled run | compiled step, Python loop | Python step | a bare loop of the compiled "
            "`ms.step` | Siconos whole run | compiled run / Siconos | MuJoCo rollout | compiled run / MuJoCo |",
            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    notes = []
     for w in res.get("whole_runs", []):
         s = w["siconos"] if sic else None
         m = w["mujoco"] if mj else None
+        mark = "*" if w.get("peer_notes") else ""
         out.append(f"| `{w['scene']}` | {w['steps']} | {w['compiled']:.2f} | "
                    f"{_fmt(w.get('compiled_python_loop'), 2)} | {w['python']:.2f} | "
-                   f"{_fmt(w.get('step_loop'), 2)} | {_fmt(s, 2)} | "
+                   f"{_fmt(w.get('step_loop'), 2)} | {_fmt(s, 2)}{mark} | "
                    f"{_ratio(w['compiled'], s)} | {_fmt(m, 2)} | {_ratio(w['compiled'], m)} |")
+        whys: dict = {}  # the peers' reasons (the runner's NotExpressible message), peers sharing one together
+        for p, why in w.get("not_expressible", {}).items():
+            whys.setdefault(why.rsplit("NotExpressible: ", 1)[-1], []).append(PEER_NAMES[p])
+        notes += [f"{' and '.join(names)} cannot run `{w['scene']}`: {why}" for why, names in whys.items()]
+        notes += [f"\\* `{w['scene']}`, {PEER_NAMES[p]}: {note}" for p, note in w.get("peer_notes", {}).items()]
+    load = res.get("whole_runs_load", res.get("load"))
+    start = res.get("whole_runs_load_start", res.get("load_start"))
+    if load is not None:
+        during = f"{start:.1f} as the run started, {load:.1f} as it ended" if start is not None else f"{load:.1f}"
+        notes.append(f"Load average {during}, on {res.get('cpus', '?')} cores (a shared machine): compare the ratios, "
+                     "measured in the same rounds, rather than the absolute times.")
+    return "\n".join(out + ([""] + [f"- {n}" for n in notes] if notes else []))
+
+
+def million_table(res: dict) -> str:
+    """The 10^6-step run: ms.run's CPU per step and peak memory against Siconos's loop."""
+    mm = res.get("million")
+    if not mm:
+        return "The 10^6-step run was not measured in this JSON (`--million`)."
+    load = f", load {mm['load']:.1f} on {res.get('cpus', '?')} cores" if "load" in mm else ""
+    out = [f"`ms.run` of `{mm['scene']}` for {mm['steps']:,} steps with the default sampling (every step recorded), "
+           "in a child process of its own, against Siconos's stepping loop over the same steps (its runner's "
+           f"recording of q and v) in another; CPU per step, the best of {mm['rounds']} rounds{load}; peak "
+           "memory: the process's high-water resident size, VmHWM (ours: the whole interpreter with Pinocchio "
+           "and coal; Siconos: its runner's Debian Python process):", "",
+           "| scene | steps | samples | percussion-log rows | loop | `ms.run` CPU per step, µs | its run loop alone, "
+           "µs (wall) | Siconos loop CPU per step, µs | `ms.run` / Siconos | peak memory, MiB | of it before the run "
+           "| Siconos's peak, MiB |",
+           "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|",
+           f"| `{mm['scene']}` | {mm['steps']} | {mm['samples']} | {mm['log_rows']} | {mm['loop']} | "
+           f"{mm['us_per_step']:.2f} | {mm['loop_us_per_step']:.2f} | {_fmt(mm['siconos'], 2)} | "
+           f"{_ratio(mm['us_per_step'], mm['siconos'])} | {mm['peak_mib']:.0f} | {mm['before_run_mib']:.0f} | "
+           f"{_fmt(mm['siconos_peak_mib'], 0)} |"]
     return "\n".join(out)
 
 
@@ -289,7 +438,7 @@ def targets_table(res: dict) -> str:
 def doc_tables(res: dict) -> dict[str, str]:
     """The tables of docs/benchmarks.md this benchmark's JSON gives (marker name: Markdown)."""
     return {"compiled-step table": markdown_table(res), "compiled-step whole runs": whole_run_table(res),
-            "compiled-step targets": targets_table(res)}
+            "compiled-step million-step run": million_table(res), "compiled-step targets": targets_table(res)}
 
 
 def plot(res: dict, path: Path) -> None:
@@ -299,16 +448,24 @@ def plot(res: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    groups = [(c["scene"].replace("_of_", "_of_\n") + f"\n{c['label'].split(', ', 1)[-1]}"
+    def name(scene: str) -> str:  # a long scene name on two lines
+        return scene.replace("_", "_\n", 1) if len(scene) > 11 else scene
+
+    groups = [(name(c["scene"]) + f"\n{c['label'].split(', ', 1)[-1]}"
                + ("" if c["compiled_share"] == 1 else f"\n({100 * c['compiled_share']:.0f} % in C++)"),
                c["python"], c["compiled"],
                (c.get("siconos") or {}).get("us"), (c.get("mujoco") or {}).get("us")) for c in res["cases"]]
-    groups += [(f"{w['scene']}\nwhole run", w["python"], w["compiled"], w["siconos"], w["mujoco"])
+    groups += [(f"{name(w['scene'])}\nwhole run", w["python"], w["compiled"], w["siconos"], w["mujoco"])
                for w in res.get("whole_runs", [])]
-    bars = (("Python step", "tab:blue"), ("compiled step", "tab:orange"), ("Siconos Moreau-Jean", "tab:green"),
+    mm = res.get("million")
+    if mm:  # CPU per step of the 10^6-step run (ms.run; Siconos's loop)
+        groups.append((f"{name(mm['scene'])}\n10^6 steps\n(CPU, ms.run)", None, mm["us_per_step"], mm["siconos"],
+                       None))
+    bars = (("Python step (whole runs: in the Python loop)", "tab:blue"),
+            ("compiled step (whole runs: the compiled run loop)", "tab:orange"), ("Siconos Moreau-Jean", "tab:green"),
             ("MuJoCo mj_step", "tab:gray"))
     x = np.arange(len(groups))
-    fig, ax = plt.subplots(figsize=(12, 4.6))
+    fig, ax = plt.subplots(figsize=(max(12.0, 0.9 * len(groups)), 4.8))
     w = 0.2
     for j, (name, color) in enumerate(bars):
         xs = [x[i] + (j - 1.5) * w for i, g in enumerate(groups) if g[1 + j] is not None]
@@ -328,7 +485,9 @@ def plot(res: dict, path: Path) -> None:
     where_run = {wr["scene"]: len(res["cases"]) + i for i, wr in enumerate(res.get("whole_runs", []))}
     labelled = False
     for (_what, kind, key, bound), v in zip(TARGETS, verdicts(res)):
-        i = (where_run if kind.startswith("run") else where).get(key)
+        if kind == "million MiB":
+            continue
+        i = len(groups) - 1 if kind.startswith("million") else (where_run if kind.startswith("run") else where).get(key)
         if i is None or v["value"] is None:
             continue
         g = groups[i]
@@ -339,7 +498,7 @@ def plot(res: dict, path: Path) -> None:
     ax.set_xticks(x, [g[0] for g in groups], fontsize=7)
     ax.set_yscale("log")
     ax.set_ylim(top=8 * max(max(v for v in g[1:] if v is not None) for g in groups))  # room for the legend
-    ax.set_ylabel("µs per step (median; whole runs: wall / steps)")
+    ax.set_ylabel("µs per step (median; whole runs: wall / steps;\n10^6 steps: CPU / steps)", fontsize=8)
     runs_load = (f"; whole runs in a run of their own, load {res['whole_runs_load']:.1f}"
                  if "whole_runs_load" in res else "")
     ax.set_title(f"One step, side by side in one run ({res['cpus']} cores, load {res['load']:.1f}{runs_load})",
@@ -365,6 +524,10 @@ def main(argv=None) -> None:
     ap.add_argument("--states", type=int, default=200)
     ap.add_argument("--whole-runs", action="store_true",
                     help="only the whole runs (the per-step cases of an existing JSON in --out are kept)")
+    ap.add_argument("--million", action="store_true",
+                    help=f"also the {MILLION:,}-step ball run against Siconos's loop (CPU, peak memory; "
+                         "else an existing JSON's row is kept)")
+    ap.add_argument("--million-steps", type=int, default=MILLION, help=argparse.SUPPRESS)  # a quick try
     add_table_option(ap, "compiled_costs.json", "docs/benchmarks.md")
     add_plot_option(ap, "compiled_costs.json")
     a = ap.parse_args(argv)
@@ -372,6 +535,7 @@ def main(argv=None) -> None:
         return
     if not compiled.available():
         raise SystemExit(f"the compiled step is unavailable: {compiled.unavailable_reason()}")
+    load_start = os.getloadavg()[0]  # the machine's load average as the run starts (and "load": as it ends)
     from .peers import available
 
     avail = available()
@@ -396,6 +560,14 @@ def main(argv=None) -> None:
         print(f"whole run {w['scene']:20s} compiled {w['compiled']:.2f}  python {w['python']:.2f}  "
               f"siconos {_fmt(w['siconos'], 2)}  mujoco {_fmt(w['mujoco'], 2)} us per step")
 
+    mm = None
+    if a.million:
+        mm = million(min(a.repeat, 3), avail["siconos"] is None, a.million_steps)
+        mm["load"] = os.getloadavg()[0]
+        print(f"{mm['steps']} steps of {mm['scene']}: ms.run {mm['us_per_step']:.2f} us CPU per step, "
+              f"{mm['peak_mib']:.0f} MiB peak; siconos {_fmt(mm['siconos'], 2)} us, "
+              f"{_fmt(mm['siconos_peak_mib'], 0)} MiB")
+
     def peer_info(p):
         done = [r for (q, _), r in peer_runs.items() if q == p and "why" not in r]
         if not done:  # only whole runs (--whole-runs): the version they ran
@@ -407,15 +579,20 @@ def main(argv=None) -> None:
 
     res = {"cases": cases, "whole_runs": runs, **{p: peer_info(p) for p in PEERS},
            "machine": platform.processor() or platform.machine(), "python": platform.python_version(),
-           "cpus": os.cpu_count(), "load": os.getloadavg()[0], "nice": os.nice(0), "repeat": a.repeat,
+           "cpus": os.cpu_count(), "load": os.getloadavg()[0], "load_start": load_start, "nice": os.nice(0),
+           "repeat": a.repeat,
            "versions": versions(),
            "note": "us per step: moreau-sim the median over states of the best of `repeat` timings; peers the "
                    "median over the phase's steps of the best of `repeat` timed whole runs; whole runs wall / steps"}
     kept = a.out / "compiled_costs.json"
-    if a.whole_runs and kept.exists():  # only the whole runs measured: the JSON's per-step cases are kept
-        old = json.loads(kept.read_text())
+    old = json.loads(kept.read_text()) if kept.exists() else {}
+    if a.whole_runs and old:  # only the whole runs measured: the JSON's per-step cases are kept
         res = {**old, "whole_runs": runs, "whole_runs_repeat": a.repeat, "whole_runs_load": res["load"],
-               "whole_runs_versions": res["versions"]}
+               "whole_runs_load_start": load_start, "whole_runs_versions": res["versions"]}
+    if mm is not None:
+        res["million"] = mm
+    elif old.get("million"):  # not measured in this run: the JSON's row is kept
+        res["million"] = old["million"]
     res["verdicts"] = verdicts(res)
     for v in res["verdicts"]:
         print(f"{v['target']:55s} {v['shown']:40s} {'-' if v['met'] is None else ('met' if v['met'] else 'MISSED')}")

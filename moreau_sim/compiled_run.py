@@ -36,10 +36,6 @@ def unsupported(model, check) -> str | None:
     why = compiled.unsupported(model)
     if why is not None:
         return why
-    if model.polytope_pair_set:
-        # a step the Runner undoes (a check that fires) has moved coal's GJK guesses and the warm start of the
-        # box pairs' detection, which the Python step retaking it would not see
-        return "pairs of two boxes (the run loop does not carry their detection's warm start)"
     if check is not None and type(check) is not Invariants:
         return "an invariant hook of the caller's"
     return None
@@ -70,6 +66,7 @@ class CompiledRun:
                   "rel": c.rel if c else 0.0, "rel_ledger": c.rel_ledger if c else 0.0, "tol": c.tol if c else 0.0,
                   "g": c.g if c else 0.0}
         self.controller = None if m.actuation is None or m.actuation.controller is None else _Callback(m.actuation)
+        self.stepper, self.boxes = stepper, bool(m.polytope_pair_set)
         self.runner = compiled._module.Runner(stepper, trees, forest.tree_of_joint.tolist(),
                                               forest.local_joint.tolist(), consts, c is not None,
                                               _actuation(m.actuation, self.controller))
@@ -102,8 +99,13 @@ class CompiledRun:
         groups = (rec._samples, rec._log, rec._impacts)
         starts = [g.reserve(k) for g, k in zip(groups, (1, compiled.MAX_CONTACTS, 1))]
         rooms = [len(next(iter(g.cols.values()))) - i for g, i in zip(groups, starts)]
+        data = integ.data
+        if self.boxes:  # contacts.detect's warm start, kept in data between steps whichever loop takes them
+            self.stepper.warm = sorted(data.warm_start_pairs)
         stop = r.advance(st.t, st.q, st.u, integ.k, integ.n, integ.every, integ.h, integ.e, integ.t0, t_stop,
                          POLL_SECONDS, *(g.cols for g in groups), starts, rooms)
+        if self.boxes:  # as the last step the Runner kept left it (a step it undoes leaves it as it was)
+            data.warm_start_pairs = set(self.stepper.warm)
         t, q, u, k = r.where()
         handed = stop is compiled._module.Stop.HAND_BACK
         failed = None if self.controller is None else self.controller.take_error()

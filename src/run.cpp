@@ -8,7 +8,8 @@
 // in from the Python objects and goes back to them at each return (carry()), so that checkpoints, interrupts and
 // the Python step in between see exactly the Python run's state. A step it cannot finish as the Python run would
 // (the compiled step's FALLBACK, a non-finite state or energy, an undefined gap, a check that fires) is undone
-// (nothing committed) and handed back: the Python run takes that one step, with its messages and errors.
+// (nothing committed; the detection's carried state restored: Undo) and handed back: the Python run takes that one
+// step, with its messages and errors.
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/array.h>
 #include <nanobind/stl/pair.h>
@@ -69,6 +70,7 @@ class Runner {
     log_relative_ = get("log_relative"), acceleration_ = get("acceleration"), gap_round_off_ = get("gap_round_off");
     persist_ = (int64_t)get("persist"), rel_ = get("rel"), rel_ledger_ = get("rel_ledger"), tol_ = get("tol");
     g_ = get("g");
+    guard_ = S_.boxes_;  // pairs of two boxes: their detection carries state from step to step (Undo)
   }
 
   // Steps k+1.. of n (h, e; t0 the run's start, every: save_every) from (t, q, u) at most until a step ends at
@@ -165,6 +167,9 @@ class Runner {
   std::vector<Tree> trees_;
   std::vector<int64_t> tree_of_joint_, local_joint_;
   bool checks_;
+  bool guard_ = false;  // Undo restores the box pairs' detection state (a model with pairs of two boxes)
+  // coal's cached GJK guesses of the pairs' distance queries (requests, results) before the current step (Undo)
+  std::vector<std::pair<coal::Vec3s, coal::support_func_guess_t>> dist_req_, dist_res_;
   double log_relative_, acceleration_, gap_round_off_, rel_, rel_ledger_, tol_, g_;
   int64_t persist_;
   Carry c_;
@@ -259,13 +264,52 @@ class Runner {
 
   static double pymax(double a, double b) { return b > a ? b : a; }  // Python's max(a, b)
 
+  // ---- undoing a step the Stepper took (a check that fires, a non-finite figure): the detection state it moved ----
+  // A model with pairs of two boxes carries, from one detection to the next, coal's cached GJK guesses and the
+  // pairs with contacts (contacts.detect's warm start; data.Data.warm_start lists them): the Python step that retakes
+  // an undone step must find them as they were before it. The collision queries' guesses are the ones the Stepper
+  // saved at the step's detection (its first act: Stepper::save_guesses, restored as on its own fallback), the warm
+  // start is the buffer it swapped at the step's end (swapped back); only the distance queries' guesses (the step's
+  // position-correction guard, the sample's gaps) are copied here, before each step.
+  void save_distances() {
+    const auto &gd = S_.gd_;
+    const size_t n = gd.distanceRequests.size();
+    dist_req_.resize(n), dist_res_.resize(n);
+    for (size_t k = 0; k < n; ++k) {
+      const auto &rq = gd.distanceRequests[k];
+      const auto &rs = gd.distanceResults[k];
+      dist_req_[k] = {rq.cached_gjk_guess, rq.cached_support_func_guess};
+      dist_res_[k] = {rs.cached_gjk_guess, rs.cached_support_func_guess};
+    }
+  }
+  // restores, unless committed, what the step (returned by the Stepper, not handed back by it) moved
+  struct Undo {
+    Runner &R;
+    bool committed = false;
+    ~Undo() {
+      if (committed || !R.guard_) return;
+      Stepper &S = R.S_;
+      S.restore_guesses();
+      S.warm_.swap(S.next_warm_);
+      auto &gd = S.gd_;
+      for (size_t k = 0; k < R.dist_req_.size() && k < gd.distanceRequests.size(); ++k) {
+        auto &rq = gd.distanceRequests[k];
+        auto &rs = gd.distanceResults[k];
+        rq.cached_gjk_guess = R.dist_req_[k].first, rq.cached_support_func_guess = R.dist_req_[k].second;
+        rs.cached_gjk_guess = R.dist_res_[k].first, rs.cached_support_func_guess = R.dist_res_[k].second;
+      }
+    }
+  };
+
   // one step k -> k + 1; false: handed back, nothing committed
   bool step(int64_t k, int64_t n, int64_t every, double h, double e, double t0, const std::array<int64_t, 3> &starts) {
     VectorXd tau;  // stepper.torque: at (t_m, q_m, u_k), once a step (empty: none)
     if (act_ && !act_->torque(t_ + 0.5 * h, pinocchio::integrate(S_.model_, q_, (0.5 * h) * u_), u_, tau))
       return false;  // the controller failed: compiled_run.py raises its error (nothing committed)
+    if (guard_) save_distances();
     StepOut r = S_.step(q_, u_, h, e, tau);
-    if (r.outcome == Outcome::FALLBACK) return false;
+    if (r.outcome == Outcome::FALLBACK) return false;  // the Stepper restored what it moved
+    Undo undo{*this};  // every return below but the commit undoes the step
     if (!(r.q_next.allFinite() && r.u_next.allFinite())) return false;  // TimeStepping.step: FAILED
     Carry c = c_;
     const double t1 = t0 + (double)(k + 1) * h;
@@ -457,6 +501,7 @@ class Runner {
     if (fire) return false;  // a violation to report: the Python run takes this step and reports it
     c.points += 1;
     // commit
+    undo.committed = true;
     c_ = std::move(c);
     written_[0] += nsamp, written_[1] += nlog, written_[2] += nimp;
     (m ? contact_ : flight_) += 1;
