@@ -8,6 +8,7 @@ or, spilling, keep SPILL_BYTES of rows in memory and the rest in unnamed tempora
 from __future__ import annotations
 
 import datetime
+import functools
 import math
 import mmap
 import platform
@@ -36,7 +37,14 @@ LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) o
 
 
 def versions() -> dict[str, str]:
-    """Python's and the libraries' versions (recorded in every output)."""
+    """Python's and the libraries' versions (recorded in every output; a new dict each call)."""
+    return dict(_versions())
+
+
+@functools.cache
+def _versions() -> dict[str, str]:
+    """The versions, read once per process: the libraries are imported once, and reading their metadata
+    (~3 ms) was a whole run's largest fixed cost (a 1000-step run: 3 µs a step)."""
     out = {"python": platform.python_version()}
     for dist in ("moreau-sim", "pin", "coal", "piqp", "numpy", "scipy"):
         try:
