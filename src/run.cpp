@@ -66,6 +66,7 @@ class Runner {
     log_relative_ = get("log_relative"), acceleration_ = get("acceleration"), gap_round_off_ = get("gap_round_off");
     persist_ = (int64_t)get("persist"), rel_ = get("rel"), rel_ledger_ = get("rel_ledger"), tol_ = get("tol");
     g_ = get("g");
+    rest_accuracy_ = get("rest_accuracy");
   }
 
   // Steps k+1.. of n (h, e; t0 the run's start, every: save_every) from (t, q, u) at most until a step ends at
@@ -161,7 +162,7 @@ class Runner {
   std::vector<Tree> trees_;
   std::vector<int64_t> tree_of_joint_, local_joint_;
   bool checks_;
-  double log_relative_, acceleration_, gap_round_off_, rel_, rel_ledger_, tol_, g_;
+  double log_relative_, acceleration_, gap_round_off_, rel_, rel_ledger_, tol_, g_, rest_accuracy_;
   int64_t persist_;
   Carry c_;
   double t_ = 0;
@@ -252,6 +253,19 @@ class Runner {
 
   static double pymax(double a, double b) { return b > a ? b : a; }  // Python's max(a, b)
 
+  // ledger.at_rest: |gamma_i^k|, |gamma_i^{k+1}| <= REST_ACCURACY rho_i, rho = |W|' (|u_k| + |u_free - u_k|) (odot)
+  bool at_rest(const StepOut &r, const VectorXd &u) const {
+    const VectorXd x = u.cwiseAbs() + (r.u_free - u).cwiseAbs();
+    const Eigen::Index nv = r.W.rows();
+    VectorXd w(nv);
+    for (Eigen::Index i = 0; i < r.m; ++i) {
+      w = r.W.col(i).cwiseAbs();
+      const double bound = rest_accuracy_ * (nv ? odot(w.data(), x.data(), nv) : 0.0);
+      if (!(std::abs(r.gamma_minus[i]) <= bound && std::abs(r.gamma_plus[i]) <= bound)) return false;
+    }
+    return true;
+  }
+
   // one step k -> k + 1; false: handed back, nothing committed
   bool step(int64_t k, int64_t n, int64_t every, double h, double e, double t0, const std::array<int64_t, 3> &starts) {
     StepOut r = S_.step(q_, u_, h, e, VectorXd());
@@ -268,12 +282,16 @@ class Runner {
     // Recorder.log_percussions
     int64_t nlog = 0;
     c.new_impact = 0.0;
+    bool held = false;  // Recorder._held: every contact closed in the step before
     if (m) {
       double pmax = r.P[0];
       for (Eigen::Index i = 1; i < m; ++i) pmax = pymax(pmax, r.P[i]);  // numpy max (no NaN here: finite state)
       const double cut = pymax(log_relative_ * pmax, 0.0);
       std::vector<std::array<int64_t, 3>> keys(m);
       for (Eigen::Index i = 0; i < m; ++i) keys[i] = {r.pair[i], r.kind[i], r.feature[i]};
+      held = true;
+      for (Eigen::Index i = 0; i < m && held; ++i)
+        held = std::find(c.previous.begin(), c.previous.end(), keys[i]) != c.previous.end();
       for (Eigen::Index i = 0; i < m; ++i) {
         const double p = r.P[i];
         if (!(p > cut)) continue;
@@ -304,33 +322,40 @@ class Runner {
     if (!m) {
       c.smooth += E1 - E0 - act - obstacle;
     } else {  // ledger.impact_terms(M, v_free, v, u_k, u_{k+1}, e, P, b), the smooth step at q_free
-      const double *M = r.M.data();
-      VectorXd tmp;
-      const VectorXd u_plus = r.u_next - e * (r.v_free - u_);
-      const VectorXd res = r.v_free - r.v;
-      double law = 0.5 * (1.0 - e * e) * quad(M, res, tmp);
-      law -= odot(r.P.data(), r.b.data(), m);  // b: the restitution bounds (zeros without; P.0 = +0.0)
-      const double T_minus = 0.5 * quad(M, r.v_free, tmp), T_plus = 0.5 * quad(M, u_plus, tmp);
+      // a persistent contact step (ledger.at_rest, docs/theory.md §5.2): no impact to book
+      const bool persistent = held && at_rest(r, u_);
+      double law = 0.0, T_minus = 0.0, T_plus = 0.0;
+      if (!persistent) {
+        const double *M = r.M.data();
+        VectorXd tmp;
+        const VectorXd u_plus = r.u_next - e * (r.v_free - u_);
+        const VectorXd res = r.v_free - r.v;
+        law = 0.5 * (1.0 - e * e) * quad(M, res, tmp);
+        law -= odot(r.P.data(), r.b.data(), m);  // b: the restitution bounds (zeros without; P.0 = +0.0)
+        T_minus = 0.5 * quad(M, r.v_free, tmp), T_plus = 0.5 * quad(M, u_plus, tmp);
+      }
       const VectorXd q_half = pinocchio::integrate(S_.model_, q_, (0.5 * h) * u_);
       const VectorXd q_free = pinocchio::integrate(S_.model_, q_half, (0.5 * h) * r.u_free);
       const double act_free = 0.0, drive_free = 0.0;
       const double S = (kinetic(q_free, r.u_free) + potential(q_free)) - E0 - act_free - drive_free;
       c.smooth += S;
       if (S < 0.0) c.smooth_deficit -= S;
-      int64_t pushing = 0;
-      for (Eigen::Index i = 0; i < m; ++i) pushing += r.P[i] > 0.0;
-      // Recorder._add_impact (given = the obstacle work: 0)
-      const double dissipated = T_minus - T_plus;
+      // Recorder._add_impact (given = the obstacle work: 0); a persistent step only counts
       c.contact_steps += 1;
-      c.diss += dissipated;
-      c.law += law;
-      const double diff = std::abs(dissipated - law);
-      if (diff > c.law_diff) c.law_diff = diff, c.t_law_diff = tm;
-      if (c.new_impact != 0.0) {
-        const int64_t row = starts[2] + written_[2];
-        *i_step.at(row) = index, *i_t.at(row) = tm, *i_contacts.at(row) = pushing;
-        *i_Tm.at(row) = T_minus, *i_Tp.at(row) = T_plus, *i_diss.at(row) = dissipated, *i_law.at(row) = law;
-        nimp = 1;
+      if (!persistent) {
+        int64_t pushing = 0;
+        for (Eigen::Index i = 0; i < m; ++i) pushing += r.P[i] > 0.0;
+        const double dissipated = T_minus - T_plus;
+        c.diss += dissipated;
+        c.law += law;
+        const double diff = std::abs(dissipated - law);
+        if (diff > c.law_diff) c.law_diff = diff, c.t_law_diff = tm;
+        if (c.new_impact != 0.0) {
+          const int64_t row = starts[2] + written_[2];
+          *i_step.at(row) = index, *i_t.at(row) = tm, *i_contacts.at(row) = pushing;
+          *i_Tm.at(row) = T_minus, *i_Tp.at(row) = T_plus, *i_diss.at(row) = dissipated, *i_law.at(row) = law;
+          nimp = 1;
+        }
       }
     }
     c.E = E1, c.T = T1, c.V = V1;
