@@ -372,7 +372,10 @@ class Recorder:
                 T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u_law, e, r.P, res.b)
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * r.u_free)
             act_free = 0.0 if tau is None else 0.5 * h * float(tau @ (u0 + r.u_free))  # the torques' work there
-            S = total(m, d, q_free, r.u_free) - E0 - act_free - r.drive_work_free
+            # contacts that left the smooth motion as it was, bit for bit (u_{k+1} = u_free, q_{k+1} = q_free, e.g.
+            # closed without a push, §5.3): its energy is E1's
+            same = r.u_free.tobytes() == u1.tobytes() and q_free.tobytes() == q1.tobytes()
+            S = (E1 if same else total(m, d, q_free, r.u_free)) - E0 - act_free - r.drive_work_free
             self._smooth += S
             if S < 0.0:
                 self.smooth_deficit -= S

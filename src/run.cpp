@@ -17,6 +17,7 @@
 
 #include <array>
 #include <chrono>
+#include <cstring>
 
 namespace run_loop {
 
@@ -199,10 +200,12 @@ class Runner {
   }
 
   // ---- the forest's figures, as trees.Forest and contacts.pair_distances compute them --------------------------
+  // (each tree's q and u as views of the forest's, not copies: Pinocchio's functions take them as Eigen::Ref)
+  using CRef = Eigen::Ref<const VectorXd>;
   double kinetic(const VectorXd &q, const VectorXd &u) {  // Forest.kinetic
     double s = 0.0;
     for (auto &tr : trees_) {
-      const VectorXd qt = q.segment(tr.q0, tr.nq), ut = u.segment(tr.v0, tr.nv);
+      const CRef qt = q.segment(tr.q0, tr.nq), ut = u.segment(tr.v0, tr.nv);
       if (tr.model->njoints == 2) {
         s += 2.0 * pinocchio::computeKineticEnergy(*tr.model, *tr.data, qt, ut);
         continue;
@@ -214,7 +217,7 @@ class Runner {
   }
   double potential(const VectorXd &q) {  // Forest.potential
     double s = 0.0;
-    for (auto &tr : trees_) s += pinocchio::computePotentialEnergy(*tr.model, *tr.data, VectorXd(q.segment(tr.q0, tr.nq)));
+    for (auto &tr : trees_) s += pinocchio::computePotentialEnergy(*tr.model, *tr.data, CRef(q.segment(tr.q0, tr.nq)));
     return s;
   }
   // contacts.pair_distances into `out` (Forest.place with the geometry placements, then coal's distances)
@@ -337,7 +340,12 @@ class Runner {
       const VectorXd q_half = pinocchio::integrate(S_.model_, q_, (0.5 * h) * u_);
       const VectorXd q_free = pinocchio::integrate(S_.model_, q_half, (0.5 * h) * r.u_free);
       const double act_free = 0.0, drive_free = 0.0;
-      const double S = (kinetic(q_free, r.u_free) + potential(q_free)) - E0 - act_free - drive_free;
+      // contacts that left the smooth motion as it was, bit for bit (u_{k+1} = u_free, q_{k+1} = q_free): its
+      // energy is E1's (Recorder.account_step)
+      const bool same = r.u_free.size() == r.u_next.size() && q_free.size() == r.q_next.size() &&
+                        !std::memcmp(r.u_free.data(), r.u_next.data(), sizeof(double) * (size_t)r.u_free.size()) &&
+                        !std::memcmp(q_free.data(), r.q_next.data(), sizeof(double) * (size_t)q_free.size());
+      const double S = (same ? E1 : kinetic(q_free, r.u_free) + potential(q_free)) - E0 - act_free - drive_free;
       c.smooth += S;
       if (S < 0.0) c.smooth_deficit -= S;
       // Recorder._add_impact (given = the obstacle work: 0); a persistent step only counts
