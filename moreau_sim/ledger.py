@@ -57,6 +57,12 @@ def at_rest(W: np.ndarray, u_k: np.ndarray, u_free: np.ndarray, gamma_minus: np.
     return bool((np.abs(gamma_minus) <= bound).all() and (np.abs(gamma_plus) <= bound).all())
 
 
+def law_kept(v: np.ndarray, u_k: np.ndarray, u_next: np.ndarray, e: float) -> bool:
+    """Whether the step's u_{k+1} is the law's, law.outcome(v, u_k, e), bit for bit: no energy cap (§2.10, whose
+    removal D - L shows) and no lift paid with the velocities (§2.5) changed it (a persistent step needs it)."""
+    return (v - e * (u_k - v)).tobytes() == u_next.tobytes()
+
+
 def _quad(M: np.ndarray, x: np.ndarray) -> float:
     """x'Mx as (x'M) x, each product summed in index order (qp.ordered; src/run.cpp quad: the same sums)."""
     return float(ordered(ordered(x, M), x))

@@ -26,7 +26,7 @@ from .contacts import Contacts, pair_distances
 from .data import Data
 from .energy import kinetic, potential, total
 from .errors import SimulationError
-from .ledger import at_rest, impact_terms
+from .ledger import at_rest, impact_terms, law_kept
 from .model import Model
 from .state import State
 from .trajectory import Trajectory
@@ -367,7 +367,7 @@ class Recorder:
             u_law = u1 if r.u_law is None else r.u_law
             # a persistent contact step (§5.2): every contact closed before and at rest; no impact to book
             persistent = self._held and r.branch is None and at_rest(res.W, u0, r.u_free, r.gamma_minus,
-                                                                     r.gamma_plus)
+                                                                     r.gamma_plus) and law_kept(res.v, u0, u1, e)
             if not persistent:
                 T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u_law, e, r.P, res.b)
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * r.u_free)

@@ -269,6 +269,13 @@ class Runner {
     return true;
   }
 
+  // ledger.law_kept: u_{k+1} is law.outcome(v, u_k, e) bit for bit (no energy cap, no lift paid with the velocities)
+  static bool law_kept(const StepOut &r, const VectorXd &u, double e) {
+    const VectorXd law = r.v - e * (u - r.v);
+    return law.size() == r.u_next.size() &&
+           !std::memcmp(law.data(), r.u_next.data(), sizeof(double) * (size_t)law.size());
+  }
+
   // one step k -> k + 1; false: handed back, nothing committed
   bool step(int64_t k, int64_t n, int64_t every, double h, double e, double t0, const std::array<int64_t, 3> &starts) {
     StepOut r = S_.step(q_, u_, h, e, VectorXd());
@@ -326,7 +333,7 @@ class Runner {
       c.smooth += E1 - E0 - act - obstacle;
     } else {  // ledger.impact_terms(M, v_free, v, u_k, u_{k+1}, e, P, b), the smooth step at q_free
       // a persistent contact step (ledger.at_rest, docs/theory.md §5.2): no impact to book
-      const bool persistent = held && at_rest(r, u_);
+      const bool persistent = held && at_rest(r, u_) && law_kept(r, u_, e);
       double law = 0.0, T_minus = 0.0, T_plus = 0.0;
       if (!persistent) {
         const double *M = r.M.data();

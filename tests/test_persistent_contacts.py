@@ -15,7 +15,8 @@ import pytest
 
 import moreau_sim as ms
 from moreau_sim import compiled_run
-from moreau_sim.ledger import REST_ACCURACY, at_rest
+from moreau_sim.law import outcome
+from moreau_sim.ledger import REST_ACCURACY, at_rest, law_kept
 from moreau_sim.testing import assert_budget_closes, assert_dissipation_follows_law, assert_no_energy_gain
 
 from helpers import inline_scene, scene
@@ -87,6 +88,15 @@ def test_at_rest_at_the_edge_of_its_accuracy():
     assert at_rest(W, np.zeros(2), np.zeros(2), zero, zero)  # rho = 0: only exact zeros rest (the cradle)
     assert not at_rest(W, np.zeros(2), np.zeros(2), np.array([5e-324]), zero)
     assert not at_rest(W, u_k, u_free, np.array([np.nan]), zero)
+
+
+def test_a_step_the_cap_or_a_paid_lift_changed_is_not_persistent():
+    """law_kept: u_{k+1} must be law.outcome(v, u_k, e) bit for bit; one ulp off (what an energy cap or a lift
+    paid with the velocities leaves) is not the law's."""
+    v, u_k, e = np.array([0.0, 0.3]), np.array([-0.1, 0.3]), 0.5
+    u_next = outcome(v, u_k, e)
+    assert law_kept(v, u_k, u_next, e)
+    assert not law_kept(v, u_k, np.nextafter(u_next, np.inf), e)
 
 
 # ---- the ledger on resting contacts --------------------------------------------------------------------------------
