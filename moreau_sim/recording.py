@@ -339,7 +339,8 @@ class Recorder:
     def account_step(self, step: int, t: float, before: State, r, h: float, e: float) -> None:
         """The ledger of one midpoint Moreau step (docs/theory.md §5, ledger.py) from `before` to the
         StepResult r, of size h [s] and restitution e; t [s]: the step's midpoint. Call it after
-        log_percussions (a step with a new impact gets an impact row)."""
+        log_percussions (a step with a new impact gets an impact row; a step whose contacts it found all closed
+        before may be persistent, §5.2: no D, L)."""
         m, d = self.model, self.data
         q0, u0, q1, u1 = before.q, before.u, r.state.q, r.state.u
         if self._at is not None and self._at[0] is q0 and self._at[1] is u0:
