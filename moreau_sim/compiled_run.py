@@ -15,6 +15,7 @@ import numpy as np
 from . import compiled, invariants
 from .actuation import PDGroup
 from .invariants import Invariant, Invariants
+from .ledger import REST_ACCURACY
 from .options import StepImpl
 from .recording import LOG_RELATIVE
 from .state import State
@@ -61,7 +62,7 @@ class CompiledRun:
         trees = [(tr.model, d, tr.q.start, tr.q.stop - tr.q.start, tr.v.start, tr.v.stop - tr.v.start)
                  for tr, d in zip(forest.trees, data.kinematics.datas())]
         c = check
-        consts = {"log_relative": LOG_RELATIVE, "acceleration": invariants.ACCELERATION,
+        consts = {"log_relative": LOG_RELATIVE, "rest_accuracy": REST_ACCURACY, "acceleration": invariants.ACCELERATION,
                   "gap_round_off": invariants.GAP_ROUND_OFF, "persist": invariants.PERSIST,
                   "rel": c.rel if c else 0.0, "rel_ledger": c.rel_ledger if c else 0.0, "tol": c.tol if c else 0.0,
                   "g": c.g if c else 0.0}

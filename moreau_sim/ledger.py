@@ -9,6 +9,8 @@ One step from (q_k, u_k), with the law's frame at the midpoint q_m, M = M(q_m):
     law          L = (1 - e^2)/2 |u- - v|_M^2 - P.b   (b: the per-contact bounds of §2.7, else 0)
     smooth error S = E(q_m (+) h/2 u_free, u_free) - E(q_k, u_k)    (the step without its contacts)
 
+(D and L are not computed in a persistent contact step, at_rest, §5.2: no impact, the same S)
+
 and the budget E_end - E_0 = sum W_c + sum correction + sum S + sum W_a + sum W_o + residual, with the
 work done on the system (§5.5): the torques' W_a = h tau.(u_k + u_{k+1})/2 and the moving statics'
 W_o = -P.dg/dt (S is then the contact-free step's change less its own torque work). Recorder fills the
@@ -27,6 +29,9 @@ from .qp import ordered
 from .trajectory import Trajectory
 
 BASELINE_SAMPLES = 100  # at most this many samples of E(t) go into a baseline record
+# A closed contact is at rest in a step when |gamma^k| and |gamma^{k+1}| are at most this fraction of the sum
+# their rounding carries (at_rest; docs/theory.md §5.2): the law's accuracy, not a physical speed
+REST_ACCURACY = 1e-9
 
 
 def impact_terms(M: np.ndarray, v_free: np.ndarray, v: np.ndarray, u_k: np.ndarray, u_next: np.ndarray,
@@ -40,6 +45,22 @@ def impact_terms(M: np.ndarray, v_free: np.ndarray, v: np.ndarray, u_k: np.ndarr
     if b is not None and len(b):
         law -= float(ordered(P, b))
     return 0.5 * _quad(M, v_free), 0.5 * _quad(M, u_plus), law
+
+
+def at_rest(W: np.ndarray, u_k: np.ndarray, u_free: np.ndarray, gamma_minus: np.ndarray,
+            gamma_plus: np.ndarray) -> bool:
+    """Whether every closed contact of a step is at rest (docs/theory.md §5.2): |gamma_i^k| and |gamma_i^{k+1}|
+    [m/s] <= REST_ACCURACY rho_i, rho_i = sum_j |W_ji| (|u_k,j| + |u_free,j - u_k,j|) the size of the terms whose
+    rounding they carry (W (nv, m); summed in index order, qp.ordered, as src/run.cpp sums it)."""
+    rho = ordered(np.abs(W).T, np.abs(u_k) + np.abs(u_free - u_k))
+    bound = REST_ACCURACY * rho
+    return bool((np.abs(gamma_minus) <= bound).all() and (np.abs(gamma_plus) <= bound).all())
+
+
+def law_kept(v: np.ndarray, u_k: np.ndarray, u_next: np.ndarray, e: float) -> bool:
+    """Whether the step's u_{k+1} is the law's, law.outcome(v, u_k, e), bit for bit: no energy cap (§2.10, whose
+    removal D - L shows) and no lift paid with the velocities (§2.5) changed it (a persistent step needs it)."""
+    return (v - e * (u_k - v)).tobytes() == u_next.tobytes()
 
 
 def _quad(M: np.ndarray, x: np.ndarray) -> float:
@@ -76,7 +97,8 @@ class Ledger:
     max_step_rise: the largest increase of T + V over one step, less the energy the position
     correction booked in it (docs/theory.md §2.5) (at t_step_rise, the step's end; in
     event-driven and adaptive runs, over one stretch of smooth motion between samples and events);
-    max_law_difference: the largest |D - L| of any contact step (at t_law_difference);
+    max_law_difference: the largest |D - L| of any contact step but the persistent ones (at_rest, §5.2:
+    dissipation and law leave those out too; contact_steps counts them) (at t_law_difference);
     impacts: the steps with a new impact; t, E, residuals: per sample (residuals: the budget's
     leftover over the steps since the previous sample)."""
 

@@ -26,7 +26,7 @@ from .contacts import Contacts, pair_distances
 from .data import Data
 from .energy import kinetic, potential, total
 from .errors import SimulationError
-from .ledger import impact_terms
+from .ledger import at_rest, impact_terms, law_kept
 from .model import Model
 from .qp import ordered
 from .state import State
@@ -45,6 +45,8 @@ def versions() -> dict[str, str]:
 
 @functools.cache
 def _versions() -> dict[str, str]:
+    """The versions, read once per process: the libraries are imported once, and reading their metadata
+    (~3 ms) was a whole run's largest fixed cost (a 1000-step run: 3 µs a step)."""
     out = {"python": platform.python_version()}
     for dist in ("moreau-sim", "pin", "coal", "piqp", "numpy", "scipy"):
         try:
@@ -269,6 +271,7 @@ class Recorder:
         self._at: tuple | None = None  # that state's (q, u) arrays (a step starting there reuses _E)
         self._TV = (0.0, 0.0)  # that state's (T, V) [J] (a sample of it reuses them)
         self._new_impact = False  # the last log_percussions logged a new impact
+        self._held = False  # every contact of the last log_percussions was closed in the step before it
         self._rise = (-np.inf, np.nan)  # (largest T + V increase of one step [J], t [s])
         self._law_difference = (0.0, np.nan)  # (largest |D - L| of a contact step [J], t [s])
         self._contact_steps = 0
@@ -338,7 +341,8 @@ class Recorder:
     def account_step(self, step: int, t: float, before: State, r, h: float, e: float) -> None:
         """The ledger of one midpoint Moreau step (docs/theory.md §5, ledger.py) from `before` to the
         StepResult r, of size h [s] and restitution e; t [s]: the step's midpoint. Call it after
-        log_percussions (a step with a new impact gets an impact row)."""
+        log_percussions (a step with a new impact gets an impact row; a step whose contacts it found all closed
+        before may be persistent, §5.2: no D, L)."""
         m, d = self.model, self.data
         q0, u0, q1, u1 = before.q, before.u, r.state.q, r.state.u
         if self._at is not None and self._at[0] is q0 and self._at[1] is u0:
@@ -364,16 +368,25 @@ class Recorder:
         else:  # the projection's problem: M, v_free = v0, b; and the step's own u_free
             # the law's u_{k+1}: before a lift the correction paid with the velocities, booked as correction (§2.5)
             u_law = u1 if r.u_law is None else r.u_law
-            T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u_law, e, r.P, res.b)
+            # a persistent contact step (§5.2): every contact closed before and at rest; no impact to book
+            persistent = self._held and r.branch is None and at_rest(res.W, u0, r.u_free, r.gamma_minus,
+                                                                     r.gamma_plus) and law_kept(res.v, u0, u1, e)
+            if not persistent:
+                T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u_law, e, r.P, res.b)
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * r.u_free)
             act_free = 0.0 if tau is None else 0.5 * h * float(ordered(tau, u0 + r.u_free))  # the torques' work
-            S = total(m, d, q_free, r.u_free) - E0 - act_free - r.drive_work_free
+            # contacts that left the smooth motion as it was, bit for bit (u_{k+1} = u_free, q_{k+1} = q_free, e.g.
+            # closed without a push, §5.3): its energy is E1's
+            same = r.u_free.tobytes() == u1.tobytes() and q_free.tobytes() == q1.tobytes()
+            S = (E1 if same else total(m, d, q_free, r.u_free)) - E0 - act_free - r.drive_work_free
             self._smooth += S
             if S < 0.0:
                 self.smooth_deficit -= S
-            # a moving static's push (§2.9): the impact's dissipation is counted in its frame, T- - T+ + W_o
-            self._add_impact(step, t, T_minus, T_plus, law, int(np.count_nonzero(r.P > 0)), self._new_impact,
-                             r.obstacle_work)
+            if persistent:
+                self._contact_steps += 1
+            else:  # a moving static's push (§2.9): the impact's dissipation is counted in its frame, T- - T+ + W_o
+                self._add_impact(step, t, T_minus, T_plus, law, int(np.count_nonzero(r.P > 0)), self._new_impact,
+                                 r.obstacle_work)
         self._E, self._at, self._TV = E1, (q1, u1), (T1, V1)
 
     def account_impact(self, t: float, q: np.ndarray, u_minus: np.ndarray, u_plus: np.ndarray, M: np.ndarray,
@@ -437,9 +450,11 @@ class Recorder:
         when its contact (pair, kind, feature) is not in `previous`. Returns this step's contacts."""
         self._new_impact = False
         if not contacts.m:
+            self._held = False
             return set()
         cut = max(LOG_RELATIVE * float(P.max()), 0.0)
         keys = list(zip(contacts.pair.tolist(), contacts.kind.tolist(), contacts.feature.tolist()))
+        self._held = all(key in previous for key in keys)
         for i, p in enumerate(P.tolist()):
             if p > cut:
                 key = keys[i]

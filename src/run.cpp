@@ -20,6 +20,7 @@
 
 #include <array>
 #include <chrono>
+#include <cstring>
 
 namespace run_loop {
 
@@ -71,6 +72,7 @@ class Runner {
     persist_ = (int64_t)get("persist"), rel_ = get("rel"), rel_ledger_ = get("rel_ledger"), tol_ = get("tol");
     g_ = get("g");
     guard_ = S_.boxes_;  // pairs of two boxes: their detection carries state from step to step (Undo)
+    rest_accuracy_ = get("rest_accuracy");
   }
 
   // Steps k+1.. of n (h, e; t0 the run's start, every: save_every) from (t, q, u) at most until a step ends at
@@ -170,7 +172,7 @@ class Runner {
   bool guard_ = false;  // Undo restores the box pairs' detection state (a model with pairs of two boxes)
   // coal's cached GJK guesses of the pairs' distance queries (requests, results) before the current step (Undo)
   std::vector<std::pair<coal::Vec3s, coal::support_func_guess_t>> dist_req_, dist_res_;
-  double log_relative_, acceleration_, gap_round_off_, rel_, rel_ledger_, tol_, g_;
+  double log_relative_, acceleration_, gap_round_off_, rel_, rel_ledger_, tol_, g_, rest_accuracy_;
   int64_t persist_;
   Carry c_;
   double t_ = 0;
@@ -210,10 +212,12 @@ class Runner {
   }
 
   // ---- the forest's figures, as trees.Forest and contacts.pair_distances compute them --------------------------
+  // (each tree's q and u as views of the forest's, not copies: Pinocchio's functions take them as Eigen::Ref)
+  using CRef = Eigen::Ref<const VectorXd>;
   double kinetic(const VectorXd &q, const VectorXd &u) {  // Forest.kinetic
     double s = 0.0;
     for (auto &tr : trees_) {
-      const VectorXd qt = q.segment(tr.q0, tr.nq), ut = u.segment(tr.v0, tr.nv);
+      const CRef qt = q.segment(tr.q0, tr.nq), ut = u.segment(tr.v0, tr.nv);
       if (tr.model->njoints == 2) {
         s += 2.0 * pinocchio::computeKineticEnergy(*tr.model, *tr.data, qt, ut);
         continue;
@@ -225,7 +229,7 @@ class Runner {
   }
   double potential(const VectorXd &q) {  // Forest.potential
     double s = 0.0;
-    for (auto &tr : trees_) s += pinocchio::computePotentialEnergy(*tr.model, *tr.data, VectorXd(q.segment(tr.q0, tr.nq)));
+    for (auto &tr : trees_) s += pinocchio::computePotentialEnergy(*tr.model, *tr.data, CRef(q.segment(tr.q0, tr.nq)));
     return s;
   }
   // contacts.pair_distances into `out` (Forest.place with the geometry placements, then coal's distances)
@@ -301,6 +305,26 @@ class Runner {
     }
   };
 
+  // ledger.at_rest: |gamma_i^k|, |gamma_i^{k+1}| <= REST_ACCURACY rho_i, rho = |W|' (|u_k| + |u_free - u_k|) (odot)
+  bool at_rest(const StepOut &r, const VectorXd &u) const {
+    const VectorXd x = u.cwiseAbs() + (r.u_free - u).cwiseAbs();
+    const Eigen::Index nv = r.W.rows();
+    VectorXd w(nv);
+    for (Eigen::Index i = 0; i < r.m; ++i) {
+      w = r.W.col(i).cwiseAbs();
+      const double bound = rest_accuracy_ * (nv ? odot(w.data(), x.data(), nv) : 0.0);
+      if (!(std::abs(r.gamma_minus[i]) <= bound && std::abs(r.gamma_plus[i]) <= bound)) return false;
+    }
+    return true;
+  }
+
+  // ledger.law_kept: u_{k+1} is law.outcome(v, u_k, e) bit for bit (no energy cap, no lift paid with the velocities)
+  static bool law_kept(const StepOut &r, const VectorXd &u, double e) {
+    const VectorXd law = r.v - e * (u - r.v);
+    return law.size() == r.u_next.size() &&
+           !std::memcmp(law.data(), r.u_next.data(), sizeof(double) * (size_t)law.size());
+  }
+
   // one step k -> k + 1; false: handed back, nothing committed
   bool step(int64_t k, int64_t n, int64_t every, double h, double e, double t0, const std::array<int64_t, 3> &starts) {
     VectorXd tau;  // stepper.torque: at (t_m, q_m, u_k), once a step (empty: none)
@@ -322,12 +346,16 @@ class Runner {
     // Recorder.log_percussions
     int64_t nlog = 0;
     c.new_impact = 0.0;
+    bool held = false;  // Recorder._held: every contact closed in the step before
     if (m) {
       double pmax = r.P[0];
       for (Eigen::Index i = 1; i < m; ++i) pmax = pymax(pmax, r.P[i]);  // numpy max (no NaN here: finite state)
       const double cut = pymax(log_relative_ * pmax, 0.0);
       std::vector<std::array<int64_t, 3>> keys(m);
       for (Eigen::Index i = 0; i < m; ++i) keys[i] = {r.pair[i], r.kind[i], r.feature[i]};
+      held = true;
+      for (Eigen::Index i = 0; i < m && held; ++i)
+        held = std::find(c.previous.begin(), c.previous.end(), keys[i]) != c.previous.end();
       for (Eigen::Index i = 0; i < m; ++i) {
         const double p = r.P[i];
         if (!(p > cut)) continue;
@@ -361,35 +389,47 @@ class Runner {
     if (!m) {
       c.smooth += E1 - E0 - act - obstacle;
     } else {  // ledger.impact_terms(M, v_free, v, u_k, u_{k+1}, e, P, b), the smooth step at q_free
-      const double *M = r.M.data();
-      VectorXd tmp;
-      const VectorXd u_plus = r.u_next - e * (r.v_free - u_);
-      const VectorXd res = r.v_free - r.v;
-      double law = 0.5 * (1.0 - e * e) * quad(M, res, tmp);
-      law -= odot(r.P.data(), r.b.data(), m);  // b: the restitution bounds (zeros without; P.0 = +0.0)
-      const double T_minus = 0.5 * quad(M, r.v_free, tmp), T_plus = 0.5 * quad(M, u_plus, tmp);
+      // a persistent contact step (ledger.at_rest, docs/theory.md §5.2): no impact to book
+      const bool persistent = held && at_rest(r, u_) && law_kept(r, u_, e);
+      double law = 0.0, T_minus = 0.0, T_plus = 0.0;
+      if (!persistent) {
+        const double *M = r.M.data();
+        VectorXd tmp;
+        const VectorXd u_plus = r.u_next - e * (r.v_free - u_);
+        const VectorXd res = r.v_free - r.v;
+        law = 0.5 * (1.0 - e * e) * quad(M, res, tmp);
+        law -= odot(r.P.data(), r.b.data(), m);  // b: the restitution bounds (zeros without; P.0 = +0.0)
+        T_minus = 0.5 * quad(M, r.v_free, tmp), T_plus = 0.5 * quad(M, u_plus, tmp);
+      }
       const VectorXd q_half = pinocchio::integrate(S_.model_, q_, (0.5 * h) * u_);
       const VectorXd q_free = pinocchio::integrate(S_.model_, q_half, (0.5 * h) * r.u_free);
       const double act_free =
           tau.size() ? (0.5 * h) * odot(tau.data(), VectorXd(u_ + r.u_free).data(), tau.size()) : 0.0;
       const double drive_free = 0.0;
-      const double S = (kinetic(q_free, r.u_free) + potential(q_free)) - E0 - act_free - drive_free;
+      // contacts that left the smooth motion as it was, bit for bit (u_{k+1} = u_free, q_{k+1} = q_free): its
+      // energy is E1's (Recorder.account_step)
+      const bool same = r.u_free.size() == r.u_next.size() && q_free.size() == r.q_next.size() &&
+                        !std::memcmp(r.u_free.data(), r.u_next.data(), sizeof(double) * (size_t)r.u_free.size()) &&
+                        !std::memcmp(q_free.data(), r.q_next.data(), sizeof(double) * (size_t)q_free.size());
+      const double S = (same ? E1 : kinetic(q_free, r.u_free) + potential(q_free)) - E0 - act_free - drive_free;
       c.smooth += S;
       if (S < 0.0) c.smooth_deficit -= S;
-      int64_t pushing = 0;
-      for (Eigen::Index i = 0; i < m; ++i) pushing += r.P[i] > 0.0;
-      // Recorder._add_impact (given = the obstacle work: 0)
-      const double dissipated = T_minus - T_plus;
+      // Recorder._add_impact (given = the obstacle work: 0); a persistent step only counts
       c.contact_steps += 1;
-      c.diss += dissipated;
-      c.law += law;
-      const double diff = std::abs(dissipated - law);
-      if (diff > c.law_diff) c.law_diff = diff, c.t_law_diff = tm;
-      if (c.new_impact != 0.0) {
-        const int64_t row = starts[2] + written_[2];
-        *i_step.at(row) = index, *i_t.at(row) = tm, *i_contacts.at(row) = pushing;
-        *i_Tm.at(row) = T_minus, *i_Tp.at(row) = T_plus, *i_diss.at(row) = dissipated, *i_law.at(row) = law;
-        nimp = 1;
+      if (!persistent) {
+        int64_t pushing = 0;
+        for (Eigen::Index i = 0; i < m; ++i) pushing += r.P[i] > 0.0;
+        const double dissipated = T_minus - T_plus;
+        c.diss += dissipated;
+        c.law += law;
+        const double diff = std::abs(dissipated - law);
+        if (diff > c.law_diff) c.law_diff = diff, c.t_law_diff = tm;
+        if (c.new_impact != 0.0) {
+          const int64_t row = starts[2] + written_[2];
+          *i_step.at(row) = index, *i_t.at(row) = tm, *i_contacts.at(row) = pushing;
+          *i_Tm.at(row) = T_minus, *i_Tp.at(row) = T_plus, *i_diss.at(row) = dissipated, *i_law.at(row) = law;
+          nimp = 1;
+        }
       }
     }
     c.E = E1, c.T = T1, c.V = V1;
