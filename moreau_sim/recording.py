@@ -38,15 +38,15 @@ LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) o
 
 
 def versions() -> dict[str, str]:
-    """Python's and the libraries' versions (recorded in every output; read once per process: the
-    package metadata costs ~7 ms a run, more than a short adaptive run integrates in)."""
+    """Python's and the libraries' versions (recorded in every output; a new dict each call)."""
     return dict(_versions())
 
 
 @functools.cache
 def _versions() -> dict[str, str]:
     """The versions, read once per process: the libraries are imported once, and reading their metadata
-    (~3 ms) was a whole run's largest fixed cost (a 1000-step run: 3 µs a step)."""
+    (3-7 ms) was a whole run's largest fixed cost (a 1000-step run: 3 µs a step; a short adaptive run: more
+    than it integrates in)."""
     out = {"python": platform.python_version()}
     for dist in ("moreau-sim", "pin", "coal", "piqp", "numpy", "scipy"):
         try:
