@@ -1,0 +1,61 @@
+"""Two nearly parallel box faces (moreau_sim/box_box.py face_patch, src/box_box.hpp, docs/theory.md §6.2): the
+corners of their clipped overlap are contacts, each with its own gap, so that a slightly tilted cube is held by
+the points that carry it and not by one line about which it tips through the face below."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import coal
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from moreau_sim import box_box
+
+HEADER = Path(__file__).resolve().parent.parent / "src" / "box_box.hpp"
+
+
+def test_the_angle_is_the_headers():
+    """src/box_box.hpp has its own copy of FACE_ANGLE (src/step.cpp reads a fixed set of constants): the same."""
+    m = re.search(r"constexpr double FACE_ANGLE = ([0-9.eE+-]+);", HEADER.read_text())
+    assert m and float(m.group(1)) == box_box.FACE_ANGLE
+
+
+def _tilted(theta: float, half_a: float = 0.03, half_b: float = 0.05):
+    """Box A (cube of half side half_a) turned by theta about x, its lowest edge on the top face of box B (cube
+    half_b at the origin): A's edges, B's, (R, c, half) of each, and A's 4 bottom corners (closed form)."""
+    R = pin.rpy.rpyToMatrix(theta, 0.0, 0.0)
+    low = half_a * (np.cos(theta) + np.sin(theta))  # the lowest point of A below its centre
+    c = np.array([0.0, 0.0, half_b + low])
+    bottom = np.array([c + R @ np.array([sx, sy, -1.0]) * half_a for sx in (-1, 1) for sy in (-1, 1)])
+    A = box_box.world(box_box.box_edges(coal.Box(*(2 * half_a,) * 3), pin.SE3.Identity()), pin.SE3(R, c))
+    B = box_box.world(box_box.box_edges(coal.Box(*(2 * half_b,) * 3), pin.SE3.Identity()), pin.SE3.Identity())
+    return A, B, (R, c, np.full(3, half_a)), (np.eye(3), np.zeros(3), np.full(3, half_b)), bottom
+
+
+@pytest.mark.parametrize("theta", [1e-6, 1e-4, 1e-2, box_box.FACE_ANGLE * (1.0 - 1e-6)])
+def test_corners_carry_their_own_gaps(theta):
+    """A small cube tilted over a larger one: its whole bottom face lies over B's top face, so the clipped overlap
+    is A's bottom face; every corner's gap is its height above B's top face, z - h_B (to 1e-15 m), the normal B's
+    face normal, p_B the corner's foot on that face; near = 1 m takes all of them, tol = 1e-9 only the lowest two."""
+    A, B, box_a, box_b, bottom = _tilted(theta)
+    rows, spread = box_box.face_patch(A, B, box_a, box_b, 1e-9, 1.0)
+    expect = bottom[:, 2] - 0.05
+    assert len(rows) == 4
+    assert spread == pytest.approx(np.ptp(expect), abs=1e-15)
+    for g, pa, pb, n, _ in rows:
+        k = int(np.argmin(np.abs(bottom - pa).max(axis=1)))
+        assert np.abs(bottom[k] - pa).max() <= 1e-15
+        assert g == pytest.approx(expect[k], abs=1e-15)
+        np.testing.assert_allclose(n, [0.0, 0.0, 1.0], atol=1e-15)
+        np.testing.assert_allclose(pb, pa - g * n, atol=1e-15)
+    lowest, _ = box_box.face_patch(A, B, box_a, box_b, 1e-9, 1e-9)
+    assert len(lowest) == 2 and all(abs(g) <= 1e-15 for g, *_ in lowest)
+
+
+def test_no_face_pair_beyond_the_angle():
+    """Just beyond FACE_ANGLE the faces are no pair (their corners are the vertices' and edges' contacts)."""
+    A, B, box_a, box_b, _ = _tilted(box_box.FACE_ANGLE * (1.0 + 1e-6))
+    assert box_box.face_patch(A, B, box_a, box_b, 1e-9, 1.0) == ([], 0.0)
