@@ -18,7 +18,7 @@ EDGE_END = 1e-6  # a crossing this close (relative to the edge's length) to an e
 PARALLEL = 1e-9  # |e_A x e_B| below this: parallel edges, no crossing (vertices and patches cover them)
 _AXIS = np.arange(12) // 4  # the axis each of a box's 12 edges runs along (box_edges)
 DEPTH_RATIO = 4.0  # a crossing deeper than this times the boxes' penetration depth is no contact (edge_crossings)
-FACE_ANGLE = 0.1  # [rad] faces this close to anti-parallel: their clipped overlap's corners are contacts (face_patch)
+FACE_ANGLE = np.pi / 4  # [rad] faces this close to anti-parallel: their clipped overlap's corners count (face_patch)
 
 
 def box_edges(geometry: coal.Box, placement: pin.SE3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -203,6 +203,16 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
                 continue
             if faces is not None:  # one face separates: a smooth contact with its exact normal
                 nrm = -faces[0]
+            elif isinstance(data.shapes[g_other], coal.Box) and isinstance(data.shapes[g_vert], coal.Box):
+                # a box's vertex inside the other box (deeper than tol, exact face distances): the nearest face's
+                # normal, not coal's point-query normal, which there is EPA's and need be no face normal at all
+                # (a pile's cube sank 5 mm along a horizontal one; docs/theory.md §6.2)
+                planes = model.face_planes[g_other]
+                sd = planes[0] @ (oMo.rotation.T @ (Vw[i] - oMo.translation)) - planes[1]
+                f = int(np.argmax(sd))
+                if sd[f] < -tol:
+                    d, nrm = float(sd[f]), -(oMo.rotation @ planes[0][f])
+                    p_on_other = Vw[i] + d * nrm
             if v_is_a:
                 out.append((d, Vw[i], p_on_other, -nrm, pair, FeatureKind.VERTEX, offset + i))
             else:
@@ -353,6 +363,8 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, pair.joint_first, tol,
                              found, pair.index, na, False, corner_list, margin)
         edges, tilted = _edge_contacts(model, data, pair, tol, margin)
+        if tilted:
+            _face_vertices(found, start, edges)
         if edges and len(corner_list) > start_c:  # a crossing within the corner margin of a corner is that corner's
             at = np.array([c[1] for c in corner_list[start_c:]] + [c[2] for c in corner_list[start_c:]])
             edges = [r for r in edges if min(np.abs(at - r[1]).max(axis=1).min(), np.abs(at - r[2]).max(axis=1).min())
@@ -424,6 +436,21 @@ def _edge_contacts(model: Model, data: Data, pair, tol: float, near: float) -> t
     faces, spread = box_box.face_patch(A, B, box_a, box_b, tol, near)
     return ([(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
             + [(g, pa, pb, n, pair.index, FeatureKind.FACE, i) for g, pa, pb, n, i in faces]), bool(faces) and spread > tol
+
+
+def _face_vertices(found: list, start: int, edges: list) -> None:
+    """A vertex contact of a pair at a corner of its tilted face pair (the same point on A or on B, to
+    SAME_POINT) takes that corner's gap, points and normal (docs/theory.md §6.2, 3b): the vertex's own cone
+    straddles the other face's plane there (the two faces are tilted), so the face it keeps can be a side face
+    of the other box, whose normal lets the vertex sink through the face it is on. Its kind and feature stay."""
+    for r in edges:
+        if r[5] != FeatureKind.FACE:
+            continue
+        for i in range(start, len(found)):
+            f = found[i]
+            if f[5] == FeatureKind.VERTEX and (np.abs(f[1] - r[1]).max() <= SAME_POINT
+                                               or np.abs(f[2] - r[2]).max() <= SAME_POINT):
+                found[i] = (r[0], r[1], r[2], r[3], f[4], f[5], f[6])
 
 
 def _add_new(found: list, start: int, edges: list) -> None:
