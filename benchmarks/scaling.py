@@ -259,35 +259,44 @@ def forest_one(n: int, repeat: int) -> dict:
             "peak_rss_mb": peak_rss_mb()}
 
 
+REST_SPEED = 0.05  # [m/s, rad/s] a pile is at rest from the first step after which no |u_j| exceeds this
+
+
 def boxes_one(n: int) -> dict:
-    """One pile size, in this process: build, Data, a run of PILE_T s with every step timed, then MuJoCo."""
+    """One pile size, in this process: build, Data, a run of PILE_T s with every step timed (the compiled step,
+    which hands the steps it does not take to Python: compiled.counts says how many), then MuJoCo. The deepest
+    penetration is the least pair distance, every 10th step; the time to rest as REST_SPEED says."""
+    from moreau_sim.contacts import pair_distances
+
     out = {"boxes": n}
-    why = None  # the Python step only: on the forest (moreau_sim/trees.py), no Data of the whole model
-    if why is None:
-        t0 = CLOCK()
-        model = ms.build_model(pile(n))
-        out["build_s"] = CLOCK() - t0
-        t0 = CLOCK()
-        data = ms.make_data(model)
-        out["data_s"] = CLOCK() - t0
-        st = ms.initial_state(model, data)
-        e0 = energy.total(model, data, st.q, st.u)
-        times, contacts, gain = [], [], 0.0
-        for _ in range(int(round(PILE_T / PILE_H))):
-            t = CLOCK()
-            r = ms.step(model, data, st)
-            times.append(CLOCK() - t)
-            contacts.append(r.contacts.m + len(r.contacts.corners))
-            st = r.state
-            gain = max(gain, energy.total(model, data, st.q, st.u) - e0)
-        third = len(times) // 3
-        out.update(nv=model.nv, pairs=len(model.pairs), steps=len(times), us=statistics.median(times) * 1e6,
-                   us_last_third=statistics.median(times[-third:]) * 1e6, contacts=statistics.median(contacts),
-                   contacts_last_third=statistics.median(contacts[-third:]), energy0=e0, max_energy_gain=gain,
-                   final_max_speed=float(np.abs(st.u).max()), peak_rss_mb=peak_rss_mb())
-        del data, model
-    else:
-        out["skipped"] = why
+    t0 = CLOCK()
+    model = ms.build_model(pile(n).with_options(step_impl="compiled"))
+    out["build_s"] = CLOCK() - t0
+    t0 = CLOCK()
+    data = ms.make_data(model)
+    out["data_s"] = CLOCK() - t0
+    st = ms.initial_state(model, data)
+    e0 = energy.total(model, data, st.q, st.u)
+    times, contacts, speeds, gain, deepest = [], [], [], 0.0, 0.0
+    for k in range(int(round(PILE_T / PILE_H))):
+        t = CLOCK()
+        r = ms.step(model, data, st)
+        times.append(CLOCK() - t)
+        contacts.append(r.contacts.m + len(r.contacts.corners))
+        st = r.state
+        speeds.append(float(np.abs(st.u).max()))
+        gain = max(gain, energy.total(model, data, st.q, st.u) - e0)
+        if k % 10 == 9:
+            deepest = min(deepest, float(np.nanmin(pair_distances(model, data, st.q, near=True))))
+    moving = [k for k, v in enumerate(speeds) if v > REST_SPEED]  # the steps that end moving
+    rest = None if moving and moving[-1] == len(speeds) - 1 else (moving[-1] + 1) * PILE_H if moving else 0.0
+    third = len(times) // 3
+    out.update(nv=model.nv, pairs=len(model.pairs), steps=len(times), us=statistics.median(times) * 1e6,
+               us_last_third=statistics.median(times[-third:]) * 1e6, contacts=statistics.median(contacts),
+               contacts_last_third=statistics.median(contacts[-third:]), energy0=e0, max_energy_gain=gain,
+               final_max_speed=speeds[-1], rest_s=rest, deepest_m=deepest,
+               compiled_counts=dict(compiled.counts(data)), peak_rss_mb=peak_rss_mb())
+    del data, model
     steps = int(round(PILE_T / PILE_H))
     out["mujoco"] = mujoco_run("boxes", n, warm=steps - steps // 3, timed=steps // 3)
     return out
