@@ -10,9 +10,10 @@ process of its own (its peak RSS is that size's alone):
   short run from rest closes all N contacts. `ms.step` is timed on those states (best of `repeat` per
   state, median over states) with each step_impl, saying which path took the steps (compiled.counts);
 - a pile of N free 0.1 m cubes (1 kg) dropped from a grid into a bin (the ground and four walls,
-  half-spaces), e = 0.5, h = 1e-3, run for T seconds with the Python step (the compiled step hands
-  box-box pairs back): every step timed, the contacts counted, the total energy checked against its
-  start (no gain), and the largest |u| at the end (at rest?).
+  half-spaces), e = 0.1, h = 1e-3, run for PILE_T seconds with the compiled step (it hands the steps it
+  does not take to Python: compiled.counts): every step timed, the contacts counted, the total energy
+  checked against its start (no gain), the deepest penetration (every 10th step), the largest |u| at the
+  end and the time to rest (REST_SPEED; frictionless cubes keep their spin about the vertical).
 
 For each: the model's build time (build_model), the Data's (make_data), the peak RSS of the child
 after stepping, and MuJoCo (peers.mujoco's soft contacts, condim 1) on the same scene in the same
@@ -392,7 +393,7 @@ def plot(data: dict, png: Path) -> None:
     p = measured(data["boxes"])
     mp = [r for r in data["boxes"] if "mujoco" in r]
     fitted(a2, [r["boxes"] for r in p], [r["us"] * 1e-3 for r in p], "s",
-           f"moreau-sim, Python step: slope {s['pile']:.2f}")
+           f"moreau-sim step: slope {s['pile']:.2f}")
     fitted(a2, [r["boxes"] for r in mp], [r["mujoco"]["us"] * 1e-3 for r in mp], "^",
            f"{NAMES['mujoco']}: slope {s['mujoco_pile']:.2f}")
     for r in data["boxes"]:
@@ -448,20 +449,23 @@ def markdown_table(data: dict) -> str:
         out.append(f"| {r['beads']} | {r['pairs']} | {r['candidates']} | {r['contacts']:.0f} | "
                    f"{us} | {paths} | {r['python']['us']:.1f} | {mjs} | {r['build_s']:.3g} | "
                    f"{r['data_s']:.3g} | {_f(r.get('build_rss_mb'), '{:.0f}')} | {r['peak_rss_mb']:.0f} |")
-    out += ["", "| boxes | nv | pairs (model) | contacts (median; last third) | Python step | last third | "
-            "MuJoCo (ncon) | ratio ours / MuJoCo | max energy gain J (E0) | max \\|u\\| at the end | build_model s | "
-            "make_data s | peak RSS MB |",
-            "|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|"]
+    out += ["", "| boxes | nv | pairs (model) | contacts (median; last third) | step us (compiled) | last third | "
+            "MuJoCo (ncon) | ratio ours / MuJoCo | max energy gain J (E0) | deepest m | max \\|u\\| at the end | "
+            "build_model s | make_data s | peak RSS MB |",
+            "|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
     for r in data["boxes"]:
         mj = r.get("mujoco")
         mjs = f"{mj['us']:.1f} ({mj['contacts']:.0f})" if mj else "–"
         if "skipped" in r or "failed" in r:
             why = r.get("skipped") or f"failed: {r['failed']}"
-            out.append(f"| {r['boxes']} | {6 * r['boxes']} | not built: {why} | | | | {mjs} | | | | | | |")
+            out.append(f"| {r['boxes']} | {6 * r['boxes']} | not built: {why} | | | | {mjs} | | | | | | | |")
             continue
+        cc = r.get("compiled_counts")
+        share = f" ({(cc.get('contact', 0) + cc.get('flight', 0)) / r['steps']:.0%})" if cc else ""
         out.append(f"| {r['boxes']} | {r['nv']} | {r['pairs']} | {r['contacts']:.0f}; {r['contacts_last_third']:.0f} | "
-                   f"{r['us']:.0f} | {r['us_last_third']:.0f} | {mjs} | {r['us'] / mj['us']:.0f} | "
-                   f"{r['max_energy_gain']:.2g} ({r['energy0']:.3g}) | {r['final_max_speed']:.2g} | "
+                   f"{r['us']:.0f}{share} | {r['us_last_third']:.0f} | {mjs} | {r['us'] / mj['us']:.0f} | "
+                   f"{r['max_energy_gain']:.2g} ({r['energy0']:.3g}) | {_f(r.get('deepest_m'), '{:.2g}')} | "
+                   f"{r['final_max_speed']:.2g} | "
                    f"{r['build_s']:.3g} | {r['data_s']:.3g} | {r['peak_rss_mb']:.0f} |")
     out += ["", f"Fitted log-log slopes: per step against contacts, beads "
             f"{measured(data['beads'])[0]['beads']}–{measured(data['beads'])[-1]['beads']}: compiled "

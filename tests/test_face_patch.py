@@ -58,10 +58,28 @@ def test_corners_carry_their_own_gaps(theta):
     assert len(lowest) == 2 and all(abs(g) <= 1e-15 for g, *_ in lowest)
 
 
-def test_no_face_pair_beyond_the_angle():
-    """Just beyond FACE_ANGLE the faces are no pair (their corners are the vertices' and edges' contacts)."""
-    A, B, box_a, box_b, _ = _tilted(box_box.FACE_ANGLE * (1.0 + 1e-6))
-    assert box_box.face_patch(A, B, box_a, box_b, 1e-9, 1.0) == ([], 0.0)
+@pytest.mark.parametrize("delta, counts", [(-1e-6, True), (1e-6, False)])
+def test_the_angle_edge(delta, counts):
+    """A small cube turned so that its three axes make angles FACE_ANGLE + delta, and more, with the vertical (the
+    cosines of its axes with z: cos(FACE_ANGLE + delta) and twice sqrt((1 - that^2) / 2), smaller), its lowest
+    vertex on the larger cube's top face: its face most opposite the top face is a face pair within the angle
+    (corners, the lowest at gap 0), none beyond it."""
+    c = np.cos(box_box.FACE_ANGLE + delta)
+    s = np.sqrt((1.0 - c * c) / 2.0)
+    r3 = np.array([c, s, s])
+    r1 = np.cross(r3, [1.0, 0.0, 0.0])
+    r1 /= np.linalg.norm(r1)
+    R = np.vstack((r1, np.cross(r3, r1), r3))
+    half_a, half_b = 0.03, 0.05
+    V = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half_a @ R.T
+    centre = np.array([0.0, 0.0, half_b - V[:, 2].min()])
+    A = box_box.world(box_box.box_edges(coal.Box(*(2 * half_a,) * 3), pin.SE3.Identity()), pin.SE3(R, centre))
+    B = box_box.world(box_box.box_edges(coal.Box(*(2 * half_b,) * 3), pin.SE3.Identity()), pin.SE3.Identity())
+    rows, _ = box_box.face_patch(A, B, (R, centre, np.full(3, half_a)), (np.eye(3), np.zeros(3), np.full(3, half_b)),
+                                 1e-9, 1.0)
+    assert bool(rows) == counts
+    if counts:
+        assert min(g for g, *_ in rows) == pytest.approx(0.0, abs=1e-15)
 
 
 def _cube_on_cube(theta: float, e: float, h: float, impl: str, ground: bool):
