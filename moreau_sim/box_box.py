@@ -64,15 +64,13 @@ def _dot(a: np.ndarray, b: np.ndarray) -> float:
     return (float(a[0]) * float(b[0]) + float(a[1]) * float(b[1])) + float(a[2]) * float(b[2])
 
 
-def face_patch(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float, near: float) -> tuple[list[tuple], float]:
+def face_patch(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -> tuple[list[tuple], float]:
     """The corners of the overlap of two nearly parallel faces of boxes A and B (world(): their edges; box_a,
     box_b: (R, c, half) of each in the world, for the depth test), each with its own gap (docs/theory.md §6.2):
     ([(g [m], p_A (3,), p_B (3,), n (3,), i) for corner i], spread [m]: the largest minus the least gap of
     all the clipped corners), ([], 0.0) unless the faces are within FACE_ANGLE of anti-parallel and overlap.
-    The corners are those with g <= tol; where the faces touch (a corner within tol) and are tilted (spread
-    > tol), every corner with g <= near [m] (>= tol: the detection's corner margin, how far a point can
-    move in a step): a tilted box comes down on them, and a line of support alone lets it tip through the
-    face in one step.
+    The corners are those with g <= tol, as every contact's (a corner still open is no row: a row holds its
+    corner where it is, and the law has no gap to let it close; a tilted box comes down on it in a later step).
 
     A box's axes a_i are its edges 0, 4, 8, its half sides half their lengths, its centre edge 0's start
     + sum_i h_i a_i. The reference face is the face of least interpenetration: among A's outward normals
@@ -133,8 +131,7 @@ def face_patch(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float, near:
     plane = _dot(o, cr + hr[i] * o)
     gaps = [_dot(o, p) - plane for p in poly]
     spread = max(gaps) - min(gaps)
-    near = near if min(gaps) <= tol and spread > tol else tol  # tilted faces in contact: the near corners too
-    hits = [(g, m, p) for m, (g, p) in enumerate(zip(gaps, poly)) if g <= near]
+    hits = [(g, m, p) for m, (g, p) in enumerate(zip(gaps, poly)) if g <= tol]
     if any(g < 0.0 for g, _, _ in hits):
         floor = -(DEPTH_RATIO * max(overlap(box_a, box_b), 0.0) + tol)
         hits = [x for x in hits if x[0] >= floor]

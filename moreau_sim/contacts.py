@@ -362,7 +362,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
         if nb:
             _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, pair.joint_first, tol,
                              found, pair.index, na, False, corner_list, margin)
-        edges, tilted = _edge_contacts(model, data, pair, tol, margin)
+        edges, tilted = _edge_contacts(model, data, pair, tol)
         if tilted:
             _face_vertices(found, start, edges)
         if edges and len(corner_list) > start_c:  # a crossing within the corner margin of a corner is that corner's
@@ -414,10 +414,10 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     return from_rows(model, found, corners)
 
 
-def _edge_contacts(model: Model, data: Data, pair, tol: float, near: float) -> tuple[list, bool]:
+def _edge_contacts(model: Model, data: Data, pair, tol: float) -> tuple[list, bool]:
     """The edge crossings of a pair of two boxes (box_box.edge_crossings, docs/theory.md §6.2) as contact
     rows (g, p_A, p_B, n, pair, EDGE, 12 k + l), then the corners of its nearly parallel faces (box_box.face_patch)
-    as rows (g, p_A, p_B, n, pair, FACE, i) (near [m]: the corner margin); and whether those corners replace coal's patch (their own gaps
+    as rows (g, p_A, p_B, n, pair, FACE, i); and whether those corners replace coal's patch (their own gaps
     differ by more than tol: a patch's one depth would misstate them). ([], False) for any other pair."""
     shapes = data.shapes
     ga, gb = shapes[pair.first], shapes[pair.second]
@@ -433,7 +433,7 @@ def _edge_contacts(model: Model, data: Data, pair, tol: float, near: float) -> t
     box_a = (fa.rotation, fa.translation, np.asarray(ga.halfSide))
     box_b = (fb.rotation, fb.translation, np.asarray(gb.halfSide))
     hits = box_box.edge_crossings(A, B, box_a, box_b, tol)
-    faces, spread = box_box.face_patch(A, B, box_a, box_b, tol, near)
+    faces, spread = box_box.face_patch(A, B, box_a, box_b, tol)
     return ([(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
             + [(g, pa, pb, n, pair.index, FeatureKind.FACE, i) for g, pa, pb, n, i in faces]), bool(faces) and spread > tol
 

