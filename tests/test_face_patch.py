@@ -95,14 +95,17 @@ def _cube_on_cube(theta: float, e: float, h: float, impl: str, ground: bool):
     return ms.build_model(b.build())
 
 
+@pytest.mark.parametrize("h", [1e-3, pytest.param(5e-4, marks=pytest.mark.slow)])
 @pytest.mark.parametrize("ground", [False, True])
 @pytest.mark.parametrize("e", [0.0, 0.5])
 @pytest.mark.parametrize("theta", [1e-6, 1e-4, 1e-2])
-def test_a_tilted_cube_settles_without_penetration_or_gain(theta, e, ground):
-    """A cube tilted by theta (roll theta, pitch 0.7 theta) resting on its lowest vertex on a cube (or the ground),
-    h = 1e-3: it comes down on its face; the run's invariants hold (no persisting penetration, no gain of T + V
-    beyond the fixed step's bound), and the compiled step's trajectory is the Python step's bit for bit."""
-    runs = {impl: ms.simulate(_cube_on_cube(theta, e, 1e-3, impl, ground), progress=False)
+def test_a_tilted_cube_settles_without_penetration_or_gain(theta, e, ground, h):
+    """A cube tilted by theta (roll theta, pitch 0.7 theta) resting on its lowest vertex on a cube (or the ground):
+    it comes down on its face; the run's invariants hold (no persisting penetration, no gain of T + V beyond the
+    fixed step's bound), and the compiled step's trajectory is the Python step's bit for bit. (At h = 1e-2, from
+    rest, a cube on a cube tips about its touching edge by up to 2 mm and 4 of 12 such runs are flagged:
+    docs/theory.md §6.2, 3b.)"""
+    runs = {impl: ms.simulate(_cube_on_cube(theta, e, h, impl, ground), progress=False)
             for impl in ("python", "compiled")}
     tr = runs["python"]
     assert tr.meta["status"] == "complete", tr.meta.get("invariants")
