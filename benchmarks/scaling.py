@@ -449,23 +449,20 @@ def markdown_table(data: dict) -> str:
         out.append(f"| {r['beads']} | {r['pairs']} | {r['candidates']} | {r['contacts']:.0f} | "
                    f"{us} | {paths} | {r['python']['us']:.1f} | {mjs} | {r['build_s']:.3g} | "
                    f"{r['data_s']:.3g} | {_f(r.get('build_rss_mb'), '{:.0f}')} | {r['peak_rss_mb']:.0f} |")
-    out += ["", "| boxes | nv | pairs (model) | contacts (median; last third) | step us (compiled) | last third | "
-            "MuJoCo (ncon) | ratio ours / MuJoCo | max energy gain J (E0) | deepest m | max \\|u\\| at the end | "
-            "build_model s | make_data s | peak RSS MB |",
-            "|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
+    out += ["", "| boxes | nv | pairs (model) | contacts (median; last third) | Python step | last third | "
+            "MuJoCo (ncon) | ratio ours / MuJoCo | max energy gain J (E0) | max \\|u\\| at the end | build_model s | "
+            "make_data s | peak RSS MB |",
+            "|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|"]
     for r in data["boxes"]:
         mj = r.get("mujoco")
         mjs = f"{mj['us']:.1f} ({mj['contacts']:.0f})" if mj else "–"
         if "skipped" in r or "failed" in r:
             why = r.get("skipped") or f"failed: {r['failed']}"
-            out.append(f"| {r['boxes']} | {6 * r['boxes']} | not built: {why} | | | | {mjs} | | | | | | | |")
+            out.append(f"| {r['boxes']} | {6 * r['boxes']} | not built: {why} | | | | {mjs} | | | | | | |")
             continue
-        cc = r.get("compiled_counts")
-        share = f" ({(cc.get('contact', 0) + cc.get('flight', 0)) / r['steps']:.0%})" if cc else ""
         out.append(f"| {r['boxes']} | {r['nv']} | {r['pairs']} | {r['contacts']:.0f}; {r['contacts_last_third']:.0f} | "
-                   f"{r['us']:.0f}{share} | {r['us_last_third']:.0f} | {mjs} | {r['us'] / mj['us']:.0f} | "
-                   f"{r['max_energy_gain']:.2g} ({r['energy0']:.3g}) | {_f(r.get('deepest_m'), '{:.2g}')} | "
-                   f"{r['final_max_speed']:.2g} | "
+                   f"{r['us']:.0f} | {r['us_last_third']:.0f} | {mjs} | {r['us'] / mj['us']:.0f} | "
+                   f"{r['max_energy_gain']:.2g} ({r['energy0']:.3g}) | {r['final_max_speed']:.2g} | "
                    f"{r['build_s']:.3g} | {r['data_s']:.3g} | {r['peak_rss_mb']:.0f} |")
     out += ["", f"Fitted log-log slopes: per step against contacts, beads "
             f"{measured(data['beads'])[0]['beads']}–{measured(data['beads'])[-1]['beads']}: compiled "
