@@ -363,8 +363,6 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, pair.joint_first, tol,
                              found, pair.index, na, False, corner_list, margin)
         edges, tilted = _edge_contacts(model, data, pair, tol)
-        if tilted:
-            _face_vertices(found, start, edges)
         if edges and len(corner_list) > start_c:  # a crossing within the corner margin of a corner is that corner's
             at = np.array([c[1] for c in corner_list[start_c:]] + [c[2] for c in corner_list[start_c:]])
             edges = [r for r in edges if min(np.abs(at - r[1]).max(axis=1).min(), np.abs(at - r[2]).max(axis=1).min())
@@ -436,21 +434,6 @@ def _edge_contacts(model: Model, data: Data, pair, tol: float) -> tuple[list, bo
     faces, spread = box_box.face_patch(A, B, box_a, box_b, tol)
     return ([(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
             + [(g, pa, pb, n, pair.index, FeatureKind.FACE, i) for g, pa, pb, n, i in faces]), bool(faces) and spread > tol
-
-
-def _face_vertices(found: list, start: int, edges: list) -> None:
-    """A vertex contact of a pair at a corner of its tilted face pair (the same point on A or on B, to
-    SAME_POINT) takes that corner's gap, points and normal (docs/theory.md §6.2, 3b): the vertex's own cone
-    straddles the other face's plane there (the two faces are tilted), so the face it keeps can be a side face
-    of the other box, whose normal lets the vertex sink through the face it is on. Its kind and feature stay."""
-    for r in edges:
-        if r[5] != FeatureKind.FACE:
-            continue
-        for i in range(start, len(found)):
-            f = found[i]
-            if f[5] == FeatureKind.VERTEX and (np.abs(f[1] - r[1]).max() <= SAME_POINT
-                                               or np.abs(f[2] - r[2]).max() <= SAME_POINT):
-                found[i] = (r[0], r[1], r[2], r[3], f[4], f[5], f[6])
 
 
 def _add_new(found: list, start: int, edges: list) -> None:
