@@ -52,6 +52,7 @@ class FeatureKind(enum.IntEnum):
     SWEPT = 4  # found by the swept test along a fast motion (tunnelling.py; feature 0)
     JOINT_LIMIT = 5  # a joint's lower or upper position limit (limits.py; feature = the Pinocchio joint id)
     EDGE = 6  # two boxes' edges crossing (box_box.py): feature 12 k + l, A's edge k and B's edge l
+    FACE = 7  # corner `feature` of two nearly parallel box faces' clipped overlap, its own gap (box_box.face_patch)
 
 
 SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact
@@ -202,6 +203,16 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
                 continue
             if faces is not None:  # one face separates: a smooth contact with its exact normal
                 nrm = -faces[0]
+            elif isinstance(data.shapes[g_other], coal.Box) and isinstance(data.shapes[g_vert], coal.Box):
+                # a box's vertex inside the other box (deeper than tol, exact face distances): the nearest face's
+                # normal, not coal's point-query normal, which there is EPA's and need be no face normal at all
+                # (a pile's cube sank 5 mm along a horizontal one; docs/theory.md §6.2)
+                planes = model.face_planes[g_other]
+                sd = planes[0] @ (oMo.rotation.T @ (Vw[i] - oMo.translation)) - planes[1]
+                f = int(np.argmax(sd))
+                if sd[f] < -tol:
+                    d, nrm = float(sd[f]), -(oMo.rotation @ planes[0][f])
+                    p_on_other = Vw[i] + d * nrm
             if v_is_a:
                 out.append((d, Vw[i], p_on_other, -nrm, pair, FeatureKind.VERTEX, offset + i))
             else:
@@ -351,7 +362,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
         if nb:
             _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, pair.joint_first, tol,
                              found, pair.index, na, False, corner_list, margin)
-        edges = _edge_contacts(model, data, pair, tol)
+        edges, tilted = _edge_contacts(model, data, pair, tol)
         if edges and len(corner_list) > start_c:  # a crossing within the corner margin of a corner is that corner's
             at = np.array([c[1] for c in corner_list[start_c:]] + [c[2] for c in corner_list[start_c:]])
             edges = [r for r in edges if min(np.abs(at - r[1]).max(axis=1).min(), np.abs(at - r[2]).max(axis=1).min())
@@ -372,7 +383,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
                 continue
             n = -np.asarray(c.normal)
         k_patch = 0
-        if pair.patch and not fallback and c.penetration_depth <= tol:
+        if pair.patch and not fallback and c.penetration_depth <= tol and not tilted:
             # the patch (overlap polygon of parallel faces) about the face normal nearest to coal's
             # (whose EPA normal of resting faces drifts by up to 4e-3 rad: the polygon collapses)
             n_face = _face_axis(model, data, pair) if pair.index in model.polytope_pair_set else _snap(model, data, pair, n)
@@ -401,36 +412,43 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     return from_rows(model, found, corners)
 
 
-def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
+def _edge_contacts(model: Model, data: Data, pair, tol: float) -> tuple[list, bool]:
     """The edge crossings of a pair of two boxes (box_box.edge_crossings, docs/theory.md §6.2) as contact
-    rows (g, p_A, p_B, n, pair, EDGE, 12 k + l); [] for any other pair."""
+    rows (g, p_A, p_B, n, pair, EDGE, 12 k + l), then the corners of its nearly parallel faces (box_box.face_patch)
+    as rows (g, p_A, p_B, n, pair, FACE, i); and whether those corners replace coal's patch (their own gaps
+    differ by more than tol: a patch's one depth would misstate them). ([], False) for any other pair."""
     shapes = data.shapes
     ga, gb = shapes[pair.first], shapes[pair.second]
     if not (isinstance(ga, coal.Box) and isinstance(gb, coal.Box)):
-        return []
+        return [], False
     cache = data.box_edges  # per geometry, in its joint frame
     for g, geo in ((pair.first, ga), (pair.second, gb)):
         if g not in cache:
             cache[g] = box_box.box_edges(geo, model.geometries[g].placement)
     oMi, oMg = data.kinematics.oMi, data.oMg
     fa, fb = oMg[pair.first], oMg[pair.second]
-    hits = box_box.edge_crossings(box_box.world(cache[pair.first], oMi[pair.joint_first]),
-                                  box_box.world(cache[pair.second], oMi[pair.joint_second]),
-                                  (fa.rotation, fa.translation, np.asarray(ga.halfSide)),
-                                  (fb.rotation, fb.translation, np.asarray(gb.halfSide)), tol)
-    return [(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
+    A, B = box_box.world(cache[pair.first], oMi[pair.joint_first]), box_box.world(cache[pair.second], oMi[pair.joint_second])
+    box_a = (fa.rotation, fa.translation, np.asarray(ga.halfSide))
+    box_b = (fb.rotation, fb.translation, np.asarray(gb.halfSide))
+    hits = box_box.edge_crossings(A, B, box_a, box_b, tol)
+    faces, spread = box_box.face_patch(A, B, box_a, box_b, tol)
+    return ([(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
+            + [(g, pa, pb, n, pair.index, FeatureKind.FACE, i) for g, pa, pb, n, i in faces]), bool(faces) and spread > tol
 
 
 def _add_new(found: list, start: int, edges: list) -> None:
-    """Append the edge contacts of a pair whose point on A is not already one of its contacts (a patch
-    corner of two yawed faces is also the crossing of their edges)."""
+    """Append the edge contacts and face corners of a pair whose point on A is not already one of its
+    contacts (a patch corner of two yawed faces is also the crossing of their edges)."""
     if not edges:
         return
     if len(found) > start:
         pa, known = np.array([r[1] for r in edges]), np.array([f[1] for f in found[start:]])
         new = np.abs(pa[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > SAME_POINT
         edges = [r for r, k in zip(edges, new.tolist()) if k]
-    found.extend(edges)
+    crossings = [r for r in edges if r[5] == FeatureKind.EDGE]
+    for r in edges:  # a face corner that is also an edge crossing (yawed faces) is that crossing
+        if r[5] == FeatureKind.EDGE or all(np.abs(x[1] - r[1]).max() > SAME_POINT for x in crossings):
+            found.append(r)
 
 
 def from_rows(model: Model, rows: list, corners: tuple = ()) -> Contacts:
