@@ -203,16 +203,6 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
                 continue
             if faces is not None:  # one face separates: a smooth contact with its exact normal
                 nrm = -faces[0]
-            elif isinstance(data.shapes[g_other], coal.Box) and isinstance(data.shapes[g_vert], coal.Box):
-                # a box's vertex inside the other box (deeper than tol, exact face distances): the nearest face's
-                # normal, not coal's point-query normal, which there is EPA's and need be no face normal at all
-                # (a pile's cube sank 5 mm along a horizontal one; docs/theory.md §6.2)
-                planes = model.face_planes[g_other]
-                sd = planes[0] @ (oMo.rotation.T @ (Vw[i] - oMo.translation)) - planes[1]
-                f = int(np.argmax(sd))
-                if sd[f] < -tol:
-                    d, nrm = float(sd[f]), -(oMo.rotation @ planes[0][f])
-                    p_on_other = Vw[i] + d * nrm
             if v_is_a:
                 out.append((d, Vw[i], p_on_other, -nrm, pair, FeatureKind.VERTEX, offset + i))
             else:

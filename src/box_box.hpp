@@ -170,31 +170,6 @@ inline void face_patch(const Vec3 *a0, const Vec3 *ea, const Eigen::VectorXd &la
   if (any && hi_g - lo > 0.5 * tol) out.push_back({0.0, Vec3::Constant(NAN)});
 }
 
-// contacts._vertex_contacts gives a box's vertex deeper than tol inside another box (exact face distances) the
-// nearest face's normal instead of coal's point-query normal, which src/step.cpp takes: a NaN candidate (never a
-// known point: the step goes to Python) where a vertex of either box is deeper than tol / 2 inside the other
-inline void vertex_inside(const Vec3 *a0, const Vec3 *ea, const Eigen::VectorXd &la, const Vec3 *b0, const Vec3 *eb,
-                          const Eigen::VectorXd &lb, double tol, std::vector<Crossing> &out) {
-  const Vec3 U[2][3] = {{ea[0], ea[4], ea[8]}, {eb[0], eb[4], eb[8]}};
-  const double h[2][3] = {{0.5 * la[0], 0.5 * la[4], 0.5 * la[8]}, {0.5 * lb[0], 0.5 * lb[4], 0.5 * lb[8]}};
-  const Vec3 *s0[2] = {a0, b0};
-  for (int x = 0; x < 2; ++x) {
-    const int y = 1 - x;
-    const Vec3 cy = ((s0[y][0] + h[y][0] * U[y][0]) + h[y][1] * U[y][1]) + h[y][2] * U[y][2];
-    for (int k : {0, 1, 2, 3}) {  // the 8 vertices: the starts and ends of edges 0-3 (along the first axis)
-      for (int end = 0; end < 2; ++end) {
-        const Vec3 v = end ? Vec3(s0[x][k] + (2.0 * h[x][0]) * U[x][0]) : s0[x][k];
-        double s = -INFINITY;
-        for (int j = 0; j < 3; ++j) s = std::max(s, std::abs(dot3(U[y][j], v - cy)) - h[y][j]);
-        if (s < -0.5 * tol) {
-          out.push_back({0.0, Vec3::Constant(NAN)});
-          return;
-        }
-      }
-    }
-  }
-}
-
 inline std::vector<Crossing> edge_candidates(const Edges &A, const Mat3 &RA, const Vec3 &tA, const Edges &B,
                                          const Mat3 &RB, const Vec3 &tB, double tol, double cone, double edge_end,
                                          double parallel) {
@@ -227,7 +202,6 @@ inline std::vector<Crossing> edge_candidates(const Edges &A, const Mat3 &RA, con
       out.push_back({g, a0[k] + sa * ea[k]});
     }
   face_patch(a0, ea, A.el, b0, eb, B.el, tol, out);
-  vertex_inside(a0, ea, A.el, b0, eb, B.el, tol, out);
   return out;
 }
 

@@ -13,7 +13,7 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import box_box, contacts
+from moreau_sim import box_box
 
 from helpers import ROOT
 
@@ -119,28 +119,3 @@ def test_a_tilted_cube_settles_without_penetration_or_gain(theta, e, ground, h, 
     np.testing.assert_array_equal(runs["compiled"].u, tr.u)
 
 
-def test_a_vertex_inside_a_box_takes_the_nearest_face():
-    """An upright cube's top corner V 0.2 mm inside the face of a turned cube whose outward normal is -(1, 1, 1)/sqrt 3
-    (V's three edges leave that face's plane: V is the lower cube's point deepest in the upper one). Inside the
-    box coal's point query answers with EPA's normal (in the pile, 35 deg off any face); V's row is the face's:
-    gap -2e-4 m and normal the face's (from B to A), to 1e-12."""
-    n = -np.ones(3) / np.sqrt(3.0)
-    t1 = np.cross(n, [0.0, 0.0, 1.0])
-    t1 /= np.linalg.norm(t1)
-    R = np.column_stack((n, t1, np.cross(n, t1)))  # A's +x face faces down, towards B
-    V = np.array([0.05, 0.05, 0.1])
-    c = V - (0.05 - 2e-4) * R[:, 0] + 0.01 * R[:, 1] + 0.005 * R[:, 2]
-    b = ms.SceneBuilder("vertex_in_box", folder=f"{ROOT}/scenes", restitution=0.0, dt=1e-3, duration=1e-3,
-                        step_impl="python")
-    b.add_body("low", "../models/cube.urdf", root_joint="free", position=(0.0, 0.0, 0.05))
-    b.add_body("up", "../models/cube.urdf", root_joint="free", position=tuple(c), rpy=tuple(pin.rpy.matrixToRpy(R)))
-    model = ms.build_model(b.build())
-    data = ms.make_data(model)
-    found = contacts.detect(model, data, model.q0)
-    on_a, on_b = np.abs(found.point_a - V).max(axis=1), np.abs(found.point_b - V).max(axis=1)
-    at = np.flatnonzero((on_a <= 1e-12) | (on_b <= 1e-12))
-    assert len(at) == 1 and not found.corners
-    k = at[0]
-    assert found.g[k] == pytest.approx(-2e-4, abs=1e-12)
-    sign = 1.0 if np.abs(found.point_b[k] - V).max() <= 1e-12 else -1.0  # V is B's: n from B to A is -R e_x
-    np.testing.assert_allclose(found.normal[k], -sign * R[:, 0], atol=1e-12)
