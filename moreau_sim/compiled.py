@@ -16,7 +16,7 @@ import pinocchio
 from . import box_box, broad_phase, constraints, qp
 from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, SAME_POINT, Contacts, FeatureKind
 from .law import ENERGY_ROUNDOFF
-from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts
+from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts, StepImpl
 from .qp import QPResult
 from .results import MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
 from .state import State
@@ -78,6 +78,20 @@ _HALF = (coal.Halfspace, coal.Plane)
 _AGAINST_HALF = (coal.Sphere, coal.Box, coal.Capsule, coal.Cylinder, coal.Cone, coal.Ellipsoid, coal.ConvexBase,
                  coal.TriangleP)
 _AGAINST_SPHERE = (coal.Sphere, coal.Capsule, coal.Box, coal.Cylinder, coal.TriangleP)
+
+
+def loop_refusal(model, cls: str, what: str) -> str | None:
+    """Why no compiled loop (the extension's class `cls`, named `what`: compiled_run's Runner, compiled_events's
+    Extrapolator) takes this model's run, before the loop's own reasons (None: none of these)."""
+    if model.options.step_impl is not StepImpl.COMPILED:
+        return "step_impl python"
+    if not available():
+        return f"the compiled step is unavailable: {unavailable_reason()}"
+    if not hasattr(_module, cls):
+        return f"the compiled step predates {what} (rebuild)"
+    if not model.whole_data_fits():
+        return "the whole model's Data exceeds the memory limit"
+    return None
 
 
 def _analytic(a, b) -> bool:

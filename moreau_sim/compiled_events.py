@@ -8,22 +8,16 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from . import compiled
-from .options import StepImpl
 from .results import MIDPOINT_ITERATIONS
 
 
 def unsupported(model) -> str | None:
     """Why the compiled extrapolated step does not take this model's free-flight steps (None: it does)."""
-    if model.options.step_impl is not StepImpl.COMPILED:
-        return "step_impl python"
-    if not compiled.available():
-        return f"the compiled step is unavailable: {compiled.unavailable_reason()}"
-    if not hasattr(compiled._module, "Extrapolator"):
-        return "the compiled step predates the extrapolated step (rebuild)"
+    why = compiled.loop_refusal(model, "Extrapolator", "the extrapolated step")
+    if why is not None:
+        return why
     if model.nv == 0:
         return "no degrees of freedom"
-    if not model.whole_data_fits():
-        return "the whole model's Data exceeds the memory limit"
     return None
 
 

@@ -16,7 +16,6 @@ from . import compiled, invariants
 from .actuation import PDGroup
 from .invariants import Invariant, Invariants
 from .ledger import REST_ACCURACY
-from .options import StepImpl
 from .recording import LOG_RELATIVE
 from .state import State
 
@@ -26,14 +25,9 @@ MAX_BACKOFF = 256  # steps: the most the Python run takes in a row before the Ru
 
 def unsupported(model, check) -> str | None:
     """Why the compiled run does not take this time-stepping run (None: it does)."""
-    if model.options.step_impl is not StepImpl.COMPILED:
-        return "step_impl python"
-    if not compiled.available():
-        return f"the compiled step is unavailable: {compiled.unavailable_reason()}"
-    if not hasattr(compiled._module, "Runner"):
-        return "the compiled step predates the run loop (rebuild)"
-    if not model.whole_data_fits():
-        return "the whole model's Data exceeds the memory limit"
+    why = compiled.loop_refusal(model, "Runner", "the run loop")
+    if why is not None:
+        return why
     why = compiled.unsupported(model)
     if why is not None:
         return why
