@@ -53,15 +53,7 @@ def _short(path: Path, **options):
     return sc.with_options(duration=DURATION.get(sc.name, min(o.duration, MAX_STEPS * o.dt)), **options)
 
 
-# heavy_on_light_box_10000: every 4th run of it in one process differs by ~1e-46 m from the others, whichever loop
-# runs it (six Python-loop runs in a row: the 4th differs), so this pair of runs differs where the suite's order
-# puts the 4th between them; alone it is identical (known before the compiled loop took pairs of two boxes)
-HISTORY = {"heavy_on_light_box_10000"}
-
-
-@pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.xfail(
-    reason="the 4th run of this scene in a process differs by ~1e-46 m, whichever loop", strict=False))
-    if p.stem in HISTORY else p for p in SCENES], ids=[p.stem for p in SCENES])
+@pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
 def test_same_run_both_loops(path):
     """Every bundled scene the compiled loop takes gives the Python loop's arrays, status and ledger figures bit
     for bit; every other runs the Python loop, and its meta says why (its two runs would be the Python loop twice:
