@@ -171,7 +171,7 @@ class Runner {
   bool checks_;
   bool guard_ = false;  // Undo restores the box pairs' detection state (a model with pairs of two boxes)
   // coal's cached GJK guesses of the pairs' distance queries (requests, results) before the current step (Undo)
-  std::vector<std::pair<coal::Vec3s, coal::support_func_guess_t>> dist_req_, dist_res_;
+  QueryGuesses dist_;
   double log_relative_, acceleration_, gap_round_off_, rel_, rel_ledger_, tol_, g_, rest_accuracy_;
   int64_t persist_;
   Carry c_;
@@ -275,17 +275,7 @@ class Runner {
   // saved at the step's detection (its first act: Stepper::save_guesses, restored as on its own fallback), the warm
   // start is the buffer it swapped at the step's end (swapped back); only the distance queries' guesses (the step's
   // position-correction guard, the sample's gaps) are copied here, before each step.
-  void save_distances() {
-    const auto &gd = S_.gd_;
-    const size_t n = gd.distanceRequests.size();
-    dist_req_.resize(n), dist_res_.resize(n);
-    for (size_t k = 0; k < n; ++k) {
-      const auto &rq = gd.distanceRequests[k];
-      const auto &rs = gd.distanceResults[k];
-      dist_req_[k] = {rq.cached_gjk_guess, rq.cached_support_func_guess};
-      dist_res_[k] = {rs.cached_gjk_guess, rs.cached_support_func_guess};
-    }
-  }
+  void save_distances() { dist_.save(S_.gd_.distanceRequests, S_.gd_.distanceResults); }
   // restores, unless committed, what the step (returned by the Stepper, not handed back by it) moved
   struct Undo {
     Runner &R;
@@ -295,13 +285,7 @@ class Runner {
       Stepper &S = R.S_;
       S.restore_guesses();
       S.warm_.swap(S.next_warm_);
-      auto &gd = S.gd_;
-      for (size_t k = 0; k < R.dist_req_.size() && k < gd.distanceRequests.size(); ++k) {
-        auto &rq = gd.distanceRequests[k];
-        auto &rs = gd.distanceResults[k];
-        rq.cached_gjk_guess = R.dist_req_[k].first, rq.cached_support_func_guess = R.dist_req_[k].second;
-        rs.cached_gjk_guess = R.dist_res_[k].first, rs.cached_support_func_guess = R.dist_res_[k].second;
-      }
+      R.dist_.restore(S.gd_.distanceRequests, S.gd_.distanceResults);
     }
   };
 

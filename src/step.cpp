@@ -469,6 +469,26 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
 
 }  // namespace
 
+// coal's cached GJK guesses of a list of queries' requests and results: saved before a step, put back where it is
+// undone (Stepper::save_guesses: the collision queries; run.cpp's Runner: the distance queries)
+struct QueryGuesses {
+  std::vector<std::pair<coal::Vec3s, coal::support_func_guess_t>> req, res;
+  template <class Rq, class Rs> void save(const std::vector<Rq> &rqs, const std::vector<Rs> &rss) {
+    const size_t n = rqs.size();
+    req.resize(n), res.resize(n);
+    for (size_t k = 0; k < n; ++k) {
+      req[k] = {rqs[k].cached_gjk_guess, rqs[k].cached_support_func_guess};
+      res[k] = {rss[k].cached_gjk_guess, rss[k].cached_support_func_guess};
+    }
+  }
+  template <class Rq, class Rs> void restore(std::vector<Rq> &rqs, std::vector<Rs> &rss) const {
+    for (size_t k = 0; k < req.size() && k < rqs.size(); ++k) {
+      rqs[k].cached_gjk_guess = req[k].first, rqs[k].cached_support_func_guess = req[k].second;
+      rss[k].cached_gjk_guess = res[k].first, rss[k].cached_support_func_guess = res[k].second;
+    }
+  }
+};
+
 class Stepper {
   friend class Runner;  // the run loop (src/run.cpp) calls the step and reads its model and geometry
 
@@ -643,28 +663,17 @@ class Stepper {
       saved_guess_[k] = sv.cached_guess, saved_hint_[k] = sv.support_func_cached_guess;
     }
     // the requests' and results' guesses (what Python's detection, rerun after a fallback, starts from)
-    saved_req_.resize(n), saved_res_.resize(n);
-    for (size_t k = 0; k < n; ++k) {
-      const auto &rq = gd_.collisionRequests[k];
-      const auto &rs = gd_.collisionResults[k];
-      saved_req_[k] = {rq.cached_gjk_guess, rq.cached_support_func_guess};
-      saved_res_[k] = {rs.cached_gjk_guess, rs.cached_support_func_guess};
-    }
+    saved_queries_.save(gd_.collisionRequests, gd_.collisionResults);
     if (dres_) saved_dres_ = *dres_;
   }
-  std::vector<std::pair<coal::Vec3s, coal::support_func_guess_t>> saved_req_, saved_res_;
+  QueryGuesses saved_queries_;
   void restore_guesses() {
     const auto mem = SolverOf::member();
     for (size_t k = 0; k < saved_guess_.size() && k < gd_.collision_functors.size(); ++k) {
       coal::GJKSolver &sv = gd_.collision_functors[k].*mem;
       sv.cached_guess = saved_guess_[k], sv.support_func_cached_guess = saved_hint_[k];
     }
-    for (size_t k = 0; k < saved_req_.size() && k < gd_.collisionRequests.size(); ++k) {
-      auto &rq = gd_.collisionRequests[k];
-      auto &rs = gd_.collisionResults[k];
-      rq.cached_gjk_guess = saved_req_[k].first, rq.cached_support_func_guess = saved_req_[k].second;
-      rs.cached_gjk_guess = saved_res_[k].first, rs.cached_support_func_guess = saved_res_[k].second;
-    }
+    saved_queries_.restore(gd_.collisionRequests, gd_.collisionResults);
     if (dres_) *dres_ = saved_dres_;
   }
 
