@@ -7,11 +7,15 @@ from __future__ import annotations
 
 import enum
 import math
+import sys
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import piqp
-import scipy.sparse
+
+if TYPE_CHECKING:
+    import scipy.sparse
 
 from .options import QPForm
 
@@ -166,10 +170,17 @@ def _columns(a: list, swaps: list):
         [a[j][j] for j in range(len(a))]
 
 
+def _issparse(A) -> bool:
+    """scipy.sparse.issparse, without importing scipy.sparse: a run on dense matrices (every compiled run) never
+    loads it (~23 MiB of RSS); nothing is a sparse matrix before scipy.sparse is imported."""
+    sp = sys.modules.get("scipy.sparse")
+    return sp is not None and sp.issparse(A)
+
+
 def _solve(A, rhs):
     """x = A^-1 rhs: _lu_solve for a dense A, SuperLU (scipy's splu, sequential: the same bits run to
     run) for a sparse one; None when singular or not finite."""
-    if not scipy.sparse.issparse(A):
+    if not _issparse(A):
         return _lu_solve(A, rhs)
     if A.shape[0] == 0:
         return np.zeros(0)
@@ -185,7 +196,7 @@ def _solve(A, rhs):
 def _sub(G, idx):
     """G[idx][:, idx]; for a CSC G (sorted indices, idx increasing) by gathering its columns idx and renumbering
     their rows, O(their nonzeros) (scipy's fancy indexing costs ~50 us a call)."""
-    if not scipy.sparse.issparse(G):
+    if not _issparse(G):
         return G[idx][:, idx]
     k = len(idx)
     if k == G.shape[0]:
@@ -197,6 +208,8 @@ def _sub(G, idx):
     rows = pos[G.indices[sel]]
     keep = rows >= 0
     col = np.repeat(np.arange(k), cnt)[keep]
+    import scipy.sparse  # here and in _csc, _solve_sparse: the sparse path only (_issparse)
+
     return scipy.sparse.csc_matrix((G.data[sel][keep], rows[keep], np.searchsorted(col, np.arange(k + 1))),
                                    shape=(k, k))
 
@@ -263,7 +276,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
     operation with the same LU (_lu_solve), so both steps decide alike; _sparse_mul on the sparse path)."""
     m = r.shape[0]
     lam = np.zeros(m)
-    sparse = scipy.sparse.issparse(G)
+    sparse = _issparse(G)
     if sparse:  # the sparse path (solve): G in CSC and CSR for its columns and rows, each O(its nonzeros)
         G = G.tocsc()
         G.sort_indices()
@@ -330,7 +343,7 @@ def _polish(W, v0, b, Minv, act=None):
     v = v0 + M^-1 W_A lam_A. Kept only if lam_A >= 0 and W'v >= b to round-off (the KKT conditions;
     M (v - v0) = W lam holds by construction); else None."""
     m = W.shape[1]
-    sparse = scipy.sparse.issparse(W)
+    sparse = _issparse(W)
     mul = _sparse_mul if sparse else ordered
     if m == 1:  # one contact: the projection in closed form
         w = W[:, 0]
@@ -474,7 +487,9 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
 def _csc(A) -> scipy.sparse.csc_matrix:
     """A dense matrix as CSC, its exact zeros dropped (the tree's pattern of M and M^-1: bodies on separate root
     joints give block-diagonal ones; the rows W touch the joints that move their two bodies)."""
-    if scipy.sparse.issparse(A):
+    import scipy.sparse
+
+    if _issparse(A):
         return A.tocsc()
     A = np.asarray(A, float)
     n, k = A.shape
@@ -494,6 +509,8 @@ def _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen) -> QPResult:
     same method as the dense one on sparse matrices - piqp's SparseSolver gives the start, _polish's active set
     on G = W'M^-1 W in CSC (SuperLU for its solves) re-solves it and accepts it by the same KKT test - so the
     cost follows the nonzeros (a column of N beads: M diagonal, G tridiagonal, O(N)) instead of m^2 or m^3."""
+    import scipy.sparse
+
     m = W.shape[1]
     Ms, Ws, Mis = _csc(M), _csc(W), _csc(Minv)
     problem = (M, W, v0, b)  # as given, as the dense path keeps them (the residual, the recorder)
@@ -519,7 +536,7 @@ def _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen) -> QPResult:
     act = lam > 1e-7 * max(1.0, lam.max())
     p = _polish(Ws, v0, b, Mis, act)
     if p is None:  # degenerate rows (dependent ones the sparse round-off took in): the dense polish, as before
-        dense = [A.toarray() if scipy.sparse.issparse(A) else A for A in (W, Minv)]
+        dense = [A.toarray() if _issparse(A) else A for A in (W, Minv)]
         p = _polish(dense[0], v0, b, dense[1], act)
     if p is not None:
         v, lam = p[:2]

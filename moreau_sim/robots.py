@@ -41,7 +41,6 @@ import weakref
 import xml.etree.ElementTree as ET
 from xml.parsers import expat
 from pathlib import Path
-from xml.sax.saxutils import escape, unescape
 
 import coal
 import numpy as np
@@ -254,6 +253,9 @@ def urdf_with_resolved_meshes(path: Path, package_dirs, where: str) -> str:
             found[uri] = p
 
     def sub(m: re.Match) -> str:
+        # here (meshes only): xml.sax.saxutils imports urllib.request and with it ssl, ~8 MiB of RSS
+        from xml.sax.saxutils import escape, unescape
+
         p = found.get(unescape(m.group(3), {"&quot;": '"', "&apos;": "'"}))
         return m.group(0) if p is None else f"{m.group(1)}{m.group(2)}{escape(str(p), {chr(34): '&quot;'})}{m.group(2)}"
 
