@@ -153,7 +153,7 @@ class _Loop:
                     self.previous = set()
                 index = rec.n if r.index is None else r.index
                 self.previous = rec.log_percussions(index, r.t, res.contacts, res.P, res.gamma_minus,
-                                                    res.gamma_plus, self.previous)
+                                                    res.gamma_plus, self.previous, h=r.h)
                 rec.account_step(index, r.t, r.before, res, r.h, r.e)
                 if res.branch is not None:
                     sol, chosen, u_plus = res.branch

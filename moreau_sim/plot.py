@@ -122,7 +122,8 @@ def _gaps(ax, _, a, meta, pairs, colour):
 
 
 def _percussions(ax, _, a, meta, pairs, colour):
-    P, lt, lp = a["log_P"], a["log_t"], a["log_pair"]
+    lt, lp, n = a["log_t"], a["log_pair"], a["log_steps"]
+    P = a["log_P"] / n  # a row's percussion a step: a stretch of persistent steps' mean (docs/theory.md §5.2)
     if not len(P):
         ax.text(0.5, 0.5, "no percussion logged", transform=ax.transAxes, ha="center")
         ax.set_ylabel("percussion P [N s]")
@@ -141,6 +142,18 @@ def _percussions(ax, _, a, meta, pairs, colour):
                                            label=pairs[k] if k < len(pairs) else f"pair {k}")))
     for x, y, style in _together(dots, _span(P)):
         ax.plot(x, y, **style)
+    # a stretch of persistent steps (a resting contact: its weight x h each step) as a line over its steps
+    for k in ids:
+        sel = np.flatnonzero((lp == k) & (n > 1))
+        if len(sel):
+            t1 = lt[sel] + a["log_duration"][sel] * (n[sel] - 1) / n[sel]
+            x = np.column_stack([lt[sel], t1, np.full(len(sel), np.nan)]).ravel()
+            y = np.column_stack([P[sel], P[sel], np.full(len(sel), np.nan)]).ravel()
+            if int(k) in shown:
+                name = pairs[k] if k < len(pairs) else f"pair {k}"
+                ax.plot(x, y, lw=1.2, color=colour.get(int(k), "0.4"), label=f"{name} at rest (P a step)")
+            else:
+                ax.plot(x, y, lw=1.2, color="0.75")
     imp = a["log_impact"]
     ax.plot(lt[imp], P[imp], "o", ms=5, mfc="none", mec="k", mew=0.8, label="new impact")
     positive = P[P > 0]

@@ -34,6 +34,9 @@ from .trajectory import Trajectory
 
 BLOCK_ROWS = 1 << 14  # the most rows a full column grows by at a time (see _Columns)
 SPILL_BYTES = 8 << 20  # [bytes] the rows a spilling group of columns keeps in memory before it writes them out
+# [bytes] the most a group of columns reserves at the start for the rows it expects: address space only, its pages
+# become memory as rows are written (a run that records what it expected never grows or copies a column)
+RESERVE_BYTES = 1 << 30
 LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) of its step (and > 0)
 
 
@@ -84,8 +87,10 @@ def run_metadata(model: Model, status: str, run: dict, **extra) -> dict:
 class PercussionRow:
     """One logged contact percussion: the step (time-stepping: the step number; event-driven: the
     index of the next sample), t [s], the contact (pair, kind, feature), its gap g [m], P [N s],
-    gamma_minus and gamma_plus [m/s], its point on A [m] and normal, and whether it is a new
-    impact (the contact did not push in the previous step)."""
+    gamma_minus and gamma_plus [m/s], its point on A [m] and normal, whether it is a new
+    impact (the contact did not push in the previous step), and the steps it covers and their time
+    [s] (a step: 1 and h; an impact at a located instant: 1 and 0; a stretch of persistent steps is one
+    row: its first step's, with P, steps and duration summed over the stretch; docs/theory.md §5.2)."""
 
     step: int
     t: float
@@ -99,6 +104,8 @@ class PercussionRow:
     point: np.ndarray
     normal: np.ndarray
     impact: bool
+    steps: int = 1
+    duration: float = 0.0
 
 
 _LOG_COLUMNS = tuple((f"log_{name}", name) for name in PercussionRow.__slots__)  # (column, field)
@@ -120,12 +127,13 @@ class _Columns:
         self.shapes = {k: tuple(sizes.get(d, d) for d in shape) for k, (_, shape) in schema.items()}
         self.dtypes = {k: np.dtype(dtype) for k, (dtype, _) in schema.items()}
         # spilling: the rows of one block (at least one)
-        self.block = max(1, SPILL_BYTES // sum(self._row_bytes(k) for k in schema))
-        if spill is not None:
-            capacity = min(capacity, self.block)
+        row = sum(self._row_bytes(k) for k in schema)
+        self.block = max(1, SPILL_BYTES // row)
+        capacity = min(capacity, self.block if spill is not None else max(1, RESERVE_BYTES // max(row, 1)))
         self.cols = {k: np.empty((max(capacity, 1),) + self.shapes[k], dtype) for k, (dtype, _) in schema.items()}
         self.n = 0
         self.spilled = 0  # rows in the spill files (rows [0, spilled); cols[k][i] is row spilled + i)
+        self.keep = 0  # the last rows a spill leaves in memory (written to the files too): rows still to be changed
         self._files = None if spill is None else {k: tempfile.TemporaryFile(dir=spill) for k in schema}
         self._closed: dict | None = None  # the arrays once the spill files are closed
 
@@ -136,8 +144,9 @@ class _Columns:
         if i == len(next(iter(self.cols.values()))):
             if self._files is not None and i >= self.block:
                 self._spill()
-                return 0
-            self._resize(i + min(max(i, 64), BLOCK_ROWS))
+                i = self.n - self.spilled  # the rows it keeps
+            if i == len(next(iter(self.cols.values()))):
+                self._resize(i + min(max(i, 64), BLOCK_ROWS))
         return i
 
     def commit(self, rows: int = 1) -> None:
@@ -148,9 +157,9 @@ class _Columns:
         does); commit(k) once k of them are written (compiled_run.py writes them in C++)."""
         i = self.free()
         while len(next(iter(self.cols.values()))) - i < rows:
-            if self._files is not None and i > 0:
+            if self._files is not None and i > min(self.keep, self.n - self.spilled):
                 self._spill()
-                i = 0
+                i = self.n - self.spilled
             else:
                 self._resize(i + max(rows, min(max(i, 64), BLOCK_ROWS)))
         return i
@@ -173,13 +182,18 @@ class _Columns:
 
     def _spill(self) -> None:
         """Write the rows in memory to the spill files, at their place (an interrupted spill is
-        simply redone: `spilled` moves only once every column is written)."""
+        simply redone: `spilled` moves only once every column is written); the last `keep` rows stay in
+        memory as the first ones (a later spill writes them again, as they are then)."""
         m = self.n - self.spilled
         if m == 0:
             return
         for k, a in self.cols.items():
             _write_at(self._files[k], a[:m], self.spilled * self._row_bytes(k))
-        self.spilled = self.n
+        keep = min(self.keep, m)
+        if keep:
+            for a in self.cols.values():
+                a[:keep] = a[m - keep:m].copy()
+        self.spilled = self.n - keep
 
     def _row_bytes(self, k: str) -> int:
         return self.dtypes[k].itemsize * math.prod(self.shapes[k])
@@ -199,13 +213,17 @@ class _Columns:
             n = len(a)
             if self._files is not None:
                 _write_at(self._files[k], a, 0)
+                keep = min(self.keep, n)  # the rows still to be changed, in memory as a spill leaves them
+                if keep > len(self.cols[k]):
+                    self.cols[k] = np.empty((keep,) + self.shapes[k], self.dtypes[k])
+                self.cols[k][:keep] = a[n - keep:]
                 continue
             if n > len(self.cols[k]):
                 self._resize(n)
             self.cols[k][:n] = a
         self.n = n
         if self._files is not None:
-            self.spilled = n
+            self.spilled = n - min(self.keep, n)
 
     def arrays(self) -> dict[str, np.ndarray]:
         if self._files is None:
@@ -221,6 +239,22 @@ class _Columns:
             self._closed = self.arrays()
             for f in self._files.values():
                 f.close()
+
+
+class _Defaults(Mapping):
+    """`arrays` (a dict or an open NPZ) with the arrays it lacks made on demand by `make` (name -> function)."""
+
+    def __init__(self, arrays: Mapping, make: dict):
+        self.arrays, self.make = arrays, make
+
+    def __getitem__(self, k):
+        return self.make[k]() if k in self.make and k not in self.arrays else self.arrays[k]
+
+    def __iter__(self):
+        return iter(set(self.arrays) | set(self.make))
+
+    def __len__(self) -> int:
+        return len(set(self.arrays) | set(self.make))
 
 
 def _write_at(f, a: np.ndarray, offset: int) -> None:
@@ -272,6 +306,8 @@ class Recorder:
         self._TV = (0.0, 0.0)  # that state's (T, V) [J] (a sample of it reuses them)
         self._new_impact = False  # the last log_percussions logged a new impact
         self._held = False  # every contact of the last log_percussions was closed in the step before it
+        self._pending: list[PercussionRow] = []  # the rows of the step log_percussions saw, for account_step
+        self._rest = 0  # the log's last rows are a stretch of persistent steps (§5.2) of these many contacts
         self._rise = (-np.inf, np.nan)  # (largest T + V increase of one step [J], t [s])
         self._law_difference = (0.0, np.nan)  # (largest |D - L| of a contact step [J], t [s])
         self._contact_steps = 0
@@ -364,6 +400,7 @@ class Recorder:
             self._rise = (rise, float(r.state.t))
         res = r.qp
         if res is None or res.M is None:
+            self._log_step(False)
             self._smooth += E1 - E0 - act - r.obstacle_work  # a contact-free step is smooth motion only (§2.13)
         else:  # the projection's problem: M, v_free = v0, b; and the step's own u_free
             # the law's u_{k+1}: before a lift the correction paid with the velocities, booked as correction (§2.5)
@@ -371,6 +408,7 @@ class Recorder:
             # a persistent contact step (§5.2): every contact closed before and at rest; no impact to book
             persistent = self._held and r.branch is None and at_rest(res.W, u0, r.u_free, r.gamma_minus,
                                                                      r.gamma_plus) and law_kept(res.v, u0, u1, e)
+            self._log_step(persistent)
             if not persistent:
                 T_minus, T_plus, law = impact_terms(res.M, res.v0, res.v, u0, u_law, e, r.P, res.b)
             q_free = pin.integrate(m.pin, pin.integrate(m.pin, q0, 0.5 * h * u0), 0.5 * h * r.u_free)
@@ -394,6 +432,7 @@ class Recorder:
         """The ledger of an impact located at t [s] (event-driven and adaptive runs): the law of
         docs/theory.md §1 at q, u- -> u+ with v the projection and M = M(q)."""
         m, d = self.model, self.data
+        self._rest = self._log.keep = 0  # an impact between steps ends a stretch of persistent ones
         E0 = total(m, d, q, u_minus)
         self._smooth_until(E0, t)
         T_minus, T_plus, law = impact_terms(M, u_minus, v, u_minus, u_plus, e, P, None)
@@ -438,15 +477,44 @@ class Recorder:
                 and all(map(math.isfinite, g.tolist())))
 
     def log(self, row: PercussionRow) -> None:
+        """Write one row to the log (it ends any stretch of persistent steps)."""
+        self._write(row)
+        self._rest = self._log.keep = 0
+
+    def _write(self, row: PercussionRow) -> None:
         i = self._log.free()
         c = self._log.cols
         for column, name in _LOG_COLUMNS:
             c[column][i] = getattr(row, name)
         self._log.commit()
 
+    def _log_step(self, persistent: bool) -> None:
+        """Log the rows log_percussions kept for this step (account_step, once it knows whether the step is
+        persistent). A persistent step whose rows have the contacts, in order, of the stretch of persistent steps
+        the log ends with adds its P to the stretch's rows and one to their log_steps, instead of new rows
+        (docs/theory.md §5.2): at rest, a step's percussions are the weight's, and a stretch is one row per
+        contact whatever its length."""
+        rows, self._pending = self._pending, []
+        k = len(rows)
+        log = self._log
+        i0 = log.last - k + 1  # the stretch's first row in log.cols (log.keep holds them in memory)
+        c = log.cols
+        if persistent and k and self._rest == k and all(
+                (c["log_pair"][i0 + j], c["log_kind"][i0 + j], c["log_feature"][i0 + j]) ==
+                (row.pair, row.kind, row.feature) for j, row in enumerate(rows)):
+            for j, row in enumerate(rows):
+                c["log_P"][i0 + j] += row.P
+                c["log_steps"][i0 + j] += 1
+                c["log_duration"][i0 + j] += row.duration
+            return
+        self._rest = log.keep = k if persistent else 0  # a new stretch: its rows stay in memory as they are written
+        for row in rows:
+            self._write(row)
+
     def log_percussions(self, step: int, t: float, contacts: Contacts, P: np.ndarray, gamma_minus: np.ndarray,
-                        gamma_plus: np.ndarray, previous: set) -> set:
-        """Log the percussions of a step above LOG_RELATIVE of its largest; a row is a new impact
+                        gamma_plus: np.ndarray, previous: set, *, h: float) -> set:
+        """The percussions of a step above LOG_RELATIVE of its largest, logged by the account_step that
+        follows (a stretch of persistent steps is one row per contact, _log_step); a row is a new impact
         when its contact (pair, kind, feature) is not in `previous`. Returns this step's contacts."""
         self._new_impact = False
         if not contacts.m:
@@ -459,9 +527,9 @@ class Recorder:
             if p > cut:
                 key = keys[i]
                 self._new_impact |= key not in previous
-                self.log(PercussionRow(step, t, *key, float(contacts.g[i]), p, float(gamma_minus[i]),
+                self._pending.append(PercussionRow(step, t, *key, float(contacts.g[i]), p, float(gamma_minus[i]),
                                        float(gamma_plus[i]), contacts.point_a[i], contacts.normal[i],
-                                       key not in previous))
+                                       key not in previous, 1, h))
         return set(keys)
 
     def branch(self, step: int, t: float, chosen: int, candidates: list[tuple]) -> None:
@@ -492,14 +560,20 @@ class Recorder:
                 "TV": [float(x) for x in self._TV], "new_impact": bool(self._new_impact),
                 "rise": [None if not np.isfinite(x) else x for x in self._rise],
                 "law_difference": [None if np.isnan(x) else x for x in self._law_difference],
-                "contact_steps": self._contact_steps, "smooth_deficit": float(self.smooth_deficit)}
+                "contact_steps": self._contact_steps, "smooth_deficit": float(self.smooth_deficit),
+                "rest": self._rest}
 
     def restore(self, arrays: Mapping[str, np.ndarray], carried: dict, state: State) -> None:
         """Continue a recording from its arrays (a dict or an open NPZ) and carried() (a
         checkpoint's) at `state`."""
+        c = carried
+        self._rest = self._log.keep = int(c.get("rest", 0))
+        if "log_steps" not in arrays:  # a checkpoint of format 3: every row was one step's (its length not kept)
+            k = len(arrays["log_P"])
+            arrays = _Defaults(arrays, {"log_steps": lambda: np.ones(k, np.int64),
+                                        "log_duration": lambda: np.full(k, np.nan)})
         for g in self._groups():
             g.load(arrays)
-        c = carried
         self._smooth, self._diss, self._law, self._E = c["smooth"], c["diss"], c["law"], c["E"]
         self._act, self._obs = c.get("act", 0.0), c.get("obs", 0.0)
         self._at = (state.q, state.u) if c["at_state"] else None

@@ -18,7 +18,9 @@ Arrays (n = saved samples, k = logged contact percussions):
   log_step, log_t [s] (step midpoint time), log_pair, log_kind (contacts.FeatureKind value),
   log_feature (index within the kind), log_gap [m], log_P [N s],
   log_gamma_minus, log_gamma_plus [m/s], log_point (k, 3) [m], log_normal (k, 3),
-  log_impact (bool: the contact did not push in the previous step, i.e. a new impact);
+  log_impact (bool: the contact did not push in the previous step, i.e. a new impact),
+  log_steps, log_duration [s] (the fixed steps the row covers and the time they span: one step and its h,
+  or a stretch of persistent steps whose log_P it sums; an impact at a located instant: 1 and 0);
   branching steps (a corner impact with several admissible outcomes, docs/theory.md §3), b of them:
   branch_step, branch_t [s] (step midpoint), branch_chosen (index among the step's candidates),
   branch_start, branch_count (its candidates' rows in candidate_*); candidate_u_plus (c, nv),
@@ -45,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-FORMAT = "moreau-sim trajectory 3"  # 3: the ledger arrays; 2: log_kind + log_feature (1: one feature id)
+FORMAT = "moreau-sim trajectory 4"  # 4: log_steps; 3: the ledger arrays; 2: log_kind + log_feature (1: one feature id)
 
 # name -> (dtype, trailing shape); "nq", "nv", "pairs" are the model's sizes
 SAMPLES = {"t": (float, ()), "q": (float, ("nq",)), "u": (float, ("nv",)), "kinetic_energy": (float, ()),
@@ -54,7 +56,8 @@ SAMPLES = {"t": (float, ()), "q": (float, ("nq",)), "u": (float, ("nv",)), "kine
            "dissipation": (float, ()), "law_dissipation": (float, ())}
 LOG = {"log_step": (np.int64, ()), "log_t": (float, ()), "log_pair": (np.int64, ()), "log_kind": (np.int64, ()),
        "log_feature": (np.int64, ()), "log_gap": (float, ()), "log_P": (float, ()), "log_gamma_minus": (float, ()),
-       "log_gamma_plus": (float, ()), "log_point": (float, (3,)), "log_normal": (float, (3,)), "log_impact": (bool, ())}
+       "log_gamma_plus": (float, ()), "log_point": (float, (3,)), "log_normal": (float, (3,)), "log_impact": (bool, ()),
+       "log_steps": (np.int64, ()), "log_duration": (float, ())}
 BRANCHES = {"branch_step": (np.int64, ()), "branch_t": (float, ()), "branch_chosen": (np.int64, ()),
             "branch_start": (np.int64, ()), "branch_count": (np.int64, ())}
 CANDIDATES = {"candidate_u_plus": (float, ("nv",)), "candidate_distance": (float, ()),
@@ -282,7 +285,7 @@ def load_trajectory(path: str | Path, *, verify: bool = True) -> Trajectory:
     path = Path(path)
     with read_npz(path) as z:
         old = "log_kind" not in z.files
-        optional = LEDGER_ARRAYS + (("log_kind",) if old else ())
+        optional = LEDGER_ARRAYS + ("log_steps", "log_duration") + (("log_kind",) if old else ())
         missing = [k for k in ARRAYS + ("meta",) if k not in z.files and k not in optional]
         if missing:
             raise ValueError(f"{path}: not a moreau-sim trajectory (missing {missing})")
@@ -293,6 +296,9 @@ def load_trajectory(path: str | Path, *, verify: bool = True) -> Trajectory:
         if old:
             _from_format1(arrays)
         _without_ledger(arrays)
+        if "log_steps" not in arrays:  # before format 4 every row was one step's (of a length not recorded)
+            arrays["log_steps"] = np.ones(len(arrays["log_P"]), np.int64)
+            arrays["log_duration"] = np.full(len(arrays["log_P"]), np.nan)
     return Trajectory(arrays, meta)
 
 

@@ -128,6 +128,7 @@ class Runner {
     double new_impact = 0, contact_steps = 0, smooth_deficit = 0;
     double work = 0, corr = 0, points = 0;  // _Loop: work, corr, points
     double act = 0;  // Recorder._act
+    double rest = 0;  // Recorder._rest: the log ends with a stretch of persistent steps of these many rows
     // Invariants: E0, E, Ehat, Emin, scale, booked, external, residual, Es, v_app, deep_points, deep_samples,
     // last_depth, last_allowed, points
     double i_E0 = 0, i_E = 0, i_Ehat = 0, i_Emin = 0, i_scale = 0, i_booked = 0, i_external = 0, i_residual = 0;
@@ -142,7 +143,7 @@ class Runner {
   X(smooth) X(diss) X(law) X(E) X(T) X(V) X(rise) X(t_rise) X(law_diff) X(t_law_diff) X(new_impact)                \
   X(contact_steps) X(smooth_deficit) X(work) X(corr) X(points) X(i_E0) X(i_E) X(i_Ehat) X(i_Emin) X(i_scale)      \
   X(i_booked) X(i_external) X(i_residual) X(i_Es) X(i_v_app) X(i_deep_points) X(i_deep_samples) X(i_last_depth)  \
-  X(i_last_allowed) X(i_points) X(w_gain) X(w_speed) X(w_depth) X(w_ledger) X(act)
+  X(i_last_allowed) X(i_points) X(w_gain) X(w_speed) X(w_depth) X(w_ledger) X(act) X(rest)
     std::map<std::string, double> as_dict() const {
       std::map<std::string, double> d;
 #define MOREAU_PUT(f) d[#f] = f;
@@ -185,8 +186,8 @@ class Runner {
   // the columns (trajectory.SAMPLES, LOG, IMPACTS)
   Col<double> s_t, s_q, s_u, s_T, s_V, s_work, s_corr, s_gap, s_smooth, s_diss, s_law;
   Col<int64_t> s_n;
-  Col<int64_t> l_step, l_pair, l_kind, l_feature;
-  Col<double> l_t, l_gap, l_P, l_gm, l_gp, l_point, l_normal;
+  Col<int64_t> l_step, l_pair, l_kind, l_feature, l_steps;
+  Col<double> l_t, l_gap, l_P, l_gm, l_gp, l_point, l_normal, l_duration;
   Col<bool> l_impact;
   Col<int64_t> i_step, i_contacts;
   Col<double> i_t, i_Tm, i_Tp, i_diss, i_law;
@@ -204,7 +205,8 @@ class Runner {
     l_gap = run_loop::column<double>(l, "log_gap"), l_P = run_loop::column<double>(l, "log_P");
     l_gm = run_loop::column<double>(l, "log_gamma_minus"), l_gp = run_loop::column<double>(l, "log_gamma_plus");
     l_point = run_loop::column<double>(l, "log_point"), l_normal = run_loop::column<double>(l, "log_normal");
-    l_impact = run_loop::column<bool>(l, "log_impact");
+    l_impact = run_loop::column<bool>(l, "log_impact"), l_steps = run_loop::column<int64_t>(l, "log_steps");
+    l_duration = run_loop::column<double>(l, "log_duration");
     i_step = run_loop::column<int64_t>(i, "impact_step"), i_t = run_loop::column<double>(i, "impact_t");
     i_contacts = run_loop::column<int64_t>(i, "impact_contacts"), i_Tm = run_loop::column<double>(i, "impact_T_minus");
     i_Tp = run_loop::column<double>(i, "impact_T_plus"), i_diss = run_loop::column<double>(i, "impact_dissipation");
@@ -327,36 +329,53 @@ class Runner {
     // _Loop.account: rep.work, rep.corr
     c.work += r.contact_work;
     c.corr += r.correction_energy;
-    // Recorder.log_percussions
+    // Recorder.log_percussions and ._log_step: this step's rows, or P added to the stretch of persistent steps the
+    // log ends with (at the commit: a step undone leaves those rows as they were)
     int64_t nlog = 0;
     c.new_impact = 0.0;
-    bool held = false;  // Recorder._held: every contact closed in the step before
+    bool persistent = false;  // a persistent contact step (ledger.at_rest, docs/theory.md §5.2): no impact to book
+    std::vector<Eigen::Index> logged;  // the contacts of this step's rows
+    bool fold = false;
     if (m) {
       double pmax = r.P[0];
       for (Eigen::Index i = 1; i < m; ++i) pmax = pymax(pmax, r.P[i]);  // numpy max (no NaN here: finite state)
       const double cut = pymax(log_relative_ * pmax, 0.0);
       std::vector<std::array<int64_t, 3>> keys(m);
       for (Eigen::Index i = 0; i < m; ++i) keys[i] = {r.pair[i], r.kind[i], r.feature[i]};
-      held = true;
+      bool held = true;  // Recorder._held: every contact closed in the step before
       for (Eigen::Index i = 0; i < m && held; ++i)
         held = std::find(c.previous.begin(), c.previous.end(), keys[i]) != c.previous.end();
+      persistent = held && at_rest(r, u_) && law_kept(r, u_, e);
       for (Eigen::Index i = 0; i < m; ++i) {
-        const double p = r.P[i];
-        if (!(p > cut)) continue;
-        const bool fresh = std::find(c.previous.begin(), c.previous.end(), keys[i]) == c.previous.end();
-        if (fresh) c.new_impact = 1.0;
-        const int64_t row = starts[1] + written_[1] + nlog++;
-        *l_step.at(row) = index, *l_t.at(row) = tm, *l_pair.at(row) = keys[i][0], *l_kind.at(row) = keys[i][1];
-        *l_feature.at(row) = keys[i][2], *l_gap.at(row) = r.g[i], *l_P.at(row) = p;
-        *l_gm.at(row) = r.gamma_minus[i], *l_gp.at(row) = r.gamma_plus[i];
-        for (int j = 0; j < 3; ++j) l_point.at(row)[j] = r.point_a(i, j), l_normal.at(row)[j] = r.normal(i, j);
-        *l_impact.at(row) = fresh;
+        if (!(r.P[i] > cut)) continue;
+        logged.push_back(i);
+        if (std::find(c.previous.begin(), c.previous.end(), keys[i]) == c.previous.end()) c.new_impact = 1.0;
       }
+      const int64_t k = (int64_t)logged.size(), end = starts[1] + written_[1];  // end: the log's next row
+      fold = persistent && k && (int64_t)c.rest == k;
+      for (int64_t j = 0; j < k && fold; ++j) {
+        const int64_t row = end - k + j;
+        const auto &key = keys[logged[j]];
+        fold = *l_pair.at(row) == key[0] && *l_kind.at(row) == key[1] && *l_feature.at(row) == key[2];
+      }
+      if (!fold) {
+        for (const Eigen::Index i : logged) {
+          const bool fresh = std::find(c.previous.begin(), c.previous.end(), keys[i]) == c.previous.end();
+          const int64_t row = end + nlog++;
+          *l_step.at(row) = index, *l_t.at(row) = tm, *l_pair.at(row) = keys[i][0], *l_kind.at(row) = keys[i][1];
+          *l_feature.at(row) = keys[i][2], *l_gap.at(row) = r.g[i], *l_P.at(row) = r.P[i];
+          *l_gm.at(row) = r.gamma_minus[i], *l_gp.at(row) = r.gamma_plus[i];
+          for (int j = 0; j < 3; ++j) l_point.at(row)[j] = r.point_a(i, j), l_normal.at(row)[j] = r.normal(i, j);
+          *l_impact.at(row) = fresh, *l_steps.at(row) = 1, *l_duration.at(row) = h;
+        }
+      }
+      c.rest = persistent ? (double)k : 0.0;
       std::sort(keys.begin(), keys.end());
       keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
       c.previous = std::move(keys);
     } else {
       c.previous.clear();
+      c.rest = 0.0;
     }
     // Recorder.account_step (the state it starts from is the one the ledger accounted last: compiled_run.py)
     const double E0 = c.E;
@@ -373,8 +392,6 @@ class Runner {
     if (!m) {
       c.smooth += E1 - E0 - act - obstacle;
     } else {  // ledger.impact_terms(M, v_free, v, u_k, u_{k+1}, e, P, b), the smooth step at q_free
-      // a persistent contact step (ledger.at_rest, docs/theory.md §5.2): no impact to book
-      const bool persistent = held && at_rest(r, u_) && law_kept(r, u_, e);
       double law = 0.0, T_minus = 0.0, T_plus = 0.0;
       if (!persistent) {
         const double *M = r.M.data();
@@ -526,6 +543,13 @@ class Runner {
     c.points += 1;
     // commit
     undo.committed = true;
+    if (fold) {
+      const int64_t k = (int64_t)logged.size(), end = starts[1] + written_[1];
+      for (int64_t j = k; j > 0; --j) {
+        const int64_t row = end - j;
+        *l_P.at(row) += r.P[logged[k - j]], *l_steps.at(row) += 1, *l_duration.at(row) += h;
+      }
+    }
     c_ = std::move(c);
     written_[0] += nsamp, written_[1] += nlog, written_[2] += nimp;
     (m ? contact_ : flight_) += 1;

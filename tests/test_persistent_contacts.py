@@ -117,9 +117,12 @@ def test_resting_ball_books_one_impact(tmp_path, e, h):
     assert abs(L.law - one) <= 1e-12 * (one + G * G * h * h)
     assert L.contact_work == 0.0 and np.all(traj.q == R)
     assert_budget_closes(traj, rtol=1e-12)
-    # the contact force is still logged every step: P = m g h, not an impact after the first
-    assert len(traj.log_P) == n and np.allclose(traj.log_P, G * h, rtol=1e-12, atol=0.0)
-    assert traj.log_impact.tolist() == [True] + [False] * (n - 1)
+    # the contact force is still logged: the impact's row, then one row for the stretch of n - 1 persistent steps
+    # with their percussions summed, P = m g h a step (not an impact after the first)
+    assert traj.log_impact.tolist() == [True, False] and traj.log_steps.tolist() == [1, n - 1]
+    assert np.allclose(traj.log_P / traj.log_steps, G * h, rtol=1e-12, atol=0.0)
+    assert np.allclose(traj.log_duration, traj.log_steps * h, rtol=1e-12, atol=0.0)
+    assert traj.log_step.tolist() == [1, 2] and traj.log_t[1] == 1.5 * h
 
 
 @pytest.mark.parametrize("h", [1e-3, 5e-4])
@@ -158,6 +161,59 @@ def test_resting_stacks_book_one_impact(name, e, h):
     assert_no_energy_gain(traj, rtol=1e-12)
 
 
+# ---- the log of a rest: one row per contact ------------------------------------------------------------------------
+
+@pytest.mark.parametrize("h", [1e-3, 5e-4])
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+def test_a_rest_is_one_log_row_with_its_steps_percussions_summed(tmp_path, e, h):
+    """The resting ball's log: the impact's row (step 1), then one row for the n - 1 persistent steps, whose P is
+    the sum of those steps' percussions as the step computes them, added in step order, bit for bit; its
+    duration the sum of their h, its point, normal, gap and gammas those of its first step (step 2)."""
+    n = 300
+    sc = _balls(tmp_path, [R], e, h, n * h)
+    traj = _both(sc)
+    model = ms.build_model(sc)
+    data, state = ms.make_data(model), ms.initial_state(model)
+    P, first = [], None
+    for k in range(n):
+        r = ms.step(model, data, state, h=h, e=e, t_next=(k + 1) * h)
+        P.append(float(r.P[0]))
+        if k == 1:
+            first = r
+        state = r.state
+    total, duration = P[1], h
+    for p in P[2:]:
+        total += p
+        duration += h
+    assert traj.log_steps.tolist() == [1, n - 1] and traj.log_step.tolist() == [1, 2]
+    assert traj.log_P[0] == P[0] and traj.log_P[1] == total and traj.log_duration.tolist() == [h, duration]
+    assert traj.log_gap[1] == first.contacts.g[0] and traj.log_gamma_plus[1] == first.gamma_plus[0]
+    assert traj.log_point[1].tobytes() == first.contacts.point_a[0].tobytes()
+    assert abs(traj.log_P[1] - (n - 1) * G * h) <= 1e-12 * n * G * h  # the weight's impulse over the rest
+
+
+@pytest.mark.parametrize("name", ["resting_box", "alternating_stack_10", "box_stack_5"])
+def test_a_resting_stack_logs_its_rest_in_stretches(name):
+    """A stack at rest: the first step's rows (all new impacts), then stretches of persistent steps, one row per
+    contact each, that tile steps 2..n (a stretch ends where the pushing contacts change: of a face's four
+    corners on a plane the QP's answer leaves the weight on any three); the impulse of the rest on the ground is
+    the stack's weight times its duration."""
+    n, h = 60, 1e-2
+    sc = scene(name, dt=h).with_options(duration=n * h)
+    traj = _both(sc)
+    m = int((traj.log_step == 1).sum())
+    assert m > 0 and traj.log_impact[:m].all() and not traj.log_impact[m:].any()
+    step, steps = traj.log_step[m:], traj.log_steps[m:]
+    starts = np.unique(step)
+    assert starts[0] == 2 and len(starts) < n - 1  # fewer stretches than steps
+    for a, b in zip(starts, list(starts[1:]) + [n + 1]):
+        assert (steps[step == a] == b - a).all()  # each stretch's rows cover its steps, up to the next stretch
+    mass = sum(float(i.mass) for tree in ms.build_model(sc).forest.trees for i in tree.model.inertias)
+    ground = [i for i, p in enumerate(ms.build_model(sc).pairs) if p.name.endswith("|ground")]
+    on_ground = np.isin(traj.log_pair[m:], ground)
+    assert abs(traj.log_P[m:][on_ground].sum() - mass * G * (n - 1) * h) <= 1e-9 * mass * G * n * h
+
+
 # ---- a resting contact that is struck --------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
@@ -179,6 +235,8 @@ def test_a_struck_resting_contact_is_an_impact(tmp_path, e):
     pair = next(i for i, p in enumerate(pairs) if p.startswith("ball0/") and p.endswith("|ground"))
     ground = (traj.log_step == k) & (traj.log_pair == pair)
     assert ground.sum() == 1 and not traj.log_impact[ground][0]  # the same contact, closed before
+    rest = np.flatnonzero((traj.log_pair == pair) & (traj.log_step < k))[-1]  # its rest until then: one row
+    assert traj.log_step[rest] == 2 and traj.log_step[rest] + traj.log_steps[rest] == k
     assert traj.log_P[ground][0] > 10 * G * h
     assert_budget_closes(traj, rtol=1e-12)
     assert_dissipation_follows_law(traj, rtol=1e-12)

@@ -71,7 +71,28 @@ def test_joint_limit_percussions_are_named_by_joint_and_side():
         dots = [line for line in _named(fig.axes[0]) if line.get_label() != "new impact"]
         assert [line.get_label() for line in dots] == ["limit pendulum/hinge lower"]
         lim = next(x for x in tr.meta["model"]["joint_limits"] if x["name"] == "pendulum/hinge lower")
-        assert np.array_equal(dots[0].get_ydata(), tr.arrays["log_P"][tr.arrays["log_pair"] == lim["pair"]])
+        sel = tr.arrays["log_pair"] == lim["pair"]
+        assert np.array_equal(dots[0].get_ydata(), (tr.arrays["log_P"] / tr.arrays["log_steps"])[sel])
+    finally:
+        matplotlib.pyplot.close(fig)
+
+
+def test_a_rest_is_drawn_as_a_line_at_its_percussion_a_step():
+    """A ball that comes to rest (zeno_ball, e = 0): its rest is one log row (a stretch of persistent steps,
+    docs/theory.md §5.2), drawn as a line from its first step to its last at its mean percussion a step, the
+    weight times h (not its sum: a dot at log_P would sit n times too high)."""
+    tr = run("zeno_ball", restitution=0.0, duration=0.5)
+    a = tr.arrays
+    rest = int(np.argmax(a["log_steps"]))
+    n, h = int(a["log_steps"][rest]), tr.meta["options"]["dt"]
+    assert n > 100
+    fig = plot.figure(tr, ("percussion",))
+    try:
+        lines = [x for x in fig.axes[0].get_lines() if len(x.get_xdata()) == 3 and np.isnan(x.get_xdata()[2])]
+        (line,) = lines
+        x, y = line.get_xdata(), line.get_ydata()
+        assert x[0] == a["log_t"][rest] and x[1] == pytest.approx(a["log_t"][rest] + (n - 1) * h, rel=1e-12)
+        assert y[0] == y[1] == a["log_P"][rest] / n and y[0] == pytest.approx(9.81 * h, rel=1e-9)  # 1 kg
     finally:
         matplotlib.pyplot.close(fig)
 

@@ -1,5 +1,5 @@
 """The trajectory file (moreau_sim.trajectory, docs/output.md): a bit-exact round trip, atomic writes,
-format-1 files read into format 2, unreadable files named in the error."""
+format-1 files read into format 2, format-3 files (a log row a step) into 4, unreadable files named in the error."""
 
 import json
 import os
@@ -71,6 +71,21 @@ def test_format_1_files_load_with_kind_and_feature(traj, tmp_path):
     np.testing.assert_array_equal(back.log_feature, feats)
     np.testing.assert_array_equal(back.log_P, arrays["log_P"])
     assert set(back.arrays) == set(trajectory.ARRAYS)
+
+
+def test_format_3_files_load_a_row_a_step(traj, tmp_path):
+    """A format-3 file (no log_steps, log_duration: every row was one step's, of a length not recorded) reads
+    with log_steps 1 and log_duration NaN; the rest as written."""
+    arrays = {k: v for k, v in traj.arrays.items() if k not in ("log_steps", "log_duration")}
+    path = tmp_path / "format3.npz"
+    np.savez_compressed(path, meta=np.array(json.dumps({**traj.meta, "format": "moreau-sim trajectory 3"})),
+                        **arrays)
+    back = ms.load_trajectory(path)
+    k = len(traj.log_P)
+    assert k > 0 and back.log_steps.tolist() == [1] * k and np.isnan(back.log_duration).all()
+    assert back.log_steps.dtype == np.int64 and set(back.arrays) == set(trajectory.ARRAYS)
+    for name in arrays:
+        np.testing.assert_array_equal(back.arrays[name], traj.arrays[name], strict=True)
 
 
 def test_unreadable_files_are_named(traj, tmp_path):

@@ -101,6 +101,23 @@ def test_contacts_per_frame(traj):
     assert any(x[7] for x in c[f]) and not any(c[f - 1])
 
 
+def test_a_rest_shows_in_every_frame_it_spans():
+    """A ball that comes to rest (zeno_ball, e = 0): its rest is one log row (a stretch of persistent steps,
+    docs/theory.md §5.2), and the replay gives every frame of the rest the contact with its steps' share, the
+    weight times the frame's time; the frames' shares sum to the row's percussion."""
+    tr = ms.run(ROOT / "scenes/zeno_ball.toml", restitution=0.0, duration=0.5)
+    rest = int(np.argmax(tr.log_steps))
+    assert tr.log_steps[rest] > 100
+    ft = tr.t[viewer.frame_indices(tr.t, 26)]
+    c = viewer.contacts_per_frame(tr, ft)
+    assert sum(x[6] for f in c for x in f) == pytest.approx(tr.log_P.sum(), rel=1e-5)
+    h = tr.meta["options"]["dt"]
+    weight = tr.log_P[rest] / tr.log_duration[rest]  # [N]: m g
+    for i in range(1, len(ft)):
+        if ft[i - 1] > tr.log_t[rest]:  # a frame inside the rest
+            assert len(c[i]) == 1 and abs(c[i][0][6] - weight * (ft[i] - ft[i - 1])) <= 1.01 * weight * h
+
+
 def test_parts_box_and_solo(traj, solo):
     box = viewer.parts(traj)
     assert [(p.source, p.static) for p in box] == [("collision", False)]  # box.urdf has no <visual>

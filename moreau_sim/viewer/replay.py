@@ -44,22 +44,37 @@ def frame_indices(t: np.ndarray, fps: float = DEFAULT_FPS) -> np.ndarray:
 
 def contacts_per_frame(traj: Trajectory, ft: np.ndarray) -> list[list[list[float]]]:
     """Per frame i: the percussions logged in (ft[i-1], ft[i]], summed per contact (pair, kind, feature):
-    [px, py, pz, nx, ny, nz, P, impact] with the point and normal of the latest step."""
+    [px, py, pz, nx, ny, nz, P, impact] with the point and normal of the latest step. A row covering a stretch
+    of persistent steps (log_steps > 1, docs/theory.md §5.2) gives each frame its steps' share of its P."""
     a = traj.arrays
-    lt = a["log_t"]
+    lt, steps = a["log_t"], a["log_steps"]
     order = np.argsort(lt, kind="stable")
-    bins = np.searchsorted(ft, lt[order], side="left")  # frame i gets ft[i-1] < t <= ft[i]
     out: list[dict] = [{} for _ in ft]
-    for j, b in zip(order, bins):
-        if b >= len(ft):
-            continue
+    for j in order:
+        n = int(steps[j])
+        per = float(a["log_P"][j]) / n
+        t_last = float(lt[j]) + float(a["log_duration"][j]) * (n - 1) / n if n > 1 else float(lt[j])
+        first, last = np.searchsorted(ft, [lt[j], t_last], side="left")  # frame i gets ft[i-1] < t <= ft[i]
         key = (int(a["log_pair"][j]), int(a["log_kind"][j]), int(a["log_feature"][j]))
-        prev = out[b].get(key)
-        P = float(a["log_P"][j]) + (prev[6] if prev else 0.0)
-        imp = bool(a["log_impact"][j]) or bool(prev and prev[7])
-        out[b][key] = [*np.round(a["log_point"][j], 6).tolist(), *np.round(a["log_normal"][j], 6).tolist(),
-                       float(f"{P:.6g}"), int(imp)]
+        for b in range(first, min(last, len(ft) - 1) + 1):
+            # the stretch's steps (midpoints lt + i d, i < n; d = duration / n) up to ft[b], less those up to ft[b-1]
+            share = n if n == 1 else _steps_until(ft[b], lt[j], t_last, n) - (
+                _steps_until(ft[b - 1], lt[j], t_last, n) if b else 0)
+            if share <= 0:
+                continue
+            prev = out[b].get(key)
+            P = per * share + (prev[6] if prev else 0.0)
+            imp = (bool(a["log_impact"][j]) and b == first) or bool(prev and prev[7])
+            out[b][key] = [*np.round(a["log_point"][j], 6).tolist(), *np.round(a["log_normal"][j], 6).tolist(),
+                           float(f"{P:.6g}"), int(imp)]
     return [list(d.values()) for d in out]
+
+
+def _steps_until(x: float, t0: float, t_last: float, n: int) -> int:
+    """How many of n evenly spaced step midpoints t0 .. t_last lie at or before x."""
+    if x < t0:
+        return 0
+    return min(n, int(np.floor((x - t0) / (t_last - t0) * (n - 1))) + 1)
 
 
 def _view(model: Model, drawn: list, W: np.ndarray, col: dict):
