@@ -160,18 +160,24 @@ class CompiledRun:
 
 
 class _Callback:
-    """The controller as the Runner calls it: actuation.Actuation's checked call (its one-line errors), the error
-    kept for compiled_run to raise (the Runner returns None to C++ instead) and the last answer kept for a step the
-    Runner hands back."""
+    """The controller as the Runner calls it (src/actuation.hpp's Actuation.call): `controller`, called directly with
+    fresh read-only arrays q_m and u_k, its answer taken as it is where it is an (nv,) float64 buffer, finite and zero
+    on `root_rows` (the checks of actuation.Actuation.checked), and passed to `check` otherwise; `failed` keeps an
+    error for compiled_run to raise (the Runner returns to Python instead); `last`: the last answer (t, q, u, tau)
+    the Runner took, replayed where the Runner hands that step back."""
 
     def __init__(self, actuation):
-        self.actuation = actuation
+        self.actuation, self.controller = actuation, actuation.controller
+        self.root_rows = np.flatnonzero(actuation.root).tolist()
         self.error: BaseException | None = None
         self.last: tuple | None = None
 
-    def __call__(self, t: float, q: np.ndarray, u: np.ndarray) -> np.ndarray | None:
+    def failed(self, t: float, exc: BaseException) -> None:
+        self.error = self.actuation.failure(t, exc)
+
+    def check(self, t: float, q: np.ndarray, u: np.ndarray, f) -> np.ndarray | None:
         try:
-            f = np.ascontiguousarray(self.actuation._call(t, q, u), dtype=float)
+            f = np.ascontiguousarray(self.actuation.checked(t, f))
         except BaseException as exc:  # noqa: BLE001 - raised by advance once the steps before are recorded
             self.error = exc
             return None
@@ -205,7 +211,7 @@ def _actuation(act, controller) -> tuple | None:
                            *(np.asarray(a, float).tolist() for a in (g.gear, g.gain, g.kp, g.kv, g.clo, g.chi, g.flo,
                                                                       g.fhi)),
                            [_schedule(c) for c in g.ctrl],
-                           [(idx.tolist(), float(lo), float(hi)) for idx, (lo, hi) in g._joint_clamps]))
+                           [(idx.tolist(), float(lo), float(hi)) for idx, (lo, hi) in g.joint_clamps]))
     return act.nv, np.asarray(act.limit, float).tolist(), groups, controller
 
 

@@ -179,11 +179,11 @@ class Servos:
         self.flo, self.fhi = (np.array([s.forcerange[i] for s in specs]) for i in (0, 1))
         self.ctrl = ctrl
         self._zero = all(c is None for c in ctrl)
-        self._joint_clamps = []  # each joint with an actuatorfrcrange: (its actuators' indices, (lower, upper))
+        self.joint_clamps = []  # each joint with an actuatorfrcrange: (its actuators' indices, (lower, upper))
         for v in dict.fromkeys(self.v_index.tolist()):
             idx = np.flatnonzero(self.v_index == v)
             if np.isfinite(specs[idx[0]].jointrange[0]):
-                self._joint_clamps.append((idx, specs[idx[0]].jointrange))
+                self.joint_clamps.append((idx, specs[idx[0]].jointrange))
 
     def control(self, t: float) -> np.ndarray:
         """c(t), clamped to ctrlrange."""
@@ -201,7 +201,7 @@ class Servos:
         g = self.gear
         f = self.gain * self.control(t) - self.kp * (g * q[self.q_index]) - self.kv * (g * u[self.v_index])
         tau = g * np.clip(f, self.flo, self.fhi)
-        for idx, (lo, hi) in self._joint_clamps:
+        for idx, (lo, hi) in self.joint_clamps:
             total = 0.0
             for i in idx:
                 total += float(tau[i])
