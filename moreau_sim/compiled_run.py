@@ -161,10 +161,11 @@ class CompiledRun:
 
 class _Callback:
     """The controller as the Runner calls it (src/actuation.hpp's Actuation.call): `controller`, called directly with
-    fresh read-only arrays q_m and u_k, its answer taken as it is where it is an (nv,) float64 buffer, finite and zero
-    on `root_rows` (the checks of actuation.Actuation.checked), and passed to `check` otherwise; `failed` keeps an
-    error for compiled_run to raise (the Runner returns to Python instead); `last`: the last answer (t, q, u, tau)
-    the Runner took, replayed where the Runner hands that step back."""
+    q_m and u_k in read-only arrays from `array` (rewritten in place each step unless the controller kept a
+    reference to them: what it keeps is never rewritten), its answer taken as it is where it is an (nv,) float64
+    buffer, finite and zero on `root_rows` (actuation.Actuation.checked's checks), and passed to `check` otherwise;
+    `failed` keeps an error for compiled_run to raise (the Runner returns to Python instead); `last`: the answer
+    (t, q, u, tau) the Runner took last, replayed where it hands that step back."""
 
     def __init__(self, actuation):
         self.actuation, self.controller = actuation, actuation.controller
@@ -172,17 +173,21 @@ class _Callback:
         self.error: BaseException | None = None
         self.last: tuple | None = None
 
+    @staticmethod
+    def array(n: int) -> np.ndarray:
+        a = np.empty(n)
+        a.flags.writeable = False
+        return a
+
     def failed(self, t: float, exc: BaseException) -> None:
         self.error = self.actuation.failure(t, exc)
 
-    def check(self, t: float, q: np.ndarray, u: np.ndarray, f) -> np.ndarray | None:
+    def check(self, t: float, f) -> np.ndarray | None:
         try:
-            f = np.ascontiguousarray(self.actuation.checked(t, f))
+            return np.ascontiguousarray(self.actuation.checked(t, f))
         except BaseException as exc:  # noqa: BLE001 - raised by advance once the steps before are recorded
             self.error = exc
             return None
-        self.last = (t, q, u, f)
-        return f
 
     def take_error(self) -> BaseException | None:
         err, self.error = self.error, None

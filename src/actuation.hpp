@@ -159,9 +159,10 @@ struct Group {
 class Actuation {
  public:
   // (nv, limit, groups, callback or None), compiled_run._actuation; callback: compiled_run._Callback, whose
-  // `controller` f(t, q_m, u) -> tau is called here directly, its answer checked here where it is an (nv,) float64
-  // buffer (finite, zero on `root_rows`) and by callback.check otherwise (numpy's conversion; actuation.Actuation's
-  // one-line errors), an exception handed to callback.failed; callback.last: the last (t, q, u, tau) taken
+  // `controller` f(t, q_m, u) -> tau is called here directly with arrays from callback.array (read-only to it), its
+  // answer taken where it is an (nv,) float64 buffer (finite, zero on `root_rows`) and passed to callback.check
+  // otherwise (numpy's conversion; actuation.Actuation's one-line errors), an exception to callback.failed;
+  // callback.last: the last (t, q, u, tau) taken
   explicit Actuation(const nb::tuple &a) {
     nv_ = nb::cast<int64_t>(a[0]);
     limit_ = nb::cast<std::vector<double>>(a[1]);
@@ -171,7 +172,6 @@ class Actuation {
     if (!callback_.is_none()) {
       controller_ = callback_.attr("controller");
       root_ = nb::cast<std::vector<int64_t>>(callback_.attr("root_rows"));
-      frombuffer_ = nb::module_::import_("numpy").attr("frombuffer");
       f_.resize((size_t)nv_);
     }
   }
@@ -201,27 +201,51 @@ class Actuation {
   std::vector<double> limit_;
   bool clamped_ = false;
   std::vector<Group> groups_;
-  nb::object callback_, controller_, frombuffer_;
+  nb::object callback_, controller_;
   std::vector<int64_t> root_;  // the rows of unfixed root joints (never actuated)
   std::vector<double> part_, f_;  // f_: the controller's last answer
+  // the arrays the controller is given (q_m, u_k) and their data; last_: the tuple set as callback.last
+  nb::object qa_, ua_, last_;
+  double *qp_ = nullptr, *up_ = nullptr;
 
   // the controller's answer at (t, q, u) into f_; false: it failed (the callback holds the error)
   bool call(double t, const VectorXd &q, const VectorXd &u) {
-    nb::object qa = array(q), ua = array(u), f;
+    load(qa_, qp_, q);
+    load(ua_, up_, u);
+    nb::object f;
     try {
-      f = controller_(t, qa, ua);
+      f = controller_(t, qa_, ua_);
     } catch (nb::python_error &e) {
       callback_.attr("failed")(t, e.value());
       return false;
     }
-    if (take(f)) {
-      callback_.attr("last") = nb::make_tuple(t, qa, ua, f);
-      return true;
+    if (!take(f)) {
+      f = callback_.attr("check")(t, f);  // converted and checked as the Python run does, or None: failed
+      if (f.is_none()) return false;
+      if (!take(f)) throw nb::value_error("controller: the checked answer is not an (nv,) float64 array");
     }
-    f = callback_.attr("check")(t, qa, ua, f);  // converted and checked as the Python run does, or None: failed
-    if (f.is_none()) return false;
-    if (!take(f)) throw nb::value_error("controller: the checked answer is not an (nv,) float64 array");
+    last_ = nb::make_tuple(t, qa_, ua_, f);
+    callback_.attr("last") = last_;
     return true;
+  }
+
+  // x into the array `a` (data p) the controller is given: the same array as last step where nothing but this object
+  // and last_ refers to it, a new one (callback.array) where anything else does (the controller kept it, a view of
+  // it, or an error's traceback did): what the controller keeps is its own and never rewritten, as in the Python run
+  void load(nb::object &a, double *&p, const VectorXd &x) {
+    Py_ssize_t held = 1;
+    if (a.is_valid() && last_.is_valid())
+      for (Py_ssize_t i = 1; i < 4; ++i) held += PyTuple_GET_ITEM(last_.ptr(), i) == a.ptr();
+    if (!a.is_valid() || Py_REFCNT(a.ptr()) != held) {
+      a = callback_.attr("array")(x.size());
+      Py_buffer view;
+      if (PyObject_GetBuffer(a.ptr(), &view, PyBUF_C_CONTIGUOUS) != 0) throw nb::python_error();
+      const bool ok = view.len == (Py_ssize_t)sizeof(double) * (Py_ssize_t)x.size();
+      p = static_cast<double *>(view.buf);  // owned by a, which holds it for its life (numpy.empty)
+      PyBuffer_Release(&view);
+      if (!ok) throw nb::value_error("controller: callback.array gave the wrong size");
+    }
+    std::memcpy(p, x.data(), sizeof(double) * (size_t)x.size());
   }
 
   // f_ = f where f is a C-contiguous buffer of nv float64 (numpy.asarray(f, float) would be f itself), all finite,
@@ -241,12 +265,6 @@ class Actuation {
     }
     PyBuffer_Release(&view);
     return ok;
-  }
-
-  // a new read-only numpy array holding a copy of x (numpy.frombuffer of a bytes copy): the controller may keep
-  // what it is given, as in the Python run, and cannot write into it
-  nb::object array(const VectorXd &x) const {
-    return frombuffer_(nb::bytes(x.data(), sizeof(double) * (size_t)x.size()));
   }
 };
 
