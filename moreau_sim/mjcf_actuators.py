@@ -165,7 +165,8 @@ def read(path: Path, where: str) -> tuple[MJCFActuator, ...]:
 
 class Servos:
     """The MJCF actuators of one body resolved on the scene's model: q and v index of each actuator's joint
-    and the arrays of :class:`MJCFActuator`; ctrl: the control schedule of each actuator (None: 0)."""
+    and the arrays of :class:`MJCFActuator`; ctrl: the control schedule of each actuator (None: 0); joint_clamps:
+    each joint with an actuatorfrcrange, (its actuators' indices, (lower, upper)) [N m or N]."""
 
     def __init__(self, body: str, specs: tuple[MJCFActuator, ...], q_index, v_index, ctrl: list[Schedule | None],
                  joint_names: list[str]):
@@ -179,7 +180,7 @@ class Servos:
         self.flo, self.fhi = (np.array([s.forcerange[i] for s in specs]) for i in (0, 1))
         self.ctrl = ctrl
         self._zero = all(c is None for c in ctrl)
-        self.joint_clamps = []  # each joint with an actuatorfrcrange: (its actuators' indices, (lower, upper))
+        self.joint_clamps: list[tuple[np.ndarray, tuple[float, float]]] = []
         for v in dict.fromkeys(self.v_index.tolist()):
             idx = np.flatnonzero(self.v_index == v)
             if np.isfinite(specs[idx[0]].jointrange[0]):
