@@ -95,11 +95,29 @@ class Actuation:
         qc, uc = q.view(), u.view()
         qc.flags.writeable = uc.flags.writeable = False
         try:
-            f = np.asarray(self.controller(t, qc, uc), dtype=float)
+            f = self.controller(t, qc, uc)
         except SimulationError:
             raise
         except Exception as exc:  # noqa: BLE001 - the user's function: name it, one line
-            raise SimulationError(f"the controller raised {type(exc).__name__}: {exc} (at t = {t:.6g} s)") from None
+            raise self.failure(t, exc) from None
+        return self.checked(t, f)
+
+    def failure(self, t: float, exc: BaseException) -> BaseException:
+        """What the run raises where the controller raised `exc` at time t [s]: an Exception as one line naming
+        the step's time, a SimulationError or a BaseException (KeyboardInterrupt) as it is."""
+        if isinstance(exc, SimulationError) or not isinstance(exc, Exception):
+            return exc
+        return SimulationError(f"the controller raised {type(exc).__name__}: {exc} (at t = {t:.6g} s)")
+
+    def checked(self, t: float, f) -> np.ndarray:
+        """The controller's answer `f` at time t [s] as (nv,) floats [N or N m], or a SimulationError (one line
+        naming the step's time): not convertible, the wrong shape, not finite, a torque on a root row."""
+        try:
+            f = np.asarray(f, dtype=float)
+        except SimulationError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the user's object: name it, one line
+            raise self.failure(t, exc) from None
         if f.shape != (self.nv,):
             raise SimulationError(f"the controller returned shape {f.shape}, expected ({self.nv},) "
                                   f"(one torque per velocity row, nv = {self.nv}) at t = {t:.6g} s")

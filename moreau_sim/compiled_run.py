@@ -162,23 +162,34 @@ class CompiledRun:
 
 
 class _Callback:
-    """The controller as the Runner calls it: actuation.Actuation's checked call (its one-line errors), the error
-    kept for compiled_run to raise (the Runner returns None to C++ instead) and the last answer kept for a step the
-    Runner hands back."""
+    """The controller as the Runner calls it (src/actuation.hpp's Actuation.call): `controller`, called directly with
+    q_m and u_k in read-only arrays from `array` (rewritten in place each step unless the controller kept a
+    reference to them: what it keeps is never rewritten), its answer taken as it is where it is an (nv,) float64
+    buffer, finite and zero on `root_rows` (actuation.Actuation.checked's checks), and passed to `check` otherwise;
+    `failed` keeps an error for compiled_run to raise (the Runner returns to Python instead); `last`: the answer
+    (t, q, u, tau) the Runner took last, replayed where it hands that step back."""
 
     def __init__(self, actuation):
-        self.actuation = actuation
+        self.actuation, self.controller = actuation, actuation.controller
+        self.root_rows = np.flatnonzero(actuation.root).tolist()
         self.error: BaseException | None = None
         self.last: tuple | None = None
 
-    def __call__(self, t: float, q: np.ndarray, u: np.ndarray) -> np.ndarray | None:
+    @staticmethod
+    def array(n: int) -> np.ndarray:
+        a = np.empty(n)
+        a.flags.writeable = False
+        return a
+
+    def failed(self, t: float, exc: BaseException) -> None:
+        self.error = self.actuation.failure(t, exc)
+
+    def check(self, t: float, f) -> np.ndarray | None:
         try:
-            f = np.ascontiguousarray(self.actuation._call(t, q, u), dtype=float)
+            return np.ascontiguousarray(self.actuation.checked(t, f))
         except BaseException as exc:  # noqa: BLE001 - raised by advance once the steps before are recorded
             self.error = exc
             return None
-        self.last = (t, q, u, f)
-        return f
 
     def take_error(self) -> BaseException | None:
         err, self.error = self.error, None
@@ -207,7 +218,7 @@ def _actuation(act, controller) -> tuple | None:
                            *(np.asarray(a, float).tolist() for a in (g.gear, g.gain, g.kp, g.kv, g.clo, g.chi, g.flo,
                                                                       g.fhi)),
                            [_schedule(c) for c in g.ctrl],
-                           [(idx.tolist(), float(lo), float(hi)) for idx, (lo, hi) in g._joint_clamps]))
+                           [(idx.tolist(), float(lo), float(hi)) for idx, (lo, hi) in g.joint_clamps]))
     return act.nv, np.asarray(act.limit, float).tolist(), groups, controller
 
 

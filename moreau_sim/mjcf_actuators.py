@@ -165,7 +165,8 @@ def read(path: Path, where: str) -> tuple[MJCFActuator, ...]:
 
 class Servos:
     """The MJCF actuators of one body resolved on the scene's model: q and v index of each actuator's joint
-    and the arrays of :class:`MJCFActuator`; ctrl: the control schedule of each actuator (None: 0)."""
+    and the arrays of :class:`MJCFActuator`; ctrl: the control schedule of each actuator (None: 0); joint_clamps:
+    each joint with an actuatorfrcrange, (its actuators' indices, (lower, upper)) [N m or N]."""
 
     def __init__(self, body: str, specs: tuple[MJCFActuator, ...], q_index, v_index, ctrl: list[Schedule | None],
                  joint_names: list[str]):
@@ -179,11 +180,11 @@ class Servos:
         self.flo, self.fhi = (np.array([s.forcerange[i] for s in specs]) for i in (0, 1))
         self.ctrl = ctrl
         self._zero = all(c is None for c in ctrl)
-        self._joint_clamps = []  # each joint with an actuatorfrcrange: (its actuators' indices, (lower, upper))
+        self.joint_clamps: list[tuple[np.ndarray, tuple[float, float]]] = []
         for v in dict.fromkeys(self.v_index.tolist()):
             idx = np.flatnonzero(self.v_index == v)
             if np.isfinite(specs[idx[0]].jointrange[0]):
-                self._joint_clamps.append((idx, specs[idx[0]].jointrange))
+                self.joint_clamps.append((idx, specs[idx[0]].jointrange))
 
     def control(self, t: float) -> np.ndarray:
         """c(t), clamped to ctrlrange."""
@@ -201,7 +202,7 @@ class Servos:
         g = self.gear
         f = self.gain * self.control(t) - self.kp * (g * q[self.q_index]) - self.kv * (g * u[self.v_index])
         tau = g * np.clip(f, self.flo, self.fhi)
-        for idx, (lo, hi) in self._joint_clamps:
+        for idx, (lo, hi) in self.joint_clamps:
             total = 0.0
             for i in idx:
                 total += float(tau[i])

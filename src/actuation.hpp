@@ -3,9 +3,9 @@
 // schedules (prescribed.Schedule), the effort clamps, and a Python controller called back once per step; each
 // operation as numpy does it, in the same order, so that tau is the Python run's bit for bit (docs/theory.md §2.1,
 // §5.5). Read from the Python objects by compiled_run._actuation. Included by run.cpp.
-#include <nanobind/ndarray.h>
 
 #include <cmath>
+#include <cstring>
 #include <optional>
 #include <vector>
 
@@ -158,17 +158,25 @@ struct Group {
 // effort limits clamped
 class Actuation {
  public:
-  // (nv, limit, groups, controller or None), compiled_run._actuation; controller(t, q_m, u) -> tau (nv,) float64,
-  // C-contiguous, checked (actuation.Actuation._call), or None where it failed (the caller holds the error)
+  // (nv, limit, groups, callback or None), compiled_run._actuation; callback: compiled_run._Callback, whose
+  // `controller` f(t, q_m, u) -> tau is called here directly with arrays from callback.array (read-only to it), its
+  // answer taken where it is an (nv,) float64 buffer (finite, zero on `root_rows`) and passed to callback.check
+  // otherwise (numpy's conversion; actuation.Actuation's one-line errors), an exception to callback.failed;
+  // callback.last: the last (t, q, u, tau) taken
   explicit Actuation(const nb::tuple &a) {
     nv_ = nb::cast<int64_t>(a[0]);
     limit_ = nb::cast<std::vector<double>>(a[1]);
     for (double l : limit_) clamped_ = clamped_ || std::isfinite(l);
     for (auto g : nb::cast<nb::list>(a[2])) groups_.push_back(Group::from(g));
-    controller_ = nb::borrow(a[3]);
+    callback_ = nb::borrow(a[3]);
+    if (!callback_.is_none()) {
+      controller_ = callback_.attr("controller");
+      root_ = nb::cast<std::vector<int64_t>>(callback_.attr("root_rows"));
+      f_.resize((size_t)nv_);
+    }
   }
 
-  bool calls_python() const { return !controller_.is_none(); }
+  bool calls_python() const { return !callback_.is_none(); }
 
   // tau at (t [s], q, u) [N or N m]; false: the controller failed (tau undefined)
   bool torque(double t, const VectorXd &q, const VectorXd &u, VectorXd &tau) {
@@ -177,13 +185,9 @@ class Actuation {
       g.torque(t, q, u, part_);
       for (size_t j = 0; j < g.vi.size(); ++j) tau[g.vi[j]] = tau[g.vi[j]] + part_[j];
     }
-    if (!controller_.is_none()) {
-      nb::object f = controller_(t, array(q), array(u));
-      if (f.is_none()) return false;
-      auto a = nb::cast<nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>>(f);
-      if ((int64_t)a.shape(0) != nv_) throw nb::value_error("controller: (nv,) expected");
-      const double *p = a.data();
-      for (int64_t i = 0; i < nv_; ++i) tau[i] = tau[i] + p[i];
+    if (!callback_.is_none()) {
+      if (!call(t, q, u)) return false;
+      for (int64_t i = 0; i < nv_; ++i) tau[i] = tau[i] + f_[(size_t)i];
     }
     if (clamped_) {
       for (int64_t i = 0; i < nv_; ++i) tau[i] = np_minimum(tau[i], limit_[i]);
@@ -197,15 +201,70 @@ class Actuation {
   std::vector<double> limit_;
   bool clamped_ = false;
   std::vector<Group> groups_;
-  nb::object controller_;
-  std::vector<double> part_;
+  nb::object callback_, controller_;
+  std::vector<int64_t> root_;  // the rows of unfixed root joints (never actuated)
+  std::vector<double> part_, f_;  // f_: the controller's last answer
+  // the arrays the controller is given (q_m, u_k) and their data; last_: the tuple set as callback.last
+  nb::object qa_, ua_, last_;
+  double *qp_ = nullptr, *up_ = nullptr;
 
-  // a new numpy array holding a copy of x (the controller may keep what it is given, as in the Python run)
-  static nb::object array(const VectorXd &x) {
-    double *buf = new double[(size_t)x.size()];
-    std::copy(x.data(), x.data() + x.size(), buf);
-    nb::capsule owner(buf, [](void *p) noexcept { delete[] static_cast<double *>(p); });
-    return nb::cast(nb::ndarray<nb::numpy, double, nb::ndim<1>>(buf, {(size_t)x.size()}, owner));
+  // the controller's answer at (t, q, u) into f_; false: it failed (the callback holds the error)
+  bool call(double t, const VectorXd &q, const VectorXd &u) {
+    load(qa_, qp_, q);
+    load(ua_, up_, u);
+    nb::object f;
+    try {
+      f = controller_(t, qa_, ua_);
+    } catch (nb::python_error &e) {
+      callback_.attr("failed")(t, e.value());
+      return false;
+    }
+    if (!take(f)) {
+      f = callback_.attr("check")(t, f);  // converted and checked as the Python run does, or None: failed
+      if (f.is_none()) return false;
+      if (!take(f)) throw nb::value_error("controller: the checked answer is not an (nv,) float64 array");
+    }
+    last_ = nb::make_tuple(t, qa_, ua_, f);
+    callback_.attr("last") = last_;
+    return true;
+  }
+
+  // x into the array `a` (data p) the controller is given: the same array as last step where nothing but this object
+  // and last_ refers to it, a new one (callback.array) where anything else does (the controller kept it, a view of
+  // it, or an error's traceback did): what the controller keeps is its own and never rewritten, as in the Python run
+  void load(nb::object &a, double *&p, const VectorXd &x) {
+    Py_ssize_t held = 1;
+    if (a.is_valid() && last_.is_valid())
+      for (Py_ssize_t i = 1; i < 4; ++i) held += PyTuple_GET_ITEM(last_.ptr(), i) == a.ptr();
+    if (!a.is_valid() || Py_REFCNT(a.ptr()) != held) {
+      a = callback_.attr("array")(x.size());
+      Py_buffer view;
+      if (PyObject_GetBuffer(a.ptr(), &view, PyBUF_C_CONTIGUOUS) != 0) throw nb::python_error();
+      const bool ok = view.len == (Py_ssize_t)sizeof(double) * (Py_ssize_t)x.size();
+      p = static_cast<double *>(view.buf);  // owned by a, which holds it for its life (numpy.empty)
+      PyBuffer_Release(&view);
+      if (!ok) throw nb::value_error("controller: callback.array gave the wrong size");
+    }
+    std::memcpy(p, x.data(), sizeof(double) * (size_t)x.size());
+  }
+
+  // f_ = f where f is a C-contiguous buffer of nv float64 (numpy.asarray(f, float) would be f itself), all finite,
+  // zero on the root rows (Actuation._call's checks); false otherwise (f_ undefined)
+  bool take(const nb::handle &f) {
+    Py_buffer view;
+    if (PyObject_GetBuffer(f.ptr(), &view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) {
+      PyErr_Clear();
+      return false;
+    }
+    bool ok = view.ndim == 1 && view.itemsize == (Py_ssize_t)sizeof(double) && view.format != nullptr &&
+              std::strcmp(view.format, "d") == 0 && view.len == (Py_ssize_t)sizeof(double) * nv_;
+    if (ok) {
+      std::memcpy(f_.data(), view.buf, sizeof(double) * (size_t)nv_);
+      for (double x : f_) ok = ok && std::isfinite(x);
+      for (int64_t r : root_) ok = ok && f_[(size_t)r] == 0.0;
+    }
+    PyBuffer_Release(&view);
+    return ok;
   }
 };
 

@@ -7,6 +7,7 @@ The torques' work in the ledger is summed in index order on both sides (qp.order
 
 from __future__ import annotations
 
+import array
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ import moreau_sim.compiled as compiled
 from moreau_sim import compiled_run
 from moreau_sim.checkpoint import Checkpoint
 
-from helpers import ROOT
+from helpers import ROOT, inline_scene
 
 SCENES = sorted((Path(ROOT) / "scenes").glob("*.toml"))
 MAX_STEPS = 400
@@ -182,21 +183,31 @@ def test_a_zero_controller_through_handed_back_steps():
     assert counts[0] == counts[1] == new.meta["run"]["steps"]
 
 
-@pytest.mark.parametrize("fault,message", [
-    ("raise", "the controller raised ValueError: no torque today"),
-    ("shape", "the controller returned shape (3,), expected (2,)"),
-    ("nan", "the controller returned a non-finite torque"),
-])
-def test_controller_errors_as_in_the_python_run(tmp_path, fault, message):
-    """A controller that raises, returns the wrong size or NaN at step 151 (t_m = 0.1505 s): the same one-line
-    error naming the step (and its time) in both loops, with the same samples so far."""
+FAULTS = {  # a controller's faulty answer: its fault, the error's line
+    "raise": (lambda q: 1 / 0, "the controller raised ZeroDivisionError: division by zero"),
+    "shape": (lambda q: np.zeros(3), "the controller returned shape (3,), expected (2,)"),
+    "column": (lambda q: np.zeros((2, 1)), "the controller returned shape (2, 1), expected (2,)"),
+    "scalar": (lambda q: 0.0, "the controller returned shape (), expected (2,)"),
+    "nan": (lambda q: np.array([np.nan, 0.0]), "the controller returned a non-finite torque"),
+    "inf": (lambda q: np.array([0.0, -np.inf]), "the controller returned a non-finite torque"),
+    "nan list": (lambda q: [0.0, float("nan")], "the controller returned a non-finite torque"),
+    "strings": (lambda q: ["a", "b"], "the controller raised ValueError: could not convert string to float: 'a'"),
+    "writes q": (lambda q: q.__setitem__(0, 0.0), "the controller raised ValueError: assignment destination is "
+                 "read-only"),
+}
+
+
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+def test_controller_errors_as_in_the_python_run(tmp_path, fault):
+    """A controller that raises, returns the wrong shape, a NaN or an inf (an array or a list), what numpy cannot
+    read as floats, or writes into its q at step 151 (t_m = 0.1505 s): the same one-line error naming the step (and
+    its time) in both loops, with the same samples so far."""
     model = _arm(tmp_path, "constant", 1e-3, 0.5)
+    answer, message = FAULTS[fault]
 
     def bad(t, q, u):
         if t > 0.15:
-            if fault == "raise":
-                raise ValueError("no torque today")
-            return np.zeros(3) if fault == "shape" else np.array([np.nan, 0.0])
+            return answer(q)
         return np.array([-q[0], 0.0])
     ref, new = _both(model, controller=bad)
     assert isinstance(ref, ms.SimulationError) and message in str(ref)
@@ -204,6 +215,92 @@ def test_controller_errors_as_in_the_python_run(tmp_path, fault, message):
     assert "\n" not in str(ref)
     _same(ref, new)
     assert len(new.trajectory.arrays["t"]) == 151  # the start and the 150 steps before
+
+
+ANSWERS = {  # what a controller may return besides a float64 array: numpy reads each as (nv,) floats
+    "list": lambda f: f.tolist(), "tuple": lambda f: tuple(f), "float32": lambda f: f.astype(np.float32),
+    "int": lambda f: np.rint(f).astype(int), "strided": lambda f: np.repeat(f, 2)[::2],
+    "big-endian": lambda f: f.astype(">f8"), "array.array": lambda f: array.array("d", f),
+    "negative zero": lambda f: np.copysign(0.0, -f),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(ANSWERS))
+def test_controller_answers_numpy_reads(tmp_path, kind):
+    """A controller returning a list, a tuple, float32 or integers, a strided view, big-endian floats, an
+    array.array or negative zeros: the compiled run takes the numbers numpy.asarray(f, float) reads, the Python
+    run's arrays bit for bit."""
+    model = _arm(tmp_path, "constant", 1e-3, 0.5, T=0.2)
+    f, _ = _pd_controller()
+    ref, new = _both(model, controller=lambda t, q, u: ANSWERS[kind](f(t, q, u)))
+    _same(ref, new)
+    assert np.any(new.arrays["actuator_work"] != 0.0) or kind == "negative zero"
+
+
+def _free_ball(tmp_path):
+    """A ball on a free root (rows 0-5 never actuated) dropped onto the ground."""
+    return ms.build_model(inline_scene("""
+[simulation]
+dt = 1e-3
+duration = 0.2
+[[bodies]]
+name = "ball"
+urdf = "{models}/ball.urdf"
+root_joint = "free"
+q0 = [0, 0, 0.3, 0, 0, 0, 1]
+[[statics]]
+name = "ground"
+shape = "halfspace"
+""", tmp_path))
+
+
+@pytest.mark.parametrize("row", [None, 2, 5])
+def test_root_rows_as_in_the_python_run(tmp_path, row):
+    """A controller on a free ball: zeros (negative zeros on the root rows) are taken; a torque on a root row at step
+    101 stops both loops with the same line, the steps before it recorded."""
+    model = _free_ball(tmp_path)
+
+    def f(t, q, u):
+        tau = -np.zeros(6)
+        if row is not None and t > 0.1:
+            tau[row] = 1e-3
+        return tau
+    ref, new = _both(model, controller=f)
+    _same(ref, new)
+    if row is None:
+        assert not isinstance(new, Exception)
+        return
+    assert str(ref) == ("step 101 (t = 0.1 s): the controller returned a torque on the rows of a root joint that is "
+                        "not fixed (ball/root) at t = 0.1005 s: floating bases are not actuated")
+    assert len(new.trajectory.arrays["t"]) == 101
+
+
+@pytest.mark.parametrize("keep", ["arrays", "slices", "nothing"])
+def test_controller_keeps_what_it_is_given(tmp_path, keep):
+    """The controller may keep the q and u it is given, or views of them: in the compiled run as in the Python run
+    what it keeps holds q_m and u_k of that step, read-only, never rewritten by a later step (the Runner refills its
+    arrays in place only where nothing else refers to them); the runs are the same bit for bit."""
+    model = _arm(tmp_path, "constant", 1e-3, 0.5, T=0.1)
+    kept, runs = [], []
+    for python_run in (True, False):
+        seen = []
+        f, _ = _pd_controller()
+
+        def controller(t, q, u, seen=seen, f=f):
+            if keep != "nothing":
+                seen.append((t, q, u) if keep == "arrays" else (t, q[1:], u[:1]))
+            return f(t, q, u)
+        runs.append(ms.simulate(model, progress=False, python_run=python_run, controller=controller))
+        kept.append(seen)
+    _same(*runs)
+    ref, new = kept
+    if keep == "nothing":
+        return
+    assert len(ref) == len(new) == 100
+    for (t0, q0, u0), (t1, q1, u1) in zip(ref, new):
+        assert t0 == t1 and q0.tobytes() == q1.tobytes() and u0.tobytes() == u1.tobytes()
+        assert not q1.flags.writeable and not u1.flags.writeable
+    assert len({q.tobytes() for _, q, _ in new}) > 90  # distinct configurations, each kept as it was
 
 
 def test_resume_in_an_actuated_compiled_run(tmp_path):
