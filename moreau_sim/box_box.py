@@ -64,11 +64,11 @@ def _dot(a: np.ndarray, b: np.ndarray) -> float:
     return (float(a[0]) * float(b[0]) + float(a[1]) * float(b[1])) + float(a[2]) * float(b[2])
 
 
-def face_patch(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -> tuple[list[tuple], float]:
+def face_patch(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -> list[tuple]:
     """The corners of the overlap of two nearly parallel faces of boxes A and B (world(): their edges; box_a,
     box_b: (R, c, half) of each in the world, for the depth test), each with its own gap (docs/theory.md §6.2):
-    ([(g [m], p_A (3,), p_B (3,), n (3,), i) for corner i], spread [m]: the largest minus the least gap of
-    all the clipped corners), ([], 0.0) unless the faces are within FACE_ANGLE of anti-parallel and overlap.
+    [(g [m], p_A (3,), p_B (3,), n (3,), i) for corner i], [] unless the faces are within FACE_ANGLE of
+    anti-parallel and overlap. contacts.detect takes them where coal's patch has no polygon.
     The corners are those with g <= tol, as every contact's (a corner still open is no row: a row holds its
     corner where it is, and the law has no gap to let it close; a tilted box comes down on it in a later step).
 
@@ -108,7 +108,7 @@ def face_patch(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -> tu
         if abs(c[k]) > abs(c[j]):
             j = k
     if not abs(c[j]) >= np.cos(FACE_ANGLE):
-        return [], 0.0
+        return []
     j1, j2 = (j + 1) % 3, (j + 2) % 3
     fc = ci - (hi[j] if c[j] > 0.0 else -hi[j]) * Ui[j]  # the incident face's centre: its normal opposes o
     poly = [(fc + (s1 * hi[j1]) * Ui[j1]) + (s2 * hi[j2]) * Ui[j2]
@@ -127,15 +127,14 @@ def face_patch(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -> tu
                     clipped.append(p + (dp / (dp - dq)) * (q - p))
             poly = clipped
             if not poly:
-                return [], 0.0
+                return []
     plane = _dot(o, cr + hr[i] * o)
     gaps = [_dot(o, p) - plane for p in poly]
-    spread = max(gaps) - min(gaps)
     hits = [(g, m, p) for m, (g, p) in enumerate(zip(gaps, poly)) if g <= tol]
     if any(g < 0.0 for g, _, _ in hits):
         floor = -(DEPTH_RATIO * max(overlap(box_a, box_b), 0.0) + tol)
         hits = [x for x in hits if x[0] >= floor]
-    return [(g, p + g * n, p, n, m) if ref_a else (g, p, p - g * n, n, m) for g, m, p in hits], spread
+    return [(g, p + g * n, p, n, m) if ref_a else (g, p, p - g * n, n, m) for g, m, p in hits]
 
 
 def edge_crossings(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -> list[tuple]:

@@ -13,7 +13,8 @@ Method (general, no special case per shape pair): for every collision pair whose
      patch, the polygon where the faces overlap (two equal boxes stacked with a yaw touch only
      along the octagon of their overlap: no vertex of either lies on the other), except those
      that are already vertex contacts; they carry the pair's depth, exact for parallel faces;
-  3. for two boxes, the crossings of an edge of one with an edge of the other (box_box.py), except
+  3. for two boxes, the crossings of an edge of one with an edge of the other (box_box.py), and where
+     coal's patch has no polygon the corners of two nearly parallel faces, each with its own gap, except
      at points that are already contacts;
   4. otherwise, when steps 1-3 found nothing, coal's closest-point contact (smooth shapes: spheres,
      capsules, cylinders, curved meshes; edge on edge of other polytopes).
@@ -406,8 +407,8 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
 def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
     """The edge crossings of a pair of two boxes (box_box.edge_crossings, docs/theory.md §6.2) as contact
     rows (g, p_A, p_B, n, pair, EDGE, 12 k + l), then the corners of its nearly parallel faces (box_box.face_patch)
-    as rows (g, p_A, p_B, n, pair, FACE, i); and whether those corners replace coal's patch (their own gaps
-    differ by more than tol: a patch's one depth would misstate them). ([], False) for any other pair."""
+    as rows (g, p_A, p_B, n, pair, FACE, i), which detect keeps only where coal's patch has no polygon; [] for
+    any other pair."""
     shapes = data.shapes
     ga, gb = shapes[pair.first], shapes[pair.second]
     if not (isinstance(ga, coal.Box) and isinstance(gb, coal.Box)):
@@ -422,7 +423,7 @@ def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
     box_a = (fa.rotation, fa.translation, np.asarray(ga.halfSide))
     box_b = (fb.rotation, fb.translation, np.asarray(gb.halfSide))
     hits = box_box.edge_crossings(A, B, box_a, box_b, tol)
-    faces, _ = box_box.face_patch(A, B, box_a, box_b, tol)
+    faces = box_box.face_patch(A, B, box_a, box_b, tol)
     return ([(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
             + [(g, pa, pb, n, pair.index, FeatureKind.FACE, i) for g, pa, pb, n, i in faces])
 

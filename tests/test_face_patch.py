@@ -45,17 +45,16 @@ def test_corners_carry_their_own_gaps(theta):
     is A's bottom face; every corner's gap is its height above B's top face, z - h_B (to 1e-15 m), the normal B's
     face normal, p_B the corner's foot on that face; tol = 1 m takes all of them, tol = 1e-9 only the lowest two."""
     A, B, box_a, box_b, bottom = _tilted(theta)
-    rows, spread = box_box.face_patch(A, B, box_a, box_b, 1.0)
+    rows = box_box.face_patch(A, B, box_a, box_b, 1.0)
     expect = bottom[:, 2] - 0.05
     assert len(rows) == 4
-    assert spread == pytest.approx(np.ptp(expect), abs=1e-15)
     for g, pa, pb, n, _ in rows:
         k = int(np.argmin(np.abs(bottom - pa).max(axis=1)))
         assert np.abs(bottom[k] - pa).max() <= 1e-15
         assert g == pytest.approx(expect[k], abs=1e-15)
         np.testing.assert_allclose(n, [0.0, 0.0, 1.0], atol=1e-15)
         np.testing.assert_allclose(pb, pa - g * n, atol=1e-15)
-    lowest, _ = box_box.face_patch(A, B, box_a, box_b, 1e-9)
+    lowest = box_box.face_patch(A, B, box_a, box_b, 1e-9)
     assert len(lowest) == 2 and all(abs(g) <= 1e-15 for g, *_ in lowest)
 
 
@@ -76,7 +75,7 @@ def test_the_angle_edge(delta, counts):
     centre = np.array([0.0, 0.0, half_b - V[:, 2].min()])
     A = box_box.world(box_box.box_edges(coal.Box(*(2 * half_a,) * 3), pin.SE3.Identity()), pin.SE3(R, centre))
     B = box_box.world(box_box.box_edges(coal.Box(*(2 * half_b,) * 3), pin.SE3.Identity()), pin.SE3.Identity())
-    rows, _ = box_box.face_patch(A, B, (R, centre, np.full(3, half_a)), (np.eye(3), np.zeros(3), np.full(3, half_b)),
+    rows = box_box.face_patch(A, B, (R, centre, np.full(3, half_a)), (np.eye(3), np.zeros(3), np.full(3, half_b)),
                                  1.0)
     assert bool(rows) == counts
     if counts:
@@ -104,11 +103,11 @@ def test_a_tilted_cube_settles_without_penetration_or_gain(theta, e, ground, h, 
     """A cube tilted by theta (roll theta, pitch 0.7 theta) resting on its lowest vertex on a cube (or the ground):
     it comes down on its face; the run's invariants hold (no persisting penetration, no gain of T + V beyond the
     fixed step's bound), and the compiled step's trajectory is the Python step's bit for bit. (At h = 1e-2, from
-    rest, a cube on a cube tips about its touching edge by up to 2 mm and 4 of 12 such runs are flagged:
+    rest, a cube on a cube tips about its touching edge by up to 2.1 mm and 2 of 12 such runs are flagged:
     docs/theory.md §6.2, 3b.)"""
     if (theta, e, ground, h) == (1e-4, 0.0, False, 1e-3):
         request.applymarker(pytest.mark.xfail(strict=True, reason=(
-            "flagged: 11.8 um at t = 3 ms; a vertex row at a tilted face pair's corner keeps a side face "
+            "flagged, as on main: 11.8 um at t = 3 ms; a vertex row at a tilted face pair's corner keeps a side face "
             "(its cone test); giving it the corner's normal broke the slope scene's D = L ledger identity "
             "(5.5e-10 J), so it is not done")))
     runs = {impl: ms.simulate(_cube_on_cube(theta, e, h, impl, ground), progress=False)
