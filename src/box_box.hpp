@@ -1,9 +1,9 @@
 // The box-box pieces of the compiled detection (included by src/step.cpp): what contacts.detect does for a
-// pair of two boxes (moreau_sim/contacts.py _near_polytopes, _face_axis, the edge crossings of
-// moreau_sim/box_box.py edge_crossings, docs/theory.md §6.2), as plain functions on the joint placements.
+// pair of two boxes (moreau_sim/contacts.py _near_polytopes, _face_axis, the edge crossings and face corners of
+// moreau_sim/box_box.py edge_crossings and face_patch, docs/theory.md §6.2), as plain functions on the joint placements.
 // Values that become contact data (the face normal of a patch) are exact here and in Python (±1 entries of an
 // axis-aligned face normal times a rotation); the rest only feeds decisions (argmax, thresholds), and
-// Stepper::box_pair hands back every step whose outcome these could change (corners, edge contacts).
+// Stepper::box_pair hands back every step whose outcome these could change (corners, edge contacts, face corners).
 #pragma once
 
 #include <Eigen/Dense>
