@@ -18,6 +18,7 @@ EDGE_END = 1e-6  # a crossing this close (relative to the edge's length) to an e
 PARALLEL = 1e-9  # |e_A x e_B| below this: parallel edges, no crossing (vertices and patches cover them)
 _AXIS = np.arange(12) // 4  # the axis each of a box's 12 edges runs along (box_edges)
 DEPTH_RATIO = 4.0  # a crossing deeper than this times the boxes' penetration depth is no contact (edge_crossings)
+FACE_ANGLE = np.pi / 4  # [rad] faces this close to anti-parallel: their clipped overlap's corners count (face_patch)
 
 
 def box_edges(geometry: coal.Box, placement: pin.SE3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -56,6 +57,84 @@ def overlap(box_a: tuple, box_b: tuple) -> float:
     s = np.sqrt((c * c).sum(axis=1))
     axes = np.concatenate((Ra.T, Rb.T, c[s > PARALLEL] / s[s > PARALLEL, None]))
     return float((np.abs(axes @ Ra) @ ha + np.abs(axes @ Rb) @ hb - np.abs(axes @ (ca - cb))).min())
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
+    """a.b of two 3-vectors summed in index order (src/box_box.hpp dot3: the same decisions, bit for bit)."""
+    return (float(a[0]) * float(b[0]) + float(a[1]) * float(b[1])) + float(a[2]) * float(b[2])
+
+
+def face_patch(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -> list[tuple]:
+    """The corners of the overlap of two nearly parallel faces of boxes A and B (world(): their edges; box_a,
+    box_b: (R, c, half) of each in the world, for the depth test), each with its own gap (docs/theory.md §6.2):
+    [(g [m], p_A (3,), p_B (3,), n (3,), i) for corner i], [] unless the faces are within FACE_ANGLE of
+    anti-parallel and overlap. contacts.detect takes them where coal's patch has no polygon.
+    The corners are those with g <= tol, as every contact's (a corner still open is no row: a row holds its
+    corner where it is, and the law has no gap to let it close; a tilted box comes down on it in a later step).
+
+    A box's axes a_i are its edges 0, 4, 8, its half sides half their lengths, its centre edge 0's start
+    + sum_i h_i a_i. The reference face is the face of least interpenetration: among A's outward normals
+    negated and B's (n oriented from B to A; A's first, -a_i then +a_i, then B's), the first of largest
+    s(n) = n.(c_A - c_B) - sum_i |n.a_i| h_A,i - sum_j |n.b_j| h_B,j (contacts._face_axis in closed form).
+    The incident face is the other box's face whose outward normal is most opposite to the reference face's
+    outward normal o; the pair counts when |cos| between them >= cos(FACE_ANGLE). The incident face's 4
+    corners are clipped (Sutherland-Hodgman) to the reference face's 4 side planes; each clipped corner p
+    gets its own gap to the reference plane, g = o.p - o.x_ref (> 0 apart), with p_B = p_A - g n (B's face
+    the reference, p_A = p) or p_A = p_B + g n (A's, p_B = p). Where any corner is crossed (g < 0) the corners
+    deeper than DEPTH_RATIO times the boxes' penetration depth (+ tol) are dropped, as edge_crossings does.
+    src/box_box.hpp face_patch is this function, operation for operation."""
+    boxes = []
+    for e0, ed, el, _ in (A, B):
+        U = (ed[0], ed[4], ed[8])
+        h = (0.5 * float(el[0]), 0.5 * float(el[4]), 0.5 * float(el[8]))
+        boxes.append((U, ((e0[0] + h[0] * U[0]) + h[1] * U[1]) + h[2] * U[2], h))
+    (Ua, ca, ha), (Ub, cb, hb) = boxes
+    d = ca - cb
+    best, s_best, n = 0, -np.inf, None
+    for f in range(12):
+        nf = (Ua[f % 3] if f < 3 else -Ua[f % 3]) if f < 6 else (-Ub[f % 3] if f < 9 else Ub[f % 3])
+        pa = (abs(_dot(nf, Ua[0])) * ha[0] + abs(_dot(nf, Ua[1])) * ha[1]) + abs(_dot(nf, Ua[2])) * ha[2]
+        pb = (abs(_dot(nf, Ub[0])) * hb[0] + abs(_dot(nf, Ub[1])) * hb[1]) + abs(_dot(nf, Ub[2])) * hb[2]
+        s = (_dot(nf, d) - pa) - pb
+        if f == 0 or s > s_best:
+            best, s_best, n = f, s, nf
+    ref_a = best < 6
+    i = best % 3
+    Ur, cr, hr, Ui, ci, hi = (Ua, ca, ha, Ub, cb, hb) if ref_a else (Ub, cb, hb, Ua, ca, ha)
+    o = -n if ref_a else n  # the reference face's outward normal
+    c = [_dot(o, Ui[k]) for k in range(3)]
+    j = 0
+    for k in (1, 2):
+        if abs(c[k]) > abs(c[j]):
+            j = k
+    if not abs(c[j]) >= np.cos(FACE_ANGLE):
+        return []
+    j1, j2 = (j + 1) % 3, (j + 2) % 3
+    fc = ci - (hi[j] if c[j] > 0.0 else -hi[j]) * Ui[j]  # the incident face's centre: its normal opposes o
+    poly = [(fc + (s1 * hi[j1]) * Ui[j1]) + (s2 * hi[j2]) * Ui[j2]
+            for s1, s2 in ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0))]
+    for k in ((i + 1) % 3, (i + 2) % 3):  # the reference face's side planes: |u_k.(x - c_r)| <= h_r,k
+        for sign in (1.0, -1.0):
+            axis = sign * Ur[k]
+            lim = hr[k] + _dot(axis, cr)
+            clipped = []
+            for m in range(len(poly)):
+                p, q = poly[m], poly[(m + 1) % len(poly)]
+                dp, dq = _dot(axis, p) - lim, _dot(axis, q) - lim
+                if dp <= 0.0:
+                    clipped.append(p)
+                if (dp < 0.0 < dq) or (dq < 0.0 < dp):
+                    clipped.append(p + (dp / (dp - dq)) * (q - p))
+            poly = clipped
+            if not poly:
+                return []
+    plane = _dot(o, cr + hr[i] * o)
+    gaps = [_dot(o, p) - plane for p in poly]
+    hits = [(g, m, p) for m, (g, p) in enumerate(zip(gaps, poly)) if g <= tol]
+    if any(g < 0.0 for g, _, _ in hits):
+        floor = -(DEPTH_RATIO * max(overlap(box_a, box_b), 0.0) + tol)
+        hits = [x for x in hits if x[0] >= floor]
+    return [(g, p + g * n, p, n, m) if ref_a else (g, p, p - g * n, n, m) for g, m, p in hits]
 
 
 def edge_crossings(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -> list[tuple]:

@@ -13,7 +13,8 @@ Method (general, no special case per shape pair): for every collision pair whose
      patch, the polygon where the faces overlap (two equal boxes stacked with a yaw touch only
      along the octagon of their overlap: no vertex of either lies on the other), except those
      that are already vertex contacts; they carry the pair's depth, exact for parallel faces;
-  3. for two boxes, the crossings of an edge of one with an edge of the other (box_box.py), except
+  3. for two boxes, the crossings of an edge of one with an edge of the other (box_box.py), and where
+     coal's patch has no polygon the corners of two nearly parallel faces, each with its own gap, except
      at points that are already contacts;
   4. otherwise, when steps 1-3 found nothing, coal's closest-point contact (smooth shapes: spheres,
      capsules, cylinders, curved meshes; edge on edge of other polytopes).
@@ -52,6 +53,7 @@ class FeatureKind(enum.IntEnum):
     SWEPT = 4  # found by the swept test along a fast motion (tunnelling.py; feature 0)
     JOINT_LIMIT = 5  # a joint's lower or upper position limit (limits.py; feature = the Pinocchio joint id)
     EDGE = 6  # two boxes' edges crossing (box_box.py): feature 12 k + l, A's edge k and B's edge l
+    FACE = 7  # corner `feature` of two nearly parallel box faces' clipped overlap, its own gap (box_box.face_patch)
 
 
 SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact
@@ -381,7 +383,8 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             if len(found) == start or float(n_face @ found[start][3]) >= 1.0 - 1e-9:
                 patch = _patch(data, pair, c, n_face)
                 k_patch = patch.size()
-        if k_patch > 1:
+        if k_patch > 1:  # coal's polygon: the face corners are its corners (docs/theory.md §6.2, 3b)
+            edges = [r for r in edges if r[5] != FeatureKind.FACE]
             P1 = np.array([patch.getPointShape1(k) for k in range(k_patch)])
             new = np.ones(k_patch, bool)
             if len(found) > start:
@@ -403,7 +406,9 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
 
 def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
     """The edge crossings of a pair of two boxes (box_box.edge_crossings, docs/theory.md §6.2) as contact
-    rows (g, p_A, p_B, n, pair, EDGE, 12 k + l); [] for any other pair."""
+    rows (g, p_A, p_B, n, pair, EDGE, 12 k + l), then the corners of its nearly parallel faces (box_box.face_patch)
+    as rows (g, p_A, p_B, n, pair, FACE, i), which detect keeps only where coal's patch has no polygon; [] for
+    any other pair."""
     shapes = data.shapes
     ga, gb = shapes[pair.first], shapes[pair.second]
     if not (isinstance(ga, coal.Box) and isinstance(gb, coal.Box)):
@@ -414,23 +419,28 @@ def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
             cache[g] = box_box.box_edges(geo, model.geometries[g].placement)
     oMi, oMg = data.kinematics.oMi, data.oMg
     fa, fb = oMg[pair.first], oMg[pair.second]
-    hits = box_box.edge_crossings(box_box.world(cache[pair.first], oMi[pair.joint_first]),
-                                  box_box.world(cache[pair.second], oMi[pair.joint_second]),
-                                  (fa.rotation, fa.translation, np.asarray(ga.halfSide)),
-                                  (fb.rotation, fb.translation, np.asarray(gb.halfSide)), tol)
-    return [(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
+    A, B = box_box.world(cache[pair.first], oMi[pair.joint_first]), box_box.world(cache[pair.second], oMi[pair.joint_second])
+    box_a = (fa.rotation, fa.translation, np.asarray(ga.halfSide))
+    box_b = (fb.rotation, fb.translation, np.asarray(gb.halfSide))
+    hits = box_box.edge_crossings(A, B, box_a, box_b, tol)
+    faces = box_box.face_patch(A, B, box_a, box_b, tol)
+    return ([(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]
+            + [(g, pa, pb, n, pair.index, FeatureKind.FACE, i) for g, pa, pb, n, i in faces])
 
 
 def _add_new(found: list, start: int, edges: list) -> None:
-    """Append the edge contacts of a pair whose point on A is not already one of its contacts (a patch
-    corner of two yawed faces is also the crossing of their edges)."""
+    """Append the edge contacts and face corners of a pair whose point on A is not already one of its
+    contacts (a patch corner of two yawed faces is also the crossing of their edges)."""
     if not edges:
         return
     if len(found) > start:
         pa, known = np.array([r[1] for r in edges]), np.array([f[1] for f in found[start:]])
         new = np.abs(pa[:, None, :] - known[None, :, :]).max(axis=2).min(axis=1) > SAME_POINT
         edges = [r for r, k in zip(edges, new.tolist()) if k]
-    found.extend(edges)
+    crossings = [r for r in edges if r[5] == FeatureKind.EDGE]
+    for r in edges:  # a face corner that is also an edge crossing (yawed faces) is that crossing
+        if r[5] == FeatureKind.EDGE or all(np.abs(x[1] - r[1]).max() > SAME_POINT for x in crossings):
+            found.append(r)
 
 
 def from_rows(model: Model, rows: list, corners: tuple = ()) -> Contacts:

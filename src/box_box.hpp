@@ -1,9 +1,9 @@
 // The box-box pieces of the compiled detection (included by src/step.cpp): what contacts.detect does for a
-// pair of two boxes (moreau_sim/contacts.py _near_polytopes, _face_axis, the edge crossings of
-// moreau_sim/box_box.py edge_crossings, docs/theory.md §6.2), as plain functions on the joint placements.
+// pair of two boxes (moreau_sim/contacts.py _near_polytopes, _face_axis, the edge crossings and face corners of
+// moreau_sim/box_box.py edge_crossings and face_patch, docs/theory.md §6.2), as plain functions on the joint placements.
 // Values that become contact data (the face normal of a patch) are exact here and in Python (±1 entries of an
 // axis-aligned face normal times a rotation); the rest only feeds decisions (argmax, thresholds), and
-// Stepper::box_pair hands back every step whose outcome these could change (corners, edge contacts).
+// Stepper::box_pair hands back every step whose outcome these could change (corners, edge contacts, face corners).
 #pragma once
 
 #include <Eigen/Dense>
@@ -102,6 +102,69 @@ struct Crossing {
   Vec3 pa;
 };
 
+// box_box.FACE_ANGLE [rad] (compiled.CONSTANTS has no slot for it: src/step.cpp reads a fixed set of names;
+// tests/test_face_patch.py checks the two values are equal)
+constexpr double FACE_ANGLE = 0.7853981633974483;  // pi / 4
+
+// box_box.face_patch on the 12 world edges of each box (starts a0, directions ea, lengths el): the clipped
+// corners with g <= tol appended to out as (g, the point on A). Their depth test against the boxes' overlap is
+// the caller's (src/step.cpp applies it to every candidate, as Python applies it to crossings and corners
+// apart: the same floor). A corner that is no known point hands the step to Python, which keeps it only where
+// coal's patch has no polygon (contacts.detect); one that is a known point (a vertex, a patch corner) is no row.
+inline void face_patch(const Vec3 *a0, const Vec3 *ea, const Eigen::VectorXd &la, const Vec3 *b0, const Vec3 *eb,
+                       const Eigen::VectorXd &lb, double tol, std::vector<Crossing> &out) {
+  const Vec3 Ua[3] = {ea[0], ea[4], ea[8]}, Ub[3] = {eb[0], eb[4], eb[8]};
+  const double ha[3] = {0.5 * la[0], 0.5 * la[4], 0.5 * la[8]}, hb[3] = {0.5 * lb[0], 0.5 * lb[4], 0.5 * lb[8]};
+  const Vec3 ca = ((a0[0] + ha[0] * Ua[0]) + ha[1] * Ua[1]) + ha[2] * Ua[2];
+  const Vec3 cb = ((b0[0] + hb[0] * Ub[0]) + hb[1] * Ub[1]) + hb[2] * Ub[2];
+  const Vec3 d = ca - cb;
+  int best = 0;
+  double s_best = -INFINITY;
+  Vec3 n_best = Vec3::Zero();
+  for (int f = 0; f < 12; ++f) {
+    const Vec3 n = f < 6 ? (f < 3 ? Ua[f % 3] : Vec3(-Ua[f % 3])) : (f < 9 ? Vec3(-Ub[f % 3]) : Ub[f % 3]);
+    const double pa = (std::abs(dot3(n, Ua[0])) * ha[0] + std::abs(dot3(n, Ua[1])) * ha[1]) + std::abs(dot3(n, Ua[2])) * ha[2];
+    const double pb = (std::abs(dot3(n, Ub[0])) * hb[0] + std::abs(dot3(n, Ub[1])) * hb[1]) + std::abs(dot3(n, Ub[2])) * hb[2];
+    const double sep = (dot3(n, d) - pa) - pb;
+    if (f == 0 || sep > s_best) best = f, s_best = sep, n_best = n;
+  }
+  const bool ref_a = best < 6;
+  const int i = best % 3;
+  const Vec3 *Ur = ref_a ? Ua : Ub, *Ui = ref_a ? Ub : Ua;
+  const double *hr = ref_a ? ha : hb, *hi = ref_a ? hb : ha;
+  const Vec3 cr = ref_a ? ca : cb, ci = ref_a ? cb : ca;
+  const Vec3 n = n_best, o = ref_a ? Vec3(-n_best) : n_best;
+  const double c[3] = {dot3(o, Ui[0]), dot3(o, Ui[1]), dot3(o, Ui[2])};
+  int j = 0;
+  for (int k = 1; k < 3; ++k)
+    if (std::abs(c[k]) > std::abs(c[j])) j = k;
+  if (!(std::abs(c[j]) >= std::cos(FACE_ANGLE))) return;
+  const int j1 = (j + 1) % 3, j2 = (j + 2) % 3;
+  const Vec3 fc = ci - (c[j] > 0.0 ? hi[j] : -hi[j]) * Ui[j];
+  std::vector<Vec3> poly;
+  const double sg[4][2] = {{-1.0, -1.0}, {1.0, -1.0}, {1.0, 1.0}, {-1.0, 1.0}};
+  for (const auto &sv : sg) poly.push_back((fc + (sv[0] * hi[j1]) * Ui[j1]) + (sv[1] * hi[j2]) * Ui[j2]);
+  for (int k : {(i + 1) % 3, (i + 2) % 3})
+    for (double sign : {1.0, -1.0}) {
+      const Vec3 axis = sign * Ur[k];
+      const double lim = hr[k] + dot3(axis, cr);
+      std::vector<Vec3> clipped;
+      for (size_t m = 0; m < poly.size(); ++m) {
+        const Vec3 &p = poly[m], &q = poly[(m + 1) % poly.size()];
+        const double dp = dot3(axis, p) - lim, dq = dot3(axis, q) - lim;
+        if (dp <= 0.0) clipped.push_back(p);
+        if ((dp < 0.0 && 0.0 < dq) || (dq < 0.0 && 0.0 < dp)) clipped.push_back(p + (dp / (dp - dq)) * (q - p));
+      }
+      poly = clipped;
+      if (poly.empty()) return;
+    }
+  const double plane = dot3(o, cr + hr[i] * o);
+  for (const Vec3 &p : poly) {
+    const double g = dot3(o, p) - plane;
+    if (g <= tol) out.push_back({g, ref_a ? Vec3(p + g * n) : p});
+  }
+}
+
 inline std::vector<Crossing> edge_candidates(const Edges &A, const Mat3 &RA, const Vec3 &tA, const Edges &B,
                                          const Mat3 &RB, const Vec3 &tB, double tol, double cone, double edge_end,
                                          double parallel) {
@@ -133,6 +196,7 @@ inline std::vector<Crossing> edge_candidates(const Edges &A, const Mat3 &RA, con
       if (!(tb >= edge_end * lb && tb <= (1.0 - edge_end) * lb)) continue;
       out.push_back({g, a0[k] + sa * ea[k]});
     }
+  face_patch(a0, ea, A.el, b0, eb, B.el, tol, out);
   return out;
 }
 
