@@ -28,6 +28,7 @@ from .gaps import UnsupportedModel, feature_list
 from .model import Model, initial_state
 from .options import Bias
 from .protocol import FixedStep, Report, Segment, Status
+from .qp import ordered
 from .recording import run_metadata
 from .state import State
 from .stepper import free_velocity, midpoint_fixed_point, step
@@ -54,12 +55,12 @@ QUINTIC = np.array([[1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1
                     [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5]])
 _POWERS = np.arange(6)
 _CHECK = np.linspace(0.0, 1.0, CHECK_POINTS + 1)
-_CHECK_BASIS = (_CHECK[:, None] ** _POWERS) @ QUINTIC.T  # (points, 6)
+_CHECK_BASIS = ordered(_CHECK[:, None] ** _POWERS, QUINTIC.T)  # (points, 6)
 
 
 def _poly(coef: np.ndarray) -> np.ndarray:
     """Power coefficients (6, ...) of the quintic Hermite interpolant of Hermite data coef (6, ...)."""
-    return np.tensordot(QUINTIC.T, coef, axes=1)
+    return ordered(QUINTIC.T, coef)
 
 
 def _polyval(p: np.ndarray, x: float):
@@ -274,7 +275,7 @@ class AdaptiveRun:
         if idx:
             fs = features(self.rules, self.s.ev, q, u, idx)
             near = self.is_box[idx] & np.isfinite(fs.margin)
-            return _End(t, q, u, a, lam, fs.g, fs.gamma, fs.W.T @ a + fs.drift, margin, near)
+            return _End(t, q, u, a, lam, fs.g, fs.gamma, ordered(fs.W.T, a) + fs.drift, margin, near)
         z = np.zeros(0)
         return _End(t, q, u, a, lam, z, z, z, margin, np.zeros(0, bool))
 
@@ -300,7 +301,7 @@ class AdaptiveRun:
             if not self.lie:
                 return e0.q + d, s
             J = pin.dIntegrate(self.pm, e0.q, d, pin.ArgumentPosition.ARG1)
-            return pin.integrate(self.pm, e0.q, d), J @ s
+            return pin.integrate(self.pm, e0.q, d), ordered(J, s)
         return at
 
     def _segment(self, e0: _End, e1: _End, n_contacts: int, last: bool) -> Segment:
@@ -355,7 +356,7 @@ class AdaptiveRun:
                     if best is None or tau < best[0]:
                         best = (tau, "gap", k)
             done = box  # located above, or too far to close
-            G = _CHECK_BASIS @ coef  # (points, features)
+            G = ordered(_CHECK_BASIS, coef)  # (points, features)
             G[-1] = e1.g
             crossing = np.flatnonzero((G[:, :nw] < 0.0).any(axis=0) & ~done[:nw])
             first = {int(k): int(np.argmax(G[:, k] < 0.0)) for k in crossing}
