@@ -139,13 +139,10 @@ def dynamics(r: Rules, st: EventState, q, u, C):
     MiW = ordered(Minv, fs.W)
     G = ordered(fs.W.T, MiW)
     rhs = -(ordered(fs.W.T, a) + fs.drift)
-    redundant = st.redundant.get(C)
-    if redundant is None:  # rows of C dependent (4 corners of a face on a face): decided once per set
-        redundant = st.redundant[C] = bool(np.linalg.matrix_rank(fs.W) < len(C))
+    redundant = _redundant(st, C, fs.W)
 
     def solve(b):
-        x = None if redundant else _lu_solve(G, b)  # None: singular
-        return np.linalg.lstsq(G, b, rcond=1e-12)[0] if x is None else x  # redundant rows: minimum-norm forces
+        return _solve(G, b, redundant)
     lam = solve(rhs)
     a_c = a + ordered(MiW, lam)
     # one step of iterative refinement (as the impact's, docs/theory.md §1.5): lam ~ R m g is exact only
@@ -153,6 +150,22 @@ def dynamics(r: Rules, st: EventState, q, u, C):
     # hold; the residual W_C'a_C + drift is computed where it is ~0, accurately, and removed
     dl = solve(-(ordered(fs.W.T, a_c) + fs.drift))
     return a_c + ordered(MiW, dl), lam + dl, fs
+
+
+def _redundant(st: EventState, C: tuple, W: np.ndarray) -> bool:
+    """Whether the rows W (nv, len(C)) of the persistent set C are dependent (4 corners of a face on a face),
+    decided once per set (st.redundant)."""
+    redundant = st.redundant.get(C)
+    if redundant is None:
+        redundant = st.redundant[C] = bool(np.linalg.matrix_rank(W) < len(C))
+    return redundant
+
+
+def _solve(G: np.ndarray, b: np.ndarray, redundant: bool) -> np.ndarray:
+    """G^-1 b by qp's written-out LU (docs/theory.md §2.8), or for dependent rows (or a singular G) the
+    minimum-norm least-squares solution (LAPACK's, whose bits follow the BLAS kernel)."""
+    x = None if redundant else _lu_solve(G, b)
+    return np.linalg.lstsq(G, b, rcond=1e-12)[0] if x is None else x
 
 
 def thin_limit(r: Rules, u: np.ndarray, a: np.ndarray) -> float:
@@ -205,7 +218,7 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
     if C:  # remove the residual normal velocity of the touching contacts, idle ones too (~1e-16)
         W = fs.W[:, list(C)]
         MiW = ordered(Minv, W)
-        u = u - ordered(MiW, np.linalg.lstsq(ordered(W.T, MiW), ordered(W.T, u), rcond=1e-12)[0])
+        u = u - ordered(MiW, _solve(ordered(W.T, MiW), ordered(W.T, u), _redundant(st, C, W)))
         # that removal moves bodies along M^-1 W_C: where it leaves another closed feature approaching
         # (a state handed back by fixed steps, overlapping by ~1e-8 m), the velocity is projected onto
         # the tangent cone of all closed features (the plastic law on ~1e-9 m/s): no phase starts with
@@ -232,10 +245,7 @@ def _carrying(r: Rules, st: EventState, q, u, C: tuple, keep: list, lam: np.ndar
     if not C:
         return C
     W = fs.W[:, list(C)]
-    redundant = st.redundant.get(C)
-    if redundant is None:  # as dynamics decides it, once per set
-        redundant = st.redundant[C] = bool(np.linalg.matrix_rank(W) < len(C))
-    if redundant:
+    if _redundant(st, C, W):
         return C  # dependent rows: their forces are not unique, a zero multiplier says nothing
     at = {i: k for k, i in enumerate(keep)}
     wMw = np.add.accumulate(W * ordered(Minv, W), axis=0)[-1] + 0.0  # w_i'M^-1 w_i, summed as qp.ordered sums
