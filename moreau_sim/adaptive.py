@@ -28,7 +28,7 @@ from .gaps import UnsupportedModel, feature_list
 from .model import Model, initial_state
 from .options import Bias
 from .protocol import FixedStep, Report, Segment, Status
-from .qp import ordered
+from .qp import _lu_solve, ordered
 from .recording import run_metadata
 from .state import State
 from .stepper import free_velocity, midpoint_fixed_point, step
@@ -267,7 +267,8 @@ class AdaptiveRun:
         z0 = np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q0), u0)))
         z1 = np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q1), u1)))
         sc = self.atol + self.rtol * np.maximum(z0, z1)
-        return float(np.sqrt(np.mean((d / sc) ** 2)))
+        z = d / sc
+        return float(np.sqrt(ordered(z, z) / len(z)))  # the RMS, summed in index order (§2.8)
 
     def _end(self, t, q, u, C, idx) -> _End:
         a, lam, fc = dynamics(self.rules, self.s.ev, q, u, C)
@@ -287,11 +288,11 @@ class AdaptiveRun:
         d1 = self._delta(e0.q, e1.q)
         if self.lie:  # delta' = J^-1 u, delta'' = J^-1 a + (J^-1)' u, the last by central differences
             def slope(d):
-                return np.linalg.solve(pin.dIntegrate(self.pm, e0.q, d, pin.ArgumentPosition.ARG1), e1.u)
+                return _lu_solve(pin.dIntegrate(self.pm, e0.q, d, pin.ArgumentPosition.ARG1), e1.u)
             s1 = slope(d1)
             eps = 1e-5 / (1.0 + float(np.abs(s1).max()))
             Jinv_dot_u = (slope(d1 + eps * s1) - slope(d1 - eps * s1)) / (2.0 * eps)
-            c1 = np.linalg.solve(pin.dIntegrate(self.pm, e0.q, d1, pin.ArgumentPosition.ARG1), e1.a) + Jinv_dot_u
+            c1 = _lu_solve(pin.dIntegrate(self.pm, e0.q, d1, pin.ArgumentPosition.ARG1), e1.a) + Jinv_dot_u
         else:
             s1, c1 = e1.u, e1.a
         p = _poly(np.array([np.zeros(self.nv), H * e0.u, H * H * e0.a, d1, H * s1, H * H * c1]))
