@@ -19,6 +19,11 @@ def dot3(a: np.ndarray, b: np.ndarray) -> float:
 def dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """sum_e a[..., e] b[..., e] over a last axis of 3 entries (broadcasting) as `ordered` sums it: row-wise
     dot products, R @ x as dots(R, x), the rows of X @ R.T as dots(X[:, None], R)."""
+    if b.ndim == 1 and a.shape == (3, 3):  # R x: on Python floats (the same operations, ~5x cheaper)
+        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a.tolist()
+        b0, b1, b2 = b.tolist()
+        return np.array([a00 * b0 + a01 * b1 + a02 * b2 + 0.0, a10 * b0 + a11 * b1 + a12 * b2 + 0.0,
+                         a20 * b0 + a21 * b1 + a22 * b2 + 0.0])
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2] + 0.0
 
 
@@ -37,6 +42,12 @@ def ordered(A, x):
     n = A.shape[-1]
     if n == 0 or n != x.shape[0]:
         return np.matmul(A, x) + 0.0  # empty sums are zeros (mismatched shapes: numpy's error)
+    if n <= 4 and (A.ndim == 2 or x.ndim == 2):  # a few terms (3-vectors): one elementwise pass per term
+        cols = [A[:, t, None] for t in range(n)] if A.ndim == 2 and x.ndim == 2 else [A[..., t] for t in range(n)]
+        out = cols[0] * x[0]
+        for t in range(1, n):
+            out = out + cols[t] * x[t]
+        return out + 0.0
     if A.ndim == 1:
         return np.add.accumulate(A * x)[-1] + 0.0 if x.ndim == 1 else ordered(A[None], x)[0]
     if x.ndim == 1:
