@@ -51,6 +51,11 @@ def ordered(A, x):
     if A.ndim == 1:
         return np.add.accumulate(A * x)[-1] + 0.0 if x.ndim == 1 else ordered(A[None], x)[0]
     if x.ndim == 1:
+        if A.shape[0] >= 16 * n and A.size > 4096:  # many short sums (the features' gamma = W'u): a pass per term
+            out = A[:, 0] * x[0]
+            for t in range(1, n):
+                out += A[:, t] * x[t]
+            return out + 0.0
         return np.add.accumulate(A * x, axis=1)[:, -1] + 0.0
     if A.shape[0] * n * x.shape[1] <= 4096:
         return np.add.accumulate(A[:, :, None] * x[None, :, :], axis=1)[:, -1, :] + 0.0
