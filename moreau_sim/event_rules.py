@@ -200,15 +200,15 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
     pm, pd = r.model.pin, r.data.pin
     a_free = pin.aba(pm, pd, q, u, r.zero).copy()
     M = pin.crba(pm, pd, q)
+    Minv = pin.computeMinverse(pm, pd, q)  # Pinocchio's (qp.solve would invert M by LAPACK: §2.8)
     Wk, dk = fs.W[:, keep], fs.drift[keep]
-    res = project(M, Wk, a_free, b=-dk)
+    res = project(M, Wk, a_free, b=-dk, Minv=Minv)
     if not res.ok:
         raise SimulationError(f"the contact-force QP failed ({res.status}) at t = {t:.12g} s")
     rel = ordered(Wk.T, res.v) + dk
     acc_scale = 1.0 + np.abs(dk).max() + np.abs(ordered(Wk.T, a_free)).max()  # [m/s^2]
     tol = ACC_TOL * acc_scale
     C = tuple(int(i) for i, x in zip(keep, rel) if x <= tol)
-    Minv = pin.computeMinverse(pm, pd, q) if C else None
     lam = res.lam
     for i in C:  # a persistent vertex keeps its face through the phase (its row may not flip at a tie)
         f = r.feats[i]
@@ -224,7 +224,7 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
         # the tangent cone of all closed features (the plastic law on ~1e-9 m/s): no phase starts with
         # a closed feature approaching, which it would watch by nothing (docs/theory.md §8)
         if (closed & (ordered(fs.W.T, u) < -V_TOL)).any():
-            res = project(M, fs.W[:, np.flatnonzero(closed)], u)
+            res = project(M, fs.W[:, np.flatnonzero(closed)], u, Minv=Minv)
             if not res.ok:
                 raise SimulationError(f"the contact QP failed ({res.status}) at t = {t:.12g} s")
             u = res.v
@@ -337,7 +337,7 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
     zeno = bool(low.all()) or t - st.last_impact < DT_ZENO
     e = 0.0 if zeno else r.e
     if cs.pieces is None:
-        imp = impact(M, W, u, e)
+        imp = impact(M, W, u, e, Minv=pin.computeMinverse(pm, pd, q))  # Pinocchio's M^-1 (§2.8)
         P, v, u_plus, loss = imp.P, imp.qp.v, imp.u_plus, imp.energy_loss
         gm, gp = ordered(W.T, u), ordered(W.T, u_plus)
         branch = None
