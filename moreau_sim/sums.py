@@ -9,8 +9,8 @@ import numpy as np
 
 
 def dot3(a: np.ndarray, b: np.ndarray) -> float:
-    """a'b of two 3-vectors as `ordered` sums it, ((a0 b0 + a1 b1) + a2 b2) + 0.0, on Python floats (~10x
-    cheaper than numpy's per-call cost)."""
+    """a'b of two 3-vectors as `ordered` sums it, ((a0 b0 + a1 b1) + a2 b2) + 0.0, on Python floats (cheaper
+    than numpy's per-call cost on 3 entries)."""
     a0, a1, a2 = a.tolist()
     b0, b1, b2 = b.tolist()
     return a0 * b0 + a1 * b1 + a2 * b2 + 0.0
@@ -19,7 +19,7 @@ def dot3(a: np.ndarray, b: np.ndarray) -> float:
 def dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """sum_e a[..., e] b[..., e] over a last axis of 3 entries (broadcasting) as `ordered` sums it: row-wise
     dot products, R @ x as dots(R, x), the rows of X @ R.T as dots(X[:, None], R)."""
-    if b.ndim == 1 and a.shape == (3, 3):  # R x: on Python floats (the same operations, ~5x cheaper)
+    if b.ndim == 1 and a.shape == (3, 3):  # R x: on Python floats (the same operations, cheaper)
         (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a.tolist()
         b0, b1, b2 = b.tolist()
         return np.array([a00 * b0 + a01 * b1 + a02 * b2 + 0.0, a10 * b0 + a11 * b1 + a12 * b2 + 0.0,
