@@ -28,6 +28,7 @@ from .gaps import UnsupportedModel, feature_list
 from .model import Model, initial_state
 from .options import Bias
 from .protocol import FixedStep, Report, Segment, Status
+from .qp import _lu_solve, ordered
 from .recording import run_metadata
 from .state import State
 from .stepper import free_velocity, midpoint_fixed_point, step
@@ -54,12 +55,12 @@ QUINTIC = np.array([[1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1
                     [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5]])
 _POWERS = np.arange(6)
 _CHECK = np.linspace(0.0, 1.0, CHECK_POINTS + 1)
-_CHECK_BASIS = (_CHECK[:, None] ** _POWERS) @ QUINTIC.T  # (points, 6)
+_CHECK_BASIS = ordered(_CHECK[:, None] ** _POWERS, QUINTIC.T)  # (points, 6)
 
 
 def _poly(coef: np.ndarray) -> np.ndarray:
     """Power coefficients (6, ...) of the quintic Hermite interpolant of Hermite data coef (6, ...)."""
-    return np.tensordot(QUINTIC.T, coef, axes=1)
+    return ordered(QUINTIC.T, coef)
 
 
 def _polyval(p: np.ndarray, x: float):
@@ -266,7 +267,8 @@ class AdaptiveRun:
         z0 = np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q0), u0)))
         z1 = np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q1), u1)))
         sc = self.atol + self.rtol * np.maximum(z0, z1)
-        return float(np.sqrt(np.mean((d / sc) ** 2)))
+        z = d / sc
+        return float(np.sqrt(ordered(z, z) / len(z)))  # the RMS, summed in index order (§2.8)
 
     def _end(self, t, q, u, C, idx) -> _End:
         a, lam, fc = dynamics(self.rules, self.s.ev, q, u, C)
@@ -274,7 +276,7 @@ class AdaptiveRun:
         if idx:
             fs = features(self.rules, self.s.ev, q, u, idx)
             near = self.is_box[idx] & np.isfinite(fs.margin)
-            return _End(t, q, u, a, lam, fs.g, fs.gamma, fs.W.T @ a + fs.drift, margin, near)
+            return _End(t, q, u, a, lam, fs.g, fs.gamma, ordered(fs.W.T, a) + fs.drift, margin, near)
         z = np.zeros(0)
         return _End(t, q, u, a, lam, z, z, z, margin, np.zeros(0, bool))
 
@@ -286,11 +288,11 @@ class AdaptiveRun:
         d1 = self._delta(e0.q, e1.q)
         if self.lie:  # delta' = J^-1 u, delta'' = J^-1 a + (J^-1)' u, the last by central differences
             def slope(d):
-                return np.linalg.solve(pin.dIntegrate(self.pm, e0.q, d, pin.ArgumentPosition.ARG1), e1.u)
+                return _lu_solve(pin.dIntegrate(self.pm, e0.q, d, pin.ArgumentPosition.ARG1), e1.u)
             s1 = slope(d1)
             eps = 1e-5 / (1.0 + float(np.abs(s1).max()))
             Jinv_dot_u = (slope(d1 + eps * s1) - slope(d1 - eps * s1)) / (2.0 * eps)
-            c1 = np.linalg.solve(pin.dIntegrate(self.pm, e0.q, d1, pin.ArgumentPosition.ARG1), e1.a) + Jinv_dot_u
+            c1 = _lu_solve(pin.dIntegrate(self.pm, e0.q, d1, pin.ArgumentPosition.ARG1), e1.a) + Jinv_dot_u
         else:
             s1, c1 = e1.u, e1.a
         p = _poly(np.array([np.zeros(self.nv), H * e0.u, H * H * e0.a, d1, H * s1, H * H * c1]))
@@ -300,7 +302,7 @@ class AdaptiveRun:
             if not self.lie:
                 return e0.q + d, s
             J = pin.dIntegrate(self.pm, e0.q, d, pin.ArgumentPosition.ARG1)
-            return pin.integrate(self.pm, e0.q, d), J @ s
+            return pin.integrate(self.pm, e0.q, d), ordered(J, s)
         return at
 
     def _segment(self, e0: _End, e1: _End, n_contacts: int, last: bool) -> Segment:
@@ -355,7 +357,7 @@ class AdaptiveRun:
                     if best is None or tau < best[0]:
                         best = (tau, "gap", k)
             done = box  # located above, or too far to close
-            G = _CHECK_BASIS @ coef  # (points, features)
+            G = ordered(_CHECK_BASIS, coef)  # (points, features)
             G[-1] = e1.g
             crossing = np.flatnonzero((G[:, :nw] < 0.0).any(axis=0) & ~done[:nw])
             first = {int(k): int(np.argmax(G[:, k] < 0.0)) for k in crossing}

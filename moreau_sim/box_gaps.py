@@ -1,5 +1,6 @@
 """The box-box features of the per-feature gaps (docs/theory.md §7.1): a box pair's vertices in
-the other box and its edge pairs, all BOX_FEATURES of a pair at once (box_pair); gaps.py calls it."""
+the other box and its edge pairs, all BOX_FEATURES of a pair at once (box_pair); gaps.py calls it.
+Products are sums in index order (sums.py, docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 from . import box_box
 from .kinematics import G_RES, Kinematics, cross_rows
 from .model import Model
+from .sums import dot3, dots
 
 ARC_TOL = 1e-9  # an edge pair's normal may leave the edges' normal cones by this (face on face: at their ends)
 EDGE_END = 1e-6  # an edge pair is active only where both closest points are this far (relative) from the ends
@@ -87,9 +89,9 @@ def box_pair(kin: Kinematics, bp: BoxPair, which: np.ndarray, rows: bool, faces:
     A, B = bp.a, bp.b
     RA, tA = kin.frame(A.joint)[:2] if A.joint else (np.eye(3), np.zeros(3))
     RB, tB = kin.frame(B.joint)[:2] if B.joint else (np.eye(3), np.zeros(3))
-    cA, cB = RA @ A.c + tA, RB @ B.c + tB
+    cA, cB = dots(RA, A.c) + tA, dots(RB, B.c) + tB
     dc = cA - cB
-    dist = float(np.sqrt(dc @ dc))
+    dist = float(np.sqrt(dot3(dc, dc)))
     k = len(which)
     margin = np.full(k, np.inf)
     smooth = np.ones(k, bool)
@@ -101,7 +103,7 @@ def box_pair(kin: Kinematics, bp: BoxPair, which: np.ndarray, rows: bool, faces:
         vA, aA, _, JA = kin.motion(A.joint, cA[None], True)
         vB, aB, _, JB = kin.motion(B.joint, cB[None], True)
         dv = (vA - vB)[0]
-        drift = n @ (aA - aB)[0] + (dv @ dv - (n @ dv) ** 2) / dist  # as sphere_sphere
+        drift = dot3(n, (aA - aB)[0]) + (dot3(dv, dv) - dot3(n, dv) ** 2) / dist  # as sphere_sphere
         w = kin.rows(JA, JB, cA[None], cB[None], n[None])
         return BoxGaps(g, np.repeat(w, k, axis=1), np.full(k, drift), margin, smooth, None, None, None)
     g = np.empty(k)
@@ -113,19 +115,19 @@ def box_pair(kin: Kinematics, bp: BoxPair, which: np.ndarray, rows: bool, faces:
     if v_sel.any():
         # vertices in the other box: s(p) = max_f (n_f' p - d_f) over the faces that count (below: a
         # vertex sliding exactly along an aligned box's edge line keeps seeing the face it meets)
-        NA, NB = A.fn @ RA.T, B.fn @ RB.T
-        P = np.concatenate((A.v @ RA.T + tA, B.v @ RB.T + tB))
-        E = np.concatenate((A.ve @ RA.T, B.ve @ RB.T))
+        NA, NB = dots(A.fn[:, None], RA), dots(B.fn[:, None], RB)  # the rows of fn @ R.T
+        P = np.concatenate((dots(A.v[:, None], RA) + tA, dots(B.v[:, None], RB) + tB))
+        E = np.concatenate((dots(A.ve[..., None, :], RA), dots(B.ve[..., None, :], RB)))
         wv = which[v_sel]
         P, E = P[wv], E[wv]
         ina = wv < 8  # A's vertex in B (else B's in A)
         N = np.where(ina[:, None, None], NB[None], NA[None])  # (kv, 6, 3) the other box's faces
-        D = np.where(ina[:, None], (B.fd + NB @ tB)[None], (A.fd + NA @ tA)[None])
-        S = np.einsum("vfe,ve->vf", N, P) - D
+        D = np.where(ina[:, None], (B.fd + dots(NB, tB))[None], (A.fd + dots(NA, tA))[None])
+        S = dots(N, P[:, None]) - D
         # a face counts if its plane leaves the vertex's own cone outside (the vertex can touch it
         # first), or if the vertex is outside it (S > G_RES: then g > 0 whatever the cone, so a
         # block pivoting on one bottom corner keeps the other's gap over the face it comes down on)
-        valid = np.einsum("vke,vfe->vkf", E, N).min(axis=1) >= -ARC_TOL
+        valid = dots(E[:, :, None], N[:, None]).min(axis=1) >= -ARC_TOL
         count = valid | (S > G_RES)
         count[~count.any(axis=1)] = True
         f = np.where(count, S, -np.inf).argmax(axis=1)
@@ -142,21 +144,20 @@ def box_pair(kin: Kinematics, bp: BoxPair, which: np.ndarray, rows: bool, faces:
     if e_sel.any():
         # edge pairs: d = n'(a0 - b0) along n = +-(e_A x e_B)/|.| (outward of B's edge)
         ka, kb = np.divmod(which[e_sel] - 16, 12)
-        a0, ea, fa = A.e0[ka] @ RA.T + tA, A.ed[ka] @ RA.T, A.ef[ka] @ RA.T
-        b0, eb, fb = B.e0[kb] @ RB.T + tB, B.ed[kb] @ RB.T, B.ef[kb] @ RB.T
+        a0, ea, fa = dots(A.e0[ka][:, None], RA) + tA, dots(A.ed[ka][:, None], RA), dots(A.ef[ka][..., None, :], RA)
+        b0, eb, fb = dots(B.e0[kb][:, None], RB) + tB, dots(B.ed[kb][:, None], RB), dots(B.ef[kb][..., None, :], RB)
         c = cross_rows(ea, eb)
-        cn = np.sqrt((c * c).sum(axis=1))
+        cn = np.sqrt(dots(c, c))
         ok = cn > PARALLEL
         cn = np.where(ok, cn, 1.0)
         n = c / cn[:, None]
-        sigma = np.where((n * fb.sum(axis=1)).sum(axis=1) < 0.0, -1.0, 1.0)
+        sigma = np.where(dots(n, fb[:, 0] + fb[:, 1]) < 0.0, -1.0, 1.0)
         n = n * sigma[:, None]
-        arcs = ((np.einsum("ke,kje->kj", n, fb) >= -ARC_TOL).all(axis=1)
-                & (np.einsum("ke,kje->kj", n, fa) <= ARC_TOL).all(axis=1))
+        arcs = ((dots(n[:, None], fb) >= -ARC_TOL).all(axis=1) & (dots(n[:, None], fa) <= ARC_TOL).all(axis=1))
         r = a0 - b0
-        d = (n * r).sum(axis=1)
-        bb = (ea * eb).sum(axis=1)
-        ra, rb = (r * ea).sum(axis=1), (r * eb).sum(axis=1)
+        d = dots(n, r)
+        bb = dots(ea, eb)
+        ra, rb = dots(r, ea), dots(r, eb)
         s = (bb * rb - ra) / cn ** 2  # the lines' closest points a0 + s e_A, b0 + t e_B
         t = (rb - bb * ra) / cn ** 2
         # within both edges, EDGE_END (relative) from their ends: a crossing at an end is a vertex's
@@ -182,11 +183,11 @@ def box_pair(kin: Kinematics, bp: BoxPair, which: np.ndarray, rows: bool, faces:
     dv, da = vA - vB, aA - aB
     if v_sel.any():  # a vertex in a face that turns with its box: + 2 (w_face x n)' dv
         w_face = np.where(ina[:, None], wB, wA)
-        extra[v_sel] = 2.0 * (cross_rows(w_face, nn[v_sel]) * dv[v_sel]).sum(axis=1)
+        extra[v_sel] = 2.0 * dots(cross_rows(w_face, nn[v_sel]), dv[v_sel])
     if e_sel.any():  # an edge pair: + 2 n' dv - d |n'|^2, n' the rate of the normal of e_A x e_B
         cdot = (cross_rows(cross_rows(wA[None], ea), eb) + cross_rows(ea, cross_rows(wB[None], eb))) * sigma[:, None]
-        ndot = (cdot - n * (n * cdot).sum(axis=1)[:, None]) / cn[:, None]
+        ndot = (cdot - n * dots(n, cdot)[:, None]) / cn[:, None]
         ndot = np.where(ok[:, None], ndot, 0.0)
-        extra[e_sel] = 2.0 * (ndot * dv[e_sel]).sum(axis=1) - np.where(ok, d, 0.0) * (ndot * ndot).sum(axis=1)
-    return BoxGaps(g, kin.rows(JA, JB, P_a, P_b, nn), (nn * da).sum(axis=1) + extra, margin, smooth, v_faces, e_active,
+        extra[e_sel] = 2.0 * dots(ndot, dv[e_sel]) - np.where(ok, d, 0.0) * dots(ndot, ndot)
+    return BoxGaps(g, kin.rows(JA, JB, P_a, P_b, nn), dots(nn, da) + extra, margin, smooth, v_faces, e_active,
                    (which, P_a, P_b, nn))

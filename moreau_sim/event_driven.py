@@ -24,6 +24,7 @@ from .event_rules import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_Z
                           sample_grid, thin_limit)
 from .model import Model, initial_state
 from .protocol import Report, Segment, Status
+from .qp import ordered
 from .recording import run_metadata
 from .state import State
 from .trajectory import Trajectory
@@ -177,7 +178,7 @@ class EventDrivenRun:
         if not low:
             return limit
         fs = features(self.rules, self.s.ev, q, u, low)
-        a_n = fs.W.T @ dynamics(self.rules, self.s.ev, q, u, C)[0] + fs.drift
+        a_n = ordered(fs.W.T, dynamics(self.rules, self.s.ev, q, u, C)[0]) + fs.drift
         up = (fs.gamma > V_TOL) & (a_n < 0)
         return float(min(limit, *(0.5 * fs.gamma[up] / -a_n[up]))) if up.any() else limit
 

@@ -2,7 +2,8 @@
 functions on the per-feature gaps of gaps.py: the constrained accelerations of a persistent set
 (dynamics), the phase's watched sets (phase_sets), and at an event the impact with the Zeno rule
 and the persistent set (resolve). What they carry between accepted points is an EventState the
-integrator owns and passes in."""
+integrator owns and passes in. Products are sums in index order (qp.ordered), square solves qp's written-out
+LU (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from .law import impact, outcome, percussion, project
 from .model import Model
 from .protocol import Impact
 from .state import State
-from .qp import ordered
+from .qp import _lu_solve, ordered
 
 V_TOL = 1e-9  # [m/s] |gamma| <= this on a closed feature: touching, not impacting
 G_ZENO = 1e-12  # [m] a rebound whose apex would stay below this is not resolved (Zeno rule)
@@ -135,27 +136,36 @@ def dynamics(r: Rules, st: EventState, q, u, C):
     st.constrained += 1
     fs = features(r, st, q, u, C)
     Minv = pin.computeMinverse(r.model.pin, r.data.pin, q)
-    MiW = Minv @ fs.W
-    G = fs.W.T @ MiW
-    rhs = -(fs.W.T @ a + fs.drift)
-    redundant = st.redundant.get(C)
-    if redundant is None:  # rows of C dependent (4 corners of a face on a face): decided once per set
-        redundant = st.redundant[C] = bool(np.linalg.matrix_rank(fs.W) < len(C))
+    MiW = ordered(Minv, fs.W)
+    G = ordered(fs.W.T, MiW)
+    rhs = -(ordered(fs.W.T, a) + fs.drift)
+    redundant = _redundant(st, C, fs.W)
 
     def solve(b):
-        if not redundant:
-            try:
-                return np.linalg.solve(G, b)
-            except np.linalg.LinAlgError:
-                pass
-        return np.linalg.lstsq(G, b, rcond=1e-12)[0]  # redundant rows: minimum-norm forces
+        return _solve(G, b, redundant)
     lam = solve(rhs)
-    a_c = a + MiW @ lam
+    a_c = a + ordered(MiW, lam)
     # one step of iterative refinement (as the impact's, docs/theory.md §1.5): lam ~ R m g is exact only
     # to its own magnitude, which leaves a light body accelerating at ~R eps g along the rows it should
     # hold; the residual W_C'a_C + drift is computed where it is ~0, accurately, and removed
-    dl = solve(-(fs.W.T @ a_c + fs.drift))
-    return a_c + MiW @ dl, lam + dl, fs
+    dl = solve(-(ordered(fs.W.T, a_c) + fs.drift))
+    return a_c + ordered(MiW, dl), lam + dl, fs
+
+
+def _redundant(st: EventState, C: tuple, W: np.ndarray) -> bool:
+    """Whether the rows W (nv, len(C)) of the persistent set C are dependent (4 corners of a face on a face),
+    decided once per set (st.redundant)."""
+    redundant = st.redundant.get(C)
+    if redundant is None:
+        redundant = st.redundant[C] = bool(np.linalg.matrix_rank(W) < len(C))
+    return redundant
+
+
+def _solve(G: np.ndarray, b: np.ndarray, redundant: bool) -> np.ndarray:
+    """G^-1 b by qp's written-out LU (docs/theory.md §2.8), or for dependent rows (or a singular G) the
+    minimum-norm least-squares solution (LAPACK's, whose bits follow the BLAS kernel)."""
+    x = None if redundant else _lu_solve(G, b)
+    return np.linalg.lstsq(G, b, rcond=1e-12)[0] if x is None else x
 
 
 def thin_limit(r: Rules, u: np.ndarray, a: np.ndarray) -> float:
@@ -190,15 +200,15 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
     pm, pd = r.model.pin, r.data.pin
     a_free = pin.aba(pm, pd, q, u, r.zero).copy()
     M = pin.crba(pm, pd, q)
+    Minv = pin.computeMinverse(pm, pd, q)  # Pinocchio's (qp.solve would invert M by LAPACK: §2.8)
     Wk, dk = fs.W[:, keep], fs.drift[keep]
-    res = project(M, Wk, a_free, b=-dk)
+    res = project(M, Wk, a_free, b=-dk, Minv=Minv)
     if not res.ok:
         raise SimulationError(f"the contact-force QP failed ({res.status}) at t = {t:.12g} s")
-    rel = Wk.T @ res.v + dk
-    acc_scale = 1.0 + np.abs(dk).max() + np.abs(Wk.T @ a_free).max()  # [m/s^2]
+    rel = ordered(Wk.T, res.v) + dk
+    acc_scale = 1.0 + np.abs(dk).max() + np.abs(ordered(Wk.T, a_free)).max()  # [m/s^2]
     tol = ACC_TOL * acc_scale
     C = tuple(int(i) for i, x in zip(keep, rel) if x <= tol)
-    Minv = pin.computeMinverse(pm, pd, q) if C else None
     lam = res.lam
     for i in C:  # a persistent vertex keeps its face through the phase (its row may not flip at a tie)
         f = r.feats[i]
@@ -207,14 +217,14 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
             st.faces[(f.pair, f.feature)] = int(faces[np.searchsorted(wv, f.feature)])
     if C:  # remove the residual normal velocity of the touching contacts, idle ones too (~1e-16)
         W = fs.W[:, list(C)]
-        MiW = Minv @ W
-        u = u - MiW @ np.linalg.lstsq(W.T @ MiW, W.T @ u, rcond=1e-12)[0]
+        MiW = ordered(Minv, W)
+        u = u - ordered(MiW, _solve(ordered(W.T, MiW), ordered(W.T, u), _redundant(st, C, W)))
         # that removal moves bodies along M^-1 W_C: where it leaves another closed feature approaching
         # (a state handed back by fixed steps, overlapping by ~1e-8 m), the velocity is projected onto
         # the tangent cone of all closed features (the plastic law on ~1e-9 m/s): no phase starts with
         # a closed feature approaching, which it would watch by nothing (docs/theory.md §8)
-        if (closed & (fs.W.T @ u < -V_TOL)).any():
-            res = project(M, fs.W[:, np.flatnonzero(closed)], u)
+        if (closed & (ordered(fs.W.T, u) < -V_TOL)).any():
+            res = project(M, fs.W[:, np.flatnonzero(closed)], u, Minv=Minv)
             if not res.ok:
                 raise SimulationError(f"the contact QP failed ({res.status}) at t = {t:.12g} s")
             u = res.v
@@ -235,18 +245,16 @@ def _carrying(r: Rules, st: EventState, q, u, C: tuple, keep: list, lam: np.ndar
     if not C:
         return C
     W = fs.W[:, list(C)]
-    redundant = st.redundant.get(C)
-    if redundant is None:  # as dynamics decides it, once per set
-        redundant = st.redundant[C] = bool(np.linalg.matrix_rank(W) < len(C))
-    if redundant:
+    if _redundant(st, C, W):
         return C  # dependent rows: their forces are not unique, a zero multiplier says nothing
     at = {i: k for k, i in enumerate(keep)}
-    idle = lam[[at[i] for i in C]] * np.einsum("ij,ij->j", W, Minv @ W) <= tol
+    wMw = np.add.accumulate(W * ordered(Minv, W), axis=0)[-1] + 0.0  # w_i'M^-1 w_i, summed as qp.ordered sums
+    idle = lam[[at[i] for i in C]] * wMw <= tol
     if not idle.any():
         return C
     A = tuple(i for i, x in zip(C, idle) if not x)
     out = [i for i, x in zip(C, idle) if x]
-    if (fs.W[:, out].T @ dynamics(r, st, q, u, A)[0] + fs.drift[out] < -tol).any():
+    if (ordered(fs.W[:, out].T, dynamics(r, st, q, u, A)[0]) + fs.drift[out] < -tol).any():
         return C
     for i in out:
         st.faces.pop((r.feats[i].pair, r.feats[i].feature), None)
@@ -272,7 +280,7 @@ def missed_features(r: Rules, fs: FeatureState, W: np.ndarray) -> list:
                 continue
             w = fs.W[:, col]
             if k >= 16 and W.shape[1]:  # a closed vertex's own row always replaces coal's
-                resid = w - W @ np.linalg.lstsq(W, w, rcond=1e-12)[0]
+                resid = w - ordered(W, np.linalg.lstsq(W, w, rcond=1e-12)[0])
                 if np.abs(resid).max() <= 1e-9 * np.abs(w).max():
                     continue
             out.append((float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
@@ -318,19 +326,20 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
     c, M, W = cs.contacts, cs.M, cs.W
     if c.m == 0 and cs.pieces is None:
         raise SimulationError(f"a gap event at t = {t:.12g} s but coal finds no closed contact")
-    if cs.pieces is None and not (W.T @ u < -V_TOL).any():
+    if cs.pieces is None and not (ordered(W.T, u) < -V_TOL).any():
         raise SimulationError(f"a feature approaches at t = {t:.12g} s (gamma = {fs.gamma.min():.3g} m/s) but "
                               "none of coal's closed contacts does")
     # the Zeno rule (module doc) on the approaching features: their free normal accelerations a_n
     appr = np.flatnonzero((fs.g <= r.gap_tol) & (fs.gamma < -V_TOL))
-    a_n = fs.W[:, appr].T @ pin.aba(pm, pd, q, u, r.zero) + fs.drift[appr]
+    a_n = ordered(fs.W[:, appr].T, pin.aba(pm, pd, q, u, r.zero)) + fs.drift[appr]
     speed = -fs.gamma[appr]
     low = ((r.e * speed) ** 2 < -2.0 * a_n * G_ZENO) | (speed < V_ZENO)
     zeno = bool(low.all()) or t - st.last_impact < DT_ZENO
     e = 0.0 if zeno else r.e
     if cs.pieces is None:
-        imp = impact(M, W, u, e)
-        P, v, u_plus, gm, gp, loss = imp.P, imp.qp.v, imp.u_plus, W.T @ u, W.T @ imp.u_plus, imp.energy_loss
+        imp = impact(M, W, u, e, Minv=pin.computeMinverse(pm, pd, q))  # Pinocchio's M^-1 (§2.8)
+        P, v, u_plus, loss = imp.P, imp.qp.v, imp.u_plus, imp.energy_loss
+        gm, gp = ordered(W.T, u), ordered(W.T, u_plus)
         branch = None
     else:  # the set-valued law at one instant (v0 = u-), the stepper's corners.corner_law
         cp = cs.pieces
@@ -342,7 +351,7 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
         v, u_plus, P = law.v, outcome(law.v, u, e), percussion(law.lam, e)
         gm, gp = ordered(law.W.T, u), ordered(law.W.T, u_plus)
         dv = u - v  # the impact's energy identity holds at every stationary point (§3)
-        loss = 0.5 * (1.0 - e * e) * float(dv @ M @ dv)
+        loss = 0.5 * (1.0 - e * e) * float(ordered(ordered(dv, M), dv))
         branch = None if law.u_plus is None else (law.solution, law.chosen, law.u_plus)
     if zeno and r.e < 1.0 and len(speed):
         k = int(np.argmax(speed))

@@ -1,7 +1,8 @@
 """The contact layer's per-feature gaps (docs/theory.md §7, §7.1, §7.2): each feature of a collision
 pair (and each joint limit, limits.py) with its gap g, row w, drift Wdot' u and gamma = w' u, from (q, u):
 :meth:`Gaps.features` returns everything it computes (FeatureState) and keeps nothing between calls.
-The decisions at events that use them are in event_rules.py."""
+The decisions at events that use them are in event_rules.py. Products are sums in index order (sums.py,
+docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from .errors import MoreauSimError, SimulationError
 from .kinematics import Kinematics, cross, cross_rows
 from .limits import JointLimit
 from .model import Model
+from .sums import dot3, dots, ordered
 
 CYL_SCREEN = 0.01  # [m] a cylinder's bounding sphere this far from a box: its features report the sphere's gap
 SIN_FLAT = 1e-6  # a closed cylinder rim whose cap is within this (sine) of parallel to the plane: refused (§7.2)
@@ -141,10 +143,10 @@ def _point_box(cl: np.ndarray, vl: np.ndarray, h: np.ndarray) -> tuple[float, np
     out = np.abs(cl) > h
     if out.any():
         diff = cl - clamp
-        dist = float(np.sqrt(diff @ diff))
+        dist = float(np.sqrt(dot3(diff, diff)))
         nl = diff / dist
         vp = np.where(out, vl, 0.0)
-        return dist, nl, ((vp @ vp - (nl @ vl) ** 2) / dist if out.sum() > 1 else 0.0)
+        return dist, nl, ((dot3(vp, vp) - dot3(nl, vl) ** 2) / dist if out.sum() > 1 else 0.0)
     s = h - np.abs(cl)
     ax = int(np.argmin(s))
     nl = np.zeros(3)
@@ -155,8 +157,8 @@ def _point_box(cl: np.ndarray, vl: np.ndarray, h: np.ndarray) -> tuple[float, np
 def _perp(a: np.ndarray) -> np.ndarray:
     """A unit vector perpendicular to the unit vector a."""
     b = np.eye(3)[int(np.argmin(np.abs(a)))]
-    b = b - (b @ a) * a
-    return b / np.sqrt(b @ b)
+    b = b - dot3(b, a) * a
+    return b / np.sqrt(dot3(b, b))
 
 
 @dataclass(frozen=True, slots=True)
@@ -231,25 +233,25 @@ class Gaps:
             pa, va, aa, Ja = kin.point(f.joint_a, f.p, rows)
             if f.kind == "point_plane":
                 n, curv = f.n, 0.0
-                g[col] = n @ pa - f.d
+                g[col] = dot3(n, pa) - f.d
                 vrel, arel, Jrel = va, aa, Ja
             elif f.kind == "sphere_sphere":
                 pb, vb, ab, Jb = kin.point(f.joint_b, f.p_b, rows)
                 dv = pa - pb
-                dist = float(np.sqrt(dv @ dv))
+                dist = float(np.sqrt(dot3(dv, dv)))
                 n = dv / dist
                 g[col] = dist - f.r - f.r_b
                 vrel, arel = va - vb, aa - ab
                 Jrel = Ja - Jb if rows else None
-                curv = (vrel @ vrel - (n @ vrel) ** 2) / dist
+                curv = (dot3(vrel, vrel) - dot3(n, vrel) ** 2) / dist
             else:  # sphere_box: distance from the centre to a static box (face, edge or vertex region)
-                dist, nl, curv = _point_box(f.R.T @ (pa - f.p_b), f.R.T @ va, f.h)
+                dist, nl, curv = _point_box(dots(f.R.T, pa - f.p_b), dots(f.R.T, va), f.h)
                 g[col] = dist - f.r
-                n = f.R @ nl
+                n = dots(f.R, nl)
                 vrel, arel, Jrel = va, aa, Ja
             if rows:
-                drift[col] = n @ arel + curv
-                W[:, col] = n @ Jrel
+                drift[col] = dot3(n, arel) + curv
+                W[:, col] = ordered(n, Jrel)
         for bp, cols, which in boxes.values():
             bg = box_pair(kin, bp, np.array(which), rows, faces)
             g[cols] = bg.g
@@ -264,7 +266,7 @@ class Gaps:
                 drift[cols] = bg.drift
             if bg.points is not None:
                 box_points[bp.pair] = bg.points
-        gamma = W.T @ u if rows else np.zeros(k)
+        gamma = ordered(W.T, u) if rows else np.zeros(k)
         return FeatureState(g, W, drift, gamma, margin, smooth, box_faces, box_points, edge_active,
                             cyl_exact, cyl_points)
 
@@ -295,15 +297,15 @@ class Gaps:
             g, w, drift, sig, p = self._rim(kin, f, n, d, rows)
         else:  # rim_box: the largest of the rim's gaps to the box's 6 face planes
             RA, tA = kin.frame0(f.joint_a)[:2]
-            A, ck = RA @ f.a, RA @ (f.p + (f.hl if f.feature == 0 else -f.hl) * f.a) + tA
+            A, ck = dots(RA, f.a), dots(RA, f.p + (f.hl if f.feature == 0 else -f.hl) * f.a) + tA
             N = np.concatenate((f.R.T, -f.R.T))  # the 6 outward face normals (rows) and offsets
-            D = N @ f.p_b + np.tile(f.h, 2)
-            best = int(np.argmax(N @ ck - f.r * np.sqrt(np.maximum(1.0 - (N @ A) ** 2, 0.0)) - D))
+            D = dots(N, f.p_b) + np.tile(f.h, 2)
+            best = int(np.argmax(dots(N, ck) - f.r * np.sqrt(np.maximum(1.0 - dots(N, A) ** 2, 0.0)) - D))
             n, d, ax = N[best], float(D[best]), best % 3
             g, w, drift, sig, p = self._rim(kin, f, n, d, rows)
-            pl = np.maximum(np.abs(f.R.T @ (p - f.p_b)) - f.h, 0.0)  # the support point beyond the face's sides
+            pl = np.maximum(np.abs(dots(f.R.T, p - f.p_b)) - f.h, 0.0)  # the support point beyond the face's sides
             pl[ax] = 0.0
-            excess = float(np.sqrt(pl @ pl))
+            excess = float(np.sqrt(dot3(pl, pl)))
             if excess > 0.0:  # off the face: a positive stand-in, continuous with g on the face's sides
                 exact = False
                 g = float(np.sqrt(g * g + excess * excess)) if g >= 0.0 else g + excess
@@ -322,12 +324,12 @@ class Gaps:
         """(g, w, drift, witness) of the bounding sphere (the centre, radius sqrt(r^2 + hl^2)) of a
         cylinder against a static box, as sphere_box."""
         pc, va, aa, Ja = kin.point(f.joint_a, f.p, rows)
-        dist, nl, curv = _point_box(f.R.T @ (pc - f.p_b), f.R.T @ va, f.h)
+        dist, nl, curv = _point_box(dots(f.R.T, pc - f.p_b), dots(f.R.T, va), f.h)
         rb = float(np.hypot(f.r, f.hl))
-        n = f.R @ nl
+        n = dots(f.R, nl)
         if not rows:
             return dist - rb, None, 0.0, ()
-        return dist - rb, n @ Ja, float(n @ aa + curv), (pc - rb * n, pc - dist * n, n)
+        return dist - rb, ordered(n, Ja), dot3(n, aa) + curv, (pc - rb * n, pc - dist * n, n)
 
     def _side_edges(self, kin: Kinematics, f: Feature, rows: bool):
         """The cylinder's side against the 12 edges of a static box (numbered as box_geometry's edges):
@@ -338,42 +340,41 @@ class Gaps:
         point beyond an end, d < 0, or parallel lines: the rims cover that segment's ends)."""
         j = f.joint_a
         RA, tA, w, _, _, _ = kin.frame0(j)
-        A = RA @ f.a
-        a0 = RA @ f.p + tA - f.hl * A
+        A = dots(RA, f.a)
+        a0 = dots(RA, f.p) + tA - f.hl * A
         ax, b, c, sb, sc = BOX_EDGES
         X = np.zeros((12, 3))
         X[EDGE_K, ax], X[EDGE_K, b], X[EDGE_K, c] = -f.h[ax], sb * f.h[b], sc * f.h[c]
-        B0, EB = X @ f.R.T + f.p_b, f.R[:, ax].T
+        B0, EB = dots(X[:, None], f.R) + f.p_b, f.R[:, ax].T
         F1, F2 = sb[:, None] * f.R[:, b].T, sc[:, None] * f.R[:, c].T
         CV = cross_rows(A[None], EB)
-        cn = np.sqrt((CV * CV).sum(axis=1))
+        cn = np.sqrt(dots(CV, CV))
         ok = cn > PARALLEL
         cn = np.where(ok, cn, 1.0)
-        sigma = np.where((CV * (F1 + F2)).sum(axis=1) < 0.0, -1.0, 1.0)
+        sigma = np.where(dots(CV, F1 + F2) < 0.0, -1.0, 1.0)
         N = CV * (sigma / cn)[:, None]
         r = a0 - B0
-        d = (N * r).sum(axis=1)
-        bb, ra, rb = EB @ A, r @ A, (r * EB).sum(axis=1)
+        d = dots(N, r)
+        bb, ra, rb = dots(EB, A), dots(r, A), dots(r, EB)
         s = (bb * rb - ra) / cn ** 2  # the lines' closest points a0 + s a, b0 + t e_B
         t = (rb - bb * ra) / cn ** 2
         la, lb = 2.0 * f.hl, 2.0 * f.h[ax]
         ex_s = np.maximum(np.maximum(EDGE_END * la - s, s - (1.0 - EDGE_END) * la), 0.0)
         ex_t = np.maximum(np.maximum(EDGE_END * lb - t, t - (1.0 - EDGE_END) * lb), 0.0)
-        active = (ok & ((N * F1).sum(axis=1) >= -ARC_TOL) & ((N * F2).sum(axis=1) >= -ARC_TOL)
+        active = (ok & (dots(N, F1) >= -ARC_TOL) & (dots(N, F2) >= -ARC_TOL)
                   & (ex_s == 0.0) & (ex_t == 0.0) & (d >= 0.0))
         # the stand-in stays above the closing tolerance: at the segment's ends the contact is the rim's
         # (or the end sphere's), and within EDGE_END of them sqrt(...) alone could close (panda's elbow did)
         g = np.where(active, d - f.r, np.where(ok, np.sqrt((d - f.r) ** 2 + ex_s ** 2 + ex_t ** 2) + 2.0 * self.gap_tol,
-                                               f.r + float(np.sqrt(f.h @ f.h))))
+                                               f.r + float(np.sqrt(dot3(f.h, f.h)))))
         if not rows:
             return g, None, None, active, ()
         N = np.where(ok[:, None], N, 0.0)
         PA = a0 + s[:, None] * A
         vel, acc, om, J = kin.motion(j, PA, True)
         cdot = cross_rows(cross_rows(om[None], A[None]), EB) * sigma[:, None]
-        ndot = (cdot - N * (N * cdot).sum(axis=1)[:, None]) / cn[:, None]
-        drift = np.where(ok, (N * acc).sum(axis=1) + 2.0 * (ndot * vel).sum(axis=1) - d * (ndot * ndot).sum(axis=1),
-                         0.0)
+        ndot = (cdot - N * dots(N, cdot)[:, None]) / cn[:, None]
+        drift = np.where(ok, dots(N, acc) + 2.0 * dots(ndot, vel) - d * dots(ndot, ndot), 0.0)
         return g, kin.rows(J, None, PA, PA, N), drift, active, (PA - f.r * N, B0 + t[:, None] * EB, N)
 
     def _rim(self, kin: Kinematics, f: Feature, n: np.ndarray, d: float, rows: bool):
@@ -385,21 +386,21 @@ class Gaps:
         R, t, w, _, a_ang, _ = kin.frame0(j)
         c_loc = f.p + (f.hl if f.feature == 0 else -f.hl) * f.a
         ck, _, ak, _ = kin.point(j, c_loc, False)
-        A = R @ f.a
-        cn = float(n @ A)
+        A = dots(R, f.a)
+        cn = dot3(n, A)
         sig = float(np.sqrt(max(1.0 - cn * cn, 0.0)))
         s = (n - cn * A) / sig if sig > 0.0 else _perp(A)
         p = ck - f.r * s
-        g = float(n @ ck) - f.r * sig - d
+        g = dot3(n, ck) - f.r * sig - d
         if not rows:
             return g, None, 0.0, sig, p
-        Jp = kin.point(j, R.T @ (p - t), True)[3]
-        om, al = R @ w, R @ a_ang
+        Jp = kin.point(j, dots(R.T, p - t), True)[3]
+        om, al = dots(R, w), dots(R, a_ang)
         oa = cross(om, A)
-        c1 = float(n @ oa)  # (n'a)' and (n'a)'' at q'' = 0
-        c2 = float(n @ (cross(al, A) + cross(om, oa)))
+        c1 = dot3(n, oa)  # (n'a)' and (n'a)'' at q'' = 0
+        c2 = dot3(n, cross(al, A) + cross(om, oa))
         curv = f.r * (cn * c2 / sig + c1 * c1 / sig ** 3) if sig > 0.0 else 0.0
-        return g, n @ Jp, float(n @ ak) + curv, sig, p
+        return g, ordered(n, Jp), dot3(n, ak) + curv, sig, p
 
     def _sphere_cylinder(self, kin: Kinematics, f: Feature, rows: bool):
         """A sphere (centre p in joint_a, radius r) against a cylinder (centre p_b, axis a in joint_b,
@@ -409,18 +410,18 @@ class Gaps:
         + dv' K dv, K = dn/dx the normal's gradient (docs/theory.md §7.2)."""
         pc, va, aa, Ja = kin.point(f.joint_a, f.p, rows)
         R, t, w, _, _, _ = kin.frame0(f.joint_b)
-        A = R @ f.a
-        x = pc - (R @ f.p_b + t)
-        z = float(x @ A)
+        A = dots(R, f.a)
+        x = pc - (dots(R, f.p_b) + t)
+        z = dot3(x, A)
         y = x - z * A
-        rho = float(np.sqrt(y @ y))
+        rho = float(np.sqrt(dot3(y, y)))
         e = y / rho if rho > 0.0 else _perp(A)
         az, sz = abs(z), (1.0 if z >= 0.0 else -1.0)
         K = np.zeros((3, 3))
         tt = np.outer(tg := cross(A, e), tg)
         if az > f.hl and rho > f.r_b:  # rim region
             dx = x - (sz * f.hl * A + f.r_b * e)
-            dist = float(np.sqrt(dx @ dx))
+            dist = float(np.sqrt(dot3(dx, dx)))
             n = dx / dist
             K = (np.eye(3) - np.outer(n, n) - (f.r_b / rho) * tt) / dist
         elif az > f.hl or (rho < f.r_b and f.hl - az < f.r_b - rho):  # cap region, or nearer a cap inside
@@ -432,10 +433,10 @@ class Gaps:
         g = dist - f.r
         if not rows:
             return g, None, 0.0, True, None
-        _, vb, ab, Jb = kin.point(f.joint_b, R.T @ (pc - t), True)
+        _, vb, ab, Jb = kin.point(f.joint_b, dots(R.T, pc - t), True)
         dv = va - vb
-        drift = float(n @ (aa - ab) + 2.0 * cross(R @ w, n) @ dv + dv @ K @ dv)
-        return g, n @ (Ja - Jb), drift, True, (pc - f.r * n, pc - dist * n, n)
+        drift = dot3(n, aa - ab) + 2.0 * dot3(cross(dots(R, w), n), dv) + dot3(dots(dv, K.T), dv)  # (dv'K) dv
+        return g, ordered(n, Ja - Jb), drift, True, (pc - f.r * n, pc - dist * n, n)
 
     def thin_limit(self, u: np.ndarray, a: np.ndarray) -> float:
         """The longest step h [s] over which no point can travel the thinnest pair's extent

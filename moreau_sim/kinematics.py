@@ -1,6 +1,7 @@
 """One evaluation's joint kinematics for the per-feature gaps (docs/theory.md §7): placements,
 twists, bias accelerations (q'' = 0) and Jacobians of material points, read from pinocchio's
-data once per joint. gaps.Gaps.features builds one per call and drops it when it returns."""
+data once per joint. gaps.Gaps.features builds one per call and drops it when it returns. Its products
+are sums in index order (sums.py, docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import numpy as np
 import pinocchio as pin
 
 from .model import Model
+from .sums import dots, ordered
 
 G_RES = 1e-13  # [m] smallest gap whose sign is trusted (~3000x the rounding of positions ~ 1 m)
 
@@ -68,13 +70,13 @@ class Kinematics:
             return p_local, np.zeros(3), np.zeros(3), (np.zeros((3, self.nv)) if rows else None)
         R, t, w, v_lin, a_ang, a_lin = self.frame(j)
         vl = v_lin + cross(w, p_local)
-        p = R @ p_local + t
-        vel = R @ vl
-        acc = R @ (a_lin + cross(a_ang, p_local) + cross(w, vl))
+        p = dots(R, p_local) + t
+        vel = dots(R, vl)
+        acc = dots(R, a_lin + cross(a_ang, p_local) + cross(w, vl))
         Jp = None
         if rows:
             J = self.jacobian()
-            Jp = (J[:3] - pin.skew(p) @ J[3:]) * self.mask[j]
+            Jp = (J[:3] - ordered(pin.skew(p), J[3:])) * self.mask[j]
         return p, vel, acc, Jp
 
     def motion(self, j: int, P: np.ndarray, rows: bool):
@@ -84,22 +86,22 @@ class Kinematics:
             z = np.zeros_like(P)
             return z, z, np.zeros(3), None
         R, t, w, v_lin, a_ang, a_lin = self.frame(j)
-        Pl = (P - t) @ R
+        Pl = dots((P - t)[:, None], R.T)  # (P - t) @ R
         Sw = skew(w)  # w x p = p @ Sw.T for the rows p of Pl
-        vl = v_lin + Pl @ Sw.T
-        vel = vl @ R.T
-        acc = (a_lin + Pl @ skew(a_ang).T + vl @ Sw.T) @ R.T
+        vl = v_lin + dots(Pl[:, None], Sw)
+        vel = dots(vl[:, None], R)  # vl @ R.T
+        acc = dots((a_lin + dots(Pl[:, None], skew(a_ang)) + dots(vl[:, None], Sw))[:, None], R)
         J = None
         if rows:
             Jf = self.jacobian()
             mask = self.mask[j]
             J = (Jf[:3] * mask, Jf[3:] * mask)
-        return vel, acc, R @ w, J
+        return vel, acc, dots(R, w), J
 
     def rows(self, JA, JB, PA: np.ndarray, PB: np.ndarray, n: np.ndarray) -> np.ndarray:
         """w = J_A(p_A)' n - J_B(p_B)' n (nv, k) for contact points PA, PB and normals n (k, 3)."""
         W = np.zeros((self.nv, len(n)))
         for J, P, sign in ((JA, PA, 1.0), (JB, PB, -1.0)):
             if J is not None:  # n' J_p = n' J_lin + (p x n)' J_ang
-                W += sign * (J[0].T @ n.T + J[1].T @ cross_rows(P, n).T)
+                W += sign * (ordered(J[0].T, n.T) + ordered(J[1].T, cross_rows(P, n).T))
         return W

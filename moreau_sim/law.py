@@ -77,12 +77,13 @@ class Impact:
 
 
 def impact(M: np.ndarray, W: np.ndarray, u_minus: np.ndarray, e: float, *, form: QPForm = QPForm.PRIMAL,
-           eps: float = 1e-10) -> Impact:
-    """The impact law at one instant, no forces: u- -> u+ through the closed contacts W."""
+           eps: float = 1e-10, Minv: np.ndarray | None = None) -> Impact:
+    """The impact law at one instant, no forces: u- -> u+ through the closed contacts W (Minv: M^-1 if the
+    caller has it, as project takes it)."""
     check_restitution(e)
-    res = project(M, W, u_minus, form=form, eps=eps)
+    res = project(M, W, u_minus, Minv=Minv, form=form, eps=eps)
     if not res.ok:
         raise RuntimeError(f"impact QP failed: {res.status}")
     v_perp = u_minus - res.v
     return Impact(outcome(res.v, u_minus, e), percussion(res.lam, e), res,
-                  0.5 * (1.0 - e * e) * float(v_perp @ M @ v_perp))
+                  0.5 * (1.0 - e * e) * float(qp.ordered(qp.ordered(v_perp, M), v_perp)))  # (v'M) v, §2.8

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
     import scipy.sparse
 
 from .options import QPForm
+from .sums import ordered  # noqa: F401  (qp.ordered: the package's one product, at home in sums.py)
 
 
 @dataclass(frozen=True, slots=True)
@@ -225,41 +226,6 @@ def _line(A, p, m):
 def _sparse_mul(A, x):
     """A @ x for a scipy.sparse A (the products of the sparse path: sums over the nonzeros only)."""
     return A @ x
-
-
-def ordered(A, x):
-    """A @ x (A 1-d or 2-d, x 1-d or 2-d) summed over the inner index in order from its first product, one
-    rounding per product and per sum (no BLAS kernel, no FMA), then + 0.0: the same bits on every CPU, at
-    every size and memory alignment, and the same as src/step.cpp's odot / omatmul. The one product of the
-    step's stages (stepper, law, constraints, this module) and of the ledger (ledger.impact_terms): numpy's
-    own products follow OpenBLAS's kernels, whose order changes with the size, the machine and the arrays'
-    alignment (docs/theory.md §2.8).
-    np.add.accumulate adds in index order by definition (reductions need not). The final + 0.0 turns a -0.0
-    into +0.0 and changes nothing else; after it, leaving out products that are exact zeros (A finite, x_k = 0)
-    cannot change a bit, as adding a signed zero changes at most the sign of a zero sum: the large 2-d
-    products use that, summing over the nonzero entries of each column of x (the sparse rows W)."""
-    n = A.shape[-1]
-    if n == 0 or n != x.shape[0]:
-        return np.matmul(A, x) + 0.0  # empty sums are zeros (mismatched shapes: numpy's error)
-    if A.ndim == 1:
-        return np.add.accumulate(A * x)[-1] + 0.0 if x.ndim == 1 else ordered(A[None], x)[0]
-    if x.ndim == 1:
-        return np.add.accumulate(A * x, axis=1)[:, -1] + 0.0
-    if A.shape[0] * n * x.shape[1] <= 4096:
-        return np.add.accumulate(A[:, :, None] * x[None, :, :], axis=1)[:, -1, :] + 0.0
-    nz = x != 0.0
-    k = int(nz.sum(axis=0).max())
-    if 2 * k <= n and np.isfinite(A).all():  # sparse columns: their nonzero rows in order, then zeros
-        rows = np.argsort(~nz, axis=0, kind="stable")[:max(k, 1)]  # (k, cols): a stable sort keeps the order
-        vals = np.take_along_axis(x, rows, axis=0)
-        out = A[:, rows[0]] * vals[0]
-        for t in range(1, k):
-            out += A[:, rows[t]] * vals[t]
-        return out + 0.0
-    out = A[:, 0, None] * x[0]  # dense and large: one pass per inner index (no (rows, n, cols) temporary)
-    for t in range(1, n):
-        out += A[:, t, None] * x[t]
-    return out + 0.0
 
 
 def _active_set(G, r, tol, act=None, mul=np.matmul):

@@ -135,9 +135,10 @@ def test_corner_law_at_the_located_instant():
 @pytest.mark.slow
 def test_fallback_to_fixed_steps_and_back():
     """An accumulation of events (the cascade up the column of beads at 0.69 s) is taken by fixed
-    steps, then the run returns to extrapolated steps (at 1.44 s). (The slider-crank's corners no
-    longer rattle here: idle after their accumulation point, docs/theory.md §7, they separate.)"""
-    tr = adaptive("column_of_beads", duration=1.5)
+    steps, then the run returns to extrapolated steps (at 1.50 s; when it does moves with round-off: 1.44 s
+    before the event path summed in index order, and under another BLAS kernel then, docs/theory.md §2.8).
+    (The slider-crank's corners no longer rattle here: idle after their accumulation point, §7, they separate.)"""
+    tr = adaptive("column_of_beads", duration=1.6)
     reasons = [f["reason"] for f in tr.meta["fallbacks"]]
     assert reasons[0].startswith("64 events within") and reasons[1] == "back to extrapolated steps"
     assert tr.meta["run"]["steps_fixed"] > 0 and tr.meta["run"]["steps_extrapolated"] > 0
