@@ -28,7 +28,8 @@ from .gaps import UnsupportedModel, feature_list
 from .model import Model, initial_state
 from .options import Bias
 from .protocol import FixedStep, Report, Segment, Status
-from .qp import _lu_solve, ordered
+from .qp import _lu_solve
+from .sums import ordered
 from .recording import run_metadata
 from .state import State
 from .stepper import free_velocity, midpoint_fixed_point, step

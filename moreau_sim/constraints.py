@@ -20,7 +20,7 @@ from .contacts import NO_CONTACTS, Contacts, Corner, FeatureKind
 from .data import Data
 from .limits import limit_rows
 from .model import Model
-from .qp import ordered
+from .sums import ordered
 
 
 def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:

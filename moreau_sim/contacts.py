@@ -39,7 +39,7 @@ import pinocchio as pin
 from . import box_box, broad_phase
 from .data import GATE_MARGIN, Data
 from .model import DISTANCE_FAILED, Model, check_start
-from .qp import ordered
+from .sums import ordered
 
 
 

@@ -11,7 +11,7 @@ import numpy as np
 from .drive import Drive
 from .errors import SimulationError
 from .options import Bias
-from .qp import ordered
+from .sums import ordered
 from .results import MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE
 
 

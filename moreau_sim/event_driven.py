@@ -24,7 +24,7 @@ from .event_rules import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_Z
                           sample_grid, thin_limit)
 from .model import Model, initial_state
 from .protocol import Report, Segment, Status
-from .qp import ordered
+from .sums import ordered
 from .recording import run_metadata
 from .state import State
 from .trajectory import Trajectory

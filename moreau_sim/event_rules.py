@@ -2,7 +2,7 @@
 functions on the per-feature gaps of gaps.py: the constrained accelerations of a persistent set
 (dynamics), the phase's watched sets (phase_sets), and at an event the impact with the Zeno rule
 and the persistent set (resolve). What they carry between accepted points is an EventState the
-integrator owns and passes in. Products are sums in index order (qp.ordered), square solves qp's written-out
+integrator owns and passes in. Products are sums in index order (sums.ordered), square solves qp's written-out
 LU (docs/theory.md §2.8)."""
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ from .law import impact, outcome, percussion, project
 from .model import Model
 from .protocol import Impact
 from .state import State
-from .qp import _lu_solve, ordered
+from .qp import _lu_solve
+from .sums import ordered
 
 V_TOL = 1e-9  # [m/s] |gamma| <= this on a closed feature: touching, not impacting
 G_ZENO = 1e-12  # [m] a rebound whose apex would stay below this is not resolved (Zeno rule)
@@ -248,7 +249,7 @@ def _carrying(r: Rules, st: EventState, q, u, C: tuple, keep: list, lam: np.ndar
     if _redundant(st, C, W):
         return C  # dependent rows: their forces are not unique, a zero multiplier says nothing
     at = {i: k for k, i in enumerate(keep)}
-    wMw = np.add.accumulate(W * ordered(Minv, W), axis=0)[-1] + 0.0  # w_i'M^-1 w_i, summed as qp.ordered sums
+    wMw = np.add.accumulate(W * ordered(Minv, W), axis=0)[-1] + 0.0  # w_i'M^-1 w_i, summed as sums.ordered sums
     idle = lam[[at[i] for i in C]] * wMw <= tol
     if not idle.any():
         return C

@@ -17,7 +17,7 @@ from .energy import kinetic, potential
 from .errors import SimulationError
 from .model import Model
 from .options import Integrator
-from .qp import ordered
+from .sums import ordered
 from .protocol import FixedStep, Impact, Report, RunStatus
 from .recording import Recorder
 from .state import State

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import qp
+from .sums import ordered
 from .options import QPForm, Separating, SlowImpacts, check_restitution
 
 # The round-off an energy identity of the step holds to: a step's T + V is "not above" a level E* when
@@ -59,7 +60,7 @@ def restitution_bounds(W: np.ndarray, u: np.ndarray, u_free: np.ndarray, gamma_m
     if separating is Separating.ELASTIC and e < 1.0 and gamma_minus.max(initial=0.0) > 0.0:
         e_i = np.where(gamma_minus > 0.0, 1.0, e)
     if slow_impacts is SlowImpacts.PLASTIC and e > 0.0 and gamma_minus.min(initial=0.0) < 0.0:
-        slow = (gamma_minus < 0.0) & (gamma_minus >= qp.ordered(W.T, u_free - u))
+        slow = (gamma_minus < 0.0) & (gamma_minus >= ordered(W.T, u_free - u))
         if slow.any():
             e_i = np.where(slow, 0.0, e if e_i is None else e_i)
     return None if e_i is None else (e - e_i) * gamma_minus / (1.0 + e)
@@ -86,4 +87,4 @@ def impact(M: np.ndarray, W: np.ndarray, u_minus: np.ndarray, e: float, *, form:
         raise RuntimeError(f"impact QP failed: {res.status}")
     v_perp = u_minus - res.v
     return Impact(outcome(res.v, u_minus, e), percussion(res.lam, e), res,
-                  0.5 * (1.0 - e * e) * float(qp.ordered(qp.ordered(v_perp, M), v_perp)))  # (v'M) v, §2.8
+                  0.5 * (1.0 - e * e) * float(ordered(ordered(v_perp, M), v_perp)))  # (v'M) v, §2.8

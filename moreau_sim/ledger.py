@@ -14,7 +14,7 @@ One step from (q_k, u_k), with the law's frame at the midpoint q_m, M = M(q_m):
 and the budget E_end - E_0 = sum W_c + sum correction + sum S + sum W_a + sum W_o + residual, with the
 work done on the system (§5.5): the torques' W_a = h tau.(u_k + u_{k+1})/2 and the moving statics'
 W_o = -P.dg/dt (S is then the contact-free step's change less its own torque work). Recorder fills the
-arrays (recording.py); this module reads them. Its products are qp.ordered's (docs/theory.md §2.8), which the
+arrays (recording.py); this module reads them. Its products are sums.ordered's (docs/theory.md §2.8), which the
 compiled run loop (src/run.cpp) sums alike. Units: J, s.
 """
 
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .qp import ordered
+from .sums import ordered
 from .trajectory import Trajectory
 
 BASELINE_SAMPLES = 100  # at most this many samples of E(t) go into a baseline record
@@ -51,7 +51,7 @@ def at_rest(W: np.ndarray, u_k: np.ndarray, u_free: np.ndarray, gamma_minus: np.
             gamma_plus: np.ndarray) -> bool:
     """Whether every closed contact of a step is at rest (docs/theory.md §5.2): |gamma_i^k| and |gamma_i^{k+1}|
     [m/s] <= REST_ACCURACY rho_i, rho_i = sum_j |W_ji| (|u_k,j| + |u_free,j - u_k,j|) the size of the terms whose
-    rounding they carry (W (nv, m); summed in index order, qp.ordered, as src/run.cpp sums it)."""
+    rounding they carry (W (nv, m); summed in index order, sums.ordered, as src/run.cpp sums it)."""
     rho = ordered(np.abs(W).T, np.abs(u_k) + np.abs(u_free - u_k))
     bound = REST_ACCURACY * rho
     return bool((np.abs(gamma_minus) <= bound).all() and (np.abs(gamma_plus) <= bound).all())
@@ -64,7 +64,7 @@ def law_kept(v: np.ndarray, u_k: np.ndarray, u_next: np.ndarray, e: float) -> bo
 
 
 def _quad(M: np.ndarray, x: np.ndarray) -> float:
-    """x'Mx as (x'M) x, each product summed in index order (qp.ordered; src/run.cpp quad: the same sums)."""
+    """x'Mx as (x'M) x, each product summed in index order (sums.ordered; src/run.cpp quad: the same sums)."""
     return float(ordered(ordered(x, M), x))
 
 

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     import scipy.sparse
 
 from .options import QPForm
-from .sums import ordered  # noqa: F401  (qp.ordered: the package's one product, at home in sums.py)
+from .sums import ordered
 
 
 @dataclass(frozen=True, slots=True)

@@ -28,7 +28,7 @@ from .energy import kinetic, potential, total
 from .errors import SimulationError
 from .ledger import at_rest, impact_terms, law_kept
 from .model import Model
-from .qp import ordered
+from .sums import ordered
 from .state import State
 from .trajectory import Trajectory
 

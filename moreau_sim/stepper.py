@@ -22,7 +22,8 @@ from .errors import SimulationError
 from .law import ENERGY_ROUNDOFF, outcome, percussion, project, restitution_bounds
 from .model import Model
 from .options import Bias, Options, PositionCorrection, QPForm, StepImpl, Tunnelling
-from .qp import QPResult, ordered
+from .qp import QPResult
+from .sums import ordered
 from .results import MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
 from .state import State
 from .tunnelling import swept_detect

@@ -1,6 +1,6 @@
 """Sums in a fixed order (docs/theory.md §2.8): each entry of a product summed in index order from its first
 term, one rounding per product and per sum, then + 0.0, on every CPU and with any BLAS, as src/step.cpp sums
-them. `ordered` is the product of matrices and vectors (also qp.ordered); `dot3` and `dots` are the same sums
+them. `ordered` is the product of matrices and vectors; `dot3` and `dots` are the same sums
 of 3-vectors (the gaps' geometry), on Python floats and along the last axis of arrays."""
 
 from __future__ import annotations

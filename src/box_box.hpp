@@ -27,11 +27,11 @@ inline Vec3 cross3(const Vec3 &a, const Vec3 &b) {
   return Vec3(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]);
 }
 
-// a 3-term product as qp.ordered sums it (contacts._face_axis: V R', F R', Va N'): in index order, then + 0.0
+// a 3-term product as sums.ordered sums it (contacts._face_axis: V R', F R', Va N'): in index order, then + 0.0
 inline double ordered3(const double *a, const double *b, Eigen::Index sa, Eigen::Index sb) {
   return ((a[0] * b[0] + a[sa] * b[sb]) + a[2 * sa] * b[2 * sb]) + 0.0;
 }
-// a row of F times R.T as qp.ordered sums it
+// a row of F times R.T as sums.ordered sums it
 inline Vec3 row_rt_ordered(const RowsX3 &F, Eigen::Index f, const Mat3 &R) {
   Vec3 out;
   for (int i = 0; i < 3; ++i) out[i] = ordered3(&F(f, 0), &R(i, 0), 1, 3);  // R column-major: R(i, k) at i + 3 k
@@ -41,7 +41,7 @@ inline Vec3 row_rt_ordered(const RowsX3 &F, Eigen::Index f, const Mat3 &R) {
 // contacts._face_axis: among the outward face normals of A (negated) and B (oriented B -> A), the one of largest
 // s(n) = min_A n.x - max_B n.x (the first such); VA, VB: the boxes' vertices in their joint frames, FA, FB: face
 // normals in the joint frames, (RA, tA), (RB, tB): the joint placements
-// (ties: two equal boxes face on face; the products are qp.ordered's, ordered3, so that a tie breaks alike)
+// (ties: two equal boxes face on face; the products are sums.ordered's, ordered3, so that a tie breaks alike)
 inline Vec3 face_axis(const RowsX3 &VA, const Mat3 &RA, const Vec3 &tA, const RowsX3 &FA, const RowsX3 &VB,
                       const Mat3 &RB, const Vec3 &tB, const RowsX3 &FB) {
   std::vector<Vec3> N;

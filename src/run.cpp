@@ -3,7 +3,7 @@
 // step and records into the columns Python hands it (recording._Columns), mirroring operation by operation, in the
 // same order, what the Python run does per step (time_stepping.TimeStepping.step, driver._Loop.account):
 // recording.Recorder.log_percussions, .account_step (ledger.impact_terms's products summed in index order as
-// qp.ordered sums them: odot, docs/theory.md §2.8), .sample (contacts.pair_distances on the forest, trees.Forest's
+// sums.ordered sums them: odot, docs/theory.md §2.8), .sample (contacts.pair_distances on the forest, trees.Forest's
 // energies), and invariants.Invariants's "sample" and "point" checks. Every figure it carries between steps comes
 // in from the Python objects and goes back to them at each return (carry()), so that checkpoints, interrupts and
 // the Python step in between see exactly the Python run's state. A step it cannot finish as the Python run would
@@ -383,7 +383,7 @@ class Runner {
     if (!(std::isfinite(T1) && std::isfinite(V1))) return false;  // an overflow: the Python run names it
     const double E1 = T1 + V1;
     const double obstacle = 0.0;  // no moving statics in a compiled run
-    // the torques' work h tau.(u_k + u_{k+1})/2 (qp.ordered: odot)
+    // the torques' work h tau.(u_k + u_{k+1})/2 (sums.ordered: odot)
     const double act = tau.size() ? (0.5 * h) * odot(tau.data(), VectorXd(u_ + r.u_next).data(), tau.size()) : 0.0;
     c.act += act;
     const double rise = E1 - E0 - pymax(r.correction_energy, 0.0) - act - obstacle;

@@ -238,14 +238,14 @@ struct StepOut {
 
 namespace {
 
-// qp.ordered: a sum of products in index order from the first product, one rounding each (no FMA: this
+// sums.ordered: a sum of products in index order from the first product, one rounding each (no FMA: this
 // file is compiled with -ffp-contract=off), then + 0.0 (a -0.0 sum becomes +0.0); n >= 1
 inline double odot(const double *a, const double *b, Eigen::Index n, Eigen::Index sa = 1, Eigen::Index sb = 1) {
   double s = a[0] * b[0];
   for (Eigen::Index k = 1; k < n; ++k) s = s + a[k * sa] * b[k * sb];
   return s + 0.0;
 }
-// qp.ordered(A, X) for matrices A (r, n) and X (n, c) (Eigen, column-major), into Y (r, c): each entry summed
+// sums.ordered(A, X) for matrices A (r, n) and X (n, c) (Eigen, column-major), into Y (r, c): each entry summed
 // as odot does, the loops arranged so that the innermost runs over independent entries (vectorizable)
 void omatmul(const MatrixXd &A, const MatrixXd &X, MatrixXd &Y) {
   const Eigen::Index r = A.rows(), n = A.cols(), c = X.cols();
@@ -267,13 +267,13 @@ void omatmul(const MatrixXd &A, const MatrixXd &X, MatrixXd &Y) {
     for (Eigen::Index i = 0; i < r; ++i) y[i] = y[i] + 0.0;
   }
 }
-// qp.ordered(A, x) for a matrix A and a vector x
+// sums.ordered(A, x) for a matrix A and a vector x
 VectorXd otimes(const MatrixXd &A, const VectorXd &x) {
   MatrixXd Y;
   omatmul(A, x, Y);
   return Y.col(0);
 }
-// qp.ordered(W.T, x)
+// sums.ordered(W.T, x)
 VectorXd otimes_t(const MatrixXd &W, const VectorXd &x) {
   VectorXd y(W.cols());
   for (Eigen::Index i = 0; i < W.cols(); ++i) y[i] = W.rows() ? odot(W.col(i).data(), x.data(), W.rows()) : 0.0;
@@ -904,7 +904,7 @@ class Stepper {
     return {(int)pairs_(f.pair, 2), (int)pairs_(f.pair, 3)};
   }
 
-  // constraints.contact_rows: w = mask_a (n'J_lin + (p_a x n)'J_ang) - mask_b (same at p_b), summed as qp.ordered
+  // constraints.contact_rows: w = mask_a (n'J_lin + (p_a x n)'J_ang) - mask_b (same at p_b), summed as sums.ordered
   MatrixXd contact_rows(const std::vector<Found> &f) {
     const Eigen::Index nv = model_.nv, m = (Eigen::Index)f.size();
     const auto &J = data_.J;  // (6, nv) WORLD
@@ -1229,7 +1229,7 @@ NB_MODULE(_step, mod) {
       return nb::make_tuple(nb::none(), f.why, nb::none());
     }
   }, nb::arg("W"), nb::arg("v0"), nb::arg("b"), nb::arg("Minv"), nb::arg("constants"));
-  // the kernels of docs/theory.md §2.8 alone (tests/test_compiled.py holds them bit-identical to qp.ordered and
+  // the kernels of docs/theory.md §2.8 alone (tests/test_compiled.py holds them bit-identical to sums.ordered and
   // qp._lu_solve): ordered(A, X) = A @ X summed as odot sums, lu_solve(A, rhs) = x, or None where it fails
   mod.def("ordered", [](const MatrixXd &A, const MatrixXd &X) {
     if (A.cols() != X.rows()) throw nb::value_error("A (r, n), X (n, c) expected");

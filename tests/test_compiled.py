@@ -7,7 +7,7 @@ asserted > 0 (so "equal because every step fell back" shows).
 
 Required bit-identical, for every scene. The C++ step makes the Python step's floating-point operations
 in the same order (docs/theory.md §2.8): Pinocchio and coal are the same libraries; every product of the
-step's stages (the rows, gamma, the contact work, the restitution rules, the projection: qp.ordered) sums in
+step's stages (the rows, gamma, the contact work, the restitution rules, the projection: sums.ordered) sums in
 index order with one rounding each, and the active set's solves are one elimination written out alike
 (qp._lu_solve, src/step.cpp lu_solve): no BLAS or LAPACK kernel, no FMA, so the same on any CPU, at any size
 and memory alignment (tested below against OpenBLAS's other CPU kernels). What is left of numpy's kernels are
@@ -36,7 +36,7 @@ import pytest
 
 import moreau_sim as ms
 import moreau_sim.compiled as compiled
-from moreau_sim import qp
+from moreau_sim import qp, sums
 from moreau_sim.contacts import FeatureKind
 from moreau_sim.data import make_data
 from moreau_sim.errors import SceneError
@@ -150,7 +150,7 @@ def test_projection_is_bit_identical_to_qp_solve():
 
 
 def test_kernels_are_bit_identical_to_qp():
-    """The two kernels of docs/theory.md §2.8 alone, C++ against Python: src/step.cpp omatmul against qp.ordered
+    """The two kernels of docs/theory.md §2.8 alone, C++ against Python: src/step.cpp omatmul against sums.ordered
     (every product of the projection) and lu_solve against qp._lu_solve (its solves), bit for bit on random
     inputs of 1-64 rows (both of _lu_solve's paths), and None on the same singular or NaN systems."""
     rng = np.random.default_rng(7)
@@ -158,7 +158,7 @@ def test_kernels_are_bit_identical_to_qp():
         r, n, c = (int(k) for k in rng.integers(1, 65, 3))
         A = rng.standard_normal((r, n)) * 10.0 ** rng.integers(-6, 6, (r, n))
         X = np.where(rng.random((n, c)) < 0.5, 0.0, rng.standard_normal((n, c)))
-        assert _ext().ordered(A, X).view(np.int64).tolist() == qp.ordered(A, X).view(np.int64).tolist()
+        assert _ext().ordered(A, X).view(np.int64).tolist() == sums.ordered(A, X).view(np.int64).tolist()
     from test_qp import lu_systems
     for seed in range(20):
         for A, rhs in lu_systems(seed):
@@ -287,7 +287,7 @@ def test_the_result_crosses_by_name():
 def test_python_step_is_bit_reproducible(name):
     """The Python step alone, twice in one process (other arrays allocated in between, so numpy's land at other
     addresses): the same trajectory bit for bit, on the larger models (100 and 18 velocities, 16-76 rows) whose
-    products BLAS would sum in a size- and alignment-dependent order (qp.ordered)."""
+    products BLAS would sum in a size- and alignment-dependent order (sums.ordered)."""
     scene = load_scene(SCENES[0].parent / f"{name}.toml").with_options(duration=0.3)
     a, _ = _run(scene, StepImpl.PYTHON)
     junk = [np.ones(k) for k in range(1, 50)]  # noqa: F841 (shifts the allocator)

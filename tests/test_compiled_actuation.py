@@ -3,7 +3,7 @@ against the Python run: the scene's PD targets (constants, tables, sines, veloci
 <motor>/<position> actuators (ctrl schedules, forcerange, actuatorfrcrange) and a Python controller called back
 once per step give the Python run's arrays, ledger figures and status bit for bit, through impacts, checks that
 hand a step back, checkpoints and the controller's errors (one line naming the step, the samples so far kept).
-The torques' work in the ledger is summed in index order on both sides (qp.ordered: docs/theory.md §2.8)."""
+The torques' work in the ledger is summed in index order on both sides (sums.ordered: docs/theory.md §2.8)."""
 
 from __future__ import annotations
 

@@ -66,7 +66,7 @@ def test_resting_stack_every_step_compiled_and_identical(e, h):
     # heavy_on_light_box_100: equal boxes face on face, each vertex of the top one at an edge of the one below
     # (three face planes within the margin, one of them separating: a smooth contact with that face's normal,
     # contacts._corner_normals) and a face axis tied between the two boxes (contacts._face_axis: broken alike
-    # by qp.ordered's products on both sides)
+    # by sums.ordered's products on both sides)
     ("heavy_on_light_box_100", 30),
 ])
 def test_every_step_compiled_and_identical(name, n):

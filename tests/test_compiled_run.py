@@ -3,7 +3,7 @@ ledger figures bit for bit on every bundled scene (short runs), through checkpoi
 entry saying which loop ran.
 
 The Runner records what driver._Loop.account records per step, operation by operation: the ledger's
-products (ledger.impact_terms's x'Mx and P.b) are summed in index order on both sides (qp.ordered, src/run.cpp
+products (ledger.impact_terms's x'Mx and P.b) are summed in index order on both sides (sums.ordered, src/run.cpp
 quad / odot; docs/theory.md §2.8), so that the sums are the same at every size on any CPU
 (test_ledger_products_are_ordered).
 A scene the compiled step does not take (polytope pairs, GJK/EPA pairs, drives, prescribed
@@ -204,7 +204,7 @@ def test_the_python_step_in_between(monkeypatch):
 @pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
 def test_ledger_products_are_ordered(e):
     """ledger.impact_terms's products, which src/run.cpp's quad and odot sum alike, are sums in index order with
-    one rounding each, at every size (qp.ordered's small and large paths): x'Mx as (x'M)x, and P.b."""
+    one rounding each, at every size (sums.ordered's small and large paths): x'Mx as (x'M)x, and P.b."""
     from moreau_sim.ledger import impact_terms
 
     def dot(a, b):
@@ -220,7 +220,7 @@ def test_ledger_products_are_ordered(e):
     for n in [*range(1, 20), 63, 64, 65, 80, 120]:
         A = rng.standard_normal((n, n))
         M = A @ A.T
-        if n > 64:  # a banded M (many bodies): qp.ordered's large path sums over the nonzero entries only
+        if n > 64:  # a banded M (many bodies): sums.ordered's large path sums over the nonzero entries only
             i = np.arange(n)
             M = np.where(abs(i[:, None] - i[None, :]) < 6, M, 0.0)
         v_free, v, u_k, u_next = rng.standard_normal((4, n))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import qp
+from moreau_sim import qp, sums
 from moreau_sim.options import QPForm
 
 from helpers import random_problem
@@ -340,7 +340,7 @@ def test_a_run_of_a_resting_column_of_120_beads_keeps_its_energy():
 
 @pytest.mark.parametrize("seed", range(4))
 def test_ordered_sums_in_index_order_at_any_size_and_alignment(seed):
-    """qp.ordered, the one product of the step's stages: every entry is sum_k a_k x_k added left to right from
+    """sums.ordered, the one product of the step's stages: every entry is sum_k a_k x_k added left to right from
     the first product, one rounding each, then + 0.0 (a Python float loop is the reference), bit for bit, signs
     of zero included, whatever the size (numpy's own products change their order with it), wherever the arrays
     start in memory (misaligned views), and for sparse columns (summed over their nonzero entries only)."""
@@ -364,11 +364,11 @@ def test_ordered_sums_in_index_order_at_any_size_and_alignment(seed):
         for X in (np.asfortranarray(rng.standard_normal((n, c))),
                   np.where(rng.random((n, c)) < 0.9, 0.0, rng.standard_normal((n, c)))):  # dense, then sparse
             X[:, -1] = 0.0  # one column of zeros
-            assert bits(qp.ordered(A, X)) == bits([[ref(a, X[:, j]) for j in range(c)] for a in A])
-        assert bits(qp.ordered(A[0], x)) == bits(ref(A[0], x))
-        assert bits(qp.ordered(A[0], X)) == bits([ref(A[0], X[:, j]) for j in range(c)])
-        assert bits(qp.ordered(A, x)) == bits([ref(a, x) for a in A])
-        assert bits(qp.ordered(np.zeros((r, 0)), np.zeros(0))) == bits([0.0] * r)
+            assert bits(sums.ordered(A, X)) == bits([[ref(a, X[:, j]) for j in range(c)] for a in A])
+        assert bits(sums.ordered(A[0], x)) == bits(ref(A[0], x))
+        assert bits(sums.ordered(A[0], X)) == bits([ref(A[0], X[:, j]) for j in range(c)])
+        assert bits(sums.ordered(A, x)) == bits([ref(a, x) for a in A])
+        assert bits(sums.ordered(np.zeros((r, 0)), np.zeros(0))) == bits([0.0] * r)
 
 
 def _lu_reference(A, rhs):

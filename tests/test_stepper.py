@@ -10,8 +10,8 @@ import pytest
 
 import moreau_sim as ms
 from moreau_sim.law import restitution_bounds
-from moreau_sim.qp import ordered
 from moreau_sim.stepper import cap_energy
+from moreau_sim.sums import ordered
 
 from helpers import run, scene
 
