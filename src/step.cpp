@@ -1131,7 +1131,9 @@ class Stepper {
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
     if (m == 0 || g_next.minCoeff() >= -tol_) return;
-    const double E0 = energy(q, u);
+    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
+    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
+    const double E0 = T0 + V0;
     const double E1 = energy(q_next, u_next);
     double budget = E0 - E1;
     if (tau_.size()) {  // what the step dissipated beyond the torques' work h tau.(u + u_next)/2 (theory §5.5)
@@ -1200,7 +1202,9 @@ class Stepper {
     if (budget <= 0.0 && !resting) return;
     if (!solved) res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
-    double dE = energy(q_c, u_next) - E1;
+    const double T_c = pinocchio::computeKineticEnergy(model_, data_, q_c, u_next);
+    const double V_c = pinocchio::computePotentialEnergy(model_, data_, q_c);
+    double dE = T_c + V_c - E1;
     if (dE > budget && !resting) {
       // stepper.correct_positions' paid lift: a persistent penetration between two polytopes (deeper than
       // h |gamma_minus| + tol) in a passive step is lifted in full, paid with the velocities: Python takes it
@@ -1214,7 +1218,7 @@ class Stepper {
       double alpha = budget / dE;
       q_c = pinocchio::integrate(model_, q_next, alpha * res.v);
       dE = energy(q_c, u_next) - E1;
-      if (dE > budget) {  // concave along dq: shortened by the relative excess twice
+      if (dE > budget + roundoff(T0, V0, T_c, V_c)) {  // concave along dq: shortened by the relative excess twice
         alpha *= (budget / dE) * (budget / dE);
         q_c = pinocchio::integrate(model_, q_next, alpha * res.v);
         dE = energy(q_c, u_next) - E1;
