@@ -455,8 +455,8 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
             alpha = budget / dE  # E is ~linear in dq here
             q_c = pin.integrate(model.pin, q_next, alpha * res.v)
             dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
-            if dE > budget + _roundoff(T0, V0, T_c, V_c):  # concave along dq (a leg lifted): shorten by (§2.5)
-                alpha *= (budget / dE) * (budget / dE)  # the relative excess twice
+            if dE > budget + _roundoff(T0, V0, T_c, V_c):  # beyond round-off: E concave along dq (a leg lifted)
+                alpha *= (budget / dE) * (budget / dE)  # shortened by the relative excess twice (§2.5)
                 q_c = pin.integrate(model.pin, q_next, alpha * res.v)
                 dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
             if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
