@@ -18,7 +18,7 @@ from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, SAME_POINT, Conta
 from .law import ENERGY_ROUNDOFF
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts, StepImpl
 from .qp import QPResult
-from .results import MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
+from .results import HOLD, MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
 from .state import State
 
 MAX_CONTACTS = qp.COLD_START_ROWS  # closed contacts a compiled step takes: those qp.solve solves by the cold active set
@@ -26,7 +26,7 @@ MAX_CONTACTS = qp.COLD_START_ROWS  # closed contacts a compiled step takes: thos
 # missing or an unknown one is an error there; tests/test_compiled.py compares them read back)
 CONSTANTS = {
     "midpoint_iterations": MIDPOINT_ITERATIONS, "midpoint_tolerance": MIDPOINT_TOLERANCE, "resting": RESTING,
-    "vertex": int(FeatureKind.VERTEX), "witness": int(FeatureKind.WITNESS), "max_contacts": MAX_CONTACTS,
+    "hold": HOLD, "vertex": int(FeatureKind.VERTEX), "witness": int(FeatureKind.WITNESS), "max_contacts": MAX_CONTACTS,
     "screen": qp.SCREEN, "dependent": qp.DEPENDENT, "met": qp.MET, "accept": qp.ACCEPT, "refine": qp.REFINE,
     "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA,
     "distinct": constraints.DISTINCT, "guess_min": GUESS_MIN, "distance_failed": DISTANCE_FAILED,

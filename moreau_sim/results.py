@@ -13,6 +13,7 @@ from .qp import QPResult
 from .state import State
 
 RESTING = 1e-9  # bodies end a step at rest when their speeds are below this fraction of one step's (stepper._resting)
+HOLD = 0.5  # a lift at rest along the normals leaves each closed contact of its bodies within HOLD contact tolerances
 MIDPOINT_ITERATIONS = 8  # fixed-point sweeps of Bias.MIDPOINT (contraction factor ~ h |omega|; §2.4)
 MIDPOINT_TOLERANCE = 1e-15  # the sweeps stop when u_free moves by at most this times 1 + max|u_k|
 

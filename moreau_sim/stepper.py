@@ -23,8 +23,8 @@ from .law import ENERGY_ROUNDOFF, outcome, percussion, project, restitution_boun
 from .model import Model
 from .options import Bias, Options, PositionCorrection, QPForm, StepImpl, Tunnelling
 from .qp import QPResult
+from .results import HOLD, MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
 from .sums import ordered
-from .results import MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
 from .state import State
 from .tunnelling import swept_detect
 
@@ -395,8 +395,11 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     g_i + w_i'dq >= 0 on the closed contacts (g_i: gaps at q_{k+1} linearized from q_m), applied
     as q_{k+1} (+) alpha dq with alpha <= 1 the largest step for which T + V at the end does not
     exceed T + V at the start of the step: the correction may give back energy the step dissipated,
-    never more - except where every penetrating contact ends the step resting (_resting): then
-    alpha = 1 and the potential energy the lift adds is booked as correction energy (§2.5, §5);
+    never more (where E is concave along dq and alpha = budget/dE overshoots, alpha is shortened once more) -
+    except where every penetrating contact ends the step resting (_resting), or the bodies of the penetrating
+    contacts are at rest along the normals of all their closed contacts (_normal_rest; the lift then keeps each of
+    those closed, within HOLD tolerances): then alpha = 1 and the potential energy the lift adds is booked as
+    correction energy (§2.5, §5);
     and except a persistent penetration between two polytopes (deeper than the step's own approach can
     make, h |gamma_minus| + tol) in a passive step that did not gain: it is removed in full, the lift
     beyond the budget paid with the kinetic energy of the bodies in contact (their velocities scaled,
@@ -415,7 +418,14 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     budget = E0 - E1 + imp.obstacle_work  # what the step dissipated beyond the work done on it (§5.5)
     if pb.tau is not None:
         budget += 0.5 * pb.h * float(ordered(pb.tau, u + u_next))
-    resting = _resting(pb, imp, g_next < -tol)
+    pen = g_next < -tol
+    resting = _resting(pb, imp, pen)
+    res = None
+    rows = None if resting else _normal_rest(model, data, pb, imp, pen, q_next)
+    if rows is not None:  # at rest along the normals: lifted in full, no closed contact of theirs opened (§2.5)
+        res = qp.solve(pb.M, np.concatenate([imp.W, -imp.W[:, rows]], axis=1), np.zeros(model.nv),
+                       b=np.concatenate([-g_next, g_next[rows] - np.maximum(g_next[rows], HOLD * tol)]), Minv=pb.Minv)
+        resting = res.ok  # else (rows that cannot all be met) the budget rule
     if budget <= 0.0 and not resting:  # the step gained (the cap of §2.10 takes it back): nothing to spend
         return q_next, 0.0, u_next
     # paid only in a passive step: the scaling's bound would need the torques' work at the scaled velocity
@@ -424,7 +434,8 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     # paid with the velocities of beads falling together kept the top bead bouncing past its rest (§2.5)
     persistent = (pb.tau is None and model.prescribed is None and pb.drive is None and bool(deep.any())
                   and all(p in model.polytope_pair_set for p in imp.contacts.pair[deep].tolist()))
-    res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
+    if res is None or not res.ok:
+        res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
     if res.status == INFEASIBLE:  # rows that contradict (a box pushed into another): the least residual (§2.5)
         res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-(g_next + shortfall(imp.W, g_next, tol)), Minv=pb.Minv)
     if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)
@@ -442,8 +453,13 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
             paid = dE <= budget + _roundoff(T0, V0, T_c, V_c)
         if not paid:
             u_c = u_next
-            q_c = pin.integrate(model.pin, q_next, (budget / dE) * res.v)  # E is ~linear in dq here
+            alpha = budget / dE  # E is ~linear in dq here
+            q_c = pin.integrate(model.pin, q_next, alpha * res.v)
             dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
+            if dE > budget + _roundoff(T0, V0, T_c, V_c):  # beyond round-off: E concave along dq (a leg lifted)
+                alpha *= (budget / dE) * (budget / dE)  # shortened by the relative excess twice (§2.5)
+                q_c = pin.integrate(model.pin, q_next, alpha * res.v)
+                dE = kinetic(model, data, q_c, u_next) + potential(model, data, q_c) - E1
             if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
                 return q_next, 0.0, u_next
     # the displacement only knows the closed contacts: it must not push another pair into contact
@@ -491,6 +507,26 @@ def _resting(pb: ContactProblem, imp: ImpactSolution, pen: np.ndarray) -> bool:
     scale = RESTING * float(np.abs(pb.u_free - pb.u).max(initial=0.0))
     involved = (imp.W[:, pen] != 0.0).any(axis=1)
     return bool((np.abs(imp.u_next[involved]) <= scale).all())
+
+
+def _normal_rest(model: Model, data: Data, pb: ContactProblem, imp: ImpactSolution, pen: np.ndarray,
+                 q_next: np.ndarray) -> np.ndarray | None:
+    """The closed contacts R of the bodies of the penetrating contacts (mask `pen`: every row that involves a
+    velocity a penetrating row involves) where those bodies are held at rest along the normals (docs/theory.md
+    §2.5): no contact of R moves along its normal at either end of the step, |gamma_i^k| <= eps and
+    |gamma_i^{k+1}| <= eps with eps = RESTING max|u_free - u_k| (sliding and turning about the normal do not count),
+    and the step changes the kinetic energy of their trees by at most RESTING T(q_k, u_free - u_k) there (gravity
+    and the contacts did no work on them: a block starting to turn about one corner, gamma = 0 at the corner, does
+    not pass). Else None."""
+    eps = RESTING * float(np.abs(pb.u_free - pb.u).max(initial=0.0))
+    involved = (imp.W[:, pen] != 0.0).any(axis=1)
+    rows = (imp.W[involved] != 0.0).any(axis=0)
+    if not ((np.abs(imp.gamma_minus[rows]) <= eps).all() and (np.abs(imp.gamma_plus[rows]) <= eps).all()):
+        return None
+    S = _trees(model, involved)
+    dT = kinetic(model, data, q_next, np.where(S, imp.u_next, 0.0)) - kinetic(model, data, pb.q, np.where(S, pb.u, 0.0))
+    kick = kinetic(model, data, pb.q, np.where(S, pb.u_free - pb.u, 0.0))
+    return rows if abs(dT) <= RESTING * kick else None
 
 
 def _corner_law(pb: ContactProblem, options: Options, choice: int | None):

@@ -68,7 +68,7 @@ enum class Projection { ADMISSIBLE, ACTIVE_SET };
 struct Constants {
   int midpoint_iterations;  // stepper.MIDPOINT_ITERATIONS
   double midpoint_tolerance;  // stepper.MIDPOINT_TOLERANCE
-  double resting;  // stepper.RESTING
+  double resting, hold;  // results.RESTING, HOLD
   int vertex, witness, joint_limit;  // contacts.FeatureKind.VERTEX, .WITNESS, .JOINT_LIMIT
   int max_contacts;  // qp.COLD_START_ROWS
   double screen, dependent, met, accept, refine, second_pass;  // qp.SCREEN, DEPENDENT, MET, ACCEPT, REFINE, SECOND_PASS
@@ -82,7 +82,7 @@ struct Constants {
 
   static const std::vector<std::string> &keys() {
     static const std::vector<std::string> k = {
-        "midpoint_iterations", "midpoint_tolerance", "resting", "vertex", "witness", "max_contacts", "screen",
+        "midpoint_iterations", "midpoint_tolerance", "resting", "hold", "vertex", "witness", "max_contacts", "screen",
         "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct",
         "guess_min", "distance_failed", "joint_limit",
         "energy_roundoff", "patch", "same_point", "cone", "edge_end", "parallel", "depth_ratio"};
@@ -105,7 +105,7 @@ struct Constants {
     };
     Constants c;
     c.midpoint_iterations = geti("midpoint_iterations"), c.midpoint_tolerance = get("midpoint_tolerance");
-    c.resting = get("resting"), c.vertex = geti("vertex"), c.witness = geti("witness");
+    c.resting = get("resting"), c.hold = get("hold"), c.vertex = geti("vertex"), c.witness = geti("witness");
     c.max_contacts = geti("max_contacts"), c.screen = get("screen"), c.dependent = get("dependent");
     c.met = get("met"), c.accept = get("accept"), c.refine = get("refine"), c.second_pass = get("second_pass");
     c.moves_per_row = geti("moves_per_row"), c.moves_extra = geti("moves_extra"), c.distinct = get("distinct");
@@ -118,7 +118,8 @@ struct Constants {
   }
   std::map<std::string, double> as_dict() const {
     return {{"midpoint_iterations", midpoint_iterations}, {"midpoint_tolerance", midpoint_tolerance},
-            {"resting", resting}, {"vertex", vertex}, {"witness", witness}, {"max_contacts", max_contacts},
+            {"resting", resting}, {"hold", hold}, {"vertex", vertex}, {"witness", witness},
+            {"max_contacts", max_contacts},
             {"screen", screen}, {"dependent", dependent}, {"met", met}, {"accept", accept}, {"refine", refine},
             {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra},
             {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed},
@@ -1130,7 +1131,9 @@ class Stepper {
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
     if (m == 0 || g_next.minCoeff() >= -tol_) return;
-    const double E0 = energy(q, u);
+    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
+    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
+    const double E0 = T0 + V0;
     const double E1 = energy(q_next, u_next);
     double budget = E0 - E1;
     if (tau_.size()) {  // what the step dissipated beyond the torques' work h tau.(u + u_next)/2 (theory §5.5)
@@ -1140,21 +1143,68 @@ class Stepper {
     // stepper._resting: the bodies of every penetrating contact end the step at rest
     // (|u_next_j| <= resting max|u_free - u| wherever a penetrating row has w_ij != 0)
     bool resting = true;
-    {
-      double dmax = 0.0;
-      for (Eigen::Index j = 0; j < u.size(); ++j) dmax = std::max(dmax, std::abs(u_free[j] - u[j]));
-      const double scale = C_.resting * dmax;
-      for (Eigen::Index j = 0; j < W.rows() && resting; ++j) {
-        bool involved = false;
+    double dmax = 0.0;
+    for (Eigen::Index j = 0; j < u.size(); ++j) dmax = std::max(dmax, std::abs(u_free[j] - u[j]));
+    const double eps = C_.resting * dmax;
+    std::vector<char> involved(W.rows(), 0);
+    for (Eigen::Index j = 0; j < W.rows(); ++j)
+      for (Eigen::Index i = 0; i < m; ++i)
+        if (g_next[i] < -tol_ && W(j, i) != 0.0) involved[j] = 1;
+    for (Eigen::Index j = 0; j < W.rows() && resting; ++j)
+      if (involved[j]) resting = std::abs(u_next[j]) <= eps;
+    Solved res;
+    bool solved = false;
+    if (!resting) {
+      // stepper._normal_rest: every closed contact of those bodies (a row with w_ij != 0 at an involved j) has
+      // |gamma^k| <= eps and |gamma^{k+1}| <= eps, and their trees' kinetic energy does not change: lifted in full,
+      // each of those contacts kept within hold tolerances (theory §2.5)
+      std::vector<Eigen::Index> rows;
+      bool still = true;
+      for (Eigen::Index i = 0; i < m && still; ++i) {
+        bool row = false;
+        for (Eigen::Index j = 0; j < W.rows(); ++j)
+          if (involved[j] && W(j, i) != 0.0) row = true;
+        if (!row) continue;
+        rows.push_back(i);
+        still = std::abs(gamma_minus[i]) <= eps && std::abs(gamma_plus[i]) <= eps;
+      }
+      if (still) {  // and the kinetic energy of their trees changes by at most resting T(q_k, u_free - u_k)
+        MatrixXd Wp(W.rows(), 0);
         for (Eigen::Index i = 0; i < m; ++i)
-          if (g_next[i] < -tol_ && W(j, i) != 0.0) involved = true;
-        if (involved) resting = std::abs(u_next[j]) <= scale;
+          if (g_next[i] < -tol_) {
+            Wp.conservativeResize(Eigen::NoChange, Wp.cols() + 1);
+            Wp.col(Wp.cols() - 1) = W.col(i);
+          }
+        const std::vector<bool> S = trees(Wp);
+        VectorXd u1 = VectorXd::Zero(u.size()), u0 = VectorXd::Zero(u.size()), du = VectorXd::Zero(u.size());
+        for (Eigen::Index j = 0; j < u.size(); ++j)
+          if (S[j]) u1[j] = u_next[j], u0[j] = u[j], du[j] = u_free[j] - u[j];
+        const double dT = pinocchio::computeKineticEnergy(model_, data_, q_next, u1) -
+                          pinocchio::computeKineticEnergy(model_, data_, q, u0);
+        still = std::abs(dT) <= C_.resting * pinocchio::computeKineticEnergy(model_, data_, q, du);
+      }
+      if (still) {
+        const Eigen::Index k = (Eigen::Index)rows.size();
+        if (m + k > C_.max_contacts) throw Fallback{"a lift at rest along the normals: more rows than the active set takes"};
+        MatrixXd Wn(W.rows(), m + k);
+        VectorXd bn(m + k);
+        Wn.leftCols(m) = W;
+        bn.head(m) = -g_next;
+        for (Eigen::Index c = 0; c < k; ++c) {
+          const Eigen::Index i = rows[c];
+          Wn.col(m + c) = -W.col(i);
+          bn[m + c] = g_next[i] - std::max(g_next[i], C_.hold * tol_);
+        }
+        res = project(Wn, VectorXd::Zero(model_.nv), bn, Minv);  // Fallback where its active set does not settle
+        solved = resting = true;
       }
     }
     if (budget <= 0.0 && !resting) return;
-    Solved res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
+    if (!solved) res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
-    double dE = energy(q_c, u_next) - E1;
+    const double T_c = pinocchio::computeKineticEnergy(model_, data_, q_c, u_next);
+    const double V_c = pinocchio::computePotentialEnergy(model_, data_, q_c);
+    double dE = T_c + V_c - E1;
     if (dE > budget && !resting) {
       // stepper.correct_positions' paid lift: a persistent penetration between two polytopes (deeper than
       // h |gamma_minus| + tol) in a passive step is lifted in full, paid with the velocities: Python takes it
@@ -1165,8 +1215,14 @@ class Stepper {
           persistent = con[i].kind != C_.joint_limit && con[i].pair < (int)polytope_.size() && polytope_[con[i].pair];
         }
       if (deep && persistent) throw Fallback{"a paid position lift"};
-      q_c = pinocchio::integrate(model_, q_next, (budget / dE) * res.v);
+      double alpha = budget / dE;
+      q_c = pinocchio::integrate(model_, q_next, alpha * res.v);
       dE = energy(q_c, u_next) - E1;
+      if (dE > budget + roundoff(T0, V0, T_c, V_c)) {  // concave along dq: shortened by the relative excess twice
+        alpha *= (budget / dE) * (budget / dE);
+        q_c = pinocchio::integrate(model_, q_next, alpha * res.v);
+        dE = energy(q_c, u_next) - E1;
+      }
       if (dE > budget) return;
     }
     const VectorXd before = pair_distances(q_next), after = pair_distances(q_c);

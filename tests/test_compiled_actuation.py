@@ -163,10 +163,10 @@ def test_a_controller_same_run_both_loops(tmp_path, e):
 
 
 def test_a_zero_controller_through_handed_back_steps():
-    """quadruped_drop breaks its penetration check: the Runner hands those steps back to the Python run, which
+    """slider_crank_clearance breaks its penetration check: the Runner hands those steps back to the Python run, which
     replays the controller's answer (not asking it twice); a counting controller is called once per step and the
     arrays are the Python run's."""
-    sc = ms.load_scene(Path(ROOT) / "scenes" / "quadruped_drop.toml")
+    sc = ms.load_scene(Path(ROOT) / "scenes" / "slider_crank_clearance.toml")
     model = ms.build_model(sc)
     runs, counts = [], []
     for python_run in (True, False):

@@ -235,8 +235,6 @@ def test_one_step_without_forces_is_the_impact_law():
 # The bundled runs the fixed step flags (docs/theory.md §10, "What the bundled scenes flag"): defects of the step, not
 # allowances; each stays flagged with these invariants until its cause is fixed.
 FLAGGED = {
-    # a closed foot contact deepens beyond its impact's allowance
-    "quadruped_drop": {"penetration"},
     # the clearance joint's sliding contact deepens step after step (the gap's curvature, the correction refused)
     "slider_crank_clearance": {"penetration"},
 }
