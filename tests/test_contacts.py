@@ -66,3 +66,28 @@ def test_a_ball_just_above_the_tolerance_falls_and_rests_at_zero_gap():
     assert traj.impacts >= 1
     assert np.abs(traj.gap[-20:, 0]).max() <= 1e-15
     assert np.abs(traj.u[-20:, 0]).max() <= 1e-15
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_a_point_within_same_point_of_a_contact_is_that_contact(axis):
+    """contacts.SAME_POINT at its edge: an edge crossing or face corner whose point on A is SAME_POINT (in the max
+    norm) from a contact the pair already has is that contact (dropped); the next float beyond is a contact of its
+    own; and a face corner as close to an edge crossing is that crossing."""
+    from moreau_sim.contacts import SAME_POINT, FeatureKind, _add_new
+
+    def row(x, kind, feature):
+        p = np.zeros(3)
+        p[axis] = x
+        return (-1e-6, p, p.copy(), np.array([0.0, 0.0, 1.0]), 0, kind, feature)
+
+    beyond = np.nextafter(SAME_POINT, np.inf)
+    vertex = row(0.0, FeatureKind.VERTEX, 0)
+    for kind in (FeatureKind.EDGE, FeatureKind.FACE):
+        for d, kept in ((SAME_POINT, False), (beyond, True), (-SAME_POINT, False), (-beyond, True)):
+            found = [vertex]
+            _add_new(found, 0, [row(d, kind, 5)])
+            assert [r[5] for r in found[1:]] == ([kind] if kept else [])
+    for d, kept in ((SAME_POINT, False), (beyond, True)):  # no earlier contact: a corner at a crossing is it
+        found = []
+        _add_new(found, 0, [row(0.0, FeatureKind.EDGE, 5), row(d, FeatureKind.FACE, 1)])
+        assert [r[5] for r in found] == [FeatureKind.EDGE] + ([FeatureKind.FACE] if kept else [])
