@@ -136,7 +136,7 @@ class CompiledRun:
         d["rise"], d["t_rise"] = map(float, rec._rise)
         d["law_diff"], d["t_law_diff"] = map(float, rec._law_difference)
         d["new_impact"], d["contact_steps"] = float(rec._new_impact), float(rec._contact_steps)
-        d["rest"] = float(rec._rest)
+        d["rest"] = float(rec._log.keep)  # the stretch of persistent steps the log ends with (Recorder._log_step)
         d["work"], d["corr"], d["points"] = float(loop.work), float(loop.corr), float(loop.points)
         for k in _INV:
             d["i_" + k] = float(getattr(c, k)) if c is not None else 0.0
@@ -152,7 +152,7 @@ class CompiledRun:
         rec._TV = (d["T"], d["V"])
         rec._rise, rec._law_difference = (d["rise"], d["t_rise"]), (d["law_diff"], d["t_law_diff"])
         rec._new_impact, rec._contact_steps = bool(d["new_impact"]), int(d["contact_steps"])
-        rec._rest = rec._log.keep = int(d["rest"])  # the log's last rows a persistent step may add to (§5.2)
+        rec._log.keep = int(d["rest"])  # the log's last rows a persistent step may add to (§5.2)
         loop.work, loop.corr, loop.points = d["work"], d["corr"], int(d["points"])
         loop.previous = {tuple(p) for p in previous}
         if c is not None:

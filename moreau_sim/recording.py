@@ -13,6 +13,7 @@ import math
 import mmap
 import platform
 import tempfile
+from collections import ChainMap
 from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import metadata
@@ -241,22 +242,6 @@ class _Columns:
                 f.close()
 
 
-class _Defaults(Mapping):
-    """`arrays` (a dict or an open NPZ) with the arrays it lacks made on demand by `make` (name -> function)."""
-
-    def __init__(self, arrays: Mapping, make: dict):
-        self.arrays, self.make = arrays, make
-
-    def __getitem__(self, k):
-        return self.make[k]() if k in self.make and k not in self.arrays else self.arrays[k]
-
-    def __iter__(self):
-        return iter(set(self.arrays) | set(self.make))
-
-    def __len__(self) -> int:
-        return len(set(self.arrays) | set(self.make))
-
-
 def _write_at(f, a: np.ndarray, offset: int) -> None:
     """The bytes of the C-contiguous array `a` into the file `f` at byte `offset`, flushed (a map
     of the file then reads them)."""
@@ -307,7 +292,6 @@ class Recorder:
         self._new_impact = False  # the last log_percussions logged a new impact
         self._held = False  # every contact of the last log_percussions was closed in the step before it
         self._pending: list[PercussionRow] = []  # the rows of the step log_percussions saw, for account_step
-        self._rest = 0  # the log's last rows are a stretch of persistent steps (§5.2) of these many contacts
         self._rise = (-np.inf, np.nan)  # (largest T + V increase of one step [J], t [s])
         self._law_difference = (0.0, np.nan)  # (largest |D - L| of a contact step [J], t [s])
         self._contact_steps = 0
@@ -432,7 +416,7 @@ class Recorder:
         """The ledger of an impact located at t [s] (event-driven and adaptive runs): the law of
         docs/theory.md §1 at q, u- -> u+ with v the projection and M = M(q)."""
         m, d = self.model, self.data
-        self._rest = self._log.keep = 0  # an impact between steps ends a stretch of persistent ones
+        self._log.keep = 0  # an impact between steps ends a stretch of persistent ones (_log_step)
         E0 = total(m, d, q, u_minus)
         self._smooth_until(E0, t)
         T_minus, T_plus, law = impact_terms(M, u_minus, v, u_minus, u_plus, e, P, None)
@@ -479,7 +463,7 @@ class Recorder:
     def log(self, row: PercussionRow) -> None:
         """Write one row to the log (it ends any stretch of persistent steps)."""
         self._write(row)
-        self._rest = self._log.keep = 0
+        self._log.keep = 0
 
     def _write(self, row: PercussionRow) -> None:
         i = self._log.free()
@@ -493,13 +477,14 @@ class Recorder:
         persistent). A persistent step whose rows have the contacts, in order, of the stretch of persistent steps
         the log ends with adds its P to the stretch's rows and one to their log_steps, instead of new rows
         (docs/theory.md §5.2): at rest, a step's percussions are the weight's, and a stretch is one row per
-        contact whatever its length."""
+        contact whatever its length. The stretch is the log's last log.keep rows (0: none), which a spill
+        leaves in memory."""
         rows, self._pending = self._pending, []
         k = len(rows)
         log = self._log
-        i0 = log.last - k + 1  # the stretch's first row in log.cols (log.keep holds them in memory)
+        i0 = log.last - k + 1  # the stretch's first row in log.cols
         c = log.cols
-        if persistent and k and self._rest == k and all(
+        if persistent and k and log.keep == k and all(
                 (c["log_pair"][i0 + j], c["log_kind"][i0 + j], c["log_feature"][i0 + j]) ==
                 (row.pair, row.kind, row.feature) for j, row in enumerate(rows)):
             for j, row in enumerate(rows):
@@ -507,7 +492,7 @@ class Recorder:
                 c["log_steps"][i0 + j] += 1
                 c["log_duration"][i0 + j] += row.duration
             return
-        self._rest = log.keep = k if persistent else 0  # a new stretch: its rows stay in memory as they are written
+        log.keep = k if persistent else 0  # a new stretch: its rows stay in memory as they are written
         for row in rows:
             self._write(row)
 
@@ -561,17 +546,15 @@ class Recorder:
                 "rise": [None if not np.isfinite(x) else x for x in self._rise],
                 "law_difference": [None if np.isnan(x) else x for x in self._law_difference],
                 "contact_steps": self._contact_steps, "smooth_deficit": float(self.smooth_deficit),
-                "rest": self._rest}
+                "rest": self._log.keep}
 
     def restore(self, arrays: Mapping[str, np.ndarray], carried: dict, state: State) -> None:
         """Continue a recording from its arrays (a dict or an open NPZ) and carried() (a
         checkpoint's) at `state`."""
         c = carried
-        self._rest = self._log.keep = int(c.get("rest", 0))
-        if "log_steps" not in arrays:  # a checkpoint of format 3: every row was one step's (its length not kept)
-            k = len(arrays["log_P"])
-            arrays = _Defaults(arrays, {"log_steps": lambda: np.ones(k, np.int64),
-                                        "log_duration": lambda: np.full(k, np.nan)})
+        self._log.keep = int(c.get("rest", 0))  # the stretch of persistent steps the log ends with (_log_step)
+        if "log_steps" not in arrays:  # a checkpoint of format 3
+            arrays = ChainMap(arrays, trajectory.log_before_format_4(len(arrays["log_P"])))
         for g in self._groups():
             g.load(arrays)
         self._smooth, self._diss, self._law, self._E = c["smooth"], c["diss"], c["law"], c["E"]

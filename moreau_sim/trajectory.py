@@ -86,6 +86,12 @@ def _from_format1(arrays: dict) -> None:
     arrays["log_kind"], arrays["log_feature"] = kind, feature
 
 
+def log_before_format_4(k: int) -> dict[str, np.ndarray]:
+    """The log columns a file or checkpoint of format 3 or earlier lacks, for its k rows: each row was one step's
+    (log_steps 1), of a length it did not record (log_duration NaN)."""
+    return {"log_steps": np.ones(k, np.int64), "log_duration": np.full(k, np.nan)}
+
+
 def _without_ledger(arrays: dict) -> None:
     """A file of format 1 or 2 has no ledger: its per-sample terms read as NaN (not measured) and it
     has no impact rows; ledger.ledger() says so instead of reporting zeros."""
@@ -296,9 +302,8 @@ def load_trajectory(path: str | Path, *, verify: bool = True) -> Trajectory:
         if old:
             _from_format1(arrays)
         _without_ledger(arrays)
-        if "log_steps" not in arrays:  # before format 4 every row was one step's (of a length not recorded)
-            arrays["log_steps"] = np.ones(len(arrays["log_P"]), np.int64)
-            arrays["log_duration"] = np.full(len(arrays["log_P"]), np.nan)
+        if "log_steps" not in arrays:
+            arrays.update(log_before_format_4(len(arrays["log_P"])))
     return Trajectory(arrays, meta)
 
 

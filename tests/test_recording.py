@@ -179,3 +179,29 @@ def test_a_full_disk_under_the_spill_files_is_a_named_error(monkeypatch, tmp_pat
     assert r.output.strip() == (f"moreau-sim: error: {tmp_path}: cannot write there (No space left on device); "
                                 f"nothing written to {out}")
     assert os.listdir(tmp_path) == []
+
+
+def test_a_format_3_checkpoint_resumes_with_a_row_a_step_before_it(tmp_path):
+    """A checkpoint written before log_steps and log_duration (format 3: no such columns, no "rest" carried)
+    resumes: its rows read as one step each, of an unrecorded length (NaN), and every row after it, the samples
+    and the ledger are the uninterrupted run's. zeno_ball (e = 0.8) bounces until ~2.9 s: the last checkpoint,
+    at ~2 s, is between bounces, no stretch open."""
+    sc = scene("zeno_ball", duration=2.5)
+    plain = ms.simulate(ms.build_model(sc), progress=False)
+    path = tmp_path / "c.npz"
+    ms.simulate(ms.build_model(sc), progress=False, checkpoint=Checkpoint(path=path, every=1.0, keep=True))
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files if k not in ("log_steps", "log_duration")}
+    meta = json.loads(str(arrays.pop("meta")))
+    meta["checkpoint"]["recorder"].pop("rest")
+    meta.pop("checksum", None)
+    np.savez(path, meta=np.array(json.dumps(meta)), **arrays)
+    k = len(arrays["log_P"])
+    resumed = ms.simulate(ms.build_model(sc), progress=False, checkpoint=Checkpoint(path=path, resume=True))
+    assert 0 < k < len(plain.log_P)
+    assert resumed.log_steps[:k].tolist() == [1] * k and np.isnan(resumed.log_duration[:k]).all()
+    for name in trajectory.ARRAYS:
+        a, b = resumed.arrays[name], plain.arrays[name]
+        if name == "log_duration":
+            a, b = a[k:], b[k:]
+        assert a.tobytes() == b.tobytes(), name
