@@ -181,6 +181,7 @@ class Runner {
   int64_t k_ = 0;
   std::array<int64_t, 3> written_{0, 0, 0};
   int64_t flight_ = 0, contact_ = 0;
+  std::vector<Eigen::Index> logged_;  // step(): the contacts of the step's log rows (kept: no allocation a step)
   std::optional<actuation::Actuation> act_;  // the joint torques (none: a passive run)
   Col<double> s_act, s_obs;  // the EXTERNAL columns (trajectory.EXTERNAL) of an actuated run
   // the columns (trajectory.SAMPLES, LOG, IMPACTS)
@@ -334,7 +335,8 @@ class Runner {
     int64_t nlog = 0;
     c.new_impact = 0.0;
     bool persistent = false;  // a persistent contact step (ledger.at_rest, docs/theory.md §5.2): no impact to book
-    std::vector<Eigen::Index> logged;  // the contacts of this step's rows
+    std::vector<Eigen::Index> &logged = logged_;  // the contacts of this step's rows
+    logged.clear();
     bool fold = false;
     if (m) {
       double pmax = r.P[0];
