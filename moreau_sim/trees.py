@@ -375,10 +375,11 @@ class Growing:
         m = self.model
         self.patterns.extend(np.array(s, dtype=bool) for s in m.sparsity_pattern_vector)
         m.sparsity_pattern_vector = []
-        sp = m.sparsity_pattern_vector  # the model's own list: one row at a time, no (njoints, nv) copy
-        for s in self.patterns:
-            row = np.zeros(m.nv, dtype=bool)
-            row[:len(s)] = s
-            sp.append(row)
+        sp = m.sparsity_pattern_vector  # the model's own list: BATCH rows at a time, no (njoints, nv) copy
+        for k in range(0, len(self.patterns), self.BATCH):
+            rows = np.zeros((len(self.patterns[k:k + self.BATCH]), m.nv), dtype=bool)
+            for row, s in zip(rows, self.patterns[k:k + self.BATCH]):
+                row[:len(s)] = s
+            sp.extend(list(rows))  # (its append keeps a reference to each array it copies: eigenpy 3.13)
         m.frames = self.frames
         return m
