@@ -339,7 +339,7 @@ class Growing:
     """A Pinocchio model grown joint by joint and frame by frame in time linear in them. Pinocchio's
     Model::addJoint resizes the sparsity pattern of every joint already added to the new nv (zeros at
     the end), and Model::addFrame compares the new frame's name with every frame's: both quadratic
-    (~2.5 s at 10,000 joints and 20,000 frames). Growing keeps those two lists of the model short: every
+    (2.7 s at 10,000 joints and 20,000 frames). Growing keeps those two lists of the model short: every
     BATCH joints it takes the patterns out (copies; Pinocchio's zeros are added back at the end), and
     every BATCH frames the frames (the caller has checked their names: the model's nframes counts them);
     done() puts both back, giving the model addJoint and addFrame make (Pinocchio's ==, tests)."""
