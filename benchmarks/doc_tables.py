@@ -30,6 +30,7 @@ TABLES = (("docs/benchmarks.md", "docs/bench/work_precision.json", work_precisio
           ("docs/benchmarks.md", "docs/bench/compiled_costs.json", compiled_costs.doc_tables),
           ("docs/benchmarks.md", "docs/bench/adaptive_costs.json", adaptive_costs.doc_tables),
           ("docs/benchmarks.md", "docs/bench/scaling.json", scaling.doc_tables),
+          ("docs/benchmarks.md", "docs/bench/scaling_build.json", scaling.doc_tables),
           ("docs/robots.md", "docs/bench/robots.json", robots_table.doc_tables),
           ("docs/stability.md", "docs/bench/stability.json", stability.doc_tables))
 

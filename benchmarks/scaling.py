@@ -24,11 +24,13 @@ on the broad phase's candidates (no GeometryModel of the pairs). Columns over LA
 fewer states (3, best of 1). The peak RSS is also taken right after build_model. Also the impact QP alone
 (no model) to 3000 beads. The slope of log(cost) against log(contacts) is fitted by least squares
 (target <= 1.1: linear).
-Writes scaling.json and scaling.png to out/ (--out docs/bench: the committed files).
+Writes scaling.json and scaling.png to out/ (--out docs/bench: the committed files). --build-only measures
+build_model alone (CPU seconds, peak RSS), each size in --repeat children: scaling_build.json, its own table.
 
     python -m benchmarks.scaling [--out docs/bench] [--sizes 10 100 500] [--boxes 8 27] [--mujoco-boxes 125 1000]
     python -m benchmarks.scaling --table docs/bench/scaling.json docs/benchmarks.md
     python -m benchmarks.scaling --plot docs/bench/scaling.json   # redraw the chart from the JSON
+    python -m benchmarks.scaling --build-only --repeat 2 --boxes 1000 --out docs/bench   # build_model alone
 """
 
 from __future__ import annotations
@@ -293,6 +295,52 @@ def boxes_one(n: int) -> dict:
     return out
 
 
+def build_one(kind: str, n: int) -> dict:
+    """One build_model of a column of n beads or a pile of n boxes, in this process: CPU seconds, peak RSS."""
+    scene = column(n) if kind == "beads" else pile(n)
+    t0 = CLOCK()
+    model = ms.build_model(scene)
+    return {kind: n, "build_s": CLOCK() - t0, "build_rss_mb": peak_rss_mb(), "nv": model.nv,
+            "pairs": len(model.pairs)}
+
+
+def builds(kind: str, sizes, repeat: int) -> list:
+    """build_one of each size in `repeat` child processes of its own: the least CPU time, the largest peak RSS."""
+    rows = []
+    for n in sizes:
+        runs = [child(f"build-{kind}", n, argparse.Namespace(repeat=1, states=1)) for _ in range(repeat)]
+        ok = [r for r in runs if "failed" not in r]
+        row = ({**min(ok, key=lambda r: r["build_s"]), "build_rss_mb": max(r["build_rss_mb"] for r in ok),
+                "runs": [r["build_s"] for r in ok]} if ok else runs[0])
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    return rows
+
+
+def build_table(data: dict) -> str:
+    """The build table of docs/benchmarks.md from a scaling_build.json (--build-only)."""
+    meta = data["meta"]
+    out = [f"Run of {meta['date']} (git `{meta['commit']}`, {meta['cpus']} cores shared, load {meta['load']:.1f}): "
+           f"CPU seconds of `build_model`, the least of {meta['repeat']} child processes per size, and the "
+           "largest peak RSS of those children (the interpreter and its imports included).", "",
+           "| scene | size | nv | pairs (model) | build_model s | peak RSS MB |", "|---|---:|---:|---:|---:|---:|"]
+    for kind, label in (("beads", "column of beads"), ("boxes", "pile of boxes")):
+        for r in data[kind]:
+            if "failed" in r:
+                out.append(f"| {label} | {r[kind]} | failed: {r['failed']} | | | |")
+                continue
+            out.append(f"| {label} | {r[kind]} | {r['nv']} | {r['pairs']} | {r['build_s']:.3g} | "
+                       f"{r['build_rss_mb']:.0f} |")
+    b = [r for r in data["beads"] if "failed" not in r]
+    large = [r for r in b if r["beads"] >= LARGE]
+    if len(b) >= 2:
+        out += ["", f"Fitted log-log slope of build_model against beads, {b[0]['beads']}–{b[-1]['beads']}: "
+                f"{slope([r['beads'] for r in b], [r['build_s'] for r in b]):.2f}"
+                + (f"; from {LARGE}: {slope([r['beads'] for r in large], [r['build_s'] for r in large]):.2f}"
+                   if len(large) >= 2 else "") + "."]
+    return "\n".join(out)
+
+
 def child(kind: str, n: int, a) -> dict:
     """One size measured in a child process (its own peak RSS); a failure is recorded, not raised."""
     cmd = [sys.executable, "-m", "benchmarks.scaling", "--one", kind, str(n), "--repeat", str(a.repeat),
@@ -300,7 +348,7 @@ def child(kind: str, n: int, a) -> dict:
     r = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
     if r.returncode != 0:
         tail = (r.stderr.strip().splitlines() or ["no output"])[-1]
-        return {"beads" if kind == "beads" else "boxes": n, "failed": tail}
+        return {"beads" if kind.endswith("beads") else "boxes": n, "failed": tail}
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
@@ -476,7 +524,10 @@ def _pile_slopes(data: dict, s: dict) -> str:
 
 
 def doc_tables(data: dict) -> dict[str, str]:
-    """The tables of docs/benchmarks.md this benchmark's JSON gives (marker name: Markdown)."""
+    """The tables of docs/benchmarks.md this benchmark's JSON gives (marker name: Markdown): the scaling
+    table from a scaling.json, the build table from a scaling_build.json (--build-only)."""
+    if data.get("meta", {}).get("build_only"):
+        return {"scaling build table": build_table(data)}
     return {"scaling table": markdown_table(data)}
 
 
@@ -498,6 +549,9 @@ def main(argv=None) -> int:
     ap.add_argument("--states", type=int, default=10, help="contact states per column (a run of that many steps)")
     ap.add_argument("--qp-sizes", type=int, nargs="*", default=list(QP_SIZES),
                     help="numbers of beads of the QP alone (no Pinocchio Data)")
+    ap.add_argument("--build-only", action="store_true",
+                    help="only build_model of each size (--sizes beads, --boxes boxes), --repeat child processes "
+                         "per size: writes scaling_build.json")
     ap.add_argument("--one", nargs=2, metavar=("KIND", "N"), help=argparse.SUPPRESS)  # a child: one size, JSON out
     a = ap.parse_args(argv)
     if rewrite_tables(a, doc_tables) or redraw(a, plot):
@@ -505,12 +559,23 @@ def main(argv=None) -> int:
     if a.one:
         kind, n = a.one[0], int(a.one[1])
         r = (beads_one(n, a.repeat, a.states) if kind == "beads" else forest_one(n, a.repeat) if kind == "forest"
-             else boxes_one(n))
+             else build_one(kind.removeprefix("build-"), n) if kind.startswith("build-") else boxes_one(n))
         print(json.dumps(r))
         return 0
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.time()
+    if a.build_only:
+        load = os.getloadavg()[0]
+        data = {"beads": builds("beads", a.sizes, a.repeat), "boxes": builds("boxes", a.boxes, a.repeat)}
+        data["meta"] = {"build_only": True, "date": time.strftime("%Y-%m-%d", time.gmtime()), "commit": _commit(),
+                        "machine": platform.machine(), "cpus": os.cpu_count(),
+                        "load": max(load, os.getloadavg()[0]), "versions": versions(), "repeat": a.repeat,
+                        "wall_s": time.time() - t_start}
+        (out / "scaling_build.json").write_text(json.dumps(data, indent=2))
+        print(build_table(data))
+        print(f"wrote {out / 'scaling_build.json'}")
+        return 0
     beads, boxes = [], []
     for n in a.sizes:
         beads.append(child("beads", n, a))

@@ -183,12 +183,12 @@ class Kinematics:
 def whole_model(placed: list, where: str) -> tuple[pin.Model, list, list[str]]:
     """The scene's whole Pinocchio model and geometry from the bodies' placed (model, geometry, name),
     as main's pairwise pin.appendModel of them made them (Pinocchio's ==: names, parents, placements,
-    inertias, frames, limits), in time linear in the bodies but for Pinocchio's own addJoint (which
-    resizes every joint's sparsity pattern: ~2 s at 10,000 joints): each tree's joints, bodies and frames
-    added to one model (assembled). appendModel is quadratic in the two models' sizes (it scans every
-    frame at every joint and checks names by linear search): 17 s at 10,000 beads pairwise. Trees with
-    mimic joints are appended (appended). The geometries in appendModel's
-    order: those on the world first (body order), then those on joints (joint order)."""
+    inertias, frames, limits), in time linear in the bodies: each tree's joints, bodies and frames added
+    to one model (assembled; Pinocchio's own addJoint and addFrame kept linear by Growing). appendModel
+    is quadratic in the two models' sizes (it scans every frame at every joint and checks names by linear
+    search): 17 s at 10,000 beads pairwise. Trees with mimic joints are appended (appended). The
+    geometries in appendModel's order: those on the world first (body order), then those on joints
+    (joint order)."""
     models = [tm for tm, _, _ in placed]
     try:
         model = assembled(models) if len(models) > 1 and not any(len(tm.mimicking_joints) for tm in models) \
@@ -231,6 +231,8 @@ def assembled(models: list) -> pin.Model:
     frames, R's joints each with its frames (a part's frames keep its trees' order: appendModel regroups
     them the same way at every level); the world's inertia summed as the appends sum it; a reference
     configuration of some trees (an MJCF's qpos0) is theirs on their joints, neutral on the others'.
+    Linear in the bodies: Pinocchio's addJoint and addFrame, quadratic one call after another, go through
+    Growing.
     Raises ValueError with Pinocchio's words for two joints or two frames of one name and type."""
     n = len(models)
     ident = pin.SE3.Identity()
@@ -258,10 +260,12 @@ def assembled(models: list) -> pin.Model:
         else:
             break
     split = segments[0][1]
-    model = pin.Model()
+    grow = Growing(pin.Model())
+    model = grow.model
     joint_names = {model.names[0]}
     frame_id = {(f.name, int(f.type)): k for k, f in enumerate(model.frames)}
     offsets = np.cumsum([0] + [tm.njoints - 1 for tm in models])
+    sums_of: dict = {}  # a joint inertia -> its sums over `appends` appends (every bead's is the same)
 
     def add_frame(tm, f, parent_joint: int, on_world: bool) -> None:
         key = (f.name, int(f.type))
@@ -274,7 +278,21 @@ def assembled(models: list) -> pin.Model:
             f.parentFrame = frame_id[(up.name, int(up.type))]  # added before (appendModel's getFrameId)
         if on_world:
             f.placement = ident * f.placement  # appendModel: (world frame's placement * aMb) * placement
-        frame_id[key] = model.addFrame(f, False)
+        frame_id[key] = grow.add_frame(f)
+
+    def summed(Y, times: int):
+        """Y after `times` appends (appendModel re-adds it to a zero inertia each time: rounding),
+        stopping where the sum stays."""
+        key = (np.concatenate(([Y.mass], Y.lever, Y.inertia.ravel())).tobytes(), times)  # bit for bit
+        out = sums_of.get(key)
+        if out is None:
+            out = Y
+            for _ in range(times):
+                out, last = appended_to(out), out
+                if out == last:
+                    break
+            sums_of[key] = out
+        return out
 
     for part, world in ((range(split), sums[0]), (range(split, n), sums[1])):
         if world == world:  # appendModel adds a part's world inertia unless NaN
@@ -291,6 +309,9 @@ def assembled(models: list) -> pin.Model:
             for f in frames[1:]:
                 if f.parentJoint:
                     by_joint.setdefault(f.parentJoint, []).append(f)
+            limits = (tm.lowerEffortLimit, tm.upperEffortLimit, tm.lowerVelocityLimit, tm.upperVelocityLimit,
+                      tm.lowerPositionLimit, tm.upperPositionLimit, tm.positionLimitMargin,
+                      tm.lowerDryFrictionLimit, tm.upperDryFrictionLimit, tm.damping)
             for j in range(1, tm.njoints):
                 name = tm.names[j]
                 if name in joint_names:
@@ -299,19 +320,12 @@ def assembled(models: list) -> pin.Model:
                 jm = tm.joints[j]
                 q, v = slice(jm.idx_q, jm.idx_q + jm.nq), slice(jm.idx_v, jm.idx_v + jm.nv)
                 parent = tm.parents[j]
-                k = model.addJoint(off + parent if parent else 0, jm, ident * tm.jointPlacements[j], name,
-                                   tm.lowerEffortLimit[v], tm.upperEffortLimit[v], tm.lowerVelocityLimit[v],
-                                   tm.upperVelocityLimit[v], tm.lowerPositionLimit[q], tm.upperPositionLimit[q],
-                                   tm.positionLimitMargin[q], tm.lowerDryFrictionLimit[v],
-                                   tm.upperDryFrictionLimit[v], tm.damping[v])
-                Y = tm.inertias[j]
-                for _ in range(appends[t] - 1):  # the appends before the last: stop where the sum stays
-                    Y, last = appended_to(Y), Y
-                    if Y == last:
-                        break
-                model.appendBodyToJoint(k, Y, ident)
+                k = grow.add_joint(off + parent if parent else 0, jm, ident * tm.jointPlacements[j], name,
+                                   *(x[s] for x, s in zip(limits, (v, v, v, v, q, q, q, v, v, v))))
+                model.appendBodyToJoint(k, summed(tm.inertias[j], appends[t] - 1), ident)
                 for f in by_joint.get(j, ()):
                     add_frame(tm, f, k, False)
+    grow.done()
     model.rotorInertia = np.concatenate([tm.rotorInertia for tm in models])
     model.rotorGearRatio = np.concatenate([tm.rotorGearRatio for tm in models])
     for key in sorted({e.key() for tm in models for e in tm.referenceConfigurations}):
@@ -319,3 +333,53 @@ def assembled(models: list) -> pin.Model:
                                                              if key in tm.referenceConfigurations else pin.neutral(tm)
                                                              for tm in models])
     return model
+
+
+class Growing:
+    """A Pinocchio model grown joint by joint and frame by frame in time linear in them. Pinocchio's
+    Model::addJoint resizes the sparsity pattern of every joint already added to the new nv (zeros at
+    the end), and Model::addFrame compares the new frame's name with every frame's: both quadratic
+    (2.7 s at 10,000 joints and 20,000 frames). Growing keeps those two lists of the model short: every
+    BATCH joints it takes the patterns out (copies; Pinocchio's zeros are added back at the end), and
+    every BATCH frames the frames (the caller has checked their names: the model's nframes counts them);
+    done() puts both back, giving the model addJoint and addFrame make (Pinocchio's ==, tests)."""
+
+    BATCH = 64
+
+    def __init__(self, model: pin.Model):
+        self.model = model
+        self.patterns: list[np.ndarray] = []
+        self.frames: list = [pin.Frame(f) for f in model.frames]
+        self._held = len(self.frames)  # frames in the model's list
+
+    def add_joint(self, *args) -> int:
+        m = self.model
+        k = m.addJoint(*args)
+        sp = m.sparsity_pattern_vector
+        if len(sp) >= self.BATCH:
+            self.patterns.extend(np.array(s, dtype=bool) for s in sp)  # copies: the list is replaced below
+            m.sparsity_pattern_vector = []
+        return k
+
+    def add_frame(self, f) -> int:
+        m = self.model
+        self.frames.append(f)
+        if self._held >= self.BATCH:
+            m.frames = []
+            self._held = 0
+        self._held += 1
+        return m.addFrame(f, False)
+
+    def done(self) -> pin.Model:
+        """The model with every joint's sparsity pattern (zeros up to nv) and every frame back in it."""
+        m = self.model
+        self.patterns.extend(np.array(s, dtype=bool) for s in m.sparsity_pattern_vector)
+        m.sparsity_pattern_vector = []
+        sp = m.sparsity_pattern_vector  # the model's own list: BATCH rows at a time, no (njoints, nv) copy
+        for k in range(0, len(self.patterns), self.BATCH):
+            rows = np.zeros((len(self.patterns[k:k + self.BATCH]), m.nv), dtype=bool)
+            for row, s in zip(rows, self.patterns[k:k + self.BATCH]):
+                row[:len(s)] = s
+            sp.extend(list(rows))  # (its append keeps a reference to each array it copies: eigenpy 3.13)
+        m.frames = self.frames
+        return m

@@ -188,6 +188,24 @@ def test_whole_model_assembled_as_appendmodel_makes_it(make):
     assert a.saveToString() == b.saveToString()
 
 
+@pytest.mark.parametrize("batch", [1, 2, 5, trees.Growing.BATCH])
+@pytest.mark.parametrize("make", [lambda: column(150), lambda: mixed(13)], ids=["column_150", "mixed_13"])
+def test_a_model_grown_in_batches_is_the_one_pinocchio_grows(make, batch, monkeypatch):
+    """trees.Growing (the sparsity patterns and frames taken out of the model every `batch` joints or frames,
+    Pinocchio's trailing zeros and the frames put back at the end) grows the model pairwise appendModel
+    makes byte for byte, and the one addJoint and addFrame grow called one after another (Pinocchio's ==
+    compares every joint's sparsity pattern and span, every frame and nframes)."""
+    models = _placed(make())
+    monkeypatch.setattr(trees.Growing, "BATCH", batch)
+    grown = trees.assembled(models)
+    assert grown == trees.appended(models)
+    monkeypatch.setattr(trees.Growing, "BATCH", 10 ** 9)  # never taken out: Pinocchio's own calls
+    plain = trees.assembled(models)
+    assert grown == plain and grown.saveToString() == plain.saveToString()
+    assert grown.nframes == len(grown.frames) and len(grown.sparsity_pattern_vector) == grown.njoints
+    assert all(len(s) == grown.nv for s in grown.sparsity_pattern_vector)
+
+
 def test_whole_model_refuses_two_frames_of_one_name_in_one_line():
     """Two bodies' frames of one name and type (names are prefixed by the body: only a hand-made
     model has them): one SceneError naming the scene, as appendModel's refusal was."""
