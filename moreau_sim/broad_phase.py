@@ -7,7 +7,8 @@ narrow phase, bit for bit for coal's closed-form pairs. A pair coal resolves by 
 from its own previous query (pinocchio keeps the guess): skipped for a while, it starts again from
 an older guess, and its witness points can differ in round-off (forced on every bundled scene,
 panda_table's mesh pairs differ, the box stacks do not). Linear in geometries plus the pairs it
-keeps (a column of n beads: ~n candidates, not n^2/2).
+keeps (a column of n beads: ~n candidates, not n^2/2). The compiled step (src/step.cpp candidates)
+computes the same candidates from the same data with the same sums (sums.dots, docs/theory.md §2.8).
 
 coal's broad-phase managers would do the same in C++, but coal 3.0.3's Python binding cannot say
 which pairs they found: ``CollisionCallBackCollect.getCollisionPairs()`` has no Python converter

@@ -1,8 +1,8 @@
 """The compiled contact step (moreau_sim._step, src/step.cpp): its guard, its constants, and its typed result
 made a results.StepResult. It must load against exactly the Pinocchio and coal it was built with (else the
-Python step runs, with one warning); it mirrors stepper.step for every pair but two polytopes other than two boxes
-(coal's closed-form pairs, its GJK/EPA with the same warm starts, pairs of two boxes, the broad phase's candidates),
-up to MAX_CONTACTS contacts, and hands any other step back (docs/theory.md §2.8)."""
+Python step runs, with one warning); it mirrors stepper.step for every pair (coal's closed-form pairs, its GJK/EPA
+with the same warm starts, pairs of two polytopes, the broad phase's candidates), up to MAX_CONTACTS contacts, and
+hands any other step back (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
@@ -110,10 +110,6 @@ def _analytic(a, b) -> bool:
     return False
 
 
-def _boxes(a, b) -> bool:
-    return isinstance(a, coal.Box) and isinstance(b, coal.Box)
-
-
 def _axis_aligned(model, g: int) -> bool:
     """Whether geometry g's face normals lie along its joint frame's axes (entries -1, 0, 1): a face normal times a
     rotation is then exact, in any order of the sums, on both sides."""
@@ -131,9 +127,9 @@ def _warm_started(model) -> bool:
 
 def unsupported(model) -> str | None:
     """Why the compiled step never takes this model's steps (None: it takes the ones it covers). Every pair coal
-    resolves by GJK/EPA (two boxes, a cylinder on a box, ...) runs on the same GeometryData on both sides, its warm
-    start saved before the detection and restored where a step is handed back; a model of more than
-    broad_phase.MIN_PAIRS pairs is queried on the broad phase's candidates on both sides."""
+    resolves by GJK/EPA (two boxes, two convex meshes, a cylinder on a box, ...) runs on the same GeometryData on
+    both sides, its warm start saved before the detection and restored where a step is handed back; a model of more
+    than broad_phase.MIN_PAIRS pairs is queried on the broad phase's candidates on both sides."""
     o = model.options
     if model.prescribed is not None:
         return "a static with prescribed motion"
@@ -143,13 +139,10 @@ def unsupported(model) -> str | None:
     if not model.listed and _warm_started(model):
         # Python queries such a model's pairs on coal functors of its own (data.Data.pair_query), not the GeometryData
         return "a pair coal resolves by GJK/EPA in a scene without a pair list (more than model.LAZY_PAIRS pairs)"
-    if any(not _boxes(geoms[p.first].geometry, geoms[p.second].geometry)
-           for p in model.pairs if p.index in model.polytope_pair_set):
-        return "pairs of two polytopes other than two boxes"
     if model.polytope_pair_set and not all(_axis_aligned(model, g) for g, go in enumerate(geoms)
                                            if isinstance(go.geometry, coal.Box)):
         # the face axis of two boxes becomes the patch's normal: exact both ways only for faces along the axes
-        return "a box turned in its joint frame (pairs of two boxes)"
+        return "a box turned in its joint frame (pairs of two polytopes)"
     if o.tunnelling is Tunnelling.ALWAYS:
         return "swept detection on every step"
     if o.qp_form is not QPForm.PRIMAL:

@@ -3,15 +3,18 @@
 // boost.python's registry: the same Pinocchio and coal libraries as the Python bindings).
 //
 // It mirrors stepper.step stage by stage and operation by operation (the same products and sums in
-// the same order, no FMA contraction: docs/theory.md §2.8), for the contacts of coal's closed-form pairs
-// (moreau_sim/compiled.py _analytic) and pairs of two boxes (src/box_box.hpp: point queries, contact patches, the
-// warm start of contacts.detect), any number of velocities: polytope vertices against a half-space
-// (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight steps; the
+// the same order, no FMA contraction: docs/theory.md §2.8), for the contacts of every pair: coal's closed-form
+// pairs (moreau_sim/compiled.py _analytic), its warm-started GJK/EPA on the same
+// GeometryData (the guesses saved before the detection, restored where a step is handed back), pairs of two boxes
+// (src/box_box.hpp: point queries, contact patches, the warm start of contacts.detect), on the broad phase's
+// candidates (broad_phase.py) in a model of more than its MIN_PAIRS pairs; any number of velocities: polytope
+// vertices against a half-space (contacts._vertex_contacts, kind "plane") or any other shape (coal's point query),
+// coal's witness contact (smooth shapes), patches (contacts._face_axis, _snap), flight steps; the
 // restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed form for one
 // contact, else qp._active_set's dual active set from nothing, re-solved and checked as qp._polish does);
 // the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with
 // a reason and the Python step (the reference) takes the step: corners, edge contacts of two boxes, a paid
-// position lift, point queries and contact patches against other shapes than boxes, swept detection, coal's EPA
+// position lift, a point query against a box turned in its joint frame, swept detection, coal's EPA
 // fallback, more than max_contacts contacts
 // (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp).
 #include <nanobind/nanobind.h>
@@ -474,7 +477,7 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
 }  // namespace
 
 // coal's cached GJK guesses of a list of queries' requests and results: saved before a step, put back where it is
-// undone (Stepper::save_guesses: the collision queries; run.cpp's Runner: the distance queries)
+// undone (run.cpp's Runner: the distance queries; Stepper::save_guesses keeps the collision queries' own)
 struct QueryGuesses {
   std::vector<std::pair<coal::Vec3s, coal::support_func_guess_t>> req, res;
   template <class Rq, class Rs> void save(const std::vector<Rq> &rqs, const std::vector<Rs> &rss) {
