@@ -989,10 +989,10 @@ class Stepper {
       for (Eigen::Index k = 0; k < np; ++k) hit[k] = gd_.collisionResults[k].isCollision();
     }
     std::vector<char> near(np, 0);
-    for (int k : warm_) {  // _near_polytopes
-      if (k >= np || !shapes_ || !polytope_[k]) continue;
+    for (int k : warm_) {  // _near_polytopes: model.polytope_pair_ids, two geometries with vertices and bounding spheres
+      if (k >= np || !shapes_) continue;
       const int g1 = (int)pairs_(k, 0), g2 = (int)pairs_(k, 1), j1 = (int)pairs_(k, 2), j2 = (int)pairs_(k, 3);
-      if (bound_kind_[g1] != 1 || bound_kind_[g2] != 1) continue;
+      if (bound_kind_[g1] != 1 || bound_kind_[g2] != 1 || !vertices_[g1].rows() || !vertices_[g2].rows()) continue;
       const Vec3 d = (rot(j1) * bound_a_[g1] + trans(j1)) - (rot(j2) * bound_a_[g2] + trans(j2));
       near[k] = std::sqrt(d.dot(d)) - bound_b_[g1] - bound_b_[g2] <= tol_;
     }
