@@ -7,7 +7,8 @@ narrow phase, bit for bit for coal's closed-form pairs. A pair coal resolves by 
 from its own previous query (pinocchio keeps the guess): skipped for a while, it starts again from
 an older guess, and its witness points can differ in round-off (forced on every bundled scene,
 panda_table's mesh pairs differ, the box stacks do not). Linear in geometries plus the pairs it
-keeps (a column of n beads: ~n candidates, not n^2/2).
+keeps (a column of n beads: ~n candidates, not n^2/2). The compiled step (src/step.cpp candidates)
+computes the same candidates from the same data with the same sums (sums.dots, docs/theory.md §2.8).
 
 coal's broad-phase managers would do the same in C++, but coal 3.0.3's Python binding cannot say
 which pairs they found: ``CollisionCallBackCollect.getCollisionPairs()`` has no Python converter
@@ -20,6 +21,8 @@ import weakref
 
 import coal
 import numpy as np
+
+from .sums import dots
 
 MIN_PAIRS = 64  # models with more collision pairs than this use the broad phase (below: all pairs, one call)
 SLACK = 1e-6  # [m] added to the margin: the boxes' round-off never drops a pair within the margin
@@ -78,14 +81,14 @@ class BroadPhase:
         R = np.array([o.rotation for o in oMi])
         p = np.array([o.translation for o in oMi])
         Rg, pg = R[self.joint], p[self.joint]
-        c = np.einsum("gij,gj->gi", Rg, self.centre) + pg
-        h = np.einsum("gij,gj->gi", np.abs(Rg), self.half)
+        c = dots(Rg, self.centre[:, None, :]) + pg  # dots: src/step.cpp's candidates makes the same sums
+        h = dots(np.abs(Rg), self.half[:, None, :])
         out = [self.always, self._sweep(c, h)]
         if len(self.half_pairs):
-            n = np.einsum("kij,kj->ki", Rg[self.half_geom], self.half_n)  # the plane in the world
-            d = self.half_d + np.einsum("ki,ki->k", n, pg[self.half_geom])
+            n = dots(Rg[self.half_geom], self.half_n[:, None, :])  # the plane in the world
+            d = self.half_d + dots(n, pg[self.half_geom])
             o = self.half_other
-            gap = np.einsum("ki,ki->k", n, c[o]) - np.einsum("ki,ki->k", np.abs(n), h[o]) - d
+            gap = dots(n, c[o]) - dots(np.abs(n), h[o]) - d
             out.append(self.half_pairs[gap <= self.margin])
         return np.unique(np.concatenate(out))
 

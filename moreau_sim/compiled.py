@@ -1,7 +1,8 @@
 """The compiled contact step (moreau_sim._step, src/step.cpp): its guard, its constants, and its typed result
 made a results.StepResult. It must load against exactly the Pinocchio and coal it was built with (else the
-Python step runs, with one warning); it mirrors stepper.step for coal's closed-form pairs and pairs of two boxes,
-up to MAX_CONTACTS contacts, and hands any other step back (docs/theory.md §2.8)."""
+Python step runs, with one warning); it mirrors stepper.step for every pair (coal's closed-form pairs, its GJK/EPA
+with the same warm starts, pairs of two polytopes, the broad phase's candidates), up to MAX_CONTACTS contacts, and
+hands any other step back (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ import numpy as np
 import pinocchio
 
 from . import box_box, broad_phase, constraints, qp
-from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, SAME_POINT, Contacts, FeatureKind
+from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, SAME_POINT, SNAP_COS, Contacts, FeatureKind
+from .data import GATE_MARGIN
 from .law import ENERGY_ROUNDOFF
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts, StepImpl
 from .qp import QPResult
@@ -33,7 +35,7 @@ CONSTANTS = {
     "joint_limit": int(FeatureKind.JOINT_LIMIT),
     "energy_roundoff": ENERGY_ROUNDOFF, "patch": int(FeatureKind.PATCH), "same_point": SAME_POINT,
     "cone": box_box.CONE, "edge_end": box_box.EDGE_END, "parallel": box_box.PARALLEL,
-    "depth_ratio": box_box.DEPTH_RATIO,
+    "depth_ratio": box_box.DEPTH_RATIO, "snap": SNAP_COS,
 }
 _EMPTY = np.zeros(0)
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}
@@ -95,11 +97,11 @@ def loop_refusal(model, cls: str, what: str) -> str | None:
 
 
 def _analytic(a, b) -> bool:
-    """Whether coal resolves this pair of shapes in closed form. Other pairs go through GJK/EPA, whose
-    support search is warm-started from the pair's previous call (state kept in the collision functor):
-    a step handed back to Python would run it a second time at the same configuration and can get a
-    different contact at the EPA tolerance than the Python-only run (panda_table's cylinders on boxes do,
-    the hints restored or not)."""
+    """Whether coal resolves this pair of shapes in closed form, keeping nothing from one call to the next. Other
+    pairs go through GJK/EPA, whose support search is warm-started from the pair's previous call (the guesses kept
+    in its request, result and functor): the compiled step runs it on the same GeometryData, saves those guesses
+    before its detection and restores them where it hands a step back, so that the Python step retakes it from the
+    guesses it would have had."""
     for x, y in ((a, b), (b, a)):
         if isinstance(y, _HALF) and isinstance(x, _AGAINST_HALF):
             return True
@@ -108,32 +110,39 @@ def _analytic(a, b) -> bool:
     return False
 
 
-def _boxes(a, b) -> bool:
-    return isinstance(a, coal.Box) and isinstance(b, coal.Box)
+def _axis_aligned(model, g: int) -> bool:
+    """Whether geometry g's face normals lie along its joint frame's axes (entries -1, 0, 1): a face normal times a
+    rotation is then exact, in any order of the sums, on both sides."""
+    return bool(np.isin(model.face_normals[g], (-1.0, 0.0, 1.0)).all())
+
+
+def _warm_started(model) -> bool:
+    """Whether a pair of the model goes through coal's GJK/EPA (its warm start carried from step to step)."""
+    geoms = model.geometries
+    if model.listed:
+        return not all(_analytic(geoms[p.first].geometry, geoms[p.second].geometry) for p in model.pairs)
+    kinds = {type(go.geometry): go.geometry for go in geoms}  # no pair list: by the kinds of shapes that may pair
+    return not all(_analytic(a, b) for a in kinds.values() for b in kinds.values())
 
 
 def unsupported(model) -> str | None:
-    """Why the compiled step never takes this model's steps (None: it takes the ones it covers). Two boxes: coal's
-    GJK/EPA runs on the same GeometryData on both sides, its warm start restored where a step is handed back."""
+    """Why the compiled step never takes this model's steps (None: it takes the ones it covers). Every pair coal
+    resolves by GJK/EPA (two boxes, two convex meshes, a cylinder on a box, ...) runs on the same GeometryData on
+    both sides, its warm start saved before the detection and restored where a step is handed back; a model of more
+    than broad_phase.MIN_PAIRS pairs is queried on the broad phase's candidates on both sides."""
     o = model.options
     if model.prescribed is not None:
         return "a static with prescribed motion"
     if model.drive is not None:
         return "a driven joint ([[drives]])"
-    geoms = model.geom.geometryObjects
-    if not all(_analytic(a, b) or _boxes(a, b)
-               for a, b in ((geoms[p.first].geometry, geoms[p.second].geometry) for p in model.pairs)):
-        return "a pair coal resolves by GJK/EPA (warm-started from its previous call)"
-    if any(not _boxes(geoms[p.first].geometry, geoms[p.second].geometry)
-           for p in model.pairs if p.index in model.polytope_pair_set):
-        return "pairs of two polytopes other than two boxes"
-    if any(isinstance(go.geometry, coal.Box) and not np.isin(model.face_normals[g], (-1.0, 0.0, 1.0)).all()
-           for g, go in enumerate(geoms)) and model.polytope_pair_set:
+    geoms = model.geometries
+    if not model.listed and _warm_started(model):
+        # Python queries such a model's pairs on coal functors of its own (data.Data.pair_query), not the GeometryData
+        return "a pair coal resolves by GJK/EPA in a scene without a pair list (more than model.LAZY_PAIRS pairs)"
+    if model.polytope_pair_set and not all(_axis_aligned(model, g) for g, go in enumerate(geoms)
+                                           if isinstance(go.geometry, coal.Box)):
         # the face axis of two boxes becomes the patch's normal: exact both ways only for faces along the axes
-        return "a box turned in its joint frame (pairs of two boxes)"
-    if model.polytope_pair_set and len(model.pairs) > broad_phase.MIN_PAIRS:
-        # the broad phase skips far pairs, whose GJK warm start then ages; the compiled step queries every pair
-        return "pairs of two boxes under the broad phase"
+        return "a box turned in its joint frame (pairs of two polytopes)"
     if o.tunnelling is Tunnelling.ALWAYS:
         return "swept detection on every step"
     if o.qp_form is not QPForm.PRIMAL:
@@ -144,11 +153,12 @@ def unsupported(model) -> str | None:
 class _Context:
     """The compiled stepper of one (model, data) and the count of steps by the way they went."""
 
-    __slots__ = ("model", "stepper", "counts", "why", "_layouts", "boxes", "nq", "nv")
+    __slots__ = ("model", "stepper", "counts", "why", "_layouts", "boxes", "carries", "nq", "nv")
 
     def __init__(self, model, data):
         self.model = model
         self.boxes, self.nq, self.nv = bool(model.polytope_pair_set), model.nq, model.nv
+        self.carries = self.boxes or _warm_started(model)  # the detection carries state from step to step
         self._layouts: dict[tuple, list] = {}  # (outcome, m) -> the step's named arrays in its two buffers
         self.counts: Counter = Counter()
         self.why = unsupported(model)
@@ -168,29 +178,42 @@ class _Context:
                 o.position_correction is PositionCorrection.PROJECTION, CONSTANTS,
                 np.array([(lim.pair, lim.joint, lim.idx_q, lim.idx_v, lim.sign, lim.bound) for lim in model.limits],
                          dtype=float).reshape(-1, 6))
-            if model.polytope_pair_set:
-                self._boxes(model, data)
+            if len(model.pairs):
+                self._shapes(model, data)
+            bp = broad_phase.of(model, max(o.contact_tolerance, GATE_MARGIN))
+            if bp is not None:  # contacts.detect's broad phase, the same candidates each step
+                self.stepper.broad(bp.joint.tolist(), bp.centre, bp.half, bp.bounded.tolist(), bp.margin,
+                                   bp.half_pairs.tolist(), bp.half_geom.tolist(), bp.half_other.tolist(),
+                                   bp.half_n.reshape(-1, 3), bp.half_d, bp.always.tolist())
 
-    def _boxes(self, model, data) -> None:
-        """The box-box detection's data (src/step.cpp Stepper::boxes): the coal objects Python's detection uses."""
-        gobs = model.geom.geometryObjects
+    def _shapes(self, model, data) -> None:
+        """The detection's data beyond coal's narrow phase (src/step.cpp Stepper::boxes): the coal objects Python's
+        detection uses, a point query for each geometry a vertex may be queried against (contacts._vertex_contacts:
+        not a half-space; no box turned in its joint frame, whose face normals would not be exact both ways)."""
+        gobs = model.geometries
+        G = len(gobs)
+        other = np.zeros(G, bool)  # a vertex of a pair's other geometry may come near it
+        for p in model.pairs:
+            for g, v in ((p.first, p.second), (p.second, p.first)):
+                other[g] |= bool(len(model.vertices[v])) and model.bounds[g][0] == "sphere"
         queries, edges = [], []
         for g, go in enumerate(gobs):
-            if isinstance(go.geometry, coal.Box):
-                queries.append(data.point_query(g))
+            box = isinstance(go.geometry, coal.Box)
+            queries.append(data.point_query(g) if other[g] and (not box or _axis_aligned(model, g)) else None)
+            if box:
                 e0, ed, el, ef = box_box.box_edges(go.geometry, go.placement)
                 edges.append(np.column_stack((e0, ed, el, ef[:, 0], ef[:, 1])))
             else:
-                queries.append(None)
                 edges.append(np.zeros((0, 13)))
         planes = [p if p is not None else (np.zeros((0, 3)), np.zeros(0)) for p in model.face_planes]
+        cones = [-1 if e is None else e.shape[1] for e in model.vertex_edges]
         self.stepper.boxes(queries, [np.asarray(f, float).reshape(-1, 3) for f in model.face_normals],
                            [np.asarray(n, float).reshape(-1, 3) for n, _ in planes],
                            [np.asarray(d, float) for _, d in planes], edges,
-                           [np.zeros((0, 3)) if e is None or not isinstance(gobs[g].geometry, coal.Box)
-                            else np.asarray(e, float).reshape(-1, 3) for g, e in enumerate(model.vertex_edges)],
+                           [np.zeros((0, 3)) if e is None else np.asarray(e, float).reshape(-1, 3)
+                            for e in model.vertex_edges], cones,
                            [int(p.index in model.polytope_pair_set) for p in model.pairs],
-                           data.distance_request, data.distance_result, data.patch_request)
+                           data.distance_request, data.distance_result, data.patch_request, self.carries)
 
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its two buffers, laid out as r.layout()

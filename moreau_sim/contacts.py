@@ -214,6 +214,7 @@ _SNAP = 0.5  # [rad] the patch is computed about the face normal nearest to coal
 # this: coal's EPA normal of exactly touching faces drifts (4e-3 rad seen, and now and then far
 # more); a patch only forms where faces are parallel (to PATCH_TOLERANCE), and face normals of a
 # box are 90 deg apart, so the nearest one is the contact normal there
+SNAP_COS = np.cos(_SNAP)  # its cosine, as _snap compares it (src/step.cpp's snap reads it: compiled.CONSTANTS)
 
 
 def _face_axis(model: Model, data: Data, pair) -> np.ndarray:
@@ -233,13 +234,14 @@ def _face_axis(model: Model, data: Data, pair) -> np.ndarray:
 def _snap(model: Model, data: Data, pair, n: np.ndarray) -> np.ndarray:
     """The face normal of A or B (oriented B -> A) nearest to coal's patch normal n, if within
     _SNAP: for parallel faces the contact normal is a face normal, and coal's EPA normal of
-    exactly touching faces is ~1e-6 rad off it, enough to make a resting box slide."""
-    best, cos_best = n, np.cos(_SNAP)
+    exactly touching faces is ~1e-6 rad off it, enough to make a resting box slide. (ordered: src/step.cpp's
+    snap makes the same sums.)"""
+    best, cos_best = n, SNAP_COS
     for g, j, sign in ((pair.first, pair.joint_first, -1.0), (pair.second, pair.joint_second, 1.0)):
         F = model.face_normals[g]
         if len(F):
-            Fw = sign * (F @ data.kinematics.oMi[j].rotation.T)  # A's outward normals point A -> B: flip
-            c = Fw @ n
+            Fw = sign * ordered(F, data.kinematics.oMi[j].rotation.T)  # A's outward normals point A -> B: flip
+            c = ordered(Fw, n)
             i = int(np.argmax(c))
             if c[i] > cos_best:
                 best, cos_best = Fw[i], c[i]

@@ -3,15 +3,18 @@
 // boost.python's registry: the same Pinocchio and coal libraries as the Python bindings).
 //
 // It mirrors stepper.step stage by stage and operation by operation (the same products and sums in
-// the same order, no FMA contraction: docs/theory.md §2.8), for the contacts of coal's closed-form pairs
-// (moreau_sim/compiled.py _analytic) and pairs of two boxes (src/box_box.hpp: point queries, contact patches, the
-// warm start of contacts.detect), any number of velocities: polytope vertices against a half-space
-// (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight steps; the
+// the same order, no FMA contraction: docs/theory.md §2.8), for the contacts of every pair: coal's closed-form
+// pairs (moreau_sim/compiled.py _analytic), its warm-started GJK/EPA on the same
+// GeometryData (the guesses saved before the detection, restored where a step is handed back), pairs of two boxes
+// (src/box_box.hpp: point queries, contact patches, the warm start of contacts.detect), on the broad phase's
+// candidates (broad_phase.py) in a model of more than its MIN_PAIRS pairs; any number of velocities: polytope
+// vertices against a half-space (contacts._vertex_contacts, kind "plane") or any other shape (coal's point query),
+// coal's witness contact (smooth shapes), patches (contacts._face_axis, _snap), flight steps; the
 // restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed form for one
 // contact, else qp._active_set's dual active set from nothing, re-solved and checked as qp._polish does);
 // the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with
 // a reason and the Python step (the reference) takes the step: corners, edge contacts of two boxes, a paid
-// position lift, point queries and contact patches against other shapes than boxes, swept detection, coal's EPA
+// position lift, a point query against a box turned in its joint frame, swept detection, coal's EPA
 // fallback, more than max_contacts contacts
 // (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp).
 #include <nanobind/nanobind.h>
@@ -45,6 +48,8 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <optional>
+#include <unordered_map>
 #include <string>
 #include <tuple>
 #include <type_traits>
@@ -79,13 +84,14 @@ struct Constants {
   int patch;  // contacts.FeatureKind.PATCH
   double same_point, cone, edge_end, parallel, depth_ratio;  // contacts.SAME_POINT; box_box's CONE, EDGE_END,
                                                              // PARALLEL, DEPTH_RATIO
+  double snap;  // contacts.SNAP_COS
 
   static const std::vector<std::string> &keys() {
     static const std::vector<std::string> k = {
         "midpoint_iterations", "midpoint_tolerance", "resting", "hold", "vertex", "witness", "max_contacts", "screen",
         "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct",
         "guess_min", "distance_failed", "joint_limit",
-        "energy_roundoff", "patch", "same_point", "cone", "edge_end", "parallel", "depth_ratio"};
+        "energy_roundoff", "patch", "same_point", "cone", "edge_end", "parallel", "depth_ratio", "snap"};
     return k;
   }
   // from a dict holding exactly keys() (a missing or an unknown name is an error: nothing is left to a default)
@@ -113,7 +119,7 @@ struct Constants {
     c.joint_limit = geti("joint_limit");
     c.energy_roundoff = get("energy_roundoff");
     c.patch = geti("patch"), c.same_point = get("same_point"), c.cone = get("cone"), c.edge_end = get("edge_end");
-    c.parallel = get("parallel"), c.depth_ratio = get("depth_ratio");
+    c.parallel = get("parallel"), c.depth_ratio = get("depth_ratio"), c.snap = get("snap");
     return c;
   }
   std::map<std::string, double> as_dict() const {
@@ -125,7 +131,7 @@ struct Constants {
             {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed},
             {"joint_limit", joint_limit},
             {"energy_roundoff", energy_roundoff}, {"patch", patch}, {"same_point", same_point}, {"cone", cone},
-            {"edge_end", edge_end}, {"parallel", parallel}, {"depth_ratio", depth_ratio}};
+            {"edge_end", edge_end}, {"parallel", parallel}, {"depth_ratio", depth_ratio}, {"snap", snap}};
   }
 };
 
@@ -471,7 +477,7 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
 }  // namespace
 
 // coal's cached GJK guesses of a list of queries' requests and results: saved before a step, put back where it is
-// undone (Stepper::save_guesses: the collision queries; run.cpp's Runner: the distance queries)
+// undone (run.cpp's Runner: the distance queries; Stepper::save_guesses keeps the collision queries' own)
 struct QueryGuesses {
   std::vector<std::pair<coal::Vec3s, coal::support_func_guess_t>> req, res;
   template <class Rq, class Rs> void save(const std::vector<Rq> &rqs, const std::vector<Rs> &rss) {
@@ -534,32 +540,45 @@ class Stepper {
 
   std::map<std::string, double> constants() const { return C_.as_dict(); }
 
-  // The box-box detection's data (moreau_sim/compiled.py): per geometry, a box's point query (data.point_query, the
-  // same coal functor Python calls; None: no box), its face normals (k, 3), face planes (normals (6, 3), offsets)
-  // and edges (box_box.box_edges: starts, directions, lengths, the two face normals, (12, 12)) in its joint frame;
-  // the edges leaving each of a box's vertices ((8 3, 3): model.vertex_edges); per pair whether both are polytopes (model.polytope_pair_set); the coal request and result objects Python's
-  // detection uses (data.distance_request, data.distance_result, data.patch_request)
+  // The detection's data beyond coal's narrow phase (moreau_sim/compiled.py _Context._shapes): per geometry, its point
+  // query (data.point_query, the same coal functor Python calls; None: no vertex is queried against it), its face
+  // normals (k, 3), face planes (a box's: normals (6, 3), offsets; none: (0, 3)), edges (a box's box_box.box_edges:
+  // starts, directions, lengths, the two face normals, (12, 13); none: (0, 13)) in its joint frame, the edges
+  // leaving each of its vertices (model.vertex_edges: (vertices cone, 3)) and cone, their number per vertex (-1:
+  // unknown, None in Python); per pair whether both are polytopes (model.polytope_pair_set); the coal request and
+  // result objects Python's detection uses (data.distance_request, data.distance_result, data.patch_request);
+  // carries: whether the detection carries state from one step to the next (coal's GJK warm starts, the near pairs
+  // of two polytopes), which a step handed back or undone restores
   void boxes(std::vector<nb::object> queries, std::vector<MatrixXd> face_normals, std::vector<MatrixXd> plane_n,
              std::vector<VectorXd> plane_d, std::vector<MatrixXd> edges, std::vector<MatrixXd> vertex_edges,
-             std::vector<int> polytope, nb::object dreq, nb::object dres, nb::object preq) {
+             std::vector<int> cone, std::vector<int> polytope, nb::object dreq, nb::object dres, nb::object preq,
+             bool carries) {
     const size_t G = gm_.geometryObjects.size();
     if (queries.size() != G || face_normals.size() != G || plane_n.size() != G || plane_d.size() != G ||
-        edges.size() != G || vertex_edges.size() != G || (Eigen::Index)polytope.size() != pairs_.rows())
+        edges.size() != G || vertex_edges.size() != G || cone.size() != G ||
+        (Eigen::Index)polytope.size() != pairs_.rows())
       throw nb::value_error("boxes: one entry per geometry (per pair: polytope) expected");
     keep_.assign({dreq, dres, preq});
     dreq_ = &extract_ref<coal::DistanceRequest>(dreq, "coal.DistanceRequest");
     dres_ = &extract_ref<coal::DistanceResult>(dres, "coal.DistanceResult");
     preq_ = &extract_ref<coal::ContactPatchRequest>(preq, "coal.ContactPatchRequest");
     query_.assign(G, nullptr), face_n_.resize(G), plane_n_.resize(G), plane_d_ = std::move(plane_d), edges_.resize(G);
-    half_.assign(G, Vec3::Zero()), vedges_.resize(G);
+    half_.assign(G, Vec3::Zero()), vedges_.resize(G), is_box_.assign(G, 0), cone_ = std::move(cone);
     for (size_t g = 0; g < G; ++g) {
       if (!queries[g].is_none()) {
         keep_.push_back(queries[g]);
         query_[g] = &extract_ref<coal::ComputeDistance>(queries[g], "coal.ComputeDistance");
-        if (edges[g].rows() != 12 || edges[g].cols() != 13) throw nb::value_error("boxes: edges (12, 13) per box");
-        if (vertex_edges[g].rows() != 24 || vertex_edges[g].cols() != 3)
-          throw nb::value_error("boxes: vertex edges (24, 3) per box");
-        vedges_[g] = vertex_edges[g];
+      }
+      if (plane_n[g].cols() != 3 || plane_d_[g].size() != plane_n[g].rows())
+        throw nb::value_error("boxes: face planes (k, 3), (k,) per geometry");
+      if (cone_[g] >= 0 && vertex_edges[g].rows() != vertices_[g].rows() * cone_[g])
+        throw nb::value_error("boxes: vertex edges (vertices cone, 3) per geometry");
+      vedges_[g] = vertex_edges[g];
+      if (edges[g].rows()) {
+        if (edges[g].rows() != 12 || edges[g].cols() != 13 ||
+            gm_.geometryObjects[g].geometry->getNodeType() != coal::GEOM_BOX)
+          throw nb::value_error("boxes: edges (12, 13) per box, none for any other shape");
+        is_box_[g] = 1;
         boxbox::Edges &E = edges_[g];
         E.e0 = edges[g].leftCols(3), E.ed = edges[g].middleCols(3, 3), E.el = edges[g].col(6);
         E.f0 = edges[g].middleCols(7, 3), E.f1 = edges[g].rightCols(3);
@@ -568,10 +587,30 @@ class Stepper {
       face_n_[g] = face_normals[g], plane_n_[g] = plane_n[g];
     }
     polytope_.assign(polytope.begin(), polytope.end());
-    boxes_ = true;
+    shapes_ = true, boxes_ = carries;
+  }
+  // The detection's broad phase (moreau_sim/broad_phase.py BroadPhase, the same data): per geometry its joint, the
+  // centre and half extents of its box in the joint frame, whether it is bounded; the margin [m]; the pairs of a
+  // half-space {n.x <= d} (pair, half-space, other; n, d in the half-space's joint frame); the pairs always examined
+  void broad(std::vector<int> joint, MatrixXd centre, MatrixXd half, std::vector<int> bounded, double margin,
+             std::vector<int> half_pair, std::vector<int> half_geom, std::vector<int> half_other, MatrixXd half_n,
+             VectorXd half_d, std::vector<int> always) {
+    const size_t G = gm_.geometryObjects.size(), H = half_pair.size();
+    if (joint.size() != G || (size_t)centre.rows() != G || (size_t)half.rows() != G || centre.cols() != 3 ||
+        half.cols() != 3 || half_geom.size() != H || half_other.size() != H || (size_t)half_n.rows() != H ||
+        (size_t)half_d.size() != H)
+      throw nb::value_error("broad: one entry per geometry (per half-space pair) expected");
+    bp_ = BroadPhase{std::move(joint), std::move(centre), std::move(half), std::move(bounded), margin,
+                     std::move(half_pair), std::move(half_geom), std::move(half_other), std::move(half_n),
+                     std::move(half_d), std::move(always), {}};
+    const int64_t nG = (int64_t)G;
+    for (Eigen::Index k = 0; k < pairs_.rows(); ++k)
+      bp_->index[std::min(pairs_(k, 0), pairs_(k, 1)) * nG + std::max(pairs_(k, 0), pairs_(k, 1))] = (int)k;
   }
   // contacts.detect's warm start (data.warm_start_pairs): set before a step, read after it
   std::vector<int> warm() const { return warm_; }
+  // the broad phase's candidates at the last detection (broad())
+  std::vector<int> last_candidates() const { return cand_; }
   void set_warm(std::vector<int> w) { warm_ = std::move(w); }
 
  private:
@@ -592,8 +631,25 @@ class Stepper {
   bool sep_elastic_, slow_plastic_, bias_midpoint_, velocity_bias_, projection_;
   Constants C_;
   MatrixXd limits_;  // model.limits: pair, joint, idx_q, idx_v, sign, bound per limit (moreau_sim/limits.py)
-  // the box-box detection (boxes())
-  bool boxes_ = false;
+  // the detection's data beyond the narrow phase (boxes()): set (shapes_); carrying state between steps (boxes_: the
+  // run loop's Undo restores it, src/run.cpp)
+  bool shapes_ = false, boxes_ = false;
+  std::vector<char> is_box_;  // a box (its edges in edges_)
+  std::vector<int> cone_;  // edges per vertex in vedges_ (-1: unknown)
+  struct BroadPhase {  // broad(): moreau_sim/broad_phase.py's data
+    std::vector<int> joint;
+    MatrixXd centre, half;
+    std::vector<int> bounded;
+    double margin;
+    std::vector<int> half_pair, half_geom, half_other;
+    MatrixXd half_n;
+    VectorXd half_d;
+    std::vector<int> always;
+    std::unordered_map<int64_t, int> index;  // min(i, j) G + max(i, j) -> the pair of geometries i, j
+  };
+  std::optional<BroadPhase> bp_;
+  std::vector<int> cand_;  // the broad phase's candidates at the last detection (sorted)
+  MatrixXd bp_c_, bp_h_;  // scratch: the geometries' boxes in the world
   std::vector<nb::object> keep_;
   coal::DistanceRequest *dreq_ = nullptr;
   coal::DistanceResult *dres_ = nullptr;
@@ -640,41 +696,62 @@ class Stepper {
   // guess of ~1e-12 m: a deep overlap reported as no collision, a distance of -DBL_MAX)
   template <typename Requests>
   void fresh_guesses(Requests &requests) const {
-    for (auto &req : requests) {
-      coal::Vec3s &g = req.cached_gjk_guess;
-      const double x = g[0], y = g[1], z = g[2];
-      if (std::max(std::max(std::abs(x), std::abs(y)), std::abs(z)) >= C_.guess_min && std::isfinite(x + y + z))
-        continue;
-      const double n = std::sqrt(x * x + y * y + z * z);
-      if (0.0 < n && n < std::numeric_limits<double>::infinity())
-        g = coal::Vec3s(x / n, y / n, z / n);
-      else
-        g = coal::Vec3s(1.0, 0.0, 0.0);
-    }
+    for (auto &req : requests) fresh_guess(req.cached_gjk_guess);
   }
 
-  std::vector<coal::Vec3s> saved_guess_;
-  std::vector<coal::support_func_guess_t> saved_hint_;
+  // contacts.fresh_guesses on one request's guess
+  void fresh_guess(coal::Vec3s &g) const {
+    const double x = g[0], y = g[1], z = g[2];
+    if (std::max(std::max(std::abs(x), std::abs(y)), std::abs(z)) >= C_.guess_min && std::isfinite(x + y + z)) return;
+    const double n = std::sqrt(x * x + y * y + z * z);
+    if (0.0 < n && n < std::numeric_limits<double>::infinity())
+      g = coal::Vec3s(x / n, y / n, z / n);
+    else
+      g = coal::Vec3s(1.0, 0.0, 0.0);
+  }
+
+  // coal's GJK warm start of a collision query: its functor's solver, its request's and its result's cached guesses
+  // (what Python's detection, rerun after a fallback, starts from)
+  struct Guesses {
+    coal::Vec3s solver, request, result;
+    coal::support_func_guess_t solver_hint, request_hint, result_hint;
+  };
+  std::vector<Guesses> saved_;
+  std::vector<int> saved_pairs_;  // the pairs saved_ holds (saved_all_: every pair, in order)
+  bool saved_all_ = true;
+  void save_one(Guesses &s, size_t k) const {
+    const coal::GJKSolver &sv = gd_.collision_functors[k].*SolverOf::member();
+    const auto &rq = gd_.collisionRequests[k];
+    const auto &rs = gd_.collisionResults[k];
+    s = {sv.cached_guess, rq.cached_gjk_guess, rs.cached_gjk_guess, sv.support_func_cached_guess,
+         rq.cached_support_func_guess, rs.cached_support_func_guess};
+  }
+  void restore_one(const Guesses &s, size_t k) {
+    coal::GJKSolver &sv = gd_.collision_functors[k].*SolverOf::member();
+    auto &rq = gd_.collisionRequests[k];
+    auto &rs = gd_.collisionResults[k];
+    sv.cached_guess = s.solver, sv.support_func_cached_guess = s.solver_hint;
+    rq.cached_gjk_guess = s.request, rq.cached_support_func_guess = s.request_hint;
+    rs.cached_gjk_guess = s.result, rs.cached_support_func_guess = s.result_hint;
+  }
+  // before a detection of every pair
   void save_guesses() {
-    const auto mem = SolverOf::member();
     const size_t n = gd_.collision_functors.size();
-    saved_guess_.resize(n), saved_hint_.resize(n);
-    for (size_t k = 0; k < n; ++k) {
-      const coal::GJKSolver &sv = gd_.collision_functors[k].*mem;
-      saved_guess_[k] = sv.cached_guess, saved_hint_[k] = sv.support_func_cached_guess;
-    }
-    // the requests' and results' guesses (what Python's detection, rerun after a fallback, starts from)
-    saved_queries_.save(gd_.collisionRequests, gd_.collisionResults);
+    saved_all_ = true, saved_.resize(n);
+    for (size_t k = 0; k < n; ++k) save_one(saved_[k], k);
     if (dres_) saved_dres_ = *dres_;
   }
-  QueryGuesses saved_queries_;
+  // before a detection of these pairs (the broad phase's candidates): the others keep theirs
+  void save_guesses(const std::vector<int> &pairs) {
+    saved_all_ = false, saved_pairs_ = pairs, saved_.resize(pairs.size());
+    for (size_t s = 0; s < pairs.size(); ++s) save_one(saved_[s], (size_t)pairs[s]);
+    if (dres_) saved_dres_ = *dres_;
+  }
   void restore_guesses() {
-    const auto mem = SolverOf::member();
-    for (size_t k = 0; k < saved_guess_.size() && k < gd_.collision_functors.size(); ++k) {
-      coal::GJKSolver &sv = gd_.collision_functors[k].*mem;
-      sv.cached_guess = saved_guess_[k], sv.support_func_cached_guess = saved_hint_[k];
-    }
-    saved_queries_.restore(gd_.collisionRequests, gd_.collisionResults);
+    if (saved_all_)
+      for (size_t k = 0; k < saved_.size() && k < gd_.collision_functors.size(); ++k) restore_one(saved_[k], k);
+    else
+      for (size_t s = 0; s < saved_.size(); ++s) restore_one(saved_[s], (size_t)saved_pairs_[s]);
     if (dres_) *dres_ = saved_dres_;
   }
 
@@ -727,11 +804,11 @@ class Stepper {
       }
       return;
     }
-    // a bounding sphere: the vertices within tol of it get coal's point query (a box: the functor Python calls,
-    // data.point_query); a vertex at two or more of the box's faces (a corner, _corner_normals) goes to Python
+    // a bounding sphere: the vertices within tol of it get coal's point query (the functor Python calls,
+    // data.point_query); a vertex at two or more of a box's faces (a corner, _corner_normals) goes to Python
     Vec3 ctr;
     for (int j = 0; j < 3; ++j) ctr[j] = odot(Ro.data() + j, a.data(), 3, 3, 1) + to[j];
-    coal::ComputeDistance *query = boxes_ ? query_[g_other] : nullptr;
+    coal::ComputeDistance *query = shapes_ ? query_[g_other] : nullptr;
     for (Eigen::Index i = 0; i < V.rows(); ++i) {
       const Vec3 dv = Vw.row(i).transpose() - ctr;
       const double est = std::sqrt((dv[0] * dv[0] + dv[1] * dv[1]) + dv[2] * dv[2]) - b;
@@ -746,37 +823,43 @@ class Stepper {
       const coal::Transform3s tf_other(oMg.rotation(), oMg.translation());
       const double d = (*query)(tf, tf_other, *dreq_, *dres_);
       if (!(d <= tol_)) continue;
-      const Vec3 nrm_coal = dres_->normal;  // from the vertex towards the box
+      const Vec3 nrm_coal = dres_->normal;  // from the vertex towards the other shape
       const Vec3 p_other = dres_->nearest_points[1];
-      if (!(nrm_coal.allFinite() && std::abs(d) < 1e100)) throw Fallback{"a vertex on a box's surface (no coal normal)"};
-      // contacts._corner_normals: the faces within margin of the largest signed distance; two or more: Python
-      const Vec3 pl = Ro.transpose() * (Vw.row(i).transpose() - to);
       const boxbox::RowsX3 &Pn = plane_n_[g_other];
       const VectorXd &Pd = plane_d_[g_other];
-      VectorXd sd(Pn.rows());
-      for (Eigen::Index f = 0; f < Pn.rows(); ++f) sd[f] = ((Pn(f, 0) * pl[0] + Pn(f, 1) * pl[1]) + Pn(f, 2) * pl[2]) - Pd[f];
-      // of those, the faces whose planes leave the vertex's own cone (its edges, vedges_) outside: two or more
-      // make a corner (Python's set-valued law); one gives the contact its face normal; none, coal's normal
+      if (!(nrm_coal.allFinite() && std::abs(d) < 1e100)) {
+        if (Pn.rows() == 0 || std::abs(d) >= 1e100) continue;  // no face to take the normal of: coal's pair contact
+        throw Fallback{"a vertex on a box's surface (no coal normal)"};
+      }
       Vec3 nrm = nrm_coal;
-      std::vector<Eigen::Index> on;
-      for (Eigen::Index f = 0; f < sd.size(); ++f)
-        if (sd[f] >= sd.maxCoeff() - margin) on.push_back(f);
-      if (on.size() >= 2) {
-        const Eigen::Matrix3d &Rv = oMi.rotation();
-        const boxbox::RowsX3 &VE = vedges_[g_vert];  // (8 * 3, 3): vertex i's edges in rows 3 i .. 3 i + 2
-        int ok = 0;
-        Vec3 first;
-        for (Eigen::Index f : on) {
-          const Vec3 nw = boxbox::row_rt(Pn, f, Ro);
-          double lo = INFINITY;
-          for (int k = 0; k < 3; ++k) lo = std::min(lo, boxbox::dot3(nw, boxbox::row_rt(VE, 3 * i + k, Rv)));
-          if (lo >= -1e-9) {  // contacts._corner_normals' literal
-            if (!ok) first = nw;
-            ++ok;
+      const int k_cone = cone_[g_vert];
+      if (Pn.rows() && k_cone >= 0) {
+        // contacts._corner_normals: the faces within margin of the largest signed distance; of those, the faces whose
+        // planes leave the vertex's own cone (its edges, vedges_) outside: two or more make a corner (Python's
+        // set-valued law); one gives the contact its face normal; none, coal's normal
+        const Vec3 pl = Ro.transpose() * (Vw.row(i).transpose() - to);
+        VectorXd sd(Pn.rows());
+        for (Eigen::Index f = 0; f < Pn.rows(); ++f) sd[f] = ((Pn(f, 0) * pl[0] + Pn(f, 1) * pl[1]) + Pn(f, 2) * pl[2]) - Pd[f];
+        std::vector<Eigen::Index> on;
+        for (Eigen::Index f = 0; f < sd.size(); ++f)
+          if (sd[f] >= sd.maxCoeff() - margin) on.push_back(f);
+        if (on.size() >= 2) {
+          const Eigen::Matrix3d &Rv = oMi.rotation();
+          const boxbox::RowsX3 &VE = vedges_[g_vert];  // vertex i's edges in rows k_cone i .. k_cone i + k_cone - 1
+          int ok = 0;
+          Vec3 first;
+          for (Eigen::Index f : on) {
+            const Vec3 nw = boxbox::row_rt(Pn, f, Ro);
+            double lo = INFINITY;
+            for (int k = 0; k < k_cone; ++k) lo = std::min(lo, boxbox::dot3(nw, boxbox::row_rt(VE, k_cone * i + k, Rv)));
+            if (lo >= -1e-9) {  // contacts._corner_normals' literal
+              if (!ok) first = nw;
+              ++ok;
+            }
           }
+          if (ok >= 2) throw Fallback{"a vertex at a box's edge or corner"};
+          if (ok == 1) nrm = -first;
         }
-        if (ok >= 2) throw Fallback{"a vertex at a box's edge or corner"};
-        if (ok == 1) nrm = -first;
       }
       const Vec3 p = Vw.row(i).transpose();
       if (v_is_a)
@@ -784,6 +867,30 @@ class Stepper {
       else
         out.push_back({d, p_other, p, nrm, pair, C_.vertex, offset + (int)i});
     }
+  }
+
+  // contacts._snap: the face normal of A or B (outward, oriented B -> A; face_n_ in the joint frames) nearest to coal's
+  // normal n, if its cosine exceeds C_.snap (the first largest of each shape's, A's then B's), else n; the products are
+  // sums.ordered's (ordered3), as Python's
+  Vec3 snap(int first, int jf, int second, int js, const Vec3 &n) const {
+    Vec3 best = n;
+    double cos_best = C_.snap;
+    const int g_of[2] = {first, second}, j_of[2] = {jf, js};
+    const double sign_of[2] = {-1.0, 1.0};
+    for (int s = 0; s < 2; ++s) {
+      const boxbox::RowsX3 &F = face_n_[g_of[s]];
+      if (!F.rows()) continue;
+      const Eigen::Matrix3d &R = rot(j_of[s]);
+      Vec3 w_best;
+      double c_max = 0.0;
+      for (Eigen::Index f = 0; f < F.rows(); ++f) {
+        const Vec3 w = sign_of[s] * boxbox::row_rt_ordered(F, f, R);
+        const double c = boxbox::ordered3(w.data(), n.data(), 1, 1);
+        if (f == 0 || c > c_max) c_max = c, w_best = w;  // np.argmax: the first largest
+      }
+      if (c_max > cos_best) best = w_best, cos_best = c_max;
+    }
+    return best;
   }
 
   // whether point p (on A) is farther than C_.same_point (max-norm) from every point on A of found[start:]
@@ -795,30 +902,104 @@ class Stepper {
   const Eigen::Matrix3d &rot(int joint) const { return data_.oMi[joint].rotation(); }
   const Vec3 &trans(int joint) const { return data_.oMi[joint].translation(); }
 
-  // contacts.detect: coal's narrow phase on every pair, and (box models) the box pairs with contacts at the last
-  // detection still within tol (_near_polytopes, warm_); margin: the corner margin max(tol, travel)
+  // broad_phase.BroadPhase.candidates_at (the sums of sums.dots, in its order) at the placements data_.oMi: cand_,
+  // the sorted pairs whose inflated boxes overlap, with a half-space within the margin, or always examined
+  void candidates() {
+    const BroadPhase &B = *bp_;
+    const Eigen::Index G = (Eigen::Index)B.joint.size();
+    bp_c_.resize(G, 3), bp_h_.resize(G, 3);
+    for (Eigen::Index g = 0; g < G; ++g) {
+      const Eigen::Matrix3d &R = rot(B.joint[g]);
+      const Vec3 &t = trans(B.joint[g]);
+      for (int i = 0; i < 3; ++i) {
+        bp_c_(g, i) = (((R(i, 0) * B.centre(g, 0) + R(i, 1) * B.centre(g, 1)) + R(i, 2) * B.centre(g, 2)) + 0.0) + t[i];
+        bp_h_(g, i) = ((std::abs(R(i, 0)) * B.half(g, 0) + std::abs(R(i, 1)) * B.half(g, 1)) +
+                       std::abs(R(i, 2)) * B.half(g, 2)) + 0.0;
+      }
+    }
+    cand_.assign(B.always.begin(), B.always.end());
+    // _sweep: every two bounded geometries whose boxes, inflated by the margin, overlap (the same set whichever the
+    // axis of the sweep: the one where the boxes spread most)
+    const size_t nb = B.bounded.size();
+    if (nb >= 2 && !B.index.empty()) {
+      std::vector<Eigen::Index> b(B.bounded.begin(), B.bounded.end());
+      Eigen::Matrix<double, Eigen::Dynamic, 3> lo(nb, 3), hi(nb, 3);
+      for (size_t a = 0; a < nb; ++a)
+        for (int i = 0; i < 3; ++i) {
+          lo(a, i) = (bp_c_(b[a], i) - bp_h_(b[a], i)) - B.margin;
+          hi(a, i) = (bp_c_(b[a], i) + bp_h_(b[a], i)) + B.margin;
+        }
+      int axis = 0;
+      double spread = -1.0;
+      for (int i = 0; i < 3; ++i) {
+        const double s = lo.col(i).maxCoeff() - lo.col(i).minCoeff();
+        if (s > spread) spread = s, axis = i;
+      }
+      std::vector<size_t> order(nb);
+      for (size_t a = 0; a < nb; ++a) order[a] = a;
+      std::stable_sort(order.begin(), order.end(), [&](size_t x, size_t y) { return lo(x, axis) < lo(y, axis); });
+      const int64_t nG = G;
+      for (size_t a = 0; a < nb; ++a) {
+        const size_t i = order[a];
+        for (size_t k = a + 1; k < nb && lo(order[k], axis) <= hi(i, axis); ++k) {
+          const size_t j = order[k];
+          if (!(lo(i, 0) <= hi(j, 0) && lo(j, 0) <= hi(i, 0) && lo(i, 1) <= hi(j, 1) && lo(j, 1) <= hi(i, 1) &&
+                lo(i, 2) <= hi(j, 2) && lo(j, 2) <= hi(i, 2)))
+            continue;
+          const auto it = B.index.find(std::min(b[i], b[j]) * nG + std::max(b[i], b[j]));
+          if (it != B.index.end()) cand_.push_back(it->second);
+        }
+      }
+    }
+    for (size_t k = 0; k < B.half_pair.size(); ++k) {  // a half-space's pairs: the other's box within the margin
+      const int hg = B.half_geom[k], o = B.half_other[k];
+      const Eigen::Matrix3d &R = rot(B.joint[hg]);
+      const Vec3 &t = trans(B.joint[hg]);
+      Vec3 n;
+      for (int i = 0; i < 3; ++i)
+        n[i] = ((R(i, 0) * B.half_n(k, 0) + R(i, 1) * B.half_n(k, 1)) + R(i, 2) * B.half_n(k, 2)) + 0.0;
+      const double d = B.half_d[k] + (((n[0] * t[0] + n[1] * t[1]) + n[2] * t[2]) + 0.0);
+      const double nc = ((n[0] * bp_c_(o, 0) + n[1] * bp_c_(o, 1)) + n[2] * bp_c_(o, 2)) + 0.0;
+      const double nh = ((std::abs(n[0]) * bp_h_(o, 0) + std::abs(n[1]) * bp_h_(o, 1)) + std::abs(n[2]) * bp_h_(o, 2)) + 0.0;
+      if ((nc - nh) - d <= B.margin) cand_.push_back(B.half_pair[k]);
+    }
+    std::sort(cand_.begin(), cand_.end());
+    cand_.erase(std::unique(cand_.begin(), cand_.end()), cand_.end());
+  }
+
+  // contacts.detect: coal's narrow phase on every pair (a model of more than broad_phase.MIN_PAIRS pairs: on the broad
+  // phase's candidates, in pair order), and (box models) the box pairs with contacts at the last detection still
+  // within tol (_near_polytopes, warm_); margin: the corner margin max(tol, travel)
   std::vector<Found> detect(const VectorXd &q_m, double travel) {
     std::vector<Found> found;
     pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q_m);
     next_warm_ = warm_;
     if (pairs_.rows() == 0) return found;
-    save_guesses();
-    fresh_guesses(gd_.collisionRequests);
-    pinocchio::computeCollisions(gm_, gd_, false);
     const Eigen::Index np = pairs_.rows();
+    std::vector<char> hit(np, 0);
+    if (bp_) {
+      candidates();
+      save_guesses(cand_);
+      for (int k : cand_) fresh_guess(gd_.collisionRequests[k].cached_gjk_guess);
+      for (int k : cand_) hit[k] = pinocchio::computeCollision(gm_, gd_, (pinocchio::PairIndex)k);
+    } else {
+      save_guesses();
+      fresh_guesses(gd_.collisionRequests);
+      pinocchio::computeCollisions(gm_, gd_, false);
+      for (Eigen::Index k = 0; k < np; ++k) hit[k] = gd_.collisionResults[k].isCollision();
+    }
     std::vector<char> near(np, 0);
-    for (int k : warm_) {  // _near_polytopes
-      if (k >= np || !boxes_ || !polytope_[k]) continue;
+    for (int k : warm_) {  // _near_polytopes: model.polytope_pair_ids, two geometries with vertices and bounding spheres
+      if (k >= np || !shapes_) continue;
       const int g1 = (int)pairs_(k, 0), g2 = (int)pairs_(k, 1), j1 = (int)pairs_(k, 2), j2 = (int)pairs_(k, 3);
-      if (bound_kind_[g1] != 1 || bound_kind_[g2] != 1) continue;
+      if (bound_kind_[g1] != 1 || bound_kind_[g2] != 1 || !vertices_[g1].rows() || !vertices_[g2].rows()) continue;
       const Vec3 d = (rot(j1) * bound_a_[g1] + trans(j1)) - (rot(j2) * bound_a_[g2] + trans(j2));
       near[k] = std::sqrt(d.dot(d)) - bound_b_[g1] - bound_b_[g2] <= tol_;
     }
     const double margin = std::max(tol_, travel);
     for (Eigen::Index k = 0; k < np; ++k) {
+      if (!hit[k] && !near[k]) continue;
       const auto &res = gd_.collisionResults[k];
-      const bool hit = res.isCollision();
-      if (!hit && !near[k]) continue;
       const int first = (int)pairs_(k, 0), second = (int)pairs_(k, 1), jf = (int)pairs_(k, 2), js = (int)pairs_(k, 3);
       const bool patch = pairs_(k, 4) != 0;
       const size_t start = found.size();
@@ -826,7 +1007,7 @@ class Stepper {
       if (na) vertex_contacts(first, jf, second, js, found, (int)k, 0, true, margin);
       if (nb_) vertex_contacts(second, js, first, jf, found, (int)k, na, false, margin);
       std::vector<Vec3> edges;  // box_box.edge_crossings: any that is no known point goes to Python
-      if (boxes_ && query_[first] && query_[second]) {
+      if (shapes_ && is_box_[first] && is_box_[second]) {
         const auto cands = boxbox::edge_candidates(edges_[first], rot(jf), trans(jf), edges_[second], rot(js),
                                                    trans(js), tol_, C_.cone, C_.edge_end, C_.parallel);
         double floor = -INFINITY;  // crossed far deeper than the boxes' penetration depth: no contact
@@ -841,17 +1022,19 @@ class Stepper {
         for (const auto &x : cands)
           if (x.g >= floor) edges.push_back(x.pa);
       }
-      if (hit) {
+      if (hit[k]) {
         const auto &c = res.getContact(0);
         const Vec3 n = -c.normal;
         const double depth = c.penetration_depth;
         if (!(std::abs(depth) < 1e100 && std::isfinite(n.dot(n)))) throw Fallback{"coal's contact needs the EPA fallback"};
         size_t k_patch = 0;
-        const bool poly = boxes_ && polytope_[k];
         if (patch && depth <= tol_) {
-          if (!poly) throw Fallback{"contact patch"};
-          const Vec3 n_face = boxbox::face_axis(vertices_[first], rot(jf), trans(jf), face_n_[first], vertices_[second],
-                                                rot(js), trans(js), face_n_[second]);
+          if (!shapes_) throw Fallback{"contact patch"};
+          // the patch about the face normal nearest to coal's: two polytopes' face axis, else the face normal within
+          // contacts._SNAP of coal's normal (contacts._snap)
+          const Vec3 n_face = polytope_[k] ? boxbox::face_axis(vertices_[first], rot(jf), trans(jf), face_n_[first],
+                                                               vertices_[second], rot(js), trans(js), face_n_[second])
+                                           : snap(first, jf, second, js, n);
           // with vertex contacts, the patch must lie in their plane (contacts.detect's literal 1 - 1e-9)
           if (found.size() == start || n_face.dot(found[start].n) >= 1.0 - 1e-9) {
             coal::CollisionResult cres;
@@ -1264,6 +1447,8 @@ NB_MODULE(_step, mod) {
            nb::arg("tau") = VectorXd())
       .def_prop_ro("constants", &Stepper::constants)
       .def("boxes", &Stepper::boxes)
+      .def("broad", &Stepper::broad)
+      .def_prop_ro("candidates", &Stepper::last_candidates)
       .def_prop_rw("warm", &Stepper::warm, &Stepper::set_warm);
   bind_run(mod);
   bind_events(mod);

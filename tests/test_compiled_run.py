@@ -6,8 +6,8 @@ The Runner records what driver._Loop.account records per step, operation by oper
 products (ledger.impact_terms's x'Mx and P.b) are summed in index order on both sides (sums.ordered, src/run.cpp
 quad / odot; docs/theory.md §2.8), so that the sums are the same at every size on any CPU
 (test_ledger_products_are_ordered).
-A scene the compiled step does not take (polytope pairs, GJK/EPA pairs, drives, prescribed
-motion) runs the Python loop; its meta says so and why.
+A scene the compiled step does not take (drives, prescribed motion) runs the Python loop; its meta says so and
+why.
 """
 
 from __future__ import annotations
