@@ -1,0 +1,149 @@
+"""The rheonomic cases in the compiled step and the compiled run (src/step.cpp, src/rheonomic.hpp, src/run.cpp;
+docs/theory.md §2.9, §2.13, §5.5): a static with prescribed motion and a driven joint are stepped in C++ from
+their schedules handed over once (no Python call per step), and give the Python step's trajectory, percussion
+log and ledger (the work of prescribed motion included) bit for bit, over e and h and every schedule kind
+(sine, constant velocity, table)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import moreau_sim as ms
+from moreau_sim import compiled, compiled_run
+from moreau_sim.data import make_data
+from moreau_sim.options import StepImpl
+
+from helpers import MODELS, SCENES, inline_scene
+
+RHEONOMIC = ("vibrating_paddle", "driven_paddle")
+
+STATIC = """
+[scene]
+name = "moving_static"
+[simulation]
+restitution = 0.8
+dt = 1e-3
+duration = 1.0
+[[bodies]]
+name = "ball"
+urdf = "{models}/ball.urdf"
+root_joint = "prismatic"
+axis = [0, 0, 1]
+q0 = [0.4]
+[[statics]]
+name = "paddle"
+shape = "halfspace"
+motion = {motion}
+"""
+
+DRIVEN = (SCENES / "driven_paddle.toml").read_text().replace('"../models/', '"{models}/').split("[[drives]]")[0] + """
+[[drives]]
+body = "paddle"
+joint = "root"
+motion = {motion}
+"""
+
+MOTIONS = {  # every kind of prescribed.Schedule: a static's (3 components) and a drive's (1)
+    "static-velocity": (STATIC, "{{ velocity = [0, 0, 0.2] }}"),
+    "static-table": (STATIC, "{{ t = [0.0, 0.3, 0.45, 0.7], x = [[0, 0, 0], [0, 0, 0.05], [0, 0, -0.02], [0, 0, 0]] }}"),
+    "static-sine-phase": (STATIC, "{{ sine = {{ amplitude = [0, 0, 0.02], frequency = 5.0, phase = 0.7 }} }}"),
+    "drive-table": (DRIVEN, "{{ t = [0.0, 0.2, 0.5, 0.8], x = [0.0, 0.04, -0.03, 0.0] }}"),
+    "drive-velocity": (DRIVEN, "{{ velocity = 0.0 }}"),
+}
+
+
+def _run(sc, impl: StepImpl, *, python_run: bool = True):
+    """The run of scene sc with the step impl (python_run: the Python loop, which asks the step each step) and the
+    counts of its steps by the way they went."""
+    model = ms.build_model(sc.with_options(step_impl=impl.value))
+    data = make_data(model)
+    return ms.simulate(model, data=data, progress=False, python_run=python_run), compiled.counts(data)
+
+
+def _same(ref, new) -> None:
+    """The same arrays (every one, bytes), ledger figures and status."""
+    keys = set(ref.arrays) | set(new.arrays)
+    differ = sorted(k for k in keys if k not in ref.arrays or k not in new.arrays
+                    or np.asarray(ref.arrays[k]).tobytes() != np.asarray(new.arrays[k]).tobytes())
+    assert differ == []
+    assert ref.meta["ledger"] == new.meta["ledger"] and ref.meta["status"] == new.meta["status"]
+    assert ms.ledger(ref).totals() == ms.ledger(new).totals()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _compiled():
+    assert compiled.available(), compiled.unavailable_reason()
+
+
+@pytest.mark.parametrize("name", RHEONOMIC)
+def test_the_compiled_step_and_run_take_rheonomic_scenes(name):
+    model = ms.build_model(ms.load_scene(SCENES / f"{name}.toml"))
+    assert compiled.unsupported(model) is None
+    assert compiled_run.unsupported(model, None) is None
+
+
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("h", [5e-4, 1e-3])
+@pytest.mark.parametrize("name", RHEONOMIC)
+def test_compiled_step_is_the_python_step(name, e, h):
+    """Every step of the bundled rheonomic scenes (1 s) taken by the compiled step, contact steps included: the
+    trajectory, the log and the ledger (obstacle work: the paddle's W_o, the drive's W_p) are the Python step's."""
+    sc = ms.load_scene(SCENES / f"{name}.toml").with_options(restitution=e, dt=h, duration=1.0)
+    ref, py = _run(sc, StepImpl.PYTHON)
+    new, counts = _run(sc, StepImpl.COMPILED)
+    assert not py and set(counts) == {"flight", "contact"} and counts["contact"] > 0, counts
+    assert ref.impacts > 0 and ms.ledger(ref).obstacle_work != 0.0
+    _same(ref, new)
+
+
+@pytest.mark.parametrize("e", [0.0, 0.8])
+@pytest.mark.parametrize("h", [5e-4, 1e-3])
+@pytest.mark.parametrize("name", RHEONOMIC)
+def test_compiled_run_is_the_python_run(name, e, h):
+    """The compiled run loop (src/run.cpp) takes every step and records the Python run's arrays and ledger."""
+    sc = ms.load_scene(SCENES / f"{name}.toml").with_options(restitution=e, dt=h, duration=1.0)
+    ref, _ = _run(sc, StepImpl.PYTHON, python_run=True)
+    new, _ = _run(sc, StepImpl.COMPILED, python_run=False)
+    run = new.meta["run"]
+    assert run["loop"] == "compiled" and run["python_steps"] == 0 and "python_calls" not in run
+    _same(ref, new)
+
+
+@pytest.mark.parametrize("kind", sorted(MOTIONS))
+def test_every_schedule_kind_is_evaluated_alike(tmp_path, kind):
+    """Tables (held before and after, the segment's slope), constant velocities and a sine with a phase: the
+    compiled step and run evaluate them as prescribed.Schedule.at does, bit for bit."""
+    text, motion = MOTIONS[kind]
+    sc = inline_scene(text.format(models=MODELS, motion=motion.format()), tmp_path)
+    ref, _ = _run(sc, StepImpl.PYTHON)
+    new, counts = _run(sc, StepImpl.COMPILED)
+    assert set(counts) == {"flight", "contact"} and counts["contact"] > 0, counts
+    _same(ref, new)
+    run, _ = _run(sc, StepImpl.COMPILED, python_run=False)
+    assert run.meta["run"]["loop"] == "compiled" and run.meta["run"]["python_steps"] == 0
+    _same(ref, run)
+
+
+def test_a_step_without_its_time_goes_to_python():
+    """compiled.raw_step needs the step's start time where something moves with time: without it, the Python step."""
+    model = ms.build_model(ms.load_scene(SCENES / "vibrating_paddle.toml"))
+    data = make_data(model)
+    assert compiled.raw_step(model, data, model.q0.copy(), model.u0.copy(), 1e-3, 0.5) is None
+    assert list(compiled.counts(data)) == ["python: a moving static or a driven joint, and no time given"]
+    assert compiled.raw_step(model, data, model.q0.copy(), model.u0.copy(), 1e-3, 0.5, t=0.0) is not None
+
+
+def test_step_in_place_is_compiled_for_a_driven_joint():
+    """stepper.step_in_place passes the step's time: the compiled step takes a driven scene's steps there too."""
+    model = ms.build_model(ms.load_scene(SCENES / "driven_paddle.toml"))
+    data = make_data(model)
+    q, u = model.q0.copy(), model.u0.copy()
+    t = 0.0
+    for _ in range(200):
+        t = ms.step_in_place(model, data, t, q, u).t
+    assert set(compiled.counts(data)) == {"flight", "contact"}
+    h, A, w = model.options.dt, 0.03, 2 * math.pi * 3.0
+    assert abs(q[1] - A * math.sin(w * t)) <= h * h * A * w * w  # the trapezoid of §2.13
