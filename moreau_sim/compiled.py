@@ -1,7 +1,8 @@
 """The compiled contact step (moreau_sim._step, src/step.cpp): its guard, its constants, and its typed result
 made a results.StepResult. It must load against exactly the Pinocchio and coal it was built with (else the
 Python step runs, with one warning); it mirrors stepper.step for coal's closed-form pairs and pairs of two boxes,
-up to MAX_CONTACTS contacts, and hands any other step back (docs/theory.md §2.8)."""
+up to MAX_CONTACTS contacts, moving statics and driven joints included (their schedules handed over once, §2.9,
+§2.13), and hands any other step back (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 

@@ -9,11 +9,14 @@
 // (contacts._vertex_contacts, kind "plane"), coal's witness contact (smooth shapes), flight steps; the
 // restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed form for one
 // contact, else qp._active_set's dual active set from nothing, re-solved and checked as qp._polish does);
-// the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with
+// the energy-budgeted position correction with its pair-distance guard; the rheonomic steps (docs/theory.md §2.9,
+// §2.13): moving statics placed at t_m and their contacts' rates, driven joints' reduced step (drive_start; the
+// schedules of src/rheonomic.hpp, handed over once by Stepper::rheonomic). Anything else returns FALLBACK with
 // a reason and the Python step (the reference) takes the step: corners, edge contacts of two boxes, a paid
 // position lift, point queries and contact patches against other shapes than boxes, swept detection, coal's EPA
 // fallback, more than max_contacts contacts
-// (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp).
+// (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp), a driven step
+// whose contact only driven rows move.
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/stl/map.h>
