@@ -1,12 +1,14 @@
 """The compiled contact step (moreau_sim._step, src/step.cpp): its guard, its constants, and its typed result
 made a results.StepResult. It must load against exactly the Pinocchio and coal it was built with (else the
 Python step runs, with one warning); it mirrors stepper.step for every pair (coal's closed-form pairs, its GJK/EPA
-with the same warm starts, pairs of two polytopes, the broad phase's candidates), up to MAX_CONTACTS contacts, and
-hands any other step back (docs/theory.md §2.8)."""
+with the same warm starts, pairs of two polytopes, the broad phase's candidates), up to MAX_CONTACTS contacts,
+moving statics and driven joints included (their schedules handed over once, §2.9, §2.13), and hands any other
+step back (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
 import importlib
+import math
 import warnings
 from collections import Counter
 
@@ -131,10 +133,6 @@ def unsupported(model) -> str | None:
     both sides, its warm start saved before the detection and restored where a step is handed back; a model of more
     than broad_phase.MIN_PAIRS pairs is queried on the broad phase's candidates on both sides."""
     o = model.options
-    if model.prescribed is not None:
-        return "a static with prescribed motion"
-    if model.drive is not None:
-        return "a driven joint ([[drives]])"
     geoms = model.geometries
     if not model.listed and _warm_started(model):
         # Python queries such a model's pairs on coal functors of its own (data.Data.pair_query), not the GeometryData
@@ -153,12 +151,13 @@ def unsupported(model) -> str | None:
 class _Context:
     """The compiled stepper of one (model, data) and the count of steps by the way they went."""
 
-    __slots__ = ("model", "stepper", "counts", "why", "_layouts", "boxes", "carries", "nq", "nv")
+    __slots__ = ("model", "stepper", "counts", "why", "_layouts", "boxes", "carries", "nq", "nv", "timed")
 
     def __init__(self, model, data):
         self.model = model
         self.boxes, self.nq, self.nv = bool(model.polytope_pair_set), model.nq, model.nv
         self.carries = self.boxes or _warm_started(model)  # the detection carries state from step to step
+        self.timed = model.prescribed is not None or model.drive is not None  # its steps need their start time
         self._layouts: dict[tuple, list] = {}  # (outcome, m) -> the step's named arrays in its two buffers
         self.counts: Counter = Counter()
         self.why = unsupported(model)
@@ -185,6 +184,8 @@ class _Context:
                 self.stepper.broad(bp.joint.tolist(), bp.centre, bp.half, bp.bounded.tolist(), bp.margin,
                                    bp.half_pairs.tolist(), bp.half_geom.tolist(), bp.half_other.tolist(),
                                    bp.half_n.reshape(-1, 3), bp.half_d, bp.always.tolist())
+            if self.timed:
+                self._rheonomic(model)
 
     def _shapes(self, model, data) -> None:
         """The detection's data beyond coal's narrow phase (src/step.cpp Stepper::boxes): the coal objects Python's
@@ -215,6 +216,15 @@ class _Context:
                            [int(p.index in model.polytope_pair_set) for p in model.pairs],
                            data.distance_request, data.distance_result, data.patch_request, self.carries)
 
+    def _rheonomic(self, model) -> None:
+        """The moving statics and driven joints (src/step.cpp Stepper::rheonomic, src/rheonomic.hpp): their
+        schedules, evaluated in C++ each step (docs/theory.md §2.9, §2.13)."""
+        moving = [] if model.prescribed is None else [
+            (m.geometry, np.asarray(m.base.rotation, float), np.asarray(m.base.translation, float),
+             schedule(m.schedule)) for m in model.prescribed.moving]
+        driven = [] if model.drive is None else [(j.idx_v, schedule(j.schedule)) for j in model.drive.joints]
+        self.stepper.rheonomic(moving, driven)
+
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its two buffers, laid out as r.layout()
         says (src/step.cpp StepOut::visit, the one definition of the layout)."""
@@ -243,24 +253,34 @@ def counts(data) -> Counter:
     return Counter() if ctx is None else ctx.counts
 
 
-def raw_step(model, data, q: np.ndarray, u: np.ndarray, h: float, e: float, tau: np.ndarray | None = None):
-    """The extension's step from (q, u): its StepOut (outcome FLIGHT or CONTACT), or None where the Python step
-    must take it (counted in counts(data)); the one call both step() and stepper.step_in_place make."""
+def schedule(s) -> tuple | None:
+    """A prescribed.Schedule as src/rheonomic.hpp's Schedule reads it (None: None)."""
+    if s is None:
+        return None
+    return (s.kind, np.atleast_2d(s.x).tolist(), s.t.tolist(), np.asarray(s.amplitude, float).tolist(),
+            float(s.frequency), float(s.phase), None if s.rate is None else np.asarray(s.rate, float).tolist())
+
+
+def raw_step(model, data, q: np.ndarray, u: np.ndarray, h: float, e: float, tau: np.ndarray | None = None, *,
+             t: float | None = None):
+    """The extension's step from (q, u) at time t [s]: its StepOut (outcome FLIGHT or CONTACT), or None where the
+    Python step must take it (counted in counts(data)); the one call both step() and stepper.step_in_place make.
+    t may be left out where nothing in the model moves with time (no moving static, no driven joint)."""
     ctx = _context(model, data)
     if ctx.stepper is None:
         ctx.counts[f"python: {ctx.why}"] += 1
         return None
+    if ctx.timed and t is None:
+        ctx.counts["python: a moving static or a driven joint, and no time given"] += 1
+        return None
     boxes = ctx.boxes
     if boxes:  # contacts.detect's warm start, kept in data between steps whichever step takes them
         ctx.stepper.warm = sorted(data.warm_start_pairs)
-    if tau is None:
-        r = ctx.stepper.step(q, u, h, e)
-    else:
-        try:
-            r = ctx.stepper.step(q, u, h, e, tau)
-        except TypeError:  # an extension built before torques: the Python step takes them
-            ctx.counts["python: joint torques (the compiled step predates them: rebuild)"] += 1
-            return None
+    try:
+        r = ctx.stepper.step(q, u, h, e, _EMPTY if tau is None else tau, t=math.nan if t is None else t)
+    except TypeError:  # an extension built before torques or times: the Python step takes them
+        ctx.counts["python: the compiled step predates joint torques or step times (rebuild)"] += 1
+        return None
     if r.outcome is _module.Outcome.FALLBACK:
         ctx.counts[f"python: {r.reason}"] += 1
         return None
@@ -279,7 +299,7 @@ def next_state(data, r) -> tuple[np.ndarray, np.ndarray]:
 def step(model, data, state: State, h: float, e: float, t1: float, tau: np.ndarray | None = None) -> StepResult | None:
     """stepper.step in C++, or None where the Python step must take it (counted in counts(data)). tau: the
     step's joint torques [N or N m] (stepper.torque; None: none), entering the free velocity on both sides."""
-    r = raw_step(model, data, state.q, state.u, h, e, tau)
+    r = raw_step(model, data, state.q, state.u, h, e, tau, t=state.t)
     return None if r is None else result(model, data, r, t1, tau)
 
 
@@ -290,9 +310,10 @@ def result(model, data, r, t1: float, tau: np.ndarray | None = None) -> StepResu
     if r.outcome is _module.Outcome.FLIGHT:
         u = f["u_next"]
         return StepResult(State(t1, f["q_next"], u), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None, u_free=u,
-                          tau=tau)
+                          tau=tau, obstacle_work=r.obstacle_work)
     contacts = Contacts(*(f[k] for k in Contacts.ARRAYS))
     admissible = r.projection is _module.Projection.ADMISSIBLE
     res = QPResult(r.projection.name, True, 0, not admissible, f["v"], f["lam"], f["M"], f["W"], f["v_free"], f["b"])
     return StepResult(State(t1, f["q_next"], f["u_next"]), contacts, f["P"], f["gamma_minus"], f["gamma_plus"],
-                      r.contact_work, res, None, r.correction_energy, u_free=f["u_free"], tau=tau)
+                      r.contact_work, res, None, r.correction_energy, u_free=f["u_free"], tau=tau,
+                      obstacle_work=r.obstacle_work, drive_work_free=r.drive_work_free)

@@ -6,7 +6,9 @@ at the run's end, and for each step it hands back (the compiled step's fallback,
 fires): the Python run takes that step, then the Runner resumes. Every figure the run carries goes back to the
 Python objects at each return, so a checkpoint or an error sees the Python run's state. Joint torques are
 evaluated in the Runner (src/actuation.hpp, the Python run's actuation.py operation by operation); a Python
-controller is called back from it once per step, its errors raised here as the Python run raises them."""
+controller is called back from it once per step, its errors raised here as the Python run raises them. Moving
+statics and driven joints (docs/theory.md §2.9, §2.13) are the compiled step's (src/rheonomic.hpp): the Runner
+places the statics at each sample's time and books the work of prescribed motion as the Recorder does."""
 
 from __future__ import annotations
 
@@ -37,7 +39,7 @@ def unsupported(model, check) -> str | None:
 
 
 _REC = {"smooth": "_smooth", "diss": "_diss", "law": "_law", "E": "_E", "smooth_deficit": "smooth_deficit",
-        "act": "_act"}
+        "act": "_act", "obs": "_obs"}
 _INV = ("E0", "E", "Ehat", "Emin", "scale", "booked", "external", "residual", "Es", "v_app", "deep_points",
         "deep_samples", "last_depth", "last_allowed", "points")
 _INTS = ("deep_points", "deep_samples", "points")
@@ -196,14 +198,6 @@ class _Callback:
         return err
 
 
-def _schedule(s) -> tuple | None:
-    """A prescribed.Schedule as src/actuation.hpp's Schedule reads it."""
-    if s is None:
-        return None
-    return (s.kind, np.atleast_2d(s.x).tolist(), s.t.tolist(), np.asarray(s.amplitude, float).tolist(),
-            float(s.frequency), float(s.phase), None if s.rate is None else np.asarray(s.rate, float).tolist())
-
-
 def _actuation(act, controller) -> tuple | None:
     """The model's actuation.Actuation as src/actuation.hpp's Actuation reads it (None: no torques)."""
     if act is None:
@@ -212,12 +206,12 @@ def _actuation(act, controller) -> tuple | None:
     for g in act.groups:
         if isinstance(g, PDGroup):
             groups.append(("pd", g.q_index.tolist(), g.v_index.tolist(), float(g.kp), float(g.kd), float(g.effort),
-                           _schedule(g.target), _schedule(g.velocity)))
+                           compiled.schedule(g.target), compiled.schedule(g.velocity)))
         else:  # mjcf_actuators.Servos
             groups.append(("mjcf", g.q_index.tolist(), g.v_index.tolist(),
                            *(np.asarray(a, float).tolist() for a in (g.gear, g.gain, g.kp, g.kv, g.clo, g.chi, g.flo,
                                                                       g.fhi)),
-                           [_schedule(c) for c in g.ctrl],
+                           [compiled.schedule(c) for c in g.ctrl],
                            [(idx.tolist(), float(lo), float(hi)) for idx, (lo, hi) in g.joint_clamps]))
     return act.nv, np.asarray(act.limit, float).tolist(), groups, controller
 

@@ -1,6 +1,7 @@
 """A step with driven joints (docs/theory.md §2.13; the joints: drive.py, Model.drive): the velocity rows split
 into free (r) and driven (d) ones, u_d taken from xdot(t_k) to xdot(t_{k+1}), the impact law solved in r-space with
-the driven rows' contribution as a constraint rate (§2.9), and the drive's work booked (§5.5)."""
+the driven rows' contribution as a constraint rate (§2.9), and the drive's work booked (§5.5). Its products and
+solves follow §2.8 (sums.ordered, qp._lu_solve), as the compiled step (src/step.cpp drive_start) makes them."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 from .drive import Drive
 from .errors import SimulationError
 from .options import Bias
+from .qp import _lu_solve
 from .sums import ordered
 from .results import MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE
 
@@ -34,7 +36,7 @@ class DriveStep:
         """W_p = ubar_d' [M (u_{k+1} - u_f)]_d, ubar_d = (u_d^k + xdot)/2: the work of the drive's reaction
         (and of the percussions on the driven rows beyond their rate's share, booked in W_o) [J] (§5.5)."""
         ubar = 0.5 * (self.u_k[self.d] + self.xdot)
-        return float(ordered(ubar, (self.M @ (u_next - self.u_f))[self.d]))
+        return float(ordered(ubar, ordered(self.M[self.d], u_next - self.u_f)))
 
     def reduced(self, pb):
         """The problem in r-space: M_rr, W_r, u_r, u_free_r, v_free_r, and the rate W_d' (xdot + e u_d^k)/(1 + e)
@@ -45,7 +47,7 @@ class DriveStep:
             raise SimulationError("a corner impact (docs/theory.md §3) with a driven joint: not supported")
         r, d = self.r, self.d
         Mrr = pb.M[np.ix_(r, r)]
-        rate = pb.W[d].T @ ((self.xdot + pb.e * self.u_k[d]) / (1.0 + pb.e))  # (gamma^{k+1} + e gamma^k)/(1 + e)
+        rate = ordered(pb.W[d].T, (self.xdot + pb.e * self.u_k[d]) / (1.0 + pb.e))  # (gamma^{k+1} + e gamma^k)/(1 + e)
         rate = rate if pb.rate is None else pb.rate + rate
         W, contacts = pb.W[r], pb.contacts
         rigid = ~(W != 0.0).any(axis=0)
@@ -57,7 +59,7 @@ class DriveStep:
                                       "prescribed motion cannot be stopped (change the trajectory or the scene)")
             keep = ~rigid
             W, contacts, rate = W[:, keep], contacts.select(keep), rate[keep]
-        return replace(pb, u=pb.u[r], u_free=pb.u_free[r], v_free=pb.v_free[r], M=Mrr, Minv=np.linalg.inv(Mrr),
+        return replace(pb, u=pb.u[r], u_free=pb.u_free[r], v_free=pb.v_free[r], M=Mrr, Minv=_inverse(Mrr),
                        W=W, rate=rate, contacts=contacts)
 
     def expanded(self, pb, imp):
@@ -85,7 +87,7 @@ class DriveStep:
         M = np.zeros_like(self.M)
         M[np.ix_(r, r)] = self.M[np.ix_(r, r)]
         M[np.ix_(d, d)] = self.M[np.ix_(d, d)]
-        return replace(pb, M=M, Minv=np.linalg.inv(M))
+        return replace(pb, M=M, Minv=_inverse(M))
 
     def _embed(self, v: np.ndarray) -> np.ndarray:
         out = np.empty(len(self.u_k))
@@ -106,17 +108,30 @@ def start(drive: Drive, model, data, q_m: np.ndarray, u: np.ndarray, u_free: np.
     Mrr, Mrd = M[np.ix_(r, r)], M[np.ix_(r, d)]
     u_c = np.empty_like(u_free)
     u_c[d] = xdot
-    u_c[r] = u_free[r] + np.linalg.solve(Mrr, Mrd @ (u_free[d] - xdot))
+    u_c[r] = u_free[r] + _solve(Mrr, ordered(Mrd, u_free[d] - xdot))
     if model.velocity_bias and model.options.bias is Bias.MIDPOINT:  # b at the driven step's own mean (§2.4)
         zero = np.zeros(len(u)) if tau is None else tau
         scale = MIDPOINT_TOLERANCE * (1.0 + float(np.abs(u).max()))
         for _ in range(MIDPOINT_ITERATIONS):
             u_free = u + h * model.forest.acceleration(data.kinematics, q_m, 0.5 * (u + u_c), zero)
-            nxt = u_free[r] + np.linalg.solve(Mrr, Mrd @ (u_free[d] - xdot))
+            nxt = u_free[r] + _solve(Mrr, ordered(Mrd, u_free[d] - xdot))
             done = float(np.abs(nxt - u_c[r]).max(initial=0.0)) <= scale
             u_c[r] = nxt
             if done:
                 break
     ubar = 0.5 * (u[d] + xdot)
-    work_free = float(ordered(ubar, (M @ (u_c - u_free))[d]))
+    work_free = float(ordered(ubar, ordered(M[d], u_c - u_free)))
     return DriveStep(r, d, xdot, M, u_free, u_c, u, work_free)
+
+
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A^-1 b by qp._lu_solve (docs/theory.md §2.8: no LAPACK); SimulationError where A is singular."""
+    x = _lu_solve(A, b)
+    if x is None:
+        raise SimulationError("a driven step's mass matrix is singular (the free joints' M_rr)")
+    return x
+
+
+def _inverse(A: np.ndarray) -> np.ndarray:
+    """A^-1 column by column (_solve of the unit vectors; src/step.cpp inverse)."""
+    return np.column_stack([_solve(A, e) for e in np.eye(len(A))]) if len(A) else np.zeros((0, 0))

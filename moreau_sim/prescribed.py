@@ -13,6 +13,7 @@ import pinocchio as pin
 
 from .errors import SceneError
 from .options import finite_number, finite_vector, require
+from .sums import dot3
 
 
 @dataclass(frozen=True)
@@ -137,12 +138,14 @@ class Prescribed:
         """(m,) dg_i/dt [m/s] of the contacts at t, None when no contact meets a moving static."""
         out = None
         for i, p in enumerate(contacts.pair.tolist()):
+            if p >= len(pairs):  # a joint limit (limits.py): no static
+                continue
             pair = pairs[p]
             for g, sign in ((pair.second, -1.0), (pair.first, 1.0)):  # the normal points from second to first
                 m = self._by_geometry.get(g)
                 if m is not None:
                     out = np.zeros(contacts.m) if out is None else out
-                    out[i] += sign * float(contacts.normal[i] @ m.schedule.at(t)[1])
+                    out[i] += sign * dot3(contacts.normal[i], m.schedule.at(t)[1])  # in order (§2.8)
         return out
 
 

@@ -144,7 +144,7 @@ def step_in_place(model: Model, data: Data, t: float, q: np.ndarray, u: np.ndarr
     e = opts.restitution if e is None else e
     tau = None if model.actuation is None else torque(model, State(t, q, u), h)
     if opts.step_impl is StepImpl.COMPILED and compiled.available() and model.whole_data_fits():
-        r = compiled.raw_step(model, data, q, u, h, e, tau)
+        r = compiled.raw_step(model, data, q, u, h, e, tau, t=t)
         if r is not None:
             q[:], u[:] = compiled.next_state(data, r)
             return StepView(model, data, t + h, r, None, tau)

@@ -9,6 +9,8 @@
 #include <optional>
 #include <vector>
 
+#include "rheonomic.hpp"
+
 namespace actuation {
 
 // numpy's float minimum, maximum and clip (NaN propagates; on ties the first operand, as numpy's scalar loops)
@@ -22,67 +24,7 @@ inline double np_clip(double x, double lo, double hi) {
 inline double py_max(double a, double b) { return b > a ? b : a; }
 inline double py_min(double a, double b) { return b < a ? b : a; }
 
-// prescribed.Schedule: x(t) and dx/dt(t) of n components
-struct Schedule {
-  enum class Kind { CONSTANT, TABLE, SINE } kind = Kind::CONSTANT;
-  std::vector<std::vector<double>> x;  // rows (constant, sine: one row, the offset)
-  std::vector<double> t, amplitude, rate;  // table times [s]; sine amplitudes; constant velocity (has_rate)
-  double frequency = 0.0, phase = 0.0;
-  bool has_rate = false;
-  size_t n = 0;
-
-  // (kind, x rows, t, amplitude, frequency, phase, rate or None), compiled_run._schedule
-  static Schedule from(const nb::handle &h) {
-    auto tp = nb::cast<nb::tuple>(h);
-    Schedule s;
-    const auto kind = nb::cast<std::string>(tp[0]);
-    if (kind == "constant") s.kind = Kind::CONSTANT;
-    else if (kind == "table") s.kind = Kind::TABLE;
-    else if (kind == "sine") s.kind = Kind::SINE;
-    else throw nb::value_error(("schedule kind: " + kind).c_str());
-    s.x = nb::cast<std::vector<std::vector<double>>>(tp[1]);
-    s.t = nb::cast<std::vector<double>>(tp[2]);
-    s.amplitude = nb::cast<std::vector<double>>(tp[3]);
-    s.frequency = nb::cast<double>(tp[4]);
-    s.phase = nb::cast<double>(tp[5]);
-    s.has_rate = !tp[6].is_none();
-    if (s.has_rate) s.rate = nb::cast<std::vector<double>>(tp[6]);
-    s.n = s.x.empty() ? 0 : s.x[0].size();
-    return s;
-  }
-
-  // Schedule.at(t) into x, xd (n each)
-  void at(double tq, double *xo, double *xd) const {
-    const std::vector<double> &x0 = x[0];
-    if (kind == Kind::SINE) {
-      const double w = (2.0 * M_PI) * frequency;
-      const double s = w * tq + phase;
-      const double sn = std::sin(s), cs = std::cos(s);
-      for (size_t j = 0; j < n; ++j) xo[j] = x0[j] + amplitude[j] * sn, xd[j] = amplitude[j] * (w * cs);
-      return;
-    }
-    if (has_rate) {
-      for (size_t j = 0; j < n; ++j) xo[j] = x0[j] + rate[j] * tq, xd[j] = rate[j];
-      return;
-    }
-    if (kind == Kind::CONSTANT || tq < t[0]) {
-      for (size_t j = 0; j < n; ++j) xo[j] = x0[j], xd[j] = 0.0;
-      return;
-    }
-    size_t right = 0;  // np.searchsorted(t, tq, side="right"): the times <= tq
-    while (right < t.size() && !(tq < t[right])) ++right;
-    const size_t k = right - 1;
-    if (k >= t.size() - 1) {
-      for (size_t j = 0; j < n; ++j) xo[j] = x.back()[j], xd[j] = 0.0;
-      return;
-    }
-    const double dt = t[k + 1] - t[k];
-    for (size_t j = 0; j < n; ++j) {
-      const double v = (x[k + 1][j] - x[k][j]) / dt;
-      xo[j] = x[k][j] + v * (tq - t[k]), xd[j] = v;
-    }
-  }
-};
+using rheonomic::Schedule;  // prescribed.Schedule (src/rheonomic.hpp)
 
 // one group of Actuation.groups: a PDGroup ("pd") or an MJCF body's Servos ("mjcf"); torque(): its torque on each
 // of its entries (v_index: the velocity row of each)

@@ -127,7 +127,7 @@ class Runner {
     double smooth = 0, diss = 0, law = 0, E = 0, T = 0, V = 0, rise = 0, t_rise = 0, law_diff = 0, t_law_diff = 0;
     double new_impact = 0, contact_steps = 0, smooth_deficit = 0;
     double work = 0, corr = 0, points = 0;  // _Loop: work, corr, points
-    double act = 0;  // Recorder._act
+    double act = 0, obs = 0;  // Recorder._act, ._obs
     double rest = 0;  // Recorder._rest: the log ends with a stretch of persistent steps of these many rows
     // Invariants: E0, E, Ehat, Emin, scale, booked, external, residual, Es, v_app, deep_points, deep_samples,
     // last_depth, last_allowed, points
@@ -143,7 +143,7 @@ class Runner {
   X(smooth) X(diss) X(law) X(E) X(T) X(V) X(rise) X(t_rise) X(law_diff) X(t_law_diff) X(new_impact)                \
   X(contact_steps) X(smooth_deficit) X(work) X(corr) X(points) X(i_E0) X(i_E) X(i_Ehat) X(i_Emin) X(i_scale)      \
   X(i_booked) X(i_external) X(i_residual) X(i_Es) X(i_v_app) X(i_deep_points) X(i_deep_samples) X(i_last_depth)  \
-  X(i_last_allowed) X(i_points) X(w_gain) X(w_speed) X(w_depth) X(w_ledger) X(act) X(rest)
+  X(i_last_allowed) X(i_points) X(w_gain) X(w_speed) X(w_depth) X(w_ledger) X(act) X(obs) X(rest)
     std::map<std::string, double> as_dict() const {
       std::map<std::string, double> d;
 #define MOREAU_PUT(f) d[#f] = f;
@@ -183,7 +183,8 @@ class Runner {
   int64_t flight_ = 0, contact_ = 0;
   std::vector<Eigen::Index> logged_;  // step(): the contacts of the step's log rows (kept: no allocation a step)
   std::optional<actuation::Actuation> act_;  // the joint torques (none: a passive run)
-  Col<double> s_act, s_obs;  // the EXTERNAL columns (trajectory.EXTERNAL) of an actuated run
+  Col<double> s_act, s_obs;  // the EXTERNAL columns (trajectory.EXTERNAL) of a run with work done on it (§5.5)
+  bool external_ = false;  // the samples have them (torques, moving statics, drives: Recorder._external)
   // the columns (trajectory.SAMPLES, LOG, IMPACTS)
   Col<double> s_t, s_q, s_u, s_T, s_V, s_work, s_corr, s_gap, s_smooth, s_diss, s_law;
   Col<int64_t> s_n;
@@ -200,7 +201,8 @@ class Runner {
     s_gap = run_loop::column<double>(s, "gap"), s_n = run_loop::column<int64_t>(s, "n_contacts");
     s_smooth = run_loop::column<double>(s, "smooth_error"), s_diss = run_loop::column<double>(s, "dissipation");
     s_law = run_loop::column<double>(s, "law_dissipation");
-    if (act_) s_act = run_loop::column<double>(s, "actuator_work"), s_obs = run_loop::column<double>(s, "obstacle_work");
+    external_ = s.contains("actuator_work");
+    if (external_) s_act = run_loop::column<double>(s, "actuator_work"), s_obs = run_loop::column<double>(s, "obstacle_work");
     l_step = run_loop::column<int64_t>(l, "log_step"), l_t = run_loop::column<double>(l, "log_t"), l_pair = run_loop::column<int64_t>(l, "log_pair");
     l_kind = run_loop::column<int64_t>(l, "log_kind"), l_feature = run_loop::column<int64_t>(l, "log_feature");
     l_gap = run_loop::column<double>(l, "log_gap"), l_P = run_loop::column<double>(l, "log_P");
@@ -318,7 +320,7 @@ class Runner {
     if (act_ && !act_->torque(t_ + 0.5 * h, pinocchio::integrate(S_.model_, q_, (0.5 * h) * u_), u_, tau))
       return false;  // the controller failed: compiled_run.py raises its error (nothing committed)
     if (guard_) save_distances();
-    StepOut r = S_.step(q_, u_, h, e, tau);
+    StepOut r = S_.step(q_, u_, h, e, tau, t_);
     if (r.outcome == Outcome::FALLBACK) return false;  // the Stepper restored what it moved
     Undo undo{*this};  // every return below but the commit undoes the step
     if (!(r.q_next.allFinite() && r.u_next.allFinite())) return false;  // TimeStepping.step: FAILED
@@ -384,7 +386,8 @@ class Runner {
     const double T1 = kinetic(r.q_next, r.u_next), V1 = potential(r.q_next);
     if (!(std::isfinite(T1) && std::isfinite(V1))) return false;  // an overflow: the Python run names it
     const double E1 = T1 + V1;
-    const double obstacle = 0.0;  // no moving statics in a compiled run
+    const double obstacle = r.obstacle_work;  // the work of prescribed motion (§5.5)
+    c.obs += obstacle;
     // the torques' work h tau.(u_k + u_{k+1})/2 (sums.ordered: odot)
     const double act = tau.size() ? (0.5 * h) * odot(tau.data(), VectorXd(u_ + r.u_next).data(), tau.size()) : 0.0;
     c.act += act;
@@ -408,7 +411,7 @@ class Runner {
       const VectorXd q_free = pinocchio::integrate(S_.model_, q_half, (0.5 * h) * r.u_free);
       const double act_free =
           tau.size() ? (0.5 * h) * odot(tau.data(), VectorXd(u_ + r.u_free).data(), tau.size()) : 0.0;
-      const double drive_free = 0.0;
+      const double drive_free = r.drive_work_free;
       // contacts that left the smooth motion as it was, bit for bit (u_{k+1} = u_free, q_{k+1} = q_free): its
       // energy is E1's (Recorder.account_step)
       const bool same = r.u_free.size() == r.u_next.size() && q_free.size() == r.q_next.size() &&
@@ -417,12 +420,13 @@ class Runner {
       const double S = (same ? E1 : kinetic(q_free, r.u_free) + potential(q_free)) - E0 - act_free - drive_free;
       c.smooth += S;
       if (S < 0.0) c.smooth_deficit -= S;
-      // Recorder._add_impact (given = the obstacle work: 0); a persistent step only counts
+      // Recorder._add_impact (given = the obstacle work); a persistent step only counts
       c.contact_steps += 1;
       if (!persistent) {
         int64_t pushing = 0;
         for (Eigen::Index i = 0; i < m; ++i) pushing += r.P[i] > 0.0;
-        const double dissipated = T_minus - T_plus;
+        double dissipated = T_minus - T_plus;
+        if (!(obstacle == 0.0)) dissipated = dissipated + obstacle, law = law + obstacle;  // `if given:`
         c.diss += dissipated;
         c.law += law;
         const double diff = std::abs(dissipated - law);
@@ -443,6 +447,8 @@ class Runner {
     if (due) {
       const int64_t row = starts[0] + written_[0];
       double *gap = s_gap.at(row);
+      if (!S_.rh_.moving.empty())  // Recorder.sample: the gaps at the sample's time
+        S_.rh_.place(const_cast<pinocchio::GeometryModel &>(S_.gm_), t1);
       gaps(r.q_next, gap);
       for (int64_t j = 0; j < s_gap.row; ++j)
         if (!std::isfinite(gap[j])) return false;  // coal failed, or an overflow: the Python run names it
@@ -456,9 +462,9 @@ class Runner {
       if (E - c.E > c.rise) c.rise = E - c.E, c.t_rise = t1;
       *s_smooth.at(row) = c.smooth, *s_diss.at(row) = c.diss, *s_law.at(row) = c.law;
       double external = 0.0;  // Recorder.last_sample's actuator + obstacle work
-      if (act_) *s_act.at(row) = c.act, *s_obs.at(row) = 0.0, external = c.act + 0.0;
+      if (external_) *s_act.at(row) = c.act, *s_obs.at(row) = c.obs, external = c.act + c.obs;
       const double work = c.work, corr = c.corr, smooth = c.smooth;
-      c.smooth = c.diss = c.law = c.act = 0.0;
+      c.smooth = c.diss = c.law = c.act = c.obs = 0.0;
       c.E = E;
       c.work = c.corr = 0.0;
       nsamp = 1;

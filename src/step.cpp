@@ -12,11 +12,14 @@
 // coal's witness contact (smooth shapes), patches (contacts._face_axis, _snap), flight steps; the
 // restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed form for one
 // contact, else qp._active_set's dual active set from nothing, re-solved and checked as qp._polish does);
-// the energy-budgeted position correction with its pair-distance guard. Anything else returns FALLBACK with
+// the energy-budgeted position correction with its pair-distance guard; the rheonomic steps (docs/theory.md §2.9,
+// §2.13): moving statics placed at t_m and their contacts' rates, driven joints' reduced step (drive_start; the
+// schedules of src/rheonomic.hpp, handed over once by Stepper::rheonomic). Anything else returns FALLBACK with
 // a reason and the Python step (the reference) takes the step: corners, edge contacts of two boxes, a paid
 // position lift, a point query against a box turned in its joint frame, swept detection, coal's EPA
 // fallback, more than max_contacts contacts
-// (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp).
+// (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp), a driven step
+// whose contact only driven rows move.
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/stl/map.h>
@@ -42,6 +45,7 @@
 #include <coal/shape/geometric_shapes.h>
 
 #include "box_box.hpp"
+#include "rheonomic.hpp"
 
 #include <algorithm>
 #include <cfloat>
@@ -183,6 +187,9 @@ struct StepOut {
   MatrixXd W;  // (nv, m), column-major as constraints.contact_rows makes it
   Projection projection = Projection::ADMISSIBLE;
   double contact_work = 0.0, correction_energy = 0.0;
+  // the work of prescribed motion (moving statics' -P.dg/dt, a drive's W_p: results.StepResult.obstacle_work) and a
+  // drive's work in the contact-free step (drive_work_free) [J] (docs/theory.md §5.5)
+  double obstacle_work = 0.0, drive_work_free = 0.0;
   VectorXd floats;  // the arrays that cross, laid out by visit()
   VectorXl ints;
 
@@ -523,12 +530,14 @@ class Stepper {
     if (limits_.cols() != 6) throw nb::value_error("limits: (number of joint limits, 6) expected");
   }
 
-  StepOut step(const VectorXd &q, const VectorXd &u, double h, double e, const VectorXd &tau) {
+  StepOut step(const VectorXd &q, const VectorXd &u, double h, double e, const VectorXd &tau, double t) {
     StepOut out;
     if (tau.size() != 0 && tau.size() != model_.nv) throw nb::value_error("tau: size nv (or empty) expected");
+    if ((rh_.driven() || !rh_.moving.empty()) && !std::isfinite(t))
+      throw nb::value_error("t: the step's start time is needed (a moving static or a driven joint)");
     tau_ = tau;  // the step's joint torques (actuation.py), evaluated by Python at (t_m, q_m, u_k); empty: none
     try {
-      step_(q, u, h, e, out);
+      step_(q, u, h, e, t, out);
       warm_.swap(next_warm_);  // the pairs with contacts at this detection (contacts.detect's warm start)
     } catch (const Fallback &f) {
       restore_guesses();
@@ -607,6 +616,33 @@ class Stepper {
     for (Eigen::Index k = 0; k < pairs_.rows(); ++k)
       bp_->index[std::min(pairs_(k, 0), pairs_(k, 1)) * nG + std::max(pairs_(k, 0), pairs_(k, 1))] = (int)k;
   }
+  // The model's moving statics (prescribed.Prescribed.moving: (geometry, base rotation, base translation, schedule))
+  // and driven joints (drive.Drive: (velocity row, schedule) in increasing rows), the schedules as
+  // compiled.schedule hands them over (docs/theory.md §2.9, §2.13)
+  void rheonomic(std::vector<std::tuple<int64_t, Eigen::Matrix3d, Vec3, nb::object>> moving,
+                 std::vector<std::pair<int64_t, nb::object>> driven) {
+    rheonomic::Model rh;
+    rh.moving_of.assign(gm_.geometryObjects.size(), -1);
+    for (auto &[g, R, p, sc] : moving) {
+      if (g < 0 || (size_t)g >= gm_.geometryObjects.size() || gm_.geometryObjects[(size_t)g].parentJoint != 0)
+        throw nb::value_error("rheonomic: a moving geometry must be a static");
+      rheonomic::Moving m;
+      m.geometry = (size_t)g, m.base = pinocchio::SE3(R, p), m.schedule = rheonomic::Schedule::from(sc);
+      if (m.schedule.n != 3) throw nb::value_error("rheonomic: a moving static's schedule has 3 components");
+      rh.moving_of[(size_t)g] = (int)rh.moving.size();
+      rh.moving.push_back(std::move(m));
+    }
+    std::vector<char> is_d(model_.nv, 0);
+    for (auto &[v, sc] : driven) {
+      if (v < 0 || v >= model_.nv || is_d[v] || (!rh.d.empty() && v < rh.d.back()))
+        throw nb::value_error("rheonomic: driven rows increasing, within nv");
+      is_d[v] = 1, rh.d.push_back(v), rh.drives.push_back(rheonomic::Schedule::from(sc));
+      if (rh.drives.back().n != 1) throw nb::value_error("rheonomic: a drive's schedule has 1 component");
+    }
+    for (Eigen::Index v = 0; v < model_.nv; ++v)
+      if (!is_d[v]) rh.r.push_back(v);
+    rh_ = std::move(rh);
+  }
   // contacts.detect's warm start (data.warm_start_pairs): set before a step, read after it
   std::vector<int> warm() const { return warm_; }
   // the broad phase's candidates at the last detection (broad())
@@ -631,6 +667,7 @@ class Stepper {
   bool sep_elastic_, slow_plastic_, bias_midpoint_, velocity_bias_, projection_;
   Constants C_;
   MatrixXd limits_;  // model.limits: pair, joint, idx_q, idx_v, sign, bound per limit (moreau_sim/limits.py)
+  rheonomic::Model rh_;  // the moving statics and driven joints (rheonomic())
   // the detection's data beyond the narrow phase (boxes()): set (shapes_); carrying state between steps (boxes_: the
   // run loop's Undo restores it, src/run.cpp)
   bool shapes_ = false, boxes_ = false;
@@ -1139,16 +1176,106 @@ class Stepper {
     return ::project(C_, W, v0, b, Minv);
   }
 
-  void step_(const VectorXd &q, const VectorXd &u, double h, double e, StepOut &out) {
+  // ---- the driven joints' step (moreau_sim/drive_step.py, docs/theory.md §2.13), operation by operation
+  static VectorXd take(const VectorXd &x, const std::vector<Eigen::Index> &i) {
+    VectorXd y((Eigen::Index)i.size());
+    for (size_t k = 0; k < i.size(); ++k) y[(Eigen::Index)k] = x[i[k]];
+    return y;
+  }
+  static MatrixXd take(const MatrixXd &A, const std::vector<Eigen::Index> &i, const std::vector<Eigen::Index> &j) {
+    MatrixXd B((Eigen::Index)i.size(), (Eigen::Index)j.size());
+    for (size_t a = 0; a < i.size(); ++a)
+      for (size_t c = 0; c < j.size(); ++c) B((Eigen::Index)a, (Eigen::Index)c) = A(i[a], j[c]);
+    return B;
+  }
+  static std::vector<Eigen::Index> all(Eigen::Index n) {
+    std::vector<Eigen::Index> i((size_t)n);
+    for (Eigen::Index k = 0; k < n; ++k) i[(size_t)k] = k;
+    return i;
+  }
+  // drive_step._inverse: A^-1 column by column (lu_solve of the unit vectors)
+  static MatrixXd inverse(const MatrixXd &A) {
+    const Eigen::Index n = A.rows();
+    MatrixXd X(n, n);
+    VectorXd x;
+    for (Eigen::Index j = 0; j < n; ++j) {
+      if (!lu_solve(A, VectorXd::Unit(n, j), x)) throw Fallback{"a driven step's mass matrix is singular"};
+      X.col(j) = x;
+    }
+    return X;
+  }
+  // drive_step.DriveStep
+  struct DriveStep {
+    VectorXd xdot, u_f, u_c, ubar;  // xdot(t_{k+1}), the unconstrained free velocity, the driven one, (u_d^k + xdot)/2
+    MatrixXd Md;  // M's driven rows
+    double work_free = 0.0;
+    // DriveStep.work: ubar_d' [M (u_next - u_f)]_d
+    double work(const VectorXd &u_next) const {
+      const VectorXd y = otimes(Md, VectorXd(u_next - u_f));
+      return odot(ubar.data(), y.data(), ubar.size());
+    }
+  };
+  // drive_step.start: the driven free velocity u_c (u_free: the unconstrained one, the midpoint's last on return)
+  DriveStep drive_start(const MatrixXd &M, const VectorXd &q_m, const VectorXd &u, VectorXd &u_free, double t_m,
+                        double h) {
+    const auto &r = rh_.r, &d = rh_.d;
+    if (r.empty()) throw Fallback{"every joint driven"};
+    DriveStep ds;
+    rh_.drive_velocity(t_m + 0.5 * h, ds.xdot);
+    const MatrixXd Mrr = take(M, r, r), Mrd = take(M, r, d);
+    // u_f,r + M_rr^-1 M_rd (u_f,d - xdot)
+    auto free_rows = [&](const VectorXd &uf) {
+      const VectorXd y = take(uf, d) - ds.xdot;
+      VectorXd s;
+      if (!lu_solve(Mrr, otimes(Mrd, y), s)) throw Fallback{"a driven step's mass matrix is singular"};
+      return VectorXd(take(uf, r) + s);
+    };
+    ds.u_c = u_free;
+    for (size_t j = 0; j < d.size(); ++j) ds.u_c[d[j]] = ds.xdot[(Eigen::Index)j];
+    VectorXd ur = free_rows(u_free);
+    for (size_t j = 0; j < r.size(); ++j) ds.u_c[r[j]] = ur[(Eigen::Index)j];
+    if (velocity_bias_ && bias_midpoint_) {  // b at the driven step's own mean (§2.4)
+      const VectorXd zero = tau_.size() ? tau_ : VectorXd::Zero(model_.nv);
+      const double scale = C_.midpoint_tolerance * (1.0 + u.cwiseAbs().maxCoeff());
+      for (int it = 0; it < C_.midpoint_iterations; ++it) {
+        const VectorXd ubar = 0.5 * (u + ds.u_c);
+        u_free = u + h * pinocchio::aba(model_, data_, q_m, ubar, zero);
+        const VectorXd nxt = free_rows(u_free);
+        double dmax = 0.0;  // np.abs(nxt - u_c[r]).max(initial=0.0), NaN kept
+        for (size_t j = 0; j < r.size(); ++j) {
+          const double a = std::abs(nxt[(Eigen::Index)j] - ds.u_c[r[j]]);
+          if (!(a <= dmax)) dmax = a;
+        }
+        const bool done = dmax <= scale;
+        for (size_t j = 0; j < r.size(); ++j) ds.u_c[r[j]] = nxt[(Eigen::Index)j];
+        if (done) break;
+      }
+    }
+    ds.u_f = u_free;
+    ds.ubar = 0.5 * (take(u, d) + ds.xdot);
+    ds.Md = take(M, d, all(model_.nv));
+    ds.work_free = ds.work(ds.u_c);
+    return ds;
+  }
+
+  void step_(const VectorXd &q, const VectorXd &u, double h, double e, double t, StepOut &out) {
     const Eigen::Index nv = model_.nv;
     if (q.size() != model_.nq || u.size() != nv) throw nb::value_error("q, u: sizes nq, nv expected");
     VectorXd q_m = pinocchio::integrate(model_, q, (0.5 * h) * u);
+    const double t_m = t + 0.5 * h;  // the force evaluation: obstacles and drives at t_m (§2.1, §2.9)
+    if (!rh_.moving.empty()) rh_.place(const_cast<pinocchio::GeometryModel &>(gm_), t_m);  // Prescribed.place
+    const bool driven = rh_.driven();
     const double travel = h * (nv ? u.cwiseAbs().maxCoeff() : 0.0) * reach_;
     std::vector<Found> found = detect(q_m, travel);
     if (tunnelling_ == 2 || (tunnelling_ == 0 && travel > thinnest_)) throw Fallback{"swept detection"};
     closed_limits(q_m, found);
     if (found.empty()) {
       VectorXd u_free = free_velocity(q_m, u, h);
+      if (driven) {  // u_{k+1} = u_c; the drive's work in the step booked (§5.5)
+        const DriveStep ds = drive_start(crba_world(q_m), q_m, u, u_free, t_m, h);
+        u_free = ds.u_c;
+        out.obstacle_work = ds.work_free;
+      }
       out.q_next = pinocchio::integrate(model_, q_m, (0.5 * h) * u_free);
       out.u_next = u_free;
       out.u_free = std::move(u_free);
@@ -1165,22 +1292,64 @@ class Stepper {
     MatrixXd W(nv, m);
     std::vector<Found> con;
     for (Eigen::Index j = 0; j < m; ++j) W.col(j) = W0.col(keep[j]), con.push_back(found[keep[j]]);
-    MatrixXd Minv = minverse(q_m);
-    VectorXd u_free = free_velocity(q_m, u, h);
-    VectorXd v_free = (u_free + e * u) / (1.0 + e);
+    // Prescribed.rates: dg_i/dt = -n_i.V(t_m) of the contacts against a moving static (§2.9); none: no rate
+    VectorXd rate;
+    bool has_rate = false;
+    if (!rh_.moving.empty()) {
+      Vec3 V;
+      for (Eigen::Index i = 0; i < m; ++i) {
+        if (con[i].kind == C_.joint_limit) continue;
+        const Eigen::Index p = con[i].pair;
+        for (int s = 0; s < 2; ++s) {  // the normal points from second to first
+          if (!rh_.velocity((size_t)pairs_(p, s == 0 ? 1 : 0), t_m, V)) continue;
+          if (!has_rate) rate = VectorXd::Zero(m), has_rate = true;
+          const Vec3 &n = con[i].n;
+          rate[i] = rate[i] + (s == 0 ? -1.0 : 1.0) * (((n[0] * V[0] + n[1] * V[1]) + n[2] * V[2]) + 0.0);
+        }
+      }
+    }
+    // the problem the law is solved in (stepper.assemble): every velocity row, or a driven step's free rows
+    // (DriveStep.reduced: W_r, M_rr, the rate W_d' (xdot + e u_d^k)/(1 + e) added)
+    MatrixXd Minv, Wk;
+    VectorXd u_free, v_free, uk, ufk, vfk;
+    DriveStep ds;
+    MatrixXd Mrr;
+    if (!driven) {
+      Minv = minverse(q_m);
+      u_free = free_velocity(q_m, u, h);
+      v_free = (u_free + e * u) / (1.0 + e);
+    } else {
+      u_free = free_velocity(q_m, u, h);
+      ds = drive_start(M, q_m, u, u_free, t_m, h);
+      u_free = ds.u_c;
+      v_free = (u_free + e * u) / (1.0 + e);
+      const VectorXd y = (ds.xdot + e * take(u, rh_.d)) / (1.0 + e);
+      const VectorXd rd = otimes_t(take(W, rh_.d, all(m)), y);
+      rate = has_rate ? VectorXd(rate + rd) : rd;
+      has_rate = true;
+      Wk = take(W, rh_.r, all(m));
+      for (Eigen::Index i = 0; i < m; ++i)
+        if (!(Wk.col(i).array() != 0.0).any()) throw Fallback{"a contact only driven joints move"};
+      Mrr = take(M, rh_.r, rh_.r);
+      Minv = inverse(Mrr);
+      uk = take(u, rh_.r), ufk = take(u_free, rh_.r), vfk = take(v_free, rh_.r);
+    }
+    const MatrixXd &Wl = driven ? Wk : W;
+    const VectorXd &ul = driven ? uk : u, &ufl = driven ? ufk : u_free, &vfl = driven ? vfk : v_free;
     // solve_impact
-    VectorXd gamma_minus = otimes_t(W, u);
+    VectorXd gamma_minus = otimes_t(Wl, ul);
+    if (has_rate) gamma_minus = gamma_minus + rate;  // gamma = W'u + dg/dt (§2.9)
     VectorXd b = VectorXd::Zero(m);  // law.restitution_bounds (None -> b = 0 in qp.solve)
+    bool any = false;
     {
-      bool any = false;
       VectorXd e_i = VectorXd::Constant(m, e);
       if (sep_elastic_ && e < 1.0 && std::max(0.0, gamma_minus.maxCoeff()) > 0.0) {
         any = true;
         for (Eigen::Index i = 0; i < m; ++i) e_i[i] = gamma_minus[i] > 0.0 ? 1.0 : e;
       }
       if (slow_plastic_ && e > 0.0 && std::min(0.0, gamma_minus.minCoeff()) < 0.0) {
-        VectorXd du = u_free - u;
-        VectorXd wdu = otimes_t(W, du);
+        VectorXd du = ufl - ul;
+        VectorXd wdu = otimes_t(Wl, du);
         bool slow_any = false;
         for (Eigen::Index i = 0; i < m; ++i) {
           if (gamma_minus[i] < 0.0 && gamma_minus[i] >= wdu[i]) slow_any = true, e_i[i] = 0.0;
@@ -1190,18 +1359,54 @@ class Stepper {
       if (any)
         for (Eigen::Index i = 0; i < m; ++i) b[i] = ((e - e_i[i]) * gamma_minus[i]) / (1.0 + e);
     }
-    Solved res = project(W, v_free, b, Minv);
-    VectorXd u_next = res.v - e * (u - res.v);
+    if (has_rate) b = any ? VectorXd(b - rate) : VectorXd(-rate);
+    Solved res = project(Wl, vfl, b, Minv);
+    VectorXd u_next = res.v - e * (ul - res.v);
     VectorXd P = (1.0 + e) * res.lam;
-    VectorXd gamma_plus = otimes_t(W, u_next);
+    VectorXd gamma_plus = otimes_t(Wl, u_next);
+    double ow = 0.0;  // the obstacle work -P.dg/dt (§5.5)
+    if (has_rate) {
+      gamma_plus = gamma_plus + rate;
+      ow = -odot(P.data(), rate.data(), m);
+    }
     VectorXd gsum = gamma_plus + gamma_minus;
     const double work = odot(P.data(), gsum.data(), m) * 0.5;
+    VectorXd v = std::move(res.v), v0 = v_free;
+    MatrixXd Mout = M, Minv_c;
+    if (driven) {  // DriveStep.expanded: u_{k+1} = (u_r, xdot), W's driven rows zero, the QP's problem embedded
+      VectorXd U(nv), ve(nv), v0e(nv);
+      MatrixXd We = MatrixXd::Zero(nv, m);
+      Mout.setZero();
+      for (size_t j = 0; j < rh_.r.size(); ++j) {
+        const Eigen::Index rj = rh_.r[j], jj = (Eigen::Index)j;
+        U[rj] = u_next[jj], ve[rj] = v[jj], v0e[rj] = vfk[jj];
+        We.row(rj) = Wk.row(jj);
+        for (size_t k = 0; k < rh_.r.size(); ++k) Mout(rj, rh_.r[k]) = Mrr(jj, (Eigen::Index)k);
+      }
+      for (size_t j = 0; j < rh_.d.size(); ++j) {
+        const Eigen::Index dj = rh_.d[j];
+        U[dj] = ve[dj] = v0e[dj] = ds.xdot[(Eigen::Index)j];
+      }
+      u_next = std::move(U), v = std::move(ve), v0 = std::move(v0e), W = std::move(We);
+      ow = ow + ds.work(u_next);
+      if (projection_) {  // DriveStep.for_correction: M block-diagonal (M_rr, M_dd)
+        MatrixXd Mc = MatrixXd::Zero(nv, nv);
+        for (const auto *rows : {&rh_.r, &rh_.d})
+          for (Eigen::Index i : *rows)
+            for (Eigen::Index k : *rows) Mc(i, k) = M(i, k);
+        Minv_c = inverse(Mc);
+      }
+    }
     VectorXd q_next = pinocchio::integrate(model_, q_m, (0.5 * h) * u_next);
     double corr = 0.0;
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
-    if (projection_) correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, Minv, q_next, corr, gamma_minus, con);
-    cap_energy(q, u, q_m, u_free, h, e, P, work, corr, W, q_next, u_next, gamma_plus);  // with the torques' work
+    if (projection_)
+      correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, driven ? Minv_c : Minv, q_next, corr,
+                        gamma_minus, con, ow);
+    if (!driven)  // §2.10 (a driven joint: §2.13), with the torques' and the moving statics' work
+      cap_energy(q, u, q_m, u_free, h, e, P, work, corr, W, q_next, u_next, gamma_plus, ow,
+                 has_rate ? &rate : nullptr);
     out.outcome = Outcome::CONTACT;
     out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
     out.g = std::move(g);
@@ -1215,9 +1420,10 @@ class Stepper {
       out.joint_a[i] = jab.first, out.joint_b[i] = jab.second;
     }
     out.P = std::move(P), out.gamma_minus = std::move(gamma_minus), out.gamma_plus = std::move(gamma_plus);
-    out.v_free = std::move(v_free), out.b = std::move(b), out.v = std::move(res.v), out.lam = std::move(res.lam);
-    out.M = M, out.W = std::move(W), out.projection = res.status;
+    out.v_free = std::move(v0), out.b = std::move(b), out.v = std::move(v), out.lam = std::move(res.lam);
+    out.M = Mout, out.W = std::move(W), out.projection = res.status;
     out.contact_work = work, out.correction_energy = corr, out.m = m;
+    out.obstacle_work = ow, out.drive_work_free = driven ? ds.work_free : 0.0;
     out.pack();
   }
 
@@ -1250,16 +1456,17 @@ class Stepper {
   }
 
   // stepper.cap_energy (docs/theory.md §2.10): T + V <= E* + W_a (tau_: the torques' work h tau.(u_k + u_{k+1})/2,
-  // linear in alpha), + max(S_k, 0) in a step that bounces under torques; the trees in contact scaled by alpha
-  // where the step ends above (no moving static here)
+  // linear in alpha), + max(S_k, 0) in a step that bounces under torques, + W_o (ow: a moving static's work, P fixed);
+  // the trees in contact scaled by alpha where the step ends above, no lower than a moving static's rate keeps
+  // gamma's sign (rate: its dg/dt, nullptr: none)
   void cap_energy(const VectorXd &q, const VectorXd &u, const VectorXd &q_m, const VectorXd &u_free, double h,
                   double e, const VectorXd &P, double work, double corr, const MatrixXd &W, const VectorXd &q_next,
-                  VectorXd &u_next, VectorXd &gamma_plus) {
+                  VectorXd &u_next, VectorXd &gamma_plus, double ow, const VectorXd *rate) {
     const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
     const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
     const double T1 = pinocchio::computeKineticEnergy(model_, data_, q_next, u_next);
     const double V1 = pinocchio::computePotentialEnergy(model_, data_, q_next);
-    double target = (((T0 + V0) + std::min(work, 0.0)) + corr) + 0.0;  // + W_o: none in the compiled step
+    double target = (((T0 + V0) + std::min(work, 0.0)) + corr) + ow;  // W_o: P fixed, no alpha
     const bool driven = tau_.size() != 0;
     // stepper.bounces_under_torques: a driven step whose contacts bounce (e > 0) may keep the smooth step's gain
     if (driven && e > 0.0 && (P.array() > 0.0).any())
@@ -1287,9 +1494,19 @@ class Stepper {
       b = b - odot(f.data(), u_S.data(), model_.nv);
       c = c - odot(f.data(), s.data(), model_.nv);
     }
-    const double alpha = alpha_of(a, b, c, 0.0);
+    double floor = 0.0;
+    if (rate) {  // a moving static: gamma = alpha W'u_S + dg/dt keeps its sign
+      const VectorXd wu = otimes_t(W, u_S);
+      for (Eigen::Index i = 0; i < wu.size(); ++i)
+        if ((*rate)[i] < 0.0 && gamma_plus[i] >= 0.0 && wu[i] > 0.0) {
+          const double f = -(*rate)[i] / wu[i];
+          if (f > floor) floor = f;
+        }
+    }
+    const double alpha = alpha_of(a, b, c, std::min(floor, 1.0));
     u_next = u_R + alpha * u_S;
     gamma_plus = otimes_t(W, u_next);
+    if (rate) gamma_plus = gamma_plus + *rate;
   }
 
   // stepper.smooth_error (docs/theory.md §5.3, §5.5): T + V at (q_m (+) h/2 u_free, u_free) less E = T_k + V_k and
@@ -1309,7 +1526,7 @@ class Stepper {
   void correct_positions(const VectorXd &q, const VectorXd &u, const VectorXd &u_free, double h, const VectorXd &g,
                          const VectorXd &gamma_plus, const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W,
                          const MatrixXd &Minv, VectorXd &q_next, double &corr, const VectorXd &gamma_minus,
-                         const std::vector<Found> &con) {
+                         const std::vector<Found> &con, double ow) {
     (void)M;
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
@@ -1318,7 +1535,7 @@ class Stepper {
     const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
     const double E0 = T0 + V0;
     const double E1 = energy(q_next, u_next);
-    double budget = E0 - E1;
+    double budget = E0 - E1 + ow;  // what the step dissipated beyond the work done on it (§5.5)
     if (tau_.size()) {  // what the step dissipated beyond the torques' work h tau.(u + u_next)/2 (theory §5.5)
       const VectorXd s = u + u_next;
       budget += 0.5 * h * odot(tau_.data(), s.data(), model_.nv);
@@ -1391,7 +1608,7 @@ class Stepper {
     if (dE > budget && !resting) {
       // stepper.correct_positions' paid lift: a persistent penetration between two polytopes (deeper than
       // h |gamma_minus| + tol) in a passive step is lifted in full, paid with the velocities: Python takes it
-      bool deep = false, persistent = tau_.size() == 0;
+      bool deep = false, persistent = tau_.size() == 0 && rh_.moving.empty() && !rh_.driven();
       for (Eigen::Index i = 0; i < m && persistent; ++i)
         if (g_next[i] < -(h * std::abs(gamma_minus[i]) + tol_)) {
           deep = true;
@@ -1437,14 +1654,17 @@ NB_MODULE(_step, mod) {
       .def("layout", &StepOut::layout, "(name, in ints, offset, rows, cols (0: a vector), order 'C'/'F') per array")
       .def_ro("projection", &StepOut::projection)
       .def_ro("contact_work", &StepOut::contact_work)
-      .def_ro("correction_energy", &StepOut::correction_energy);
+      .def_ro("correction_energy", &StepOut::correction_energy)
+      .def_ro("obstacle_work", &StepOut::obstacle_work)
+      .def_ro("drive_work_free", &StepOut::drive_work_free);
   nb::class_<Stepper>(mod, "Stepper")
       .def(nb::init<nb::object, nb::object, nb::object, nb::object, std::vector<MatrixXd>, std::vector<int>,
                     std::vector<Vec3>, std::vector<double>, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic>,
                     MatrixXd, double, double, double, int, bool, bool, bool, bool, bool,
                     const std::map<std::string, double> &, MatrixXd>())
       .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"),
-           nb::arg("tau") = VectorXd())
+           nb::arg("tau") = VectorXd(), nb::arg("t") = std::numeric_limits<double>::quiet_NaN())
+      .def("rheonomic", &Stepper::rheonomic, nb::arg("moving"), nb::arg("driven"))
       .def_prop_ro("constants", &Stepper::constants)
       .def("boxes", &Stepper::boxes)
       .def("broad", &Stepper::broad)

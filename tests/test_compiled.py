@@ -17,7 +17,7 @@ on an FMA machine (src/step.cpp gemv_dot). Within 1e-12 would not be enough: the
 moves box_drop by 1e-5 m. The constants both steps use are passed from Python
 (compiled.CONSTANTS), and the step's result crosses by name (src/step.cpp StepOut).
 
-A scene none of whose steps the compiled step takes (a driven joint, a moving static) runs the Python step both
+A scene none of whose steps the compiled step takes runs the Python step both
 ways; its detection (contacts.py's polytope paths, corners) still has
 numpy products of its own, and two runs of heavy_on_light_box_10000 in one pytest process have been seen
 to differ by 5e-27 m (alone they do not: the arrays' alignment). There, within 1e-12 is required. So it is
@@ -47,9 +47,10 @@ from moreau_sim.simulate import simulate
 
 SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.toml"))
 MUST_COMPILE = {"bouncing_ball", "zeno_ball", "newton_cradle_5", "box_drop", "column_of_beads_100", "quadruped_drop",
-                "solo_drop", "box_stack_10", "panda_table"}
+                "solo_drop", "box_stack_10", "panda_table", "vibrating_paddle", "driven_paddle"}
 # CI-sized durations [s]: long enough for the first impacts (and box_drop to settle on a face)
-DURATION = {"bouncing_ball": 1.0, "zeno_ball": 1.5, "box_drop": 1.5, "newton_cradle_5": 0.3}
+DURATION = {"bouncing_ball": 1.0, "zeno_ball": 1.5, "box_drop": 1.5, "newton_cradle_5": 0.3, "vibrating_paddle": 0.6,
+            "driven_paddle": 0.6}
 MAX_STEPS = 300  # other scenes: at most this many steps
 PYTHON_VARIES = {"heavy_on_light_box_10000"}  # the Python step's own runs differ in one process (module docstring)
 COMPARED = ("t", "q", "u", "kinetic_energy", "potential_energy", "contact_work", "correction_energy", "gap",

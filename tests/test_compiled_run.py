@@ -6,8 +6,8 @@ The Runner records what driver._Loop.account records per step, operation by oper
 products (ledger.impact_terms's x'Mx and P.b) are summed in index order on both sides (sums.ordered, src/run.cpp
 quad / odot; docs/theory.md §2.8), so that the sums are the same at every size on any CPU
 (test_ledger_products_are_ordered).
-A scene the compiled step does not take (drives, prescribed motion) runs the Python loop; its meta says so and
-why.
+A scene the compiled step does not take (compiled.unsupported) runs the Python loop; its meta says so and why.
+Drives and prescribed motion run compiled (tests/test_compiled_rheonomic.py).
 """
 
 from __future__ import annotations
@@ -26,8 +26,9 @@ from moreau_sim.trajectory import ARRAYS
 
 SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.toml"))
 MAX_STEPS = 400  # every scene: at most this many steps (the first impacts of the balls and the cradles)
-DURATION = {"bouncing_ball": 1.0, "zeno_ball": 1.5, "newton_cradle_5": 0.3, "box_drop": 1.0}
-MUST_RUN_COMPILED = {"bouncing_ball", "zeno_ball", "newton_cradle_5", "box_drop"}
+DURATION = {"bouncing_ball": 1.0, "zeno_ball": 1.5, "newton_cradle_5": 0.3, "box_drop": 1.0, "vibrating_paddle": 0.6,
+            "driven_paddle": 0.6}
+MUST_RUN_COMPILED = {"bouncing_ball", "zeno_ball", "newton_cradle_5", "box_drop", "vibrating_paddle", "driven_paddle"}
 
 
 def _arrays_differ(a, b) -> list[str]:

@@ -184,10 +184,11 @@ def test_other_integrators_refuse_a_driven_joint(tmp_path, integrator):
         ms.simulate(model)
 
 
-def test_compiled_step_hands_driven_steps_back(tmp_path):
+def test_compiled_step_takes_driven_steps(tmp_path):
+    """The compiled step takes a driven model's steps (bit for bit: tests/test_compiled_rheonomic.py)."""
     from moreau_sim import compiled
     model = ms.build_model(_pendulum(tmp_path))
-    assert compiled.unsupported(model) == "a driven joint ([[drives]])"
+    assert compiled.unsupported(model) is None
 
 
 def test_bundled_driven_paddle_juggles_by_the_law():
