@@ -400,10 +400,11 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     contacts are at rest along the normals of all their closed contacts (_normal_rest; the lift then keeps each of
     those closed, within HOLD tolerances): then alpha = 1 and the potential energy the lift adds is booked as
     correction energy (§2.5, §5);
-    and except a persistent penetration between two polytopes (deeper than the step's own approach can
-    make, h |gamma_minus| + tol) in a passive step that did not gain: it is removed in full, the lift
-    beyond the budget paid with the kinetic energy of the bodies in contact (their velocities scaled,
-    _scaled) so that T + V still ends at most at its start, where they have enough. Rows no dq meets (a body
+    and except a persistent penetration between flat faces (_flat: two polytopes, or a polytope's vertex on a
+    half-space; deeper than the step's own approach can make, h |gamma_minus| + tol) in a passive step whose
+    budget does not cover the full lift: it is removed in full, paid in full with the kinetic energy of the bodies
+    in contact (their velocities scaled, _scaled) so that T + V ends where the law's step ended, where they have
+    enough. Rows no dq meets (a body
     deep inside another) are relaxed by the least uniform residual (shortfall, §2.5) and the rest is as above.
     Returns (q, the change of T + V it made [J], u_{k+1}: imp.u_next itself unless the lift was paid)."""
     tol = model.options.contact_tolerance
@@ -448,11 +449,11 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     u_c = u_next
     if dE > budget and not resting:
         paid = False
-        if persistent:  # the full lift, paid with the kinetic energy of the bodies in contact, so that T + V ends
-            # at most at E_k, or at E_1 where the step gained (the cap then takes the gain back as without the lift)
-            u_c = _scaled(model, data, q_c, u_next, (imp.W != 0.0).any(axis=1), max(E0, E1) - V_c, T_c)
+        if persistent:  # the full lift, paid in full with the kinetic energy of the bodies in contact: T + V ends
+            # where the law's step ended, E_1 (giving the step's dissipation back to such lifts fed a chatter, §2.5)
+            u_c = _scaled(model, data, q_c, u_next, (imp.W != 0.0).any(axis=1), E1 - V_c, T_c)
             dE = kinetic(model, data, q_c, u_c) + V_c - E1
-            paid = dE <= max(budget, 0.0) + _roundoff(T0, V0, T_c, V_c)
+            paid = dE <= _roundoff(T0, V0, T_c, V_c)
         if not paid and budget <= 0.0:  # a step that gained: nothing to spend
             return q_next, 0.0, u_next
         if not paid:
