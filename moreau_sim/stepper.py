@@ -404,8 +404,8 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     half-space; deeper than the step's own approach can make, h |gamma_minus| + tol) in a passive step whose
     budget does not cover the full lift: it is removed in full, paid in full with the kinetic energy of the bodies
     in contact (their velocities scaled, _scaled) so that T + V ends where the law's step ended, where they have
-    enough. Rows no dq meets (a body
-    deep inside another) are relaxed by the least uniform residual (shortfall, §2.5) and the rest is as above.
+    enough (also in a step that gained). Rows no dq meets (a body deep inside another) are relaxed by the least
+    uniform residual (shortfall, §2.5) and the rest is as above.
     Returns (q, the change of T + V it made [J], u_{k+1}: imp.u_next itself unless the lift was paid)."""
     tol = model.options.contact_tolerance
     u_next = imp.u_next
