@@ -37,7 +37,7 @@ def test_the_sliding_corner_never_stays_inside_beyond_its_own_approach(e, h):
     midpoints, gamma+ >= 0), lifted in full (§2.5) once it is deeper than h |gamma-| + tol. (A single step may be
     deeper: a corner that closes grazing, |gamma-| ~ 3e-5 m/s, arrives h^2 |kappa| / 2 ~ 1.5e-8 m inside.) Before
     the paid lift reached a corner on a half-space and steps that gained (§2.5), the corrections, held to budgets of
-    1e-9 J or refused in steps that gained, left the corner 2.5 um inside over 106 steps at e = 0.4, h = 1e-5
+    at most 3e-8 J or refused in steps that gained, left the corner 2.5 um inside over 106 steps at e = 0.4, h = 1e-5
     (|gamma-| 6 mm/s, so 2 h |gamma-| = 0.12 um), and the run was flagged for penetration at e = 0 and 0.4. The
     compiled and the Python step end bit for bit in the same state."""
     ends = {}
