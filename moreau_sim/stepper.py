@@ -14,7 +14,7 @@ import pinocchio as pin
 
 from . import compiled, drive_step, qp
 from .constraints import CornerPieces, assemble_constraints, closed_limits, corner_faces
-from .contacts import NO_CONTACTS, Contacts, detect, pair_distances
+from .contacts import NO_CONTACTS, Contacts, FeatureKind, detect, pair_distances
 from .corners import MAX_PIECES, corner_law
 from .data import Data
 from .energy import kinetic, potential
@@ -400,11 +400,12 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     contacts are at rest along the normals of all their closed contacts (_normal_rest; the lift then keeps each of
     those closed, within HOLD tolerances): then alpha = 1 and the potential energy the lift adds is booked as
     correction energy (§2.5, §5);
-    and except a persistent penetration between two polytopes (deeper than the step's own approach can
-    make, h |gamma_minus| + tol) in a passive step that did not gain: it is removed in full, the lift
-    beyond the budget paid with the kinetic energy of the bodies in contact (their velocities scaled,
-    _scaled) so that T + V still ends at most at its start, where they have enough. Rows no dq meets (a body
-    deep inside another) are relaxed by the least uniform residual (shortfall, §2.5) and the rest is as above.
+    and except a persistent penetration between flat faces (_flat: two polytopes, or a polytope's vertex on a
+    half-space; deeper than the step's own approach can make, h |gamma_minus| + tol) in a passive step whose
+    budget does not cover the full lift: it is removed in full, paid in full with the kinetic energy of the bodies
+    in contact (their velocities scaled, _scaled) so that T + V ends where the law's step ended, where they have
+    enough (also in a step that gained). Rows no dq meets (a body deep inside another) are relaxed by the least
+    uniform residual (shortfall, §2.5) and the rest is as above.
     Returns (q, the change of T + V it made [J], u_{k+1}: imp.u_next itself unless the lift was paid)."""
     tol = model.options.contact_tolerance
     u_next = imp.u_next
@@ -426,14 +427,15 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
         res = qp.solve(pb.M, np.concatenate([imp.W, -imp.W[:, rows]], axis=1), np.zeros(model.nv),
                        b=np.concatenate([-g_next, g_next[rows] - np.maximum(g_next[rows], HOLD * tol)]), Minv=pb.Minv)
         resting = res.ok  # else (rows that cannot all be met) the budget rule
-    if budget <= 0.0 and not resting:  # the step gained (the cap of §2.10 takes it back): nothing to spend
-        return q_next, 0.0, u_next
     # paid only in a passive step: the scaling's bound would need the torques' work at the scaled velocity
     deep = g_next < -(pb.h * np.abs(imp.gamma_minus) + tol)
-    # only between two polytopes (box faces sliding, a box rocking across an edge): in a column of beads the lift
-    # paid with the velocities of beads falling together kept the top bead bouncing past its rest (§2.5)
+    # only between flat faces (box faces sliding, a box rocking across an edge, a box's corner sliding on a
+    # half-space): in a column of beads the lift paid with the velocities of beads falling together kept the top
+    # bead bouncing past its rest (§2.5)
     persistent = (pb.tau is None and model.prescribed is None and pb.drive is None and bool(deep.any())
-                  and all(p in model.polytope_pair_set for p in imp.contacts.pair[deep].tolist()))
+                  and all(_flat(model, imp.contacts, i) for i in np.flatnonzero(deep)))
+    if budget <= 0.0 and not resting and not persistent:  # the step gained (the cap of §2.10 takes it back):
+        return q_next, 0.0, u_next  # nothing to spend
     if res is None or not res.ok:
         res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
     if res.status == INFEASIBLE:  # rows that contradict (a box pushed into another): the least residual (§2.5)
@@ -447,10 +449,13 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     u_c = u_next
     if dE > budget and not resting:
         paid = False
-        if persistent:  # the full lift, paid with the kinetic energy of the bodies in contact
-            u_c = _scaled(model, data, q_c, u_next, (imp.W != 0.0).any(axis=1), E0 - V_c, T_c)
+        if persistent:  # the full lift, paid in full with the kinetic energy of the bodies in contact: T + V ends
+            # where the law's step ended, E_1 (giving the step's dissipation back to such lifts fed a chatter, §2.5)
+            u_c = _scaled(model, data, q_c, u_next, (imp.W != 0.0).any(axis=1), E1 - V_c, T_c)
             dE = kinetic(model, data, q_c, u_c) + V_c - E1
-            paid = dE <= budget + _roundoff(T0, V0, T_c, V_c)
+            paid = dE <= _roundoff(T0, V0, T_c, V_c)
+        if not paid and budget <= 0.0:  # a step that gained: nothing to spend
+            return q_next, 0.0, u_next
         if not paid:
             u_c = u_next
             alpha = budget / dE  # E is ~linear in dq here
@@ -495,6 +500,18 @@ def shortfall(W: np.ndarray, g: np.ndarray, tol: float) -> np.ndarray:
                  method="highs")
     t = float(lp.x[-1]) if lp.status == 0 else float(-g.min())
     return pen * (t + tol)
+
+
+def _flat(model: Model, contacts: Contacts, i: int) -> bool:
+    """Whether contact i is between two flat faces (docs/theory.md §2.5, the paid lift): a pair of two polytopes,
+    or a polytope's vertex on a half-space."""
+    pair = int(contacts.pair[i])
+    if pair in model.polytope_pair_set:
+        return True
+    if contacts.kind[i] != FeatureKind.VERTEX or pair >= len(model.pairs):
+        return False
+    p = model.pairs[pair]
+    return model.bounds[p.first][0] == "plane" or model.bounds[p.second][0] == "plane"
 
 
 def _resting(pb: ContactProblem, imp: ImpactSolution, pen: np.ndarray) -> bool:

@@ -1599,22 +1599,28 @@ class Stepper {
         solved = resting = true;
       }
     }
-    if (budget <= 0.0 && !resting) return;
+    // stepper.correct_positions' paid lift: a persistent penetration between flat faces (deeper than h |gamma_minus|
+    // + tol; stepper._flat: two polytopes, or a polytope's vertex on a half-space) in a passive step is lifted in
+    // full, paid with the velocities, also in a step that gained: Python takes it
+    bool deep = false, persistent = tau_.size() == 0 && rh_.moving.empty() && !rh_.driven();
+    for (Eigen::Index i = 0; i < m && persistent; ++i)
+      if (g_next[i] < -(h * std::abs(gamma_minus[i]) + tol_)) {
+        deep = true;
+        const int p = con[i].pair;
+        persistent = con[i].kind != C_.joint_limit &&
+                     ((p < (int)polytope_.size() && polytope_[p]) ||
+                      (con[i].kind == C_.vertex && p < (int)pairs_.rows() &&
+                       (bound_kind_[pairs_(p, 0)] == 0 || bound_kind_[pairs_(p, 1)] == 0)));
+      }
+    persistent = persistent && deep;
+    if (budget <= 0.0 && !resting && !persistent) return;
     if (!solved) res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
     const double T_c = pinocchio::computeKineticEnergy(model_, data_, q_c, u_next);
     const double V_c = pinocchio::computePotentialEnergy(model_, data_, q_c);
     double dE = T_c + V_c - E1;
     if (dE > budget && !resting) {
-      // stepper.correct_positions' paid lift: a persistent penetration between two polytopes (deeper than
-      // h |gamma_minus| + tol) in a passive step is lifted in full, paid with the velocities: Python takes it
-      bool deep = false, persistent = tau_.size() == 0 && rh_.moving.empty() && !rh_.driven();
-      for (Eigen::Index i = 0; i < m && persistent; ++i)
-        if (g_next[i] < -(h * std::abs(gamma_minus[i]) + tol_)) {
-          deep = true;
-          persistent = con[i].kind != C_.joint_limit && con[i].pair < (int)polytope_.size() && polytope_[con[i].pair];
-        }
-      if (deep && persistent) throw Fallback{"a paid position lift"};
+      if (persistent) throw Fallback{"a paid position lift"};
       double alpha = budget / dE;
       q_c = pinocchio::integrate(model_, q_next, alpha * res.v);
       dE = energy(q_c, u_next) - E1;

@@ -6,16 +6,18 @@ left to the budget rule), a rocking block never lifted beyond the budget while i
 robot slides and turns on the frictionless ground after it has come down, with no penetration that persists."""
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
 from moreau_sim import stepper
-from moreau_sim.results import RESTING
+from moreau_sim.results import HOLD, RESTING
 
 from helpers import FREE_BOX, GROUND, box_body, inline_scene, scene
 
 G = 9.81
 DEPTH = 1e-5  # [m] the ball's start inside the ground, far beyond contact_tolerance (1e-9 m)
+LIFT = 1e-7  # [m] how much deeper than its other corners a turned box's corners start (the HOLD edge)
 
 
 def sliding_ball(tmp_path, h: float, vz_of_eps: float, impl: str = "compiled"):
@@ -94,3 +96,43 @@ def test_quadruped_drop_rests_on_the_ground_without_penetration():
         assert E.max() - E[0] <= 1e-8 * max(abs(E[0]), tr.kinetic_energy.max())
     for key in ("q", "u", "correction_energy", "gap"):
         assert np.array_equal(runs["compiled"].arrays[key], runs["python"].arrays[key]), key
+
+
+def _corner_gaps(q: np.ndarray, half=(0.1, 0.1, 0.2)) -> np.ndarray:
+    """The heights above the ground (z = 0) of the 4 bottom corners of a free box at q (x, y, z, quaternion x y z w):
+    those at y = -half[1], then those at y = +half[1]."""
+    R = pin.Quaternion(q[6], q[3], q[4], q[5]).toRotationMatrix()
+    c = np.array([[sx * half[0], sy * half[1], -half[2]] for sy in (-1, 1) for sx in (-1, 1)])
+    return q[2] + (c @ R.T)[:, 2]
+
+
+@pytest.mark.parametrize("impl", ["compiled", "python"])
+@pytest.mark.parametrize("g_of_tol", [0.0, 0.25, HOLD * (1 - 1e-3), HOLD, HOLD * (1 + 1e-3), 0.75, 1.0])
+def test_a_lift_at_rest_along_the_normals_keeps_each_closed_contact_within_hold_tolerances(tmp_path, g_of_tol, impl):
+    """The edge of results.HOLD: box.urdf (1 kg, 0.2 x 0.2 x 0.4 m) on the ground, sliding along y at 3 mm/s and
+    turning about the vertical at 0.01 rad/s (so not at rest by its velocities, _resting), turned by theta about x so
+    that its two bottom corners at y = +0.1 m have the gap g_s = g_of_tol contact_tolerance (closed) and the two at
+    y = -0.1 m lie LIFT = 1e-7 m deeper. The projection least in the kinetic metric would lift the shallow corners
+    too, by 2.5e-8 m ((I_x - m b^2)/(I_x + m b^2) LIFT, b = 0.1 m); the lift at rest along the normals bounds each
+    closed contact by g_i' + w_i'dq <= max(g_i', HOLD tol). So one step ends with the deep corners on the ground and
+    the shallow ones at max(g_s, HOLD tol), to the lift's second order (0.2 theta^2 / 2, 3e-14 m): raised to HOLD tol
+    from below it, kept where they were from above it (sliding along y and turning about the vertical move no corner
+    up or down). It books m g times the rise of the centre."""
+    tol = 1e-9  # the scene's contact_tolerance (asserted below)
+    text = FREE_BOX.format(g=-G, e=0.5, T=0.01, bodies=box_body("box", "box.urdf", (0, 0, 0.3)))
+    model = ms.build_model(inline_scene(text + GROUND, tmp_path).with_options(step_impl=impl))
+    assert model.options.contact_tolerance == tol
+    data = ms.make_data(model)
+    g_s = g_of_tol * tol
+    s = LIFT / 0.2  # sin(theta): the corners at y = -0.1 lie 0.2 sin(theta) below those at y = +0.1
+    theta = np.arcsin(s)
+    q = ms.initial_state(model).q.copy()
+    q[3:7] = (np.sin(theta / 2), 0.0, 0.0, np.cos(theta / 2))
+    q[2] = g_s - 0.1 * s + 0.2 * np.cos(theta)
+    np.testing.assert_allclose(_corner_gaps(q), [g_s - LIFT] * 2 + [g_s] * 2, rtol=0, atol=1e-16)
+    u = np.array([0.0, 3e-3, 0.0, 0.0, 1e-2 * s, 1e-2 * np.cos(theta)])  # turning about the vertical: no corner rises
+    r = ms.step(model, data, ms.State(0.0, q, u), h=1e-3)
+    gaps = _corner_gaps(r.state.q)
+    np.testing.assert_allclose(gaps[:2], 0.0, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(gaps[2:], max(g_s, HOLD * tol), rtol=0, atol=1e-13)
+    assert r.correction_energy == pytest.approx(G * (r.state.q[2] - q[2]), rel=1e-6)

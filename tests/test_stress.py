@@ -364,9 +364,12 @@ def test_slider_crank_clearance(correction, bias):
     max_i P_i/h <= 2e4 N (measured 6.3e3 N), the slider strikes the guide (impacts on both half-spaces)."""
     traj = run("slider_crank_clearance", duration=0.05, position_correction=correction, bias=bias)
     h = 1e-5
-    # flagged: the pin's sliding contact deepens step after step (2.5 um over 106 steps, allowed 0.2 um: beyond a
-    # step's transient at its measured approach and acceleration), the same in both settings (docs/theory.md §10)
-    assert traj.meta["status"] == "flagged" and invariants_broken(traj) == {"penetration"}
+    # without the correction the slider's corner sliding on the guide drifts into it step after step (2.4 um over
+    # 96 steps, allowed 0.18 um): flagged; the correction's paid lift holds it (docs/theory.md §2.5, §10)
+    if correction == "none":
+        assert traj.meta["status"] == "flagged" and invariants_broken(traj) == {"penetration"}
+    else:
+        assert traj.complete, traj.meta.get("invariants")
     assert np.isfinite(traj.q).all() and np.isfinite(traj.u).all()
     E = energy(traj)
     assert np.max(E - E[0]) <= 1e-12 * abs(E[0])
