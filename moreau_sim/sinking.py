@@ -30,16 +30,15 @@ def sunk_energy(arrays: dict) -> np.ndarray:
                           & (pair < n_pairs))  # collision pairs (a joint limit's row has no gap column)
     if not len(keep):
         return E
-    F = np.zeros((len(t), n_pairs))
     t_row, steps = np.asarray(arrays["log_t"]), np.asarray(arrays["log_steps"])
     h = dur[keep] / steps[keep]  # [s] the row's step; log_t is its first step's midpoint
     first = np.searchsorted(t, t_row[keep] + 0.25 * h, side="left")  # the sample its first step leads to
-    last = np.searchsorted(t, t_row[keep] + dur[keep] - 0.75 * h, side="left")  # ... and its last step
-    for r, s, e in zip(keep.tolist(), first.tolist(), last.tolist()):
-        if s < len(t):
-            F[s:min(e, len(t) - 1) + 1, int(pair[r])] += P[r] / dur[r]
-    depth = -np.minimum(np.nan_to_num(gap, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
-    return (F * depth).sum(axis=1)
+    last = np.minimum(np.searchsorted(t, t_row[keep] + dur[keep] - 0.75 * h, side="left"), len(t) - 1)  # its last
+    force = P[keep] / dur[keep]  # [N] the row's mean force
+    for s, e, j, f in zip(first.tolist(), last.tolist(), pair[keep].tolist(), force.tolist()):
+        if s < len(t):  # [m] the pair's depth at the samples it covers (a failed distance, NaN: none)
+            E[s:e + 1] += f * -np.minimum(np.nan_to_num(gap[s:e + 1, j], nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+    return E
 
 
 def first_paid(arrays: dict, rel: float, persist: int) -> tuple[float, float, float] | None:
