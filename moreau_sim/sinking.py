@@ -35,9 +35,15 @@ def sunk_energy(arrays: dict) -> np.ndarray:
     first = np.searchsorted(t, t_row[keep] + 0.25 * h, side="left")  # the sample its first step leads to
     last = np.minimum(np.searchsorted(t, t_row[keep] + dur[keep] - 0.75 * h, side="left"), len(t) - 1)  # its last
     force = P[keep] / dur[keep]  # [N] the row's mean force
-    for s, e, j, f in zip(first.tolist(), last.tolist(), pair[keep].tolist(), force.tolist()):
-        if s < len(t):  # [m] the pair's depth at the samples it covers (a failed distance, NaN: none)
-            E[s:e + 1] += f * -np.minimum(np.nan_to_num(gap[s:e + 1, j], nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+    j = pair[keep]
+    ok = first < len(t)
+    one = ok & (last <= first)  # a row of one sample (most): at once
+    d = gap[first[one], j[one]]
+    np.add.at(E, first[one], force[one] * -np.minimum(np.nan_to_num(d, nan=0.0, posinf=0.0, neginf=0.0), 0.0))
+    for s, e, k, f in zip(first[ok & ~one].tolist(), last[ok & ~one].tolist(), j[ok & ~one].tolist(),
+                          force[ok & ~one].tolist()):  # a stretch over several samples
+        d = gap[s:e + 1, k]  # [m] the pair's depth at the samples it covers (a failed distance, NaN: none)
+        E[s:e + 1] += f * -np.minimum(np.nan_to_num(d, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
     return E
 
 
