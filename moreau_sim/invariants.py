@@ -103,7 +103,7 @@ class Invariants:
             out = self._violate(Invariant.PENETRATION, state.t, self.last_depth, self.last_allowed, "m",
                                 f"a pair {self.last_depth:.3g} m inside another at the end of the run (allowed "
                                 f"{self.last_allowed:.3g} m)") or None
-        found = first_paid(rec.arrays(), self.rel, PERSIST)
+        found = first_paid(rec.arrays(), ACCELERATION * self.g, self.rel, PERSIST)
         if found is not None:
             t, size, allowed = found
             out = (out or []) + self._violate(

@@ -12,11 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 
-def sunk_energy(arrays: dict) -> np.ndarray:
-    """(n_samples,) [J] sum over pairs of F d at each sample: F [N] the mean force of the pair's continuing
-    fixed-step rows covering the sample (a row covers the samples its steps lead to: log_t its first step's
-    midpoint, log_steps steps of log_duration in all; a stretch of persistent steps is one row), d [m] its
-    depth."""
+def sunk_energy(arrays: dict, slow: float) -> np.ndarray:
+    """(n_samples,) [J] sum over pairs of F d at each sample: F [N] the mean force over the sample's interval of
+    the pair's loads, its continuing fixed-step rows (not new) that approached no faster than `slow` [m/s a
+    second of step: 2 |gravity|] times their step (an impact's percussions, P/h of its approach, are no load;
+    a row covers the samples its steps lead to: log_t its first step's midpoint, log_steps steps of
+    log_duration in all; a stretch of persistent steps is one row), d [m] the pair's depth."""
     t = np.asarray(arrays["t"])
     E = np.zeros(len(t))
     P = np.asarray(arrays.get("log_P", ()))
@@ -25,19 +26,23 @@ def sunk_energy(arrays: dict) -> np.ndarray:
     if not len(P) or not n_pairs or len(t) < 2:
         return E
     dur = np.asarray(arrays["log_duration"], float)
-    pair = np.asarray(arrays["log_pair"])
+    pair, steps = np.asarray(arrays["log_pair"]), np.maximum(np.asarray(arrays["log_steps"]), 1)
+    approach = -np.asarray(arrays["log_gamma_minus"], float)  # [m/s]
     keep = np.flatnonzero((dur > 0.0) & (P > 0.0) & ~np.asarray(arrays["log_impact"], bool) & (pair >= 0)
-                          & (pair < n_pairs))  # collision pairs (a joint limit's row has no gap column)
+                          & (pair < n_pairs)  # collision pairs (a joint limit's row has no gap column)
+                          & (approach <= slow * dur / steps))
     if not len(keep):
         return E
-    t_row, steps = np.asarray(arrays["log_t"]), np.asarray(arrays["log_steps"])
+    t_row = np.asarray(arrays["log_t"])
     h = dur[keep] / steps[keep]  # [s] the row's step; log_t is its first step's midpoint
     first = np.searchsorted(t, t_row[keep] + 0.25 * h, side="left")  # the sample its first step leads to
     last = np.minimum(np.searchsorted(t, t_row[keep] + dur[keep] - 0.75 * h, side="left"), len(t) - 1)  # its last
-    force = P[keep] / dur[keep]  # [N] the row's mean force
+    force = P[keep] / dur[keep]  # [N] the row's mean force over its steps
     j = pair[keep]
     ok = first < len(t)
-    one = ok & (last <= first)  # a row of one sample (most): at once
+    one = ok & (last <= first)  # a row within one sample's interval (most): at once, its P over the interval
+    span = np.diff(t, prepend=t[0] - 1.0)  # [s] each sample's interval
+    force[one] = P[keep][one] / np.maximum(span[first[one]], dur[keep][one])
     d = gap[first[one], j[one]]
     np.add.at(E, first[one], force[one] * -np.minimum(np.nan_to_num(d, nan=0.0, posinf=0.0, neginf=0.0), 0.0))
     for s, e, k, f in zip(first[ok & ~one].tolist(), last[ok & ~one].tolist(), j[ok & ~one].tolist(),
@@ -47,15 +52,16 @@ def sunk_energy(arrays: dict) -> np.ndarray:
     return E
 
 
-def first_paid(arrays: dict, rel: float, persist: int) -> tuple[float, float, float] | None:
-    """The first sample (t [s], the sunk energy [J], the energy the bound leaves for it [J]) ending `persist`
-    consecutive samples where T + sunk energy exceeds E_0 - V + booked + external + rel * scale (scale:
+def first_paid(arrays: dict, slow: float, rel: float, persist: int) -> tuple[float, float, float] | None:
+    """The first sample (t [s], the sunk energy [J] (sunk_energy(arrays, slow)), the energy the bound leaves for
+    it [J]) ending `persist` consecutive samples where T + sunk energy exceeds E_0 - V + booked + external +
+    rel * scale (scale:
     max(|E_0|, max T so far); booked: the positive correction energy and smooth error so far; external: the
     work done on the system so far, §5.5), or None."""
     T, V = np.asarray(arrays["kinetic_energy"]), np.asarray(arrays["potential_energy"])
     if len(T) < persist:
         return None
-    sunk = sunk_energy(arrays)
+    sunk = sunk_energy(arrays, slow)
     if not (sunk > 0.0).any():
         return None
     booked = np.cumsum(np.maximum(arrays["correction_energy"], 0.0) + np.maximum(arrays["smooth_error"], 0.0))

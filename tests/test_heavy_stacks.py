@@ -73,7 +73,8 @@ def _arrays(T, V, gap, P, duration=1e-2):
     return {"t": duration * np.arange(n), "kinetic_energy": np.asarray(T, float),
             "potential_energy": np.asarray(V, float), "correction_energy": np.zeros(n), "smooth_error": np.zeros(n),
             "gap": np.asarray(gap, float)[:, None], "log_P": np.full(rows, P), "log_duration": np.full(rows, duration),
-            "log_impact": np.zeros(rows, bool), "log_steps": np.ones(rows, int), "log_pair": np.zeros(rows, int),
+            "log_impact": np.zeros(rows, bool), "log_gamma_minus": np.zeros(rows), "log_steps": np.ones(rows, int),
+            "log_pair": np.zeros(rows, int),
             "log_t": duration * (np.arange(1, n) - 0.5)}
 
 
@@ -86,12 +87,12 @@ def test_kinetic_energy_paid_by_sinking_is_flagged_and_none_is_not(h):
     F = m * g
     d = np.linspace(0.0, 1e-6, n)
     a = _arrays(F * d, 1.5 * F - F * d, -d, F * h, h)
-    assert np.allclose(sunk_energy(a), F * d, rtol=1e-12, atol=0.0)
-    found = first_paid(a, 1e-8, 3)
+    assert np.allclose(sunk_energy(a, 2 * g), F * d, rtol=1e-12, atol=0.0)
+    found = first_paid(a, 2 * g, 1e-8, 3)
     assert found is not None and found[1] == pytest.approx(F * d[round(found[0] / h)], rel=1e-12)
     assert round(found[0] / h) == 3  # samples 1, 2, 3 are beyond (sample 0 has d = 0): the third persists
     rest = _arrays(np.zeros(n), np.full(n, 1.5 * F), np.zeros(n), F * h, h)
-    assert first_paid(rest, 1e-8, 3) is None
+    assert first_paid(rest, 2 * g, 1e-8, 3) is None
     quiet = _arrays(np.zeros(n), 1.5 * F - F * d, -d, F * h, h)  # sunk, the energy it released lost, not moving
-    assert first_paid(quiet, 1e-8, 3) is None
+    assert first_paid(quiet, 2 * g, 1e-8, 3) is None
 
