@@ -1,7 +1,9 @@
 """The invariants every run checks of itself (docs/theory.md §10), through the driver's hook
 (driver.Check) at the start, every accepted point and every sample, for every integrator: a
 finite state, no penetration beyond the method's, no energy gain beyond the integrator's stated
-bound, no speed the energy cannot pay for, a closed ledger, no start inside an obstacle.
+bound, no speed the energy cannot pay for, a closed ledger, no start inside an obstacle; and at the
+end, from the recorded samples and percussion log, no kinetic energy paid by a load sinking into its
+support (sinking.py).
 Each check is a few float reductions; a violation is a dict kept in meta["invariants"].
 """
 
@@ -15,6 +17,7 @@ import numpy as np
 from .data import make_data
 from .energy import kinetic, potential
 from .errors import SimulationError
+from .sinking import first_paid
 from .model import Model
 from .options import Integrator
 from .sums import ordered
@@ -39,6 +42,7 @@ class Invariant(Enum):
     ENERGY_GAIN = "energy gain"
     SPEED = "speed beyond the energy"
     LEDGER = "ledger residual"
+    SINKING = "speed paid by sinking"
 
 
 class InvariantViolation(SimulationError):
@@ -87,17 +91,26 @@ class Invariants:
         if where == "sample":
             return self._sample(state, rec)
         if where == "end":
-            return self._end(state)
+            return self._end(state, rec)
         return self._start(state, rec)
 
-    def _end(self, state: State) -> list[dict] | None:
+    def _end(self, state: State, rec: Recorder) -> list[dict] | None:
         """A penetration beyond the allowance at the last samples (or steps) persists to the end of the
-        run, however few they were."""
+        run, however few they were; kinetic energy paid by a load sinking into its support (sinking.first_paid,
+        docs/theory.md §2.11, §10), from the recorded arrays."""
+        out = None
         if self.deep_samples or self.deep_points:
-            return self._violate(Invariant.PENETRATION, state.t, self.last_depth, self.last_allowed, "m",
-                                 f"a pair {self.last_depth:.3g} m inside another at the end of the run (allowed "
-                                 f"{self.last_allowed:.3g} m)") or None
-        return None
+            out = self._violate(Invariant.PENETRATION, state.t, self.last_depth, self.last_allowed, "m",
+                                f"a pair {self.last_depth:.3g} m inside another at the end of the run (allowed "
+                                f"{self.last_allowed:.3g} m)") or None
+        found = first_paid(rec.arrays(), ACCELERATION * self.g, self.rel, PERSIST)
+        if found is not None:
+            t, size, allowed = found
+            out = (out or []) + self._violate(
+                Invariant.SINKING, t, size, allowed, "J",
+                f"loads sunk into their supports released {size:.3g} J at t = {t:.6g} s, beyond the {allowed:.3g} J "
+                "the energy leaves: kinetic energy paid by penetration (a smaller step resolves it)")
+        return out or None
 
     def _energies(self, state: State, rec: Recorder) -> tuple[float, float]:
         TV = rec.energies(state)
