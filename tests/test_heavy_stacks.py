@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim.invariants import Invariant, flagged
+from moreau_sim.invariants import Invariant, InvariantViolation, flagged
 from moreau_sim.sinking import first_paid, sunk_energy
 
 CUBE = """<?xml version="1.0"?>
@@ -96,3 +96,13 @@ def test_kinetic_energy_paid_by_sinking_is_flagged_and_none_is_not(h):
     quiet = _arrays(np.zeros(n), 1.5 * F - F * d, -d, F * h, h)  # sunk, the energy it released lost, not moving
     assert first_paid(quiet, 2 * g, 1e-8, 3) is None
 
+
+
+def test_a_strict_run_flagged_at_its_end_keeps_its_samples(tmp_path):
+    """The sinking check runs once, at the run's end: under strict=True its violation stops the run with one
+    line naming the step and the samples so far kept (errors.named_stops), as a violation during the run does."""
+    with pytest.raises(InvariantViolation) as exc:
+        ms.run(stack(tmp_path, LIMIT, 1e-2), strict=True)
+    assert str(exc.value).startswith("step ") and Invariant.SINKING.value in str(exc.value)
+    tr = exc.value.trajectory
+    assert tr is not None and tr.meta["status"].startswith("failed: ") and len(tr.arrays["t"]) > 100
