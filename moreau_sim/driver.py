@@ -103,7 +103,7 @@ def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | Non
                     refresh = time.perf_counter() + PROGRESS_EVERY
         finally:
             bar.close()
-        loop.end(integ.state)  # the end's checks: a strict violation leaves with the samples, named (errors.named_stops)
+        loop.end(integ.state)  # in named_stops: a strict violation at the end leaves with the samples
     done = RunStatus.FLAGGED if loop.violations else RunStatus.COMPLETE
     traj = rec.trajectory(loop.meta(done.value, wall()))
     if checkpoint is not None and not checkpoint.keep:
