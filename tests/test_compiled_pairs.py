@@ -147,8 +147,9 @@ def _mesh_stack(e: float, h: float, duration: float) -> ms.Scene:
 @pytest.mark.parametrize("h", [1e-3, 2e-3])
 def test_two_convex_meshes_compiled_and_identical(e, h):
     """Pairs of two polytopes other than two boxes (mesh on mesh, mesh on box: vertex point queries, the face axis,
-    coal's patch): compiled, the Python step's run bit for bit (a paid position lift is handed back)."""
+    coal's patch): compiled, the Python step's run bit for bit (a paid position lift is handed back: at e = 0 the
+    cube under the meshes takes one in about 4 of 5 steps, theory §2.5)."""
     sc = _mesh_stack(e, h, 0.6)
     assert len(ms.build_model(sc).polytope_pair_set) == 3
     ref, new, counts = _both(sc)
-    _check(ref, new, counts, compiled_share=0.3)
+    _check(ref, new, counts, compiled_share=0.15)
