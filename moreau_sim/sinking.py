@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+CHUNK = 1 << 16  # samples a stretch's depths are read at a time
+
 
 def sunk_energy(arrays: dict, slow: float) -> np.ndarray:
     """(n_samples,) [J] sum over pairs of F d at each sample: F [N] the mean force over the sample's interval of
@@ -18,13 +20,23 @@ def sunk_energy(arrays: dict, slow: float) -> np.ndarray:
     second of step: 2 |gravity|] times their step (an impact's percussions, P/h of its approach, are no load;
     a row covers the samples its steps lead to: log_t its first step's midpoint, log_steps steps of
     log_duration in all; a stretch of persistent steps is one row), d [m] the pair's depth."""
+    E = np.zeros(len(arrays["t"]))
+    for at, add in _terms(arrays, slow):
+        if isinstance(at, slice):
+            E[at] += add
+        else:
+            np.add.at(E, at, add)
+    return E
+
+
+def _terms(arrays: dict, slow: float):
+    """sunk_energy's terms in the order it adds them: (sample indices or a slice of samples, F d there [J])."""
     t = np.asarray(arrays["t"])
-    E = np.zeros(len(t))
     P = np.asarray(arrays.get("log_P", ()))
     gap = np.asarray(arrays["gap"], float)
     n_pairs = gap.shape[1] if gap.ndim == 2 else 0
     if not len(P) or not n_pairs or len(t) < 2:
-        return E
+        return
     dur = np.asarray(arrays["log_duration"], float)
     pair, steps = np.asarray(arrays["log_pair"]), np.maximum(np.asarray(arrays["log_steps"]), 1)
     approach = -np.asarray(arrays["log_gamma_minus"], float)  # [m/s]
@@ -32,7 +44,7 @@ def sunk_energy(arrays: dict, slow: float) -> np.ndarray:
                           & (pair < n_pairs)  # collision pairs (a joint limit's row has no gap column)
                           & (approach <= slow * dur / steps))
     if not len(keep):
-        return E
+        return
     t_row = np.asarray(arrays["log_t"])
     h = dur[keep] / steps[keep]  # [s] the row's step; log_t is its first step's midpoint
     first = np.searchsorted(t, t_row[keep] + 0.25 * h, side="left")  # the sample its first step leads to
@@ -41,15 +53,17 @@ def sunk_energy(arrays: dict, slow: float) -> np.ndarray:
     j = pair[keep]
     ok = first < len(t)
     one = ok & (last <= first)  # a row within one sample's interval (most): at once, its P over the interval
-    span = np.diff(t, prepend=t[0] - 1.0)  # [s] each sample's interval
-    force[one] = P[keep][one] / np.maximum(span[first[one]], dur[keep][one])
-    d = gap[first[one], j[one]]
-    np.add.at(E, first[one], force[one] * -np.minimum(np.nan_to_num(d, nan=0.0, posinf=0.0, neginf=0.0), 0.0))
+    at = first[one]
+    span = t[at] - np.where(at > 0, t[np.maximum(at - 1, 0)], t[0] - 1.0)  # [s] those samples' intervals
+    force[one] = P[keep][one] / np.maximum(span, dur[keep][one])
+    d = gap[at, j[one]]
+    yield at, force[one] * -np.minimum(np.nan_to_num(d, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
     for s, e, k, f in zip(first[ok & ~one].tolist(), last[ok & ~one].tolist(), j[ok & ~one].tolist(),
                           force[ok & ~one].tolist()):  # a stretch over several samples
-        d = gap[s:e + 1, k]  # [m] the pair's depth at the samples it covers (a failed distance, NaN: none)
-        E[s:e + 1] += f * -np.minimum(np.nan_to_num(d, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
-    return E
+        for a in range(s, e + 1, CHUNK):  # in chunks: a rest of 10^6 samples makes no (10^6,) temporaries
+            b = min(a + CHUNK, e + 1)
+            d = gap[a:b, k]  # [m] the pair's depth at the samples it covers (a failed distance, NaN: none)
+            yield slice(a, b), f * -np.minimum(np.nan_to_num(d, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
 
 
 def first_paid(arrays: dict, slow: float, rel: float, persist: int) -> tuple[float, float, float] | None:
@@ -61,9 +75,9 @@ def first_paid(arrays: dict, slow: float, rel: float, persist: int) -> tuple[flo
     T, V = np.asarray(arrays["kinetic_energy"]), np.asarray(arrays["potential_energy"])
     if len(T) < persist:
         return None
-    sunk = sunk_energy(arrays, slow)
-    if not (sunk > 0.0).any():
+    if not any((add > 0.0).any() for _, add in _terms(arrays, slow)):  # nothing sunk: no (n_samples,) arrays
         return None
+    sunk = sunk_energy(arrays, slow)
     booked = np.cumsum(np.maximum(arrays["correction_energy"], 0.0) + np.maximum(arrays["smooth_error"], 0.0))
     external = np.zeros(len(T))
     for k in ("actuator_work", "obstacle_work"):
