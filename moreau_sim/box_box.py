@@ -143,7 +143,8 @@ def edge_crossings(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -
     edge l, in the order of 12 k + l.
 
     With edges a0 + s e_A (0 <= s <= L_A) and b0 + t e_B: n = +-(e_A x e_B)/|e_A x e_B| oriented out of
-    B's edge (n in the cone of B's two face normals there, -n in A's, both to CONE), p_A, p_B the two
+    B's edge (n in the cone of B's two face normals there, -n in A's, both to CONE; outside one by less than
+    CONE: that cone's nearest direction, the face normal at its other end, docs/theory.md §6.2), p_A, p_B the two
     lines' closest points, g = n.(p_A - p_B) = n.(a0 - b0) the signed distance between the lines (> 0
     apart, < 0 crossed). A pair counts when both closest points are inside their edges (EDGE_END of the
     length from either end: a crossing at an end is a vertex's contact), g <= tol, and where they cross
@@ -165,6 +166,13 @@ def edge_crossings(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -
     nb[flip] *= -1.0
     na = np.einsum("klx,kfx->klf", n, fa)
     ok &= (nb.min(axis=2) >= -CONE) & (na.max(axis=2) <= CONE)
+    # a normal outside a cone by less than CONE (nearly parallel edges of faces on faces: e_A x e_B is then the
+    # faces' relative tilt over their relative yaw, ill-conditioned) is the cone's nearest direction: the face
+    # normal at the cone's other end (A's first, then B's)
+    k_a, l_a = np.nonzero(ok & (na.max(axis=2) > 0.0))
+    n[k_a, l_a] = -fa[k_a, 1 - na[k_a, l_a].argmax(axis=1)]
+    k_b, l_b = np.nonzero(ok & (na.max(axis=2) <= 0.0) & (nb.min(axis=2) < 0.0))
+    n[k_b, l_b] = fb[l_b, 1 - nb[k_b, l_b].argmin(axis=1)]
     w = a0[:, None, :] - b0[None, :, :]
     g = np.einsum("klx,klx->kl", n, w)
     ok &= g <= tol

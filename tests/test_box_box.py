@@ -71,3 +71,28 @@ def test_a_cube_dropped_edge_on_edge_bounces_with_the_law(e, h):
         state = r.state
     else:
         pytest.fail("no impact")
+
+
+@pytest.mark.parametrize(("yaw", "tilt"), [(1e-4, 1e-14), (1e-5, -1e-15), (1e-6, 1e-16), (1e-8, 0.0)])
+def test_nearly_parallel_edges_of_faces_on_faces_take_a_face_normal(yaw, tilt):
+    """A cube resting face on face on another, yawed by `yaw` and tilted by `tilt` about x [rad]: their nearly
+    parallel edges cross, and the lines' common normal is tilt / yaw off the faces' (1e-10 rad at 1e-14 / 1e-4),
+    outside the upper cube's normal cone by less than box_box.CONE: under a heavy load it pushed a light cube
+    sideways. Every crossing's
+    normal is in both edges' cones: here a face normal of one of the two cubes (to round-off)."""
+    import coal
+    import pinocchio as pin
+
+    from moreau_sim import box_box
+
+    cube = coal.Box(2 * S, 2 * S, 2 * S)
+    lower = pin.SE3.Identity()
+    upper = pin.SE3(pin.rpy.rpyToMatrix(tilt, 0.0, yaw), np.array([0.0, 0.0, 2 * S]))
+    edges = box_box.box_edges(cube, pin.SE3.Identity())
+    box = [(M.rotation, M.translation, np.full(3, S)) for M in (upper, lower)]
+    hits = box_box.edge_crossings(box_box.world(edges, upper), box_box.world(edges, lower), *box, 1e-9)
+    assert hits  # the yawed square's edges cross the other's
+    faces = np.array([upper.rotation[:, 2], [0.0, 0.0, 1.0]])
+    for g, _, _, n, _, _ in hits:
+        assert np.abs(faces - n).max(axis=1).min() <= 1e-15, n
+        assert abs(g) <= 2 * S * (abs(tilt) + 1e-15)
