@@ -186,6 +186,10 @@ inline std::vector<Crossing> edge_candidates(const Edges &A, const Mat3 &RA, con
       if (nb0 + nb1 < 0.0) n = -n, nb0 = -nb0, nb1 = -nb1;
       const double na0 = dot3(n, fa[k][0]), na1 = dot3(n, fa[k][1]);
       if (!(std::min(nb0, nb1) >= -cone && std::max(na0, na1) <= cone)) continue;
+      // outside a cone by less than `cone`: the cone's nearest direction, the face normal at its other end, A's
+      // cone first (box_box.edge_crossings, docs/theory.md §6.2)
+      if (std::max(na0, na1) > 0.0) n = -(na0 >= na1 ? fa[k][1] : fa[k][0]);
+      else if (std::min(nb0, nb1) < 0.0) n = (nb0 <= nb1 ? fb[l][1] : fb[l][0]);
       const Vec3 w = a0[k] - b0[l];
       const double g = dot3(n, w);
       if (!(g <= tol)) continue;
