@@ -1,7 +1,9 @@
 """The adaptive integrator's extrapolated step between events at compiled speed (src/events.hpp): the
 midpoint steps and their extrapolation (docs/theory.md §8) without a persistent set, operation by operation as
 adaptive.AdaptiveRun._step computes them (docs/theory.md §2.8), so that a run gives the Python run's arrays bit
-for bit. The event location, the decisions at events and the constrained phases stay in Python."""
+for bit; and the samples on the dense output between events with what each records (src/adaptive.hpp), all the
+samples of a step in one call. The event location, the decisions at events and the constrained phases stay in
+Python."""
 
 from __future__ import annotations
 
@@ -32,3 +34,30 @@ def extrapolator(model, *, seq: tuple[int, ...], ratios: tuple[tuple[float, ...]
                                        bool(model.velocity_bias), float(rtol), float(atol), float(fixed_point),
                                        int(MIDPOINT_ITERATIONS))
     return ex.step
+
+
+def sampler_unsupported(model, data, *, lie: bool) -> str | None:
+    """Why the compiled samples on the dense output do not take this model's (None: they do)."""
+    why = compiled.loop_refusal(model, "DenseSampler", "the dense output's samples")
+    if why is not None:
+        return why
+    if lie:
+        return "a joint with nq != nv (the dense output through dIntegrate)"
+    if model.prescribed is not None:
+        return "moving statics"
+    ctx = compiled._context(model, data)
+    return ctx.why if ctx.stepper is None else None
+
+
+def sampler(model, data, *, lie: bool, basis) -> Callable | None:
+    """The samples of one step on its dense output, (t0, q0, u0, a0, t1, q1, u1, a1, grid) -> (q (n, nq), u (n, nv),
+    kinetic (n,) [J], potential (n,) [J], pair distances (n, pairs) [m]) as AdaptiveRun._segment's dense(t) and
+    Recorder.sample give them, or None where it does not apply (sampler_unsupported). basis: adaptive.QUINTIC."""
+    if sampler_unsupported(model, data, lie=lie) is not None:
+        return None
+    forest = model.forest
+    trees = [(tr.model, d, tr.q.start, tr.q.stop - tr.q.start, tr.v.start, tr.v.stop - tr.v.start)
+             for tr, d in zip(forest.trees, data.kinematics.datas())]
+    ds = compiled._module.DenseSampler(compiled._context(model, data).stepper, trees, forest.tree_of_joint.tolist(),
+                                       forest.local_joint.tolist(), [list(map(float, r)) for r in basis])
+    return ds.samples
