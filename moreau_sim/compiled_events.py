@@ -1,13 +1,15 @@
 """The adaptive integrator's extrapolated step between events at compiled speed (src/events.hpp): the
 midpoint steps and their extrapolation (docs/theory.md §8) without a persistent set, operation by operation as
 adaptive.AdaptiveRun._step computes them (docs/theory.md §2.8), so that a run gives the Python run's arrays bit
-for bit; and the samples on the dense output between events with what each records (src/adaptive.hpp), all the
-samples of a step in one call. The event location, the decisions at events and the constrained phases stay in
-Python."""
+for bit; the samples on the dense output between events with what each records, all the samples of a step in
+one call, and the gaps of points on static planes (the ball's) with their rows (src/adaptive.hpp). The event
+location, the decisions at events and the constrained phases stay in Python."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+
+import numpy as np
 
 from . import compiled
 from .results import MIDPOINT_ITERATIONS
@@ -61,3 +63,17 @@ def sampler(model, data, *, lie: bool, basis) -> Callable | None:
     ds = compiled._module.DenseSampler(compiled._context(model, data).stepper, trees, forest.tree_of_joint.tolist(),
                                        forest.local_joint.tolist(), [list(map(float, r)) for r in basis])
     return ds.samples
+
+
+def point_gaps(model, data, feats) -> Callable | None:
+    """gaps.Gaps.features of `feats` compiled, (q, u, idx, rows) -> (g, W, drift, gamma), where every feature is a
+    point on a static plane ("point_plane": vertices and spheres on half-spaces) and the compiled step loads; else
+    None (the Python gaps)."""
+    if not feats or compiled.loop_refusal(model, "PointGaps", "the compiled gaps") is not None:
+        return None
+    if any(f.kind != "point_plane" or f.joint_b != 0 for f in feats):
+        return None
+    pg = compiled._module.PointGaps(model.pin, data.pin, [int(f.joint_a) for f in feats],
+                                    np.array([f.p for f in feats], float), np.array([f.n for f in feats], float),
+                                    [float(f.d) for f in feats], np.asarray(model.support_mask, float))
+    return pg.features

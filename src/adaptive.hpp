@@ -3,8 +3,12 @@
 // sample records (src/forest.hpp: kinetic and potential energy, the pairs' distances), in one call for all the
 // samples of a step, operation by operation as adaptive.AdaptiveRun._segment and _dense, then
 // recording.Recorder.sample compute them (sums in index order: docs/theory.md §2.8), for configurations in a
-// vector space (no joint with nq != nv; a Lie group stays with the Python dense output). #included by step.cpp
+// vector space (no joint with nq != nv; a Lie group stays with the Python dense output). And the gaps of points on
+// static planes (gaps.Gaps.features's "point_plane" kind: vertices and spheres on half-spaces) with their rows, drift
+// and rates, operation by operation as gaps.py and kinematics.Kinematics.point compute them. #included by step.cpp
 // after run.cpp (ForestFigures).
+
+#include <pinocchio/algorithm/jacobian.hpp>
 
 class DenseSampler {
  public:
@@ -91,6 +95,100 @@ class DenseSampler {
   }
 };
 
+// gaps.Gaps.features on a model whose features are all points on static planes (kind "point_plane": the point p in
+// joint j's frame, the plane n' x = d in the world), on the run's own Pinocchio Data (data.pin, left as the Python
+// features leave it)
+class PointGaps {
+ public:
+  using Rows = DenseSampler::Rows;
+  // joint (k,), p, n (k, 3), d (k,): the features; mask: model.support_mask (njoints, nv)
+  PointGaps(nb::object model, nb::object data, std::vector<int64_t> joint, Rows p, Rows n, std::vector<double> d,
+            Rows mask)
+      : py_model_(model), py_data_(data), model_(extract_ref<pinocchio::Model>(model, "pinocchio.Model")),
+        data_(extract_ref<pinocchio::Data>(data, "pinocchio.Data")), joint_(std::move(joint)), p_(std::move(p)),
+        n_(std::move(n)), d_(std::move(d)), mask_(std::move(mask)), zero_(VectorXd::Zero(model_.nv)) {
+    const size_t k = joint_.size();
+    if ((size_t)p_.rows() != k || (size_t)n_.rows() != k || d_.size() != k || p_.cols() != 3 || n_.cols() != 3)
+      throw nb::value_error("joint (k,), p (k, 3), n (k, 3), d (k,) expected");
+    if (mask_.rows() != model_.njoints || mask_.cols() != model_.nv) throw nb::value_error("mask (njoints, nv)");
+  }
+
+  // (g (k,), W (nv, k), drift (k,), gamma (k,)) of the features idx at (q, u) as Gaps.features gives them (without
+  // rows: W, drift, gamma zeros)
+  std::tuple<VectorXd, Rows, VectorXd, VectorXd> features(const VectorXd &q, const VectorXd &u,
+                                                          const std::vector<int64_t> &idx, bool rows) {
+    const Eigen::Index nv = model_.nv, k = (Eigen::Index)idx.size();
+    if (q.size() != model_.nq || u.size() != nv) throw nb::value_error("q (nq,), u (nv,) expected");
+    for (auto i : idx)
+      if (i < 0 || i >= (int64_t)joint_.size()) throw nb::value_error("feature index out of range");
+    if (rows) pinocchio::computeJointJacobians(model_, data_, q);
+    pinocchio::forwardKinematics(model_, data_, q, u, zero_);
+    VectorXd g(k), drift = VectorXd::Zero(k), gamma = VectorXd::Zero(k);
+    Rows W = Rows::Zero(nv, k);
+    Eigen::Matrix<double, 3, Eigen::Dynamic> Jp(3, nv);
+    for (Eigen::Index col = 0; col < k; ++col) {
+      const auto i = idx[(size_t)col];
+      const int64_t j = joint_[(size_t)i];
+      const double pl[3] = {p_(i, 0), p_(i, 1), p_(i, 2)}, n[3] = {n_(i, 0), n_(i, 1), n_(i, 2)};
+      double pw[3], acc[3] = {0.0, 0.0, 0.0};
+      if (j == 0) {  // Kinematics.point of the world: p, at rest
+        for (int r = 0; r < 3; ++r) pw[r] = pl[r];
+        Jp.setZero();
+      } else {  // Kinematics.point: (R, t, w, v, a_ang, a_lin) of the joint, cross and dots in Python's order
+        const auto &M = data_.oMi[(size_t)j];
+        const auto &R = M.rotation();
+        const auto &t = M.translation();
+        const Eigen::Vector3d w = data_.v[(size_t)j].angular(), v_lin = data_.v[(size_t)j].linear();
+        const Eigen::Vector3d a_ang = data_.a[(size_t)j].angular(), a_lin = data_.a[(size_t)j].linear();
+        double wp[3], vl[3], awp[3], wvl[3], al[3];
+        cross(w.data(), pl, wp);
+        for (int r = 0; r < 3; ++r) vl[r] = v_lin[r] + wp[r];
+        for (int r = 0; r < 3; ++r) pw[r] = (R(r, 0) * pl[0] + R(r, 1) * pl[1] + R(r, 2) * pl[2] + 0.0) + t[r];
+        cross(a_ang.data(), pl, awp);
+        cross(w.data(), vl, wvl);
+        for (int r = 0; r < 3; ++r) al[r] = (a_lin[r] + awp[r]) + wvl[r];
+        for (int r = 0; r < 3; ++r) acc[r] = R(r, 0) * al[0] + R(r, 1) * al[1] + R(r, 2) * al[2] + 0.0;
+        if (rows) {  // (J[:3] - ordered(skew(p), J[3:])) * mask[j]
+          const double S[3][3] = {{0.0, -pw[2], pw[1]}, {pw[2], 0.0, -pw[0]}, {-pw[1], pw[0], 0.0}};
+          const auto &J = data_.J;
+          for (Eigen::Index c = 0; c < nv; ++c)
+            for (int r = 0; r < 3; ++r) {
+              const double sj = S[r][0] * J(3, c) + S[r][1] * J(4, c) + S[r][2] * J(5, c) + 0.0;
+              Jp(r, c) = (J(r, c) - sj) * mask_(j, c);
+            }
+        }
+      }
+      g[col] = (n[0] * pw[0] + n[1] * pw[1] + n[2] * pw[2] + 0.0) - d_[(size_t)i];  // dot3(n, p) - d
+      if (rows) {
+        drift[col] = (n[0] * acc[0] + n[1] * acc[1] + n[2] * acc[2] + 0.0) + 0.0;  // dot3(n, a) + curvature 0
+        for (Eigen::Index c = 0; c < nv; ++c)  // ordered(n, Jp)
+          W(c, col) = n[0] * Jp(0, c) + n[1] * Jp(1, c) + n[2] * Jp(2, c) + 0.0;
+      }
+    }
+    if (rows)  // gamma = ordered(W.T, u): each sum in index order from its first product, then + 0.0
+      for (Eigen::Index col = 0; col < k; ++col) {
+        double s = nv ? W(0, col) * u[0] : 0.0;
+        for (Eigen::Index c = 1; c < nv; ++c) s = s + W(c, col) * u[c];
+        gamma[col] = s + 0.0;
+      }
+    return {std::move(g), std::move(W), std::move(drift), std::move(gamma)};
+  }
+
+ private:
+  nb::object py_model_, py_data_;  // keep the Python model and data (and so the C++ ones) alive
+  const pinocchio::Model &model_;
+  pinocchio::Data &data_;
+  std::vector<int64_t> joint_;
+  Rows p_, n_;
+  std::vector<double> d_;
+  Rows mask_;
+  VectorXd zero_;
+
+  static void cross(const double *a, const double *b, double *out) {  // kinematics.cross
+    out[0] = a[1] * b[2] - a[2] * b[1], out[1] = a[2] * b[0] - a[0] * b[2], out[2] = a[0] * b[1] - a[1] * b[0];
+  }
+};
+
 inline void bind_adaptive(nb::module_ &mod) {
   nb::class_<DenseSampler>(mod, "DenseSampler",
                            "The adaptive integrator's samples on its dense output (src/adaptive.hpp)")
@@ -100,4 +198,11 @@ inline void bind_adaptive(nb::module_ &mod) {
       .def("samples", &DenseSampler::samples, nb::arg("t0"), nb::arg("q0"), nb::arg("u0"), nb::arg("a0"),
            nb::arg("t1"), nb::arg("q1"), nb::arg("u1"), nb::arg("a1"), nb::arg("grid"),
            "(q, u, kinetic, potential, gaps) at the instants grid of the step t0 -> t1 (AdaptiveRun._segment)");
+  nb::class_<PointGaps>(mod, "PointGaps", "Gaps.features of points on static planes (src/adaptive.hpp)")
+      .def(nb::init<nb::object, nb::object, std::vector<int64_t>, PointGaps::Rows, PointGaps::Rows, std::vector<double>,
+                    PointGaps::Rows>(),
+           nb::arg("model"), nb::arg("data"), nb::arg("joint"), nb::arg("p"), nb::arg("n"), nb::arg("d"),
+           nb::arg("mask"))
+      .def("features", &PointGaps::features, nb::arg("q"), nb::arg("u"), nb::arg("idx"), nb::arg("rows"),
+           "(g, W, drift, gamma) of the features idx at (q, u) (gaps.Gaps.features)");
 }
