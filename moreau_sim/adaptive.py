@@ -274,6 +274,11 @@ class AdaptiveRun:
         return float(np.sqrt(ordered(z, z) / len(z)))  # the RMS, summed in index order (§2.8)
 
     def _end(self, t, q, u, C, idx) -> _End:
+        pg = self.rules.gaps.compiled
+        if pg is not None and not C and idx:  # free flight, points on planes: the same floats compiled
+            self.s.ev.nfev += 1  # (dynamics counts its calls)
+            a, g, gamma, gdd = pg.end(q, u, [int(i) for i in idx])
+            return _End(t, q, u, a, np.zeros(0), g, gamma, gdd, np.zeros(0), np.zeros(len(idx), bool))
         a, lam, fc = dynamics(self.rules, self.s.ev, q, u, C)
         margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
         if idx:

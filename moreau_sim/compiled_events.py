@@ -65,10 +65,11 @@ def sampler(model, data, *, lie: bool, basis) -> Callable | None:
     return ds.samples
 
 
-def point_gaps(model, data, feats) -> Callable | None:
-    """gaps.Gaps.features of `feats` compiled, (q, u, idx, rows) -> (g, W, drift, gamma), where every feature is a
-    point on a static plane ("point_plane": vertices and spheres on half-spaces) and the compiled step loads; else
-    None (the Python gaps)."""
+def point_gaps(model, data, feats):
+    """The gaps of `feats` compiled where every feature is a point on a static plane ("point_plane": vertices and
+    spheres on half-spaces) and the compiled step loads, else None (the Python gaps): .features(q, u, idx, rows)
+    -> (g, W, drift, gamma) as gaps.Gaps.features; .end(q, u, idx) -> (a, g, gamma, gdd) as AdaptiveRun._end in
+    free flight (a: the free accelerations, gdd = W'a + drift)."""
     if not feats or compiled.loop_refusal(model, "PointGaps", "the compiled gaps") is not None:
         return None
     if any(f.kind != "point_plane" or f.joint_b != 0 for f in feats):
@@ -76,4 +77,4 @@ def point_gaps(model, data, feats) -> Callable | None:
     pg = compiled._module.PointGaps(model.pin, data.pin, [int(f.joint_a) for f in feats],
                                     np.array([f.p for f in feats], float), np.array([f.n for f in feats], float),
                                     [float(f.d) for f in feats], np.asarray(model.support_mask, float))
-    return pg.features
+    return pg

@@ -174,6 +174,23 @@ class PointGaps {
     return {std::move(g), std::move(W), std::move(drift), std::move(gamma)};
   }
 
+  // AdaptiveRun._end in free flight (no persistent set) on the features idx: (a, g, gamma, gdd) with a the free
+  // accelerations (event_rules.dynamics: ABA on data.pin, first) and gdd = ordered(W.T, a) + drift
+  std::tuple<VectorXd, VectorXd, VectorXd, VectorXd> end(const VectorXd &q, const VectorXd &u,
+                                                         const std::vector<int64_t> &idx) {
+    if (q.size() != model_.nq || u.size() != model_.nv) throw nb::value_error("q (nq,), u (nv,) expected");
+    VectorXd a = pinocchio::aba(model_, data_, q, u, zero_);
+    auto [g, W, drift, gamma] = features(q, u, idx, true);
+    const Eigen::Index nv = model_.nv, k = g.size();
+    VectorXd gdd(k);
+    for (Eigen::Index col = 0; col < k; ++col) {
+      double s = nv ? W(0, col) * a[0] : 0.0;
+      for (Eigen::Index c = 1; c < nv; ++c) s = s + W(c, col) * a[c];
+      gdd[col] = (s + 0.0) + drift[col];
+    }
+    return {std::move(a), std::move(g), std::move(gamma), std::move(gdd)};
+  }
+
  private:
   nb::object py_model_, py_data_;  // keep the Python model and data (and so the C++ ones) alive
   const pinocchio::Model &model_;
@@ -204,5 +221,7 @@ inline void bind_adaptive(nb::module_ &mod) {
            nb::arg("model"), nb::arg("data"), nb::arg("joint"), nb::arg("p"), nb::arg("n"), nb::arg("d"),
            nb::arg("mask"))
       .def("features", &PointGaps::features, nb::arg("q"), nb::arg("u"), nb::arg("idx"), nb::arg("rows"),
-           "(g, W, drift, gamma) of the features idx at (q, u) (gaps.Gaps.features)");
+           "(g, W, drift, gamma) of the features idx at (q, u) (gaps.Gaps.features)")
+      .def("end", &PointGaps::end, nb::arg("q"), nb::arg("u"), nb::arg("idx"),
+           "(a, g, gamma, gdd) of a free step end on the features idx (adaptive.AdaptiveRun._end)");
 }

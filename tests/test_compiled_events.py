@@ -32,6 +32,7 @@ from moreau_sim.event_rules import make_rules, sample_grid
 from moreau_sim.model import build_model, initial_state
 from moreau_sim.options import StepImpl
 from moreau_sim.scene import load_scene
+from moreau_sim.sums import ordered
 
 SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.toml"))
 HEAVY = ("quadruped", "solo", "panda", "column_of_beads_100", "box_stack_10", "heavy_on_light_box_10000")
@@ -180,3 +181,8 @@ def test_point_gaps_are_bit_identical(name, rows):
             for key in ("g", "W", "drift", "gamma", "margin", "smooth"):
                 x, y = np.asarray(getattr(ref, key)), np.asarray(getattr(fast, key))
                 assert x.shape == y.shape and x.tobytes() == y.tobytes(), key
+            if rows and which is not None:  # a free step end (AdaptiveRun._end): a, g, gamma, gdd = W'a + drift
+                a = pin.aba(model.pin, data.pin, q, u, np.zeros(model.nv)).copy()
+                end = gaps.compiled.end(q, u, which)
+                for x, y in zip((a, ref.g, ref.gamma, ordered(ref.W.T, a) + ref.drift), end):
+                    assert x.tobytes() == np.asarray(y).tobytes()
