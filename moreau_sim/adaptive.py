@@ -208,6 +208,8 @@ class AdaptiveRun:
         # the compiled _step without a persistent set (src/events.hpp; None: the Python one, step_impl = "python")
         self.extrapolate = compiled_events.extrapolator(model, seq=self.seq, ratios=self.ratios, lie=self.lie,
                                                         rtol=rtol, atol=atol, fixed_point=FIXED_POINT)
+        # the samples on the dense output and their figures, a step's at once (None: dense() one by one)
+        self.sampler = compiled_events.sampler(model, data, lie=self.lie, basis=QUINTIC)
         self.neutral = pin.neutral(model.pin)
         self.h_fix = model.options.dt
         state = state or initial_state(model, data)
@@ -272,6 +274,11 @@ class AdaptiveRun:
         return float(np.sqrt(ordered(z, z) / len(z)))  # the RMS, summed in index order (§2.8)
 
     def _end(self, t, q, u, C, idx) -> _End:
+        pg = self.rules.gaps.compiled
+        if pg is not None and not C and idx:  # free flight, points on planes: the same floats compiled
+            self.s.ev.nfev += 1  # (dynamics counts its calls)
+            a, g, gamma, gdd = pg.end(q, u, [int(i) for i in idx])
+            return _End(t, q, u, a, np.zeros(0), g, gamma, gdd, np.zeros(0), np.zeros(len(idx), bool))
         a, lam, fc = dynamics(self.rules, self.s.ev, q, u, C)
         margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
         if idx:
@@ -308,7 +315,16 @@ class AdaptiveRun:
 
     def _segment(self, e0: _End, e1: _End, n_contacts: int, last: bool) -> Segment:
         """The grid instants before e1.t (up to and including it if `last`) on the step, sampled on
-        its dense output (built on first use)."""
+        its dense output (built on first use); compiled, all at once, where it applies (the same floats)."""
+        if self.sampler is not None:
+            def batch(tgs):
+                return self.sampler(e0.t, e0.q, e0.u, e0.a, e1.t, e1.q, e1.u, e1.a, tgs)
+        else:
+            batch = None
+        return Segment(self._dense_at(e0, e1), e1.t, last, n_contacts, batch)
+
+    def _dense_at(self, e0: _End, e1: _End):
+        """dense(t) -> (q, u) on the step e0 -> e1 at the instant t [s] (_dense, clamped to the step)."""
         H, at = e1.t - e0.t, []
 
         def dense(tg: float):
@@ -319,7 +335,7 @@ class AdaptiveRun:
                     at.append(self._dense(e0, e1))
                 return at[0](min(max((tg - e0.t) / H, 0.0), 1.0))
             return e0.q, e0.u
-        return Segment(dense, e1.t, last, n_contacts)
+        return dense
 
     unit = "step"
 

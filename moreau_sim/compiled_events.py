@@ -1,11 +1,15 @@
 """The adaptive integrator's extrapolated step between events at compiled speed (src/events.hpp): the
 midpoint steps and their extrapolation (docs/theory.md §8) without a persistent set, operation by operation as
 adaptive.AdaptiveRun._step computes them (docs/theory.md §2.8), so that a run gives the Python run's arrays bit
-for bit. The event location, the decisions at events and the constrained phases stay in Python."""
+for bit; the samples on the dense output between events with what each records, all the samples of a step in
+one call, and the gaps of points on static planes (the ball's) with their rows (src/adaptive.hpp). The event
+location, the decisions at events and the constrained phases stay in Python."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+
+import numpy as np
 
 from . import compiled
 from .results import MIDPOINT_ITERATIONS
@@ -32,3 +36,45 @@ def extrapolator(model, *, seq: tuple[int, ...], ratios: tuple[tuple[float, ...]
                                        bool(model.velocity_bias), float(rtol), float(atol), float(fixed_point),
                                        int(MIDPOINT_ITERATIONS))
     return ex.step
+
+
+def sampler_unsupported(model, data, *, lie: bool) -> str | None:
+    """Why the compiled samples on the dense output do not take this model's (None: they do)."""
+    why = compiled.loop_refusal(model, "DenseSampler", "the dense output's samples")
+    if why is not None:
+        return why
+    if lie:
+        return "a joint with nq != nv (the dense output through dIntegrate)"
+    if model.prescribed is not None:
+        return "moving statics"
+    ctx = compiled._context(model, data)
+    return ctx.why if ctx.stepper is None else None
+
+
+def sampler(model, data, *, lie: bool, basis) -> Callable | None:
+    """The samples of one step on its dense output, (t0, q0, u0, a0, t1, q1, u1, a1, grid) -> (q (n, nq), u (n, nv),
+    kinetic (n,) [J], potential (n,) [J], pair distances (n, pairs) [m]) as AdaptiveRun._segment's dense(t) and
+    Recorder.sample give them, or None where it does not apply (sampler_unsupported). basis: adaptive.QUINTIC."""
+    if sampler_unsupported(model, data, lie=lie) is not None:
+        return None
+    forest = model.forest
+    trees = [(tr.model, d, tr.q.start, tr.q.stop - tr.q.start, tr.v.start, tr.v.stop - tr.v.start)
+             for tr, d in zip(forest.trees, data.kinematics.datas())]
+    ds = compiled._module.DenseSampler(compiled._context(model, data).stepper, trees, forest.tree_of_joint.tolist(),
+                                       forest.local_joint.tolist(), [list(map(float, r)) for r in basis])
+    return ds.samples
+
+
+def point_gaps(model, data, feats):
+    """The gaps of `feats` compiled where every feature is a point on a static plane ("point_plane": vertices and
+    spheres on half-spaces) and the compiled step loads, else None (the Python gaps): .features(q, u, idx, rows)
+    -> (g, W, drift, gamma) as gaps.Gaps.features; .end(q, u, idx) -> (a, g, gamma, gdd) as AdaptiveRun._end in
+    free flight (a: the free accelerations, gdd = W'a + drift)."""
+    if not feats or compiled.loop_refusal(model, "PointGaps", "the compiled gaps") is not None:
+        return None
+    if any(f.kind != "point_plane" or f.joint_b != 0 for f in feats):
+        return None
+    pg = compiled._module.PointGaps(model.pin, data.pin, [int(f.joint_a) for f in feats],
+                                    np.array([f.p for f in feats], float), np.array([f.n for f in feats], float),
+                                    [float(f.d) for f in feats], np.asarray(model.support_mask, float))
+    return pg

@@ -165,6 +165,17 @@ class _Loop:
             self._sample(rep.state, rep.n_contacts)
         grid = self.grid
         for seg in rep.segments:
+            if seg.batch is not None:  # all the step's samples in one call, recorded one by one
+                end = self.gi
+                while end < len(grid) and (grid[end] < seg.until or (seg.closed and grid[end] <= seg.until)):
+                    end += 1
+                if end > self.gi:
+                    tgs = grid[self.gi:end]
+                    Q, U, T, V, G = seg.batch(tgs)
+                    for i, tg in enumerate(tgs.tolist()):
+                        self._sample(State(tg, Q[i], U[i]), seg.n_contacts, (float(T[i]), float(V[i]), G[i]))
+                        self.gi += 1
+                continue
             while self.gi < len(grid) and (grid[self.gi] < seg.until or (seg.closed and grid[self.gi] <= seg.until)):
                 tg = float(grid[self.gi])
                 q, u = seg.dense(tg)
@@ -191,12 +202,12 @@ class _Loop:
                                   c.normal[i], True))
         rec.account_impact(r.t, r.q, r.u_minus, r.u_plus, r.M, r.v, r.e, P)
 
-    def _sample(self, state: State, n_contacts: int) -> None:
-        """A sample with the work and correction energy since the previous one; nothing non-finite
-        is ever complete."""
+    def _sample(self, state: State, n_contacts: int, figures: tuple | None = None) -> None:
+        """A sample with the work and correction energy since the previous one (figures: its (T, V,
+        gaps) already evaluated, Recorder.sample); nothing non-finite is ever complete."""
         if not state.finite():
             raise SimulationError(f"the state at t = {state.t:.6g} s became non-finite (NaN or inf)")
-        self.rec.sample(state, self.work, self.corr, n_contacts)
+        self.rec.sample(state, self.work, self.corr, n_contacts, figures)
         self.work = self.corr = 0.0
         if not self.rec.finite():
             raise SimulationError(f"the energies or gaps at t = {state.t:.6g} s became non-finite (an overflow: "

@@ -14,6 +14,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from . import compiled_events
 from .constraints import assemble_constraints, corner_faces
 from .corners import MAX_PIECES, corner_law
 from .contacts import FeatureKind, detect, from_rows
@@ -62,7 +63,9 @@ def make_rules(model: Model, data: Data, e: float, feats: tuple[Feature, ...] | 
     gap_tol = max(model.options.contact_tolerance, G_RES)
     feats = feature_list(model) if feats is None else feats
     first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
-    return Rules(model, data, e, feats, gap_tol, Gaps(model, data, feats, gap_tol),
+    gaps = Gaps(model, data, feats, gap_tol)
+    gaps.compiled = compiled_events.point_gaps(model, data, feats)
+    return Rules(model, data, e, feats, gap_tol, gaps,
                  {f.pair: i for i, f in reversed(list(enumerate(feats))) if f.box is not None},
                  {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
                   for i, f in enumerate(feats) if f.kind in CYLINDER_KINDS},

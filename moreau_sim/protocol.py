@@ -73,12 +73,15 @@ class Impact:
 @dataclass(slots=True)
 class Segment:
     """Samples of the output grid that fall in a step: the grid instants t < until (<= if closed)
-    are sampled at dense(t) -> (q, u), with n_contacts closed contacts."""
+    are sampled at dense(t) -> (q, u), with n_contacts closed contacts; batch (where not None) gives all of
+    them in one call, batch(instants) -> (q rows, u rows, kinetic, potential, pair gaps) as dense(t) and the
+    recorder's sample would (compiled_events.sampler)."""
 
     dense: Callable[[float], tuple[np.ndarray, np.ndarray]]
     until: float
     closed: bool
     n_contacts: int
+    batch: Callable | None = None
 
 
 @dataclass(slots=True)

@@ -304,7 +304,9 @@ class Recorder:
         """Samples recorded so far."""
         return self._samples.n
 
-    def sample(self, state: State, work: float, corr: float, n_contacts: int) -> None:
+    def sample(self, state: State, work: float, corr: float, n_contacts: int, figures: tuple | None = None) -> None:
+        """Record a sample of `state`; figures: its (T [J], V [J], pair gaps [m]) as this would evaluate them,
+        already evaluated (compiled_events.sampler: none here then)."""
         m, d = self.model, self.data
         q, u = state.q, state.u
         if m.prescribed is not None:
@@ -314,14 +316,16 @@ class Recorder:
         c["t"][i] = state.t
         c["q"][i] = q
         c["u"][i] = u
-        if self._at is not None and self._at[0] is q and self._at[1] is u:
+        if figures is not None:
+            T, V, _ = figures
+        elif self._at is not None and self._at[0] is q and self._at[1] is u:
             T, V = self._TV  # the state the last step left, already evaluated by account_step
         else:
             T, V = kinetic(m, d, q, u), potential(m, d, q)
         c["kinetic_energy"][i], c["potential_energy"][i] = T, V
         c["contact_work"][i] = work
         c["correction_energy"][i] = corr
-        g = c["gap"][i] = pair_distances(m, d, q)
+        g = c["gap"][i] = pair_distances(m, d, q) if figures is None else figures[2]
         # coal failed at a finite state (not an overflow, which finite() reports): stop, uncommitted, no sentinel
         if np.isnan(g).any() and math.isfinite(T + V) and state.finite():
             k = int(np.flatnonzero(np.isnan(g))[0])

@@ -17,6 +17,7 @@
 #include <pinocchio/algorithm/kinematics.hpp>
 
 #include "actuation.hpp"
+#include "forest.hpp"
 
 #include <array>
 #include <chrono>
@@ -53,16 +54,9 @@ class Runner {
   Runner(nb::object stepper, std::vector<std::tuple<nb::object, nb::object, int64_t, int64_t, int64_t, int64_t>> trees,
          std::vector<int64_t> tree_of_joint, std::vector<int64_t> local_joint,
          const std::map<std::string, double> &constants, bool checks, nb::object torques)
-      : py_stepper_(stepper), S_(nb::cast<Stepper &>(stepper)), tree_of_joint_(std::move(tree_of_joint)),
-        local_joint_(std::move(local_joint)), checks_(checks) {
+      : py_stepper_(stepper), S_(nb::cast<Stepper &>(stepper)),
+        forest_(S_, trees, std::move(tree_of_joint), std::move(local_joint)), checks_(checks) {
     if (!torques.is_none()) act_.emplace(nb::cast<nb::tuple>(torques));
-    for (auto &t : trees) {
-      py_trees_.push_back(std::get<0>(t)), py_trees_.push_back(std::get<1>(t));
-      Tree tr{&extract_ref<pinocchio::Model>(std::get<0>(t), "pinocchio.Model"),
-              &extract_ref<pinocchio::Data>(std::get<1>(t), "pinocchio.Data"), std::get<2>(t), std::get<3>(t),
-              std::get<4>(t), std::get<5>(t)};
-      trees_.push_back(tr);
-    }
     auto get = [&](const char *k) {
       auto it = constants.find(k);
       if (it == constants.end()) throw nb::value_error((std::string("constant missing: ") + k).c_str());
@@ -116,11 +110,6 @@ class Runner {
   std::pair<int64_t, int64_t> counts() const { return {flight_, contact_}; }
 
  private:
-  struct Tree {
-    const pinocchio::Model *model;
-    pinocchio::Data *data;
-    int64_t q0, nq, v0, nv;
-  };
   // What the Python run carries from one step to the next (the attribute each mirrors in brackets)
   struct Carry {
     // Recorder: _smooth, _diss, _law, _E, _TV, _new_impact, _rise, _law_difference, _contact_steps, smooth_deficit
@@ -165,10 +154,8 @@ class Runner {
   };
 
   nb::object py_stepper_;
-  std::vector<nb::object> py_trees_;
   Stepper &S_;
-  std::vector<Tree> trees_;
-  std::vector<int64_t> tree_of_joint_, local_joint_;
+  ForestFigures forest_;  // what a sample records (src/forest.hpp)
   bool checks_;
   bool guard_ = false;  // Undo restores the box pairs' detection state (a model with pairs of two boxes)
   // coal's cached GJK guesses of the pairs' distance queries (requests, results) before the current step (Undo)
@@ -216,50 +203,10 @@ class Runner {
     i_law = run_loop::column<double>(i, "impact_law");
   }
 
-  // ---- the forest's figures, as trees.Forest and contacts.pair_distances compute them --------------------------
-  // (each tree's q and u as views of the forest's, not copies: Pinocchio's functions take them as Eigen::Ref)
-  using CRef = Eigen::Ref<const VectorXd>;
-  double kinetic(const VectorXd &q, const VectorXd &u) {  // Forest.kinetic
-    double s = 0.0;
-    for (auto &tr : trees_) {
-      const CRef qt = q.segment(tr.q0, tr.nq), ut = u.segment(tr.v0, tr.nv);
-      if (tr.model->njoints == 2) {
-        s += 2.0 * pinocchio::computeKineticEnergy(*tr.model, *tr.data, qt, ut);
-        continue;
-      }
-      pinocchio::forwardKinematics(*tr.model, *tr.data, qt, ut);
-      for (int j = 1; j < tr.model->njoints; ++j) s += tr.model->inertias[j].vtiv(tr.data->v[j]);
-    }
-    return 0.5 * s;
-  }
-  double potential(const VectorXd &q) {  // Forest.potential
-    double s = 0.0;
-    for (auto &tr : trees_) s += pinocchio::computePotentialEnergy(*tr.model, *tr.data, CRef(q.segment(tr.q0, tr.nq)));
-    return s;
-  }
-  // contacts.pair_distances into `out` (Forest.place with the geometry placements, then coal's distances)
-  void gaps(const VectorXd &q, double *out) {
-    auto &gd = S_.gd_;
-    const auto &gm = S_.gm_;
-    if (gm.collisionPairs.empty()) return;
-    S_.fresh_guesses(gd.distanceRequests);
-    for (auto &tr : trees_) pinocchio::forwardKinematics(*tr.model, *tr.data, VectorXd(q.segment(tr.q0, tr.nq)));
-    for (size_t g = 0; g < gm.geometryObjects.size(); ++g) {
-      const auto &go = gm.geometryObjects[g];
-      const auto j = go.parentJoint;
-      if (j) {
-        const Tree &tr = trees_[(size_t)tree_of_joint_[j]];
-        gd.oMg[g] = tr.data->oMi[(size_t)local_joint_[j]] * go.placement;
-      } else {
-        gd.oMg[g] = go.placement;
-      }
-    }
-    pinocchio::computeDistances(gm, gd);
-    for (size_t k = 0; k < gd.distanceResults.size(); ++k) {
-      const double x = gd.distanceResults[k].min_distance;
-      out[k] = std::abs(x) < S_.C_.distance_failed ? x : std::numeric_limits<double>::quiet_NaN();
-    }
-  }
+  // ---- the forest's figures, as trees.Forest and contacts.pair_distances compute them (src/forest.hpp) -----------
+  double kinetic(const VectorXd &q, const VectorXd &u) { return forest_.kinetic(q, u); }
+  double potential(const VectorXd &q) { return forest_.potential(q); }
+  void gaps(const VectorXd &q, double *out) { forest_.gaps(q, out); }
 
   // ---- ledger.impact_terms's products: x'Mx as ledger._quad sums it, (x'M) x, each entry in index order (odot) --
   // M (n, n) in C order (StepOut's M, as compiled.py hands it to the ledger)

@@ -505,6 +505,7 @@ struct QueryGuesses {
 
 class Stepper {
   friend class Runner;  // the run loop (src/run.cpp) calls the step and reads its model and geometry
+  friend class ForestFigures;  // the figures a sample records (src/forest.hpp) read its geometry
 
  public:
   Stepper(nb::object model, nb::object data, nb::object geom_model, nb::object geom_data,
@@ -1645,6 +1646,7 @@ class Stepper {
 
 #include "run.cpp"  // the run loop over a Stepper (moreau_sim/compiled_run.py)
 #include "events.hpp"  // the adaptive integrator's extrapolated step (moreau_sim/compiled_events.py)
+#include "adaptive.hpp"  // the adaptive integrator's samples on its dense output (moreau_sim/compiled_events.py)
 
 NB_MODULE(_step, mod) {
   mod.doc() = "The compiled midpoint Moreau contact step (moreau_sim/compiled.py).";
@@ -1730,4 +1732,5 @@ NB_MODULE(_step, mod) {
     return d;
   });
   mod.def("fp_probe", [](double a, double b, double c) { return a * b + c; }, nb::arg("a"), nb::arg("b"), nb::arg("c"));
+  bind_adaptive(mod);
 }

@@ -1,5 +1,6 @@
 """Two implementations, one truth: the adaptive integrator's compiled extrapolated step (src/events.hpp,
-moreau_sim/compiled_events.py) against its Python one (adaptive.AdaptiveRun._step).
+moreau_sim/compiled_events.py) against its Python one (adaptive.AdaptiveRun._step), and its compiled samples on
+the dense output (src/adaptive.hpp) against AdaptiveRun._segment's dense(t) and Recorder.sample.
 
 Every bundled scene the adaptive integrator accepts runs both ways (step_impl = "python" and "compiled", the
 durations of the byte-identity runs: 1 s, 0.3 s for the large models) and must give the same arrays bit for bit:
@@ -7,7 +8,7 @@ the C++ step makes the Python step's floating-point operations in the same order
 error estimate one ulp apart would move the next step size and so every later sample. How many steps ran
 compiled is counted and, for the scenes with free flights between events, asserted > 0 (so that "equal because
 nothing ran compiled" shows); the scenes whose extrapolated steps are all constrained or fixed show their
-fallback by a count of 0.
+fallback by a count of 0. The same for the compiled samples (Lie-group models keep the Python dense output).
 """
 
 from __future__ import annotations
@@ -15,8 +16,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
+import moreau_sim as ms
 import moreau_sim.compiled as compiled
 from moreau_sim import compiled_events
 from moreau_sim.actuation import refuse_driven
@@ -25,19 +28,23 @@ from moreau_sim.data import make_data
 from moreau_sim.drive import refuse as refuse_drives
 from moreau_sim.driver import drive
 from moreau_sim.errors import SceneError
-from moreau_sim.event_rules import sample_grid
+from moreau_sim.event_rules import make_rules, sample_grid
 from moreau_sim.model import build_model, initial_state
 from moreau_sim.options import StepImpl
 from moreau_sim.scene import load_scene
+from moreau_sim.sums import ordered
 
 SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.toml"))
 HEAVY = ("quadruped", "solo", "panda", "column_of_beads_100", "box_stack_10", "heavy_on_light_box_10000")
 MUST_COMPILE = {"bouncing_ball", "zeno_ball", "newton_cradle_5", "newton_cradle_5_gapped", "fast_impact",
                 "pendulum_wall", "box_drop", "spinning_box"}
+MUST_SAMPLE = MUST_COMPILE - {"box_drop", "spinning_box"}  # free bodies: a Lie group, the Python dense output
+G, D0 = 9.81, 0.9  # gravity [m/s^2]; the ball's initial gap [m] (centre at 1 m, r = 0.1 m)
 
 
 def _run(scene, impl: StepImpl):
-    """The adaptive run of `scene` with step_impl `impl`: (arrays, compiled extrapolated steps taken)."""
+    """The adaptive run of `scene` with step_impl `impl`: (arrays, compiled extrapolated steps taken, compiled
+    sample calls)."""
     model = build_model(scene.with_options(step_impl=impl.value, integrator="adaptive"))
     refuse_driven(model, "adaptive")  # as simulate_adaptive refuses them
     refuse_drives(model, "adaptive")
@@ -54,13 +61,21 @@ def _run(scene, impl: StepImpl):
             taken[0] += 1
             return inner(q0, u0, H)
         run.extrapolate = counted
+    sampled = [0]
+    if run.sampler is not None:
+        inner_sampler = run.sampler
+
+        def counted_samples(*args):
+            sampled[0] += 1
+            return inner_sampler(*args)
+        run.sampler = counted_samples
     try:
         traj = drive(run, model, data, grid=grid, capacity=len(grid))
     except Exception as exc:  # a run that fails fails alike both ways, up to the same sample
         traj = getattr(exc, "trajectory", None)
         if traj is None:
             raise
-    return traj.arrays, taken[0]
+    return traj.arrays, taken[0], sampled[0]
 
 
 def test_the_compiled_extrapolated_step_is_available():
@@ -77,17 +92,19 @@ def test_same_adaptive_run_both_ways(path):
     duration = min(scene.options.duration, 0.3 if any(h in path.stem for h in HEAVY) else 1.0)
     scene = scene.with_options(duration=duration)
     try:
-        ref, none = _run(scene, StepImpl.PYTHON)
+        ref, none, none_sampled = _run(scene, StepImpl.PYTHON)
     except SceneError as exc:  # a driven or actuated scene: the adaptive integrator refuses it, both ways alike
         with pytest.raises(SceneError) as again:
             _run(scene, StepImpl.COMPILED)
         assert str(again.value) == str(exc) and "use integrator = \"time-stepping\"" in str(exc)
         return
-    got, taken = _run(scene, StepImpl.COMPILED)
-    assert none == 0
-    print(f"{scene.name}: {taken} compiled extrapolated steps")
+    got, taken, sampled = _run(scene, StepImpl.COMPILED)
+    assert none == 0 and none_sampled == 0
+    print(f"{scene.name}: {taken} compiled extrapolated steps, {sampled} compiled sample calls")
     if scene.name in MUST_COMPILE:
         assert taken > 0
+    if scene.name in MUST_SAMPLE:
+        assert sampled > 0
     assert set(ref) == set(got)
     for key in ref:
         x, y = np.asarray(ref[key]), np.asarray(got[key])
@@ -113,3 +130,59 @@ def test_one_step_is_bit_identical(name, H, order):
     for x, y in zip(a, b):
         assert x.tobytes() == np.asarray(y).tobytes()
     assert FIXED_POINT < 1.0
+
+
+@pytest.mark.parametrize("e", [0.5, 0.8, 1.0])
+def test_ball_through_simulate_both_ways(e):
+    """The ball through ms.simulate at rtol 1e-10, samples every 0.025 s (the benchmark's run), with restitution e:
+    the compiled samples give the Python run's arrays bit for bit; the impact times are the closed form's
+    t_k = t0 (1 + 2 e + ... + 2 e^k) (docs/theory.md §4.1) and the energy never rises."""
+    base = load_scene(SCENES[0].parent / "bouncing_ball.toml").with_options(
+        integrator="adaptive", restitution=e, rtol=1e-10, save_every=25, duration=2.0)
+    runs = {}
+    for impl in StepImpl:
+        model = build_model(base.with_options(step_impl=impl.value))
+        if impl is StepImpl.COMPILED:
+            assert compiled_events.sampler_unsupported(model, make_data(model), lie=False) is None
+        runs[impl] = ms.simulate(model).arrays
+    ref, got = runs[StepImpl.PYTHON], runs[StepImpl.COMPILED]
+    assert set(ref) == set(got)
+    for key in ref:
+        assert np.asarray(ref[key]).tobytes() == np.asarray(got[key]).tobytes(), key
+    t0 = np.sqrt(2 * D0 / G)
+    tn = np.array([t0 * (1 + 2 * sum(e ** j for j in range(1, k + 1))) for k in range(6)])
+    tn = tn[tn < 1.9]  # the impacts in the run (e = 0.5: six, well before the accumulation at 3 t0)
+    n = len(tn)
+    assert np.abs(got["log_t"][:n] - tn).max() < 1e-9
+    E = got["kinetic_energy"] + got["potential_energy"]
+    assert (np.diff(E) <= 1e-9 * E[0]).all()
+
+
+@pytest.mark.parametrize("rows", [True, False])
+@pytest.mark.parametrize("name", ["bouncing_ball", "zeno_ball", "box_drop", "rocking_block"])
+def test_point_gaps_are_bit_identical(name, rows):
+    """The gaps of points on static planes (a sphere's centre, a box's vertices on a half-space) with their rows,
+    drift and rates: the compiled ones are the Python Gaps.features's floats, at states moving in every coordinate."""
+    model = build_model(load_scene(SCENES[0].parent / f"{name}.toml"))
+    data = make_data(model)
+    gaps = make_rules(model, data, model.options.restitution).gaps
+    assert gaps.compiled is not None
+    state = initial_state(model, data)
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        q = pin.integrate(model.pin, state.q, rng.normal(0.0, 0.3, model.nv))
+        u = rng.normal(0.0, 2.0, model.nv)
+        idx = sorted(rng.choice(len(gaps.feats), size=max(1, len(gaps.feats) // 2), replace=False).tolist())
+        for which in (None, idx):
+            fast = gaps.features(q, u, which, rows)
+            compiled_gaps, gaps.compiled = gaps.compiled, None
+            ref = gaps.features(q, u, which, rows)
+            gaps.compiled = compiled_gaps
+            for key in ("g", "W", "drift", "gamma", "margin", "smooth"):
+                x, y = np.asarray(getattr(ref, key)), np.asarray(getattr(fast, key))
+                assert x.shape == y.shape and x.tobytes() == y.tobytes(), key
+            if rows and which is not None:  # a free step end (AdaptiveRun._end): a, g, gamma, gdd = W'a + drift
+                a = pin.aba(model.pin, data.pin, q, u, np.zeros(model.nv)).copy()
+                end = gaps.compiled.end(q, u, which)
+                for x, y in zip((a, ref.g, ref.gamma, ordered(ref.W.T, a) + ref.drift), end):
+                    assert x.tobytes() == np.asarray(y).tobytes()
