@@ -298,10 +298,18 @@ VectorXd otimes_t(const MatrixXd &W, const VectorXd &x) {
 // column; a NaN in it: no pivot), then back substitution by columns, each entry with the same operations in the
 // same order as the Python one (docs/theory.md §2.8: no LAPACK, no FMA); false at a zero or non-finite pivot,
 // or when x is not finite
-bool lu_solve(const MatrixXd &A, const VectorXd &rhs, VectorXd &x) {
+//
+// Where A is finite and has no -0.0 entry (a contact-space G: every entry a sum ending + 0.0), the elimination skips
+// the rows i with a_ij = 0 and the columns k with a_jk = 0: a_ik - (+-0) a_jk = a_ik there (no entry ever becomes
+// -0.0, so not even a zero's sign changes), the same bits at a cost of the nonzeros (a stack's G is banded); the
+// right-hand side gets every operation (its entries may be -0.0)
+bool lu_solve(const MatrixXd &A, const VectorXd &rhs, VectorXd &x, bool clean = false) {
   const Eigen::Index n = A.rows();
   MatrixXd a = A;
   x = rhs;
+  bool skip = clean || a.allFinite();  // clean: the caller knows A finite, without -0.0
+  for (Eigen::Index k = 0; k < a.size() && skip && !clean; ++k) skip = !(a.data()[k] == 0.0 && std::signbit(a.data()[k]));
+  std::vector<Eigen::Index> cols;
   for (Eigen::Index j = 0; j < n; ++j) {
     Eigen::Index p = j;
     double best = std::abs(a(j, j));
@@ -315,9 +323,18 @@ bool lu_solve(const MatrixXd &A, const VectorXd &rhs, VectorXd &x) {
       for (Eigen::Index k = j; k < n; ++k) std::swap(a(j, k), a(p, k));
       std::swap(x[j], x[p]);
     }
+    if (skip) {
+      cols.clear();
+      for (Eigen::Index k = j + 1; k < n; ++k)
+        if (a(j, k) != 0.0) cols.push_back(k);
+    }
     for (Eigen::Index i = j + 1; i < n; ++i) {
-      const double l = a(i, j) / piv;
-      for (Eigen::Index k = j + 1; k < n; ++k) a(i, k) = a(i, k) - l * a(j, k);
+      const double aij = a(i, j);  // skip: +0 / piv without the division
+      const double l = skip && aij == 0.0 ? std::copysign(0.0, piv) : aij / piv;
+      if (!skip)
+        for (Eigen::Index k = j + 1; k < n; ++k) a(i, k) = a(i, k) - l * a(j, k);
+      else if (l != 0.0)
+        for (Eigen::Index k : cols) a(i, k) = a(i, k) - l * a(j, k);
       x[i] = x[i] - l * x[j];
     }
   }
@@ -341,8 +358,27 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
   std::vector<Eigen::Index> idx;
   VectorXd d, rhs, Gp;
   MatrixXd GA;
+  VectorXd s(m);
+  const bool finite = G.allFinite();
+  bool clean = finite;  // lu_solve on G's submatrices: finite, no -0.0
+  for (Eigen::Index k = 0; k < G.size() && clean; ++k) clean = !(G.data()[k] == 0.0 && std::signbit(G.data()[k]));
+  std::vector<std::vector<Eigen::Index>> gcol(finite ? (size_t)m : 0);  // the nonzero rows of each column of G
+  for (Eigen::Index k = 0; k < (Eigen::Index)gcol.size(); ++k)
+    for (Eigen::Index i = 0; i < m; ++i)
+      if (G(i, k) != 0.0) gcol[(size_t)k].push_back(i);
   while (true) {
-    const VectorXd s = otimes(G, lam) - r;  // G @ lam - r
+    if (finite) {  // G @ lam - r: the terms with lam_k = +-0 or G_ik = 0 add +-0 (a zero's sign settled by the + 0.0)
+      s.setZero();
+      for (Eigen::Index k = 0; k < m; ++k) {
+        const double lk = lam[k];
+        if (lk == 0.0) continue;
+        const double *g = G.col(k).data();
+        for (Eigen::Index i : gcol[(size_t)k]) s[i] = s[i] + g[i] * lk;
+      }
+      for (Eigen::Index i = 0; i < m; ++i) s[i] = (s[i] + 0.0) - r[i];
+    } else {
+      s = otimes(G, lam) - r;
+    }
     Eigen::Index p = 0;
     double best = act[0] ? inf : s[0];
     for (Eigen::Index i = 1; i < m; ++i) {
@@ -363,7 +399,7 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
           rhs[i] = -G(idx[i], p), Gp[i] = G(p, idx[i]);
           for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
         }
-        if (!lu_solve(GA, rhs, d)) return false;
+        if (!lu_solve(GA, rhs, d, clean)) return false;
         z = G(p, p) + odot(Gp.data(), d.data(), k);
       } else {
         d.resize(0);
@@ -394,6 +430,50 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
   }
 }
 
+// MiW = Minv @ W and G = W.T @ MiW as omatmul sums them (k ascending, + 0.0), over the nonzero terms only: a term
+// with a zero factor adds +-0 to the sum (the same sum; its sign as a zero settled by the + 0.0), so where Minv and W
+// are finite this gives omatmul's bits at the cost of the nonzeros (M block diagonal over the trees, a row of W
+// nonzero on the two bodies of its contact: docs/theory.md §2.8); anything non-finite takes omatmul itself
+void contact_space(const MatrixXd &Minv, const MatrixXd &W, MatrixXd &MiW, MatrixXd &G) {
+  const Eigen::Index nv = W.rows(), m = W.cols();
+  if (!Minv.allFinite() || !W.allFinite()) {
+    omatmul(Minv, W, MiW);
+    omatmul(W.transpose(), MiW, G);
+    return;
+  }
+  std::vector<std::vector<Eigen::Index>> mcol((size_t)nv), wcol((size_t)m);
+  for (Eigen::Index k = 0; k < nv; ++k)
+    for (Eigen::Index i = 0; i < nv; ++i)
+      if (Minv(i, k) != 0.0) mcol[(size_t)k].push_back(i);
+  for (Eigen::Index j = 0; j < m; ++j)
+    for (Eigen::Index k = 0; k < nv; ++k)
+      if (W(k, j) != 0.0) wcol[(size_t)j].push_back(k);
+  MiW.setZero(nv, m);
+  for (Eigen::Index j = 0; j < m; ++j) {
+    double *y = MiW.col(j).data();
+    for (Eigen::Index k : wcol[(size_t)j]) {
+      const double xk = W(k, j);
+      const double *a = Minv.col(k).data();
+      for (Eigen::Index i : mcol[(size_t)k]) y[i] = y[i] + a[i] * xk;
+    }
+    for (Eigen::Index i = 0; i < nv; ++i) y[i] = y[i] + 0.0;
+  }
+  std::vector<std::vector<Eigen::Index>> mrow((size_t)nv);  // the nonzero columns of each row of MiW
+  for (Eigen::Index j = 0; j < m; ++j)
+    for (Eigen::Index k = 0; k < nv; ++k)
+      if (MiW(k, j) != 0.0) mrow[(size_t)k].push_back(j);
+  G.setZero(m, m);
+  VectorXd g(m);
+  for (Eigen::Index i = 0; i < m; ++i) {
+    g.setZero();
+    for (Eigen::Index k : wcol[(size_t)i]) {
+      const double w = W(k, i);
+      for (Eigen::Index j : mrow[(size_t)k]) g[j] = g[j] + w * MiW(k, j);
+    }
+    for (Eigen::Index j = 0; j < m; ++j) G(i, j) = g[j] + 0.0;
+  }
+}
+
 // qp.solve (primal form, Polish.ACTIVE_SET, at most qp.COLD_START_ROWS rows): the screen, the closed form for
 // one row, else qp._polish cold: the active set, re-solved on its final set and checked. Throws Fallback where
 // qp.solve would go on to piqp.
@@ -410,8 +490,7 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
   }
   const double scale = 1.0 + v0.cwiseAbs().maxCoeff();
   MatrixXd MiW, G;  // Minv @ W, W.T @ MiW
-  omatmul(Minv, W, MiW);
-  omatmul(W.transpose(), MiW, G);
+  contact_space(Minv, W, MiW, G);
   const VectorXd r = b - otimes_t(W, v0);
   std::vector<char> act;
   VectorXd lam;
@@ -1169,9 +1248,27 @@ class Stepper {
       return keep;
     }
     const double thr = C_.distinct * (1.0 + W.cwiseAbs().maxCoeff());
+    const Eigen::Index nv = W.rows();
+    // W finite: max|w_i - w_j| <= thr is every |w_vi - w_vj| <= thr, compared where either row is nonzero (from
+    // the first nonzero entry of either to the last), the first that is not ending the comparison
+    const bool finite = W.allFinite();
+    std::vector<Eigen::Index> lo((size_t)m, nv), hi((size_t)m, 0);
+    for (Eigen::Index j = 0; j < m && finite; ++j)
+      for (Eigen::Index v = 0; v < nv; ++v)
+        if (W(v, j) != 0.0) lo[(size_t)j] = std::min(lo[(size_t)j], v), hi[(size_t)j] = v + 1;
     for (Eigen::Index j = 0; j < m; ++j) {
       bool dup = false;
-      for (Eigen::Index i = 0; i < j && !dup; ++i) dup = (W.col(i) - W.col(j)).cwiseAbs().maxCoeff() <= thr;
+      for (Eigen::Index i = 0; i < j && !dup; ++i) {
+        if (!finite) {
+          dup = (W.col(i) - W.col(j)).cwiseAbs().maxCoeff() <= thr;
+          continue;
+        }
+        const double *a = W.col(i).data(), *b = W.col(j).data();
+        Eigen::Index v = std::min(lo[(size_t)i], lo[(size_t)j]);
+        const Eigen::Index end = std::max(hi[(size_t)i], hi[(size_t)j]);
+        while (v < end && std::abs(a[v] - b[v]) <= thr) ++v;
+        dup = v >= end;
+      }
       if (!dup) keep.push_back((int)j);
     }
     return keep;
