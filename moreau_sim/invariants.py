@@ -3,7 +3,7 @@
 finite state, no penetration beyond the method's, no energy gain beyond the integrator's stated
 bound, no speed the energy cannot pay for, a closed ledger, no start inside an obstacle; and at the
 end, from the recorded samples and percussion log, no kinetic energy paid by a load sinking into its
-support (sinking.py).
+support (sinking.py) and no motion below the energy's round-off (creep.py).
 Each check is a few float reductions; a violation is a dict kept in meta["invariants"].
 """
 
@@ -14,6 +14,7 @@ from enum import Enum
 
 import numpy as np
 
+from .creep import first_creep
 from .data import make_data
 from .energy import kinetic, potential
 from .errors import SimulationError
@@ -43,6 +44,7 @@ class Invariant(Enum):
     SPEED = "speed beyond the energy"
     LEDGER = "ledger residual"
     SINKING = "speed paid by sinking"
+    CREEP = "motion below round-off"
 
 
 class InvariantViolation(SimulationError):
@@ -97,7 +99,8 @@ class Invariants:
     def _end(self, state: State, rec: Recorder) -> list[dict] | None:
         """A penetration beyond the allowance at the last samples (or steps) persists to the end of the
         run, however few they were; kinetic energy paid by a load sinking into its support (sinking.first_paid,
-        docs/theory.md §2.11, §10), from the recorded arrays."""
+        docs/theory.md §2.11, §10) and motion below the energy's round-off (creep.first_creep), from the recorded
+        arrays."""
         out = None
         if self.deep_samples or self.deep_points:
             out = self._violate(Invariant.PENETRATION, state.t, self.last_depth, self.last_allowed, "m",
@@ -110,6 +113,13 @@ class Invariants:
                 Invariant.SINKING, t, size, allowed, "J",
                 f"loads sunk into their supports released {size:.3g} J at t = {t:.6g} s, beyond the {allowed:.3g} J "
                 "the energy leaves: kinetic energy paid by penetration (a smaller step resolves it)")
+        found = first_creep(rec.arrays(), reach=self.model.reach, tol=self.tol, rel=ROUND_OFF, persist=PERSIST)
+        if found is not None:
+            t, size, allowed = found
+            out = (out or []) + self._violate(
+                Invariant.CREEP, t, size, allowed, "m",
+                f"the bodies moved up to {size:.3g} m (from t = {t:.6g} s) with a kinetic energy within the round-off "
+                "of T + V: motion no energy check can tell from round-off (docs/theory.md §10)")
         return out or None
 
     def _energies(self, state: State, rec: Recorder) -> tuple[float, float]:

@@ -97,10 +97,12 @@ def test_kinetic_energy_paid_by_sinking_is_flagged_and_none_is_not(h):
 
 
 def test_a_strict_run_flagged_at_its_end_keeps_its_samples(tmp_path):
-    """The sinking check runs once, at the run's end: under strict=True its violation stops the run with one
-    line naming the step and the samples so far kept (errors.named_stops), as a violation during the run does."""
+    """The sinking and creep checks run once, at the run's end: under strict=True a violation stops the run with one
+    line naming the step and the samples so far kept (errors.named_stops), as a violation during the run does. (Since
+    the normals' fix of issue 23 the limit case no longer ejects its light cube: it creeps, 2.6e-7 m in 2 s.)"""
     with pytest.raises(InvariantViolation) as exc:
         ms.run(stack(tmp_path, LIMIT, 1e-2), strict=True)
-    assert str(exc.value).startswith("step ") and Invariant.SINKING.value in str(exc.value)
+    assert str(exc.value).startswith("step ")
+    assert Invariant.SINKING.value in str(exc.value) or Invariant.CREEP.value in str(exc.value)
     tr = exc.value.trajectory
     assert tr is not None and tr.meta["status"].startswith("failed: ") and len(tr.arrays["t"]) > 100
