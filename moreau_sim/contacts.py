@@ -145,9 +145,9 @@ def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p
     n, d = planes
     s = n @ (oMo.rotation.T @ (p - oMo.translation)) - d  # signed distance to each face plane
     on = np.flatnonzero(s >= s.max() - margin)
-    if len(on) < 2:
-        return None
     nw = n[on] @ oMo.rotation.T
+    if len(on) == 1:  # one face: the vertex is over it (or inside, nearest to it), its normal is the contact's
+        return nw
     r = edges[i] @ oMi.rotation.T  # (k, 3) edges leaving the vertex, world
     ok = (nw @ r.T).min(axis=1, initial=0.0) >= -1e-9 if len(r) else np.ones(len(nw), bool)
     return nw[ok] if ok.any() else None

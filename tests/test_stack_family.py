@@ -86,3 +86,24 @@ def test_a_stack_holds_or_is_flagged_never_silent(masses, h, e, integrator):
 def test_a_stack_under_the_event_driven_integrator_holds_or_is_flagged(masses, h, e):
     """The same family, event by event (seconds per run: a few examples, short runs)."""
     held_or_flagged(masses, h, e, "event-driven", EVENT_DURATION)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("h", [1e-3, 1e-2])
+def test_the_normals_of_a_resting_stack_stay_vertical(e, h):
+    """Cubes resting face on face on a horizontal half-space: every contact normal is a face normal, vertical to the
+    cubes' tilts (round-off, below 1e-13 rad here). A vertex at a side face's plane once took coal's normal along
+    that side (|n_xy| = 1), and two nearly parallel edges their ill-conditioned common normal (2.7e-10 rad off, from
+    a 1e-14 rad tilt over a 1e-8 rad yaw): under the load of 2e5 kg either kicked a 1 kg cube sideways for good."""
+    masses = [10.0, 1.0, 1.0, 1e5, 1e5]
+    model = ms.build_model(stack(masses, h, e, "time-stepping").with_options(step_impl=ms.options.StepImpl.PYTHON))
+    data = ms.make_data(model)
+    state = ms.initial_state(model, data)
+    worst = 0.0
+    for _ in range(round(0.6 / h)):
+        res = ms.step(model, data, state)
+        state = res.state
+        if res.contacts.m:
+            worst = max(worst, float(np.hypot(res.contacts.normal[:, 0], res.contacts.normal[:, 1]).max()))
+    assert worst <= 1e-11, f"a contact normal {worst:.3g} rad off vertical"
