@@ -11,13 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_compiled_pairs import _arrays_differ
 
 import moreau_sim as ms
 import moreau_sim.compiled as compiled
 from moreau_sim.contacts import FeatureKind
 from moreau_sim.data import make_data
-
-from test_compiled_pairs import _arrays_differ
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 EDGES = "python: edge contacts of two boxes"  # the hand-back these steps took before (no longer a reason)
@@ -35,8 +34,8 @@ def _bar_on_a_ledge(e: float, h: float) -> ms.Scene:
     cross, no vertex of either near the other and no two faces parallel (an edge-on-edge contact, normal
     (sin 0.2, 0, cos 0.2), in both edges' cones); the bar then tips and slides off the ledge to the ground."""
     roll, pitch, t = np.radians(40.0), 0.2, -0.05
-    mid = np.array([-(0.15 * np.sin(roll) + 0.05 * np.cos(roll)) * np.sin(pitch), -0.15 * np.cos(roll) + 0.05 * np.sin(roll),
-                    -(0.15 * np.sin(roll) + 0.05 * np.cos(roll)) * np.cos(pitch)])  # the lowest edge's middle
+    drop = 0.15 * np.sin(roll) + 0.05 * np.cos(roll)  # the lowest edge below the centre before the pitch
+    mid = np.array([-drop * np.sin(pitch), -0.15 * np.cos(roll) + 0.05 * np.sin(roll), -drop * np.cos(pitch)])
     cross = mid + t * np.array([np.cos(pitch), 0.0, -np.sin(pitch)])
     b = ms.SceneBuilder("bar_on_a_ledge", folder=SCENES, restitution=e, dt=h, duration=0.3,
                         description="a tilted bar dropped with an edge across a ledge's edge")
