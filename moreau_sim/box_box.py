@@ -45,7 +45,17 @@ def world(edges: tuple, oMi: pin.SE3) -> tuple[np.ndarray, np.ndarray, np.ndarra
     """box_edges' arrays placed by the joint placement oMi (world frame)."""
     e0, ed, el, ef = edges
     R = oMi.rotation
-    return e0 @ R.T + oMi.translation, ed @ R.T, el, ef @ R.T
+    return _rt(e0, R) + oMi.translation, _rt(ed, R), el, _rt(ef, R)
+
+
+def _dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a.b along a last axis of 3 entries (broadcasting) summed in index order, as _dot and src/box_box.hpp dot3."""
+    return (a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]) + a[..., 2] * b[..., 2]
+
+
+def _rt(F: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """F @ R.T for rows F (..., 3) summed in index order (src/box_box.hpp row_rt: the same bits; no BLAS)."""
+    return _dots(F[..., None, :], R)
 
 
 def overlap(box_a: tuple, box_b: tuple) -> float:
@@ -54,9 +64,13 @@ def overlap(box_a: tuple, box_b: tuple) -> float:
     directions); negative where an axis separates them (then not the distance, only a lower bound of it)."""
     (Ra, ca, ha), (Rb, cb, hb) = box_a, box_b
     c = cross_rows(Ra.T[:, None, :], Rb.T[None, :, :]).reshape(9, 3)
-    s = np.sqrt((c * c).sum(axis=1))
+    s = np.sqrt(_dots(c, c))
     axes = np.concatenate((Ra.T, Rb.T, c[s > PARALLEL] / s[s > PARALLEL, None]))
-    return float((np.abs(axes @ Ra) @ ha + np.abs(axes @ Rb) @ hb - np.abs(axes @ (ca - cb))).min())
+    pa = ((0.0 + np.abs(_dots(axes, Ra[:, 0])) * ha[0]) + np.abs(_dots(axes, Ra[:, 1])) * ha[1]) \
+        + np.abs(_dots(axes, Ra[:, 2])) * ha[2]
+    pb = ((0.0 + np.abs(_dots(axes, Rb[:, 0])) * hb[0]) + np.abs(_dots(axes, Rb[:, 1])) * hb[1]) \
+        + np.abs(_dots(axes, Rb[:, 2])) * hb[2]
+    return float(((pa + pb) - np.abs(_dots(axes, ca - cb))).min())  # in index order: src/box_box.hpp overlap
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> float:
@@ -157,14 +171,14 @@ def edge_crossings(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -
     b0, eb, lb, fb = B
     # a box's edges run along its 3 axes (edge k along axis k // 4): the 144 cross products are 9
     c = cross_rows(ea[::4, None, :], eb[None, ::4, :])[_AXIS[:, None], _AXIS[None, :]]  # (12, 12, 3)
-    s = np.sqrt(np.einsum("klx,klx->kl", c, c))
+    s = np.sqrt(_dots(c, c))  # index-order sums: src/box_box.hpp edge_candidates
     ok = s > PARALLEL
     n = c / np.where(ok, s, 1.0)[:, :, None]
-    nb = np.einsum("klx,lfx->klf", n, fb)  # n against B's two face normals at edge l
+    nb = _dots(n[:, :, None, :], fb[None, :, :, :])  # n against B's two face normals at edge l
     flip = nb.sum(axis=2) < 0.0
     n[flip] *= -1.0
     nb[flip] *= -1.0
-    na = np.einsum("klx,kfx->klf", n, fa)
+    na = _dots(n[:, :, None, :], fa[:, None, :, :])
     ok &= (nb.min(axis=2) >= -CONE) & (na.max(axis=2) <= CONE)
     # a normal outside a cone by less than CONE (nearly parallel edges of faces on faces: e_A x e_B is then the
     # faces' relative tilt over their relative yaw, ill-conditioned) is the cone's nearest direction: the face
@@ -174,13 +188,13 @@ def edge_crossings(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -
     k_b, l_b = np.nonzero(ok & (na.max(axis=2) <= 0.0) & (nb.min(axis=2) < 0.0))
     n[k_b, l_b] = fb[l_b, 1 - nb[k_b, l_b].argmin(axis=1)]
     w = a0[:, None, :] - b0[None, :, :]
-    g = np.einsum("klx,klx->kl", n, w)
+    g = _dots(n, w)
     ok &= g <= tol
     if not ok.any():
         return []
-    bb = ea @ eb.T
-    d = np.einsum("kx,klx->kl", ea, w)
-    e = np.einsum("lx,klx->kl", eb, w)
+    bb = _dots(ea[:, None, :], eb[None, :, :])
+    d = _dots(ea[:, None, :], w)
+    e = _dots(eb[None, :, :], w)
     den = np.where(ok, s * s, 1.0)  # 1 - (e_A.e_B)^2
     sa = (bb * e - d) / den
     tb = (e - bb * d) / den

@@ -37,7 +37,7 @@ CONSTANTS = {
     "joint_limit": int(FeatureKind.JOINT_LIMIT),
     "energy_roundoff": ENERGY_ROUNDOFF, "patch": int(FeatureKind.PATCH), "same_point": SAME_POINT,
     "cone": box_box.CONE, "edge_end": box_box.EDGE_END, "parallel": box_box.PARALLEL,
-    "depth_ratio": box_box.DEPTH_RATIO, "snap": SNAP_COS,
+    "depth_ratio": box_box.DEPTH_RATIO, "snap": SNAP_COS, "edge": int(FeatureKind.EDGE), "face": int(FeatureKind.FACE),
 }
 _EMPTY = np.zeros(0)
 _TUNNELLING = {Tunnelling.SWEPT: 0, Tunnelling.NONE: 1, Tunnelling.ALWAYS: 2}

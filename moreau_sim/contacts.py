@@ -185,7 +185,7 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
         tf.setTranslation(Vw[i])
         d = query(tf, tf_other, req, res)
         if d <= tol:
-            nrm = res.normal  # from the vertex towards the other shape
+            nrm = np.array(res.normal)  # from the vertex towards the other shape (a copy: a view of coal's result)
             p_on_other = res.getNearestPoint2()
             if not (np.isfinite(nrm).all() and abs(d) < 1e100):
                 # coal leaves the normal undefined for a point exactly on the surface: take the

@@ -1,9 +1,9 @@
 // The box-box pieces of the compiled detection (included by src/step.cpp): what contacts.detect does for a
 // pair of two boxes (moreau_sim/contacts.py _near_polytopes, _face_axis, the edge crossings and face corners of
 // moreau_sim/box_box.py edge_crossings and face_patch, docs/theory.md §6.2), as plain functions on the joint placements.
-// Values that become contact data (the face normal of a patch) are exact here and in Python (±1 entries of an
-// axis-aligned face normal times a rotation); the rest only feeds decisions (argmax, thresholds), and
-// Stepper::box_pair hands back every step whose outcome these could change (corners, edge contacts, face corners).
+// Every sum is in index order, as box_box.py's (its _dot, _dots, _rt) and sums.ordered make them, so the edge
+// crossings and face corners, which become contact rows (Stepper::detect), are Python's bit for bit; corners
+// (a vertex at two faces) still hand the step back.
 #pragma once
 
 #include <Eigen/Dense>
@@ -70,8 +70,8 @@ struct Edges {
   RowsX3 f0, f1;
 };
 
-// box_box.edge_crossings before its depth test against the boxes' overlap (applied by the caller): (g, the point on
-// A) of the edge pairs (k, l) whose normal lies in both edges' normal cones (to cone), whose lines are within tol (g <= tol)
+// edge_candidates (below): box_box.edge_crossings before its depth test against the boxes' overlap (applied by the
+// caller), then face_patch's corners: the rows (g, p_A, p_B, n) of the edge pairs (k, l), in the order of 12 k + l, whose normal lies in both edges' normal cones (to cone), whose lines are within tol (g <= tol)
 // and whose closest points are inside both edges (edge_end of the length from either end); parallel edges
 // (|e_A x e_B| <= parallel) never count.
 // box_box.overlap: the boxes' penetration depth (the least overlap of their projections over the 15 separating
@@ -97,9 +97,13 @@ inline double overlap(const Mat3 &Ra, const Vec3 &ca, const Vec3 &ha, const Mat3
   return out;
 }
 
+// an edge crossing (face: false, feature 12 k + l) or a face corner (face: true, feature its index in the clipped
+// polygon): box_box.edge_crossings' and face_patch's (g, p_A, p_B, n, ...) rows
 struct Crossing {
   double g;
-  Vec3 pa;
+  Vec3 pa, pb, n;
+  bool face;
+  int feature;
 };
 
 // box_box.FACE_ANGLE [rad] (compiled.CONSTANTS has no slot for it: src/step.cpp reads a fixed set of names;
@@ -107,10 +111,9 @@ struct Crossing {
 constexpr double FACE_ANGLE = 0.7853981633974483;  // pi / 4
 
 // box_box.face_patch on the 12 world edges of each box (starts a0, directions ea, lengths el): the clipped
-// corners with g <= tol appended to out as (g, the point on A). Their depth test against the boxes' overlap is
-// the caller's (src/step.cpp applies it to every candidate, as Python applies it to crossings and corners
-// apart: the same floor). A corner that is no known point hands the step to Python, which keeps it only where
-// coal's patch has no polygon (contacts.detect); one that is a known point (a vertex, a patch corner) is no row.
+// corners with g <= tol appended to out. Their depth test against the boxes' overlap is the caller's (src/step.cpp
+// applies it to every candidate, as Python applies it to crossings and corners apart: the same floor, and a floor
+// below zero removes no g >= 0); Stepper::detect keeps them only where coal's patch has no polygon (contacts.detect).
 inline void face_patch(const Vec3 *a0, const Vec3 *ea, const Eigen::VectorXd &la, const Vec3 *b0, const Vec3 *eb,
                        const Eigen::VectorXd &lb, double tol, std::vector<Crossing> &out) {
   const Vec3 Ua[3] = {ea[0], ea[4], ea[8]}, Ub[3] = {eb[0], eb[4], eb[8]};
@@ -159,9 +162,10 @@ inline void face_patch(const Vec3 *a0, const Vec3 *ea, const Eigen::VectorXd &la
       if (poly.empty()) return;
     }
   const double plane = dot3(o, cr + hr[i] * o);
-  for (const Vec3 &p : poly) {
+  for (size_t m = 0; m < poly.size(); ++m) {
+    const Vec3 &p = poly[m];
     const double g = dot3(o, p) - plane;
-    if (g <= tol) out.push_back({g, ref_a ? Vec3(p + g * n) : p});
+    if (g <= tol) out.push_back({g, ref_a ? Vec3(p + g * n) : p, ref_a ? p : Vec3(p - g * n), n, true, (int)m});
   }
 }
 
@@ -198,7 +202,7 @@ inline std::vector<Crossing> edge_candidates(const Edges &A, const Mat3 &RA, con
       const double la = A.el[k], lb = B.el[l];
       if (!(sa >= edge_end * la && sa <= (1.0 - edge_end) * la)) continue;
       if (!(tb >= edge_end * lb && tb <= (1.0 - edge_end) * lb)) continue;
-      out.push_back({g, a0[k] + sa * ea[k]});
+      out.push_back({g, a0[k] + sa * ea[k], b0[l] + tb * eb[l], n, false, 12 * k + l});
     }
   face_patch(a0, ea, A.el, b0, eb, B.el, tol, out);
   return out;

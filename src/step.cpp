@@ -85,7 +85,7 @@ struct Constants {
   double distinct;  // constraints.distinct's relative tolerance
   double guess_min, distance_failed;  // contacts.GUESS_MIN, DISTANCE_FAILED
   double energy_roundoff;  // law.ENERGY_ROUNDOFF
-  int patch;  // contacts.FeatureKind.PATCH
+  int patch, edge, face;  // contacts.FeatureKind.PATCH, .EDGE, .FACE
   double same_point, cone, edge_end, parallel, depth_ratio;  // contacts.SAME_POINT; box_box's CONE, EDGE_END,
                                                              // PARALLEL, DEPTH_RATIO
   double snap;  // contacts.SNAP_COS
@@ -95,7 +95,7 @@ struct Constants {
         "midpoint_iterations", "midpoint_tolerance", "resting", "hold", "vertex", "witness", "max_contacts", "screen",
         "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct",
         "guess_min", "distance_failed", "joint_limit",
-        "energy_roundoff", "patch", "same_point", "cone", "edge_end", "parallel", "depth_ratio", "snap"};
+        "energy_roundoff", "patch", "same_point", "cone", "edge_end", "parallel", "depth_ratio", "snap", "edge", "face"};
     return k;
   }
   // from a dict holding exactly keys() (a missing or an unknown name is an error: nothing is left to a default)
@@ -124,6 +124,7 @@ struct Constants {
     c.energy_roundoff = get("energy_roundoff");
     c.patch = geti("patch"), c.same_point = get("same_point"), c.cone = get("cone"), c.edge_end = get("edge_end");
     c.parallel = get("parallel"), c.depth_ratio = get("depth_ratio"), c.snap = get("snap");
+    c.edge = geti("edge"), c.face = geti("face");
     return c;
   }
   std::map<std::string, double> as_dict() const {
@@ -135,7 +136,8 @@ struct Constants {
             {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed},
             {"joint_limit", joint_limit},
             {"energy_roundoff", energy_roundoff}, {"patch", patch}, {"same_point", same_point}, {"cone", cone},
-            {"edge_end", edge_end}, {"parallel", parallel}, {"depth_ratio", depth_ratio}, {"snap", snap}};
+            {"edge_end", edge_end}, {"parallel", parallel}, {"depth_ratio", depth_ratio}, {"snap", snap},
+            {"edge", edge}, {"face", face}};
   }
 };
 
@@ -1020,6 +1022,24 @@ class Stepper {
       if ((found[j].pa - p).cwiseAbs().maxCoeff() <= C_.same_point) return false;
     return true;
   }
+  // contacts._add_new: the edge crossings and face corners whose point on A is no contact of found[start:] yet (a
+  // patch corner of two yawed faces is also the crossing of their edges), and of the face corners those that are
+  // no such crossing either, appended in their order
+  void add_new(std::vector<Found> &found, size_t start, std::vector<Found> &edges) const {
+    if (edges.empty()) return;
+    std::vector<Found> fresh;
+    for (const Found &r : edges)
+      if (new_point(found, start, r.pa)) fresh.push_back(r);
+    for (const Found &r : fresh) {
+      bool keep = r.kind == C_.edge;
+      if (!keep) {
+        keep = true;
+        for (const Found &x : fresh)
+          if (x.kind == C_.edge && !((x.pa - r.pa).cwiseAbs().maxCoeff() > C_.same_point)) keep = false;
+      }
+      if (keep) found.push_back(r);
+    }
+  }
   const Eigen::Matrix3d &rot(int joint) const { return data_.oMi[joint].rotation(); }
   const Vec3 &trans(int joint) const { return data_.oMi[joint].translation(); }
 
@@ -1127,7 +1147,10 @@ class Stepper {
       const int na = (int)vertices_[first].rows(), nb_ = (int)vertices_[second].rows();
       if (na) vertex_contacts(first, jf, second, js, found, (int)k, 0, true, margin);
       if (nb_) vertex_contacts(second, js, first, jf, found, (int)k, na, false, margin);
-      std::vector<Vec3> edges;  // box_box.edge_crossings: any that is no known point goes to Python
+      // contacts._edge_contacts: the edge crossings (EDGE, 12 k + l), then the corners of nearly parallel faces (FACE)
+      // of two boxes; a corner of this pair has handed the step back already (vertex_contacts), so contacts.detect's
+      // filter of crossings at a corner has nothing to filter here
+      std::vector<Found> edges;
       if (shapes_ && is_box_[first] && is_box_[second]) {
         const auto cands = boxbox::edge_candidates(edges_[first], rot(jf), trans(jf), edges_[second], rot(js),
                                                    trans(js), tol_, C_.cone, C_.edge_end, C_.parallel);
@@ -1141,7 +1164,7 @@ class Stepper {
           floor = -(C_.depth_ratio * std::max(ov, 0.0) + tol_);
         }
         for (const auto &x : cands)
-          if (x.g >= floor) edges.push_back(x.pa);
+          if (x.g >= floor) edges.push_back({x.g, x.pa, x.pb, x.n, (int)k, x.face ? C_.face : C_.edge, x.feature});
       }
       if (hit[k]) {
         const auto &c = res.getContact(0);
@@ -1169,6 +1192,9 @@ class Stepper {
             const coal::ContactPatch &pt = pres.getContactPatch(0);
             k_patch = pt.size();
             if (k_patch > 1) {
+              // coal's polygon: the face corners are its corners (docs/theory.md §6.2)
+              edges.erase(std::remove_if(edges.begin(), edges.end(), [&](const Found &r) { return r.kind == C_.face; }),
+                          edges.end());
               std::vector<Vec3> P1(k_patch);
               std::vector<char> fresh(k_patch);
               for (size_t i = 0; i < k_patch; ++i) P1[i] = pt.getPointShape1(i), fresh[i] = new_point(found, start, P1[i]);
@@ -1177,13 +1203,10 @@ class Stepper {
             }
           }
         }
-        if (k_patch <= 1 && found.size() == start && depth <= tol_) {
-          if (!edges.empty()) throw Fallback{"edge contacts of two boxes"};
+        if (k_patch <= 1 && found.size() == start && edges.empty() && depth <= tol_)  // no vertex: smooth shapes
           found.push_back({depth, c.nearest_points[0], c.nearest_points[1], n, (int)k, C_.witness, 0});
-        }
       }
-      for (const Vec3 &p : edges)
-        if (new_point(found, start, p)) throw Fallback{"edge contacts of two boxes"};
+      add_new(found, start, edges);
     }
     next_warm_.clear();
     for (const Found &f : found)
