@@ -145,9 +145,9 @@ def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p
     n, d = planes
     s = n @ (oMo.rotation.T @ (p - oMo.translation)) - d  # signed distance to each face plane
     on = np.flatnonzero(s >= s.max() - margin)
+    if len(on) < 2:
+        return None
     nw = n[on] @ oMo.rotation.T
-    if len(on) == 1:  # inside, nearest to one face: its normal is the contact's; outside, coal's (docs/theory.md §6.2)
-        return nw if s.max() <= 0.0 else None
     r = edges[i] @ oMi.rotation.T  # (k, 3) edges leaving the vertex, world
     ok = (nw @ r.T).min(axis=1, initial=0.0) >= -1e-9 if len(r) else np.ones(len(nw), bool)
     return nw[ok] if ok.any() else None

@@ -955,9 +955,7 @@ class Stepper {
       if (Pn.rows() && k_cone >= 0) {
         // contacts._corner_normals: the faces within margin of the largest signed distance; of those, the faces whose
         // planes leave the vertex's own cone (its edges, vedges_) outside: two or more make a corner (Python's
-        // set-valued law); one gives the contact its face normal; none, coal's normal; a vertex inside, within margin of one
-        // face only, takes that face's normal, not coal's (which, for a vertex at a side face's plane, can point along
-        // that side: issue 23)
+        // set-valued law); one gives the contact its face normal; none, coal's normal
         const Vec3 pl = Ro.transpose() * (Vw.row(i).transpose() - to);
         VectorXd sd(Pn.rows());
         for (Eigen::Index f = 0; f < Pn.rows(); ++f) sd[f] = ((Pn(f, 0) * pl[0] + Pn(f, 1) * pl[1]) + Pn(f, 2) * pl[2]) - Pd[f];
@@ -980,8 +978,6 @@ class Stepper {
           }
           if (ok >= 2) throw Fallback{"a vertex at a box's edge or corner"};
           if (ok == 1) nrm = -first;
-        } else if (on.size() == 1 && sd.maxCoeff() <= 0.0) {  // inside, nearest to one face: that face's normal
-          nrm = -boxbox::row_rt(Pn, on[0], Ro);
         }
       }
       const Vec3 p = Vw.row(i).transpose();

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_compiled_pairs import _arrays_differ
+from test_compiled_pairs import _arrays_differ, _both
 
 import moreau_sim as ms
 import moreau_sim.compiled as compiled
@@ -57,15 +57,6 @@ def _yawed_cubes(e: float, h: float) -> ms.Scene:
                rpy=(0.05, 0.02, 0.3))
     b.add_halfspace("ground")
     return b.build()
-
-
-def _both(sc: ms.Scene):
-    """(the Python step's run, the compiled run, the compiled run's step counts)."""
-    ref = ms.simulate(ms.build_model(sc.with_options(step_impl="python")), progress=False)
-    model = ms.build_model(sc.with_options(step_impl="compiled"))
-    data = make_data(model)
-    new = ms.simulate(model, data=data, progress=False)
-    return ref, new, compiled.counts(data)
 
 
 def _physics(traj):
