@@ -84,6 +84,15 @@ _AGAINST_HALF = (coal.Sphere, coal.Box, coal.Capsule, coal.Cylinder, coal.Cone, 
 _AGAINST_SPHERE = (coal.Sphere, coal.Capsule, coal.Box, coal.Cylinder, coal.TriangleP)
 
 
+def forest_args(model, data) -> tuple[list, list, list]:
+    """The forest as src/forest.hpp takes it: (trees: (model, Data, q start, nq, v start, nv) of each tree,
+    tree_of_joint, local_joint) (docs/theory.md §2.12)."""
+    forest = model.forest
+    trees = [(tr.model, d, tr.q.start, tr.q.stop - tr.q.start, tr.v.start, tr.v.stop - tr.v.start)
+             for tr, d in zip(forest.trees, data.kinematics.datas())]
+    return trees, forest.tree_of_joint.tolist(), forest.local_joint.tolist()
+
+
 def loop_refusal(model, cls: str, what: str) -> str | None:
     """Why no compiled loop (the extension's class `cls`, named `what`: compiled_run's Runner, compiled_events's
     Extrapolator) takes this model's run, before the loop's own reasons (None: none of these)."""

@@ -57,11 +57,8 @@ def sampler(model, data, *, lie: bool, basis) -> Callable | None:
     Recorder.sample give them, or None where it does not apply (sampler_unsupported). basis: adaptive.QUINTIC."""
     if sampler_unsupported(model, data, lie=lie) is not None:
         return None
-    forest = model.forest
-    trees = [(tr.model, d, tr.q.start, tr.q.stop - tr.q.start, tr.v.start, tr.v.stop - tr.v.start)
-             for tr, d in zip(forest.trees, data.kinematics.datas())]
-    ds = compiled._module.DenseSampler(compiled._context(model, data).stepper, trees, forest.tree_of_joint.tolist(),
-                                       forest.local_joint.tolist(), [list(map(float, r)) for r in basis])
+    ds = compiled._module.DenseSampler(compiled._context(model, data).stepper, *compiled.forest_args(model, data),
+                                       [list(map(float, r)) for r in basis])
     return ds.samples
 
 

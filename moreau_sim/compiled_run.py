@@ -54,9 +54,6 @@ class CompiledRun:
     def __init__(self, integ, rec, loop, check, stepper):
         self.integ, self.rec, self.loop, self.check = integ, rec, loop, check
         m, data = integ.model, integ.data
-        forest = m.forest
-        trees = [(tr.model, d, tr.q.start, tr.q.stop - tr.q.start, tr.v.start, tr.v.stop - tr.v.start)
-                 for tr, d in zip(forest.trees, data.kinematics.datas())]
         c = check
         consts = {"log_relative": LOG_RELATIVE, "rest_accuracy": REST_ACCURACY, "acceleration": invariants.ACCELERATION,
                   "gap_round_off": invariants.GAP_ROUND_OFF, "persist": invariants.PERSIST,
@@ -64,8 +61,7 @@ class CompiledRun:
                   "g": c.g if c else 0.0}
         self.controller = None if m.actuation is None or m.actuation.controller is None else _Callback(m.actuation)
         self.stepper, self.boxes = stepper, bool(m.polytope_pair_set)
-        self.runner = compiled._module.Runner(stepper, trees, forest.tree_of_joint.tolist(),
-                                              forest.local_joint.tolist(), consts, c is not None,
+        self.runner = compiled._module.Runner(stepper, *compiled.forest_args(m, data), consts, c is not None,
                                               _actuation(m.actuation, self.controller))
         self.python_steps = 0  # steps the Python run took in this run
         self._skip = 0  # steps the Python run takes before the Runner tries again

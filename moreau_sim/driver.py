@@ -165,19 +165,19 @@ class _Loop:
             self._sample(rep.state, rep.n_contacts)
         grid = self.grid
         for seg in rep.segments:
-            if seg.batch is not None:  # all the step's samples in one call, recorded one by one
-                end = self.gi
-                while end < len(grid) and (grid[end] < seg.until or (seg.closed and grid[end] <= seg.until)):
-                    end += 1
-                if end > self.gi:
-                    tgs = grid[self.gi:end]
-                    Q, U, T, V, G = seg.batch(tgs)
-                    for i, tg in enumerate(tgs.tolist()):
-                        self._sample(State(tg, Q[i], U[i]), seg.n_contacts, (float(T[i]), float(V[i]), G[i]))
-                        self.gi += 1
+            end = self.gi  # the grid instants t < until (<= if closed) not yet sampled: grid[gi:end]
+            while end < len(grid) and (grid[end] < seg.until or (seg.closed and grid[end] <= seg.until)):
+                end += 1
+            if end == self.gi:
                 continue
-            while self.gi < len(grid) and (grid[self.gi] < seg.until or (seg.closed and grid[self.gi] <= seg.until)):
-                tg = float(grid[self.gi])
+            tgs = grid[self.gi:end]
+            if seg.batch is not None:  # all the step's samples in one call, recorded one by one
+                Q, U, T, V, G = seg.batch(tgs)
+                for i, tg in enumerate(tgs.tolist()):
+                    self._sample(State(tg, Q[i], U[i]), seg.n_contacts, (float(T[i]), float(V[i]), G[i]))
+                    self.gi += 1
+                continue
+            for tg in tgs.tolist():
                 q, u = seg.dense(tg)
                 self._sample(State(tg, q, u), seg.n_contacts)
                 self.gi += 1

@@ -106,14 +106,15 @@ class Invariants:
             out = self._violate(Invariant.PENETRATION, state.t, self.last_depth, self.last_allowed, "m",
                                 f"a pair {self.last_depth:.3g} m inside another at the end of the run (allowed "
                                 f"{self.last_allowed:.3g} m)") or None
-        found = first_paid(rec.arrays(), ACCELERATION * self.g, self.rel, PERSIST)
+        arrays = rec.arrays()
+        found = first_paid(arrays, ACCELERATION * self.g, self.rel, PERSIST)
         if found is not None:
             t, size, allowed = found
             out = (out or []) + self._violate(
                 Invariant.SINKING, t, size, allowed, "J",
                 f"loads sunk into their supports released {size:.3g} J at t = {t:.6g} s, beyond the {allowed:.3g} J "
                 "the energy leaves: kinetic energy paid by penetration (a smaller step resolves it)")
-        found = first_creep(rec.arrays(), reach=self.model.reach, tol=self.tol, rel=ROUND_OFF, persist=PERSIST)
+        found = first_creep(arrays, reach=self.model.reach, tol=self.tol, rel=ROUND_OFF, persist=PERSIST)
         if found is not None:
             t, size, allowed = found
             out = (out or []) + self._violate(
