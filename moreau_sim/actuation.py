@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .joints import find_joint, one_dof
 from . import mjcf_actuators
 from .errors import SceneError, SimulationError
 from .options import require
@@ -184,18 +185,17 @@ def build(pm, bodies, actuators, q0: np.ndarray, *, always: bool = False, mjcf: 
         info = next(b for b in bodies if b.name == a.body)
         own = [j for j in info.joints if not (root[pm.joints[j].idx_v] and j == info.joints[0])]
         if a.joints is None:
-            joints = [j for j in own if pm.joints[j].nq == 1 and pm.joints[j].nv == 1]
+            joints = [j for j in own if one_dof(pm, j)]
             require(bool(joints), f"{a.where} joints", "the body has no 1-dof joint to actuate")
         else:
             joints = []
             for name in a.joints:
-                full = f"{a.body}/{name}"
-                require(pm.existJointName(full), f"{a.where} joints",
+                j = find_joint(pm, a.body, name)
+                require(j is not None, f"{a.where} joints",
                         f"'{name}' names no joint of {a.body} (its joints: "
                         f"{[pm.names[j].split('/', 1)[1] for j in own]})")
-                j = pm.getJointId(full)
                 require(j in own, f"{a.where} joints", f"'{name}' is the root joint of a floating base: not actuated")
-                require(pm.joints[j].nq == 1 and pm.joints[j].nv == 1, f"{a.where} joints",
+                require(one_dof(pm, j), f"{a.where} joints",
                         f"'{name}' is not a 1-dof revolute or prismatic joint (nq = {pm.joints[j].nq})")
                 joints.append(j)
         qi = np.array([pm.joints[j].idx_q for j in joints])

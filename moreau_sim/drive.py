@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .joints import find_joint, one_dof
 from .errors import SceneError
 from .limits import UNLIMITED
 from .prescribed import Schedule
@@ -56,15 +57,14 @@ def build(scene, pm, bodies, actuation, q0: np.ndarray, u0: np.ndarray, limits: 
         info = next((b for b in bodies if b.name == s.body), None)
         if info is None:
             raise SceneError(f"{s.where} body: names no body of the scene ({s.body!r})")
-        full = f"{s.body}/{s.joint}"
-        if not pm.existJointName(full):
+        j = find_joint(pm, s.body, s.joint)
+        if j is None:
             raise SceneError(f"{s.where} joint: '{s.joint}' names no joint of {s.body} (its joints: "
                              f"{[pm.names[j].split('/', 1)[1] for j in info.joints]})")
-        j = pm.getJointId(full)
         jm = pm.joints[j]
         if j == info.joints[0] and info.root_joint.value in _FLOATING:
             raise SceneError(f"{s.where} joint: '{s.joint}' is the root joint of a floating base: not driven")
-        if not (jm.nq == 1 and jm.nv == 1):
+        if not one_dof(pm, j):
             raise SceneError(f"{s.where} joint: '{s.joint}' is not a 1-dof revolute or prismatic joint")
         if jm.idx_v in seen:
             raise SceneError(f"{s.where} joint: '{s.joint}' is driven twice (also by {seen[jm.idx_v]})")

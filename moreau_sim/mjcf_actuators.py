@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .joints import find_joint, one_dof
 from .errors import SceneError
 from .prescribed import Schedule
 from .robots import _at, _joint_defaults, _mjcf_expanded, default_classes
@@ -230,12 +231,12 @@ def build(pm, info, specs: tuple[MJCFActuator, ...], ctrl: dict[str, Schedule], 
     qi, vi, names = [], [], []
     for s in specs:
         full = f"{info.name}/{s.joint}"
-        if not pm.existJointName(full):
+        j = find_joint(pm, info.name, s.joint)
+        if j is None:
             raise SceneError(f"{s.where}: actuator '{s.name}': joint '{s.joint}' names no joint of the model "
                              f"[{where} mjcf]")
-        j = pm.getJointId(full)
         jm = pm.joints[j]
-        if not (jm.nq == 1 and jm.nv == 1):
+        if not one_dof(pm, j):
             raise SceneError(f"{s.where}: actuator '{s.name}' on joint '{s.joint}': only hinge and slide joints "
                              f"are actuated [{where} mjcf]")
         qi.append(jm.idx_q)
