@@ -73,6 +73,13 @@ def overlap(box_a: tuple, box_b: tuple) -> float:
     return float(((pa + pb) - np.abs(_dots(axes, ca - cb))).min())  # in index order: src/box_box.hpp overlap
 
 
+def depth_floor(box_a: tuple, box_b: tuple, tol: float) -> float:
+    """The deepest gap [m] a contact of two crossed boxes may have: -(DEPTH_RATIO overlap() + tol). An edge
+    crossing or face corner below it is the two lines or planes meeting far from where the boxes overlap;
+    coal's pair contact below it is its EPA failing (contacts.detect)."""
+    return -(DEPTH_RATIO * max(overlap(box_a, box_b), 0.0) + tol)
+
+
 def _dot(a: np.ndarray, b: np.ndarray) -> float:
     """a.b of two 3-vectors summed in index order (src/box_box.hpp dot3: the same decisions, bit for bit)."""
     return (float(a[0]) * float(b[0]) + float(a[1]) * float(b[1])) + float(a[2]) * float(b[2])
@@ -146,7 +153,7 @@ def face_patch(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -> li
     gaps = [_dot(o, p) - plane for p in poly]
     hits = [(g, m, p) for m, (g, p) in enumerate(zip(gaps, poly)) if g <= tol]
     if any(g < 0.0 for g, _, _ in hits):
-        floor = -(DEPTH_RATIO * max(overlap(box_a, box_b), 0.0) + tol)
+        floor = depth_floor(box_a, box_b, tol)
         hits = [x for x in hits if x[0] >= floor]
     return [(g, p + g * n, p, n, m) if ref_a else (g, p, p - g * n, n, m) for g, m, p in hits]
 
@@ -201,6 +208,6 @@ def edge_crossings(A: tuple, B: tuple, box_a: tuple, box_b: tuple, tol: float) -
     ok &= (sa >= EDGE_END * la[:, None]) & (sa <= (1.0 - EDGE_END) * la[:, None])
     ok &= (tb >= EDGE_END * lb[None, :]) & (tb <= (1.0 - EDGE_END) * lb[None, :])
     if (g[ok] < 0.0).any():
-        ok &= g >= -(DEPTH_RATIO * max(overlap(box_a, box_b), 0.0) + tol)
+        ok &= g >= depth_floor(box_a, box_b, tol)
     return [(float(g[k, j]), a0[k] + sa[k, j] * ea[k], b0[j] + tb[k, j] * eb[j], n[k, j], int(k), int(j))
             for k, j in zip(*np.nonzero(ok))]

@@ -138,7 +138,10 @@ def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p
     `margin` of the largest one (the faces p is nearest to, or crossed within the step) and whose
     planes leave the vertex's own local cone (its edges) on their outer side - a face plane the
     vertex's body would cross does not separate them. Two or more: a corner; one: a smooth contact
-    with that face normal; None: g_other is no box or the vertex's cone is unknown (coal's)."""
+    with that face normal; None: g_other is no box or the vertex's cone is unknown (coal's). A vertex
+    outside within `margin` of one face plane only is over that face (its projection inside it: with
+    its gap <= tol <= margin the other planes are behind it) and gets that face's normal, the exact one
+    (docs/theory.md §6.2); inside, nearest to one face, coal's."""
     planes, edges = model.face_planes[g_other], model.vertex_edges[g_vert]
     if planes is None or edges is None:
         return None
@@ -146,7 +149,7 @@ def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p
     s = n @ (oMo.rotation.T @ (p - oMo.translation)) - d  # signed distance to each face plane
     on = np.flatnonzero(s >= s.max() - margin)
     if len(on) < 2:
-        return None
+        return n[on] @ oMo.rotation.T if s.max() > 0.0 else None  # src/step.cpp vertex_contacts: the same rule
     nw = n[on] @ oMo.rotation.T
     r = edges[i] @ oMi.rotation.T  # (k, 3) edges leaving the vertex, world
     ok = (nw @ r.T).min(axis=1, initial=0.0) >= -1e-9 if len(r) else np.ones(len(nw), bool)
@@ -369,8 +372,8 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             continue  # examined for its vertices and edges only (coal saw no collision): no patch, no witness
         c = res.getContact(0)
         n = -np.asarray(c.normal)  # coal: from shape 1 (A) to shape 2 (B); ours: B -> A
-        fallback = not (abs(c.penetration_depth) < 1e100 and math.isfinite(n @ n))
-        if fallback:  # EPA at data.GJK_TOLERANCE can fail on deep box-box overlaps: redo at coal's defaults
+        fallback = not (abs(c.penetration_depth) < 1e100 and math.isfinite(n @ n)) or _too_deep(data, pair, c, tol)
+        if fallback:  # EPA at data.GJK_TOLERANCE can fail on box-box overlaps: redo at coal's defaults
             c = _fallback_contact(data, pair)
             if c is None:
                 continue
@@ -406,24 +409,39 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     return from_rows(model, found, corners)
 
 
+def _boxes(data: Data, pair) -> tuple | None:
+    """(R, c, half) in the world of each of a pair's two boxes (box_box's box_a, box_b), None unless both are boxes."""
+    ga, gb = data.shapes[pair.first], data.shapes[pair.second]
+    if not (isinstance(ga, coal.Box) and isinstance(gb, coal.Box)):
+        return None
+    fa, fb = data.oMg[pair.first], data.oMg[pair.second]
+    return (fa.rotation, fa.translation, np.asarray(ga.halfSide)), (fb.rotation, fb.translation, np.asarray(gb.halfSide))
+
+
+def _too_deep(data: Data, pair, c, tol: float) -> bool:
+    """coal's contact of two boxes deeper than box_box.depth_floor: its EPA failed (docs/theory.md §6.2; at
+    data.GJK_TOLERANCE it gave a cube resting on a slab a depth of 0.2 m, and the patch corners that gap)."""
+    if not c.penetration_depth < -tol:
+        return False
+    boxes = _boxes(data, pair)
+    return boxes is not None and c.penetration_depth < box_box.depth_floor(*boxes, tol)
+
+
 def _edge_contacts(model: Model, data: Data, pair, tol: float) -> list:
     """The edge crossings of a pair of two boxes (box_box.edge_crossings, docs/theory.md §6.2) as contact
     rows (g, p_A, p_B, n, pair, EDGE, 12 k + l), then the corners of its nearly parallel faces (box_box.face_patch)
     as rows (g, p_A, p_B, n, pair, FACE, i), which detect keeps only where coal's patch has no polygon; [] for
     any other pair."""
-    shapes = data.shapes
-    ga, gb = shapes[pair.first], shapes[pair.second]
-    if not (isinstance(ga, coal.Box) and isinstance(gb, coal.Box)):
+    boxes = _boxes(data, pair)
+    if boxes is None:
         return []
     cache = data.box_edges  # per geometry, in its joint frame
-    for g, geo in ((pair.first, ga), (pair.second, gb)):
+    for g in (pair.first, pair.second):
         if g not in cache:
-            cache[g] = box_box.box_edges(geo, model.geometries[g].placement)
-    oMi, oMg = data.kinematics.oMi, data.oMg
-    fa, fb = oMg[pair.first], oMg[pair.second]
+            cache[g] = box_box.box_edges(data.shapes[g], model.geometries[g].placement)
+    oMi = data.kinematics.oMi
     A, B = box_box.world(cache[pair.first], oMi[pair.joint_first]), box_box.world(cache[pair.second], oMi[pair.joint_second])
-    box_a = (fa.rotation, fa.translation, np.asarray(ga.halfSide))
-    box_b = (fb.rotation, fb.translation, np.asarray(gb.halfSide))
+    box_a, box_b = boxes
     hits = box_box.edge_crossings(A, B, box_a, box_b, tol)
     faces = box_box.face_patch(A, B, box_a, box_b, tol)
     return ([(g, pa, pb, n, pair.index, FeatureKind.EDGE, 12 * k + j) for g, pa, pb, n, k, j in hits]

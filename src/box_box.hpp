@@ -7,6 +7,7 @@
 #pragma once
 
 #include <Eigen/Dense>
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -95,6 +96,13 @@ inline double overlap(const Mat3 &Ra, const Vec3 &ca, const Vec3 &ha, const Mat3
     out = std::min(out, (pa + pb) - std::abs(dot3(a, d)));
   }
   return out;
+}
+
+// box_box.depth_floor: the deepest gap a contact of two crossed boxes may have, -(depth_ratio max(overlap, 0) + tol)
+// (an edge crossing or face corner below it is no contact; coal's pair contact below it is its EPA failing)
+inline double depth_floor(const Mat3 &Ra, const Vec3 &ca, const Vec3 &ha, const Mat3 &Rb, const Vec3 &cb,
+                          const Vec3 &hb, double parallel, double depth_ratio, double tol) {
+  return -(depth_ratio * std::max(overlap(Ra, ca, ha, Rb, cb, hb, parallel), 0.0) + tol);
 }
 
 // an edge crossing (face: false, feature 12 k + l) or a face corner (face: true, feature its index in the clipped

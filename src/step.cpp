@@ -892,6 +892,13 @@ class Stepper {
     return u_free;
   }
 
+  // box_box.depth_floor of two boxes at their placements oMg (contacts._boxes)
+  double box_floor(int first, int second) const {
+    const auto &o1 = gd_.oMg[first], &o2 = gd_.oMg[second];
+    return boxbox::depth_floor(o1.rotation(), o1.translation(), half_[first], o2.rotation(), o2.translation(),
+                               half_[second], C_.parallel, C_.depth_ratio, tol_);
+  }
+
   // contacts._vertex_contacts for one geometry's vertices against another
   void vertex_contacts(int g_vert, int joint_v, int g_other, int joint_other, std::vector<Found> &out, int pair,
                        int offset, bool v_is_a, double margin) {
@@ -955,7 +962,9 @@ class Stepper {
       if (Pn.rows() && k_cone >= 0) {
         // contacts._corner_normals: the faces within margin of the largest signed distance; of those, the faces whose
         // planes leave the vertex's own cone (its edges, vedges_) outside: two or more make a corner (Python's
-        // set-valued law); one gives the contact its face normal; none, coal's normal
+        // set-valued law); one gives the contact its face normal; none, coal's normal. A vertex outside the box within
+        // margin of one face plane only is over that face (the others' planes are behind it): the face's normal, the
+        // exact one, not coal's (at a gap of 1e-17 m coal's pointed 0.45 rad off: issue 23)
         const Vec3 pl = Ro.transpose() * (Vw.row(i).transpose() - to);
         VectorXd sd(Pn.rows());
         for (Eigen::Index f = 0; f < Pn.rows(); ++f) sd[f] = ((Pn(f, 0) * pl[0] + Pn(f, 1) * pl[1]) + Pn(f, 2) * pl[2]) - Pd[f];
@@ -978,6 +987,8 @@ class Stepper {
           }
           if (ok >= 2) throw Fallback{"a vertex at a box's edge or corner"};
           if (ok == 1) nrm = -first;
+        } else if (sd.maxCoeff() > 0.0) {  // outside, over one face only (its projection inside it): that face's normal
+          nrm = -boxbox::row_rt(Pn, on[0], Ro);
         }
       }
       const Vec3 p = Vw.row(i).transpose();
@@ -1153,12 +1164,7 @@ class Stepper {
         double floor = -INFINITY;  // crossed far deeper than the boxes' penetration depth: no contact
         bool crossed = false;
         for (const auto &x : cands) crossed = crossed || x.g < 0.0;
-        if (crossed) {
-          const auto &o1 = gd_.oMg[first], &o2 = gd_.oMg[second];
-          const double ov = boxbox::overlap(o1.rotation(), o1.translation(), half_[first], o2.rotation(),
-                                            o2.translation(), half_[second], C_.parallel);
-          floor = -(C_.depth_ratio * std::max(ov, 0.0) + tol_);
-        }
+        if (crossed) floor = box_floor(first, second);
         for (const auto &x : cands)
           if (x.g >= floor) edges.push_back({x.g, x.pa, x.pb, x.n, (int)k, x.face ? C_.face : C_.edge, x.feature});
       }
@@ -1167,6 +1173,9 @@ class Stepper {
         const Vec3 n = -c.normal;
         const double depth = c.penetration_depth;
         if (!(std::abs(depth) < 1e100 && std::isfinite(n.dot(n)))) throw Fallback{"coal's contact needs the EPA fallback"};
+        // contacts._too_deep: two boxes' contact deeper than box_box.depth_floor is coal's EPA failing
+        if (depth < -tol_ && shapes_ && is_box_[first] && is_box_[second] && depth < box_floor(first, second))
+          throw Fallback{"coal's contact needs the EPA fallback"};
         size_t k_patch = 0;
         if (patch && depth <= tol_) {
           if (!shapes_) throw Fallback{"contact patch"};

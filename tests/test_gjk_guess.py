@@ -3,7 +3,8 @@
 Exactly touching shapes leave coal a cached guess of ~5e-12 m; from it coal 3.0.3 reported a
 6-14 mm overlap as no collision (boxes on a slope went 1.4-2.6 cm into it, whatever the step) and a
 resting pair's distance as -DBL_MAX, written into trajectories. Every guess shorter than GUESS_MIN
-is now rescaled to unit length before each call, and a failed distance is NaN, never data.
+is now rescaled to unit length before each call, and a failed distance is NaN, never data. A box pair's
+contact deeper than the boxes can overlap (coal's EPA failing) is redone at coal's defaults.
 """
 
 import math
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
+from moreau_sim.contacts import FeatureKind
 from moreau_sim.errors import SimulationError
 
 from helpers import MODELS, scene
@@ -118,3 +120,32 @@ def test_a_failed_distance_stops_the_run_naming_the_pair(monkeypatch):
     assert "step " in msg and "ball/ball_0|ground" in msg and "undefined" in msg
     traj = info.value.trajectory
     assert not traj.complete and np.isfinite(traj.arrays["gap"]).all()
+
+
+# a cube rocking on its lower edge on a slab tilted 0.25 rad, 1.8e-10 m above it (a pose of
+# test_impact_energy's slab run, h = 3e-4, e = 0.3, with a vertex rule of docs/theory.md §6.2 tried)
+ON_THE_SLAB = [-0.4808969820523014, -2.7864846508458923e-33, 0.7272654451703974, -4.960553815815112e-19,
+               0.11236223685229516, -2.0363398838928048e-18, 0.9936673123986463]
+
+
+def test_a_box_pair_deeper_than_the_boxes_overlap_is_redone():
+    """Where the cube's two lowest vertices are 1.8e-10 m from the slab, coal's EPA at data.GJK_TOLERANCE gives the
+    pair a depth of 0.2 m (more than a 0.1 m cube can go into anything) and its patch corners took that gap: the
+    run stopped with the cube 'sunk 0.2 m'. Deeper than box_box.depth_floor (4 times the boxes' penetration depth in
+    closed form, box_box.overlap, + tol) the contact is redone at coal's defaults: every contact is then the
+    vertices' own gap, and both steps take the same step from there."""
+    b = ms.SceneBuilder("on_the_slab", restitution=0.3, dt=3e-4, duration=0.01)
+    b.add_box("slope", [3.0, 1.0, 0.1], position=[0.0, 0.0, 0.5], rpy=[0.0, 0.25, 0.0])
+    b.add_body("box", MODELS / "cube.urdf", root_joint="free", position=ON_THE_SLAB[:3], rpy=[0.0, 0.2252, 0.0])
+    sc = b.build()
+    q = np.array(ON_THE_SLAB)
+    model = ms.build_model(sc)
+    c = ms.detect(model, ms.make_data(model), q)
+    assert c.m == 2 and (c.kind == FeatureKind.VERTEX).all()
+    np.testing.assert_allclose(c.g, 1.809e-10, rtol=1e-3, atol=0)
+    steps = []
+    for impl in ("python", "compiled"):
+        model = ms.build_model(sc.with_options(step_impl=impl))
+        steps.append(ms.step(model, ms.make_data(model), ms.State(0.0, q, np.zeros(6))))
+    assert steps[0].contacts.g.min() > -1e-9
+    assert np.array_equal(steps[0].state.q, steps[1].state.q) and np.array_equal(steps[0].state.u, steps[1].state.u)
