@@ -159,10 +159,12 @@ def test_ball_through_simulate_both_ways(e):
 
 
 @pytest.mark.parametrize("rows", [True, False])
-@pytest.mark.parametrize("name", ["bouncing_ball", "zeno_ball", "box_drop", "rocking_block"])
-def test_point_gaps_are_bit_identical(name, rows):
-    """The gaps of points on static planes (a sphere's centre, a box's vertices on a half-space) with their rows,
-    drift and rates: the compiled ones are the Python Gaps.features's floats, at states moving in every coordinate."""
+@pytest.mark.parametrize("name", ["bouncing_ball", "zeno_ball", "box_drop", "rocking_block", "newton_cradle_5",
+                                  "cradle_rounding_perturbed", "column_of_beads", "heavy_on_light_ball_100"])
+def test_compiled_gaps_are_bit_identical(name, rows):
+    """The gaps of points on static planes (a sphere's centre, a box's vertices on a half-space) and of sphere pairs
+    (the cradles, the beads) with their rows, drift and rates: the compiled ones are the Python Gaps.features's
+    floats, at states moving in every coordinate."""
     model = build_model(load_scene(SCENES[0].parent / f"{name}.toml"))
     data = make_data(model)
     gaps = make_rules(model, data, model.options.restitution).gaps
