@@ -275,7 +275,7 @@ class AdaptiveRun:
 
     def _end(self, t, q, u, C, idx) -> _End:
         pg = self.rules.gaps.compiled
-        if pg is not None and not C and idx:  # free flight, points on planes: the same floats compiled
+        if pg is not None and not C and idx:  # free flight, compiled features: the same floats
             self.s.ev.nfev += 1  # (dynamics counts its calls)
             a, g, gamma, gdd = pg.end(q, u, [int(i) for i in idx])
             return _End(t, q, u, a, np.zeros(0), g, gamma, gdd, np.zeros(0), np.zeros(len(idx), bool))

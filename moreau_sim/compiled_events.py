@@ -2,8 +2,8 @@
 midpoint steps and their extrapolation (docs/theory.md §8) without a persistent set, operation by operation as
 adaptive.AdaptiveRun._step computes them (docs/theory.md §2.8), so that a run gives the Python run's arrays bit
 for bit; the samples on the dense output between events with what each records, all the samples of a step in
-one call, and the gaps of points on static planes (the ball's) with their rows (src/adaptive.hpp). The event
-location, the decisions at events and the constrained phases stay in Python."""
+one call, and the gaps of points on static planes (the ball's) and of sphere pairs (the cradle's) with their
+rows (src/adaptive.hpp). The event location, the decisions at events and the constrained phases stay in Python."""
 
 from __future__ import annotations
 
@@ -62,16 +62,21 @@ def sampler(model, data, *, lie: bool, basis) -> Callable | None:
     return ds.samples
 
 
-def point_gaps(model, data, feats):
+COMPILED_KINDS = {"point_plane": 0, "sphere_sphere": 1}  # the feature kinds FeatureGaps takes (src/adaptive.hpp)
+
+
+def feature_gaps(model, data, feats):
     """The gaps of `feats` compiled where every feature is a point on a static plane ("point_plane": vertices and
-    spheres on half-spaces) and the compiled step loads, else None (the Python gaps): .features(q, u, idx, rows)
-    -> (g, W, drift, gamma) as gaps.Gaps.features; .end(q, u, idx) -> (a, g, gamma, gdd) as AdaptiveRun._end in
-    free flight (a: the free accelerations, gdd = W'a + drift)."""
-    if not feats or compiled.loop_refusal(model, "PointGaps", "the compiled gaps") is not None:
+    spheres on half-spaces) or a pair of spheres ("sphere_sphere") and the compiled step loads, else None (the
+    Python gaps): .features(q, u, idx, rows) -> (g, W, drift, gamma) as gaps.Gaps.features; .end(q, u, idx) ->
+    (a, g, gamma, gdd) as AdaptiveRun._end in free flight (a: the free accelerations, gdd = W'a + drift)."""
+    if not feats or compiled.loop_refusal(model, "FeatureGaps", "the compiled gaps") is not None:
         return None
-    if any(f.kind != "point_plane" or f.joint_b != 0 for f in feats):
+    if any(f.kind not in COMPILED_KINDS or (f.kind == "point_plane" and f.joint_b != 0) for f in feats):
         return None
-    pg = compiled._module.PointGaps(model.pin, data.pin, [int(f.joint_a) for f in feats],
-                                    np.array([f.p for f in feats], float), np.array([f.n for f in feats], float),
-                                    [float(f.d) for f in feats], np.asarray(model.support_mask, float))
-    return pg
+    return compiled._module.FeatureGaps(
+        model.pin, data.pin, [COMPILED_KINDS[f.kind] for f in feats], [int(f.joint_a) for f in feats],
+        [int(f.joint_b) for f in feats], np.array([f.p for f in feats], float).reshape(-1, 3),
+        np.array([f.n for f in feats], float).reshape(-1, 3), np.array([f.p_b for f in feats], float).reshape(-1, 3),
+        [float(f.d) for f in feats], [float(f.r) for f in feats], [float(f.r_b) for f in feats],
+        np.asarray(model.support_mask, float))

@@ -64,7 +64,7 @@ def make_rules(model: Model, data: Data, e: float, feats: tuple[Feature, ...] | 
     feats = feature_list(model) if feats is None else feats
     first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
     gaps = Gaps(model, data, feats, gap_tol)
-    gaps.compiled = compiled_events.point_gaps(model, data, feats)
+    gaps.compiled = compiled_events.feature_gaps(model, data, feats)
     return Rules(model, data, e, feats, gap_tol, gaps,
                  {f.pair: i for i, f in reversed(list(enumerate(feats))) if f.box is not None},
                  {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)

@@ -193,14 +193,14 @@ class Gaps:
         self.pm, self.pd = model.pin, data.pin
         self.nv, self.zero = model.nv, np.zeros(model.nv)
         self._pair_names = {p.index: p.name for p in model.pairs}
-        # the same features compiled (compiled_events.point_gaps; None: these below); set by event_rules.make_rules
+        # the same features compiled (compiled_events.feature_gaps; None: these below); set by event_rules.make_rules
         self.compiled = None
 
     def features(self, q: np.ndarray, u: np.ndarray, idx=None, rows: bool = True, faces: dict | None = None
                  ) -> FeatureState:
         """Gaps (and rows, drift, gamma if `rows`) of the features `idx` (default all) at (q, u);
         faces: (pair, vertex feature) -> the face a persistent vertex keeps (docs/theory.md §7.1)."""
-        if self.compiled is not None:  # every feature a point on a static plane: the same floats compiled
+        if self.compiled is not None:  # points on static planes, sphere pairs: the same floats compiled
             idx = range(len(self.feats)) if idx is None else idx
             g, W, drift, gamma = self.compiled.features(q, u, [int(i) for i in idx], rows)
             k = len(g)

@@ -9,13 +9,14 @@ Each check is a few float reductions; a violation is a dict kept in meta["invari
 
 from __future__ import annotations
 
+import functools
 import math
 from enum import Enum
 
 import numpy as np
 
 from .creep import first_creep
-from .data import make_data
+from .data import Data, make_data
 from .energy import kinetic, potential
 from .errors import SimulationError
 from .sinking import first_paid
@@ -65,7 +66,7 @@ class Invariants:
 
     def __init__(self, model: Model, *, rtol: float, strict: bool = False):
         opts = model.options
-        self.model, self.data = model, make_data(model)  # its own Data: checking changes nothing the run reads
+        self.model = model
         self.fixed = opts.integrator is Integrator.TIME_STEPPING
         self.rel = FIXED_RTOL if self.fixed else max(EXACT_FACTOR * rtol, FIXED_RTOL if
                                                      opts.integrator is Integrator.ADAPTIVE else 0.0, ROUND_OFF)
@@ -85,6 +86,12 @@ class Invariants:
         self.last_depth = self.last_allowed = 0.0  # [m] the last penetration beyond the allowance, the allowance
         self.points = 0
         self.reported: dict[str, float] = {}  # invariant -> the size last reported
+
+    @functools.cached_property
+    def data(self) -> Data:
+        """Its own Data (checking changes nothing the run reads), made where first needed (most points reuse the
+        recorder's energies)."""
+        return make_data(self.model)
 
     # ---- the hook ---------------------------------------------------------------------------------------------
     def __call__(self, where: str, state: State, rep: Report | None, rec: Recorder) -> list[dict] | None:

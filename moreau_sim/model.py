@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import time
 from dataclasses import InitVar, dataclass
 from pathlib import Path
 
@@ -418,9 +419,23 @@ DATA_PEAK = 2  # createData's peak RSS is twice that (measured at nv = 300: 1.70
 DATA_LIMIT_VARIABLE = "MOREAU_SIM_DATA_LIMIT_GB"  # overrides the limit of check_data_size [GiB]
 
 
+MEMORY_PROBE_SECONDS = 0.5  # [s] available_memory's reading is reused this long (a run makes several Datas)
+_memory_probe: list = [-math.inf, None]  # (time.monotonic() of the last reading, its bytes)
+
+
 def available_memory() -> int | None:
     """Bytes of memory this process may still allocate: Linux MemAvailable, or less under a
-    cgroup v2 memory limit (a container's memory.max minus memory.current); None if unknown."""
+    cgroup v2 memory limit (a container's memory.max minus memory.current); None if unknown.
+    Read at most once every MEMORY_PROBE_SECONDS (the files of /proc and /sys cost ~40 us a reading)."""
+    now = time.monotonic()
+    if now - _memory_probe[0] < MEMORY_PROBE_SECONDS:
+        return _memory_probe[1]
+    avail = _read_available_memory()
+    _memory_probe[:] = [now, avail]
+    return avail
+
+
+def _read_available_memory() -> int | None:
     avail = None
     try:
         with open("/proc/meminfo", encoding="ascii") as f:

@@ -13,6 +13,7 @@ import math
 import mmap
 import platform
 import tempfile
+import weakref
 from collections import ChainMap
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -63,25 +64,50 @@ def _versions() -> dict[str, str]:
 def run_metadata(model: Model, status: str, run: dict, **extra) -> dict:
     """The `meta` of a trajectory: format, status, scene (name, path, TOML, URDF and SRDF texts), options,
     model summary, the names and units of q and u, versions, `run` statistics, and any `extra`
-    entries (e.g. integrator)."""
-    sc = model.scene
+    entries (e.g. integrator). What depends on the model alone is computed once per model (_model_meta) and
+    copied into each trajectory's meta."""
+    fixed = _model_meta(model)
     meta = {
         "format": trajectory.FORMAT,
         "status": status,
         **{k: v for k, v in extra.items() if k == "integrator"},
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "scene": {"name": sc.name, "description": sc.description, "path": str(sc.path) if sc.path else None,
-                  "toml": sc.source,
-                  "urdf": {b.name: Path(b.urdf).read_text(encoding="utf-8") for b in sc.bodies},
-                  "srdf": {b.name: Path(b.srdf).read_text(encoding="utf-8") for b in sc.bodies if b.srdf}},
-        "options": model.options.to_dict(),
-        "model": model.describe(),
-        **model.coordinates(),  # q_names, u_names, q_units, u_units
+        **_copy_plain(fixed),  # scene, options, model, q_names, u_names, q_units, u_units
         "versions": versions(),
         **{k: v for k, v in extra.items() if k != "integrator"},
         "run": run,
     }
     return meta
+
+
+_MODEL_META: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> its part of the meta
+
+
+def _model_meta(model: Model) -> dict:
+    """The part of run_metadata that depends on the model alone (the scene's texts as the model was built from
+    them, its options, summary and coordinates), made on a model's first run (a Model never changes)."""
+    fixed = _MODEL_META.get(model)
+    if fixed is None:
+        sc = model.scene
+        fixed = _MODEL_META[model] = {
+            "scene": {"name": sc.name, "description": sc.description, "path": str(sc.path) if sc.path else None,
+                      "toml": sc.source,
+                      "urdf": {b.name: Path(b.urdf).read_text(encoding="utf-8") for b in sc.bodies},
+                      "srdf": {b.name: Path(b.srdf).read_text(encoding="utf-8") for b in sc.bodies if b.srdf}},
+            "options": model.options.to_dict(),
+            "model": model.describe(),
+            **model.coordinates(),  # q_names, u_names, q_units, u_units
+        }
+    return fixed
+
+
+def _copy_plain(x):
+    """A copy of nested dicts and lists (of immutable leaves): each trajectory's meta is its own."""
+    if isinstance(x, dict):
+        return {k: _copy_plain(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_copy_plain(v) for v in x]
+    return x
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,6 +138,16 @@ class PercussionRow:
 _LOG_COLUMNS = tuple((f"log_{name}", name) for name in PercussionRow.__slots__)  # (column, field)
 
 
+@functools.lru_cache(maxsize=64)
+def _layout(schema: tuple, sizes: tuple) -> tuple[dict, dict, int]:
+    """The shapes and dtypes of a schema's columns at the model's sizes, and the bytes of one row (the same for
+    every run of a model: made once). The dicts are shared: read only."""
+    sizes = dict(sizes)
+    shapes = {k: tuple(sizes.get(d, d) for d in shape) for k, (_, shape) in schema}
+    dtypes = {k: np.dtype(dtype) for k, (dtype, _) in schema}
+    return shapes, dtypes, sum(dtypes[k].itemsize * math.prod(shapes[k]) for k in shapes)
+
+
 class _Columns:
     """Arrays of one schema group, `n` rows recorded. A full column grows in place (ndarray.resize:
     realloc, which for large arrays remaps pages instead of copying them) by as many rows as it
@@ -125,10 +161,8 @@ class _Columns:
     vanish with the last map or on any exit of the process (they have no name)."""
 
     def __init__(self, schema: dict, sizes: dict, capacity: int, spill: str | Path | None = None):
-        self.shapes = {k: tuple(sizes.get(d, d) for d in shape) for k, (_, shape) in schema.items()}
-        self.dtypes = {k: np.dtype(dtype) for k, (dtype, _) in schema.items()}
+        self.shapes, self.dtypes, row = _layout(tuple(schema.items()), tuple(sorted(sizes.items())))
         # spilling: the rows of one block (at least one)
-        row = sum(self._row_bytes(k) for k in schema)
         self.block = max(1, SPILL_BYTES // row)
         capacity = min(capacity, self.block if spill is not None else max(1, RESERVE_BYTES // max(row, 1)))
         self.cols = {k: np.empty((max(capacity, 1),) + self.shapes[k], dtype) for k, (dtype, _) in schema.items()}

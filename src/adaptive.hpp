@@ -4,11 +4,13 @@
 // samples of a step, operation by operation as adaptive.AdaptiveRun._segment and _dense, then
 // recording.Recorder.sample compute them (sums in index order: docs/theory.md §2.8), for configurations in a
 // vector space (no joint with nq != nv; a Lie group stays with the Python dense output). And the gaps of points on
-// static planes (gaps.Gaps.features's "point_plane" kind: vertices and spheres on half-spaces) with their rows, drift
-// and rates, operation by operation as gaps.py and kinematics.Kinematics.point compute them. #included by step.cpp
-// after run.cpp (ForestFigures).
+// static planes (gaps.Gaps.features's "point_plane" kind: vertices and spheres on half-spaces) and of sphere pairs
+// ("sphere_sphere") with their rows, drift and rates, operation by operation as gaps.py and
+// kinematics.Kinematics.point compute them (FeatureGaps). #included by step.cpp after run.cpp (ForestFigures).
 
 #include <pinocchio/algorithm/jacobian.hpp>
+
+#include <cmath>
 
 class DenseSampler {
  public:
@@ -96,20 +98,32 @@ class DenseSampler {
 };
 
 // gaps.Gaps.features on a model whose features are all points on static planes (kind "point_plane": the point p in
-// joint j's frame, the plane n' x = d in the world), on the run's own Pinocchio Data (data.pin, left as the Python
-// features leave it)
-class PointGaps {
+// joint j's frame, the plane n' x = d in the world) or pairs of spheres (kind "sphere_sphere": the centres p in joint
+// j's frame and p_b in joint j_b's, radii r and r_b), on the run's own Pinocchio Data (data.pin, left as the Python
+// features leave it), operation by operation as gaps.py and kinematics.Kinematics.point compute them
+class FeatureGaps {
  public:
   using Rows = DenseSampler::Rows;
-  // joint (k,), p, n (k, 3), d (k,): the features; mask: model.support_mask (njoints, nv)
-  PointGaps(nb::object model, nb::object data, std::vector<int64_t> joint, Rows p, Rows n, std::vector<double> d,
-            Rows mask)
+  enum Kind : int64_t { POINT_PLANE = 0, SPHERE_SPHERE = 1 };
+  // kind, joint, joint_b (k,); p, n, p_b (k, 3); d, r, r_b (k,): the features (compiled_events.feature_gaps); mask:
+  // model.support_mask (njoints, nv)
+  FeatureGaps(nb::object model, nb::object data, std::vector<int64_t> kind, std::vector<int64_t> joint,
+              std::vector<int64_t> joint_b, Rows p, Rows n, Rows p_b, std::vector<double> d, std::vector<double> r,
+              std::vector<double> r_b, Rows mask)
       : py_model_(model), py_data_(data), model_(extract_ref<pinocchio::Model>(model, "pinocchio.Model")),
-        data_(extract_ref<pinocchio::Data>(data, "pinocchio.Data")), joint_(std::move(joint)), p_(std::move(p)),
-        n_(std::move(n)), d_(std::move(d)), mask_(std::move(mask)), zero_(VectorXd::Zero(model_.nv)) {
+        data_(extract_ref<pinocchio::Data>(data, "pinocchio.Data")), kind_(std::move(kind)), joint_(std::move(joint)),
+        joint_b_(std::move(joint_b)), p_(std::move(p)), n_(std::move(n)), p_b_(std::move(p_b)), d_(std::move(d)),
+        r_(std::move(r)), r_b_(std::move(r_b)), mask_(std::move(mask)), zero_(VectorXd::Zero(model_.nv)) {
     const size_t k = joint_.size();
-    if ((size_t)p_.rows() != k || (size_t)n_.rows() != k || d_.size() != k || p_.cols() != 3 || n_.cols() != 3)
-      throw nb::value_error("joint (k,), p (k, 3), n (k, 3), d (k,) expected");
+    if (kind_.size() != k || joint_b_.size() != k || (size_t)p_.rows() != k || (size_t)n_.rows() != k ||
+        (size_t)p_b_.rows() != k || d_.size() != k || r_.size() != k || r_b_.size() != k || p_.cols() != 3 ||
+        n_.cols() != 3 || p_b_.cols() != 3)
+      throw nb::value_error("kind, joint, joint_b (k,), p, n, p_b (k, 3), d, r, r_b (k,) expected");
+    for (size_t i = 0; i < k; ++i) {
+      if (kind_[i] != POINT_PLANE && kind_[i] != SPHERE_SPHERE) throw nb::value_error("kind: 0 or 1 expected");
+      if (joint_[i] < 0 || joint_[i] >= model_.njoints || joint_b_[i] < 0 || joint_b_[i] >= model_.njoints)
+        throw nb::value_error("joint index out of range");
+    }
     if (mask_.rows() != model_.njoints || mask_.cols() != model_.nv) throw nb::value_error("mask (njoints, nv)");
   }
 
@@ -125,44 +139,36 @@ class PointGaps {
     pinocchio::forwardKinematics(model_, data_, q, u, zero_);
     VectorXd g(k), drift = VectorXd::Zero(k), gamma = VectorXd::Zero(k);
     Rows W = Rows::Zero(nv, k);
-    Eigen::Matrix<double, 3, Eigen::Dynamic> Jp(3, nv);
+    Point a(nv), b(nv);
+    Eigen::Matrix<double, 3, Eigen::Dynamic> Jrel(3, nv);
     for (Eigen::Index col = 0; col < k; ++col) {
-      const auto i = idx[(size_t)col];
-      const int64_t j = joint_[(size_t)i];
-      const double pl[3] = {p_(i, 0), p_(i, 1), p_(i, 2)}, n[3] = {n_(i, 0), n_(i, 1), n_(i, 2)};
-      double pw[3], acc[3] = {0.0, 0.0, 0.0};
-      if (j == 0) {  // Kinematics.point of the world: p, at rest
-        for (int r = 0; r < 3; ++r) pw[r] = pl[r];
-        Jp.setZero();
-      } else {  // Kinematics.point: (R, t, w, v, a_ang, a_lin) of the joint, cross and dots in Python's order
-        const auto &M = data_.oMi[(size_t)j];
-        const auto &R = M.rotation();
-        const auto &t = M.translation();
-        const Eigen::Vector3d w = data_.v[(size_t)j].angular(), v_lin = data_.v[(size_t)j].linear();
-        const Eigen::Vector3d a_ang = data_.a[(size_t)j].angular(), a_lin = data_.a[(size_t)j].linear();
-        double wp[3], vl[3], awp[3], wvl[3], al[3];
-        cross(w.data(), pl, wp);
-        for (int r = 0; r < 3; ++r) vl[r] = v_lin[r] + wp[r];
-        for (int r = 0; r < 3; ++r) pw[r] = (R(r, 0) * pl[0] + R(r, 1) * pl[1] + R(r, 2) * pl[2] + 0.0) + t[r];
-        cross(a_ang.data(), pl, awp);
-        cross(w.data(), vl, wvl);
-        for (int r = 0; r < 3; ++r) al[r] = (a_lin[r] + awp[r]) + wvl[r];
-        for (int r = 0; r < 3; ++r) acc[r] = R(r, 0) * al[0] + R(r, 1) * al[1] + R(r, 2) * al[2] + 0.0;
-        if (rows) {  // (J[:3] - ordered(skew(p), J[3:])) * mask[j]
-          const double S[3][3] = {{0.0, -pw[2], pw[1]}, {pw[2], 0.0, -pw[0]}, {-pw[1], pw[0], 0.0}};
-          const auto &J = data_.J;
-          for (Eigen::Index c = 0; c < nv; ++c)
-            for (int r = 0; r < 3; ++r) {
-              const double sj = S[r][0] * J(3, c) + S[r][1] * J(4, c) + S[r][2] * J(5, c) + 0.0;
-              Jp(r, c) = (J(r, c) - sj) * mask_(j, c);
-            }
+      const auto i = (size_t)idx[(size_t)col];
+      point(joint_[i], p_.row((Eigen::Index)i).data(), rows, a);
+      double n[3], curv = 0.0;
+      const double *arel = a.acc;
+      double ar[3];
+      if (kind_[i] == POINT_PLANE) {
+        for (int r = 0; r < 3; ++r) n[r] = n_((Eigen::Index)i, r);
+        g[col] = dot3(n, a.p) - d_[i];
+        if (rows) Jrel = a.J;
+      } else {  // sphere_sphere: dv = pa - pb, dist = sqrt(dot3(dv, dv)), n = dv / dist
+        point(joint_b_[i], p_b_.row((Eigen::Index)i).data(), rows, b);
+        double dv[3], vrel[3];
+        for (int r = 0; r < 3; ++r) dv[r] = a.p[r] - b.p[r];
+        const double dist = std::sqrt(dot3(dv, dv));
+        for (int r = 0; r < 3; ++r) n[r] = dv[r] / dist;
+        g[col] = (dist - r_[i]) - r_b_[i];
+        for (int r = 0; r < 3; ++r) vrel[r] = a.vel[r] - b.vel[r], ar[r] = a.acc[r] - b.acc[r];
+        arel = ar;
+        if (rows) {
+          Jrel = a.J - b.J;
+          curv = (dot3(vrel, vrel) - py_square(dot3(n, vrel))) / dist;  // (... - dot3(n, vrel) ** 2) / dist
         }
       }
-      g[col] = (n[0] * pw[0] + n[1] * pw[1] + n[2] * pw[2] + 0.0) - d_[(size_t)i];  // dot3(n, p) - d
       if (rows) {
-        drift[col] = (n[0] * acc[0] + n[1] * acc[1] + n[2] * acc[2] + 0.0) + 0.0;  // dot3(n, a) + curvature 0
-        for (Eigen::Index c = 0; c < nv; ++c)  // ordered(n, Jp)
-          W(c, col) = n[0] * Jp(0, c) + n[1] * Jp(1, c) + n[2] * Jp(2, c) + 0.0;
+        drift[col] = dot3(n, arel) + curv;
+        for (Eigen::Index c = 0; c < nv; ++c)  // ordered(n, Jrel)
+          W(c, col) = n[0] * Jrel(0, c) + n[1] * Jrel(1, c) + n[2] * Jrel(2, c) + 0.0;
       }
     }
     if (rows)  // gamma = ordered(W.T, u): each sum in index order from its first product, then + 0.0
@@ -195,14 +201,66 @@ class PointGaps {
   nb::object py_model_, py_data_;  // keep the Python model and data (and so the C++ ones) alive
   const pinocchio::Model &model_;
   pinocchio::Data &data_;
-  std::vector<int64_t> joint_;
-  Rows p_, n_;
-  std::vector<double> d_;
+  std::vector<int64_t> kind_, joint_, joint_b_;
+  Rows p_, n_, p_b_;
+  std::vector<double> d_, r_, r_b_;
   Rows mask_;
   VectorXd zero_;
 
+  // Kinematics.point of a point fixed in a joint's frame: world position, velocity, bias acceleration, Jacobian
+  struct Point {
+    explicit Point(Eigen::Index nv) : J(3, nv) {}
+    double p[3], vel[3], acc[3];
+    Eigen::Matrix<double, 3, Eigen::Dynamic> J;
+  };
+
+  void point(int64_t j, const double *pl, bool rows, Point &out) const {
+    const Eigen::Index nv = model_.nv;
+    if (j == 0) {  // the world's point: p, at rest
+      for (int r = 0; r < 3; ++r) out.p[r] = pl[r], out.vel[r] = 0.0, out.acc[r] = 0.0;
+      out.J.setZero();
+      return;
+    }
+    // (R, t, w, v, a_ang, a_lin) of the joint, cross and dots in Python's order
+    const auto &M = data_.oMi[(size_t)j];
+    const auto &R = M.rotation();
+    const auto &t = M.translation();
+    const Eigen::Vector3d w = data_.v[(size_t)j].angular(), v_lin = data_.v[(size_t)j].linear();
+    const Eigen::Vector3d a_ang = data_.a[(size_t)j].angular(), a_lin = data_.a[(size_t)j].linear();
+    double wp[3], vl[3], awp[3], wvl[3], al[3];
+    cross(w.data(), pl, wp);
+    for (int r = 0; r < 3; ++r) vl[r] = v_lin[r] + wp[r];
+    for (int r = 0; r < 3; ++r) out.p[r] = (R(r, 0) * pl[0] + R(r, 1) * pl[1] + R(r, 2) * pl[2] + 0.0) + t[r];
+    for (int r = 0; r < 3; ++r) out.vel[r] = R(r, 0) * vl[0] + R(r, 1) * vl[1] + R(r, 2) * vl[2] + 0.0;
+    cross(a_ang.data(), pl, awp);
+    cross(w.data(), vl, wvl);
+    for (int r = 0; r < 3; ++r) al[r] = (a_lin[r] + awp[r]) + wvl[r];
+    for (int r = 0; r < 3; ++r) out.acc[r] = R(r, 0) * al[0] + R(r, 1) * al[1] + R(r, 2) * al[2] + 0.0;
+    if (rows) {  // (J[:3] - ordered(skew(p), J[3:])) * mask[j]
+      const double *pw = out.p;
+      const double S[3][3] = {{0.0, -pw[2], pw[1]}, {pw[2], 0.0, -pw[0]}, {-pw[1], pw[0], 0.0}};
+      const auto &J = data_.J;
+      for (Eigen::Index c = 0; c < nv; ++c)
+        for (int r = 0; r < 3; ++r) {
+          const double sj = S[r][0] * J(3, c) + S[r][1] * J(4, c) + S[r][2] * J(5, c) + 0.0;
+          out.J(r, c) = (J(r, c) - sj) * mask_(j, c);
+        }
+    }
+  }
+
+  static double dot3(const double *a, const double *b) {  // sums.dot3
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + 0.0;
+  }
+
   static void cross(const double *a, const double *b, double *out) {  // kinematics.cross
     out[0] = a[1] * b[2] - a[2] * b[1], out[1] = a[2] * b[0] - a[0] * b[2], out[2] = a[0] * b[1] - a[1] * b[0];
+  }
+
+  // Python's float x ** 2: the C library's pow(|x|, 2.0) (CPython's float_pow), not folded into x * x by the
+  // compiler (the exponent is read at run time)
+  static double py_square(double x) {
+    static volatile double two = 2.0;
+    return std::pow(std::fabs(x), (double)two);
   }
 };
 
@@ -215,13 +273,15 @@ inline void bind_adaptive(nb::module_ &mod) {
       .def("samples", &DenseSampler::samples, nb::arg("t0"), nb::arg("q0"), nb::arg("u0"), nb::arg("a0"),
            nb::arg("t1"), nb::arg("q1"), nb::arg("u1"), nb::arg("a1"), nb::arg("grid"),
            "(q, u, kinetic, potential, gaps) at the instants grid of the step t0 -> t1 (AdaptiveRun._segment)");
-  nb::class_<PointGaps>(mod, "PointGaps", "Gaps.features of points on static planes (src/adaptive.hpp)")
-      .def(nb::init<nb::object, nb::object, std::vector<int64_t>, PointGaps::Rows, PointGaps::Rows, std::vector<double>,
-                    PointGaps::Rows>(),
-           nb::arg("model"), nb::arg("data"), nb::arg("joint"), nb::arg("p"), nb::arg("n"), nb::arg("d"),
-           nb::arg("mask"))
-      .def("features", &PointGaps::features, nb::arg("q"), nb::arg("u"), nb::arg("idx"), nb::arg("rows"),
+  nb::class_<FeatureGaps>(mod, "FeatureGaps",
+                           "Gaps.features of points on static planes and of sphere pairs (src/adaptive.hpp)")
+      .def(nb::init<nb::object, nb::object, std::vector<int64_t>, std::vector<int64_t>, std::vector<int64_t>,
+                    FeatureGaps::Rows, FeatureGaps::Rows, FeatureGaps::Rows, std::vector<double>, std::vector<double>,
+                    std::vector<double>, FeatureGaps::Rows>(),
+           nb::arg("model"), nb::arg("data"), nb::arg("kind"), nb::arg("joint"), nb::arg("joint_b"), nb::arg("p"),
+           nb::arg("n"), nb::arg("p_b"), nb::arg("d"), nb::arg("r"), nb::arg("r_b"), nb::arg("mask"))
+      .def("features", &FeatureGaps::features, nb::arg("q"), nb::arg("u"), nb::arg("idx"), nb::arg("rows"),
            "(g, W, drift, gamma) of the features idx at (q, u) (gaps.Gaps.features)")
-      .def("end", &PointGaps::end, nb::arg("q"), nb::arg("u"), nb::arg("idx"),
+      .def("end", &FeatureGaps::end, nb::arg("q"), nb::arg("u"), nb::arg("idx"),
            "(a, g, gamma, gdd) of a free step end on the features idx (adaptive.AdaptiveRun._end)");
 }
