@@ -62,9 +62,9 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
     return float(max(r, -slack.min(initial=0.0), -lam.min(initial=0.0), abs(lam @ slack)))
 
 
-COLD_START_ROWS = 500  # up to this many rows (= SPARSE_ROWS) the active set starts from nothing, and piqp is only its
+COLD_START_ROWS = 200  # up to this many rows (= SPARSE_ROWS) the active set starts from nothing, and piqp is only its
 # fallback; the compiled step takes as many (compiled.MAX_CONTACTS): it runs this method, not piqp (docs/theory.md §1.3)
-SPARSE_ROWS = 500  # above this many rows the sparse path (_solve_sparse) solves (piqp's start, SuperLU)
+SPARSE_ROWS = 200  # above this many rows the sparse path (_solve_sparse) solves (piqp's start, SuperLU)
 # The active set's tolerances (src/step.cpp receives them from compiled.CONSTANTS):
 SCREEN = 1e-13  # v0 is admissible, and a row of the active set met, when W'v - b >= -SCREEN (1 + max|v0|)
 DEPENDENT = 1e-12  # row p depends on the active rows when z = G_pp + G_pA d <= DEPENDENT G_pp
@@ -78,7 +78,8 @@ MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_RO
 LU_SCALAR = 12  # up to this many unknowns _lu_factor works on Python floats (fewer calls than numpy's row operations)
 LU_CACHE = 128  # factors kept (the active set solves with the same G_AA again: 2 of 3 solves in box_stack_5)
 LU_CACHED_ROWS = 32  # of matrices up to this many rows (at most ~4 MB of Python floats)
-LU_SPARSE_NONZEROS = 8  # above LU_CACHED_ROWS rows, a clean matrix of at most this many nonzeros a row: _lu_solve_sparse
+LU_SPARSE_NONZEROS = 8  # above LU_CACHED_ROWS rows, a clean matrix with at most this many nonzeros a row:
+# _lu_solve_sparse (the same bits at the cost of its nonzeros)
 _factors: dict = {}
 
 
