@@ -442,9 +442,9 @@ bool sparse_lu_solve(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
   return x.allFinite();
 }
 
-// above this many rows lu_solve runs sparse_lu_solve on a clean matrix (the same bits; below it the dense loops
-// cost less than the lists)
-constexpr Eigen::Index kSparseLU = 16;
+// lu_solve runs sparse_lu_solve on a clean matrix above kSparseLU rows with at most kSparseRow nonzeros a row on
+// average (the same bits; below or denser, the dense loops cost less than the lists: ten boxes' G, ~24 a row)
+constexpr Eigen::Index kSparseLU = 16, kSparseRow = 8;
 
 // qp._lu_solve: x = A^-1 rhs by Gaussian elimination with partial pivoting (the first largest |a_ij| of the
 // column; a NaN in it: no pivot), then back substitution by columns, each entry with the same operations in the
@@ -456,10 +456,10 @@ constexpr Eigen::Index kSparseLU = 16;
 // -0.0, so not even a zero's sign changes), the same bits at a cost of the nonzeros (a stack's G is banded); the
 // right-hand side gets every operation (its entries may be -0.0); above kSparseLU rows sparse_lu_solve does it on
 // the nonzeros alone
-bool lu_solve(const MatrixXd &A, const VectorXd &rhs, VectorXd &x, bool is_clean = false) {
+bool lu_solve(const MatrixXd &A, const VectorXd &rhs, VectorXd &x, bool is_clean = false, bool dense = false) {
   const Eigen::Index n = A.rows();
   const bool skip = is_clean || clean(A);  // is_clean: the caller knows A finite, without -0.0
-  if (skip && n > kSparseLU) {
+  if (skip && !dense && n > kSparseLU && (A.array() != 0.0).count() <= kSparseRow * n) {  // dense: the caller knows
     thread_local SparseLU w;
     w.set_size(n);
     for (Eigen::Index j = 0; j < n; ++j)
@@ -521,15 +521,29 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
   VectorXd s(m);
   const bool finite = G.allFinite();
   const bool is_clean = finite && clean(G);  // lu_solve on G's submatrices: finite, no -0.0
-  std::vector<std::vector<Eigen::Index>> gcol(finite ? (size_t)m : 0);  // the nonzero rows of each column of G
-  // and each row's nonzero (column, value), columns ascending: G's rows without its strided reads
-  std::vector<std::vector<std::pair<Eigen::Index, double>>> grow(finite ? (size_t)m : 0);
-  for (Eigen::Index k = 0; k < (Eigen::Index)gcol.size(); ++k)
-    for (Eigen::Index i = 0; i < m; ++i)
-      if (G(i, k) != 0.0) {
-        gcol[(size_t)k].push_back(i);
-        grow[(size_t)i].emplace_back(k, G(i, k));
+  // G's nonzeros by columns (cptr, cidx: the rows of each) and by rows (rptr, ridx, rval: each row's columns,
+  // ascending, and values: G's rows without its strided reads), kept from call to call (no allocation)
+  thread_local std::vector<Eigen::Index> cptr, cidx, rptr, ridx;
+  thread_local std::vector<double> rval;
+  cptr.assign((size_t)m + 1, 0), rptr.assign((size_t)m + 1, 0), cidx.clear();
+  if (finite) {
+    for (Eigen::Index k = 0; k < m; ++k) {
+      const double *g = G.col(k).data();
+      for (Eigen::Index i = 0; i < m; ++i)
+        if (g[i] != 0.0) cidx.push_back(i), ++rptr[(size_t)i + 1];
+      cptr[(size_t)k + 1] = (Eigen::Index)cidx.size();
+    }
+    for (Eigen::Index i = 0; i < m; ++i) rptr[(size_t)i + 1] += rptr[(size_t)i];
+    ridx.resize(cidx.size()), rval.resize(cidx.size());
+    thread_local std::vector<Eigen::Index> fill;
+    fill.assign(rptr.begin(), rptr.end() - 1);
+    for (Eigen::Index k = 0; k < m; ++k)
+      for (Eigen::Index t = cptr[(size_t)k]; t < cptr[(size_t)k + 1]; ++t) {
+        const Eigen::Index i = cidx[(size_t)t], at = fill[(size_t)i]++;
+        ridx[(size_t)at] = k, rval[(size_t)at] = G(i, k);
       }
+  }
+  const bool sparse = is_clean && cidx.size() <= (size_t)(kSparseRow * m);  // G_AA's solves on its nonzeros
   thread_local SparseLU w;  // G_AA by its nonzeros, for sparse_lu_solve (no k x k copy a move)
   std::vector<Eigen::Index> posA(finite ? (size_t)m : 0, -1);  // a row's place in idx, -1 outside A
   bool lam_finite = true;
@@ -538,10 +552,10 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
   auto row_dot = [&](Eigen::Index p, const double *x, const Eigen::Index *at) {
     double sum = 0.0;
     bool first = true;
-    for (const auto &e : grow[(size_t)p]) {
-      const Eigen::Index c = at ? at[e.first] : e.first;
+    for (Eigen::Index t = rptr[(size_t)p]; t < rptr[(size_t)p + 1]; ++t) {
+      const Eigen::Index c = at ? at[ridx[(size_t)t]] : ridx[(size_t)t];
       if (c < 0) continue;
-      const double term = e.second * x[c];
+      const double term = rval[(size_t)t] * x[c];
       sum = first ? term : sum + term;
       first = false;
     }
@@ -554,7 +568,10 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
         const double lk = lam[k];
         if (lk == 0.0) continue;
         const double *g = G.col(k).data();
-        for (Eigen::Index i : gcol[(size_t)k]) s[i] = s[i] + g[i] * lk;
+        for (Eigen::Index t = cptr[(size_t)k]; t < cptr[(size_t)k + 1]; ++t) {
+          const Eigen::Index i = cidx[(size_t)t];
+          s[i] = s[i] + g[i] * lk;
+        }
       }
       for (Eigen::Index i = 0; i < m; ++i) s[i] = (s[i] + 0.0) - r[i];
     } else {
@@ -581,17 +598,17 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
           std::fill(posA.begin(), posA.end(), -1);
           for (Eigen::Index i = 0; i < k; ++i) posA[(size_t)idx[i]] = i;
         }
-        if (is_clean && k > kSparseLU) {  // lu_solve's bits from G_AA's nonzeros
+        if (sparse && k > kSparseLU) {  // lu_solve's bits from G_AA's nonzeros
           w.set_size(k);
           for (Eigen::Index i = 0; i < k; ++i)
-            for (const auto &e : grow[(size_t)idx[i]])
-              if (posA[(size_t)e.first] >= 0) w.a[(size_t)i].emplace_back(posA[(size_t)e.first], e.second);
+            for (Eigen::Index t = rptr[(size_t)idx[i]]; t < rptr[(size_t)idx[i] + 1]; ++t)
+              if (posA[(size_t)ridx[(size_t)t]] >= 0) w.a[(size_t)i].emplace_back(posA[(size_t)ridx[(size_t)t]], rval[(size_t)t]);
           if (!sparse_lu_solve(w, rhs, d)) return false;
         } else {
           GA.resize(k, k);
           for (Eigen::Index i = 0; i < k; ++i)
             for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
-          if (!lu_solve(GA, rhs, d, is_clean)) return false;
+          if (!lu_solve(GA, rhs, d, is_clean, true)) return false;
         }
         if (finite) {  // G[p, A] @ d (d finite: lu_solve checked)
           z = G(p, p) + row_dot(p, d.data(), posA.data());
