@@ -64,7 +64,8 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
 
 COLD_START_ROWS = 100  # up to this many rows (= SPARSE_ROWS) the active set starts from nothing, and piqp is only its
 # fallback; the compiled step takes as many (compiled.MAX_CONTACTS): it runs this method, not piqp (docs/theory.md §1.3)
-SPARSE_ROWS = 100  # above this many rows the sparse path (_solve_sparse) solves; below it dense is cheaper
+SPARSE_ROWS = 100  # above this many rows the sparse path (_solve_sparse) solves (piqp's start, SuperLU); 200 was
+# measured (docs/theory.md §1.3): the Python step's cold start above 100 rows doubled the cost of the box pile's handed-back steps
 # The active set's tolerances (src/step.cpp receives them from compiled.CONSTANTS):
 SCREEN = 1e-13  # v0 is admissible, and a row of the active set met, when W'v - b >= -SCREEN (1 + max|v0|)
 DEPENDENT = 1e-12  # row p depends on the active rows when z = G_pp + G_pA d <= DEPENDENT G_pp
@@ -78,7 +79,105 @@ MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_RO
 LU_SCALAR = 12  # up to this many unknowns _lu_factor works on Python floats (fewer calls than numpy's row operations)
 LU_CACHE = 128  # factors kept (the active set solves with the same G_AA again: 2 of 3 solves in box_stack_5)
 LU_CACHED_ROWS = 32  # of matrices up to this many rows (at most ~4 MB of Python floats)
+LU_SPARSE_NONZEROS = 8  # above LU_CACHED_ROWS rows, a clean matrix with at most this many nonzeros a row:
+# _lu_solve_sparse (the same bits at the cost of its nonzeros)
 _factors: dict = {}
+
+
+def _clean(A: np.ndarray) -> bool:
+    """A finite, without a -0.0 entry (a contact-space G and its submatrices: every entry a sum ending + 0.0)."""
+    return bool(np.isfinite(A).all()) and not bool(np.signbit(A[A == 0.0]).any())
+
+
+def _negative_zero(v: float) -> bool:
+    return v == 0.0 and math.copysign(1.0, v) < 0.0
+
+
+def _lu_solve_sparse(A: np.ndarray, rhs):
+    """_lu_solve's bits for a clean A (_clean) at a cost of its nonzeros and their fill, not n^3 (a column of
+    beads: G_AA tridiagonal); src/step.cpp sparse_lu_solve is the same algorithm. The factor gets only the
+    operations a_ik - l a_jk with l, a_jk != 0 (the others leave a_ik as it is, and no entry becomes -0.0); the
+    right-hand side gets every operation of the dense elimination, x_i - (+-0) x_j included, which changes x_i
+    only from -0.0 to +0.0 (when the product is -0.0: l = +-0 with the pivot's sign, back substitution's
+    a_ij = +0): those steps are counted ("flips") and applied to x_i when it is next operated on or read
+    (docs/theory.md §2.8). A non-finite x_j makes the dense answer non-finite: None, as at a zero pivot."""
+    n = A.shape[0]
+    rows, cols = np.nonzero(A)
+    a: list[dict] = [{} for _ in range(n)]
+    colrows: list[list] = [[] for _ in range(n)]
+    for r, c, v in zip(rows.tolist(), cols.tolist(), A[rows, cols].tolist()):
+        a[r][c] = v
+        colrows[c].append(r)
+    x = np.asarray(rhs, float).tolist()
+    at, pos = list(range(n)), list(range(n))
+    stamp, flips, diag = [-1] * n, [0] * (n + 1), [0.0] * n  # flips[s]: the flipping steps among 0 .. s-1
+    negz, isfinite = _negative_zero, math.isfinite
+    for j in range(n):
+        cand = sorted(pos[r] for r in colrows[j] if pos[r] > j)
+        p, best = j, abs(a[at[j]].get(j, 0.0))
+        for i in cand:  # the first largest |a_ij| (a NaN: the pivot is no number)
+            if best != best:
+                break
+            v = abs(a[at[i]][j])
+            if v != v or v > best:
+                p, best = i, v
+        piv = a[at[p]].get(j, 0.0)
+        if not (piv != 0.0 and isfinite(piv)):
+            return None
+        if p != j:
+            at[j], at[p] = at[p], at[j]
+            pos[at[j]], pos[at[p]] = j, p
+            x[j], x[p], stamp[j], stamp[p] = x[p], x[j], stamp[p], stamp[j]
+        diag[j] = piv
+        xj = x[j]
+        if xj == 0.0 and negz(xj) and flips[j] > flips[stamp[j] + 1]:
+            xj = x[j] = 0.0
+        if not isfinite(xj):
+            return None
+        flips[j + 1] = flips[j] + ((piv < 0.0) != (math.copysign(1.0, xj) < 0.0))
+        prow = [(c, v) for c, v in a[at[j]].items() if c > j and v != 0.0]
+        for r in colrows[j]:
+            i = pos[r]
+            if i <= j:
+                continue
+            row = a[r]
+            aij = row.pop(j)
+            if aij == 0.0:  # l = +-0 with the pivot's sign: a flip of step j
+                continue
+            lo = aij / piv
+            if lo != 0.0:
+                for c, v in prow:
+                    if c in row:
+                        row[c] = row[c] - lo * v
+                    else:
+                        row[c] = 0.0 - lo * v
+                        colrows[c].append(r)
+            xi = x[i]
+            if xi == 0.0 and negz(xi) and flips[j] > flips[stamp[i] + 1]:
+                xi = 0.0
+            x[i] = xi - lo * xj
+            stamp[i] = j
+    ucol: list[list] = [[] for _ in range(n)]  # back substitution by columns: U's column j from the rows above
+    for i in range(n):
+        for c, v in a[at[i]].items():
+            if c > i and v != 0.0:
+                ucol[c].append((i, v))
+    bflips, bstamp = [0] * (n + 1), [n] * n  # bflips[s]: the flipping steps among s .. n-1
+    for j in range(n - 1, -1, -1):
+        xj = x[j]
+        if xj == 0.0 and negz(xj) and bflips[j + 1] > bflips[bstamp[j]]:
+            xj = 0.0
+        xj = x[j] = xj / diag[j]
+        if not isfinite(xj):
+            return None
+        bflips[j] = bflips[j + 1] + (math.copysign(1.0, xj) < 0.0)
+        for i, v in ucol[j]:
+            xi = x[i]
+            if xi == 0.0 and negz(xi) and bflips[j + 1] > bflips[bstamp[i]]:
+                xi = 0.0
+            x[i] = xi - v * xj
+            bstamp[i] = j
+    return np.array(x)
 
 
 def _lu_solve(A, rhs):
@@ -92,6 +191,8 @@ def _lu_solve(A, rhs):
     elimination on Python floats (tests/test_qp.py) and against src/step.cpp (tests/test_compiled.py)."""
     A = np.ascontiguousarray(A, float)
     if A.shape[0] > LU_CACHED_ROWS:
+        if np.count_nonzero(A) <= LU_SPARSE_NONZEROS * A.shape[0] and _clean(A):
+            return _lu_solve_sparse(A, rhs)
         f = _lu_factor(A)
     else:
         key = A.tobytes()

@@ -296,6 +296,156 @@ VectorXd otimes_t(const MatrixXd &W, const VectorXd &x) {
   return y;
 }
 
+// A finite matrix without a -0.0 entry (a contact-space G and its submatrices: every entry a sum ending + 0.0)
+bool clean(const MatrixXd &A) {
+  const double *a = A.data();
+  for (Eigen::Index k = 0; k < A.size(); ++k)
+    if (!std::isfinite(a[k]) || (a[k] == 0.0 && std::signbit(a[k]))) return false;
+  return true;
+}
+
+// A square matrix by its rows' stored entries (column, value; an entry not stored is +0.0) and sparse_lu_solve's
+// work arrays, kept from one solve to the next (their capacity: no allocation a move in active_set)
+struct SparseLU {
+  using I = Eigen::Index;
+  std::vector<std::vector<std::pair<I, double>>> a;  // the rows: set them (set_size, then fill a[r]) before a solve
+  std::vector<std::vector<I>> colrows;
+  std::vector<std::vector<std::pair<I, double>>> ucol;
+  std::vector<I> at, pos, slot, stamp, cand, flips, bflips, bstamp;
+  std::vector<double> diag;
+  std::vector<std::pair<I, double>> prow;
+  void set_size(I n) {
+    if ((I)a.size() < n) a.resize((size_t)n), colrows.resize((size_t)n), ucol.resize((size_t)n);
+    for (I r = 0; r < n; ++r) a[(size_t)r].clear();
+    n_ = n;
+  }
+  I n_ = 0;
+};
+
+// lu_solve's elimination on a clean A given by its nonzero entries, at a cost of the nonzeros and their fill
+// instead of n^2 (n^3 without the skips): the same bits as the dense elimination, every entry of x included.
+// The factor gets the operations of the skip path only (a_ik - l a_jk with l, a_jk != 0: the others leave a_ik
+// as it is, and no entry of A ever becomes -0.0). The right-hand side gets every operation in the dense code,
+// x_i - (+-0) x_j included, which leaves x_i as it is unless it is -0.0 and the product is -0.0 (-0 - -0 = +0);
+// those products (of the rows i with a_ij = 0, l = +-0 with the pivot's sign; of back substitution's
+// a_ij = +0) are counted per column ("flips") and applied to an x_i when it is next operated on or read
+// (a -0.0 turns +0.0 if a flip happened in between): x_j non-finite makes the dense result non-finite, so false
+bool sparse_lu_solve(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
+  using I = Eigen::Index;
+  const I n = w.n_;
+  auto &a = w.a;
+  auto &colrows = w.colrows;  // the rows (by id) with an entry stored in each column
+  auto &at = w.at, &pos = w.pos, &slot = w.slot, &stamp = w.stamp, &cand = w.cand;
+  auto &flips = w.flips;  // flips[s]: the flipping steps among 0 .. s-1
+  auto &diag = w.diag;
+  auto &prow = w.prow;
+  x = rhs;
+  for (I r = 0; r < n; ++r) colrows[(size_t)r].clear();
+  for (I r = 0; r < n; ++r)
+    for (auto &e : a[(size_t)r]) colrows[(size_t)e.first].push_back(r);
+  at.resize((size_t)n), pos.resize((size_t)n), slot.assign((size_t)n, -1), stamp.assign((size_t)n, -1);
+  for (I i = 0; i < n; ++i) at[(size_t)i] = pos[(size_t)i] = i;
+  flips.assign((size_t)n + 1, 0), diag.resize((size_t)n);
+  // x at position i as the dense elimination has it before step j (its last explicit operation at stamp[i])
+  auto settle = [&](I i, I j) {
+    if (x[i] == 0.0 && std::signbit(x[i]) && flips[(size_t)j] - flips[(size_t)(stamp[(size_t)i] + 1)] > 0) x[i] = 0.0;
+  };
+  auto entry = [&](I r, I c) -> std::pair<I, double> * {
+    for (auto &e : a[(size_t)r])
+      if (e.first == c) return &e;
+    return nullptr;
+  };
+  for (I j = 0; j < n; ++j) {
+    cand.clear();
+    for (I r : colrows[(size_t)j])
+      if (pos[(size_t)r] > j) cand.push_back(pos[(size_t)r]);
+    std::sort(cand.begin(), cand.end());
+    const auto *djj = entry(at[(size_t)j], j);
+    I p = j;
+    double best = djj ? std::abs(djj->second) : 0.0;
+    for (I i : cand) {
+      if (std::isnan(best)) break;
+      const double v = std::abs(entry(at[(size_t)i], j)->second);
+      if (std::isnan(v) || v > best) best = v, p = i;
+    }
+    const auto *pe = entry(at[(size_t)p], j);
+    const double piv = pe ? pe->second : 0.0;
+    if (!(piv != 0.0 && std::isfinite(piv))) return false;
+    if (p != j) {
+      std::swap(at[(size_t)j], at[(size_t)p]);
+      pos[(size_t)at[(size_t)j]] = j, pos[(size_t)at[(size_t)p]] = p;
+      std::swap(x[j], x[p]);
+      std::swap(stamp[(size_t)j], stamp[(size_t)p]);
+    }
+    diag[(size_t)j] = piv;
+    settle(j, j);
+    if (!std::isfinite(x[j])) return false;
+    flips[(size_t)j + 1] = flips[(size_t)j] + (std::signbit(piv) != std::signbit(x[j]));
+    const I R = at[(size_t)j];
+    prow.clear();
+    for (auto &e : a[(size_t)R])
+      if (e.first > j && e.second != 0.0) prow.push_back(e);
+    for (I r : colrows[(size_t)j]) {
+      const I i = pos[(size_t)r];
+      if (i <= j) continue;
+      auto &row = a[(size_t)r];
+      double aij = 0.0;
+      for (size_t t = 0; t < row.size(); ++t)
+        if (row[t].first == j) {
+          aij = row[t].second;
+          row[t] = row.back();
+          row.pop_back();
+          break;
+        }
+      if (aij == 0.0) continue;  // l = +-0 with the pivot's sign: a flip of step j
+      const double l = aij / piv;
+      if (l != 0.0) {
+        for (size_t t = 0; t < row.size(); ++t) slot[(size_t)row[t].first] = (I)t;
+        for (auto &e : prow) {
+          const I s = slot[(size_t)e.first];
+          if (s >= 0) {
+            row[(size_t)s].second = row[(size_t)s].second - l * e.second;
+          } else {
+            row.emplace_back(e.first, 0.0 - l * e.second);
+            colrows[(size_t)e.first].push_back(r);
+          }
+        }
+        for (auto &e : row) slot[(size_t)e.first] = -1;
+      }
+      settle(i, j);
+      x[i] = x[i] - l * x[j];
+      stamp[(size_t)i] = j;
+    }
+  }
+  // back substitution by columns: U's column j from the rows above it
+  auto &ucol = w.ucol;
+  for (I i = 0; i < n; ++i) ucol[(size_t)i].clear();
+  for (I i = 0; i < n; ++i)
+    for (auto &e : a[(size_t)at[(size_t)i]])
+      if (e.first > i && e.second != 0.0) ucol[(size_t)e.first].emplace_back(i, e.second);
+  auto &bflips = w.bflips, &bstamp = w.bstamp;  // bflips[s]: the flipping steps among s .. n-1
+  bflips.assign((size_t)n + 1, 0), bstamp.assign((size_t)n, n);
+  auto bsettle = [&](I i, I j) {  // before step j of back substitution
+    if (x[i] == 0.0 && std::signbit(x[i]) && bflips[(size_t)j + 1] - bflips[(size_t)bstamp[(size_t)i]] > 0) x[i] = 0.0;
+  };
+  for (I j = n - 1; j >= 0; --j) {
+    bsettle(j, j);
+    x[j] = x[j] / diag[(size_t)j];
+    if (!std::isfinite(x[j])) return false;
+    bflips[(size_t)j] = bflips[(size_t)j + 1] + std::signbit(x[j]);
+    for (auto &e : ucol[(size_t)j]) {
+      bsettle(e.first, j);
+      x[e.first] = x[e.first] - e.second * x[j];
+      bstamp[(size_t)e.first] = j;
+    }
+  }
+  return x.allFinite();
+}
+
+// lu_solve runs sparse_lu_solve on a clean matrix above kSparseLU rows with at most kSparseRow nonzeros a row on
+// average (the same bits; below or denser, the dense loops cost less than the lists: ten boxes' G, ~24 a row)
+constexpr Eigen::Index kSparseLU = 16, kSparseRow = 8;
+
 // qp._lu_solve: x = A^-1 rhs by Gaussian elimination with partial pivoting (the first largest |a_ij| of the
 // column; a NaN in it: no pivot), then back substitution by columns, each entry with the same operations in the
 // same order as the Python one (docs/theory.md §2.8: no LAPACK, no FMA); false at a zero or non-finite pivot,
@@ -304,13 +454,21 @@ VectorXd otimes_t(const MatrixXd &W, const VectorXd &x) {
 // Where A is finite and has no -0.0 entry (a contact-space G: every entry a sum ending + 0.0), the elimination skips
 // the rows i with a_ij = 0 and the columns k with a_jk = 0: a_ik - (+-0) a_jk = a_ik there (no entry ever becomes
 // -0.0, so not even a zero's sign changes), the same bits at a cost of the nonzeros (a stack's G is banded); the
-// right-hand side gets every operation (its entries may be -0.0)
-bool lu_solve(const MatrixXd &A, const VectorXd &rhs, VectorXd &x, bool clean = false) {
+// right-hand side gets every operation (its entries may be -0.0); above kSparseLU rows sparse_lu_solve does it on
+// the nonzeros alone
+bool lu_solve(const MatrixXd &A, const VectorXd &rhs, VectorXd &x, bool is_clean = false, bool dense = false) {
   const Eigen::Index n = A.rows();
+  const bool skip = is_clean || clean(A);  // is_clean: the caller knows A finite, without -0.0
+  if (skip && !dense && n > kSparseLU && (A.array() != 0.0).count() <= kSparseRow * n) {  // dense: the caller knows
+    thread_local SparseLU w;
+    w.set_size(n);
+    for (Eigen::Index j = 0; j < n; ++j)
+      for (Eigen::Index i = 0; i < n; ++i)
+        if (A(i, j) != 0.0) w.a[(size_t)i].emplace_back(j, A(i, j));
+    return sparse_lu_solve(w, rhs, x);
+  }
   MatrixXd a = A;
   x = rhs;
-  bool skip = clean || a.allFinite();  // clean: the caller knows A finite, without -0.0
-  for (Eigen::Index k = 0; k < a.size() && skip && !clean; ++k) skip = !(a.data()[k] == 0.0 && std::signbit(a.data()[k]));
   std::vector<Eigen::Index> cols;
   for (Eigen::Index j = 0; j < n; ++j) {
     Eigen::Index p = j;
@@ -362,20 +520,58 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
   MatrixXd GA;
   VectorXd s(m);
   const bool finite = G.allFinite();
-  bool clean = finite;  // lu_solve on G's submatrices: finite, no -0.0
-  for (Eigen::Index k = 0; k < G.size() && clean; ++k) clean = !(G.data()[k] == 0.0 && std::signbit(G.data()[k]));
-  std::vector<std::vector<Eigen::Index>> gcol(finite ? (size_t)m : 0);  // the nonzero rows of each column of G
-  for (Eigen::Index k = 0; k < (Eigen::Index)gcol.size(); ++k)
-    for (Eigen::Index i = 0; i < m; ++i)
-      if (G(i, k) != 0.0) gcol[(size_t)k].push_back(i);
+  const bool is_clean = finite && clean(G);  // lu_solve on G's submatrices: finite, no -0.0
+  // G's nonzeros by columns (cptr, cidx: the rows of each) and by rows (rptr, ridx, rval: each row's columns,
+  // ascending, and values: G's rows without its strided reads), kept from call to call (no allocation)
+  thread_local std::vector<Eigen::Index> cptr, cidx, rptr, ridx;
+  thread_local std::vector<double> rval;
+  cptr.assign((size_t)m + 1, 0), rptr.assign((size_t)m + 1, 0), cidx.clear();
+  if (finite) {
+    for (Eigen::Index k = 0; k < m; ++k) {
+      const double *g = G.col(k).data();
+      for (Eigen::Index i = 0; i < m; ++i)
+        if (g[i] != 0.0) cidx.push_back(i), ++rptr[(size_t)i + 1];
+      cptr[(size_t)k + 1] = (Eigen::Index)cidx.size();
+    }
+    for (Eigen::Index i = 0; i < m; ++i) rptr[(size_t)i + 1] += rptr[(size_t)i];
+    ridx.resize(cidx.size()), rval.resize(cidx.size());
+    thread_local std::vector<Eigen::Index> fill;
+    fill.assign(rptr.begin(), rptr.end() - 1);
+    for (Eigen::Index k = 0; k < m; ++k)
+      for (Eigen::Index t = cptr[(size_t)k]; t < cptr[(size_t)k + 1]; ++t) {
+        const Eigen::Index i = cidx[(size_t)t], at = fill[(size_t)i]++;
+        ridx[(size_t)at] = k, rval[(size_t)at] = G(i, k);
+      }
+  }
+  const bool sparse = is_clean && cidx.size() <= (size_t)(kSparseRow * m);  // G_AA's solves on its nonzeros
+  thread_local SparseLU w;  // G_AA by its nonzeros, for sparse_lu_solve (no k x k copy a move)
+  std::vector<Eigen::Index> posA(finite ? (size_t)m : 0, -1);  // a row's place in idx, -1 outside A
+  bool lam_finite = true;
+  // odot(G[p], x) over row p's nonzero terms (G and x finite: the others add +-0, settled by the + 0.0), x indexed
+  // through `at` (-1: outside x)
+  auto row_dot = [&](Eigen::Index p, const double *x, const Eigen::Index *at) {
+    double sum = 0.0;
+    bool first = true;
+    for (Eigen::Index t = rptr[(size_t)p]; t < rptr[(size_t)p + 1]; ++t) {
+      const Eigen::Index c = at ? at[ridx[(size_t)t]] : ridx[(size_t)t];
+      if (c < 0) continue;
+      const double term = rval[(size_t)t] * x[c];
+      sum = first ? term : sum + term;
+      first = false;
+    }
+    return sum + 0.0;
+  };
   while (true) {
-    if (finite) {  // G @ lam - r: the terms with lam_k = +-0 or G_ik = 0 add +-0 (a zero's sign settled by the + 0.0)
+    if (finite && lam_finite) {  // G @ lam - r: the terms with lam_k = +-0 or G_ik = 0 add +-0 (a zero's sign settled by the + 0.0)
       s.setZero();
       for (Eigen::Index k = 0; k < m; ++k) {
         const double lk = lam[k];
         if (lk == 0.0) continue;
         const double *g = G.col(k).data();
-        for (Eigen::Index i : gcol[(size_t)k]) s[i] = s[i] + g[i] * lk;
+        for (Eigen::Index t = cptr[(size_t)k]; t < cptr[(size_t)k + 1]; ++t) {
+          const Eigen::Index i = cidx[(size_t)t];
+          s[i] = s[i] + g[i] * lk;
+        }
       }
       for (Eigen::Index i = 0; i < m; ++i) s[i] = (s[i] + 0.0) - r[i];
     } else {
@@ -396,18 +592,37 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
       const Eigen::Index k = (Eigen::Index)idx.size();
       double z;
       if (k) {
-        GA.resize(k, k), rhs.resize(k), Gp.resize(k);
-        for (Eigen::Index i = 0; i < k; ++i) {
-          rhs[i] = -G(idx[i], p), Gp[i] = G(p, idx[i]);
-          for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
+        rhs.resize(k);
+        for (Eigen::Index i = 0; i < k; ++i) rhs[i] = -G(idx[i], p);
+        if (finite) {
+          std::fill(posA.begin(), posA.end(), -1);
+          for (Eigen::Index i = 0; i < k; ++i) posA[(size_t)idx[i]] = i;
         }
-        if (!lu_solve(GA, rhs, d, clean)) return false;
-        z = G(p, p) + odot(Gp.data(), d.data(), k);
+        if (sparse && k > kSparseLU) {  // lu_solve's bits from G_AA's nonzeros
+          w.set_size(k);
+          for (Eigen::Index i = 0; i < k; ++i)
+            for (Eigen::Index t = rptr[(size_t)idx[i]]; t < rptr[(size_t)idx[i] + 1]; ++t)
+              if (posA[(size_t)ridx[(size_t)t]] >= 0) w.a[(size_t)i].emplace_back(posA[(size_t)ridx[(size_t)t]], rval[(size_t)t]);
+          if (!sparse_lu_solve(w, rhs, d)) return false;
+        } else {
+          GA.resize(k, k);
+          for (Eigen::Index i = 0; i < k; ++i)
+            for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
+          if (!lu_solve(GA, rhs, d, is_clean, true)) return false;
+        }
+        if (finite) {  // G[p, A] @ d (d finite: lu_solve checked)
+          z = G(p, p) + row_dot(p, d.data(), posA.data());
+        } else {
+          Gp.resize(k);
+          for (Eigen::Index i = 0; i < k; ++i) Gp[i] = G(p, idx[i]);
+          z = G(p, p) + odot(Gp.data(), d.data(), k);
+        }
       } else {
         d.resize(0);
         z = G(p, p);
       }
-      const double sp = odot(&G(p, 0), lam.data(), m, m, 1) - r[p];  // G[p] @ lam - r[p]
+      const double sp = (finite && lam_finite ? row_dot(p, lam.data(), nullptr) : odot(&G(p, 0), lam.data(), m, m, 1)) -
+                        r[p];  // G[p] @ lam - r[p]
       const double t1 = z > C.dependent * G(p, p) ? -sp / z : inf;
       double t2 = inf;
       Eigen::Index kk = -1;
@@ -421,7 +636,7 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
       const double t = t1 <= t2 ? t1 : t2;
       for (Eigen::Index j = 0; j < k; ++j) lam[idx[j]] = lam[idx[j]] + t * d[j];
       lam[p] = lam[p] + t;
-      for (Eigen::Index i = 0; i < m; ++i) lam[i] = std::max(lam[i], 0.0);
+      for (Eigen::Index i = 0; i < m; ++i) lam[i] = std::max(lam[i], 0.0), lam_finite = lam_finite && std::isfinite(lam[i]);
       if (t1 <= t2) {
         act[p] = 1;
         break;
@@ -460,19 +675,20 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, MatrixXd &MiW, Matri
     }
     for (Eigen::Index i = 0; i < nv; ++i) y[i] = y[i] + 0.0;
   }
-  std::vector<std::vector<Eigen::Index>> mrow((size_t)nv);  // the nonzero columns of each row of MiW
+  std::vector<std::vector<std::pair<Eigen::Index, double>>> wrow((size_t)nv);  // each row of W: (column, value)
   for (Eigen::Index j = 0; j < m; ++j)
-    for (Eigen::Index k = 0; k < nv; ++k)
-      if (MiW(k, j) != 0.0) mrow[(size_t)k].push_back(j);
-  G.setZero(m, m);
-  VectorXd g(m);
-  for (Eigen::Index i = 0; i < m; ++i) {
-    g.setZero();
-    for (Eigen::Index k : wcol[(size_t)i]) {
-      const double w = W(k, i);
-      for (Eigen::Index j : mrow[(size_t)k]) g[j] = g[j] + w * MiW(k, j);
+    for (Eigen::Index k : wcol[(size_t)j]) wrow[(size_t)k].emplace_back(j, W(k, j));
+  G.resize(m, m);
+  VectorXd g = VectorXd::Zero(m);
+  for (Eigen::Index j = 0; j < m; ++j) {  // G's column j (written in memory order): the sums over k ascending
+    const double *y = MiW.col(j).data();
+    for (Eigen::Index k = 0; k < nv; ++k) {
+      const double ykj = y[k];
+      if (ykj == 0.0) continue;
+      for (const auto &e : wrow[(size_t)k]) g[e.first] = g[e.first] + e.second * ykj;
     }
-    for (Eigen::Index j = 0; j < m; ++j) G(i, j) = g[j] + 0.0;
+    double *gj = G.col(j).data();
+    for (Eigen::Index i = 0; i < m; ++i) gj[i] = g[i] + 0.0, g[i] = 0.0;
   }
 }
 

@@ -256,7 +256,7 @@ def _column_problem(n):
 
 
 @pytest.mark.parametrize("form", list(QPForm))
-@pytest.mark.parametrize("n", [13, 50, 101, 400])
+@pytest.mark.parametrize("n", [13, 50, 101, 400, 600])
 def test_sparse_path_solves_a_resting_column_exactly(n, form):
     """Above SPARSE_ROWS rows the sparse path (piqp's SparseSolver, the active set on CSC matrices), and the
     dense one below (the cold active set), give the closed form to round-off, polished, with a KKT residual at
@@ -305,11 +305,15 @@ def test_sparse_path_is_the_projection_the_cold_active_set_gives(seed, bounds, m
 
 
 @pytest.mark.parametrize("e", [0.0, 0.9])
-def test_a_resting_column_of_120_beads_takes_the_sparse_path_exactly(e):
-    """A column of 120 touching 1 kg beads (benchmarks.scaling.column) stepped from rest with the Python step: every
-    step's QP (120 rows) goes the sparse way, polished, and the column stays at rest with the closed-form
-    percussions: contact k (under bead k) carries the 120 - k beads above it, P_k = (120 - k) m g h."""
+def test_a_resting_column_of_120_beads_takes_the_sparse_path_exactly(e, monkeypatch):
+    """A column of 120 touching 1 kg beads (benchmarks.scaling.column) stepped from rest with the Python step, the
+    sparse path's threshold lowered to 100 rows: every step's QP (120 rows) goes the sparse way, polished, and the
+    column stays at rest with the closed-form percussions: contact k (under bead k) carries the 120 - k beads
+    above it, P_k = (120 - k) m g h."""
     from benchmarks.scaling import column
+
+    monkeypatch.setattr(qp, "SPARSE_ROWS", 100)
+    monkeypatch.setattr(qp, "COLD_START_ROWS", 100)
 
     n = 120
     model = ms.build_model(column(n, step_impl="python").with_options(restitution=e))
@@ -325,12 +329,15 @@ def test_a_resting_column_of_120_beads_takes_the_sparse_path_exactly(e):
         st = r.state
 
 
-def test_a_run_of_a_resting_column_of_120_beads_keeps_its_energy():
-    """simulate() through the sparse path, recorder and ledger included: a resting column gains no energy and
-    its energy budget closes (translations under gravity: exact to round-off)."""
+def test_a_run_of_a_resting_column_of_120_beads_keeps_its_energy(monkeypatch):
+    """simulate() through the sparse path (its threshold lowered to 100 rows), recorder and ledger included: a
+    resting column gains no energy and its energy budget closes (translations under gravity: exact to round-off)."""
     from moreau_sim.testing import assert_budget_closes, assert_no_energy_gain
 
     from benchmarks.scaling import column
+
+    monkeypatch.setattr(qp, "SPARSE_ROWS", 100)
+    monkeypatch.setattr(qp, "COLD_START_ROWS", 100)
 
     model = ms.build_model(column(120, step_impl="python").with_options(duration=4e-3))
     traj = ms.simulate(model, progress=False)
@@ -409,6 +416,26 @@ def lu_systems(seed):
         yield A, rng.standard_normal(n)
     yield np.array([[1.0, 2.0], [2.0, 4.0]]), np.ones(2)  # singular: a zero pivot
     yield np.array([[1.0, 0.0], [np.nan, 1.0]]), np.ones(2)
+    yield from sparse_lu_systems(rng)
+
+
+def sparse_lu_systems(rng):
+    """Clean sparse systems above qp.LU_CACHED_ROWS rows (qp._lu_solve_sparse, src/step.cpp sparse_lu_solve): a
+    column's tridiagonal G_AA, a banded non-symmetric one, a scattered one and a scaled permutation (a row swap at
+    every column), each with right-hand sides of signed zeros (-G_Ap: most entries -0.0) and a singular one."""
+    n = 40
+    T = np.diag(2.0 + rng.random(n)) - np.diag(rng.random(n - 1), 1)
+    B = np.where(np.abs(np.subtract.outer(np.arange(n), np.arange(n))) <= 2,
+                 rng.standard_normal((n, n)) * 10.0 ** rng.integers(-3, 3, (n, n)), 0.0) + 0.1 * np.eye(n)
+    S = np.where(rng.random((n, n)) < 3.0 / n, rng.standard_normal((n, n)), 0.0) + np.diag(rng.standard_normal(n))
+    P = np.zeros((n, n))
+    P[np.arange(n), rng.permutation(n)] = rng.standard_normal(n)
+    for A in (T + T.T, B, S, P):
+        A = A + 0.0  # no -0.0 entry
+        yield A, -np.where(rng.random(n) < 0.8, 0.0, rng.standard_normal(n))
+        yield A, np.where(rng.random(n) < 0.5, np.where(rng.random(n) < 0.5, -0.0, 0.0), rng.standard_normal(n))
+    P[:, 0] = 0.0
+    yield P + 0.0, np.ones(n)  # singular: no pivot in column 0
 
 
 @pytest.mark.parametrize("scalar_rows", [0, qp.LU_SCALAR, 100])
