@@ -73,6 +73,7 @@ ACCEPT = 1e-12  # the answer is kept when lam_A >= -ACCEPT max(1, lam_A) and W'v
 REFINE = 1e-8  # the refinement step is taken when it moves lam_A by at most REFINE (1 + max(lam_A))
 SECOND_PASS = 1e-15  # the second pass's tolerance, relative to max|b| + max|W| max|v|
 MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_ROW m + MOVES_EXTRA moves
+SETTLE_WORSE = 4  # _settle stops after this many sets in a row no better than its best (src/step.cpp: the same)
 
 
 LU_SCALAR = 12  # up to this many unknowns _lu_factor works on Python floats (fewer calls than numpy's row operations)
@@ -324,14 +325,14 @@ def _settle(W, G, MiW, b, r, v0, lp, vp):
     whose multiplier reaches zero first leaves A; a row j dependent on A moves the multipliers only), and the
     new set is solved afresh (G_AA lam_A = r_A, refined). Unlike the second pass it can take load off the rows
     that push: two rows of one corner (a vertex of either box) differ by less than G's round-off, and which of
-    them carries a 1e5 kg load decides the light box's yaw. Stops where a new set violates the rows no less than
-    the one before; returns the (lp, vp) that violates them least (the given one unless bettered) and the moves
-    taken (at most MOVES_PER_ROW m + MOVES_EXTRA)."""
+    them carries a 1e5 kg load decides the light box's yaw. Stops after SETTLE_WORSE sets in a row that violate the
+    rows no less than the best; returns the (lp, vp) that violates them least (the given one unless bettered) and
+    the moves taken (at most MOVES_PER_ROW m + MOVES_EXTRA)."""
     m = b.shape[0]
     bmax, wmax = np.abs(b).max(), np.abs(W).max()
     r2 = b - ordered(W.T, vp)
     best = (r2.max(), lp, vp)
-    moves, budget = 0, MOVES_PER_ROW * m + MOVES_EXTRA
+    moves, budget, worse = 0, MOVES_PER_ROW * m + MOVES_EXTRA, 0
     while moves < budget:
         j = int(np.argmax(r2))
         if r2[j] <= SECOND_PASS * (bmax + wmax * np.abs(vp).max()):
@@ -378,9 +379,12 @@ def _settle(W, G, MiW, b, r, v0, lp, vp):
         lp = np.zeros(m)
         lp[A] = lamA
         r2 = b - ordered(W.T, vp)
-        if not r2.max() < best[0]:  # no better than before: the rows are met as well as the set allows
-            break
-        best = (r2.max(), lp, vp)
+        if r2.max() < best[0]:
+            best, worse = (r2.max(), lp, vp), 0
+        else:  # a set no better than the best: the way to a better one may pass through a few
+            worse += 1
+            if worse == SETTLE_WORSE:
+                break
     return best[1], best[2], moves
 
 
@@ -514,6 +518,11 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
         lam = s.result.x.copy()
         v = v0 + ordered(MiW, lam)
     iters = s.result.info.iter
+    if status == piqp.PIQP_MAX_ITER_REACHED and form is QPForm.PRIMAL:
+        # the primal form's interior point can stall on rows dependent to round-off (a symmetric resting stack:
+        # primal residual 5e-11 after 250, 1000 or 5000 iterations) where the dual form converges (45): that one
+        return solve(M, W, v0, b=b, Minv=Minv, form=QPForm.DUAL, eps=eps, max_iter=max_iter, polish=polish,
+                     screen=screen, polish_tol=polish_tol)
     failed = _no_answer(status, iters, v, lam)
     if failed is not None:
         return failed

@@ -502,8 +502,8 @@ void refine(const Constants &C, const MatrixXd &W, const MatrixXd &G, const Matr
 
 // qp._settle, operation for operation: the active set continued from (lp, vp), its slacks taken from the residual
 // b - W'v; a row violated beyond the second pass's tolerance is added as active_set adds one (rows of A leave
-// when their multipliers reach zero first), the new set solved afresh and refined, until a set violates the rows
-// no less than the one before; the answer violating them least is kept (docs/theory.md §2.11)
+// when their multipliers reach zero first), the new set solved afresh and refined, until 4 sets in a row
+// (qp.SETTLE_WORSE) violate the rows no less than the best; the answer violating them least is kept (§2.11)
 void settle(const Constants &C, const MatrixXd &W, const MatrixXd &G, const MatrixXd &MiW, const VectorXd &b,
             const VectorXd &r, const VectorXd &v0, VectorXd &lp, VectorXd &vp) {
   const Eigen::Index m = b.size(), nv = W.rows();
@@ -514,8 +514,8 @@ void settle(const Constants &C, const MatrixXd &W, const MatrixXd &G, const Matr
   VectorXd best_lp = lp, best_vp = vp, lam, d, rhs, Gp, rA, lamA;
   MatrixXd GA, MiWA;
   std::vector<Eigen::Index> A;
-  int moves = 0;
-  const int budget = C.moves_per_row * (int)m + C.moves_extra;
+  int moves = 0, worse = 0;
+  const int budget = C.moves_per_row * (int)m + C.moves_extra, settle_worse = 4;
   while (moves < budget) {
     Eigen::Index j = 0;
     for (Eigen::Index i = 1; i < m; ++i)
@@ -580,8 +580,11 @@ void settle(const Constants &C, const MatrixXd &W, const MatrixXd &G, const Matr
     lp.setZero();
     for (Eigen::Index i = 0; i < k; ++i) lp[A[i]] = lamA[i];
     r2 = b - otimes_t(W, vp);
-    if (!(r2.maxCoeff() < best)) break;  // no better than before: the rows are met as well as the set allows
-    best = r2.maxCoeff(), best_lp = lp, best_vp = vp;
+    if (r2.maxCoeff() < best) {
+      best = r2.maxCoeff(), best_lp = lp, best_vp = vp, worse = 0;
+    } else if (++worse == settle_worse) {  // qp.SETTLE_WORSE sets in a row no better than the best
+      break;
+    }
   }
   lp = best_lp, vp = best_vp;
 }
