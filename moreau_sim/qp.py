@@ -73,7 +73,6 @@ ACCEPT = 1e-12  # the answer is kept when lam_A >= -ACCEPT max(1, lam_A) and W'v
 REFINE = 1e-8  # the refinement step is taken when it moves lam_A by at most REFINE (1 + max(lam_A))
 SECOND_PASS = 1e-15  # the second pass's tolerance, relative to max|b| + max|W| max|v|
 MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_ROW m + MOVES_EXTRA moves
-SETTLE_WORSE = 4  # _settle stops after this many sets in a row no better than its best (src/step.cpp: the same)
 
 
 LU_SCALAR = 12  # up to this many unknowns _lu_factor works on Python floats (fewer calls than numpy's row operations)
@@ -304,90 +303,6 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
             act[k] = False
 
 
-def _refine(W, G, MiW, b, idx, lamA, vp, mul):
-    """One step of iterative refinement of v = v0 + M^-1 W_A lam_A on the rows that push, P = {lam_A > 0}:
-    W_P'v = b_P solved for from its residual (computed where v ~ 0, so accurately); lam_A updated in place, the
-    new v returned (unchanged where the step is singular or larger than REFINE (1 + max(lam_A)))."""
-    P = lamA > 0.0
-    if P.any():
-        iP = idx[P]
-        dP = _solve(_sub(G, iP), b[iP] - mul(W[:, iP].T, vp))
-        if dP is not None and np.abs(dP).max() <= REFINE * (1.0 + lamA.max()):
-            lamA[P] = np.maximum(lamA[P] + dP, 0.0)
-            vp = vp + mul(MiW[:, iP], dP)
-    return vp
-
-
-def _settle(W, G, MiW, b, r, v0, lp, vp):
-    """The active set continued from the answer (lp, vp), its slacks taken from the answer's own residual
-    b - W'v instead of G lam - r (docs/theory.md §2.11): while a row j is violated beyond the second pass's
-    tolerance, j is added as _active_set adds a row (the multipliers of A move along G_AA d = -G_Aj, a row of A
-    whose multiplier reaches zero first leaves A; a row j dependent on A moves the multipliers only), and the
-    new set is solved afresh (G_AA lam_A = r_A, refined). Unlike the second pass it can take load off the rows
-    that push: two rows of one corner (a vertex of either box) differ by less than G's round-off, and which of
-    them carries a 1e5 kg load decides the light box's yaw. Stops after SETTLE_WORSE sets in a row that violate the
-    rows no less than the best; returns the (lp, vp) that violates them least (the given one unless bettered) and
-    the moves taken (at most MOVES_PER_ROW m + MOVES_EXTRA)."""
-    m = b.shape[0]
-    bmax, wmax = np.abs(b).max(), np.abs(W).max()
-    r2 = b - ordered(W.T, vp)
-    best = (r2.max(), lp, vp)
-    moves, budget, worse = 0, MOVES_PER_ROW * m + MOVES_EXTRA, 0
-    while moves < budget:
-        j = int(np.argmax(r2))
-        if r2[j] <= SECOND_PASS * (bmax + wmax * np.abs(vp).max()):
-            break
-        lam = lp.copy()
-        A = np.flatnonzero(lam > 0.0)
-        viol, added = r2[j], False
-        while moves < budget:
-            moves += 1
-            if A.size:
-                d = _lu_solve(G[A][:, A], -G[A, j])
-                if d is None:
-                    break
-                z = G[j, j] + ordered(G[j, A], d)
-            else:
-                d, z = _EMPTY, G[j, j]
-            t1 = viol / z if z > DEPENDENT * G[j, j] else np.inf
-            neg = d < 0.0
-            t2, k = np.inf, -1
-            if neg.any():
-                ratio = lam[A[neg]] / -d[neg]
-                i = int(np.argmin(ratio))
-                t2, k = ratio[i], int(A[neg][i])
-            if t1 == np.inf and t2 == np.inf:
-                break
-            t = t1 if t1 <= t2 else t2
-            lam[A] = lam[A] + t * d
-            lam[j] = lam[j] + t
-            np.maximum(lam, 0.0, out=lam)
-            if t1 <= t2:
-                A = np.sort(np.append(A, j))
-                added = True
-                break
-            viol = viol - t * z
-            lam[k] = 0.0
-            A = A[A != k]
-        if not added:
-            break
-        lamA = _lu_solve(G[A][:, A], r[A])
-        if lamA is None or lamA.min() < -ACCEPT * max(1.0, lamA.max()):
-            break
-        np.maximum(lamA, 0.0, out=lamA)
-        vp = _refine(W, G, MiW, b, A, lamA, v0 + ordered(MiW[:, A], lamA), ordered)
-        lp = np.zeros(m)
-        lp[A] = lamA
-        r2 = b - ordered(W.T, vp)
-        if r2.max() < best[0]:
-            best, worse = (r2.max(), lp, vp), 0
-        else:  # a set no better than the best: the way to a better one may pass through a few
-            worse += 1
-            if worse == SETTLE_WORSE:
-                break
-    return best[1], best[2], moves
-
-
 def _polish(W, v0, b, Minv, act=None):
     """The exact projection by the active set (_active_set from nothing, or warm-started from `act`; dense
     products by `ordered`), re-solved on its final set A: G_AA lam_A = b_A - W_A'v0 (_solve),
@@ -426,11 +341,14 @@ def _polish(W, v0, b, Minv, act=None):
         # under a heavy one (lamA ~ R times its own weight impulse) then moves by ~R eps in the directions
         # the rows hold; the residual of W_P'v = b_P is computed where v ~ 0, so accurately, and solving
         # for it on the rows that push, P = {lamA_i > 0}, leaves W_P'v - b_P at ulp(v) (docs/theory.md §1.5)
-        vp = _refine(W, G, MiW, b, idx, lamA, vp, mul)
+        P = lamA > 0.0
+        if P.any():
+            iP = idx[P]
+            dP = _solve(_sub(G, iP), b[iP] - mul(W[:, iP].T, vp))
+            if dP is not None and np.abs(dP).max() <= REFINE * (1.0 + lamA.max()):
+                lamA[P] = np.maximum(lamA[P] + dP, 0.0)
+                vp = vp + mul(MiW[:, iP], dP)
         lp[idx] = lamA
-        if not sparse:  # the rows the answer still violates, met by moving the multipliers (§1.5)
-            lp, vp, extra = _settle(W, G, MiW, b, r, v0, lp, vp)
-            moves += extra
         # and the answer projected once more: its residual W'v - b is accurate where v ~ 0, so the rows the
         # first pass left violated at the round-off of lam (a resting 1:10,000 stack's other corners) are
         # met to that accuracy (tol2); kept when it violates no row more than before
@@ -520,7 +438,8 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     iters = s.result.info.iter
     if status == piqp.PIQP_MAX_ITER_REACHED and form is QPForm.PRIMAL:
         # the primal form's interior point can stall on rows dependent to round-off (a symmetric resting stack:
-        # primal residual 5e-11 after 250, 1000 or 5000 iterations) where the dual form converges (45): that one
+        # primal residual 5e-11 after 250, 1000 or 5000 iterations) where the dual form converges (45 iterations):
+        # that one (docs/theory.md §2.11)
         return solve(M, W, v0, b=b, Minv=Minv, form=QPForm.DUAL, eps=eps, max_iter=max_iter, polish=polish,
                      screen=screen, polish_tol=polish_tol)
     failed = _no_answer(status, iters, v, lam)

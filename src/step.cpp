@@ -476,119 +476,6 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, MatrixXd &MiW, Matri
   }
 }
 
-// qp._refine: one step of iterative refinement on the rows that push (lamA > 0 on the rows idx): the residual of
-// W_P'v = b_P solved for, lamA and vp updated (unchanged where the step is singular or larger than C.refine)
-void refine(const Constants &C, const MatrixXd &W, const MatrixXd &G, const MatrixXd &MiW, const VectorXd &b,
-            const std::vector<Eigen::Index> &idx, VectorXd &lamA, VectorXd &vp) {
-  const Eigen::Index nv = W.rows(), k = (Eigen::Index)idx.size();
-  std::vector<Eigen::Index> pi, iP;
-  for (Eigen::Index i = 0; i < k; ++i)
-    if (lamA[i] > 0.0) pi.push_back(i), iP.push_back(idx[i]);
-  const Eigen::Index kp = (Eigen::Index)iP.size();
-  if (!kp) return;
-  MatrixXd GP(kp, kp), WP(nv, kp), MiWP(nv, kp);
-  for (Eigen::Index i = 0; i < kp; ++i) {
-    WP.col(i) = W.col(iP[i]), MiWP.col(i) = MiW.col(iP[i]);
-    for (Eigen::Index j = 0; j < kp; ++j) GP(i, j) = G(iP[i], iP[j]);
-  }
-  const VectorXd WPv = otimes_t(WP, vp);
-  VectorXd rP(kp), dP;
-  for (Eigen::Index i = 0; i < kp; ++i) rP[i] = b[iP[i]] - WPv[i];
-  if (lu_solve(GP, rP, dP) && dP.cwiseAbs().maxCoeff() <= C.refine * (1.0 + lamA.maxCoeff())) {
-    for (Eigen::Index i = 0; i < kp; ++i) lamA[pi[i]] = std::max(lamA[pi[i]] + dP[i], 0.0);
-    vp = vp + otimes(MiWP, dP);
-  }
-}
-
-// qp._settle, operation for operation: the active set continued from (lp, vp), its slacks taken from the residual
-// b - W'v; a row violated beyond the second pass's tolerance is added as active_set adds one (rows of A leave
-// when their multipliers reach zero first), the new set solved afresh and refined, until 4 sets in a row
-// (qp.SETTLE_WORSE) violate the rows no less than the best; the answer violating them least is kept (§2.11)
-void settle(const Constants &C, const MatrixXd &W, const MatrixXd &G, const MatrixXd &MiW, const VectorXd &b,
-            const VectorXd &r, const VectorXd &v0, VectorXd &lp, VectorXd &vp) {
-  const Eigen::Index m = b.size(), nv = W.rows();
-  const double inf = std::numeric_limits<double>::infinity();
-  const double bmax = b.cwiseAbs().maxCoeff(), wmax = W.cwiseAbs().maxCoeff();
-  VectorXd r2 = b - otimes_t(W, vp);
-  double best = r2.maxCoeff();
-  VectorXd best_lp = lp, best_vp = vp, lam, d, rhs, Gp, rA, lamA;
-  MatrixXd GA, MiWA;
-  std::vector<Eigen::Index> A;
-  int moves = 0, worse = 0;
-  const int budget = C.moves_per_row * (int)m + C.moves_extra, settle_worse = 4;
-  while (moves < budget) {
-    Eigen::Index j = 0;
-    for (Eigen::Index i = 1; i < m; ++i)
-      if (r2[i] > r2[j]) j = i;
-    if (r2[j] <= C.second_pass * (bmax + wmax * vp.cwiseAbs().maxCoeff())) break;
-    lam = lp;
-    A.clear();
-    for (Eigen::Index i = 0; i < m; ++i)
-      if (lam[i] > 0.0) A.push_back(i);
-    double viol = r2[j];
-    bool added = false;
-    while (moves < budget) {
-      ++moves;
-      const Eigen::Index k = (Eigen::Index)A.size();
-      double z;
-      if (k) {
-        GA.resize(k, k), rhs.resize(k), Gp.resize(k);
-        for (Eigen::Index i = 0; i < k; ++i) {
-          rhs[i] = -G(A[i], j), Gp[i] = G(j, A[i]);
-          for (Eigen::Index l = 0; l < k; ++l) GA(i, l) = G(A[i], A[l]);
-        }
-        if (!lu_solve(GA, rhs, d)) break;
-        z = G(j, j) + odot(Gp.data(), d.data(), k);
-      } else {
-        d.resize(0);
-        z = G(j, j);
-      }
-      const double t1 = z > C.dependent * G(j, j) ? viol / z : inf;
-      double t2 = inf;
-      Eigen::Index kk = -1;
-      for (Eigen::Index i = 0; i < k; ++i) {
-        if (!(d[i] < 0.0)) continue;
-        const double ratio = lam[A[i]] / -d[i];
-        if (kk < 0 || ratio < t2) t2 = ratio, kk = A[i];
-      }
-      if (t1 == inf && t2 == inf) break;
-      const double t = t1 <= t2 ? t1 : t2;
-      for (Eigen::Index i = 0; i < k; ++i) lam[A[i]] = lam[A[i]] + t * d[i];
-      lam[j] = lam[j] + t;
-      for (Eigen::Index i = 0; i < m; ++i) lam[i] = std::max(lam[i], 0.0);
-      if (t1 <= t2) {
-        A.insert(std::upper_bound(A.begin(), A.end(), j), j);
-        added = true;
-        break;
-      }
-      viol = viol - t * z;
-      lam[kk] = 0.0;
-      A.erase(std::find(A.begin(), A.end(), kk));
-    }
-    if (!added) break;
-    const Eigen::Index k = (Eigen::Index)A.size();
-    GA.resize(k, k), rA.resize(k), MiWA.resize(nv, k);
-    for (Eigen::Index i = 0; i < k; ++i) {
-      rA[i] = r[A[i]];
-      MiWA.col(i) = MiW.col(A[i]);
-      for (Eigen::Index l = 0; l < k; ++l) GA(i, l) = G(A[i], A[l]);
-    }
-    if (!lu_solve(GA, rA, lamA) || lamA.minCoeff() < -C.accept * std::max(1.0, lamA.maxCoeff())) break;
-    for (Eigen::Index i = 0; i < k; ++i) lamA[i] = std::max(lamA[i], 0.0);
-    vp = v0 + otimes(MiWA, lamA);
-    refine(C, W, G, MiW, b, A, lamA, vp);
-    lp.setZero();
-    for (Eigen::Index i = 0; i < k; ++i) lp[A[i]] = lamA[i];
-    r2 = b - otimes_t(W, vp);
-    if (r2.maxCoeff() < best) {
-      best = r2.maxCoeff(), best_lp = lp, best_vp = vp, worse = 0;
-    } else if (++worse == settle_worse) {  // qp.SETTLE_WORSE sets in a row no better than the best
-      break;
-    }
-  }
-  lp = best_lp, vp = best_vp;
-}
-
 // qp.solve (primal form, Polish.ACTIVE_SET, at most qp.COLD_START_ROWS rows): the screen, the closed form for
 // one row, else qp._polish cold: the active set, re-solved on its final set and checked. Throws Fallback where
 // qp.solve would go on to piqp.
@@ -629,9 +516,26 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
       throw Fallback{"active set's final solve rejected"};
     for (Eigen::Index i = 0; i < k; ++i) lamA[i] = std::max(lamA[i], 0.0);
     vp = v0 + otimes(MiWA, lamA);
-    refine(C, W, G, MiW, b, idx, lamA, vp);
+    // qp._polish's refinement step: the residual of W_P'v = b_P solved for on the rows that push
+    std::vector<Eigen::Index> pi, iP;
+    for (Eigen::Index i = 0; i < k; ++i)
+      if (lamA[i] > 0.0) pi.push_back(i), iP.push_back(idx[i]);
+    const Eigen::Index kp = (Eigen::Index)iP.size();
+    if (kp) {
+      MatrixXd GP(kp, kp), WP(nv, kp), MiWP(nv, kp);
+      for (Eigen::Index i = 0; i < kp; ++i) {
+        WP.col(i) = W.col(iP[i]), MiWP.col(i) = MiW.col(iP[i]);
+        for (Eigen::Index j = 0; j < kp; ++j) GP(i, j) = G(iP[i], iP[j]);
+      }
+      const VectorXd WPv = otimes_t(WP, vp);
+      VectorXd rP(kp), dP;
+      for (Eigen::Index i = 0; i < kp; ++i) rP[i] = b[iP[i]] - WPv[i];
+      if (lu_solve(GP, rP, dP) && dP.cwiseAbs().maxCoeff() <= C.refine * (1.0 + lamA.maxCoeff())) {
+        for (Eigen::Index i = 0; i < kp; ++i) lamA[pi[i]] = std::max(lamA[pi[i]] + dP[i], 0.0);
+        vp = vp + otimes(MiWP, dP);
+      }
+    }
     for (Eigen::Index i = 0; i < k; ++i) lp[idx[i]] = lamA[i];
-    settle(C, W, G, MiW, b, r, v0, lp, vp);
     // qp._polish's second pass: the active set on the answer's own residual
     const VectorXd r2 = b - otimes_t(W, vp);
     const double tol2 = C.second_pass * (b.cwiseAbs().maxCoeff() + W.cwiseAbs().maxCoeff() * vp.cwiseAbs().maxCoeff());
