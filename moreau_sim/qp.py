@@ -537,6 +537,12 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
         lam = s.result.x.copy()
         v = v0 + ordered(MiW, lam)
     iters = s.result.info.iter
+    if status == piqp.PIQP_MAX_ITER_REACHED and form is QPForm.PRIMAL:
+        # the primal form's interior point can stall on rows dependent to round-off (a symmetric resting stack:
+        # primal residual 5e-11 after 250, 1000 or 5000 iterations) where the dual form converges (45 iterations):
+        # that one (docs/theory.md §2.11)
+        return solve(M, W, v0, b=b, Minv=Minv, form=QPForm.DUAL, eps=eps, max_iter=max_iter, polish=polish,
+                     screen=screen, polish_tol=polish_tol)
     failed = _no_answer(status, iters, v, lam)
     if failed is not None:
         return failed
