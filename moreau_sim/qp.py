@@ -65,7 +65,7 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
 COLD_START_ROWS = 100  # up to this many rows (= SPARSE_ROWS) the active set starts from nothing, and piqp is only its
 # fallback; the compiled step takes as many (compiled.MAX_CONTACTS): it runs this method, not piqp (docs/theory.md §1.3)
 SPARSE_ROWS = 100  # above this many rows the sparse path (_solve_sparse) solves (piqp's start, SuperLU); 200 was
-# measured (docs/theory.md §1.3): the Python step's cold start above 100 rows doubled the cost of the box pile's handed-back steps
+# measured (docs/theory.md §1.3): the Python step's cold start above 100 rows doubled the box pile's handed-back steps
 # The active set's tolerances (src/step.cpp receives them from compiled.CONSTANTS):
 SCREEN = 1e-13  # v0 is admissible, and a row of the active set met, when W'v - b >= -SCREEN (1 + max|v0|)
 DEPENDENT = 1e-12  # row p depends on the active rows when z = G_pp + G_pA d <= DEPENDENT G_pp
