@@ -139,13 +139,13 @@ _LOG_COLUMNS = tuple((f"log_{name}", name) for name in PercussionRow.__slots__) 
 
 
 @functools.lru_cache(maxsize=64)
-def _layout(schema: tuple, sizes: tuple) -> tuple[dict, dict, int]:
-    """The shapes and dtypes of a schema's columns at the model's sizes, and the bytes of one row (the same for
-    every run of a model: made once). The dicts are shared: read only."""
+def _layout(schema: tuple, sizes: tuple) -> tuple[dict, dict, dict]:
+    """The shapes and dtypes of a schema's columns at the model's sizes, and the bytes of one row of each (the same
+    for every run of a model: made once). The dicts are shared: read only."""
     sizes = dict(sizes)
     shapes = {k: tuple(sizes.get(d, d) for d in shape) for k, (_, shape) in schema}
     dtypes = {k: np.dtype(dtype) for k, (dtype, _) in schema}
-    return shapes, dtypes, sum(dtypes[k].itemsize * math.prod(shapes[k]) for k in shapes)
+    return shapes, dtypes, {k: dtypes[k].itemsize * math.prod(shapes[k]) for k in shapes}
 
 
 class _Columns:
@@ -161,7 +161,8 @@ class _Columns:
     vanish with the last map or on any exit of the process (they have no name)."""
 
     def __init__(self, schema: dict, sizes: dict, capacity: int, spill: str | Path | None = None):
-        self.shapes, self.dtypes, row = _layout(tuple(schema.items()), tuple(sorted(sizes.items())))
+        self.shapes, self.dtypes, self.row_bytes = _layout(tuple(schema.items()), tuple(sorted(sizes.items())))
+        row = sum(self.row_bytes.values())
         # spilling: the rows of one block (at least one)
         self.block = max(1, SPILL_BYTES // row)
         capacity = min(capacity, self.block if spill is not None else max(1, RESERVE_BYTES // max(row, 1)))
@@ -223,15 +224,12 @@ class _Columns:
         if m == 0:
             return
         for k, a in self.cols.items():
-            _write_at(self._files[k], a[:m], self.spilled * self._row_bytes(k))
+            _write_at(self._files[k], a[:m], self.spilled * self.row_bytes[k])
         keep = min(self.keep, m)
         if keep:
             for a in self.cols.values():
                 a[:keep] = a[m - keep:m].copy()
         self.spilled = self.n - keep
-
-    def _row_bytes(self, k: str) -> int:
-        return self.dtypes[k].itemsize * math.prod(self.shapes[k])
 
     def fit(self) -> None:
         """Release the rows not used (at the end of a recording); spilling: all rows go to the files."""
