@@ -63,7 +63,7 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
 
 
 COLD_START_ROWS = 200  # up to this many rows (= SPARSE_ROWS) the active set starts from nothing, and piqp is only its
-# fallback; the compiled step takes as many (compiled.MAX_CONTACTS): it runs this method, not piqp (docs/theory.md §1.3).
+# fallback; the compiled step takes as many (compiled.MAX_CONTACTS): it runs this method, not piqp (docs/theory.md §1.3)
 # 200, not 100, since the paid position lift is compiled (measured 2026-11-28, CPU, medians of 3 interleaved rounds,
 # load 3.5-5.6): the 27-cube pile 41.8 -> 3.3 ms a step (mean; every step compiled, none handed back), columns of 150
 # and 199 beads 6.4 -> 1.7 and 8.3 -> 2.9 ms, 100 beads 0.73 -> 0.74 ms and box_stack_10 resting 401 -> 400 us unchanged
