@@ -13,6 +13,7 @@ import pytest
 
 import moreau_sim as ms
 import moreau_sim.compiled as compiled
+import moreau_sim.stepper as stepper
 from moreau_sim.contacts import pair_distances
 from moreau_sim.energy import kinetic, potential
 from moreau_sim.law import ENERGY_ROUNDOFF
@@ -37,22 +38,22 @@ def _model(name: str, impl: StepImpl, e: float, h: float):
     return ms.build_model(scene(name, restitution=e, dt=h, step_impl=impl.value))
 
 
-def _start(model, depth: float, rest) -> ms.State:
+def _start(model, depth: float, rest, speed: float = 1.0) -> ms.State:
     """The scene's start with its last free joint's box (at its resting pose `rest`, if given) lowered by `depth` [m]
-    into what it rests on, tumbling."""
+    into what it rests on, tumbling (speed times TUMBLE)."""
     q, u = model.q0.copy(), np.zeros(model.nv)
     if rest is not None:
         q[-7:] = rest
     q[-5] -= depth  # the last free joint's z (x, y, z, quaternion)
-    u[-6:] = TUMBLE
+    u[-6:] = speed * np.array(TUMBLE)
     return ms.State(0.0, q, u)
 
 
-def _steps(name: str, depth: float, rest, impl: StepImpl, e: float, h: float):
+def _steps(name: str, depth: float, rest, impl: StepImpl, e: float, h: float, speed: float = 1.0):
     """STEPS steps from _start: (model, data, the results)."""
     model = _model(name, impl, e, h)
     data = ms.make_data(model)
-    st, out = _start(model, depth, rest), []
+    st, out = _start(model, depth, rest, speed), []
     for _ in range(STEPS):
         r = ms.step(model, data, st)
         out.append(r)
@@ -89,6 +90,32 @@ def test_paid_lift_compiled_and_identical(case, e, h):
     # lifted: what is left is not persistent by the rule's own measure (at most what the step's own motion makes,
     # h |gamma_plus| + tol: the linearized lift's second-order rest, 1.5e-7 m of the 4 mm at e = 1, h = 1e-2)
     assert pair_distances(model, data, first.state.q).min() >= -(h * np.abs(first.gamma_plus).max() + tol)
+    T0, V0 = kinetic(model, data, start.q, start.u), potential(model, data, start.q)
+    T1, V1 = kinetic(model, data, first.state.q, first.state.u), potential(model, data, first.state.q)
+    assert (T1 + V1) - (T0 + V0) <= ENERGY_ROUNDOFF * (((T0 + abs(V0)) + T1) + abs(V1))
+
+
+@pytest.mark.parametrize("case", CASES)
+@pytest.mark.parametrize("h", [1e-3, 1e-2])
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+def test_a_lift_the_velocities_cannot_pay_keeps_the_budget_rule(case, e, h, monkeypatch):
+    """Tumbling at a tenth of the speed the box has too little kinetic energy to pay the lift: the payment is tried
+    (stepper._scaled) and refused by its round-off test, and the budget rule takes the step (a partial lift worth at
+    most the step's dissipation, none where it dissipated nothing): no u_law, no gain beyond round-off, and the
+    compiled step takes these steps too, bit for bit the Python step (alpha from the tried payment's dE, §2.5)."""
+    name, depth, rest = CASES[case]
+    tried = []
+    scaled = stepper._scaled
+    monkeypatch.setattr(stepper, "_scaled", lambda *a: tried.append(1) or scaled(*a))
+    _, _, ref = _steps(name, depth, rest, StepImpl.PYTHON, e, h, 0.1)
+    assert tried
+    model, data, got = _steps(name, depth, rest, StepImpl.COMPILED, e, h, 0.1)
+    counts = compiled.counts(data)
+    assert counts["contact"] + counts["flight"] == STEPS, dict(counts)
+    for a, b in zip(ref, got):
+        assert _same(a.state.q, b.state.q) and _same(a.state.u, b.state.u) and a.u_law is b.u_law is None
+        assert a.correction_energy == b.correction_energy
+    start, first = _start(model, depth, rest, 0.1), got[0]
     T0, V0 = kinetic(model, data, start.q, start.u), potential(model, data, start.q)
     T1, V1 = kinetic(model, data, first.state.q, first.state.u), potential(model, data, first.state.q)
     assert (T1 + V1) - (T0 + V0) <= ENERGY_ROUNDOFF * (((T0 + abs(V0)) + T1) + abs(V1))
