@@ -167,7 +167,7 @@ class _Context:
         self.boxes, self.nq, self.nv = bool(model.polytope_pair_set), model.nq, model.nv
         self.carries = self.boxes or _warm_started(model)  # the detection carries state from step to step
         self.timed = model.prescribed is not None or model.drive is not None  # its steps need their start time
-        self._layouts: dict[tuple, list] = {}  # (outcome, m) -> the step's named arrays in its two buffers
+        self._layouts: dict[tuple, list] = {}  # (outcome, m, paid) -> the step's named arrays in its two buffers
         self.counts: Counter = Counter()
         self.why = unsupported(model)
         self.stepper = None
@@ -237,7 +237,7 @@ class _Context:
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its two buffers, laid out as r.layout()
         says (src/step.cpp StepOut::visit, the one definition of the layout)."""
-        key = (r.outcome, r.m)
+        key = (r.outcome, r.m, r.paid)
         lay = self._layouts.get(key)
         if lay is None:
             lay = self._layouts[key] = [
@@ -325,4 +325,5 @@ def result(model, data, r, t1: float, tau: np.ndarray | None = None) -> StepResu
     res = QPResult(r.projection.name, True, 0, not admissible, f["v"], f["lam"], f["M"], f["W"], f["v_free"], f["b"])
     return StepResult(State(t1, f["q_next"], f["u_next"]), contacts, f["P"], f["gamma_minus"], f["gamma_plus"],
                       r.contact_work, res, None, r.correction_energy, u_free=f["u_free"], tau=tau,
-                      obstacle_work=r.obstacle_work, drive_work_free=r.drive_work_free)
+                      obstacle_work=r.obstacle_work, drive_work_free=r.drive_work_free,
+                      u_law=f["u_law"] if r.paid else None)  # a lift paid with the velocities (§2.5)

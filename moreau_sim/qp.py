@@ -62,10 +62,12 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
     return float(max(r, -slack.min(initial=0.0), -lam.min(initial=0.0), abs(lam @ slack)))
 
 
-COLD_START_ROWS = 100  # up to this many rows (= SPARSE_ROWS) the active set starts from nothing, and piqp is only its
+COLD_START_ROWS = 200  # up to this many rows (= SPARSE_ROWS) the active set starts from nothing, and piqp is only its
 # fallback; the compiled step takes as many (compiled.MAX_CONTACTS): it runs this method, not piqp (docs/theory.md §1.3)
-SPARSE_ROWS = 100  # above this many rows the sparse path (_solve_sparse) solves (piqp's start, SuperLU); 200 was
-# measured (docs/theory.md §1.3): the Python step's cold start above 100 rows doubled the box pile's handed-back steps
+# 200, not 100, since the paid position lift is compiled (measured 2026-11-28, CPU, medians of 3 interleaved rounds,
+# load 3.5-5.6): the 27-cube pile 41.8 -> 3.3 ms a step (mean; every step compiled, none handed back), columns of 150
+# and 199 beads 6.4 -> 1.7 and 8.3 -> 2.9 ms, 100 beads 0.73 -> 0.74 ms and box_stack_10 resting 401 -> 400 us unchanged
+SPARSE_ROWS = 200  # above this many rows the sparse path (_solve_sparse) solves (piqp's start, SuperLU)
 # The active set's tolerances (src/step.cpp receives them from compiled.CONSTANTS):
 SCREEN = 1e-13  # v0 is admissible, and a row of the active set met, when W'v - b >= -SCREEN (1 + max|v0|)
 DEPENDENT = 1e-12  # row p depends on the active rows when z = G_pp + G_pA d <= DEPENDENT G_pp

@@ -348,7 +348,8 @@ class Runner {
       if (!persistent) {
         const double *M = r.M.data();
         VectorXd tmp;
-        const VectorXd u_plus = r.u_next - e * (r.v_free - u_);
+        // u_{k+1} as the law left it: before a lift the correction paid with the velocities (§2.5; Recorder's u_law)
+        const VectorXd u_plus = (r.paid ? r.u_law : r.u_next) - e * (r.v_free - u_);
         const VectorXd res = r.v_free - r.v;
         law = 0.5 * (1.0 - e * e) * quad(M, res, tmp);
         law -= odot(r.P.data(), r.b.data(), m);  // b: the restitution bounds (zeros without; P.0 = +0.0)

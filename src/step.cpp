@@ -12,14 +12,13 @@
 // coal's witness contact (smooth shapes), patches (contacts._face_axis, _snap), flight steps; the
 // restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed form for one
 // contact, else qp._active_set's dual active set from nothing, re-solved and checked as qp._polish does);
-// the energy-budgeted position correction with its pair-distance guard; the rheonomic steps (docs/theory.md §2.9,
-// §2.13): moving statics placed at t_m and their contacts' rates, driven joints' reduced step (drive_start; the
-// schedules of src/rheonomic.hpp, handed over once by Stepper::rheonomic). Anything else returns FALLBACK with
-// a reason and the Python step (the reference) takes the step: corners, edge contacts of two boxes, a paid
-// position lift, a point query against a box turned in its joint frame, swept detection, coal's EPA
-// fallback, more than max_contacts contacts
-// (qp.COLD_START_ROWS), a projection the active set does not settle (where qp.solve turns to piqp), a driven step
-// whose contact only driven rows move.
+// the energy-budgeted position correction with its pair-distance guard and its lift paid with the velocities
+// (docs/theory.md §2.5); the rheonomic steps (§2.9, §2.13): moving statics placed at t_m and their contacts' rates,
+// driven joints' reduced step (drive_start; the schedules of src/rheonomic.hpp, handed over once by
+// Stepper::rheonomic). Anything else returns FALLBACK with a reason and the Python step (the reference) takes the
+// step: corners, edge contacts of two boxes, a point query against a box turned in its joint frame, swept
+// detection, coal's EPA fallback, more than max_contacts contacts (qp.COLD_START_ROWS), a projection the active set
+// does not settle (where qp.solve turns to piqp), a driven step whose contact only driven rows move.
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/stl/map.h>
@@ -174,7 +173,7 @@ struct Solved {  // a projection: v, lam, how it was solved
 // results.StepResult). Its outcome, reason (FALLBACK), m, the projection's status and two scalars are
 // attributes; its arrays, named below, cross in two buffers (floats, ints: two numpy arrays per step, each
 // made costs ~1 us) laid out by visit(), the one definition of the layout, which layout() gives Python.
-// FLIGHT: q_next, u_next (= u_free); CONTACT: all.
+// FLIGHT: q_next, u_next (= u_free); CONTACT: all (u_law only where paid).
 struct StepOut {
   Outcome outcome = Outcome::FALLBACK;
   std::string reason;
@@ -192,6 +191,10 @@ struct StepOut {
   // the work of prescribed motion (moving statics' -P.dg/dt, a drive's W_p: results.StepResult.obstacle_work) and a
   // drive's work in the contact-free step (drive_work_free) [J] (docs/theory.md §5.5)
   double obstacle_work = 0.0, drive_work_free = 0.0;
+  // a lift the position correction paid with the velocities (stepper.correct_positions, docs/theory.md §2.5):
+  // u_law, the law's u_{k+1} before it (results.StepResult.u_law, what the ledger measures the law on, §5.2)
+  bool paid = false;
+  VectorXd u_law;
   VectorXd floats;  // the arrays that cross, laid out by visit()
   VectorXl ints;
 
@@ -220,6 +223,7 @@ struct StepOut {
     f("feature", feature.data(), m, 0, 'C');
     f("joint_a", joint_a.data(), m, 0, 'C');
     f("joint_b", joint_b.data(), m, 0, 'C');
+    if (paid) f("u_law", u_law.data(), nv, 0, 'C');
   }
   template <class T> static constexpr bool is_int = std::is_same_v<std::remove_const_t<T>, int64_t>;
   void pack() {
@@ -1747,9 +1751,9 @@ class Stepper {
     double corr = 0.0;
     VectorXd g(m);
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
-    if (projection_)
-      correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, driven ? Minv_c : Minv, q_next, corr,
-                        gamma_minus, con, ow);
+    if (projection_)  // a paid lift (§2.5): u_next, gamma_plus those of the lift, out.u_law the law's u_{k+1}
+      out.paid = correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, driven ? Minv_c : Minv, q_next,
+                                   corr, gamma_minus, con, ow, out.u_law);
     if (!driven)  // §2.10 (a driven joint: §2.13), with the torques' and the moving statics' work
       cap_energy(q, u, q_m, u_free, h, e, P, work, corr, W, q_next, u_next, gamma_plus, ow,
                  has_rate ? &rate : nullptr);
@@ -1868,15 +1872,16 @@ class Stepper {
     return S;
   }
 
-  // stepper.correct_positions
-  void correct_positions(const VectorXd &q, const VectorXd &u, const VectorXd &u_free, double h, const VectorXd &g,
-                         const VectorXd &gamma_plus, const VectorXd &u_next, const MatrixXd &M, const MatrixXd &W,
+  // stepper.correct_positions, and stepper.step's use of a lift paid with the velocities (§2.5): true where it paid
+  // one (u_next, gamma_plus then those of the lift's u_{k+1}, ordered(W', u_c); u_law the law's u_{k+1} before it)
+  bool correct_positions(const VectorXd &q, const VectorXd &u, const VectorXd &u_free, double h, const VectorXd &g,
+                         VectorXd &gamma_plus, VectorXd &u_next, const MatrixXd &M, const MatrixXd &W,
                          const MatrixXd &Minv, VectorXd &q_next, double &corr, const VectorXd &gamma_minus,
-                         const std::vector<Found> &con, double ow) {
+                         const std::vector<Found> &con, double ow, VectorXd &u_law) {
     (void)M;
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
-    if (m == 0 || g_next.minCoeff() >= -tol_) return;
+    if (m == 0 || g_next.minCoeff() >= -tol_) return false;
     const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
     const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
     const double E0 = T0 + V0;
@@ -1947,7 +1952,7 @@ class Stepper {
     }
     // stepper.correct_positions' paid lift: a persistent penetration between flat faces (deeper than h |gamma_minus|
     // + tol; stepper._flat: two polytopes, or a polytope's vertex on a half-space) in a passive step is lifted in
-    // full, paid with the velocities, also in a step that gained: Python takes it
+    // full, paid with the velocities, also in a step that gained (below)
     bool deep = false, persistent = tau_.size() == 0 && rh_.moving.empty() && !rh_.driven();
     for (Eigen::Index i = 0; i < m && persistent; ++i)
       if (g_next[i] < -(h * std::abs(gamma_minus[i]) + tol_)) {
@@ -1959,29 +1964,71 @@ class Stepper {
                        (bound_kind_[pairs_(p, 0)] == 0 || bound_kind_[pairs_(p, 1)] == 0)));
       }
     persistent = persistent && deep;
-    if (budget <= 0.0 && !resting && !persistent) return;
+    if (budget <= 0.0 && !resting && !persistent) return false;
     if (!solved) res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
     const double T_c = pinocchio::computeKineticEnergy(model_, data_, q_c, u_next);
     const double V_c = pinocchio::computePotentialEnergy(model_, data_, q_c);
     double dE = T_c + V_c - E1;
+    VectorXd u_c;  // the paid lift's u_{k+1} (stepper._scaled), where `scaled`; else u_next itself
+    bool scaled = false;
     if (dE > budget && !resting) {
-      if (persistent) throw Fallback{"a paid position lift"};
-      double alpha = budget / dE;
-      q_c = pinocchio::integrate(model_, q_next, alpha * res.v);
-      dE = energy(q_c, u_next) - E1;
-      if (dE > budget + roundoff(T0, V0, T_c, V_c)) {  // concave along dq: shortened by the relative excess twice
-        alpha *= (budget / dE) * (budget / dE);
+      bool paid = false;
+      if (persistent) {  // the full lift, paid in full with the kinetic energy of the bodies in contact: T + V ends
+        // where the law's step ended, E_1 (§2.5). stepper._scaled(q_c, u_next, the rows' trees, E_1 - V_c, T_c):
+        // u_R + alpha u_S (stepper._split, _alpha with floor 0), u_next itself where T(q_c, u_S) is not positive
+        const std::vector<bool> S = trees(W);
+        VectorXd u_S = VectorXd::Zero(u_next.size());
+        for (Eigen::Index j = 0; j < u_next.size(); ++j)
+          if (S[j]) u_S[j] = u_next[j];
+        const VectorXd u_R = u_next - u_S;
+        const double a = pinocchio::computeKineticEnergy(model_, data_, q_c, u_S);
+        if (a > 0.0) {
+          const double T_R = pinocchio::computeKineticEnergy(model_, data_, q_c, u_R);
+          u_c = u_R + alpha_of(a, (T_c - a) - T_R, T_R - (E1 - V_c), 0.0) * u_S;
+          scaled = true;
+        }
+        dE = (pinocchio::computeKineticEnergy(model_, data_, q_c, scaled ? u_c : u_next) + V_c) - E1;
+        paid = dE <= roundoff(T0, V0, T_c, V_c);
+      }
+      if (!paid && budget <= 0.0) return false;  // a step that gained: nothing to spend
+      if (!paid) {  // (alpha from the dE of the scaled velocities where a lift was tried: as stepper.py has it)
+        scaled = false;
+        double alpha = budget / dE;  // E is ~linear in dq here
         q_c = pinocchio::integrate(model_, q_next, alpha * res.v);
         dE = energy(q_c, u_next) - E1;
+        if (dE > budget + roundoff(T0, V0, T_c, V_c)) {  // concave along dq: shortened by the relative excess twice
+          alpha *= (budget / dE) * (budget / dE);
+          q_c = pinocchio::integrate(model_, q_next, alpha * res.v);
+          dE = energy(q_c, u_next) - E1;
+        }
+        if (dE > budget) return false;
       }
-      if (dE > budget) return;
     }
     const VectorXd before = pair_distances(q_next), after = pair_distances(q_c);
+    VectorXd floor = before.cwiseMin(0.0);  // np.minimum(before, 0.0): NaN kept
+    for (Eigen::Index k = 0; k < floor.size(); ++k)
+      if (std::isnan(before[k])) floor[k] = before[k];
+    if (scaled) {  // a paid lift: a pair it lifts may go deeper at a feature that was not closed, by at most half the
+      // depth it lifts (§2.5): floor + 0.5 lifted, lifted the least g_next of the pair's contacts (np.minimum.at from 0)
+      VectorXd lifted = VectorXd::Zero(floor.size());
+      for (Eigen::Index i = 0; i < m; ++i) {
+        const Eigen::Index p = con[i].pair;
+        if (p < 0 || p >= floor.size()) continue;  // own = pair < len(floor)
+        const double l = lifted[p], gi = g_next[i];
+        lifted[p] = (std::isnan(l) || std::isnan(gi)) ? std::numeric_limits<double>::quiet_NaN() : std::min(l, gi);
+      }
+      floor = floor + 0.5 * lifted;
+    }
     for (Eigen::Index k = 0; k < before.size(); ++k)
-      if (after[k] < std::min(before[k], 0.0) - tol_) return;
+      if (after[k] < floor[k] - tol_) return false;
     q_next = q_c;
     corr = dE;
+    if (!scaled) return false;
+    u_law = std::move(u_next);  // stepper.step: u_law = imp.u_next; u_{k+1} = u_c, gamma_plus = ordered(W', u_c)
+    u_next = std::move(u_c);
+    gamma_plus = otimes_t(W, u_next);
+    return true;
   }
 };
 
@@ -2009,7 +2056,8 @@ NB_MODULE(_step, mod) {
       .def_ro("contact_work", &StepOut::contact_work)
       .def_ro("correction_energy", &StepOut::correction_energy)
       .def_ro("obstacle_work", &StepOut::obstacle_work)
-      .def_ro("drive_work_free", &StepOut::drive_work_free);
+      .def_ro("drive_work_free", &StepOut::drive_work_free)
+      .def_ro("paid", &StepOut::paid);
   nb::class_<Stepper>(mod, "Stepper")
       .def(nb::init<nb::object, nb::object, nb::object, nb::object, std::vector<MatrixXd>, std::vector<int>,
                     std::vector<Vec3>, std::vector<double>, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic>,

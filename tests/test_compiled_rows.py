@@ -1,7 +1,7 @@
-"""The projection at the row limit (issue 24): the cold dual active set up to qp.COLD_START_ROWS rows in
-both steps (compiled.MAX_CONTACTS), its solves on the nonzeros of G_AA (src/step.cpp sparse_lu_solve,
+"""The projection above the former row limit of 100 (issue 24): the cold dual active set up to qp.COLD_START_ROWS
+(200) rows in both steps (compiled.MAX_CONTACTS), its solves on the nonzeros of G_AA (src/step.cpp sparse_lu_solve,
 qp._lu_solve_sparse) with the dense elimination's bits, signed zeros included (docs/theory.md §1.3, §2.8). A column
-of N touching beads (benchmarks.scaling.column, N rows) is stepped by the compiled step on
+of N touching beads (benchmarks.scaling.column, N rows, 100 < N < 200) is stepped by the compiled step on
 every step and gives the Python step's bits, with the law's closed forms: at rest the percussion under bead k
 carries the N - k beads above it; a top bead hitting the resting column leaves with e times its speed while the
 column stays at rest (the projection of u- onto the column's cone is 0: the ground takes the blow)."""
@@ -16,7 +16,9 @@ import moreau_sim.compiled as compiled
 from moreau_sim import qp
 from moreau_sim.data import make_data
 
-N = qp.COLD_START_ROWS  # rows: the limit itself (64 before stop 35), on the sparse solves
+# rows: above the former limit of 100, and 199, the largest column whose pairs are listed (model.LAZY_PAIRS = 20,000;
+# a column of 200 beads is handed back for its unlisted pairs, not its rows)
+SIZES = (150, 199)
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -49,8 +51,9 @@ def _bits(x) -> list:
     return np.ascontiguousarray(x, float).view(np.int64).tolist()
 
 
+@pytest.mark.parametrize("N", SIZES)
 @pytest.mark.parametrize("e", [0.0, 0.9])
-def test_a_resting_column_above_100_rows_is_compiled_exact_and_bit_identical(e):
+def test_a_resting_column_above_100_rows_is_compiled_exact_and_bit_identical(e, N):
     """N touching 1 kg beads from rest: every step's N-row QP taken by the compiled step (the cold active set,
     no hand-back), the same bits as the Python step, the column at rest and P_k = (N - k) m g h."""
     got = _steps(_column(N, restitution=e), 3)
@@ -80,10 +83,10 @@ def _hit(n: int, V: float, e: float) -> ms.Scene:
 
 @pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
 def test_a_bead_hitting_a_resting_column_leaves_with_e_times_its_speed(e):
-    """The top bead of N touching beads moving down at V onto the resting column: the projection of u- onto
+    """The top bead of N = 150 touching beads moving down at V onto the resting column: the projection of u- onto
     {u_0 >= 0, u_k >= u_(k-1)} (M diagonal, equal masses) is 0, so the column keeps u = 0 and the top bead leaves
     at e times its approach; kinetic energy e^2 T-; both steps bit for bit, all compiled."""
-    V = 1.0
+    N, V = SIZES[0], 1.0
     got = _steps(_hit(N, V, e), 1)
     (ref, _, _), (new, counts, _) = got["python"], got["compiled"]
     assert set(counts) == {"contact"}
