@@ -222,7 +222,7 @@ class Options:
     corner_selection: which admissible outcome of a corner impact the run continues with
         (:class:`Selection`; every branching step is logged).
     qp_tolerance: piqp's eps_abs and eps_rel (piqp answers where the exact active set does not settle,
-        and starts it above qp.COLD_START_ROWS = 100 rows; qp.solve).
+        and starts it above qp.COLD_START_ROWS = 200 rows; qp.solve).
     save_every: record the state every N steps (the last step is always recorded).
     rtol, atol: the adaptive integrator's relative and absolute error tolerances per step
         (positions [m or rad] and velocities [m/s or rad/s]; atol in SI units), rtol in (0, 1),

@@ -61,7 +61,7 @@ def test_resting_stack_every_step_compiled_and_identical(e, h):
 
 @pytest.mark.parametrize("name, n", [
     # box_stack_10 at rest has 76 contacts (above the former 64-row limit; compiled.MAX_CONTACTS =
-    # qp.COLD_START_ROWS = 100 now, the cold active set on both sides)
+    # qp.COLD_START_ROWS = 200 now, the cold active set on both sides)
     ("box_stack_10", 5),
     # heavy_on_light_box_100: equal boxes face on face, each vertex of the top one at an edge of the one below
     # (three face planes within the margin, one of them separating: a smooth contact with that face's normal,
