@@ -57,6 +57,11 @@ class FeatureKind(enum.IntEnum):
 
 
 SAME_POINT = 1e-9  # [m] a patch corner this close to a vertex contact is that contact
+# The normals of a vertex of B on A's face and of a vertex of A on B's face at the same point (SAME_POINT) that differ
+# by at most this in every component are one touching point: one row, A's vertex (docs/theory.md §6.2, 1b). It is the
+# tolerance to which the detection already takes two faces as parallel at a vertex (box_box.CONE, _corner_normals'
+# cone test); src/step.cpp reads the same constant (C_.cone).
+TWIN_NORMAL = box_box.CONE
 
 
 @dataclass(frozen=True, slots=True)
@@ -213,6 +218,14 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
                 out.append((d, p_on_other, Vw[i], nrm, pair, FeatureKind.VERTEX, offset + i))
 
 
+def _twin(first: list, r: tuple) -> bool:
+    """Whether row r (a vertex of B on A's face) is the twin of a row of `first` (A's vertices on B's face, of the
+    same pair): the same touching point, its point on A within SAME_POINT of that row's (max-norm), and its normal
+    within TWIN_NORMAL of that row's in every component (docs/theory.md §6.2, 1b; src/step.cpp twin)."""
+    return any(float(np.abs(x[1] - r[1]).max()) <= SAME_POINT and float(np.abs(x[3] - r[3]).max()) <= TWIN_NORMAL
+               for x in first)
+
+
 _SNAP = 0.5  # [rad] the patch is computed about the face normal nearest to coal's normal, if within
 # this: coal's EPA normal of exactly touching faces drifts (4e-3 rad seen, and now and then far
 # more); a patch only forms where faces are parallel (to PATCH_TOLERANCE), and face normals of a
@@ -355,9 +368,12 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
         if na:
             _vertex_contacts(model, data, pair.first, pair.joint_first, pair.second, pair.joint_second, tol,
                              found, pair.index, 0, True, corner_list, margin)
+        mid = len(found)
         if nb:
             _vertex_contacts(model, data, pair.second, pair.joint_second, pair.first, pair.joint_first, tol,
                              found, pair.index, na, False, corner_list, margin)
+            if start < mid < len(found):
+                found[mid:] = [r for r in found[mid:] if not _twin(found[start:mid], r)]
         edges = _edge_contacts(model, data, pair, tol)
         if edges and len(corner_list) > start_c:  # a crossing within the corner margin of a corner is that corner's
             at = np.array([c[1] for c in corner_list[start_c:]] + [c[2] for c in corner_list[start_c:]])

@@ -1243,6 +1243,16 @@ class Stepper {
     return best;
   }
 
+  // contacts._twin: row r (a vertex of B on A's face) is one of found[start, mid) (A's vertices on B's face, the same
+  // pair) at the same touching point: its point on A within C_.same_point and its normal within contacts.TWIN_NORMAL
+  // (box_box.CONE, C_.cone) in every component (max-norms; docs/theory.md §6.2, 1b)
+  bool twin(const std::vector<Found> &found, size_t start, size_t mid, const Found &r) const {
+    for (size_t j = start; j < mid; ++j)
+      if ((found[j].pa - r.pa).cwiseAbs().maxCoeff() <= C_.same_point &&
+          (found[j].n - r.n).cwiseAbs().maxCoeff() <= C_.cone)
+        return true;
+    return false;
+  }
   // whether point p (on A) is farther than C_.same_point (max-norm) from every point on A of found[start:]
   bool new_point(const std::vector<Found> &found, size_t start, const Vec3 &p) const {
     for (size_t j = start; j < found.size(); ++j)
@@ -1373,7 +1383,12 @@ class Stepper {
       const size_t start = found.size();
       const int na = (int)vertices_[first].rows(), nb_ = (int)vertices_[second].rows();
       if (na) vertex_contacts(first, jf, second, js, found, (int)k, 0, true, margin);
+      const size_t mid = found.size();
       if (nb_) vertex_contacts(second, js, first, jf, found, (int)k, na, false, margin);
+      if (start < mid && mid < found.size())  // a vertex of B at a vertex of A on the same face: A's row (contacts._twin)
+        found.erase(std::remove_if(found.begin() + (std::ptrdiff_t)mid, found.end(),
+                                   [&](const Found &r) { return twin(found, start, mid, r); }),
+                    found.end());
       // contacts._edge_contacts: the edge crossings (EDGE, 12 k + l), then the corners of nearly parallel faces (FACE)
       // of two boxes; a corner of this pair has handed the step back already (vertex_contacts), so contacts.detect's
       // filter of crossings at a corner has nothing to filter here
