@@ -17,7 +17,7 @@ import pinocchio as pin
 from . import compiled_events
 from .constraints import assemble_constraints, corner_faces
 from .corners import MAX_PIECES, corner_law
-from .contacts import FeatureKind, detect, from_rows
+from .contacts import Contacts, FeatureKind, detect, from_rows
 from .data import Data
 from .errors import SimulationError
 from .gaps import (BOX_FEATURES, CYLINDER_KINDS, Feature, FeatureState, Gaps,  # noqa: F401
@@ -45,7 +45,8 @@ class Rules:
     """What the event rules read of a model, fixed for a run (make_rules): its features (gaps.Gaps),
     restitution e, gap_tol [m] (a feature at most this far is closed: the tolerance contacts.detect
     uses), box_index (pair -> the index of its feature 0: box pairs' features are consecutive),
-    cyl_swapped (cylinder feature -> coal lists its A second)."""
+    cyl_swapped (cylinder feature -> coal lists its A second), impact (the compiled _impact,
+    compiled_events.CompiledImpact, where it applies; None: the Python one)."""
 
     model: Model
     data: Data
@@ -56,6 +57,7 @@ class Rules:
     box_index: dict
     cyl_swapped: dict
     zero: np.ndarray
+    impact: object = None
 
 
 def make_rules(model: Model, data: Data, e: float, feats: tuple[Feature, ...] | None = None) -> Rules:
@@ -69,7 +71,9 @@ def make_rules(model: Model, data: Data, e: float, feats: tuple[Feature, ...] | 
                  {f.pair: i for i, f in reversed(list(enumerate(feats))) if f.box is not None},
                  {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
                   for i, f in enumerate(feats) if f.kind in CYLINDER_KINDS},
-                 np.zeros(model.nv))
+                 np.zeros(model.nv),
+                 compiled_events.impact(model, data, feats, gap_tol=gap_tol, v_tol=V_TOL, g_zeno=G_ZENO,
+                                        v_zeno=V_ZENO, dt_zeno=DT_ZENO))
 
 
 @dataclass(eq=False)
@@ -317,8 +321,17 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
     pm, pd = model.pin, data.pin
     # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
     # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
-    data.warm_start_pairs = set(data.warm_start_pairs) | {
-        r.feats[i].pair for i in np.flatnonzero(fs.g <= r.gap_tol)}
+    closed_pairs = {r.feats[i].pair for i in np.flatnonzero(fs.g <= r.gap_tol)}
+    if r.impact is not None:  # compiled where it applies (src/impact.hpp: the same floats), else Python
+        got = r.impact(q, u, r.e, t, st.last_impact, fs, closed_pairs)
+        if got is not None:
+            f, zeno, speed, a_n, work = got
+            c = Contacts(*(f[k] for k in Contacts.ARRAYS))
+            e = 0.0 if zeno else r.e
+            imp = Impact(t, q, u, f["u_next"], f["M"], f["v"], e, c, f["P"], f["gamma_minus"], f["gamma_plus"], None)
+            _impacted(r, st, t, zeno, speed, a_n, c)
+            return imp.u_plus, imp, work
+    data.warm_start_pairs = set(data.warm_start_pairs) | closed_pairs
     c = detect(model, data, q)
     cs = assemble_constraints(model, data, q, c)
     # (at a corner the struck vertex is the corner's: its faces are the pieces, not a feature row)
@@ -357,6 +370,13 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
         dv = u - v  # the impact's energy identity holds at every stationary point (§3)
         loss = 0.5 * (1.0 - e * e) * float(ordered(ordered(dv, M), dv))
         branch = None if law.u_plus is None else (law.solution, law.chosen, law.u_plus)
+    _impacted(r, st, t, zeno, speed, a_n, c)
+    return u_plus, Impact(t, q, u, u_plus, M, v, e, c, P, gm, gp, branch), -loss
+
+
+def _impacted(r: Rules, st: EventState, t: float, zeno: bool, speed: np.ndarray, a_n: np.ndarray, c) -> None:
+    """An impact at t [s] in st: its Zeno declaration (zeno: the rule held; speed [m/s], a_n [m/s^2]: the approaching
+    features' speeds and free normal accelerations; c: the impact's contacts), time and count."""
     if zeno and r.e < 1.0 and len(speed):
         k = int(np.argmax(speed))
         dt = 2.0 * r.e * speed[k] / ((1.0 - r.e) * -a_n[k]) if a_n[k] < 0 else 0.0
@@ -364,7 +384,6 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
                           "pairs": sorted(set(c.pair.tolist()))})
     st.last_impact = t
     st.impacts += 1
-    return u_plus, Impact(t, q, u, u_plus, M, v, e, c, P, gm, gp, branch), -loss
 
 
 def sample_grid(model: Model, state: State, t_end: float | None, t_eval) -> tuple[float, np.ndarray]:
