@@ -3,7 +3,8 @@ midpoint steps and their extrapolation (docs/theory.md §8) without a persistent
 adaptive.AdaptiveRun._step computes them (docs/theory.md §2.8), so that a run gives the Python run's arrays bit
 for bit; the samples on the dense output between events with what each records, all the samples of a step in
 one call, and the gaps of points on static planes (the ball's) and of sphere pairs (the cradle's) with their
-rows (src/adaptive.hpp); and the impact at a located event (src/impact.hpp: event_rules._impact but at corners). The
+rows (src/adaptive.hpp); and the impact at a located event (src/impact.hpp: event_rules._impact but at corners and
+where features coal misses are added). The
 event location, the persistent set at events and the constrained phases stay in Python."""
 
 from __future__ import annotations
@@ -86,16 +87,24 @@ def feature_gaps(model, data, feats):
 class CompiledImpact:
     """event_rules._impact compiled (src/impact.hpp): the detection at q, the constraints, the Zeno rule and law.impact
     with Pinocchio's M^-1, the same floats as Python (docs/theory.md §2.8), on the run's compiled Stepper. Called as
-    (q, u, e, t, last_impact, fs) -> (arrays, zeno, speed, a_n, contact_work) or None where Python must take the
+    (q, u, e, t, last_impact, fs, closed_pairs) -> (arrays, zeno, speed, a_n, contact_work) or None where Python must take the
     event (a corner, more contacts than the compiled step takes, an active set that does not settle, an event
     Python refuses). arrays: the StepOut's named arrays (compiled._Context.arrays: u_next = u+, v, lam, P,
-    gamma_minus, gamma_plus, M, W, the contacts)."""
+    gamma_minus, gamma_plus, M, W, the contacts); fs: event_rules.features at (q, u); closed_pairs: the pairs of its
+    closed features (added to contacts.detect's warm start). reasons: why events were handed back, counted."""
 
     __slots__ = ("ctx", "ev", "data", "reasons")
 
     def __init__(self, ctx, data, ev):
         self.ctx, self.data, self.ev = ctx, data, ev
         self.reasons: dict = {}  # why events were handed back -> count
+
+    def takes(self, coal_rows: bool) -> bool:
+        """Whether to try the event compiled: coal_rows, the contacts' rows are coal's (no feature event_rules'
+        missed_features adds; else counted as handed back)."""
+        if not coal_rows:
+            self.reasons["features coal's rows miss"] = self.reasons.get("features coal's rows miss", 0) + 1
+        return coal_rows
 
     def __call__(self, q, u, e: float, t: float, last_impact: float, fs, closed_pairs):
         ctx, data = self.ctx, self.data
@@ -111,12 +120,13 @@ class CompiledImpact:
 
 def impact_unsupported(model, data, feats) -> str | None:
     """Why the compiled impact at an event does not take this model's events (None: it does, but for the events it
-    hands back: CompiledImpact)."""
+    hands back, CompiledImpact, and those where event_rules.missed_features may add rows to coal's: two boxes'
+    closed vertices and edges, cylinders' closed features)."""
     why = compiled.loop_refusal(model, "EventImpact", "the compiled impact")
     if why is not None:
         return why
-    if not feats or any(f.kind not in COMPILED_KINDS or (f.kind == "point_plane" and f.joint_b != 0) for f in feats):
-        return "a feature whose gaps are not compiled (event_rules.missed_features may add rows)"
+    if not feats:
+        return "no features"
     if model.prescribed is not None or model.drive is not None:
         return "moving statics or driven joints"
     ctx = compiled._context(model, data)

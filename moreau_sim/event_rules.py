@@ -278,6 +278,25 @@ def missed_features(r: Rules, fs: FeatureState, W: np.ndarray) -> list:
     does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
     an arbitrary normal (docs/theory.md §7.1). Needs fs = features(r, st, q, u) of all features."""
     out = []
+    for col, row, box in _missed_candidates(r, fs):
+        w = fs.W[:, col]
+        if box and row[6] >= 16 and W.shape[1]:  # an edge pair (a closed vertex's own row always replaces coal's)
+            resid = w - ordered(W, np.linalg.lstsq(W, w, rcond=1e-12)[0])
+            if np.abs(resid).max() <= 1e-9 * np.abs(w).max():
+                continue
+        elif not box and W.shape[1] and (
+                np.abs(W - w[:, None]).max(axis=0) <= 1e-9 * np.abs(w).max()).any():
+            continue  # already a row (a combination of rows would not keep it from approaching)
+        out.append(row)
+        W = np.column_stack((W, w))
+    return out
+
+
+def _missed_candidates(r: Rules, fs: FeatureState):
+    """missed_features' candidates before the test against coal's rows: (feature column, contact row, of a box pair) of the
+    closed box-box vertices, the closed approaching active edge pairs, and the closed, not separating cylinder
+    features whose gap is the distance, in that order. None (and so no missed feature) wherever no pair is
+    two boxes and no feature is a cylinder's (the compiled impact's test: compiled_events.CompiledImpact)."""
     for pair, (which, P_a, P_b, nn) in fs.points.items():
         e_which, active = fs.edges.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
         for i, k in enumerate(which.tolist()):
@@ -286,31 +305,20 @@ def missed_features(r: Rules, fs: FeatureState, W: np.ndarray) -> list:
             col = r.box_index[pair] + k
             if fs.g[col] > r.gap_tol or (k >= 16 and fs.gamma[col] >= -V_TOL):
                 continue
-            w = fs.W[:, col]
-            if k >= 16 and W.shape[1]:  # a closed vertex's own row always replaces coal's
-                resid = w - ordered(W, np.linalg.lstsq(W, w, rcond=1e-12)[0])
-                if np.abs(resid).max() <= 1e-9 * np.abs(w).max():
-                    continue
-            out.append((float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
-                        FeatureKind.VERTEX if k < 16 else FeatureKind.WITNESS, k))
-            W = np.column_stack((W, w))
+            yield col, (float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
+                        FeatureKind.VERTEX if k < 16 else FeatureKind.WITNESS, k), True
     # cylinder features (§7.2): coal's one witness per pair misses e.g. a cylinder's side on a box's edge
     # touching ones too: coal's witness normal of a cylinder on an edge is off by ~1e-6, and an impact
     # elsewhere then left the exact feature approaching at 2e-7 m/s, neither impacted nor persistent
     for i, (pa, pb, n) in fs.witness.items():
         if fs.g[i] > r.gap_tol or fs.gamma[i] > V_TOL or not fs.exact.get(i, False):
             continue
-        w = fs.W[:, i]
-        if W.shape[1] and (np.abs(W - w[:, None]).max(axis=0) <= 1e-9 * np.abs(w).max()).any():
-            continue  # already a row (a combination of rows would not keep it from approaching)
         f = r.feats[i]
         # WITNESS features 1.. (coal's own witness of the pair is 0): 1 sphere_cylinder, 1-2 rims, 3-14 sides
         k = 1 + f.feature + (2 if f.kind == "side_edge" else 0) if f.feature >= 0 else 1
         if r.cyl_swapped[i]:  # coal's A is the feature's B: points swapped, normal reversed
             pa, pb, n = pb, pa, -n
-        out.append((float(fs.g[i]), pa, pb, n, f.pair, FeatureKind.WITNESS, k))
-        W = np.column_stack((W, w))
-    return out
+        yield i, (float(fs.g[i]), pa, pb, n, f.pair, FeatureKind.WITNESS, k), False
 
 
 def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.ndarray, Impact, float]:
@@ -322,7 +330,8 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
     # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
     # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
     closed_pairs = {r.feats[i].pair for i in np.flatnonzero(fs.g <= r.gap_tol)}
-    if r.impact is not None:  # compiled where it applies (src/impact.hpp: the same floats), else Python
+    # compiled where it applies (src/impact.hpp: the same floats; no missed feature), else Python
+    if r.impact is not None and r.impact.takes(next(_missed_candidates(r, fs), None) is None):
         got = r.impact(q, u, r.e, t, st.last_impact, fs, closed_pairs)
         if got is not None:
             f, zeno, speed, a_n, work = got

@@ -3,9 +3,8 @@
 // constraints (constraints.assemble_constraints: M by CRBA, the rows, the closed joint limits, distinct rows), the
 // Zeno rule on the approaching features and law.impact with Pinocchio's M^-1 (the projection: Stepper::project,
 // qp.solve's mirror), operation by operation as Python computes them (docs/theory.md §2.8), so that the two give
-// the same floats. It covers the features whose gaps are compiled (FeatureGaps: points on static planes, sphere
-// pairs), which have no missed features (event_rules.missed_features: box-box vertices and edges, cylinders); it
-// hands back (outcome FALLBACK, coal's warm starts restored) a corner (the set-valued law stays in Python), more
+// the same floats. Python calls it only where event_rules.missed_features has no candidate (no closed box-box vertex
+// or edge, no closed cylinder feature: coal's rows are the rows); it hands back (outcome FALLBACK, coal's warm starts restored) a corner (the set-valued law stays in Python), more
 // contacts than the compiled step takes, a projection its active set does not settle, and the events Python
 // refuses (no closed contact, none approaching), which the Python impact then takes from the same state.
 // #included by step.cpp after events.hpp (Stepper's friend: its detection, rows and projection).

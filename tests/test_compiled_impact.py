@@ -1,0 +1,197 @@
+"""Two implementations, one truth: the impact at a located event compiled (src/impact.hpp, compiled_events.CompiledImpact)
+against its Python one (event_rules._impact): the detection at q, the constraints, the Zeno rule and law.impact with
+Pinocchio's M^-1 in the same floating-point operations in the same order (docs/theory.md §2.8), so that the adaptive
+and event-driven runs give the same arrays bit for bit either way.
+
+Every bundled scene whose events the compiled impact takes (compiled_events.impact_unsupported is None) runs both
+integrators with the compiled impact and with the Python one (Rules.impact = None), over the byte-identity runs'
+durations; how many impacts ran compiled is counted and asserted > 0 where the scene has impacts that coal's rows
+describe, so that "equal because nothing ran compiled" shows. Through the compiled path the ball's impact instants
+and the touching cradle's velocities after its impact are their closed forms (docs/theory.md §4.1, §4.2), and a
+corner (the set-valued law, §3) is handed back to Python and still exact.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import moreau_sim as ms
+import moreau_sim.compiled as compiled
+from moreau_sim import compiled_events
+from moreau_sim.actuation import refuse_driven
+from moreau_sim.adaptive import DEFAULT_ORDER, AdaptiveRun
+from moreau_sim.data import make_data
+from moreau_sim.drive import refuse as refuse_drives
+from moreau_sim.driver import drive
+from moreau_sim.errors import SceneError
+from moreau_sim.event_driven import EventDrivenRun
+from moreau_sim.event_rules import sample_grid
+from moreau_sim.gaps import UnsupportedModel, feature_list
+from moreau_sim.model import build_model, initial_state
+from moreau_sim.scene import load_scene
+from moreau_sim.testing.references import ball_impact_times, cradle_simultaneous
+
+SCENE_DIR = Path(__file__).resolve().parent.parent / "scenes"
+SCENES = sorted(SCENE_DIR.glob("*.toml"))
+HEAVY = ("quadruped", "solo", "panda", "column_of_beads_100", "box_stack_10", "heavy_on_light_box_10000",
+         "heavy_on_light_ball_1000", "heavy_on_light_box_1000")
+# scenes with impacts whose rows are coal's: some must run compiled
+MUST_COMPILE = {"bouncing_ball", "zeno_ball", "newton_cradle_5", "newton_cradle_5_gapped", "box_drop", "rocking_block",
+                "pendulum_wall", "pendulum_limit", "fast_impact", "slider_crank_clearance", "spinning_box"}
+INTEGRATORS = ("adaptive", "event-driven")
+
+
+class _Counted:
+    """A CompiledImpact that counts the events it took."""
+
+    def __init__(self, inner):
+        self.inner, self.taken = inner, 0
+
+    @property
+    def reasons(self):
+        return self.inner.reasons
+
+    def takes(self, coal_rows: bool) -> bool:
+        return self.inner.takes(coal_rows)
+
+    def __call__(self, *args):
+        got = self.inner(*args)
+        self.taken += got is not None
+        return got
+
+
+def _run(scene, integrator: str, compiled_impact: bool):
+    """The run of `scene` with `integrator` and the compiled impact (or the Python one): (arrays, the counting
+    CompiledImpact or None, impacts)."""
+    model = build_model(scene.with_options(integrator=integrator))
+    refuse_driven(model, integrator)
+    refuse_drives(model, integrator)
+    data = make_data(model)
+    state = initial_state(model, data)
+    t_end, grid = sample_grid(model, state, None, None)
+    o = model.options
+    if integrator == "adaptive":
+        run = AdaptiveRun(model, data, o.restitution, o.rtol, o.atol, DEFAULT_ORDER, 1.0, 10 ** 6, state=state,
+                          t_end=t_end)
+    else:
+        run = EventDrivenRun(model, data, o.restitution, 1e-12, 1e-12, "DOP853", 1e-2, 100_000, state=state,
+                             t_end=t_end)
+    counted = None
+    if not compiled_impact:
+        run.rules = dataclasses.replace(run.rules, impact=None)
+    elif run.rules.impact is not None:
+        counted = _Counted(run.rules.impact)
+        run.rules = dataclasses.replace(run.rules, impact=counted)
+    try:
+        traj = drive(run, model, data, grid=grid, capacity=len(grid))
+    except Exception as exc:  # a run that fails fails alike both ways, up to the same sample
+        traj = getattr(exc, "trajectory", None)
+        if traj is None:
+            raise
+    return traj.arrays, counted, run.s.ev.impacts
+
+
+def _takes(path) -> bool:
+    model = build_model(load_scene(path))
+    try:
+        feats = feature_list(model)
+    except UnsupportedModel:
+        return False
+    return compiled_events.impact_unsupported(model, make_data(model), feats) is None
+
+
+def _same(ref: dict, got: dict) -> None:
+    assert set(ref) == set(got)
+    for key in ref:
+        x, y = np.asarray(ref[key]), np.asarray(got[key])
+        assert x.shape == y.shape and x.tobytes() == y.tobytes(), (key, x.shape, y.shape)
+
+
+def test_the_compiled_impact_is_available():
+    assert compiled.available(), compiled.unavailable_reason()
+    model = build_model(load_scene(SCENE_DIR / "bouncing_ball.toml"))
+    data = make_data(model)
+    assert compiled_events.impact_unsupported(model, data, feature_list(model)) is None
+    py = build_model(load_scene(SCENE_DIR / "bouncing_ball.toml").with_options(step_impl="python"))
+    assert compiled_events.impact_unsupported(py, make_data(py), feature_list(py)) == "step_impl python"
+    moving = build_model(load_scene(SCENE_DIR / "vibrating_paddle.toml"))
+    assert compiled_events.impact_unsupported(moving, make_data(moving), feature_list(moving)) == \
+        "moving statics or driven joints"
+
+
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+@pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
+def test_same_runs_with_the_compiled_impact(path, integrator):
+    """The adaptive and the event-driven run of every bundled scene the compiled impact takes: the same arrays bit
+    for bit with the compiled impact and with the Python one; some impacts compiled where the scene has them."""
+    if not _takes(path):
+        pytest.skip("the compiled impact does not take this scene's events (compiled_events.impact_unsupported)")
+    scene = load_scene(path)
+    duration = min(scene.options.duration, 0.3 if any(h in path.stem for h in HEAVY) else 1.0)
+    scene = scene.with_options(duration=duration)
+    try:
+        ref, _, impacts_ref = _run(scene, integrator, False)
+    except SceneError as exc:  # refused alike both ways
+        with pytest.raises(SceneError) as again:
+            _run(scene, integrator, True)
+        assert str(again.value) == str(exc)
+        return
+    got, counted, impacts = _run(scene, integrator, True)
+    assert counted is not None and impacts == impacts_ref
+    print(f"{scene.name} {integrator}: {impacts} impacts, {counted.taken} compiled, handed back {counted.reasons}")
+    if scene.name in MUST_COMPILE:
+        assert counted.taken > 0
+    assert counted.taken + sum(counted.reasons.values()) == impacts  # every impact tried compiled, or counted back
+    _same(ref, got)
+
+
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+@pytest.mark.parametrize("e", [0.0, 0.5, 0.8, 1.0])
+def test_ball_impact_times_through_the_compiled_impact(e, integrator):
+    """The ball dropped from a 0.9 m gap: every impact through the compiled impact, at the closed form's instants
+    t_k = t0 (1 + 2 e + ... + 2 e^k) (docs/theory.md §4.1); e = 0: one impact, then at rest on the ground."""
+    T = 2.5
+    scene = load_scene(SCENE_DIR / "bouncing_ball.toml").with_options(restitution=e, duration=T, rtol=1e-10,
+                                                                      atol=1e-12)
+    got, counted, impacts = _run(scene, integrator, True)
+    ref = np.array(ball_impact_times(e, 40))
+    ref = ref[ref < T - 1e-3]
+    if e < 1.0:  # before the accumulation (its Zeno declaration ends the bounces, §7)
+        ref = ref[: min(len(ref), 6)]
+    n = len(ref)
+    assert impacts >= n and counted.taken == impacts and not counted.reasons
+    tol = 1e-9 if integrator == "adaptive" else 1e-8
+    assert np.abs(got["log_t"][:n] - ref).max() < tol
+    if e == 0.0:
+        assert impacts == 1 and abs(got["u"][-1, 0]) < 1e-12
+
+
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+@pytest.mark.parametrize("e", [0.0, 0.5, 0.8, 1.0])
+def test_cradle_velocities_through_the_compiled_impact(e, integrator):
+    """The touching cradle struck at 1 m/s: one impact, through the compiled impact, leaving the simultaneous law's
+    velocities u_1 = (1 + e)/5 - e, u_2..5 = (1 + e)/5 [m/s] (docs/theory.md §4.2); momentum 1 kg m/s kept."""
+    scene = load_scene(SCENE_DIR / "newton_cradle_5.toml").with_options(restitution=e, duration=0.3, rtol=1e-10,
+                                                                        atol=1e-12)
+    got, counted, impacts = _run(scene, integrator, True)
+    assert impacts == 1 and counted.taken == 1 and not counted.reasons
+    assert np.abs(got["u"][-1] - np.array(cradle_simultaneous(e))).max() < 1e-12
+    assert abs(got["u"][-1].sum() - 1.0) < 1e-12
+
+
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+def test_a_corner_is_handed_back_and_exact(e, integrator):
+    """The particle striking the convex corner of a block with u- = (1, 0.5) (docs/theory.md §3): the compiled
+    detection sees a vertex at a box's edge and hands the event back; the Python set-valued law gives the unique
+    global minimizer v = (1, 0), u+ = (1, -0.5 e), and the run is the one without the compiled impact, bit for bit."""
+    scene = load_scene(SCENE_DIR / "corner_point_asymmetric.toml").with_options(restitution=e, duration=0.2)
+    ref, _, _ = _run(scene, integrator, False)
+    got, counted, impacts = _run(scene, integrator, True)
+    assert impacts >= 1 and counted.taken == 0 and sum(counted.reasons.values()) == impacts
+    assert np.abs(got["u"][-1] - [1.0, -0.5 * e]).max() < 1e-12
+    _same(ref, got)
