@@ -8,6 +8,7 @@ those do not apply; the loop is driver.drive (§9).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -22,9 +23,9 @@ from .data import Data, make_data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
 from .driver import Check, drive
-from .event_rules import (G_REGION, G_RES, LAM_EPS, V_TOL, EventState, dynamics, features, make_rules, phase_sets,
-                          resolve, sample_grid, thin_limit)
-from .gaps import UnsupportedModel, feature_list
+from .event_rules import (G_REGION, G_RES, LAM_EPS, V_TOL, EventState, dynamics, features, make_rules, model_features,
+                          phase_sets, resolve, sample_grid, thin_limit)
+from .gaps import UnsupportedModel
 from .model import Model, initial_state
 from .options import Bias
 from .protocol import FixedStep, Report, Segment, Status
@@ -96,6 +97,43 @@ def _root(f, lo: float, hi: float, xtol: float) -> float:
     if f(hi) > 0.0:
         return hi
     return brentq(f, lo, hi, xtol=xtol)
+
+
+_FEATURES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> _features(model)
+_EXTRAPOLATORS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> {(seq, ..., atol): step}
+
+
+def _features(model: Model) -> tuple[tuple, str | None]:
+    """(the features an adaptive run of `model` locates events on, why none: None where it does), made once per model
+    (a model is never modified after build_model): event_rules.model_features but cylinders on boxes and more than
+    MAX_FEATURES features not counting box pairs'."""
+    got = _FEATURES.get(model)
+    if got is not None:
+        return got
+    try:
+        feats, why = model_features(model), None
+    except UnsupportedModel as exc:
+        feats, why = (), str(exc)
+    names = {p.index: p.name for p in model.pairs}
+    cyl_box = sorted({names[f.pair] for f in feats if f.kind in ("rim_box", "side_edge")})
+    if cyl_box:  # their stand-ins and screening jump (docs/theory.md §7.2): the event-driven integrator's only
+        feats, why = (), f"cylinder vs box pairs ({', '.join(cyl_box[:3])}): event-driven only"
+    n = sum(f.box is None for f in feats)
+    if n > MAX_FEATURES:
+        feats, why = (), f"{n} features (not counting box pairs') > MAX_FEATURES = {MAX_FEATURES}"
+    got = _FEATURES[model] = (feats, why)
+    return got
+
+
+def _extrapolator(model: Model, seq: tuple, ratios: tuple, lie: bool, rtol: float, atol: float):
+    """compiled_events.extrapolator, made once per model and tolerances: the compiled step keeps nothing from one
+    call to the next (its Pinocchio Data is scratch), so the runs of one model share it."""
+    key = (seq, ratios, lie, rtol, atol)
+    made = _EXTRAPOLATORS.setdefault(model, {})
+    if key not in made:
+        made[key] = compiled_events.extrapolator(model, seq=seq, ratios=ratios, lie=lie, rtol=rtol, atol=atol,
+                                                 fixed_point=FIXED_POINT)
+    return made[key]
 
 
 class _End:
@@ -182,17 +220,7 @@ class AdaptiveRun:
 
     def __init__(self, model: Model, data: Data, e: float, rtol: float, atol: float, order: int,
                  max_step: float, max_events: int, *, state: State | None = None, t_end: float = np.inf):
-        try:
-            feats, self.unsupported = feature_list(model), None
-        except UnsupportedModel as exc:
-            feats, self.unsupported = (), str(exc)
-        names = {p.index: p.name for p in model.pairs}
-        cyl_box = sorted({names[f.pair] for f in feats if f.kind in ("rim_box", "side_edge")})
-        if cyl_box:  # their stand-ins and screening jump (docs/theory.md §7.2): the event-driven integrator's only
-            feats, self.unsupported = (), f"cylinder vs box pairs ({', '.join(cyl_box[:3])}): event-driven only"
-        n = sum(f.box is None for f in feats)
-        if n > MAX_FEATURES:
-            feats, self.unsupported = (), f"{n} features (not counting box pairs') > MAX_FEATURES = {MAX_FEATURES}"
+        feats, self.unsupported = _features(model)
         self.rules = make_rules(model, data, e, feats)  # what the event rules read of the model (event_rules.py)
         self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
         self.pm, self.pd, self.nv, self.zero = model.pin, data.pin, model.nv, np.zeros(model.nv)
@@ -206,8 +234,7 @@ class AdaptiveRun:
         self.ratios = tuple(tuple((seq[j] / seq[j - m]) ** 2 - 1.0 for m in range(1, j + 1)) for j in range(len(seq)))
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         # the compiled _step without a persistent set (src/events.hpp; None: the Python one, step_impl = "python")
-        self.extrapolate = compiled_events.extrapolator(model, seq=self.seq, ratios=self.ratios, lie=self.lie,
-                                                        rtol=rtol, atol=atol, fixed_point=FIXED_POINT)
+        self.extrapolate = _extrapolator(model, self.seq, self.ratios, self.lie, rtol, atol)
         # the samples on the dense output and their figures, a step's at once (None: dense() one by one)
         self.sampler = compiled_events.sampler(model, data, lie=self.lie, basis=QUINTIC)
         self.neutral = pin.neutral(model.pin)

@@ -7,6 +7,7 @@ LU (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -60,18 +61,39 @@ class Rules:
     impact: object = None
 
 
+_MODEL_FEATURES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> gaps.feature_list(model)
+_TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> (features, their box_index, cyl_swapped)
+
+
+def model_features(model: Model) -> tuple[Feature, ...]:
+    """gaps.feature_list(model), made once per model (a model is never modified after build_model): a run's build
+    reads it (UnsupportedModel as feature_list raises it)."""
+    feats = _MODEL_FEATURES.get(model)
+    if feats is None:
+        feats = _MODEL_FEATURES[model] = feature_list(model)
+    return feats
+
+
+def _tables(model: Model, feats: tuple[Feature, ...]) -> tuple[dict, dict]:
+    """Rules.box_index and Rules.cyl_swapped of `feats`, made once per model and features."""
+    got = _TABLES.get(model)
+    if got is not None and got[0] is feats:
+        return got[1], got[2]
+    first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
+    box_index = {f.pair: i for i, f in reversed(list(enumerate(feats))) if f.box is not None}
+    cyl_swapped = {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
+                   for i, f in enumerate(feats) if f.kind in CYLINDER_KINDS}
+    _TABLES[model] = (feats, box_index, cyl_swapped)
+    return box_index, cyl_swapped
+
+
 def make_rules(model: Model, data: Data, e: float, feats: tuple[Feature, ...] | None = None) -> Rules:
     """The Rules of `model` on its features (default: gaps.feature_list(model))."""
     gap_tol = max(model.options.contact_tolerance, G_RES)
-    feats = feature_list(model) if feats is None else feats
-    first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
+    feats = model_features(model) if feats is None else feats
     gaps = Gaps(model, data, feats, gap_tol)
     gaps.compiled = compiled_events.feature_gaps(model, data, feats)
-    return Rules(model, data, e, feats, gap_tol, gaps,
-                 {f.pair: i for i, f in reversed(list(enumerate(feats))) if f.box is not None},
-                 {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
-                  for i, f in enumerate(feats) if f.kind in CYLINDER_KINDS},
-                 np.zeros(model.nv),
+    return Rules(model, data, e, feats, gap_tol, gaps, *_tables(model, feats), np.zeros(model.nv),
                  compiled_events.impact(model, data, feats, gap_tol=gap_tol, v_tol=V_TOL, g_zeno=G_ZENO,
                                         v_zeno=V_ZENO, dt_zeno=DT_ZENO))
 
@@ -293,9 +315,9 @@ def missed_features(r: Rules, fs: FeatureState, W: np.ndarray) -> list:
 
 
 def _missed_candidates(r: Rules, fs: FeatureState):
-    """missed_features' candidates before the test against coal's rows: (feature column, contact row, of a box pair) of the
-    closed box-box vertices, the closed approaching active edge pairs, and the closed, not separating cylinder
-    features whose gap is the distance, in that order. None (and so no missed feature) wherever no pair is
+    """missed_features' candidates before the test against coal's rows: (feature column, contact row, of a box
+    pair) of the closed box-box vertices, the closed approaching active edge pairs, and the closed, not separating
+    cylinder features whose gap is the distance, in that order. None (and so no missed feature) wherever no pair is
     two boxes and no feature is a cylinder's (the compiled impact's test: compiled_events.CompiledImpact)."""
     for pair, (which, P_a, P_b, nn) in fs.points.items():
         e_which, active = fs.edges.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
