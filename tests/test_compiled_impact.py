@@ -1,7 +1,7 @@
 """Two implementations, one truth: the impact at a located event compiled (src/impact.hpp,
-compiled_events.CompiledImpact) against its Python one (event_rules._impact): the detection at q, the constraints, the Zeno rule and law.impact with
-Pinocchio's M^-1 in the same floating-point operations in the same order (docs/theory.md §2.8), so that the adaptive
-and event-driven runs give the same arrays bit for bit either way.
+compiled_events.CompiledImpact) against its Python one (event_rules._impact): the detection at q, the constraints,
+the Zeno rule and law.impact with Pinocchio's M^-1 in the same floating-point operations in the same order
+(docs/theory.md §2.8), so that the adaptive and event-driven runs give the same arrays bit for bit either way.
 
 Every bundled scene whose events the compiled impact takes (compiled_events.impact_unsupported is None) runs both
 integrators with the compiled impact and with the Python one (Rules.impact = None), over the byte-identity runs'
