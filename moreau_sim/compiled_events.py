@@ -144,3 +144,20 @@ def impact(model, data, feats, *, gap_tol: float, v_tol: float, g_zeno: float, v
     ev = compiled._module.EventImpact(ctx.stepper, float(gap_tol), float(v_tol), float(g_zeno), float(v_zeno),
                                       float(dt_zeno))
     return CompiledImpact(ctx, data, ev)
+
+
+_LOCATOR: list = []  # the one EventLocator (it keeps nothing from call to call: constants only)
+
+
+def locator(model, *, check, check_basis, quintic, v_tol: float) -> Callable | None:
+    """AdaptiveRun._first_event in free flight without box features compiled (src/locate.hpp: the same floats; scipy's
+    brentq's arithmetic), (t0, g0, gamma0, gdd0, t1, g1, gamma1, gdd1, nw) -> (status, tau, kind, k): status 1 an
+    event at tau of kind 0 (a gap) or 1 (a return) of watched feature k, 0 none, -1 Python's to locate; or None
+    where it does not apply (the compiled step does not load, or predates it; step_impl python). check, check_basis,
+    quintic: adaptive._CHECK, _CHECK_BASIS, QUINTIC; v_tol: event_rules.V_TOL."""
+    if compiled.loop_refusal(model, "EventLocator", "the compiled event location") is not None:
+        return None
+    if not _LOCATOR:
+        _LOCATOR.append(compiled._module.EventLocator(np.asarray(check, float), np.asarray(check_basis, float),
+                                                      np.asarray(quintic, float), float(v_tol)).first)
+    return _LOCATOR[0]

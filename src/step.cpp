@@ -1990,6 +1990,7 @@ class Stepper {
 #include "events.hpp"  // the adaptive integrator's extrapolated step (moreau_sim/compiled_events.py)
 #include "adaptive.hpp"  // the adaptive integrator's samples on its dense output (moreau_sim/compiled_events.py)
 #include "impact.hpp"  // the impact at a located event (moreau_sim/compiled_events.py)
+#include "locate.hpp"  // the adaptive integrator's event location in free flight (moreau_sim/compiled_events.py)
 
 NB_MODULE(_step, mod) {
   mod.doc() = "The compiled midpoint Moreau contact step (moreau_sim/compiled.py).";
@@ -2077,4 +2078,5 @@ NB_MODULE(_step, mod) {
   mod.def("fp_probe", [](double a, double b, double c) { return a * b + c; }, nb::arg("a"), nb::arg("b"), nb::arg("c"));
   bind_adaptive(mod);
   bind_impact(mod);
+  bind_locate(mod);
 }

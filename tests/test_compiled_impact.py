@@ -202,3 +202,80 @@ def test_a_corner_is_handed_back_and_exact(e, integrator):
     assert impacts >= 1 and counted.taken == 0 and sum(counted.reasons.values()) == impacts
     assert np.abs(got["u"][-1] - [1.0, -0.5 * e]).max() < 1e-12
     _same(ref, got)
+
+
+# ---- the event location in free flight (src/locate.hpp, compiled_events.locator) ----------------------------------
+LOCATE_SCENES = ["bouncing_ball", "zeno_ball", "newton_cradle_5", "newton_cradle_5_gapped", "box_drop", "rocking_block",
+                 "pendulum_wall", "column_of_beads", "fast_impact"]
+
+
+def _adaptive(name: str, locate: bool, **options):
+    """The adaptive run of scene `name` with the compiled event location (or the Python one): (arrays, compiled
+    locations that answered)."""
+    model = build_model(load_scene(SCENE_DIR / f"{name}.toml").with_options(integrator="adaptive", **options))
+    data = make_data(model)
+    state = initial_state(model, data)
+    t_end, grid = sample_grid(model, state, None, None)
+    o = model.options
+    run = AdaptiveRun(model, data, o.restitution, o.rtol, o.atol, DEFAULT_ORDER, 1.0, 10 ** 6, state=state,
+                      t_end=t_end)
+    answered = [0]
+    if not locate:
+        run.locate = None
+    elif run.locate is not None:
+        inner = run.locate
+
+        def counted(*args):
+            got = inner(*args)
+            answered[0] += got[0] >= 0
+            return got
+        run.locate = counted
+    return drive(run, model, data, grid=grid, capacity=len(grid)).arrays, answered[0]
+
+
+@pytest.mark.parametrize("name", LOCATE_SCENES)
+def test_same_runs_with_the_compiled_event_location(name):
+    """The adaptive run with the compiled event location and with the Python one: the same arrays bit for bit; the
+    compiled one answered (a model with box features keeps the Python location: none there)."""
+    ref, none = _adaptive(name, False, duration=1.0)
+    got, answered = _adaptive(name, True, duration=1.0)
+    assert none == 0
+    assert answered > 0
+    _same(ref, got)
+
+
+@pytest.mark.parametrize("name", ["bouncing_ball", "newton_cradle_5", "column_of_beads"])
+def test_first_event_is_bit_identical(name):
+    """AdaptiveRun._first_event on random step ends in free flight (gaps crossing within the step, features near
+    contact coming back, none): the compiled location gives Python's (tau, kind, feature) bit for bit."""
+    from moreau_sim.adaptive import _End
+
+    model = build_model(load_scene(SCENE_DIR / f"{name}.toml").with_options(integrator="adaptive"))
+    data = make_data(model)
+    run = AdaptiveRun(model, data, model.options.restitution, 1e-10, 1e-12, DEFAULT_ORDER, 1.0, 10 ** 6, t_end=1.0)
+    assert run.locate is not None
+    fast = run.locate
+    run.is_box = np.zeros(8, bool)  # up to 8 synthetic features, none a box's
+    rng = np.random.default_rng(11)
+    z, kinds = np.zeros(model.nv), set()
+    for trial in range(400):
+        nf = int(rng.integers(1, 8))
+        nw = int(rng.integers(0, nf + 1))
+        H = float(10.0 ** rng.uniform(-5, -1))
+        g0, g1 = rng.uniform(-1e-4, 1e-2, nf) * (rng.random(nf) < 0.8), rng.uniform(-1e-2, 1e-2, nf)
+        gam0, gam1 = rng.normal(0.0, 1.0, nf), rng.normal(0.0, 1.0, nf)
+        gdd0, gdd1 = rng.normal(0.0, 10.0, nf), rng.normal(0.0, 10.0, nf)
+        if trial % 3 == 0:  # returns: rates near the -2 V_TOL threshold
+            gam0, gam1 = rng.normal(0.0, 1e-8, nf), rng.normal(-1e-8, 1e-8, nf)
+        e0 = _End(0.25, z, z, z, z[:0], g0, gam0, gdd0, z[:0], np.zeros(nf, bool))
+        e1 = _End(0.25 + H, z, z, z, z[:0], g1, gam1, gdd1, z[:0], np.zeros(nf, bool))
+        watched = list(range(nf))
+        run.locate = None
+        ref = run._first_event(e0, e1, nw, (), watched)
+        run.locate = fast
+        got = run._first_event(e0, e1, nw, (), watched)
+        assert (ref is None) is (got is None), (trial, ref, got)
+        if ref is not None:
+            kinds.add(ref[1])
+            assert ref[1:] == got[1:] and np.float64(ref[0]).tobytes() == np.float64(got[0]).tobytes(), (trial, ref, got)
+    assert kinds == {"gap", "return"}
