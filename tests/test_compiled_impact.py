@@ -5,11 +5,12 @@ the Zeno rule and law.impact with Pinocchio's M^-1 in the same floating-point op
 
 Every bundled scene whose events the compiled impact takes (compiled_events.impact_unsupported is None) runs the
 adaptive integrator, and a few the event-driven one, with the compiled impact and with the Python one
-(Rules.impact = None), over the byte-identity runs' durations; how many impacts ran compiled is counted and asserted > 0 where the scene has impacts that coal's rows
-describe, so that "equal because nothing ran compiled" shows. Through the compiled path the ball's impact instants
-and the touching cradle's velocities after its impact are their closed forms (docs/theory.md §4.1, §4.2), and a
-corner (the set-valued law, §3) is handed back to Python and still exact. The adaptive integrator's event location
-in free flight compiled (src/locate.hpp) likewise: runs both ways, and random step ends bit for bit.
+(Rules.impact = None), over the byte-identity runs' durations; how many impacts ran compiled is counted and asserted
+> 0 where the scene has impacts that coal's rows describe, so that "equal because nothing ran compiled" shows.
+Through the compiled path the ball's impact instants and the touching cradle's velocities after its impact are their
+closed forms (docs/theory.md §4.1, §4.2), and a corner (the set-valued law, §3) is handed back to Python and still
+exact. The adaptive integrator's event location in free flight compiled (src/locate.hpp) likewise: runs both ways,
+and random step ends bit for bit.
 """
 
 from __future__ import annotations
