@@ -317,8 +317,8 @@ def missed_features(r: Rules, fs: FeatureState, W: np.ndarray) -> list:
 def _missed_candidates(r: Rules, fs: FeatureState):
     """missed_features' candidates before the test against coal's rows: (feature column, contact row, of a box
     pair) of the closed box-box vertices, the closed approaching active edge pairs, and the closed, not separating
-    cylinder features whose gap is the distance, in that order. None (and so no missed feature) wherever no pair is
-    two boxes and no feature is a cylinder's (the compiled impact's test: compiled_events.CompiledImpact)."""
+    cylinder features whose gap is the distance, in that order. None at all (so no missed feature: coal's rows are
+    the rows) is the compiled impact's condition (_impact, compiled_events.CompiledImpact)."""
     for pair, (which, P_a, P_b, nn) in fs.points.items():
         e_which, active = fs.edges.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
         for i, k in enumerate(which.tolist()):
