@@ -8,6 +8,7 @@ those do not apply; the loop is driver.drive (§9).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -22,9 +23,9 @@ from .data import Data, make_data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
 from .driver import Check, drive
-from .event_rules import (G_REGION, G_RES, LAM_EPS, V_TOL, EventState, dynamics, features, make_rules, phase_sets,
-                          resolve, sample_grid, thin_limit)
-from .gaps import UnsupportedModel, feature_list
+from .event_rules import (G_REGION, G_RES, LAM_EPS, V_TOL, EventState, dynamics, features, make_rules, model_features,
+                          phase_sets, resolve, sample_grid, thin_limit)
+from .gaps import UnsupportedModel
 from .model import Model, initial_state
 from .options import Bias
 from .protocol import FixedStep, Report, Segment, Status
@@ -57,6 +58,7 @@ QUINTIC = np.array([[1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1
 _POWERS = np.arange(6)
 _CHECK = np.linspace(0.0, 1.0, CHECK_POINTS + 1)
 _CHECK_BASIS = ordered(_CHECK[:, None] ** _POWERS, QUINTIC.T)  # (points, 6)
+_CHECK_FLOATS = _CHECK.tolist()
 
 
 def _poly(coef: np.ndarray) -> np.ndarray:
@@ -96,6 +98,43 @@ def _root(f, lo: float, hi: float, xtol: float) -> float:
     if f(hi) > 0.0:
         return hi
     return brentq(f, lo, hi, xtol=xtol)
+
+
+_FEATURES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> _features(model)
+_EXTRAPOLATORS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> {(seq, ..., atol): step}
+
+
+def _features(model: Model) -> tuple[tuple, str | None]:
+    """(the features an adaptive run of `model` locates events on, why none: None where it does), made once per model
+    (a model is never modified after build_model): event_rules.model_features but cylinders on boxes and more than
+    MAX_FEATURES features not counting box pairs'."""
+    got = _FEATURES.get(model)
+    if got is not None:
+        return got
+    try:
+        feats, why = model_features(model), None
+    except UnsupportedModel as exc:
+        feats, why = (), str(exc)
+    names = {p.index: p.name for p in model.pairs}
+    cyl_box = sorted({names[f.pair] for f in feats if f.kind in ("rim_box", "side_edge")})
+    if cyl_box:  # their stand-ins and screening jump (docs/theory.md §7.2): the event-driven integrator's only
+        feats, why = (), f"cylinder vs box pairs ({', '.join(cyl_box[:3])}): event-driven only"
+    n = sum(f.box is None for f in feats)
+    if n > MAX_FEATURES:
+        feats, why = (), f"{n} features (not counting box pairs') > MAX_FEATURES = {MAX_FEATURES}"
+    got = _FEATURES[model] = (feats, why)
+    return got
+
+
+def _extrapolator(model: Model, seq: tuple, ratios: tuple, lie: bool, rtol: float, atol: float):
+    """compiled_events.extrapolator, made once per model and tolerances: the compiled step keeps nothing from one
+    call to the next (its Pinocchio Data is scratch), so the runs of one model share it."""
+    key = (seq, ratios, lie, rtol, atol)
+    made = _EXTRAPOLATORS.setdefault(model, {})
+    if key not in made:
+        made[key] = compiled_events.extrapolator(model, seq=seq, ratios=ratios, lie=lie, rtol=rtol, atol=atol,
+                                                 fixed_point=FIXED_POINT)
+    return made[key]
 
 
 class _End:
@@ -182,17 +221,7 @@ class AdaptiveRun:
 
     def __init__(self, model: Model, data: Data, e: float, rtol: float, atol: float, order: int,
                  max_step: float, max_events: int, *, state: State | None = None, t_end: float = np.inf):
-        try:
-            feats, self.unsupported = feature_list(model), None
-        except UnsupportedModel as exc:
-            feats, self.unsupported = (), str(exc)
-        names = {p.index: p.name for p in model.pairs}
-        cyl_box = sorted({names[f.pair] for f in feats if f.kind in ("rim_box", "side_edge")})
-        if cyl_box:  # their stand-ins and screening jump (docs/theory.md §7.2): the event-driven integrator's only
-            feats, self.unsupported = (), f"cylinder vs box pairs ({', '.join(cyl_box[:3])}): event-driven only"
-        n = sum(f.box is None for f in feats)
-        if n > MAX_FEATURES:
-            feats, self.unsupported = (), f"{n} features (not counting box pairs') > MAX_FEATURES = {MAX_FEATURES}"
+        feats, self.unsupported = _features(model)
         self.rules = make_rules(model, data, e, feats)  # what the event rules read of the model (event_rules.py)
         self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
         self.pm, self.pd, self.nv, self.zero = model.pin, data.pin, model.nv, np.zeros(model.nv)
@@ -206,10 +235,12 @@ class AdaptiveRun:
         self.ratios = tuple(tuple((seq[j] / seq[j - m]) ** 2 - 1.0 for m in range(1, j + 1)) for j in range(len(seq)))
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         # the compiled _step without a persistent set (src/events.hpp; None: the Python one, step_impl = "python")
-        self.extrapolate = compiled_events.extrapolator(model, seq=self.seq, ratios=self.ratios, lie=self.lie,
-                                                        rtol=rtol, atol=atol, fixed_point=FIXED_POINT)
+        self.extrapolate = _extrapolator(model, self.seq, self.ratios, self.lie, rtol, atol)
         # the samples on the dense output and their figures, a step's at once (None: dense() one by one)
         self.sampler = compiled_events.sampler(model, data, lie=self.lie, basis=QUINTIC)
+        # the event location in free flight without box features (src/locate.hpp; None: the Python one)
+        self.locate = None if self.is_box.any() else compiled_events.locator(
+            model, check=_CHECK, check_basis=_CHECK_BASIS, quintic=QUINTIC, v_tol=V_TOL)
         self.neutral = pin.neutral(model.pin)
         self.h_fix = model.options.dt
         state = state or initial_state(model, data)
@@ -345,7 +376,11 @@ class AdaptiveRun:
     # ---- events ----------------------------------------------------------------------------
     def _first_event(self, e0: _End, e1: _End, nw: int, C, watched):
         """The earliest event on the step e0 -> e1 as (tau, kind, index into watched = watch+low / C),
-        or None."""
+        or None; without C and box features compiled where it applies (compiled_events.locator: the same floats)."""
+        if self.locate is not None and not len(C):
+            status, tau, kind, k = self.locate(e0.t, e0.g, e0.gamma, e0.gdd, e1.t, e1.g, e1.gamma, e1.gdd, nw)
+            if status >= 0:
+                return (tau, "gap" if kind == 0 else "return", k) if status else None
         H = e1.t - e0.t
         best = None
         taus = _CHECK
@@ -393,12 +428,15 @@ class AdaptiveRun:
                     best = (tau, "gap", k)
             # a feature within G_RES of contact coming back: gamma below -2 V_TOL (cubic Hermite of gamma)
             for k in range(nw, len(e0.g)):
-                gc = np.array([e0.gamma[k] + 2 * V_TOL, H * e0.gdd[k], e1.gamma[k] + 2 * V_TOL, H * e1.gdd[k]])
+                # Python floats: the same IEEE operations as on numpy's float64 scalars (x ** 3 is libm's pow on
+                # both), at a fraction of their cost
+                gc = (float(e0.gamma[k] + 2 * V_TOL), float(H * e0.gdd[k]), float(e1.gamma[k] + 2 * V_TOL),
+                      float(H * e1.gdd[k]))
 
                 def fr(x, gc=gc):
                     return float(gc[0] * (1 - 3 * x * x + 2 * x ** 3) + gc[1] * (x - 2 * x * x + x ** 3)
                                  + gc[2] * (3 * x * x - 2 * x ** 3) + gc[3] * (x ** 3 - x * x))
-                vals = np.array([fr(x) for x in taus])
+                vals = np.array([fr(x) for x in _CHECK_FLOATS])
                 if (vals[1:] < 0).any() and vals[0] >= 0:
                     j = int(np.argmax(vals[1:] < 0)) + 1
                     tau = _root(fr, taus[j - 1], taus[j], 1e-15)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import math
 import warnings
+import weakref
 from collections import Counter
 
 import coal
@@ -165,65 +166,23 @@ class _Context:
     def __init__(self, model, data):
         self.model = model
         self.boxes, self.nq, self.nv = bool(model.polytope_pair_set), model.nq, model.nv
-        self.carries = self.boxes or _warm_started(model)  # the detection carries state from step to step
+        prep = _prepared(model)
+        self.carries = prep.carries  # the detection carries state from step to step
         self.timed = model.prescribed is not None or model.drive is not None  # its steps need their start time
         self._layouts: dict[tuple, list] = {}  # (outcome, m, paid) -> the step's named arrays in its two buffers
         self.counts: Counter = Counter()
-        self.why = unsupported(model)
+        self.why = prep.why
         self.stepper = None
         if self.why is None:
-            o = model.options
-            kinds = [0 if b[0] == "plane" else 1 for b in model.bounds]
-            pairs = np.array([(p.first, p.second, p.joint_first, p.joint_second, int(p.patch)) for p in model.pairs],
-                             dtype=np.int64).reshape(-1, 5)
-            self.stepper = _module.Stepper(
-                model.pin, data.pin, model.geom, data.geom,
-                [np.asarray(V, float).reshape(-1, 3) for V in model.vertices], kinds,
-                [np.asarray(b[1], float) for b in model.bounds], [float(b[2]) for b in model.bounds], pairs,
-                np.asarray(model.support_mask, float), float(model.reach), float(model.thinnest_pair),
-                float(o.contact_tolerance), _TUNNELLING[o.tunnelling], o.separating is Separating.ELASTIC,
-                o.slow_impacts is SlowImpacts.PLASTIC, o.bias is Bias.MIDPOINT, bool(model.velocity_bias),
-                o.position_correction is PositionCorrection.PROJECTION, CONSTANTS,
-                np.array([(lim.pair, lim.joint, lim.idx_q, lim.idx_v, lim.sign, lim.bound) for lim in model.limits],
-                         dtype=float).reshape(-1, 6))
-            if len(model.pairs):
-                self._shapes(model, data)
-            bp = broad_phase.of(model, max(o.contact_tolerance, GATE_MARGIN))
-            if bp is not None:  # contacts.detect's broad phase, the same candidates each step
-                self.stepper.broad(bp.joint.tolist(), bp.centre, bp.half, bp.bounded.tolist(), bp.margin,
-                                   bp.half_pairs.tolist(), bp.half_geom.tolist(), bp.half_other.tolist(),
-                                   bp.half_n.reshape(-1, 3), bp.half_d, bp.always.tolist())
+            self.stepper = _module.Stepper(model.pin, data.pin, model.geom, data.geom, *prep.stepper)
+            if prep.shapes is not None:  # the detection's data beyond coal's narrow phase (Stepper::boxes)
+                queries = [data.point_query(g) if asked else None for g, asked in enumerate(prep.queried)]
+                self.stepper.boxes(queries, *prep.shapes, data.distance_request, data.distance_result,
+                                   data.patch_request, self.carries)
+            if prep.broad is not None:  # contacts.detect's broad phase, the same candidates each step
+                self.stepper.broad(*prep.broad)
             if self.timed:
                 self._rheonomic(model)
-
-    def _shapes(self, model, data) -> None:
-        """The detection's data beyond coal's narrow phase (src/step.cpp Stepper::boxes): the coal objects Python's
-        detection uses, a point query for each geometry a vertex may be queried against (contacts._vertex_contacts:
-        not a half-space; no box turned in its joint frame, whose face normals would not be exact both ways)."""
-        gobs = model.geometries
-        G = len(gobs)
-        other = np.zeros(G, bool)  # a vertex of a pair's other geometry may come near it
-        for p in model.pairs:
-            for g, v in ((p.first, p.second), (p.second, p.first)):
-                other[g] |= bool(len(model.vertices[v])) and model.bounds[g][0] == "sphere"
-        queries, edges = [], []
-        for g, go in enumerate(gobs):
-            box = isinstance(go.geometry, coal.Box)
-            queries.append(data.point_query(g) if other[g] and (not box or _axis_aligned(model, g)) else None)
-            if box:
-                e0, ed, el, ef = box_box.box_edges(go.geometry, go.placement)
-                edges.append(np.column_stack((e0, ed, el, ef[:, 0], ef[:, 1])))
-            else:
-                edges.append(np.zeros((0, 13)))
-        planes = [p if p is not None else (np.zeros((0, 3)), np.zeros(0)) for p in model.face_planes]
-        cones = [-1 if e is None else e.shape[1] for e in model.vertex_edges]
-        self.stepper.boxes(queries, [np.asarray(f, float).reshape(-1, 3) for f in model.face_normals],
-                           [np.asarray(n, float).reshape(-1, 3) for n, _ in planes],
-                           [np.asarray(d, float) for _, d in planes], edges,
-                           [np.zeros((0, 3)) if e is None else np.asarray(e, float).reshape(-1, 3)
-                            for e in model.vertex_edges], cones,
-                           [int(p.index in model.polytope_pair_set) for p in model.pairs],
-                           data.distance_request, data.distance_result, data.patch_request, self.carries)
 
     def _rheonomic(self, model) -> None:
         """The moving statics and driven joints (src/step.cpp Stepper::rheonomic, src/rheonomic.hpp): their
@@ -246,6 +205,86 @@ class _Context:
         buffers = (r.floats, r.ints if r.outcome is _module.Outcome.CONTACT else None)
         return {name: buffers[i][s] if shape is None else buffers[i][s].reshape(shape, order=order)
                 for name, i, s, shape, order in lay}
+
+
+class _Prepared:
+    """What a compiled Stepper of `model` is made of that no run changes (the model is never modified after
+    build_model), made once per model (_prepared): why (unsupported), the Stepper's arguments after (model, data,
+    geometry model, geometry data), Stepper::boxes's after the point queries and before coal's request and result
+    objects (shapes; None: no pair), the geometries a point query is made for (queried), Stepper::broad's (broad;
+    None: no broad phase), carries (the detection carries state from step to step: boxes, or coal's GJK warm starts)."""
+
+    __slots__ = ("why", "stepper", "shapes", "queried", "broad", "carries")
+
+    def __init__(self, model):
+        self.carries = bool(model.polytope_pair_set) or _warm_started(model)
+        self.why = unsupported(model)
+        self.stepper = self.shapes = self.broad = None
+        self.queried = ()
+        if self.why is not None:
+            return
+        o = model.options
+        kinds = [0 if b[0] == "plane" else 1 for b in model.bounds]
+        pairs = np.array([(p.first, p.second, p.joint_first, p.joint_second, int(p.patch)) for p in model.pairs],
+                         dtype=np.int64).reshape(-1, 5)
+        self.stepper = (
+            [np.asarray(V, float).reshape(-1, 3) for V in model.vertices], kinds,
+            [np.asarray(b[1], float) for b in model.bounds], [float(b[2]) for b in model.bounds], pairs,
+            np.asarray(model.support_mask, float), float(model.reach), float(model.thinnest_pair),
+            float(o.contact_tolerance), _TUNNELLING[o.tunnelling], o.separating is Separating.ELASTIC,
+            o.slow_impacts is SlowImpacts.PLASTIC, o.bias is Bias.MIDPOINT, bool(model.velocity_bias),
+            o.position_correction is PositionCorrection.PROJECTION, CONSTANTS,
+            np.array([(lim.pair, lim.joint, lim.idx_q, lim.idx_v, lim.sign, lim.bound) for lim in model.limits],
+                     dtype=float).reshape(-1, 6))
+        if len(model.pairs):
+            self._shapes(model)
+        bp = broad_phase.of(model, max(o.contact_tolerance, GATE_MARGIN))
+        if bp is not None:
+            self.broad = (bp.joint.tolist(), bp.centre, bp.half, bp.bounded.tolist(), bp.margin, bp.half_pairs.tolist(),
+                          bp.half_geom.tolist(), bp.half_other.tolist(), bp.half_n.reshape(-1, 3), bp.half_d,
+                          bp.always.tolist())
+
+    def _shapes(self, model) -> None:
+        """The detection's data beyond coal's narrow phase (src/step.cpp Stepper::boxes): a point query for each
+        geometry a vertex may be queried against (contacts._vertex_contacts: not a half-space; no box turned in its
+        joint frame, whose face normals would not be exact both ways; data.point_query, made per run), the face
+        normals and planes, a box's edges, the edges leaving each vertex, whether a pair is two polytopes."""
+        gobs = model.geometries
+        G = len(gobs)
+        other = np.zeros(G, bool)  # a vertex of a pair's other geometry may come near it
+        for p in model.pairs:
+            for g, v in ((p.first, p.second), (p.second, p.first)):
+                other[g] |= bool(len(model.vertices[v])) and model.bounds[g][0] == "sphere"
+        queried, edges = [], []
+        for g, go in enumerate(gobs):
+            box = isinstance(go.geometry, coal.Box)
+            queried.append(bool(other[g] and (not box or _axis_aligned(model, g))))
+            if box:
+                e0, ed, el, ef = box_box.box_edges(go.geometry, go.placement)
+                edges.append(np.column_stack((e0, ed, el, ef[:, 0], ef[:, 1])))
+            else:
+                edges.append(np.zeros((0, 13)))
+        planes = [p if p is not None else (np.zeros((0, 3)), np.zeros(0)) for p in model.face_planes]
+        cones = [-1 if e is None else e.shape[1] for e in model.vertex_edges]
+        self.queried = tuple(queried)
+        self.shapes = ([np.asarray(f, float).reshape(-1, 3) for f in model.face_normals],
+                       [np.asarray(n, float).reshape(-1, 3) for n, _ in planes],
+                       [np.asarray(d, float) for _, d in planes], edges,
+                       [np.zeros((0, 3)) if e is None else np.asarray(e, float).reshape(-1, 3)
+                        for e in model.vertex_edges], cones,
+                       [int(p.index in model.polytope_pair_set) for p in model.pairs])
+
+
+_PREPARED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> its _Prepared
+
+
+def _prepared(model) -> _Prepared:
+    """The _Prepared of `model`, made at its first compiled Stepper (a run's build then makes only what is the run's:
+    the Stepper on its Data, the point queries on its coal objects)."""
+    prep = _PREPARED.get(model)
+    if prep is None:
+        prep = _PREPARED[model] = _Prepared(model)
+    return prep
 
 
 def _context(model, data) -> _Context:

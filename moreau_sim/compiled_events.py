@@ -3,7 +3,9 @@ midpoint steps and their extrapolation (docs/theory.md §8) without a persistent
 adaptive.AdaptiveRun._step computes them (docs/theory.md §2.8), so that a run gives the Python run's arrays bit
 for bit; the samples on the dense output between events with what each records, all the samples of a step in
 one call, and the gaps of points on static planes (the ball's) and of sphere pairs (the cradle's) with their
-rows (src/adaptive.hpp). The event location, the decisions at events and the constrained phases stay in Python."""
+rows (src/adaptive.hpp); and the impact at a located event (src/impact.hpp: event_rules._impact but at corners and
+where features coal misses are added). The
+event location, the persistent set at events and the constrained phases stay in Python."""
 
 from __future__ import annotations
 
@@ -80,3 +82,82 @@ def feature_gaps(model, data, feats):
         np.array([f.n for f in feats], float).reshape(-1, 3), np.array([f.p_b for f in feats], float).reshape(-1, 3),
         [float(f.d) for f in feats], [float(f.r) for f in feats], [float(f.r_b) for f in feats],
         np.asarray(model.support_mask, float))
+
+
+class CompiledImpact:
+    """event_rules._impact compiled (src/impact.hpp): the detection at q, the constraints, the Zeno rule and law.impact
+    with Pinocchio's M^-1, the same floats as Python (docs/theory.md §2.8), on the run's compiled Stepper. Called as
+    (q, u, e, t, last_impact, fs, closed_pairs) -> (arrays, zeno, speed, a_n, contact_work) or None where Python must
+    take the event (a corner, more contacts than the compiled step takes, an active set that does not settle, an event
+    Python refuses). arrays: the StepOut's named arrays (compiled._Context.arrays: u_next = u+, v, lam, P,
+    gamma_minus, gamma_plus, M, W, the contacts); fs: event_rules.features at (q, u); closed_pairs: the pairs of its
+    closed features (added to contacts.detect's warm start). reasons: why events were handed back, counted."""
+
+    __slots__ = ("ctx", "ev", "data", "reasons")
+
+    def __init__(self, ctx, data, ev):
+        self.ctx, self.data, self.ev = ctx, data, ev
+        self.reasons: dict = {}  # why events were handed back -> count
+
+    def takes(self, coal_rows: bool) -> bool:
+        """Whether to try the event compiled: coal_rows, the contacts' rows are coal's (no feature event_rules'
+        missed_features adds; else counted as handed back)."""
+        if not coal_rows:
+            self.reasons["features coal's rows miss"] = self.reasons.get("features coal's rows miss", 0) + 1
+        return coal_rows
+
+    def __call__(self, q, u, e: float, t: float, last_impact: float, fs, closed_pairs):
+        ctx, data = self.ctx, self.data
+        # contacts.detect's warm start: the run's pairs with contacts at the last detection, with the closed features'
+        ctx.stepper.warm = sorted(set(data.warm_start_pairs) | closed_pairs)
+        r, zeno, speed, a_n = self.ev.impact(q, u, e, t, last_impact, fs.g, fs.gamma, fs.W, fs.drift)
+        if r.outcome is not compiled._module.Outcome.CONTACT:
+            self.reasons[r.reason] = self.reasons.get(r.reason, 0) + 1
+            return None
+        data.warm_start_pairs = set(self.ev.warm)
+        return ctx.arrays(r), zeno, speed, a_n, r.contact_work
+
+
+def impact_unsupported(model, data, feats) -> str | None:
+    """Why the compiled impact at an event does not take this model's events (None: it does, but for the events it
+    hands back, CompiledImpact, and those where event_rules.missed_features may add rows to coal's: two boxes'
+    closed vertices and edges, cylinders' closed features)."""
+    why = compiled.loop_refusal(model, "EventImpact", "the compiled impact")
+    if why is not None:
+        return why
+    if not feats:
+        return "no features"
+    if model.prescribed is not None or model.drive is not None:
+        return "moving statics or driven joints"
+    ctx = compiled._context(model, data)
+    return ctx.why if ctx.stepper is None else None
+
+
+def impact(model, data, feats, *, gap_tol: float, v_tol: float, g_zeno: float, v_zeno: float,
+           dt_zeno: float) -> CompiledImpact | None:
+    """The compiled impact at an event of `model` on `feats` (CompiledImpact), or None where it does not apply
+    (impact_unsupported). gap_tol [m]: event_rules.Rules.gap_tol; v_tol, g_zeno, v_zeno, dt_zeno: event_rules'
+    V_TOL, G_ZENO, V_ZENO, DT_ZENO."""
+    if impact_unsupported(model, data, feats) is not None:
+        return None
+    ctx = compiled._context(model, data)
+    ev = compiled._module.EventImpact(ctx.stepper, float(gap_tol), float(v_tol), float(g_zeno), float(v_zeno),
+                                      float(dt_zeno))
+    return CompiledImpact(ctx, data, ev)
+
+
+_LOCATOR: list = []  # the one EventLocator (it keeps nothing from call to call: constants only)
+
+
+def locator(model, *, check, check_basis, quintic, v_tol: float) -> Callable | None:
+    """AdaptiveRun._first_event in free flight without box features compiled (src/locate.hpp: the same floats; scipy's
+    brentq's arithmetic), (t0, g0, gamma0, gdd0, t1, g1, gamma1, gdd1, nw) -> (status, tau, kind, k): status 1 an
+    event at tau of kind 0 (a gap) or 1 (a return) of watched feature k, 0 none, -1 Python's to locate; or None
+    where it does not apply (the compiled step does not load, or predates it; step_impl python). check, check_basis,
+    quintic: adaptive._CHECK, _CHECK_BASIS, QUINTIC; v_tol: event_rules.V_TOL."""
+    if compiled.loop_refusal(model, "EventLocator", "the compiled event location") is not None:
+        return None
+    if not _LOCATOR:
+        _LOCATOR.append(compiled._module.EventLocator(np.asarray(check, float), np.asarray(check_basis, float),
+                                                      np.asarray(quintic, float), float(v_tol)).first)
+    return _LOCATOR[0]

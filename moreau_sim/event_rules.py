@@ -7,6 +7,7 @@ LU (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -17,7 +18,7 @@ import pinocchio as pin
 from . import compiled_events
 from .constraints import assemble_constraints, corner_faces
 from .corners import MAX_PIECES, corner_law
-from .contacts import FeatureKind, detect, from_rows
+from .contacts import Contacts, FeatureKind, detect, from_rows
 from .data import Data
 from .errors import SimulationError
 from .gaps import (BOX_FEATURES, CYLINDER_KINDS, Feature, FeatureState, Gaps,  # noqa: F401
@@ -45,7 +46,8 @@ class Rules:
     """What the event rules read of a model, fixed for a run (make_rules): its features (gaps.Gaps),
     restitution e, gap_tol [m] (a feature at most this far is closed: the tolerance contacts.detect
     uses), box_index (pair -> the index of its feature 0: box pairs' features are consecutive),
-    cyl_swapped (cylinder feature -> coal lists its A second)."""
+    cyl_swapped (cylinder feature -> coal lists its A second), impact (the compiled _impact,
+    compiled_events.CompiledImpact, where it applies; None: the Python one)."""
 
     model: Model
     data: Data
@@ -56,20 +58,44 @@ class Rules:
     box_index: dict
     cyl_swapped: dict
     zero: np.ndarray
+    impact: object = None
+
+
+_MODEL_FEATURES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> gaps.feature_list(model)
+_TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> (features, their box_index, cyl_swapped)
+
+
+def model_features(model: Model) -> tuple[Feature, ...]:
+    """gaps.feature_list(model), made once per model (a model is never modified after build_model): a run's build
+    reads it (UnsupportedModel as feature_list raises it)."""
+    feats = _MODEL_FEATURES.get(model)
+    if feats is None:
+        feats = _MODEL_FEATURES[model] = feature_list(model)
+    return feats
+
+
+def _tables(model: Model, feats: tuple[Feature, ...]) -> tuple[dict, dict]:
+    """Rules.box_index and Rules.cyl_swapped of `feats`, made once per model and features."""
+    got = _TABLES.get(model)
+    if got is not None and got[0] is feats:
+        return got[1], got[2]
+    first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
+    box_index = {f.pair: i for i, f in reversed(list(enumerate(feats))) if f.box is not None}
+    cyl_swapped = {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
+                   for i, f in enumerate(feats) if f.kind in CYLINDER_KINDS}
+    _TABLES[model] = (feats, box_index, cyl_swapped)
+    return box_index, cyl_swapped
 
 
 def make_rules(model: Model, data: Data, e: float, feats: tuple[Feature, ...] | None = None) -> Rules:
     """The Rules of `model` on its features (default: gaps.feature_list(model))."""
     gap_tol = max(model.options.contact_tolerance, G_RES)
-    feats = feature_list(model) if feats is None else feats
-    first = {p.index: model.geom.geometryObjects[p.first].geometry for p in model.pairs}
+    feats = model_features(model) if feats is None else feats
     gaps = Gaps(model, data, feats, gap_tol)
     gaps.compiled = compiled_events.feature_gaps(model, data, feats)
-    return Rules(model, data, e, feats, gap_tol, gaps,
-                 {f.pair: i for i, f in reversed(list(enumerate(feats))) if f.box is not None},
-                 {i: (f.kind == "sphere_cylinder") == isinstance(first[f.pair], coal.Cylinder)
-                  for i, f in enumerate(feats) if f.kind in CYLINDER_KINDS},
-                 np.zeros(model.nv))
+    return Rules(model, data, e, feats, gap_tol, gaps, *_tables(model, feats), np.zeros(model.nv),
+                 compiled_events.impact(model, data, feats, gap_tol=gap_tol, v_tol=V_TOL, g_zeno=G_ZENO,
+                                        v_zeno=V_ZENO, dt_zeno=DT_ZENO))
 
 
 @dataclass(eq=False)
@@ -274,6 +300,25 @@ def missed_features(r: Rules, fs: FeatureState, W: np.ndarray) -> list:
     does not stand for, and coal's point query gives a vertex exactly on a face (|g| ~ 1e-17 m)
     an arbitrary normal (docs/theory.md §7.1). Needs fs = features(r, st, q, u) of all features."""
     out = []
+    for col, row, box in _missed_candidates(r, fs):
+        w = fs.W[:, col]
+        if box and row[6] >= 16 and W.shape[1]:  # an edge pair (a closed vertex's own row always replaces coal's)
+            resid = w - ordered(W, np.linalg.lstsq(W, w, rcond=1e-12)[0])
+            if np.abs(resid).max() <= 1e-9 * np.abs(w).max():
+                continue
+        elif not box and W.shape[1] and (
+                np.abs(W - w[:, None]).max(axis=0) <= 1e-9 * np.abs(w).max()).any():
+            continue  # already a row (a combination of rows would not keep it from approaching)
+        out.append(row)
+        W = np.column_stack((W, w))
+    return out
+
+
+def _missed_candidates(r: Rules, fs: FeatureState):
+    """missed_features' candidates before the test against coal's rows: (feature column, contact row, of a box
+    pair) of the closed box-box vertices, the closed approaching active edge pairs, and the closed, not separating
+    cylinder features whose gap is the distance, in that order. None at all (so no missed feature: coal's rows are
+    the rows) is the compiled impact's condition (_impact, compiled_events.CompiledImpact)."""
     for pair, (which, P_a, P_b, nn) in fs.points.items():
         e_which, active = fs.edges.get(pair, (np.zeros(0, int), np.zeros(0, bool)))
         for i, k in enumerate(which.tolist()):
@@ -282,31 +327,20 @@ def missed_features(r: Rules, fs: FeatureState, W: np.ndarray) -> list:
             col = r.box_index[pair] + k
             if fs.g[col] > r.gap_tol or (k >= 16 and fs.gamma[col] >= -V_TOL):
                 continue
-            w = fs.W[:, col]
-            if k >= 16 and W.shape[1]:  # a closed vertex's own row always replaces coal's
-                resid = w - ordered(W, np.linalg.lstsq(W, w, rcond=1e-12)[0])
-                if np.abs(resid).max() <= 1e-9 * np.abs(w).max():
-                    continue
-            out.append((float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
-                        FeatureKind.VERTEX if k < 16 else FeatureKind.WITNESS, k))
-            W = np.column_stack((W, w))
+            yield col, (float(fs.g[col]), P_a[i], P_b[i], nn[i], pair,
+                        FeatureKind.VERTEX if k < 16 else FeatureKind.WITNESS, k), True
     # cylinder features (§7.2): coal's one witness per pair misses e.g. a cylinder's side on a box's edge
     # touching ones too: coal's witness normal of a cylinder on an edge is off by ~1e-6, and an impact
     # elsewhere then left the exact feature approaching at 2e-7 m/s, neither impacted nor persistent
     for i, (pa, pb, n) in fs.witness.items():
         if fs.g[i] > r.gap_tol or fs.gamma[i] > V_TOL or not fs.exact.get(i, False):
             continue
-        w = fs.W[:, i]
-        if W.shape[1] and (np.abs(W - w[:, None]).max(axis=0) <= 1e-9 * np.abs(w).max()).any():
-            continue  # already a row (a combination of rows would not keep it from approaching)
         f = r.feats[i]
         # WITNESS features 1.. (coal's own witness of the pair is 0): 1 sphere_cylinder, 1-2 rims, 3-14 sides
         k = 1 + f.feature + (2 if f.kind == "side_edge" else 0) if f.feature >= 0 else 1
         if r.cyl_swapped[i]:  # coal's A is the feature's B: points swapped, normal reversed
             pa, pb, n = pb, pa, -n
-        out.append((float(fs.g[i]), pa, pb, n, f.pair, FeatureKind.WITNESS, k))
-        W = np.column_stack((W, w))
-    return out
+        yield i, (float(fs.g[i]), pa, pb, n, f.pair, FeatureKind.WITNESS, k), False
 
 
 def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.ndarray, Impact, float]:
@@ -317,8 +351,18 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
     pm, pd = model.pin, data.pin
     # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
     # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
-    data.warm_start_pairs = set(data.warm_start_pairs) | {
-        r.feats[i].pair for i in np.flatnonzero(fs.g <= r.gap_tol)}
+    closed_pairs = {r.feats[i].pair for i in np.flatnonzero(fs.g <= r.gap_tol)}
+    # compiled where it applies (src/impact.hpp: the same floats; no missed feature), else Python
+    if r.impact is not None and r.impact.takes(next(_missed_candidates(r, fs), None) is None):
+        got = r.impact(q, u, r.e, t, st.last_impact, fs, closed_pairs)
+        if got is not None:
+            f, zeno, speed, a_n, work = got
+            c = Contacts(*(f[k] for k in Contacts.ARRAYS))
+            e = 0.0 if zeno else r.e
+            imp = Impact(t, q, u, f["u_next"], f["M"], f["v"], e, c, f["P"], f["gamma_minus"], f["gamma_plus"], None)
+            _impacted(r, st, t, zeno, speed, a_n, c)
+            return imp.u_plus, imp, work
+    data.warm_start_pairs = set(data.warm_start_pairs) | closed_pairs
     c = detect(model, data, q)
     cs = assemble_constraints(model, data, q, c)
     # (at a corner the struck vertex is the corner's: its faces are the pieces, not a feature row)
@@ -357,6 +401,13 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
         dv = u - v  # the impact's energy identity holds at every stationary point (§3)
         loss = 0.5 * (1.0 - e * e) * float(ordered(ordered(dv, M), dv))
         branch = None if law.u_plus is None else (law.solution, law.chosen, law.u_plus)
+    _impacted(r, st, t, zeno, speed, a_n, c)
+    return u_plus, Impact(t, q, u, u_plus, M, v, e, c, P, gm, gp, branch), -loss
+
+
+def _impacted(r: Rules, st: EventState, t: float, zeno: bool, speed: np.ndarray, a_n: np.ndarray, c) -> None:
+    """An impact at t [s] in st: its Zeno declaration (zeno: the rule held; speed [m/s], a_n [m/s^2]: the approaching
+    features' speeds and free normal accelerations; c: the impact's contacts), time and count."""
     if zeno and r.e < 1.0 and len(speed):
         k = int(np.argmax(speed))
         dt = 2.0 * r.e * speed[k] / ((1.0 - r.e) * -a_n[k]) if a_n[k] < 0 else 0.0
@@ -364,7 +415,6 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
                           "pairs": sorted(set(c.pair.tolist()))})
     st.last_impact = t
     st.impacts += 1
-    return u_plus, Impact(t, q, u, u_plus, M, v, e, c, P, gm, gp, branch), -loss
 
 
 def sample_grid(model: Model, state: State, t_end: float | None, t_eval) -> tuple[float, np.ndarray]:

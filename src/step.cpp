@@ -807,6 +807,7 @@ struct QueryGuesses {
 class Stepper {
   friend class Runner;  // the run loop (src/run.cpp) calls the step and reads its model and geometry
   friend class ForestFigures;  // the figures a sample records (src/forest.hpp) read its geometry
+  friend class EventImpact;  // the impact at a located event (src/impact.hpp) calls the detection, rows and projection
 
  public:
   Stepper(nb::object model, nb::object data, nb::object geom_model, nb::object geom_data,
@@ -2050,6 +2051,8 @@ class Stepper {
 #include "run.cpp"  // the run loop over a Stepper (moreau_sim/compiled_run.py)
 #include "events.hpp"  // the adaptive integrator's extrapolated step (moreau_sim/compiled_events.py)
 #include "adaptive.hpp"  // the adaptive integrator's samples on its dense output (moreau_sim/compiled_events.py)
+#include "impact.hpp"  // the impact at a located event (moreau_sim/compiled_events.py)
+#include "locate.hpp"  // the adaptive integrator's event location in free flight (moreau_sim/compiled_events.py)
 
 NB_MODULE(_step, mod) {
   mod.doc() = "The compiled midpoint Moreau contact step (moreau_sim/compiled.py).";
@@ -2137,4 +2140,6 @@ NB_MODULE(_step, mod) {
   });
   mod.def("fp_probe", [](double a, double b, double c) { return a * b + c; }, nb::arg("a"), nb::arg("b"), nb::arg("c"));
   bind_adaptive(mod);
+  bind_impact(mod);
+  bind_locate(mod);
 }
