@@ -1,7 +1,7 @@
 """A cube resting on an equal one, tilted by round-off (docs/theory.md §6.2, item 1c): a vertex of the upper cube at
 the lower cube's top corner lies on three face planes (top and two sides, to the corner margin); its edges dip below
 the top plane by the tilt, so the cone test (unit edges, 1e-9) refused every face and the row took coal's point-query
-normal, (0, 0.447, 0.894) at a tilt of 2e-9 or 5e-9 rad: 63 degrees off, pushing a resting stack sideways (issue 23).
+normal, (0, 0.447, 0.894) at a tilt of 2e-9 or 5e-9 rad: 63 degrees off, a false way of staying apart (issue 23).
 A face plane whose edges' crossing the cone test refuses still separates when the vertex's whole body lies outside it
 to within the contact tolerance (contacts._corner_normals, src/step.cpp vertex_contacts): the top face does, the side
 faces do not (the body reaches 0.1 m inside them). Checked against the closed form (every cube-cube row's normal is a
