@@ -137,7 +137,7 @@ NO_CONTACTS = Contacts.empty()
 
 
 def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p: np.ndarray,
-                    margin: float) -> np.ndarray | None:
+                    margin: float, body: np.ndarray, tol: float) -> np.ndarray | None:
     """The ways of staying apart of vertex i of g_vert touching box g_other at p (docs/theory.md
     §3): the outward normals (world) of g_other's faces whose signed distance from p is within
     `margin` of the largest one (the faces p is nearest to, or crossed within the step) and whose
@@ -146,7 +146,11 @@ def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p
     with that face normal; None: g_other is no box or the vertex's cone is unknown (coal's). A vertex
     outside within `margin` of one face plane only is over that face (its projection inside it: with
     its gap <= tol <= margin the other planes are behind it) and gets that face's normal, the exact one
-    (docs/theory.md §6.2); inside, nearest to one face, coal's."""
+    (docs/theory.md §6.2); inside, nearest to one face, coal's. A face plane crossed by the vertex's edges
+    (by more than the cone test's 1e-9) still separates when the vertex's whole body (`body`: its vertices,
+    world) lies outside it to within `tol`, the contact tolerance: a slightly tilted cube's vertex at the
+    other's top corner, its edges dipping by the tilt, gets the top face's normal, not coal's (issue 23,
+    docs/theory.md §6.2 item 1c)."""
     planes, edges = model.face_planes[g_other], model.vertex_edges[g_vert]
     if planes is None or edges is None:
         return None
@@ -158,6 +162,9 @@ def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p
     nw = n[on] @ oMo.rotation.T
     r = edges[i] @ oMi.rotation.T  # (k, 3) edges leaving the vertex, world
     ok = (nw @ r.T).min(axis=1, initial=0.0) >= -1e-9 if len(r) else np.ones(len(nw), bool)
+    if not ok.all():  # the body outside a face plane to tol: it separates (§6.2, 1c; src/step.cpp the same sums)
+        sb = [n @ (oMo.rotation.T @ (v - oMo.translation)) - d for v in body]
+        ok |= np.array([min(float(x[f]) for x in sb) >= -tol for f in on])
     return nw[ok] if ok.any() else None
 
 
@@ -205,7 +212,7 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
                 f = int(np.argmax(sd))
                 d, nrm = float(sd[f]), -(oMo.rotation @ planes[0][f])
                 p_on_other = Vw[i] + d * nrm
-            faces = _corner_normals(model, g_vert, i, oMi, g_other, oMo, Vw[i], margin)
+            faces = _corner_normals(model, g_vert, i, oMi, g_other, oMo, Vw[i], margin, Vw, tol)
             if faces is not None and len(faces) >= 2:  # outward normals of the other: B -> A if the vertex is A's
                 corners.append((d, Vw[i] if v_is_a else p_on_other, p_on_other if v_is_a else Vw[i],
                                 faces if v_is_a else -faces, pair, offset + i))

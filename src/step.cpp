@@ -1183,7 +1183,9 @@ class Stepper {
       if (Pn.rows() && k_cone >= 0) {
         // contacts._corner_normals: the faces within margin of the largest signed distance; of those, the faces whose
         // planes leave the vertex's own cone (its edges, vedges_) outside: two or more make a corner (Python's
-        // set-valued law); one gives the contact its face normal; none, coal's normal. A vertex outside the box within
+        // set-valued law); one gives the contact its face normal; none, coal's normal. A face whose plane the edges cross
+        // (by more than 1e-9) still separates when the vertex's body lies outside it to tol_ (§6.2, 1c: a tilted cube's
+        // vertex at the other's top corner). A vertex outside the box within
         // margin of one face plane only is over that face (the others' planes are behind it): the face's normal, the
         // exact one, not coal's (at a gap of 1e-17 m coal's pointed 0.45 rad off: issue 23)
         const Vec3 pl = Ro.transpose() * (Vw.row(i).transpose() - to);
@@ -1201,7 +1203,16 @@ class Stepper {
             const Vec3 nw = boxbox::row_rt(Pn, f, Ro);
             double lo = INFINITY;
             for (int k = 0; k < k_cone; ++k) lo = std::min(lo, boxbox::dot3(nw, boxbox::row_rt(VE, k_cone * i + k, Rv)));
-            if (lo >= -1e-9) {  // contacts._corner_normals' literal
+            bool sep = lo >= -1e-9;  // contacts._corner_normals' literal
+            if (!sep) {  // the vertex's body outside face f's plane to tol_: it separates (docs/theory.md §6.2, 1c)
+              double lo_body = INFINITY;
+              for (Eigen::Index j = 0; j < V.rows(); ++j) {
+                const Vec3 pj = Ro.transpose() * (Vw.row(j).transpose() - to);
+                lo_body = std::min(lo_body, ((Pn(f, 0) * pj[0] + Pn(f, 1) * pj[1]) + Pn(f, 2) * pj[2]) - Pd[f]);
+              }
+              sep = lo_body >= -tol_;
+            }
+            if (sep) {
               if (!ok) first = nw;
               ++ok;
             }
