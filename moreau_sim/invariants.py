@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import math
+import weakref
 from enum import Enum
 
 import numpy as np
@@ -34,6 +35,11 @@ GAP_ROUND_OFF = 1e-12  # [m] the round-off of a gap
 ACCELERATION = 2.0  # a gap's free acceleration, of |gravity|: gravity, and as much again (a rotating contact point)
 PERSIST = 3  # penetration beyond the allowance at this many consecutive points (or samples) is a fault
 WORSEN = 10.0  # a violation already reported is reported again when it has grown by this factor
+
+# model -> [Data]: the checks' Data that finished runs of it handed back (Invariants.data): a run's checks take one
+# (or make one) and give it back at the end; a Data's energies are functions of (q, u) alone, whatever it evaluated
+# before, and a Data in use is no other run's (list pop/append: one thread at a time)
+_SPARE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 class Invariant(Enum):
@@ -89,9 +95,19 @@ class Invariants:
 
     @functools.cached_property
     def data(self) -> Data:
-        """Its own Data (checking changes nothing the run reads), made where first needed (most points reuse the
-        recorder's energies)."""
-        return make_data(self.model)
+        """Its own Data (checking changes nothing the run reads), taken where first needed (most points reuse the
+        recorder's energies): one a finished run of the model handed back (_SPARE), else a new one."""
+        spare = _SPARE.get(self.model)
+        try:
+            return spare.pop() if spare else make_data(self.model)
+        except IndexError:  # another thread took the last one
+            return make_data(self.model)
+
+    def _hand_back(self) -> None:
+        """The run's end: its Data to the next run of the model (_SPARE)."""
+        data = self.__dict__.pop("data", None)
+        if data is not None:
+            _SPARE.setdefault(self.model, []).append(data)
 
     # ---- the hook ---------------------------------------------------------------------------------------------
     def __call__(self, where: str, state: State, rep: Report | None, rec: Recorder) -> list[dict] | None:
@@ -108,6 +124,7 @@ class Invariants:
         run, however few they were; kinetic energy paid by a load sinking into its support (sinking.first_paid,
         docs/theory.md §2.11, §10) and motion below the energy's round-off (creep.first_creep), from the recorded
         arrays."""
+        self._hand_back()
         out = None
         if self.deep_samples or self.deep_points:
             out = self._violate(Invariant.PENETRATION, state.t, self.last_depth, self.last_allowed, "m",

@@ -321,6 +321,7 @@ class Recorder:
         self._E: float | None = None  # T + V at the last state the ledger accounted [J]
         self._at: tuple | None = None  # that state's (q, u) arrays (a step starting there reuses _E)
         self._TV = (0.0, 0.0)  # that state's (T, V) [J] (a sample of it reuses them)
+        self._gap_sum = (-1, math.nan)  # (row, sum of its gaps) of the last sample (finite())
         self._new_impact = False  # the last log_percussions logged a new impact
         self._held = False  # every contact of the last log_percussions was closed in the step before it
         self._pending: list[PercussionRow] = []  # the rows of the step log_percussions saw, for account_step
@@ -358,8 +359,10 @@ class Recorder:
         c["contact_work"][i] = work
         c["correction_energy"][i] = corr
         g = c["gap"][i] = pair_distances(m, d, q) if figures is None else figures[2]
+        # their sum: finite when every gap is (an overflow of finite gaps, or inf - inf, only sends to the full tests)
+        gs = self._gap_sum = (self._samples.n, sum(c["gap"][i].tolist()))
         # coal failed at a finite state (not an overflow, which finite() reports): stop, uncommitted, no sentinel
-        if np.isnan(g).any() and math.isfinite(T + V) and state.finite():
+        if not math.isfinite(gs[1]) and np.isnan(g).any() and math.isfinite(T + V) and state.finite():
             k = int(np.flatnonzero(np.isnan(g))[0])
             raise SimulationError(f"the distance of pair {m.pairs[k].name} at t = {state.t:.6g} s is undefined "
                                   "(coal's GJK/EPA query failed)")
@@ -492,9 +495,10 @@ class Recorder:
     def finite(self) -> bool:
         """Whether the last sample's energies and gaps are finite (an overflow shows there first)."""
         i, c = self._samples.last, self._samples.cols
-        g = c["gap"][i]
-        return (math.isfinite(c["kinetic_energy"][i]) and math.isfinite(c["potential_energy"][i])
-                and all(map(math.isfinite, g.tolist())))
+        if not (math.isfinite(c["kinetic_energy"][i]) and math.isfinite(c["potential_energy"][i])):
+            return False
+        n, gs = self._gap_sum
+        return (n == self._samples.n - 1 and math.isfinite(gs)) or all(map(math.isfinite, c["gap"][i].tolist()))
 
     def log(self, row: PercussionRow) -> None:
         """Write one row to the log (it ends any stretch of persistent steps)."""
@@ -593,6 +597,7 @@ class Recorder:
             arrays = ChainMap(arrays, trajectory.log_before_format_4(len(arrays["log_P"])))
         for g in self._groups():
             g.load(arrays)
+        self._gap_sum = (-1, math.nan)
         self._smooth, self._diss, self._law, self._E = c["smooth"], c["diss"], c["law"], c["E"]
         self._act, self._obs = c.get("act", 0.0), c.get("obs", 0.0)
         self._at = (state.q, state.u) if c["at_state"] else None
