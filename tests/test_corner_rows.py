@@ -13,12 +13,12 @@ import dataclasses
 
 import numpy as np
 import pytest
+from test_compiled_rows import _bits, _steps as _steps_counted
 from test_stack_family import SIDE, stack
 
 import moreau_sim as ms
 import moreau_sim.compiled as compiled
 from moreau_sim.contacts import SAME_POINT, TWIN_NORMAL, FeatureKind, _twin
-from moreau_sim.data import make_data
 
 HEAVY = [1.0, 1e3, 1.0, 1e5]  # the traced draw of docs/theory.md §2.11 (bottom to top)
 
@@ -28,23 +28,9 @@ def _compiled():
     assert compiled.available(), compiled.unavailable_reason()
 
 
-def _bits(x) -> list:
-    return np.ascontiguousarray(x, float).view(np.int64).tolist()
-
-
 def _steps(sc: ms.Scene, k: int) -> dict:
     """k steps of `sc` from its initial state by each step implementation: {impl: [StepResult, ...]}."""
-    out = {}
-    for impl in ("python", "compiled"):
-        model = ms.build_model(sc.with_options(step_impl=impl))
-        data = make_data(model)
-        st, rs = ms.initial_state(model, data), []
-        for _ in range(k):
-            r = ms.step(model, data, st)
-            rs.append(r)
-            st = r.state
-        out[impl] = rs
-    return out
+    return {impl: rs for impl, (rs, _, _) in _steps_counted(sc, k).items()}
 
 
 def _same(a, b) -> None:
