@@ -133,8 +133,11 @@ def _warm_started(model) -> bool:
     geoms = model.geometries
     if model.listed:
         return not all(_analytic(geoms[p.first].geometry, geoms[p.second].geometry) for p in model.pairs)
-    kinds = {type(go.geometry): go.geometry for go in geoms}  # no pair list: by the kinds of shapes that may pair
-    return not all(_analytic(a, b) for a in kinds.values() for b in kinds.values())
+    # no pair list: by the kinds of shapes that may pair, a moving one with a moving one or a static one (two statics,
+    # on the universe, never pair; a model without a list has no moving static)
+    moving = {type(go.geometry): go.geometry for go in geoms if go.parentJoint != 0}
+    static = {type(go.geometry): go.geometry for go in geoms if go.parentJoint == 0}
+    return not all(_analytic(a, b) for a in moving.values() for b in (moving | static).values())
 
 
 def unsupported(model) -> str | None:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import weakref
 from pathlib import Path
 
 from .actuation import Controller, for_controller
@@ -24,10 +23,6 @@ from .time_stepping import TimeStepping
 from .trajectory import Summary, Trajectory
 
 _EVENT_RTOL = inspect.signature(simulate_event_driven).parameters["rtol"].default  # its smooth phases' rtol
-
-# model -> the bytes of the q0 whose start checks (model.initial_state: check_start, check_limits) passed: they are
-# functions of the model alone, run once per model (a later run of it starts from the same q0)
-_STARTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 # An impact ("log_impact") is a logged percussion of a contact that was not closed in the previous step.
 
@@ -77,7 +72,7 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
 
 def _simulate(model, data, state, progress, checkpoint, spill, check, strict, python_run) -> Trajectory:
     data = data or make_data(model)
-    state = state or _initial_state(model, data)
+    state = state or initial_state(model, data)
     opts = model.options
     if check is None:
         rtol = opts.rtol if opts.integrator is Integrator.ADAPTIVE else _EVENT_RTOL
@@ -92,16 +87,6 @@ def _simulate(model, data, state, progress, checkpoint, spill, check, strict, py
     return drive(TimeStepping(model, data, state), model, data, progress=progress, checkpoint=checkpoint,
                  spill=spill, check=check, capacity=1 + n // every + 1,  # the samples (recording.RESERVE_BYTES)
                  fast=None if python_run else compiled_run.runner)
-
-
-def _initial_state(model: Model, data: Data) -> State:
-    """model.initial_state, its checks once per model and q0 (_STARTS)."""
-    key = model.q0.tobytes()
-    if _STARTS.get(model) == key:
-        return State(0.0, model.q0.copy(), model.u0.copy())
-    state = initial_state(model, data)
-    _STARTS[model] = key
-    return state
 
 
 def run(scene: Scene | str | Path, *, dt: float | None = None, duration: float | None = None,

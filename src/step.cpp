@@ -1825,6 +1825,22 @@ class Stepper {
     for (int k = 0; k < model_.nv; ++k) involved[k] = hit[tree[k]];
     return involved;
   }
+  // stepper._split: u = u_S + u_R, u_S the velocities of the trees W's rows involve; a = T(q, u_S), T_R = T(q, u_R)
+  // [J], the terms of T(q, u_R + alpha u_S) = a alpha^2 + b alpha + T_R (docs/theory.md §2.10); T_R only where a > 0
+  struct Split {
+    VectorXd u_S, u_R;
+    double a, T_R;
+  };
+  Split split(const MatrixXd &W, const VectorXd &q, const VectorXd &u) {
+    const std::vector<bool> involved = trees(W);
+    Split s{VectorXd::Zero(u.size()), VectorXd(), 0.0, std::numeric_limits<double>::quiet_NaN()};
+    for (Eigen::Index j = 0; j < u.size(); ++j)
+      if (involved[j]) s.u_S[j] = u[j];
+    s.u_R = u - s.u_S;
+    s.a = pinocchio::computeKineticEnergy(model_, data_, q, s.u_S);
+    if (s.a > 0.0) s.T_R = pinocchio::computeKineticEnergy(model_, data_, q, s.u_R);
+    return s;
+  }
   // stepper._alpha: the largest root of a alpha^2 + b alpha + c in [floor, 1], else the alpha of least value
   static double alpha_of(double a, double b, double c, double floor) {
     const double disc = b * b - (4.0 * a) * c;
@@ -1856,14 +1872,10 @@ class Stepper {
       wa = odot(f.data(), s.data(), model_.nv);
     }
     if (T1 + V1 <= (target + wa) + roundoff(T0, V0, T1, V1)) return;
-    const std::vector<bool> involved = trees(W);
-    VectorXd u_S = VectorXd::Zero(u_next.size());
-    for (Eigen::Index j = 0; j < u_next.size(); ++j)
-      if (involved[j]) u_S[j] = u_next[j];
-    const VectorXd u_R = u_next - u_S;
-    const double a = pinocchio::computeKineticEnergy(model_, data_, q_next, u_S);
-    if (!(a > 0.0)) return;
-    const double T_R = pinocchio::computeKineticEnergy(model_, data_, q_next, u_R);
+    const Split sp = split(W, q_next, u_next);
+    if (!(sp.a > 0.0)) return;
+    const VectorXd &u_S = sp.u_S, &u_R = sp.u_R;
+    const double a = sp.a, T_R = sp.T_R;
     double b = (T1 - a) - T_R;
     double c = T_R - (target - V1);
     if (driven) {  // the torques' work f.(u_k + u_R) + alpha f.u_S
@@ -2004,15 +2016,9 @@ class Stepper {
       if (persistent) {  // the full lift, paid in full with the kinetic energy of the bodies in contact: T + V ends
         // where the law's step ended, E_1 (§2.5). stepper._scaled(q_c, u_next, the rows' trees, E_1 - V_c, T_c):
         // u_R + alpha u_S (stepper._split, _alpha with floor 0), u_next itself where T(q_c, u_S) is not positive
-        const std::vector<bool> S = trees(W);
-        VectorXd u_S = VectorXd::Zero(u_next.size());
-        for (Eigen::Index j = 0; j < u_next.size(); ++j)
-          if (S[j]) u_S[j] = u_next[j];
-        const VectorXd u_R = u_next - u_S;
-        const double a = pinocchio::computeKineticEnergy(model_, data_, q_c, u_S);
-        if (a > 0.0) {
-          const double T_R = pinocchio::computeKineticEnergy(model_, data_, q_c, u_R);
-          u_c = u_R + alpha_of(a, (T_c - a) - T_R, T_R - (E1 - V_c), 0.0) * u_S;
+        const Split sp = split(W, q_c, u_next);
+        if (sp.a > 0.0) {
+          u_c = sp.u_R + alpha_of(sp.a, (T_c - sp.a) - sp.T_R, sp.T_R - (E1 - V_c), 0.0) * sp.u_S;
           scaled = true;
         }
         dE = (pinocchio::computeKineticEnergy(model_, data_, q_c, scaled ? u_c : u_next) + V_c) - E1;

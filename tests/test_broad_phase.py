@@ -151,8 +151,8 @@ def test_the_pair_table_and_the_broad_phase_keep_every_pair_of_a_bundled_scene(n
         assert closed <= set(cand.tolist()), name
 
 
-def _run(model, steps):
-    data = ms.make_data(model)
+def _run(model, steps, data=None):
+    data = data or ms.make_data(model)
     st, out = ms.initial_state(model, data), []
     for _ in range(steps):
         r = ms.step(model, data, st)
@@ -195,3 +195,24 @@ def test_a_table_of_pairs_runs_as_their_list(integrator, monkeypatch):
     assert not model.listed and table.meta["status"] == listed.meta["status"] == "complete"
     for f in ("t", "q", "u"):
         assert np.array_equal(getattr(table, f), getattr(listed, f)), f
+
+
+@pytest.mark.parametrize("e", [0.0, 0.5, 0.9])
+def test_the_compiled_step_takes_a_table_of_closed_form_pairs(e, monkeypatch):
+    """A column of beads built as a pair table (no list): its pairs are sphere-sphere and sphere-half-space, closed
+    forms with nothing carried from step to step (two half-spaces, both static, never pair), so the compiled step
+    takes every step, with the bits of the Python step on the same table and of the listed scene."""
+    from moreau_sim import compiled
+
+    sc = column(30, exclude=False, e=e)
+    listed = _run(ms.build_model(sc), 30)
+    monkeypatch.setattr(ms.model, "LAZY_PAIRS", 10)
+    table = ms.build_model(sc.with_options(step_impl="compiled"))
+    assert not table.listed and compiled.unsupported(table) is None
+    data = ms.make_data(table)
+    fast = _run(table, 30, data)
+    assert all(not k.startswith("python") for k in compiled.counts(data)), compiled.counts(data)
+    assert compiled.counts(data)["contact"] == 30
+    for (qa, ua, pa, na), (qb, ub, pb, nb) in zip(listed, fast):
+        assert np.array_equal(qa, qb) and np.array_equal(ua, ub)
+        assert np.array_equal(pa, pb) and np.array_equal(na, nb)

@@ -1,4 +1,4 @@
-"""What a run keeps per model for the next run of it (simulate._STARTS: the start checks passed; invariants._SPARE:
+"""What a run keeps per model for the next run of it (model._STARTS: the start checks passed; invariants._SPARE:
 the invariant checks' Data) changes no bit: two runs of one model, and runs of two models interleaved, give the
 arrays and meta (but the timings) of runs of freshly built models, under each integrator; a start the checks refuse
 is refused again (nothing is kept for it)."""
@@ -6,19 +6,17 @@ is refused again (nothing is kept for it)."""
 from __future__ import annotations
 
 import dataclasses
-import importlib
 
 import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import invariants
+from moreau_sim import invariants, model as model_module
 from moreau_sim.data import make_data
 from moreau_sim.errors import SceneError
 
 from helpers import scene
 
-simulate_module = importlib.import_module("moreau_sim.simulate")  # the package's `simulate` is the function
 INTEGRATORS = ["adaptive", "event-driven", "time-stepping"]
 TIMINGS = {"wall_seconds", "us_per_step", "created"}  # the meta that says when and how long
 
@@ -50,7 +48,7 @@ def test_runs_of_one_model_and_of_two_interleaved_give_the_bits_of_fresh_runs(in
         for n in names:
             _same(ms.simulate(kept[n], progress=False), fresh[n])
     for n in names:
-        assert simulate_module._STARTS.get(kept[n]) == kept[n].q0.tobytes()
+        assert model_module._STARTS.get(kept[n]) == kept[n].q0.tobytes()
     if integrator != "time-stepping":  # the event integrators' smooth points need the checks' own Data
         assert invariants._SPARE.get(kept["bouncing_ball"])
 
@@ -60,5 +58,5 @@ def test_a_start_the_checks_refuse_is_refused_at_every_run():
     inside = dataclasses.replace(ok, q0=np.zeros(ok.nq))  # the ball's centre on the ground: a radius inside
     for _ in range(2):
         with pytest.raises(SceneError, match="inside"):
-            simulate_module._initial_state(inside, make_data(inside))
-    assert simulate_module._STARTS.get(inside) is None
+            ms.initial_state(inside, make_data(inside))
+    assert model_module._STARTS.get(inside) is None
