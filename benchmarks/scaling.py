@@ -10,9 +10,10 @@ process of its own (its peak RSS is that size's alone):
   short run from rest closes all N contacts. `ms.step` is timed on those states (best of `repeat` per
   state, median over states) with each step_impl, saying which path took the steps (compiled.counts);
 - a pile of N free 0.1 m cubes (1 kg) dropped from a grid into a bin (the ground and four walls,
-  half-spaces), e = 0.5, h = 1e-3, run for T seconds with the Python step (the compiled step hands
-  box-box pairs back): every step timed, the contacts counted, the total energy checked against its
-  start (no gain), and the largest |u| at the end (at rest?).
+  half-spaces), e = 0.1, h = 1e-3, run for T seconds with the Python step and, where a Data of the whole
+  model fits, with the compiled step (which hands back the steps it does not take: compiled.counts; the two
+  runs must end in the same state, bit for bit): every step timed, the contacts counted, the total energy
+  checked against its start (no gain), and the largest |u| at the end (at rest?).
 
 For each: the model's build time (build_model), the Data's (make_data), the peak RSS of the child
 after stepping, and MuJoCo (peers.mujoco's soft contacts, condim 1) on the same scene in the same
@@ -272,27 +273,50 @@ def boxes_one(n: int) -> dict:
         t0 = CLOCK()
         data = ms.make_data(model)
         out["data_s"] = CLOCK() - t0
-        st = ms.initial_state(model, data)
-        e0 = energy.total(model, data, st.q, st.u)
-        times, contacts, gain = [], [], 0.0
-        for _ in range(int(round(PILE_T / PILE_H))):
-            t = CLOCK()
-            r = ms.step(model, data, st)
-            times.append(CLOCK() - t)
-            contacts.append(r.contacts.m + len(r.contacts.corners))
-            st = r.state
-            gain = max(gain, energy.total(model, data, st.q, st.u) - e0)
-        third = len(times) // 3
-        out.update(nv=model.nv, pairs=len(model.pairs), steps=len(times), us=statistics.median(times) * 1e6,
-                   us_last_third=statistics.median(times[-third:]) * 1e6, contacts=statistics.median(contacts),
-                   contacts_last_third=statistics.median(contacts[-third:]), energy0=e0, max_energy_gain=gain,
-                   final_max_speed=float(np.abs(st.u).max()), peak_rss_mb=peak_rss_mb())
+        st0 = ms.initial_state(model, data)
+        e0 = energy.total(model, data, st0.q, st0.u)
+        py = _pile_run(model, data, st0, e0)
+        out.update(nv=model.nv, pairs=len(model.pairs), steps=py["steps"], us=py["us"],
+                   us_last_third=py["us_last_third"], contacts=py["contacts"],
+                   contacts_last_third=py["contacts_last_third"], energy0=e0, max_energy_gain=py["max_energy_gain"],
+                   final_max_speed=py["final_max_speed"])
+        big = too_big(model.nv)
+        if big is None:  # the compiled step on the same model: its own Data, the steps it takes counted
+            fast = ms.build_model(pile(n).with_options(step_impl="compiled"))
+            fdata = ms.make_data(fast)
+            c = _pile_run(fast, fdata, ms.initial_state(fast, fdata), e0)
+            c["paths"] = dict(compiled.counts(fdata))
+            q, u = c.pop("q"), c.pop("u")
+            c["same_as_python"] = bool(np.array_equal(q, py["q"]) and np.array_equal(u, py["u"]))
+            out["compiled"] = c
+            del fdata, fast
+        else:
+            out["compiled"] = {"skipped": big}
+        out["peak_rss_mb"] = peak_rss_mb()
         del data, model
     else:
         out["skipped"] = why
     steps = int(round(PILE_T / PILE_H))
     out["mujoco"] = mujoco_run("boxes", n, warm=steps - steps // 3, timed=steps // 3)
     return out
+
+
+def _pile_run(model, data, st, e0: float) -> dict:
+    """The pile's run of PILE_T s from st, every step timed (CPU): per step medians [us], contacts (with corners),
+    the largest rise of T + V over e0 [J], the largest |u| at the end, and the final q, u."""
+    times, contacts, gain = [], [], 0.0
+    for _ in range(int(round(PILE_T / PILE_H))):
+        t = CLOCK()
+        r = ms.step(model, data, st)
+        times.append(CLOCK() - t)
+        contacts.append(r.contacts.m + len(r.contacts.corners))
+        st = r.state
+        gain = max(gain, energy.total(model, data, st.q, st.u) - e0)
+    third = len(times) // 3
+    return {"steps": len(times), "us": statistics.median(times) * 1e6,
+            "us_last_third": statistics.median(times[-third:]) * 1e6, "contacts": statistics.median(contacts),
+            "contacts_last_third": statistics.median(contacts[-third:]), "max_energy_gain": gain,
+            "final_max_speed": float(np.abs(st.u).max()), "q": st.q, "u": st.u}
 
 
 def build_one(kind: str, n: int) -> dict:
@@ -386,6 +410,8 @@ def slopes(data: dict) -> dict:
     out["mujoco_beads"] = slope([r["beads"] for r in mb], [r["mujoco"]["us"] for r in mb])
     out["build_beads"] = slope([r["beads"] for r in b], [r["build_s"] for r in b])
     out["pile"] = slope([r["boxes"] for r in p], [r["us"] for r in p])
+    pc = [r for r in p if "us" in r.get("compiled", {})]
+    out["pile_compiled"] = slope([r["boxes"] for r in pc], [r["compiled"]["us"] for r in pc]) if len(pc) >= 2 else None
     mp = [r for r in data["boxes"] if "mujoco" in r]
     out["mujoco_pile"] = slope([r["boxes"] for r in mp], [r["mujoco"]["us"] for r in mp])
     return out
@@ -432,6 +458,10 @@ def plot(data: dict, png: Path) -> None:
     mp = [r for r in data["boxes"] if "mujoco" in r]
     fitted(a2, [r["boxes"] for r in p], [r["us"] * 1e-3 for r in p], "s",
            f"moreau-sim, Python step: slope {s['pile']:.2f}")
+    pc = [r for r in p if "us" in r.get("compiled", {})]
+    if pc:
+        fitted(a2, [r["boxes"] for r in pc], [r["compiled"]["us"] * 1e-3 for r in pc], "o",
+               "moreau-sim, compiled step" + (f": slope {s['pile_compiled']:.2f}" if s.get("pile_compiled") else ""))
     fitted(a2, [r["boxes"] for r in mp], [r["mujoco"]["us"] * 1e-3 for r in mp], "^",
            f"{NAMES['mujoco']}: slope {s['mujoco_pile']:.2f}")
     for r in data["boxes"]:
@@ -488,18 +518,25 @@ def markdown_table(data: dict) -> str:
                    f"{us} | {paths} | {r['python']['us']:.1f} | {mjs} | {r['build_s']:.3g} | "
                    f"{r['data_s']:.3g} | {_f(r.get('build_rss_mb'), '{:.0f}')} | {r['peak_rss_mb']:.0f} |")
     out += ["", "| boxes | nv | pairs (model) | contacts (median; last third) | Python step | last third | "
-            "MuJoCo (ncon) | ratio ours / MuJoCo | max energy gain J (E0) | max \\|u\\| at the end | build_model s | "
-            "make_data s | peak RSS MB |",
-            "|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|"]
+            "compiled step (paths; same bits as Python) | MuJoCo (ncon) | ratio ours / MuJoCo (Python; compiled) | "
+            "max energy gain J (E0) | max \\|u\\| at the end | build_model s | make_data s | peak RSS MB |",
+            "|---:|---:|---:|---|---:|---:|---|---:|---|---|---:|---:|---:|---:|"]
     for r in data["boxes"]:
         mj = r.get("mujoco")
         mjs = f"{mj['us']:.1f} ({mj['contacts']:.0f})" if mj else "–"
         if "skipped" in r or "failed" in r:
             why = r.get("skipped") or f"failed: {r['failed']}"
-            out.append(f"| {r['boxes']} | {6 * r['boxes']} | not built: {why} | | | | {mjs} | | | | | | |")
+            out.append(f"| {r['boxes']} | {6 * r['boxes']} | not built: {why} | | | | | {mjs} | | | | | | |")
             continue
+        c = r.get("compiled") or {"skipped": "not measured"}
+        if "us" in c:
+            paths = ", ".join(f"{k}: {v}" for k, v in sorted(c["paths"].items()))
+            cs = f"{c['us']:.0f} ({paths}; {'yes' if c['same_as_python'] else 'NO'})"
+            ratio = f"{r['us'] / mj['us']:.0f}; {c['us'] / mj['us']:.0f}"
+        else:
+            cs, ratio = f"– ({c['skipped']})", f"{r['us'] / mj['us']:.0f}; –"
         out.append(f"| {r['boxes']} | {r['nv']} | {r['pairs']} | {r['contacts']:.0f}; {r['contacts_last_third']:.0f} | "
-                   f"{r['us']:.0f} | {r['us_last_third']:.0f} | {mjs} | {r['us'] / mj['us']:.0f} | "
+                   f"{r['us']:.0f} | {r['us_last_third']:.0f} | {cs} | {mjs} | {ratio} | "
                    f"{r['max_energy_gain']:.2g} ({r['energy0']:.3g}) | {r['final_max_speed']:.2g} | "
                    f"{r['build_s']:.3g} | {r['data_s']:.3g} | {r['peak_rss_mb']:.0f} |")
     out += ["", f"Fitted log-log slopes: per step against contacts, beads "
@@ -517,7 +554,8 @@ def _pile_slopes(data: dict, s: dict) -> str:
     """The pile's slopes, or in words why there are none (fewer than two sizes ran)."""
     ran = [r["boxes"] for r in data["boxes"] if "skipped" not in r and "failed" not in r]
     if len(ran) >= 2:
-        return f"Pile, per step against boxes: ours {s['pile']:.2f}, MuJoCo {s['mujoco_pile']:.2f}."
+        c = f", compiled step {s['pile_compiled']:.2f}" if s.get("pile_compiled") is not None else ""
+        return f"Pile, per step against boxes: ours (Python step) {s['pile']:.2f}{c}, MuJoCo {s['mujoco_pile']:.2f}."
     failed = [str(r["boxes"]) for r in data["boxes"] if "failed" in r]
     return (f"Pile: no slope, {len(ran)} size ran" + (f"; {', '.join(failed)} boxes failed (the row says how)"
                                                        if failed else "") + ".")
@@ -593,7 +631,7 @@ def main(argv=None) -> int:
     data = {"meta": meta, "beads": beads, "boxes": boxes, "compiled_limit": compiled.MAX_CONTACTS,
             "target_slope": TARGET_SLOPE, "qp_alone": qp_rows}
     data["slopes"] = slopes(data)
-    print("slopes:", {k: round(v, 3) for k, v in data["slopes"].items()})
+    print("slopes:", {k: (None if v is None else round(v, 3)) for k, v in data["slopes"].items()})
     (out / "scaling.json").write_text(json.dumps(data, indent=2))
     plot(data, out / "scaling.png")
     print(f"wrote {out / 'scaling.json'} and {out / 'scaling.png'}")
