@@ -8,6 +8,7 @@ those do not apply; the loop is driver.drive (§9).
 
 from __future__ import annotations
 
+import math
 import weakref
 from dataclasses import dataclass, field
 from enum import Enum
@@ -137,6 +138,10 @@ def _extrapolator(model: Model, seq: tuple, ratios: tuple, lie: bool, rtol: floa
     return made[key]
 
 
+_NONE = np.zeros(0)
+_NONE.flags.writeable = False  # an _End's multipliers and margins without C (read-only, shared)
+
+
 class _End:
     """A step end: (t, q, u), the accelerations a, the multipliers of C, and of the watched
     features (watch + low) the gaps g, rates gamma and second derivatives gdd = W'a + drift."""
@@ -242,6 +247,9 @@ class AdaptiveRun:
         self.locate = None if self.is_box.any() else compiled_events.locator(
             model, check=_CHECK, check_basis=_CHECK_BASIS, quintic=QUINTIC, v_tol=V_TOL)
         self.neutral = pin.neutral(model.pin)
+        self.flat = not self.lie and not self.neutral.any()  # _size: q is its own difference from the neutral
+        self.any_box = bool(self.is_box.any())
+        self._fars: dict = {}  # _far's
         self.h_fix = model.options.dt
         state = state or initial_state(model, data)
         self.s = Carried(State(float(state.t), np.array(state.q, float), np.array(state.u, float)), float(state.t),
@@ -297,19 +305,37 @@ class AdaptiveRun:
         q1 = pin.integrate(self.pm, q0, y[:nv]) if self.lie else q0 + y[:nv]
         return q1, y[nv:].copy(), y - rows[-1][-2]
 
-    def _error(self, q0, u0, q1, u1, d) -> float:
-        z0 = np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q0), u0)))
-        z1 = np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q1), u1)))
-        sc = self.atol + self.rtol * np.maximum(z0, z1)
-        z = d / sc
-        return float(np.sqrt(ordered(z, z) / len(z)))  # the RMS, summed in index order (§2.8)
+    def _size(self, q, u) -> np.ndarray:
+        """|(pin.difference(neutral, q), u)|, the error test's scale of a step end (§8). On a vector space (no joint
+        with nq != nv) whose neutral is 0 that difference is q - 0 elementwise: q's own floats but the sign of a zero,
+        which the absolute value drops."""
+        if self.flat:
+            return np.abs(np.concatenate((q, u)))
+        return np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q), u)))
+
+    def _error(self, z0, q1, u1, d) -> float:
+        """The error estimate d of a step from a point of scale z0 (_size) to (q1, u1), in units of the tolerance:
+        the RMS of d / (atol + rtol max(z0, z1)), summed in index order (§2.8: Python's sum adds in order from its
+        first term, as sums.ordered does)."""
+        z = d / (self.atol + self.rtol * np.maximum(z0, self._size(q1, u1)))
+        if not len(z):
+            return math.nan
+        return math.sqrt((sum((z * z).tolist()) + 0.0) / len(z))
+
+    def _far(self, k: int) -> np.ndarray:
+        """_End.near of k compiled features (no box among them: all False), made once per k and read-only."""
+        got = self._fars.get(k)
+        if got is None:
+            got = self._fars[k] = np.zeros(k, bool)
+            got.flags.writeable = False
+        return got
 
     def _end(self, t, q, u, C, idx) -> _End:
         pg = self.rules.gaps.compiled
         if pg is not None and not C and idx:  # free flight, compiled features: the same floats
             self.s.ev.nfev += 1  # (dynamics counts its calls)
-            a, g, gamma, gdd = pg.end(q, u, [int(i) for i in idx])
-            return _End(t, q, u, a, np.zeros(0), g, gamma, gdd, np.zeros(0), np.zeros(len(idx), bool))
+            a, g, gamma, gdd = pg.end(q, u, idx)
+            return _End(t, q, u, a, _NONE, g, gamma, gdd, _NONE, self._far(len(idx)))
         a, lam, fc = dynamics(self.rules, self.s.ev, q, u, C)
         margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
         if idx:
@@ -491,12 +517,14 @@ class AdaptiveRun:
         t, q, u, t_end = self.s.state.t, self.s.state.q, self.s.state.u, self.t_end
         C, watch, low = self.s.C, self.s.watch, self.s.low
         e0, H = self.s.e0, self.s.H
+        z0 = self._size(q, u)
+        limit = min(self.max_step, self._rise_limit(e0, len(watch)), self._box_limit(e0),
+                    thin_limit(self.rules, u, e0.a))  # (functions of the step's start)
         while True:
             self.s.t = t
-            h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)), self._box_limit(e0),
-                    thin_limit(self.rules, u, e0.a))
+            h = min(H, limit, t_end - t)
             q1, u1, d = self._step(q, u, h, C)
-            err = self._error(q, u, q1, u1, d)
+            err = self._error(z0, q1, u1, d)
             if not np.isfinite(err):  # an overflow (or a failed library call): no step size helps
                 raise SimulationError(f"the error estimate of an extrapolated step of {h:.3g} s is non-finite")
             if err <= 1.0:
@@ -579,6 +607,8 @@ class AdaptiveRun:
     def _rise_limit(self, e0: _End, nw: int) -> float:
         """While a feature within G_RES of contact rises, steps stay below half its time to apex
         (its rise and fall must not fit in one step)."""
+        if nw >= len(e0.gamma):  # none within G_RES
+            return np.inf
         gam, gdd = e0.gamma[nw:], e0.gdd[nw:]
         up = (gam > V_TOL) & (gdd < 0)
         return float(np.min(0.5 * gam[up] / -gdd[up])) if up.any() else np.inf
@@ -587,7 +617,7 @@ class AdaptiveRun:
         """While two boxes' bounding spheres overlap, no point moves more than BOX_TRAVEL of the
         smallest half side in a step: the dense checks of their gaps (_first_event) then see a
         corner's or an edge's passage through a face."""
-        if not e0.near.any():
+        if not self.any_box or not e0.near.any():
             return np.inf
         v = float(np.abs(e0.u).max()) * self.model.reach
         return BOX_TRAVEL * self.box_half / v if v > 0.0 else np.inf
