@@ -497,8 +497,13 @@ class AdaptiveRun:
             self.s.landings += 1
             if feature is None:
                 break
-            fs = features(self.rules, self.s.ev, q1, u1, [feature])
-            g, gam = float(fs.g[0]), float(fs.gamma[0])
+            pg = self.rules.gaps.compiled
+            if pg is None:
+                fs = features(self.rules, self.s.ev, q1, u1, [feature])
+                g, gam = float(fs.g[0]), float(fs.gamma[0])
+            else:  # the compiled features' (g, W, drift, gamma), as features() would wrap them
+                gs, _, _, gams = pg.features(q1, u1, [int(feature)], True)
+                g, gam = float(gs[0]), float(gams[0])
             if abs(g) <= G_LAND or gam >= 0.0:
                 break
             H -= g / gam
@@ -582,19 +587,21 @@ class AdaptiveRun:
         """The decisions at an event (or the start, or back from fixed steps); the phase's sets."""
         t, q, u = self.s.state.t, self.s.state.q, self.s.state.u
         self.s.t = t
-        u, C, shadow, records, work = resolve(self.rules, self.s.ev, t, q, u, self.s.released)
-        self.s.state = State(t, q, u)
+        res = resolve(self.rules, self.s.ev, t, q, u, self.s.released)
+        self.s.state = State(t, q, res.u)
         self.s.released = frozenset()
-        self._phase(C, shadow)
+        self._phase(res.C, res.shadow, g=res.g)
+        records, work = res.records, res.work
         self.s.mode = _Mode.PHASE
         return records, work
 
-    def _phase(self, C, shadow, low=None, watch=None) -> None:
+    def _phase(self, C, shadow, low=None, watch=None, g=None) -> None:
         """The persistent set C, the watched features (watch; low: within G_RES of contact at the
-        phase's start, watched by their rise and return) and the step end e0 at the current state."""
+        phase's start, watched by their rise and return) and the step end e0 at the current state;
+        g: the gaps of all features there where known (event_rules.Resolution.g)."""
         t, q, u = self.s.state.t, self.s.state.q, self.s.state.u
         if low is None:
-            free, _, low = phase_sets(self.rules, self.s.ev, q, u, C, shadow)
+            free, _, low = phase_sets(self.rules, self.s.ev, q, u, C, shadow, g=g)
             watch = [i for i in free if i not in low]
         self.s.C, self.s.shadow, self.s.low, self.s.watch = tuple(C), tuple(shadow), list(low), list(watch)
         self.s.e0 = self._end(t, q, u, C, watch + low)
@@ -609,9 +616,10 @@ class AdaptiveRun:
         (its rise and fall must not fit in one step)."""
         if nw >= len(e0.gamma):  # none within G_RES
             return np.inf
-        gam, gdd = e0.gamma[nw:], e0.gdd[nw:]
-        up = (gam > V_TOL) & (gdd < 0)
-        return float(np.min(0.5 * gam[up] / -gdd[up])) if up.any() else np.inf
+        # on Python floats: the same IEEE operations as numpy's, (0.5 gamma) / -gdd, at a fraction of their cost
+        up = [0.5 * gam / -gdd for gam, gdd in zip(e0.gamma[nw:].tolist(), e0.gdd[nw:].tolist())
+              if gam > V_TOL and gdd < 0]
+        return min(up) if up else np.inf
 
     def _box_limit(self, e0: _End) -> float:
         """While two boxes' bounding spheres overlap, no point moves more than BOX_TRAVEL of the

@@ -131,13 +131,15 @@ class EventState:
 class Resolution(NamedTuple):
     """resolve()'s decisions at an event: u (after the impact, if any), C (the persistent
     features), shadow (duplicates of C's rows), records (the impact to record, protocol.Impact),
-    work (its contact work [J])."""
+    work (its contact work [J]), g (the gaps of all features at q where they are functions of q
+    alone, the compiled features': phase_sets takes them; else None)."""
 
     u: np.ndarray
     C: tuple
     shadow: tuple
     records: tuple
     work: float
+    g: np.ndarray | None = None
 
 
 def features(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, idx=None, rows: bool = True) -> FeatureState:
@@ -145,12 +147,16 @@ def features(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, idx=None, r
     return r.gaps.features(q, u, idx, rows, faces=st.faces)
 
 
-def phase_sets(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, C, shadow, opened=frozenset()):
+def phase_sets(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, C, shadow, opened=frozenset(), g=None):
     """The features a phase starting at (q, u) with the persistent set C watches: (free, g0, low),
     free: neither in C nor shadows of it, g0 their gaps, low: those within G_RES / 2 of contact
-    (watched by their rise and return, not their gap; `opened`, whose gaps just jumped open, never)."""
+    (watched by their rise and return, not their gap; `opened`, whose gaps just jumped open, never).
+    g: the gaps of all features at q where already known (Resolution.g: the same floats)."""
     free = [i for i in range(len(r.feats)) if i not in C and i not in shadow]
-    g0 = features(r, st, q, u, free, rows=False).g if free else np.zeros(0)
+    if not free:
+        g0 = np.zeros(0)
+    else:
+        g0 = features(r, st, q, u, free, rows=False).g if g is None else g[free]
     low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES and i not in opened]
     return free, g0, low
 
@@ -187,8 +193,15 @@ def _redundant(st: EventState, C: tuple, W: np.ndarray) -> bool:
     decided once per set (st.redundant)."""
     redundant = st.redundant.get(C)
     if redundant is None:
-        redundant = st.redundant[C] = bool(np.linalg.matrix_rank(W) < len(C))
+        redundant = st.redundant[C] = _rank(W) < len(C)
     return redundant
+
+
+def _rank(W: np.ndarray) -> int:
+    """np.linalg.matrix_rank(W) of a 2-d W with its default tolerance (the same SVD and the same test), without
+    its wrapper's cost: the singular values above their largest times max(W.shape) times the machine epsilon."""
+    S = np.linalg.svd(W, compute_uv=False)
+    return int(np.count_nonzero(S > S.max() * (max(W.shape) * np.finfo(S.dtype).eps))) if S.size else 0
 
 
 def _solve(G: np.ndarray, b: np.ndarray, redundant: bool) -> np.ndarray:
@@ -220,8 +233,9 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
     # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding and drift) does
     inside = fs.margin > -0.5 * G_REGION
     touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL) & inside) if i not in released]
+    g = fs.g if r.gaps.compiled is not None else None  # functions of q alone (the compiled kinds)
     if not touching:
-        return Resolution(u, (), (), records, work)
+        return Resolution(u, (), (), records, work, g)
     # distinct rows only (the front and back corners of a planar block repeat each other)
     keep, shadow = [], []
     scale = 1e-12 * (1.0 + np.abs(fs.W).max())
@@ -260,7 +274,7 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
             u = res.v
     A = _carrying(r, st, q, u, C, keep, lam, fs, Minv, IDLE_TOL * acc_scale)
     shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in A))
-    return Resolution(u, A, shadow, records, work)
+    return Resolution(u, A, shadow, records, work, g)
 
 
 def _carrying(r: Rules, st: EventState, q, u, C: tuple, keep: list, lam: np.ndarray, fs: FeatureState, Minv,
