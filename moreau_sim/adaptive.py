@@ -142,6 +142,40 @@ _NONE = np.zeros(0)
 _NONE.flags.writeable = False  # an _End's multipliers and margins without C (read-only, shared)
 
 
+class _Static:
+    """What an adaptive run reads of its model and features alone, made once per model (_static): lie (a joint with
+    nq != nv), neutral (pin.neutral, read-only), flat (_size: a vector space whose neutral is 0), is_box (which
+    features are box pairs'), any_box, box_half (the smallest half side of their boxes [m]), far (k -> _End.near of
+    k compiled features, AdaptiveRun._far)."""
+
+    __slots__ = ("feats", "lie", "neutral", "flat", "is_box", "any_box", "box_half", "far")
+
+    def __init__(self, model: Model, feats: tuple):
+        pm = model.pin
+        self.feats = feats
+        self.lie = any(pm.joints[j].nq != pm.joints[j].nv for j in range(1, pm.njoints))
+        self.neutral = pin.neutral(pm)
+        self.neutral.flags.writeable = False
+        self.flat = not self.lie and not self.neutral.any()
+        self.is_box = np.array([f.box is not None for f in feats], bool)
+        self.is_box.flags.writeable = False
+        self.any_box = bool(self.is_box.any())
+        self.box_half = min([min(f.box.a.half, f.box.b.half) for f in feats if f.box is not None], default=np.inf)
+        self.far: dict = {}
+
+
+_STATICS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> _Static of its run's features
+
+
+def _static(model: Model, feats: tuple) -> _Static:
+    """The _Static of `model` on `feats`, made once per model and features (a model is never modified after
+    build_model; its runs share it: nothing in it is written to but far's entries, each made once)."""
+    got = _STATICS.get(model)
+    if got is None or got.feats is not feats:
+        got = _STATICS[model] = _Static(model, feats)
+    return got
+
+
 class _End:
     """A step end: (t, q, u), the accelerations a, the multipliers of C, and of the watched
     features (watch + low) the gaps g, rates gamma and second derivatives gdd = W'a + drift."""
@@ -230,26 +264,22 @@ class AdaptiveRun:
         self.rules = make_rules(model, data, e, feats)  # what the event rules read of the model (event_rules.py)
         self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
         self.pm, self.pd, self.nv, self.zero = model.pin, data.pin, model.nv, np.zeros(model.nv)
-        self.is_box = np.array([f.box is not None for f in self.feats], bool)
-        self.box_half = min([min(f.box.a.half, f.box.b.half) for f in self.feats if f.box is not None], default=np.inf)
+        st = _static(model, self.feats)
+        self.is_box, self.box_half, self.any_box, self.lie = st.is_box, st.box_half, st.any_box, st.lie
+        self.neutral, self.flat, self._fars = st.neutral, st.flat, st.far
         if order not in ORDERS:
             raise ValueError(f"order must be one of {ORDERS}, got {order!r}")
         self.rtol, self.atol, self.order, self.max_step, self.max_events = rtol, atol, order, max_step, max_events
         self.seq = tuple(range(1, order // 2 + 1))
         seq = self.seq  # the extrapolation's divisors: ratios[j][m - 1] = (seq[j] / seq[j - m])^2 - 1
         self.ratios = tuple(tuple((seq[j] / seq[j - m]) ** 2 - 1.0 for m in range(1, j + 1)) for j in range(len(seq)))
-        self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         # the compiled _step without a persistent set (src/events.hpp; None: the Python one, step_impl = "python")
         self.extrapolate = _extrapolator(model, self.seq, self.ratios, self.lie, rtol, atol)
         # the samples on the dense output and their figures, a step's at once (None: dense() one by one)
         self.sampler = compiled_events.sampler(model, data, lie=self.lie, basis=QUINTIC)
         # the event location in free flight without box features (src/locate.hpp; None: the Python one)
-        self.locate = None if self.is_box.any() else compiled_events.locator(
+        self.locate = None if self.any_box else compiled_events.locator(
             model, check=_CHECK, check_basis=_CHECK_BASIS, quintic=QUINTIC, v_tol=V_TOL)
-        self.neutral = pin.neutral(model.pin)
-        self.flat = not self.lie and not self.neutral.any()  # _size: q is its own difference from the neutral
-        self.any_box = bool(self.is_box.any())
-        self._fars: dict = {}  # _far's
         self.h_fix = model.options.dt
         state = state or initial_state(model, data)
         self.s = Carried(State(float(state.t), np.array(state.q, float), np.array(state.u, float)), float(state.t),

@@ -272,27 +272,28 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
             if not res.ok:
                 raise SimulationError(f"the contact QP failed ({res.status}) at t = {t:.12g} s")
             u = res.v
-    A = _carrying(r, st, q, u, C, keep, lam, fs, Minv, IDLE_TOL * acc_scale)
+    A = _carrying(r, st, q, u, C, keep, lam, fs, Minv, IDLE_TOL * acc_scale, MiW if C else None)
     shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in A))
     return Resolution(u, A, shadow, records, work, g)
 
 
 def _carrying(r: Rules, st: EventState, q, u, C: tuple, keep: list, lam: np.ndarray, fs: FeatureState, Minv,
-              tol: float) -> tuple:
+              tol: float, MiW: np.ndarray | None = None) -> tuple:
     """The contacts of the touching set C that carry something (docs/theory.md §7, "Idle contacts"):
     C without the idle ones, whose force changes their own relative acceleration by at most tol
     [m/s^2] (lam_i w_i'M^-1 w_i <= tol, tol = IDLE_TOL scaled), provided that C's rows are
     independent (its forces unique) and that under the phase's own
     accelerations on the rest (dynamics) none of them accelerates towards contact by more than
     tol; else C. keep, lam: the acceleration QP's rows and multipliers [N]; fs: all features at
-    (q, u); drops the idle vertices' faces from st.faces."""
+    (q, u); MiW: M^-1 W_C where known (resolve's); drops the idle vertices' faces from st.faces."""
     if not C:
         return C
     W = fs.W[:, list(C)]
     if _redundant(st, C, W):
         return C  # dependent rows: their forces are not unique, a zero multiplier says nothing
     at = {i: k for k, i in enumerate(keep)}
-    wMw = np.add.accumulate(W * ordered(Minv, W), axis=0)[-1] + 0.0  # w_i'M^-1 w_i, summed as sums.ordered sums
+    MiW = ordered(Minv, W) if MiW is None else MiW
+    wMw = np.add.accumulate(W * MiW, axis=0)[-1] + 0.0  # w_i'M^-1 w_i, summed as sums.ordered sums
     idle = lam[[at[i] for i in C]] * wMw <= tol
     if not idle.any():
         return C

@@ -196,7 +196,6 @@ class Gaps:
         self.model, self.data, self.feats, self.gap_tol = model, data, feats, gap_tol
         self.pm, self.pd = model.pin, data.pin
         self.nv, self.zero = model.nv, np.zeros(model.nv)
-        self._pair_names = {p.index: p.name for p in model.pairs}
         # the same features compiled (compiled_events.feature_gaps; None: these below); set by event_rules.make_rules
         self.compiled = None
         self._all = list(range(len(feats)))  # idx None: every feature
@@ -335,7 +334,7 @@ class Gaps:
         if not rows:
             return g, None, 0.0, exact, None
         if g <= self.gap_tol and (sig < SIN_FLAT or excess > self.gap_tol):
-            name = self._pair_names[f.pair]
+            name = next(p.name for p in self.model.pairs if p.index == f.pair)
             where = ("a cap lies flat on the plane (|sin| = %.3g < %g): the rim's gap is not differentiable there"
                      % (sig, SIN_FLAT)) if sig < SIN_FLAT else (
                 "the rim touches the box %.3g m beyond the sides of its face: at the box's edge the face-plane gap "
