@@ -232,7 +232,7 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
     # a box feature past the end of its region (margin < -G_REGION/2: a phase ends at -G_REGION, docs/theory.md
     # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding and drift) does
     inside = fs.margin > -0.5 * G_REGION
-    touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL) & inside) if i not in released]
+    touching = [i for i in (closed & (np.abs(fs.gamma) <= V_TOL) & inside).nonzero()[0] if i not in released]
     g = fs.g if r.gaps.compiled is not None else None  # functions of q alone (the compiled kinds)
     if not touching:
         return Resolution(u, (), (), records, work, g)
@@ -366,7 +366,7 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
     pm, pd = model.pin, data.pin
     # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
     # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
-    closed_pairs = {r.feats[i].pair for i in np.flatnonzero(fs.g <= r.gap_tol)}
+    closed_pairs = {r.feats[i].pair for i in (fs.g <= r.gap_tol).nonzero()[0]}
     # compiled where it applies (src/impact.hpp: the same floats; no missed feature), else Python
     if r.impact is not None and r.impact.takes(next(_missed_candidates(r, fs), None) is None):
         got = r.impact(q, u, r.e, t, st.last_impact, fs, closed_pairs)
