@@ -360,11 +360,13 @@ class AdaptiveRun:
             got.flags.writeable = False
         return got
 
-    def _end(self, t, q, u, C, idx) -> _End:
+    def _end(self, t, q, u, C, idx, end=None) -> _End:
+        """The step end at (t, q, u) with the persistent set C, of the watched features idx; end: their compiled
+        (a, g, gamma, gdd) at (q, u) where already computed (_land's)."""
         pg = self.rules.gaps.compiled
         if pg is not None and not C and idx:  # free flight, compiled features: the same floats
             self.s.ev.nfev += 1  # (dynamics counts its calls)
-            a, g, gamma, gdd = pg.end(q, u, idx)
+            a, g, gamma, gdd = pg.end(q, u, idx) if end is None else end
             return _End(t, q, u, a, _NONE, g, gamma, gdd, _NONE, self._far(len(idx)))
         a, lam, fc = dynamics(self.rules, self.s.ev, q, u, C)
         margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
@@ -517,27 +519,29 @@ class AdaptiveRun:
                     best = (tau, "release", int(k))
         return best
 
-    def _land(self, e0: _End, H: float, C, feature: int | None):
-        """Re-take the step from e0 with size H onto the event; for a gap, Newton on g = 0."""
-        hs, q1, u1 = 0.0, e0.q, e0.u  # the last step taken: its size and end
-        for _ in range(LAND_ITER if feature is not None else 1):
+    def _land(self, e0: _End, H: float, C, watched: list, k: int | None):
+        """Re-take the step from e0 with size H onto the event; for a gap (watched[k]), Newton on g = 0.
+        Returns (size, q1, u1, end): end, in free flight on compiled features, (a, g, gamma, gdd) of `watched` at
+        (q1, u1) as _end computes them (the iterations' own: their g and gamma are features()'s), else None."""
+        hs, q1, u1, end = 0.0, e0.q, e0.u, None  # the last step taken: its size and end
+        pg = self.rules.gaps.compiled if not C else None
+        for _ in range(LAND_ITER if k is not None else 1):
             if H <= 0.0:
                 break
             hs, (q1, u1, _) = H, self._step(e0.q, e0.u, H, C)
             self.s.landings += 1
-            if feature is None:
+            if k is None:
                 break
-            pg = self.rules.gaps.compiled
             if pg is None:
-                fs = features(self.rules, self.s.ev, q1, u1, [feature])
+                fs = features(self.rules, self.s.ev, q1, u1, [watched[k]])
                 g, gam = float(fs.g[0]), float(fs.gamma[0])
-            else:  # the compiled features' (g, W, drift, gamma), as features() would wrap them
-                gs, _, _, gams = pg.features(q1, u1, [int(feature)], True)
-                g, gam = float(gs[0]), float(gams[0])
+            else:
+                end = pg.end(q1, u1, watched)
+                g, gam = float(end[1][k]), float(end[2][k])
             if abs(g) <= G_LAND or gam >= 0.0:
                 break
             H -= g / gam
-        return hs, q1, u1
+        return hs, q1, u1, end
 
     # ---- the run: one step() per accepted point ---------------------------------------------
     def step(self, t_sample: float = np.inf) -> Report:
@@ -589,10 +593,9 @@ class AdaptiveRun:
                 self.s.e0 = self._end(t1, q1, u1, C, self.s.watch + self.s.low)
             return Report(Status.RUNNING, t1, self.s.state, records, work, segments=(seg,))
         tau, kind, k = ev
-        feature = (watch + low)[k] if kind == "gap" else None
-        hs, q1, u1 = self._land(e0, tau * h, C, feature)
+        hs, q1, u1, end = self._land(e0, tau * h, C, watch + low, k if kind == "gap" else None)
         hs = min(hs, t_end - t)
-        e1 = self._end(t + hs, q1, u1, C, watch + low)
+        e1 = self._end(t + hs, q1, u1, C, watch + low, end)
         segs = (self._segment(e0, e1, len(C), False),)
         self.s.stuck = self.s.stuck + 1 if hs < 1e-13 else 0
         t = t + hs
