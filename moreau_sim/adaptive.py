@@ -306,8 +306,11 @@ class AdaptiveRun:
         if not C and not self.model.velocity_bias:
             u1 = free_velocity(self.model, self.data, q_m, u, h, Bias.MIDPOINT)
         else:
+            at_q: dict = {}  # (the fixed point keeps q_m: what depends on it alone is computed once, dynamics)
+
             def acc(v):
-                return dynamics(self.rules, self.s.ev, q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
+                return dynamics(self.rules, self.s.ev, q_m, v, C, at_q)[0] if C else pin.aba(pm, self.pd, q_m, v,
+                                                                                               self.zero)
             tol = FIXED_POINT * (self.atol + self.rtol * float(np.abs(u).max()))
             u1 = midpoint_fixed_point(acc, u, h, u + h * acc(u), tol)
         return pin.integrate(pm, q_m, 0.5 * h * u1), u1

@@ -161,19 +161,27 @@ def phase_sets(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, C, shadow
     return free, g0, low
 
 
-def dynamics(r: Rules, st: EventState, q, u, C):
+def dynamics(r: Rules, st: EventState, q, u, C, at_q: dict | None = None):
     """(a, lam, fs): free accelerations (ABA) plus the bilateral forces of the persistent set C,
     their multipliers, and C's FeatureState (None without C). Counts the call in st.nfev (and
-    st.constrained with C) and records in st.redundant whether a new C's rows are dependent."""
+    st.constrained with C) and records in st.redundant whether a new C's rows are dependent.
+    at_q: where the caller calls again at the same q and C (a midpoint's fixed point in u), a dict
+    that keeps what depends on q alone (M^-1, M^-1 W_C, W_C'M^-1 W_C: the same floats) from the
+    first call for the next ones."""
     st.nfev += 1
     a = pin.aba(r.model.pin, r.data.pin, q, u, r.zero).copy()
     if not C:
         return a, np.zeros(0), None
     st.constrained += 1
     fs = features(r, st, q, u, C)
-    Minv = pin.computeMinverse(r.model.pin, r.data.pin, q)
-    MiW = ordered(Minv, fs.W)
-    G = ordered(fs.W.T, MiW)
+    if at_q:
+        MiW, G = at_q["MiW"], at_q["G"]
+    else:
+        Minv = pin.computeMinverse(r.model.pin, r.data.pin, q)
+        MiW = ordered(Minv, fs.W)
+        G = ordered(fs.W.T, MiW)
+        if at_q is not None:
+            at_q["MiW"], at_q["G"] = MiW, G
     rhs = -(ordered(fs.W.T, a) + fs.drift)
     redundant = _redundant(st, C, fs.W)
 
