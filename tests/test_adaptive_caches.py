@@ -96,13 +96,13 @@ def test_a_models_caches_go_with_it_and_two_models_do_not_share():
     assert sa is not sb and sa.feats is ra.feats and sb.feats is rb.feats and sa.feats is not sb.feats
     assert compiled_events._FEATURE_ARGS[a] is not compiled_events._FEATURE_ARGS[b]
     assert run_of(a).flat is ra.flat and adaptive._STATICS[a] is sa  # made once per model
-    n_static, n_args = len(adaptive._STATICS), len(compiled_events._FEATURE_ARGS)
     gone = weakref.ref(a)
     del a, ra, sa
     gc.collect()
-    assert gone() is None  # (a finished ms.simulate run hands its Data to invariants._SPARE, which holds its model)
-    assert len(adaptive._STATICS) == n_static - 1 and len(compiled_events._FEATURE_ARGS) == n_args - 1
-    assert adaptive._STATICS[b] is sb and rb.step().t > 0.0
+    # (the caches are weakly keyed: their entries of a go with it; a finished ms.simulate run would keep a alive
+    # through the Data it hands to invariants._SPARE, which refers to its model)
+    assert gone() is None
+    assert adaptive._STATICS[b] is sb and b in compiled_events._FEATURE_ARGS and rb.step().t > 0.0
 
 
 def test_shared_arrays_are_read_only():
