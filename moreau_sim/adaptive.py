@@ -8,6 +8,7 @@ those do not apply; the loop is driver.drive (§9).
 
 from __future__ import annotations
 
+import math
 import weakref
 from dataclasses import dataclass, field
 from enum import Enum
@@ -137,6 +138,44 @@ def _extrapolator(model: Model, seq: tuple, ratios: tuple, lie: bool, rtol: floa
     return made[key]
 
 
+_NONE = np.zeros(0)
+_NONE.flags.writeable = False  # an _End's multipliers and margins without C (read-only, shared)
+
+
+class _Static:
+    """What an adaptive run reads of its model and features alone, made once per model (_static): lie (a joint with
+    nq != nv), neutral (pin.neutral, read-only), flat (_size: a vector space whose neutral is 0), is_box (which
+    features are box pairs'), any_box, box_half (the smallest half side of their boxes [m]), far (k -> _End.near of
+    k compiled features, AdaptiveRun._far)."""
+
+    __slots__ = ("feats", "lie", "neutral", "flat", "is_box", "any_box", "box_half", "far")
+
+    def __init__(self, model: Model, feats: tuple):
+        pm = model.pin
+        self.feats = feats
+        self.lie = any(pm.joints[j].nq != pm.joints[j].nv for j in range(1, pm.njoints))
+        self.neutral = pin.neutral(pm)
+        self.neutral.flags.writeable = False
+        self.flat = not self.lie and not self.neutral.any()
+        self.is_box = np.array([f.box is not None for f in feats], bool)
+        self.is_box.flags.writeable = False
+        self.any_box = bool(self.is_box.any())
+        self.box_half = min([min(f.box.a.half, f.box.b.half) for f in feats if f.box is not None], default=np.inf)
+        self.far: dict = {}
+
+
+_STATICS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> _Static of its run's features
+
+
+def _static(model: Model, feats: tuple) -> _Static:
+    """The _Static of `model` on `feats`, made once per model and features (a model is never modified after
+    build_model; its runs share it: nothing in it is written to but far's entries, each made once)."""
+    got = _STATICS.get(model)
+    if got is None or got.feats is not feats:
+        got = _STATICS[model] = _Static(model, feats)
+    return got
+
+
 class _End:
     """A step end: (t, q, u), the accelerations a, the multipliers of C, and of the watched
     features (watch + low) the gaps g, rates gamma and second derivatives gdd = W'a + drift."""
@@ -225,23 +264,22 @@ class AdaptiveRun:
         self.rules = make_rules(model, data, e, feats)  # what the event rules read of the model (event_rules.py)
         self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
         self.pm, self.pd, self.nv, self.zero = model.pin, data.pin, model.nv, np.zeros(model.nv)
-        self.is_box = np.array([f.box is not None for f in self.feats], bool)
-        self.box_half = min([min(f.box.a.half, f.box.b.half) for f in self.feats if f.box is not None], default=np.inf)
+        st = _static(model, self.feats)
+        self.is_box, self.box_half, self.any_box, self.lie = st.is_box, st.box_half, st.any_box, st.lie
+        self.neutral, self.flat, self._fars = st.neutral, st.flat, st.far
         if order not in ORDERS:
             raise ValueError(f"order must be one of {ORDERS}, got {order!r}")
         self.rtol, self.atol, self.order, self.max_step, self.max_events = rtol, atol, order, max_step, max_events
         self.seq = tuple(range(1, order // 2 + 1))
         seq = self.seq  # the extrapolation's divisors: ratios[j][m - 1] = (seq[j] / seq[j - m])^2 - 1
         self.ratios = tuple(tuple((seq[j] / seq[j - m]) ** 2 - 1.0 for m in range(1, j + 1)) for j in range(len(seq)))
-        self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         # the compiled _step without a persistent set (src/events.hpp; None: the Python one, step_impl = "python")
         self.extrapolate = _extrapolator(model, self.seq, self.ratios, self.lie, rtol, atol)
         # the samples on the dense output and their figures, a step's at once (None: dense() one by one)
         self.sampler = compiled_events.sampler(model, data, lie=self.lie, basis=QUINTIC)
         # the event location in free flight without box features (src/locate.hpp; None: the Python one)
-        self.locate = None if self.is_box.any() else compiled_events.locator(
+        self.locate = None if self.any_box else compiled_events.locator(
             model, check=_CHECK, check_basis=_CHECK_BASIS, quintic=QUINTIC, v_tol=V_TOL)
-        self.neutral = pin.neutral(model.pin)
         self.h_fix = model.options.dt
         state = state or initial_state(model, data)
         self.s = Carried(State(float(state.t), np.array(state.q, float), np.array(state.u, float)), float(state.t),
@@ -268,8 +306,11 @@ class AdaptiveRun:
         if not C and not self.model.velocity_bias:
             u1 = free_velocity(self.model, self.data, q_m, u, h, Bias.MIDPOINT)
         else:
+            at_q: dict = {}  # (the fixed point keeps q_m: what depends on it alone is computed once, dynamics)
+
             def acc(v):
-                return dynamics(self.rules, self.s.ev, q_m, v, C)[0] if C else pin.aba(pm, self.pd, q_m, v, self.zero)
+                return dynamics(self.rules, self.s.ev, q_m, v, C, at_q)[0] if C else pin.aba(pm, self.pd, q_m, v,
+                                                                                               self.zero)
             tol = FIXED_POINT * (self.atol + self.rtol * float(np.abs(u).max()))
             u1 = midpoint_fixed_point(acc, u, h, u + h * acc(u), tol)
         return pin.integrate(pm, q_m, 0.5 * h * u1), u1
@@ -297,19 +338,39 @@ class AdaptiveRun:
         q1 = pin.integrate(self.pm, q0, y[:nv]) if self.lie else q0 + y[:nv]
         return q1, y[nv:].copy(), y - rows[-1][-2]
 
-    def _error(self, q0, u0, q1, u1, d) -> float:
-        z0 = np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q0), u0)))
-        z1 = np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q1), u1)))
-        sc = self.atol + self.rtol * np.maximum(z0, z1)
-        z = d / sc
-        return float(np.sqrt(ordered(z, z) / len(z)))  # the RMS, summed in index order (§2.8)
+    def _size(self, q, u) -> np.ndarray:
+        """|(pin.difference(neutral, q), u)|, the error test's scale of a step end (§8). On a vector space (no joint
+        with nq != nv) whose neutral is 0 that difference is q - 0 elementwise: q's own floats but the sign of a zero,
+        which the absolute value drops."""
+        if self.flat:
+            return np.abs(np.concatenate((q, u)))
+        return np.abs(np.concatenate((pin.difference(self.pm, self.neutral, q), u)))
 
-    def _end(self, t, q, u, C, idx) -> _End:
+    def _error(self, z0, q1, u1, d) -> float:
+        """The error estimate d of a step from a point of scale z0 (_size) to (q1, u1), in units of the tolerance:
+        the RMS of d / (atol + rtol max(z0, z1)), summed in index order (§2.8: Python's sum adds in order from its
+        first term, as sums.ordered does)."""
+        z = d / (self.atol + self.rtol * np.maximum(z0, self._size(q1, u1)))
+        if not len(z):
+            return math.nan
+        return math.sqrt((sum((z * z).tolist()) + 0.0) / len(z))
+
+    def _far(self, k: int) -> np.ndarray:
+        """_End.near of k compiled features (no box among them: all False), made once per k and read-only."""
+        got = self._fars.get(k)
+        if got is None:
+            got = self._fars[k] = np.zeros(k, bool)
+            got.flags.writeable = False
+        return got
+
+    def _end(self, t, q, u, C, idx, end=None) -> _End:
+        """The step end at (t, q, u) with the persistent set C, of the watched features idx; end: their compiled
+        (a, g, gamma, gdd) at (q, u) where already computed (_land's)."""
         pg = self.rules.gaps.compiled
         if pg is not None and not C and idx:  # free flight, compiled features: the same floats
             self.s.ev.nfev += 1  # (dynamics counts its calls)
-            a, g, gamma, gdd = pg.end(q, u, [int(i) for i in idx])
-            return _End(t, q, u, a, np.zeros(0), g, gamma, gdd, np.zeros(0), np.zeros(len(idx), bool))
+            a, g, gamma, gdd = pg.end(q, u, idx) if end is None else end
+            return _End(t, q, u, a, _NONE, g, gamma, gdd, _NONE, self._far(len(idx)))
         a, lam, fc = dynamics(self.rules, self.s.ev, q, u, C)
         margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
         if idx:
@@ -461,22 +522,29 @@ class AdaptiveRun:
                     best = (tau, "release", int(k))
         return best
 
-    def _land(self, e0: _End, H: float, C, feature: int | None):
-        """Re-take the step from e0 with size H onto the event; for a gap, Newton on g = 0."""
-        hs, q1, u1 = 0.0, e0.q, e0.u  # the last step taken: its size and end
-        for _ in range(LAND_ITER if feature is not None else 1):
+    def _land(self, e0: _End, H: float, C, watched: list, k: int | None):
+        """Re-take the step from e0 with size H onto the event; for a gap (watched[k]), Newton on g = 0.
+        Returns (size, q1, u1, end): end, in free flight on compiled features, (a, g, gamma, gdd) of `watched` at
+        (q1, u1) as _end computes them (the iterations' own: their g and gamma are features()'s), else None."""
+        hs, q1, u1, end = 0.0, e0.q, e0.u, None  # the last step taken: its size and end
+        pg = self.rules.gaps.compiled if not C else None
+        for _ in range(LAND_ITER if k is not None else 1):
             if H <= 0.0:
                 break
             hs, (q1, u1, _) = H, self._step(e0.q, e0.u, H, C)
             self.s.landings += 1
-            if feature is None:
+            if k is None:
                 break
-            fs = features(self.rules, self.s.ev, q1, u1, [feature])
-            g, gam = float(fs.g[0]), float(fs.gamma[0])
+            if pg is None:
+                fs = features(self.rules, self.s.ev, q1, u1, [watched[k]])
+                g, gam = float(fs.g[0]), float(fs.gamma[0])
+            else:
+                end = pg.end(q1, u1, watched)
+                g, gam = float(end[1][k]), float(end[2][k])
             if abs(g) <= G_LAND or gam >= 0.0:
                 break
             H -= g / gam
-        return hs, q1, u1
+        return hs, q1, u1, end
 
     # ---- the run: one step() per accepted point ---------------------------------------------
     def step(self, t_sample: float = np.inf) -> Report:
@@ -491,12 +559,14 @@ class AdaptiveRun:
         t, q, u, t_end = self.s.state.t, self.s.state.q, self.s.state.u, self.t_end
         C, watch, low = self.s.C, self.s.watch, self.s.low
         e0, H = self.s.e0, self.s.H
+        z0 = self._size(q, u)
+        limit = min(self.max_step, self._rise_limit(e0, len(watch)), self._box_limit(e0),
+                    thin_limit(self.rules, u, e0.a))  # (functions of the step's start)
         while True:
             self.s.t = t
-            h = min(H, self.max_step, t_end - t, self._rise_limit(e0, len(watch)), self._box_limit(e0),
-                    thin_limit(self.rules, u, e0.a))
+            h = min(H, limit, t_end - t)
             q1, u1, d = self._step(q, u, h, C)
-            err = self._error(q, u, q1, u1, d)
+            err = self._error(z0, q1, u1, d)
             if not np.isfinite(err):  # an overflow (or a failed library call): no step size helps
                 raise SimulationError(f"the error estimate of an extrapolated step of {h:.3g} s is non-finite")
             if err <= 1.0:
@@ -526,10 +596,9 @@ class AdaptiveRun:
                 self.s.e0 = self._end(t1, q1, u1, C, self.s.watch + self.s.low)
             return Report(Status.RUNNING, t1, self.s.state, records, work, segments=(seg,))
         tau, kind, k = ev
-        feature = (watch + low)[k] if kind == "gap" else None
-        hs, q1, u1 = self._land(e0, tau * h, C, feature)
+        hs, q1, u1, end = self._land(e0, tau * h, C, watch + low, k if kind == "gap" else None)
         hs = min(hs, t_end - t)
-        e1 = self._end(t + hs, q1, u1, C, watch + low)
+        e1 = self._end(t + hs, q1, u1, C, watch + low, end)
         segs = (self._segment(e0, e1, len(C), False),)
         self.s.stuck = self.s.stuck + 1 if hs < 1e-13 else 0
         t = t + hs
@@ -554,19 +623,21 @@ class AdaptiveRun:
         """The decisions at an event (or the start, or back from fixed steps); the phase's sets."""
         t, q, u = self.s.state.t, self.s.state.q, self.s.state.u
         self.s.t = t
-        u, C, shadow, records, work = resolve(self.rules, self.s.ev, t, q, u, self.s.released)
-        self.s.state = State(t, q, u)
+        res = resolve(self.rules, self.s.ev, t, q, u, self.s.released)
+        self.s.state = State(t, q, res.u)
         self.s.released = frozenset()
-        self._phase(C, shadow)
+        self._phase(res.C, res.shadow, g=res.g)
+        records, work = res.records, res.work
         self.s.mode = _Mode.PHASE
         return records, work
 
-    def _phase(self, C, shadow, low=None, watch=None) -> None:
+    def _phase(self, C, shadow, low=None, watch=None, g=None) -> None:
         """The persistent set C, the watched features (watch; low: within G_RES of contact at the
-        phase's start, watched by their rise and return) and the step end e0 at the current state."""
+        phase's start, watched by their rise and return) and the step end e0 at the current state;
+        g: the gaps of all features there where known (event_rules.Resolution.g)."""
         t, q, u = self.s.state.t, self.s.state.q, self.s.state.u
         if low is None:
-            free, _, low = phase_sets(self.rules, self.s.ev, q, u, C, shadow)
+            free, _, low = phase_sets(self.rules, self.s.ev, q, u, C, shadow, g=g)
             watch = [i for i in free if i not in low]
         self.s.C, self.s.shadow, self.s.low, self.s.watch = tuple(C), tuple(shadow), list(low), list(watch)
         self.s.e0 = self._end(t, q, u, C, watch + low)
@@ -579,15 +650,18 @@ class AdaptiveRun:
     def _rise_limit(self, e0: _End, nw: int) -> float:
         """While a feature within G_RES of contact rises, steps stay below half its time to apex
         (its rise and fall must not fit in one step)."""
-        gam, gdd = e0.gamma[nw:], e0.gdd[nw:]
-        up = (gam > V_TOL) & (gdd < 0)
-        return float(np.min(0.5 * gam[up] / -gdd[up])) if up.any() else np.inf
+        if nw >= len(e0.gamma):  # none within G_RES
+            return np.inf
+        # on Python floats: the same IEEE operations as numpy's, (0.5 gamma) / -gdd, at a fraction of their cost
+        up = [0.5 * gam / -gdd for gam, gdd in zip(e0.gamma[nw:].tolist(), e0.gdd[nw:].tolist())
+              if gam > V_TOL and gdd < 0]
+        return min(up) if up else np.inf
 
     def _box_limit(self, e0: _End) -> float:
         """While two boxes' bounding spheres overlap, no point moves more than BOX_TRAVEL of the
         smallest half side in a step: the dense checks of their gaps (_first_event) then see a
         corner's or an edge's passage through a face."""
-        if not e0.near.any():
+        if not self.any_box or not e0.near.any():
             return np.inf
         v = float(np.abs(e0.u).max()) * self.model.reach
         return BOX_TRAVEL * self.box_half / v if v > 0.0 else np.inf

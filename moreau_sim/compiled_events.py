@@ -9,6 +9,7 @@ event location, the persistent set at events and the constrained phases stay in 
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable
 
 import numpy as np
@@ -60,8 +61,18 @@ def sampler(model, data, *, lie: bool, basis) -> Callable | None:
     if sampler_unsupported(model, data, lie=lie) is not None:
         return None
     ds = compiled._module.DenseSampler(compiled._context(model, data).stepper, *compiled.forest_args(model, data),
-                                       [list(map(float, r)) for r in basis])
+                                       _rows(basis))
     return ds.samples
+
+
+_ROWS: list = []  # (basis, its rows as lists of floats): the last basis sampler() converted
+
+
+def _rows(basis) -> list:
+    """basis (a 2-d array) as DenseSampler takes it, rows of Python floats, converted once for the same array."""
+    if not _ROWS or _ROWS[0][0] is not basis:
+        _ROWS[:] = [(basis, [list(map(float, r)) for r in basis])]
+    return _ROWS[0][1]
 
 
 COMPILED_KINDS = {"point_plane": 0, "sphere_sphere": 1}  # the feature kinds FeatureGaps takes (src/adaptive.hpp)
@@ -74,14 +85,29 @@ def feature_gaps(model, data, feats):
     (a, g, gamma, gdd) as AdaptiveRun._end in free flight (a: the free accelerations, gdd = W'a + drift)."""
     if not feats or compiled.loop_refusal(model, "FeatureGaps", "the compiled gaps") is not None:
         return None
-    if any(f.kind not in COMPILED_KINDS or (f.kind == "point_plane" and f.joint_b != 0) for f in feats):
-        return None
-    return compiled._module.FeatureGaps(
-        model.pin, data.pin, [COMPILED_KINDS[f.kind] for f in feats], [int(f.joint_a) for f in feats],
-        [int(f.joint_b) for f in feats], np.array([f.p for f in feats], float).reshape(-1, 3),
-        np.array([f.n for f in feats], float).reshape(-1, 3), np.array([f.p_b for f in feats], float).reshape(-1, 3),
-        [float(f.d) for f in feats], [float(f.r) for f in feats], [float(f.r_b) for f in feats],
-        np.asarray(model.support_mask, float))
+    args = _feature_args(model, feats)
+    return None if args is None else compiled._module.FeatureGaps(model.pin, data.pin, *args)
+
+
+_FEATURE_ARGS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> (feats, FeatureGaps's arguments)
+
+
+def _feature_args(model, feats) -> tuple | None:
+    """FeatureGaps's arguments after (model, data) for `feats` (None: a kind it does not take), made once per model
+    and features (a model is never modified after build_model; the FeatureGaps itself is made per run: its Pinocchio
+    Data is the run's)."""
+    got = _FEATURE_ARGS.get(model)
+    if got is not None and got[0] is feats:
+        return got[1]
+    args = None
+    if all(f.kind in COMPILED_KINDS and (f.kind != "point_plane" or f.joint_b == 0) for f in feats):
+        args = ([COMPILED_KINDS[f.kind] for f in feats], [int(f.joint_a) for f in feats],
+                [int(f.joint_b) for f in feats], np.array([f.p for f in feats], float).reshape(-1, 3),
+                np.array([f.n for f in feats], float).reshape(-1, 3),
+                np.array([f.p_b for f in feats], float).reshape(-1, 3), [float(f.d) for f in feats],
+                [float(f.r) for f in feats], [float(f.r_b) for f in feats], np.asarray(model.support_mask, float))
+    _FEATURE_ARGS[model] = (feats, args)
+    return args
 
 
 class CompiledImpact:

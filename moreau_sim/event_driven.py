@@ -208,9 +208,10 @@ class EventDrivenRun:
         nv = self.nv
         t, q, u = self.s.state.t, self.s.state.q, self.s.state.u
         self.s.t = t
-        u, C, shadow, records, work = resolve(self.rules, self.s.ev, t, q, u, self.s.released)
+        res = resolve(self.rules, self.s.ev, t, q, u, self.s.released)
+        u, C, shadow, records, work = res.u, res.C, res.shadow, res.records, res.work
         # (a feature whose gap just jumped open is watched by its gap: it is at the jump, not near 0)
-        free, g0, low = phase_sets(self.rules, self.s.ev, q, u, C, shadow, self.s.opened)
+        free, g0, low = phase_sets(self.rules, self.s.ev, q, u, C, shadow, self.s.opened, g=res.g)
         near = {i for i, g in zip(free, g0) if 0.5 * G_RES <= g < G_DIP}
         qb = q.copy()
         events, tags = self._phase_events(qb, C, free, low, near)

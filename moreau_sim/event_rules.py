@@ -131,13 +131,15 @@ class EventState:
 class Resolution(NamedTuple):
     """resolve()'s decisions at an event: u (after the impact, if any), C (the persistent
     features), shadow (duplicates of C's rows), records (the impact to record, protocol.Impact),
-    work (its contact work [J])."""
+    work (its contact work [J]), g (the gaps of all features at q where they are functions of q
+    alone, the compiled features': phase_sets takes them; else None)."""
 
     u: np.ndarray
     C: tuple
     shadow: tuple
     records: tuple
     work: float
+    g: np.ndarray | None = None
 
 
 def features(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, idx=None, rows: bool = True) -> FeatureState:
@@ -145,29 +147,41 @@ def features(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, idx=None, r
     return r.gaps.features(q, u, idx, rows, faces=st.faces)
 
 
-def phase_sets(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, C, shadow, opened=frozenset()):
+def phase_sets(r: Rules, st: EventState, q: np.ndarray, u: np.ndarray, C, shadow, opened=frozenset(), g=None):
     """The features a phase starting at (q, u) with the persistent set C watches: (free, g0, low),
     free: neither in C nor shadows of it, g0 their gaps, low: those within G_RES / 2 of contact
-    (watched by their rise and return, not their gap; `opened`, whose gaps just jumped open, never)."""
+    (watched by their rise and return, not their gap; `opened`, whose gaps just jumped open, never).
+    g: the gaps of all features at q where already known (Resolution.g: the same floats)."""
     free = [i for i in range(len(r.feats)) if i not in C and i not in shadow]
-    g0 = features(r, st, q, u, free, rows=False).g if free else np.zeros(0)
+    if not free:
+        g0 = np.zeros(0)
+    else:
+        g0 = features(r, st, q, u, free, rows=False).g if g is None else g[free]
     low = [i for i, g in zip(free, g0) if g < 0.5 * G_RES and i not in opened]
     return free, g0, low
 
 
-def dynamics(r: Rules, st: EventState, q, u, C):
+def dynamics(r: Rules, st: EventState, q, u, C, at_q: dict | None = None):
     """(a, lam, fs): free accelerations (ABA) plus the bilateral forces of the persistent set C,
     their multipliers, and C's FeatureState (None without C). Counts the call in st.nfev (and
-    st.constrained with C) and records in st.redundant whether a new C's rows are dependent."""
+    st.constrained with C) and records in st.redundant whether a new C's rows are dependent.
+    at_q: where the caller calls again at the same q and C (a midpoint's fixed point in u), a dict
+    that keeps what depends on q alone (M^-1, M^-1 W_C, W_C'M^-1 W_C: the same floats) from the
+    first call for the next ones."""
     st.nfev += 1
     a = pin.aba(r.model.pin, r.data.pin, q, u, r.zero).copy()
     if not C:
         return a, np.zeros(0), None
     st.constrained += 1
     fs = features(r, st, q, u, C)
-    Minv = pin.computeMinverse(r.model.pin, r.data.pin, q)
-    MiW = ordered(Minv, fs.W)
-    G = ordered(fs.W.T, MiW)
+    if at_q:
+        MiW, G = at_q["MiW"], at_q["G"]
+    else:
+        Minv = pin.computeMinverse(r.model.pin, r.data.pin, q)
+        MiW = ordered(Minv, fs.W)
+        G = ordered(fs.W.T, MiW)
+        if at_q is not None:
+            at_q["MiW"], at_q["G"] = MiW, G
     rhs = -(ordered(fs.W.T, a) + fs.drift)
     redundant = _redundant(st, C, fs.W)
 
@@ -187,8 +201,15 @@ def _redundant(st: EventState, C: tuple, W: np.ndarray) -> bool:
     decided once per set (st.redundant)."""
     redundant = st.redundant.get(C)
     if redundant is None:
-        redundant = st.redundant[C] = bool(np.linalg.matrix_rank(W) < len(C))
+        redundant = st.redundant[C] = _rank(W) < len(C)
     return redundant
+
+
+def _rank(W: np.ndarray) -> int:
+    """np.linalg.matrix_rank(W) of a 2-d W with its default tolerance (the same SVD and the same test), without
+    its wrapper's cost: the singular values above their largest times max(W.shape) times the machine epsilon."""
+    S = np.linalg.svd(W, compute_uv=False)
+    return int(np.count_nonzero(S > S.max() * (max(W.shape) * np.finfo(S.dtype).eps))) if S.size else 0
 
 
 def _solve(G: np.ndarray, b: np.ndarray, redundant: bool) -> np.ndarray:
@@ -219,9 +240,10 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
     # a box feature past the end of its region (margin < -G_REGION/2: a phase ends at -G_REGION, docs/theory.md
     # §7.1) does not persist; a corner resting exactly on an edge (margin 0 to rounding and drift) does
     inside = fs.margin > -0.5 * G_REGION
-    touching = [i for i in np.flatnonzero(closed & (np.abs(fs.gamma) <= V_TOL) & inside) if i not in released]
+    touching = [i for i in (closed & (np.abs(fs.gamma) <= V_TOL) & inside).nonzero()[0] if i not in released]
+    g = fs.g if r.gaps.compiled is not None else None  # functions of q alone (the compiled kinds)
     if not touching:
-        return Resolution(u, (), (), records, work)
+        return Resolution(u, (), (), records, work, g)
     # distinct rows only (the front and back corners of a planar block repeat each other)
     keep, shadow = [], []
     scale = 1e-12 * (1.0 + np.abs(fs.W).max())
@@ -258,27 +280,28 @@ def resolve(r: Rules, st: EventState, t: float, q: np.ndarray, u: np.ndarray, re
             if not res.ok:
                 raise SimulationError(f"the contact QP failed ({res.status}) at t = {t:.12g} s")
             u = res.v
-    A = _carrying(r, st, q, u, C, keep, lam, fs, Minv, IDLE_TOL * acc_scale)
+    A = _carrying(r, st, q, u, C, keep, lam, fs, Minv, IDLE_TOL * acc_scale, MiW if C else None)
     shadow = tuple(int(i) for i in shadow if any(np.abs(fs.W[:, i] - fs.W[:, j]).max() <= scale for j in A))
-    return Resolution(u, A, shadow, records, work)
+    return Resolution(u, A, shadow, records, work, g)
 
 
 def _carrying(r: Rules, st: EventState, q, u, C: tuple, keep: list, lam: np.ndarray, fs: FeatureState, Minv,
-              tol: float) -> tuple:
+              tol: float, MiW: np.ndarray | None = None) -> tuple:
     """The contacts of the touching set C that carry something (docs/theory.md §7, "Idle contacts"):
     C without the idle ones, whose force changes their own relative acceleration by at most tol
     [m/s^2] (lam_i w_i'M^-1 w_i <= tol, tol = IDLE_TOL scaled), provided that C's rows are
     independent (its forces unique) and that under the phase's own
     accelerations on the rest (dynamics) none of them accelerates towards contact by more than
     tol; else C. keep, lam: the acceleration QP's rows and multipliers [N]; fs: all features at
-    (q, u); drops the idle vertices' faces from st.faces."""
+    (q, u); MiW: M^-1 W_C where known (resolve's); drops the idle vertices' faces from st.faces."""
     if not C:
         return C
     W = fs.W[:, list(C)]
     if _redundant(st, C, W):
         return C  # dependent rows: their forces are not unique, a zero multiplier says nothing
     at = {i: k for k, i in enumerate(keep)}
-    wMw = np.add.accumulate(W * ordered(Minv, W), axis=0)[-1] + 0.0  # w_i'M^-1 w_i, summed as sums.ordered sums
+    MiW = ordered(Minv, W) if MiW is None else MiW
+    wMw = np.add.accumulate(W * MiW, axis=0)[-1] + 0.0  # w_i'M^-1 w_i, summed as sums.ordered sums
     idle = lam[[at[i] for i in C]] * wMw <= tol
     if not idle.any():
         return C
@@ -351,7 +374,7 @@ def _impact(r: Rules, st: EventState, t, q, u, fs: FeatureState) -> tuple[np.nda
     pm, pd = model.pin, data.pin
     # the pairs whose features are closed are in contact: detect examines two polytopes' vertices
     # then whatever coal's narrow phase says (it can report exactly touching boxes, -7e-12 m, as apart)
-    closed_pairs = {r.feats[i].pair for i in np.flatnonzero(fs.g <= r.gap_tol)}
+    closed_pairs = {r.feats[i].pair for i in (fs.g <= r.gap_tol).nonzero()[0]}
     # compiled where it applies (src/impact.hpp: the same floats; no missed feature), else Python
     if r.impact is not None and r.impact.takes(next(_missed_candidates(r, fs), None) is None):
         got = r.impact(q, u, r.e, t, st.last_impact, fs, closed_pairs)

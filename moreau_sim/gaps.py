@@ -7,6 +7,7 @@ docs/theory.md §2.8)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import coal
 import numpy as np
@@ -184,6 +185,9 @@ class FeatureState:
     witness: dict
 
 
+_NONE = MappingProxyType({})  # a FeatureState's dict of what compiled features do not have (read-only, shared)
+
+
 class Gaps:
     """The features of a model (feature_list) and their kinematics at any (q, u); gap_tol [m]: a
     feature at most this far is closed (its rim refusals and side stand-ins use it)."""
@@ -192,19 +196,30 @@ class Gaps:
         self.model, self.data, self.feats, self.gap_tol = model, data, feats, gap_tol
         self.pm, self.pd = model.pin, data.pin
         self.nv, self.zero = model.nv, np.zeros(model.nv)
-        self._pair_names = {p.index: p.name for p in model.pairs}
         # the same features compiled (compiled_events.feature_gaps; None: these below); set by event_rules.make_rules
         self.compiled = None
+        self._all = list(range(len(feats)))  # idx None: every feature
+        self._flats: dict = {}  # k -> the compiled features' margin (inf) and smooth (True), read-only (_flat)
+
+    def _flat(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(margin, smooth) of k compiled features (no regions, no stand-ins: inf and True), made once per k and
+        read-only: a FeatureState is never written to, and these are the same at every call."""
+        got = self._flats.get(k)
+        if got is None:
+            margin, smooth = np.full(k, np.inf), np.ones(k, bool)
+            margin.flags.writeable = smooth.flags.writeable = False
+            got = self._flats[k] = (margin, smooth)
+        return got
 
     def features(self, q: np.ndarray, u: np.ndarray, idx=None, rows: bool = True, faces: dict | None = None
                  ) -> FeatureState:
         """Gaps (and rows, drift, gamma if `rows`) of the features `idx` (default all) at (q, u);
         faces: (pair, vertex feature) -> the face a persistent vertex keeps (docs/theory.md §7.1)."""
         if self.compiled is not None:  # points on static planes, sphere pairs: the same floats compiled
-            idx = range(len(self.feats)) if idx is None else idx
-            g, W, drift, gamma = self.compiled.features(q, u, [int(i) for i in idx], rows)
-            k = len(g)
-            return FeatureState(g, W, drift, gamma, np.full(k, np.inf), np.ones(k, bool), {}, {}, {}, {}, {})
+            g, W, drift, gamma = self.compiled.features(q, u, self._all if idx is None else [int(i) for i in idx],
+                                                        rows)
+            margin, smooth = self._flat(len(g))
+            return FeatureState(g, W, drift, gamma, margin, smooth, _NONE, _NONE, _NONE, _NONE, _NONE)
         pm, pd = self.pm, self.pd
         if rows:
             pin.computeJointJacobians(pm, pd, q)
@@ -319,7 +334,7 @@ class Gaps:
         if not rows:
             return g, None, 0.0, exact, None
         if g <= self.gap_tol and (sig < SIN_FLAT or excess > self.gap_tol):
-            name = self._pair_names[f.pair]
+            name = next(p.name for p in self.model.pairs if p.index == f.pair)
             where = ("a cap lies flat on the plane (|sin| = %.3g < %g): the rim's gap is not differentiable there"
                      % (sig, SIN_FLAT)) if sig < SIN_FLAT else (
                 "the rim touches the box %.3g m beyond the sides of its face: at the box's edge the face-plane gap "
