@@ -25,7 +25,7 @@ from .model import Model
 from .options import Integrator
 from .sums import ordered
 from .protocol import FixedStep, Impact, Report, RunStatus
-from .recording import Recorder
+from .recording import Recorder, SampleBlock
 from .state import State
 
 FIXED_RTOL = 1e-8  # the fixed step's stated bound on a gain of T + V in its contact steps, of the energy scale
@@ -270,6 +270,36 @@ class Invariants:
             elif self.deep_samples:
                 self.deep_samples = 0
         return out or None
+
+    def samples(self, b: SampleBlock, rec: Recorder) -> bool:
+        """The checks of _sample on a step's samples at once (recording.SampleBlock, not yet recorded), the same
+        floats in the same order (the ledger's residual summed sample by sample, np.add.accumulate): True when none
+        of them finds anything (their figures carried past the block; the driver then records it), False when one
+        might (a residual beyond its bound, a gap beyond its allowance, or the run's first sample): nothing changed,
+        the driver then records and checks them one by one, so what is flagged, when and how is _sample's."""
+        Es = self.Es
+        if Es != Es:  # the first sample (or a NaN energy): one by one
+            return False
+        E = b.E
+        # each sample's work + correction + smooth error + work done on it: the first's, then the others' smooth
+        # error alone (their other terms are 0.0: 0.0 + 0.0 + s + 0.0 is s + 0.0)
+        budget = b.smooth + 0.0
+        budget[0] = b.work + b.corr + float(b.smooth[0]) + b.external
+        steps = np.empty(len(E) + 1)
+        steps[0] = self.residual
+        steps[1] = (float(E[0]) - Es) - float(budget[0])
+        steps[2:] = (E[1:] - E[:-1]) - budget[1:]
+        residual = np.add.accumulate(steps)[1:]  # the running residual at each sample, summed in order
+        bound = self.rel_ledger * self.scale
+        if ((residual - rec.smooth_deficit if self.fixed else np.abs(residual)) > bound).any():
+            return False
+        G = b.G
+        if G.shape[1]:
+            if (-G.min(axis=1) > self.tol + self.h * self.v_app + GAP_ROUND_OFF).any():
+                return False
+            self.deep_samples = 0
+        self.residual, self.Es = float(residual[-1]), float(E[-1])
+        return True
 
     def _violate(self, what: Invariant, t: float, size: float, allowed: float, unit: str, message: str) -> list[dict]:
         """[the violation's record], or [] when it was reported already and has not grown by WORSEN."""

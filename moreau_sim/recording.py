@@ -292,6 +292,20 @@ def _file_rows(f, n: int, dtype: np.dtype, shape: tuple) -> np.ndarray:
     return np.frombuffer(mmap.mmap(f.fileno(), size, access=mmap.ACCESS_READ), dtype).reshape((n,) + shape)
 
 
+class SampleBlock:
+    """The samples of one step as Recorder.block figures them, not yet written (Recorder.write_block): instants t
+    (k,) [s], Q, U, T, V, E = T + V [J], pair gaps G [m], the smooth error each books [J]; the first's contact work,
+    correction energy and work done on the system [J] (the others': 0); n_contacts; the ledger's largest rise of
+    one stretch once they are recorded (Recorder._rise)."""
+
+    __slots__ = ("t", "Q", "U", "T", "V", "E", "G", "smooth", "work", "corr", "n_contacts", "rise", "external")
+
+    def __init__(self, t, Q, U, T, V, E, G, smooth, work, corr, n_contacts, rise, external):
+        self.t, self.Q, self.U, self.T, self.V, self.E, self.G = t, Q, U, T, V, E, G
+        self.smooth, self.work, self.corr, self.n_contacts, self.rise = smooth, work, corr, n_contacts, rise
+        self.external = external
+
+
 class Recorder:
     """Samples (t, q, u, T, V, contact work and correction energy since the previous sample, pair
     gaps, closed contacts), percussion rows, corner branches and the energy ledger of one run.
@@ -374,6 +388,70 @@ class Recorder:
         self._samples.commit()
         self._smooth = self._diss = self._law = self._act = self._obs = 0.0
         self._E, self._at, self._TV = T + V, (q, u), (T, V)
+
+    def block(self, t: np.ndarray, Q: np.ndarray, U: np.ndarray, T: np.ndarray, V: np.ndarray, G: np.ndarray,
+              work: float, corr: float, n_contacts: int) -> "SampleBlock | None":
+        """The k samples of one step at the instants t (k,) [s], given with their figures (Q (k, nq), U (k, nv), T, V
+        (k,) [J], pair gaps G (k, pairs) [m]: compiled_events.sampler's), as k calls of sample() would record them
+        (work, corr [J]: the first's contact work and correction energy, the others' are 0), figured out but not yet
+        written (write_block): what the invariant checks read of them in one pass (Invariants.samples). None where
+        sample() must take them one by one: moving statics (placed at each sample's time), or anything non-finite
+        (sample() and the driver's checks name the sample and the cause)."""
+        if self.model.prescribed is not None or not len(t):
+            return None
+        E = T + V  # each sample's T + V as sample() adds them
+        # one pass for all: NaN and inf propagate through the sums (a sum that overflows goes one by one, harmlessly)
+        if not math.isfinite(float(E.sum()) + float(Q.sum()) + float(U.sum()) + float(G.sum())):
+            return None
+        # the smooth error sample() books: its first from the last accounted state (_smooth_until), then from each
+        # sample to the next (0.0 + the change, as sample() resets _smooth to 0.0 and adds it)
+        smooth = np.empty(len(t))
+        dE = E[1:] - E[:-1]
+        smooth[1:] = dE + 0.0
+        # the ledger's largest rise (_smooth_until): the first of the largest changes, if above the one it holds
+        best, at = -math.inf, 0
+        if len(dE):
+            j = int(np.argmax(dE))
+            best, at = float(dE[j]), 1 + j
+        if self._E is None:
+            smooth[0] = self._smooth
+        else:
+            d0 = float(E[0]) - self._E
+            smooth[0] = self._smooth + d0
+            if d0 >= best:  # (a NaN d0 is no rise, as in _smooth_until)
+                best, at = d0, 0
+        rise = (best, float(t[at])) if best > self._rise[0] else self._rise
+        external = self._act + self._obs if self._external else 0.0
+        return SampleBlock(t, Q, U, T, V, E, G, smooth, work, corr, n_contacts, rise, external)
+
+    def write_block(self, b: "SampleBlock") -> None:
+        """Record the samples of block() (its rows written, then counted at once: an interrupt leaves none of them)."""
+        k = len(b.t)
+        cols = self._samples
+        i = cols.reserve(k)
+        c, j = cols.cols, i + k
+        c["t"][i:j] = b.t
+        c["q"][i:j] = b.Q
+        c["u"][i:j] = b.U
+        c["kinetic_energy"][i:j] = b.T
+        c["potential_energy"][i:j] = b.V
+        c["gap"][i:j] = b.G
+        c["n_contacts"][i:j] = b.n_contacts
+        c["smooth_error"][i:j] = b.smooth
+        firsts = [("contact_work", b.work), ("correction_energy", b.corr), ("dissipation", self._diss),
+                  ("law_dissipation", self._law)]
+        if self._external:
+            firsts += [("actuator_work", self._act), ("obstacle_work", self._obs)]
+        for name, first in firsts:  # the first sample's: what the steps since the previous one did; then 0
+            col = c[name]
+            col[i] = first
+            col[i + 1:j] = 0.0
+        cols.commit(k)
+        self._gap_sum = (-1, math.nan)
+        self._smooth = self._diss = self._law = self._act = self._obs = 0.0
+        self._rise = b.rise
+        T, V = float(b.T[-1]), float(b.V[-1])
+        self._E, self._at, self._TV = T + V, (b.Q[-1], b.U[-1]), (T, V)
 
     def energies(self, state: State) -> tuple[float, float] | None:
         """(T, V) [J] of `state` when it is the last state the ledger evaluated (a fixed step's end,
