@@ -137,6 +137,7 @@ class _Loop:
 
     def __init__(self, integ: Integrator, rec: Recorder, grid: np.ndarray | None, check: Check | None):
         self.integ, self.rec, self.grid, self.check = integ, rec, grid, check
+        self.times = [] if grid is None else grid.tolist()  # the grid as Python floats (cheaper to compare)
         self.work = self.corr = 0.0
         self.gi = 0
         self.previous: set = set()
@@ -175,10 +176,11 @@ class _Loop:
                 self._impact(r)
         if rep.due:
             self._sample(rep.state, rep.n_contacts)
-        grid = self.grid
+        grid, times = self.grid, self.times
         for seg in rep.segments:
             end = self.gi  # the grid instants t < until (<= if closed) not yet sampled: grid[gi:end]
-            while end < len(grid) and (grid[end] < seg.until or (seg.closed and grid[end] <= seg.until)):
+            until, closed = seg.until, seg.closed
+            while end < len(times) and (times[end] < until or (closed and times[end] <= until)):
                 end += 1
             if end == self.gi:
                 continue

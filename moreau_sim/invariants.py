@@ -273,32 +273,27 @@ class Invariants:
 
     def samples(self, b: SampleBlock, rec: Recorder) -> bool:
         """The checks of _sample on a step's samples at once (recording.SampleBlock, not yet recorded), the same
-        floats in the same order (the ledger's residual summed sample by sample, np.add.accumulate): True when none
-        of them finds anything (their figures carried past the block; the driver then records it), False when one
-        might (a residual beyond its bound, a gap beyond its allowance, or the run's first sample): nothing changed,
-        the driver then records and checks them one by one, so what is flagged, when and how is _sample's."""
+        floats in the same order: True when none of them finds anything (their figures carried past the block; the
+        driver then records it), False when one might (a residual beyond its bound, a gap beyond its allowance, or
+        the run's first sample): nothing changed, the driver then records and checks them one by one, so what is
+        flagged, when and how is _sample's (docs/theory.md §10)."""
         Es = self.Es
         if Es != Es:  # the first sample (or a NaN energy): one by one
             return False
-        E = b.E
-        # each sample's work + correction + smooth error + work done on it: the first's, then the others' smooth
-        # error alone (their other terms are 0.0: 0.0 + 0.0 + s + 0.0 is s + 0.0)
-        budget = b.smooth + 0.0
-        budget[0] = b.work + b.corr + float(b.smooth[0]) + b.external
-        steps = np.empty(len(E) + 1)
-        steps[0] = self.residual
-        steps[1] = (float(E[0]) - Es) - float(budget[0])
-        steps[2:] = (E[1:] - E[:-1]) - budget[1:]
-        residual = np.add.accumulate(steps)[1:]  # the running residual at each sample, summed in order
-        bound = self.rel_ledger * self.scale
-        if ((residual - rec.smooth_deficit if self.fixed else np.abs(residual)) > bound).any():
-            return False
+        residual, bound, deficit = self.residual, self.rel_ledger * self.scale, rec.smooth_deficit
+        work, corr, external = b.work, b.corr, b.external  # the first sample's; the others' are 0.0
+        for E, smooth in zip(b.E, b.smooth):
+            residual = residual + (E - Es - (work + corr + smooth + external))
+            if (residual - deficit if self.fixed else abs(residual)) > bound:
+                return False
+            work = corr = external = 0.0
+            Es = E
         G = b.G
-        if G.shape[1]:
-            if (-G.min(axis=1) > self.tol + self.h * self.v_app + GAP_ROUND_OFF).any():
+        if G.shape[1]:  # the allowance is the same at each of them: the deepest pair of all decides
+            if -float(G.min()) > self.tol + self.h * self.v_app + GAP_ROUND_OFF:
                 return False
             self.deep_samples = 0
-        self.residual, self.Es = float(residual[-1]), float(E[-1])
+        self.residual, self.Es = residual, Es
         return True
 
     def _violate(self, what: Invariant, t: float, size: float, allowed: float, unit: str, message: str) -> list[dict]:
