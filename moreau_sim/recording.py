@@ -405,15 +405,21 @@ class Recorder:
             return None
         # the smooth error of each and the ledger's largest rise, as sample() books them one after the other
         # (_smooth_until), on Python floats: the same operations
-        prev, acc, rise, smooth = self._E, self._smooth, self._rise, []
-        for i, E in enumerate(Es):
-            if prev is not None:
-                d = E - prev
-                acc += d
-                if d > rise[0]:
-                    rise = (d, float(t[i]))
-            smooth.append(acc)
-            acc, prev = 0.0, E
+        diffs = [b - a for a, b in zip(Es, Es[1:])]  # from each sample to the next
+        prev = self._E
+        if prev is None:  # nothing accounted yet: the first books what the ledger holds, no rise
+            changes, smooth, first = diffs, [self._smooth], 1
+        elif math.isfinite(prev):
+            d0 = Es[0] - prev
+            changes, smooth, first = [d0] + diffs, [self._smooth + d0], 0
+        else:
+            return None
+        smooth += [0.0 + d for d in diffs]  # (sample() adds each change to a _smooth reset to 0.0)
+        rise = self._rise
+        if changes:  # the first of the largest changes, if above the ledger's (a later equal one does not replace it)
+            d = max(changes)
+            if d > rise[0]:
+                rise = (d, float(t[first + changes.index(d)]))
         external = self._act + self._obs if self._external else 0.0
         return SampleBlock(t, Q, U, T, V, Es, G, smooth, work, corr, n_contacts, rise, external)
 
