@@ -42,6 +42,7 @@ SPILL_BYTES = 8 << 20  # [bytes] the rows a spilling group of columns keeps in m
 # become memory as rows are written (a run that records what it expected never grows or copies a column)
 RESERVE_BYTES = 1 << 30
 FIT_SLACK_BYTES = 64 << 10  # [bytes] unused rows a group of columns keeps at the end of a recording (_Columns.fit)
+FINITE_FLOATS = 96  # a block's finiteness (_finite) is checked on Python floats up to this many entries
 LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) of its step (and > 0)
 
 
@@ -292,6 +293,15 @@ def _file_rows(f, n: int, dtype: np.dtype, shape: tuple) -> np.ndarray:
     return np.frombuffer(mmap.mmap(f.fileno(), size, access=mmap.ACCESS_READ), dtype).reshape((n,) + shape)
 
 
+def _finite(Q: np.ndarray, U: np.ndarray, G: np.ndarray) -> bool:
+    """Whether every entry of Q, U and G is finite: up to FINITE_FLOATS entries on Python floats (cheaper than
+    numpy's calls there), else through numpy's sums (NaN and inf propagate through a sum; one that overflows only
+    says False)."""
+    if Q.size + U.size + G.size <= FINITE_FLOATS:
+        return all(map(math.isfinite, Q.ravel().tolist() + U.ravel().tolist() + G.ravel().tolist()))
+    return math.isfinite(float(Q.sum()) + float(U.sum()) + float(G.sum()))
+
+
 class SampleBlock:
     """The samples of one step as Recorder.block figures them, not yet written (Recorder.write_block): instants t
     (k,) [s], Q, U, T, V (arrays), E = T + V [J] and the smooth error each books [J] (lists of floats), pair gaps G
@@ -400,8 +410,7 @@ class Recorder:
         if self.model.prescribed is not None or not len(t):
             return None
         Es = [a + b for a, b in zip(T.tolist(), V.tolist())]  # each sample's T + V as sample() adds them
-        # NaN and inf propagate through the sums (a sum that overflows only sends the block one by one)
-        if not (all(map(math.isfinite, Es)) and math.isfinite(float(Q.sum()) + float(U.sum()) + float(G.sum()))):
+        if not (all(map(math.isfinite, Es)) and _finite(Q, U, G)):
             return None
         # the smooth error of each and the ledger's largest rise, as sample() books them one after the other
         # (_smooth_until), on Python floats: the same operations

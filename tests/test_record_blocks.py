@@ -351,3 +351,20 @@ def test_a_group_keeps_spare_rows_up_to_fit_slack_bytes(spare):
     g.fit()
     assert len(g.cols["impact_t"]) == (3 if spare > 0 else rows)
     assert np.array_equal(g.arrays()["impact_t"], [0.0, 0.5, 1.0])
+
+
+@pytest.mark.parametrize("size", [recording.FINITE_FLOATS, recording.FINITE_FLOATS + 3])
+@pytest.mark.parametrize("bad", [None, np.nan, np.inf, -np.inf])
+def test_a_blocks_finiteness_on_floats_and_through_sums(size, bad):
+    """_finite says whether every entry of Q, U, G is finite, on Python floats (up to FINITE_FLOATS entries) as
+    through numpy's sums (above): a NaN or an infinity anywhere is found, at either size."""
+    rng = np.random.default_rng(size)
+    k = size // 3
+    Q, U, G = rng.standard_normal((k, 1)), rng.standard_normal((k, 1)), rng.standard_normal((k, 1 + size % 3))
+    assert Q.size + U.size + G.size == size
+    for a in (Q, U, G):
+        x = a.copy()
+        if bad is not None:
+            x[-1, -1] = bad
+        args = [x if b is a else b for b in (Q, U, G)]
+        assert recording._finite(*args) == (bad is None)
