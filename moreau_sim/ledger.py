@@ -14,8 +14,9 @@ One step from (q_k, u_k), with the law's frame at the midpoint q_m, M = M(q_m):
 and the budget E_end - E_0 = sum W_c + sum correction + sum S + sum W_a + sum W_o + residual, with the
 work done on the system (§5.5): the torques' W_a = h tau.(u_k + u_{k+1})/2 and the moving statics'
 W_o = -P.dg/dt (S is then the contact-free step's change less its own torque work). Recorder fills the
-arrays (recording.py); this module reads them. Its products are sums.ordered's (docs/theory.md §2.8), which the
-compiled run loop (src/run.cpp) sums alike. Units: J, s.
+arrays (recording.py); this module reads them. Its products are sums.ordered's (docs/theory.md §2.8; the
+quadratic forms of a few coordinates the same sums on Python floats, _quad), which the compiled run loop
+(src/run.cpp) sums alike. Units: J, s.
 """
 
 from __future__ import annotations
