@@ -137,7 +137,6 @@ class _Loop:
 
     def __init__(self, integ: Integrator, rec: Recorder, grid: np.ndarray | None, check: Check | None):
         self.integ, self.rec, self.grid, self.check = integ, rec, grid, check
-        self.times = [] if grid is None else grid.tolist()  # the grid as Python floats (cheaper to compare)
         self.work = self.corr = 0.0
         self.gi = 0
         self.previous: set = set()
@@ -176,11 +175,11 @@ class _Loop:
                 self._impact(r)
         if rep.due:
             self._sample(rep.state, rep.n_contacts)
-        grid, times = self.grid, self.times
+        grid = self.grid
         for seg in rep.segments:
             end = self.gi  # the grid instants t < until (<= if closed) not yet sampled: grid[gi:end]
-            until, closed = seg.until, seg.closed
-            while end < len(times) and (times[end] < until or (closed and times[end] <= until)):
+            until, closed, at, n = seg.until, seg.closed, grid.item, len(grid)  # (item: a Python float, cheaper)
+            while end < n and (at(end) < until or (closed and at(end) <= until)):
                 end += 1
             if end == self.gi:
                 continue
