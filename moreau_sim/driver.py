@@ -178,13 +178,16 @@ class _Loop:
         grid = self.grid
         for seg in rep.segments:
             end = self.gi  # the grid instants t < until (<= if closed) not yet sampled: grid[gi:end]
-            while end < len(grid) and (grid[end] < seg.until or (seg.closed and grid[end] <= seg.until)):
+            until, closed, at, n = seg.until, seg.closed, grid.item, len(grid)  # (item: a Python float, cheaper)
+            while end < n and (at(end) < until or (closed and at(end) <= until)):
                 end += 1
             if end == self.gi:
                 continue
             tgs = grid[self.gi:end]
-            if seg.batch is not None:  # all the step's samples in one call, recorded one by one
+            if seg.batch is not None:  # all the step's samples in one call, recorded at once where they may be
                 Q, U, T, V, G = seg.batch(tgs)
+                if self._block(tgs, Q, U, T, V, G, seg.n_contacts):
+                    continue
                 for i, tg in enumerate(tgs.tolist()):
                     self._sample(State(tg, Q[i], U[i]), seg.n_contacts, (float(T[i]), float(V[i]), G[i]))
                     self.gi += 1
@@ -213,6 +216,24 @@ class _Loop:
                                   float(P[i]), float(r.gamma_minus[i]), float(r.gamma_plus[i]), c.point_a[i],
                                   c.normal[i], True))
         rec.account_impact(r.t, r.q, r.u_minus, r.u_plus, r.M, r.v, r.e, P)
+
+    def _block(self, t: np.ndarray, Q: np.ndarray, U: np.ndarray, T: np.ndarray, V: np.ndarray, G: np.ndarray,
+               n_contacts: int) -> bool:
+        """A step's samples (at the instants t, with their figures: Segment.batch's) recorded and checked at once:
+        the rows and figures _sample would give them one by one (Recorder.block, Invariants.samples). False (nothing
+        done) where they go one by one: a hook of the caller's (it reads each sample), something non-finite, or
+        a check that may find something (it is then found at its sample, as _sample finds it)."""
+        check = self.check
+        together = None if check is None else getattr(check, "samples", None)
+        if check is not None and together is None:
+            return False
+        b = self.rec.block(t, Q, U, T, V, G, self.work, self.corr, n_contacts)
+        if b is None or (together is not None and not together(b, self.rec)):
+            return False
+        self.rec.write_block(b)
+        self.work = self.corr = 0.0
+        self.gi += len(t)
+        return True
 
     def _sample(self, state: State, n_contacts: int, figures: tuple | None = None) -> None:
         """A sample with the work and correction energy since the previous one (figures: its (T, V,

@@ -25,7 +25,7 @@ from .model import Model
 from .options import Integrator
 from .sums import ordered
 from .protocol import FixedStep, Impact, Report, RunStatus
-from .recording import Recorder
+from .recording import Recorder, SampleBlock
 from .state import State
 
 FIXED_RTOL = 1e-8  # the fixed step's stated bound on a gain of T + V in its contact steps, of the energy scale
@@ -270,6 +270,31 @@ class Invariants:
             elif self.deep_samples:
                 self.deep_samples = 0
         return out or None
+
+    def samples(self, b: SampleBlock, rec: Recorder) -> bool:
+        """The checks of _sample on a step's samples at once (recording.SampleBlock, not yet recorded), the same
+        floats in the same order: True when none of them finds anything (their figures carried past the block; the
+        driver then records it), False when one might (a residual beyond its bound, a gap beyond its allowance, or
+        the run's first sample): nothing changed, the driver then records and checks them one by one, so what is
+        flagged, when and how is _sample's (docs/theory.md §10)."""
+        Es = self.Es
+        if Es != Es:  # the first sample (or a NaN energy): one by one
+            return False
+        residual, bound, deficit = self.residual, self.rel_ledger * self.scale, rec.smooth_deficit
+        work, corr, external = b.work, b.corr, b.external  # the first sample's; the others' are 0.0
+        for E, smooth in zip(b.E, b.smooth):
+            residual = residual + (E - Es - (work + corr + smooth + external))
+            if (residual - deficit if self.fixed else abs(residual)) > bound:
+                return False
+            work = corr = external = 0.0
+            Es = E
+        G = b.G
+        if G.shape[1]:  # the allowance is the same at each of them: the deepest pair of all decides
+            if -float(G.min()) > self.tol + self.h * self.v_app + GAP_ROUND_OFF:
+                return False
+            self.deep_samples = 0
+        self.residual, self.Es = residual, Es
+        return True
 
     def _violate(self, what: Invariant, t: float, size: float, allowed: float, unit: str, message: str) -> list[dict]:
         """[the violation's record], or [] when it was reported already and has not grown by WORSEN."""

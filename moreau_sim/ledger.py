@@ -14,8 +14,9 @@ One step from (q_k, u_k), with the law's frame at the midpoint q_m, M = M(q_m):
 and the budget E_end - E_0 = sum W_c + sum correction + sum S + sum W_a + sum W_o + residual, with the
 work done on the system (§5.5): the torques' W_a = h tau.(u_k + u_{k+1})/2 and the moving statics'
 W_o = -P.dg/dt (S is then the contact-free step's change less its own torque work). Recorder fills the
-arrays (recording.py); this module reads them. Its products are sums.ordered's (docs/theory.md §2.8), which the
-compiled run loop (src/run.cpp) sums alike. Units: J, s.
+arrays (recording.py); this module reads them. Its products are sums.ordered's (docs/theory.md §2.8; the
+quadratic forms of a few coordinates the same sums on Python floats, _quad), which the compiled run loop
+(src/run.cpp) sums alike. Units: J, s.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ BASELINE_SAMPLES = 100  # at most this many samples of E(t) go into a baseline r
 # A closed contact is at rest in a step when |gamma^k| and |gamma^{k+1}| are at most this fraction of the sum
 # their rounding carries (at_rest; docs/theory.md §5.2): the law's accuracy, not a physical speed
 REST_ACCURACY = 1e-9
+QUAD_FLOATS = 8  # _quad sums on Python floats up to this many coordinates (cheaper than numpy's calls there)
 
 
 def impact_terms(M: np.ndarray, v_free: np.ndarray, v: np.ndarray, u_k: np.ndarray, u_next: np.ndarray,
@@ -64,8 +66,22 @@ def law_kept(v: np.ndarray, u_k: np.ndarray, u_next: np.ndarray, e: float) -> bo
 
 
 def _quad(M: np.ndarray, x: np.ndarray) -> float:
-    """x'Mx as (x'M) x, each product summed in index order (sums.ordered; src/run.cpp quad: the same sums)."""
-    return float(ordered(ordered(x, M), x))
+    """x'Mx as (x'M) x, each product summed in index order (sums.ordered; src/run.cpp quad: the same sums); up to
+    QUAD_FLOATS coordinates on Python floats: the same operations (each product rounded, summed from the first, then
+    + 0.0; CPython contracts nothing into an FMA) at a fraction of numpy's per-call cost."""
+    n = len(x)
+    if not 0 < n <= QUAD_FLOATS:
+        return float(ordered(ordered(x, M), x))
+    xs, rows = x.tolist(), M.tolist()
+    first = rows[0]
+    quad = 0.0
+    for j in range(n):
+        s = xs[0] * first[j]  # (x'M)_j
+        for i in range(1, n):
+            s = s + xs[i] * rows[i][j]
+        s = s + 0.0
+        quad = s * xs[0] if j == 0 else quad + s * xs[j]
+    return quad + 0.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -2,7 +2,8 @@
 ledger (docs/theory.md §5), filling the arrays of trajectory.py's schema; and the run metadata every
 trajectory file carries.
 
-Columns grow in place by at most BLOCK_ROWS rows (compact: memory is proportional to what was recorded),
+Columns grow in place by at most BLOCK_ROWS rows (compact: memory is proportional to what was recorded, with at
+most FIT_SLACK_BYTES of unused rows a group),
 or, spilling, keep SPILL_BYTES of rows in memory and the rest in unnamed temporary files."""
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import datetime
 import functools
 import math
 import mmap
+import pickle
 import platform
 import tempfile
 import weakref
@@ -39,6 +41,8 @@ SPILL_BYTES = 8 << 20  # [bytes] the rows a spilling group of columns keeps in m
 # [bytes] the most a group of columns reserves at the start for the rows it expects: address space only, its pages
 # become memory as rows are written (a run that records what it expected never grows or copies a column)
 RESERVE_BYTES = 1 << 30
+FIT_SLACK_BYTES = 64 << 10  # [bytes] unused rows a group of columns keeps at the end of a recording (_Columns.fit)
+FINITE_FLOATS = 96  # a block's finiteness (_finite) is checked on Python floats up to this many entries
 LOG_RELATIVE = 1e-9  # a percussion is logged when P_i > LOG_RELATIVE * max(P) of its step (and > 0)
 
 
@@ -66,13 +70,12 @@ def run_metadata(model: Model, status: str, run: dict, **extra) -> dict:
     model summary, the names and units of q and u, versions, `run` statistics, and any `extra`
     entries (e.g. integrator). What depends on the model alone is computed once per model (_model_meta) and
     copied into each trajectory's meta."""
-    fixed = _model_meta(model)
     meta = {
         "format": trajectory.FORMAT,
         "status": status,
         **{k: v for k, v in extra.items() if k == "integrator"},
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        **_copy_plain(fixed),  # scene, options, model, q_names, u_names, q_units, u_units
+        **_model_meta(model),  # scene, options, model, q_names, u_names, q_units, u_units
         "versions": versions(),
         **{k: v for k, v in extra.items() if k != "integrator"},
         "run": run,
@@ -80,16 +83,18 @@ def run_metadata(model: Model, status: str, run: dict, **extra) -> dict:
     return meta
 
 
-_MODEL_META: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> its part of the meta
+_MODEL_META: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> its part of the meta, pickled
 
 
 def _model_meta(model: Model) -> dict:
     """The part of run_metadata that depends on the model alone (the scene's texts as the model was built from
-    them, its options, summary and coordinates), made on a model's first run (a Model never changes)."""
+    them, its options, summary and coordinates), made on a model's first run (a Model never changes) and kept
+    pickled: each call returns a new copy (each trajectory's meta is its own), unpickled in a fifth of the time a
+    copy of its nested dicts and lists takes in Python."""
     fixed = _MODEL_META.get(model)
     if fixed is None:
         sc = model.scene
-        fixed = _MODEL_META[model] = {
+        fixed = {
             "scene": {"name": sc.name, "description": sc.description, "path": str(sc.path) if sc.path else None,
                       "toml": sc.source,
                       "urdf": {b.name: Path(b.urdf).read_text(encoding="utf-8") for b in sc.bodies},
@@ -98,16 +103,8 @@ def _model_meta(model: Model) -> dict:
             "model": model.describe(),
             **model.coordinates(),  # q_names, u_names, q_units, u_units
         }
-    return fixed
-
-
-def _copy_plain(x):
-    """A copy of nested dicts and lists (of immutable leaves): each trajectory's meta is its own."""
-    if isinstance(x, dict):
-        return {k: _copy_plain(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_copy_plain(v) for v in x]
-    return x
+        fixed = _MODEL_META[model] = pickle.dumps(fixed, pickle.HIGHEST_PROTOCOL)
+    return pickle.loads(fixed)
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,9 +148,10 @@ def _layout(schema: tuple, sizes: tuple) -> tuple[dict, dict, dict]:
 class _Columns:
     """Arrays of one schema group, `n` rows recorded. A full column grows in place (ndarray.resize:
     realloc, which for large arrays remaps pages instead of copying them) by as many rows as it
-    has, at most BLOCK_ROWS at a time, and is cut to its n rows when the recording ends (fit):
-    the memory stays ~ the rows recorded, with no copy and at most BLOCK_ROWS rows to spare. A row
-    counts (commit) only once written: an interrupt never leaves a half-written row.
+    has, at most BLOCK_ROWS at a time, and is cut to its n rows when the recording ends (fit; rows to
+    spare of at most FIT_SLACK_BYTES are left): the memory stays ~ the rows recorded, with no copy
+    and at most BLOCK_ROWS rows to spare. A row counts (commit) only once written: an interrupt never
+    leaves a half-written row.
 
     With `spill` (a folder), every SPILL_BYTES of rows the columns move their rows to one unnamed
     temporary file each there (rows [0, spilled); the columns in memory hold the rest) and
@@ -232,11 +230,14 @@ class _Columns:
         self.spilled = self.n - keep
 
     def fit(self) -> None:
-        """Release the rows not used (at the end of a recording); spilling: all rows go to the files."""
+        """Release the rows not used (at the end of a recording), unless they are at most FIT_SLACK_BYTES (cutting
+        a column costs a call per column, a few µs a group: more than a short run's recording); spilling: all rows
+        go to the files."""
         if self._files is not None:
             self._spill()
-        if len(next(iter(self.cols.values()))) > max(self.n - self.spilled, 1):
-            self._resize(max(self.n - self.spilled, 1))
+        rows, used = len(next(iter(self.cols.values()))), max(self.n - self.spilled, 1)
+        if rows > used and (rows - used) * sum(self.row_bytes.values()) > FIT_SLACK_BYTES:
+            self._resize(used)
 
     def load(self, arrays: Mapping[str, np.ndarray]) -> None:
         """Start from rows recorded earlier (a checkpoint's arrays: a dict, or an open NPZ whose
@@ -290,6 +291,29 @@ def _file_rows(f, n: int, dtype: np.dtype, shape: tuple) -> np.ndarray:
         a.flags.writeable = False  # read-only as every spilled array
         return a
     return np.frombuffer(mmap.mmap(f.fileno(), size, access=mmap.ACCESS_READ), dtype).reshape((n,) + shape)
+
+
+def _finite(Q: np.ndarray, U: np.ndarray, G: np.ndarray) -> bool:
+    """Whether every entry of Q, U and G is finite: up to FINITE_FLOATS entries on Python floats (cheaper than
+    numpy's calls there), else through numpy's sums (NaN and inf propagate through a sum; one that overflows only
+    says False)."""
+    if Q.size + U.size + G.size <= FINITE_FLOATS:
+        return all(map(math.isfinite, Q.ravel().tolist() + U.ravel().tolist() + G.ravel().tolist()))
+    return math.isfinite(float(Q.sum()) + float(U.sum()) + float(G.sum()))
+
+
+class SampleBlock:
+    """The samples of one step as Recorder.block figures them, not yet written (Recorder.write_block): instants t
+    (k,) [s], Q, U, T, V (arrays), E = T + V [J] and the smooth error each books [J] (lists of floats), pair gaps G
+    [m]; the first's contact work, correction energy and work done on the system [J] (the others': 0); n_contacts;
+    the ledger's largest rise of one stretch once they are recorded (Recorder._rise)."""
+
+    __slots__ = ("t", "Q", "U", "T", "V", "E", "G", "smooth", "work", "corr", "n_contacts", "rise", "external")
+
+    def __init__(self, t, Q, U, T, V, E, G, smooth, work, corr, n_contacts, rise, external):
+        self.t, self.Q, self.U, self.T, self.V, self.E, self.G = t, Q, U, T, V, E, G
+        self.smooth, self.work, self.corr, self.n_contacts, self.rise = smooth, work, corr, n_contacts, rise
+        self.external = external
 
 
 class Recorder:
@@ -375,6 +399,68 @@ class Recorder:
         self._smooth = self._diss = self._law = self._act = self._obs = 0.0
         self._E, self._at, self._TV = T + V, (q, u), (T, V)
 
+    def block(self, t: np.ndarray, Q: np.ndarray, U: np.ndarray, T: np.ndarray, V: np.ndarray, G: np.ndarray,
+              work: float, corr: float, n_contacts: int) -> "SampleBlock | None":
+        """The k samples of one step at the instants t (k,) [s], given with their figures (Q (k, nq), U (k, nv), T, V
+        (k,) [J], pair gaps G (k, pairs) [m]: compiled_events.sampler's), as k calls of sample() would record them
+        (work, corr [J]: the first's contact work and correction energy, the others' are 0), figured out but not yet
+        written (write_block): what the invariant checks read of them in one pass (Invariants.samples). None where
+        sample() must take them one by one: moving statics (placed at each sample's time), or anything non-finite
+        (sample() and the driver's checks name the sample and the cause)."""
+        if self.model.prescribed is not None or not len(t):
+            return None
+        Es = [a + b for a, b in zip(T.tolist(), V.tolist())]  # each sample's T + V as sample() adds them
+        if not (all(map(math.isfinite, Es)) and _finite(Q, U, G)):
+            return None
+        # the smooth error of each and the ledger's largest rise, as sample() books them one after the other
+        # (_smooth_until), on Python floats: the same operations
+        diffs = [b - a for a, b in zip(Es, Es[1:])]  # from each sample to the next
+        prev = self._E
+        if prev is None:  # nothing accounted yet: the first books what the ledger holds, no rise
+            changes, smooth, first = diffs, [self._smooth], 1
+        elif math.isfinite(prev):
+            d0 = Es[0] - prev
+            changes, smooth, first = [d0] + diffs, [self._smooth + d0], 0
+        else:
+            return None
+        smooth += [0.0 + d for d in diffs]  # (sample() adds each change to a _smooth reset to 0.0)
+        rise = self._rise
+        if changes:  # the first of the largest changes, if above the ledger's (a later equal one does not replace it)
+            d = max(changes)
+            if d > rise[0]:
+                rise = (d, float(t[first + changes.index(d)]))
+        external = self._act + self._obs if self._external else 0.0
+        return SampleBlock(t, Q, U, T, V, Es, G, smooth, work, corr, n_contacts, rise, external)
+
+    def write_block(self, b: "SampleBlock") -> None:
+        """Record the samples of block() (its rows written, then counted at once: an interrupt leaves none of them)."""
+        k = len(b.t)
+        cols = self._samples
+        i = cols.reserve(k)
+        c, j = cols.cols, i + k
+        c["t"][i:j] = b.t
+        c["q"][i:j] = b.Q
+        c["u"][i:j] = b.U
+        c["kinetic_energy"][i:j] = b.T
+        c["potential_energy"][i:j] = b.V
+        c["gap"][i:j] = b.G
+        c["n_contacts"][i:j] = b.n_contacts
+        c["smooth_error"][i:j] = b.smooth
+        firsts = [("contact_work", b.work), ("correction_energy", b.corr), ("dissipation", self._diss),
+                  ("law_dissipation", self._law)]
+        if self._external:
+            firsts += [("actuator_work", self._act), ("obstacle_work", self._obs)]
+        for name, first in firsts:  # the first sample's: what the steps since the previous one did; then 0
+            col = c[name]
+            col[i] = first
+            col[i + 1:j] = 0.0
+        cols.commit(k)
+        self._gap_sum = (-1, math.nan)
+        self._smooth = self._diss = self._law = self._act = self._obs = 0.0
+        self._rise = b.rise
+        T, V = float(b.T[-1]), float(b.V[-1])
+        self._E, self._at, self._TV = T + V, (b.Q[-1], b.U[-1]), (T, V)
+
     def energies(self, state: State) -> tuple[float, float] | None:
         """(T, V) [J] of `state` when it is the last state the ledger evaluated (a fixed step's end,
         a sample), else None (the invariant checks read them instead of evaluating them again)."""
@@ -456,11 +542,11 @@ class Recorder:
         docs/theory.md §1 at q, u- -> u+ with v the projection and M = M(q)."""
         m, d = self.model, self.data
         self._log.keep = 0  # an impact between steps ends a stretch of persistent ones (_log_step)
-        E0 = total(m, d, q, u_minus)
-        self._smooth_until(E0, t)
+        V = potential(m, d, q)  # (energy.total's terms; V once for both)
+        self._smooth_until(kinetic(m, d, q, u_minus) + V, t)
         T_minus, T_plus, law = impact_terms(M, u_minus, v, u_minus, u_plus, e, P, None)
-        self._add_impact(self.n, t, T_minus, T_plus, law, int(np.count_nonzero(P > 0)), True)
-        self._E, self._at = total(m, d, q, u_plus), None
+        self._add_impact(self._samples.n, t, T_minus, T_plus, law, int(np.count_nonzero(P > 0)), True)
+        self._E, self._at = kinetic(m, d, q, u_plus) + V, None
 
     def _add_impact(self, step: int, t: float, T_minus: float, T_plus: float, law: float, contacts: int,
                     new: bool, given: float = 0.0) -> None:

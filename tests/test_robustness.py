@@ -177,15 +177,16 @@ def test_a_scene_output_stays_in_its_folder(tmp_path):
 def test_an_interrupted_run_keeps_its_samples(tmp_path, sig, integrator):
     """Ctrl-C or SIGTERM in any integrator's loop (errors.named_stops): the samples so far, exit 130 or 143."""
     out = tmp_path / "b.npz"
-    # long enough to be running when the signal comes: the compiled run takes 10^6 ball steps in ~1.5 s
-    duration = "20000" if integrator == "time-stepping" else "1000"
+    # long enough to be running when the signal comes: the compiled run takes 10^6 ball steps in ~1.5 s, the
+    # adaptive one records 10^6 samples (in blocks, driver._Loop._block) in ~1.4 s
+    duration = {"time-stepping": "20000", "adaptive": "10000"}.get(integrator, "1000")
     p = subprocess.Popen([sys.executable, "-m", "moreau_sim", "run", str(BALL), "--duration", duration, "-o", str(out),
                           "--set", f"integrator={integrator}"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          # the default disposition in the child: under nohup or a CI runner's background
                          # job SIGINT is ignored, and an ignored disposition is inherited across exec
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    time.sleep(4.0)  # past the model's build, well before the 2e7 steps (or 1e6 samples) end
+    time.sleep(4.0)  # past the model's build, well before the 2e7 steps (or 1e7, 1e6 samples) end
     p.send_signal(sig)
     _, err = p.communicate(timeout=120)
     assert p.returncode == 128 + sig, err  # 130 SIGINT, 143 SIGTERM (docs/cli.md)
