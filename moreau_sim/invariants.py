@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import functools
 import math
-import weakref
 from enum import Enum
 
 import numpy as np
@@ -36,10 +35,13 @@ ACCELERATION = 2.0  # a gap's free acceleration, of |gravity|: gravity, and as m
 PERSIST = 3  # penetration beyond the allowance at this many consecutive points (or samples) is a fault
 WORSEN = 10.0  # a violation already reported is reported again when it has grown by this factor
 
-# model -> [Data]: the checks' Data that finished runs of it handed back (Invariants.data): a run's checks take one
-# (or make one) and give it back at the end; a Data's energies are functions of (q, u) alone, whatever it evaluated
-# before, and a Data in use is no other run's (list pop/append: one thread at a time)
-_SPARE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+def spares(model) -> list:
+    """The checks' Datas that finished runs of `model` handed back (Invariants.data): a run's checks take one (or make
+    one) and give it back at the end; a Data's energies are functions of (q, u) alone, whatever it evaluated before,
+    and a Data in use is no other run's (list pop/append: one thread at a time). Kept on the model itself, not in a
+    weak-keyed table: a Data refers to its model, so a table's entry would keep every model it saw alive; on the
+    model the cycle goes with it."""
+    return model.__dict__.setdefault("_spare_datas", [])
 
 
 class Invariant(Enum):
@@ -96,18 +98,18 @@ class Invariants:
     @functools.cached_property
     def data(self) -> Data:
         """Its own Data (checking changes nothing the run reads), taken where first needed (most points reuse the
-        recorder's energies): one a finished run of the model handed back (_SPARE), else a new one."""
-        spare = _SPARE.get(self.model)
+        recorder's energies): one a finished run of the model handed back (spares), else a new one."""
+        spare = spares(self.model)
         try:
             return spare.pop() if spare else make_data(self.model)
         except IndexError:  # another thread took the last one
             return make_data(self.model)
 
     def _hand_back(self) -> None:
-        """The run's end: its Data to the next run of the model (_SPARE)."""
+        """The run's end: its Data to the next run of the model (spares)."""
         data = self.__dict__.pop("data", None)
         if data is not None:
-            _SPARE.setdefault(self.model, []).append(data)
+            spares(self.model).append(data)
 
     # ---- the hook ---------------------------------------------------------------------------------------------
     def __call__(self, where: str, state: State, rep: Report | None, rec: Recorder) -> list[dict] | None:

@@ -99,8 +99,7 @@ def test_a_models_caches_go_with_it_and_two_models_do_not_share():
     gone = weakref.ref(a)
     del a, ra, sa
     gc.collect()
-    # (the caches are weakly keyed: their entries of a go with it; a finished ms.simulate run would keep a alive
-    # through the Data it hands to invariants._SPARE, which refers to its model)
+    # (the caches are weakly keyed: their entries of a go with it; test_run_caches: a model ms.simulate ran goes too)
     assert gone() is None
     assert adaptive._STATICS[b] is sb and b in compiled_events._FEATURE_ARGS and rb.step().t > 0.0
 

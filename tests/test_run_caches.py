@@ -1,4 +1,4 @@
-"""What a run keeps per model for the next run of it (model._STARTS: the start checks passed; invariants._SPARE:
+"""What a run keeps per model for the next run of it (model._STARTS: the start checks passed; invariants.spares:
 the invariant checks' Data) changes no bit: two runs of one model, and runs of two models interleaved, give the
 arrays and meta (but the timings) of runs of freshly built models, under each integrator; a start the checks refuse
 is refused again (nothing is kept for it)."""
@@ -6,6 +6,8 @@ is refused again (nothing is kept for it)."""
 from __future__ import annotations
 
 import dataclasses
+import gc
+import weakref
 
 import numpy as np
 import pytest
@@ -50,7 +52,7 @@ def test_runs_of_one_model_and_of_two_interleaved_give_the_bits_of_fresh_runs(in
     for n in names:
         assert model_module._STARTS.get(kept[n]) == kept[n].q0.tobytes()
     if integrator != "time-stepping":  # the event integrators' smooth points need the checks' own Data
-        assert invariants._SPARE.get(kept["bouncing_ball"])
+        assert invariants.spares(kept["bouncing_ball"])
 
 
 def test_a_start_the_checks_refuse_is_refused_at_every_run():
@@ -60,3 +62,17 @@ def test_a_start_the_checks_refuse_is_refused_at_every_run():
         with pytest.raises(SceneError, match="inside"):
             ms.initial_state(inside, make_data(inside))
     assert model_module._STARTS.get(inside) is None
+
+
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+def test_a_model_a_run_kept_caches_of_goes_when_dropped(integrator):
+    """What a run keeps for the next run of a model (the checks' spare Data, the start checks, the per-model tables
+    of the event integrators) does not keep the model alive: dropped, it is collected (a Data refers to its model,
+    so a table keyed weakly by the model but holding its Data would keep every model ever run)."""
+    m = _model("newton_cradle_5", integrator, duration=0.2)
+    assert ms.simulate(m, progress=False).meta["status"] == "complete"
+    assert integrator == "time-stepping" or invariants.spares(m)
+    gone = weakref.ref(m)
+    del m
+    gc.collect()
+    assert gone() is None
