@@ -509,47 +509,130 @@ bool lu_solve(const MatrixXd &A, const VectorXd &rhs, VectorXd &x, bool is_clean
   return x.allFinite();
 }
 
+// A contact-space G as active_set reads it, built once a projection (project: both passes of the active set and the
+// final solves share it): finite, clean (lu_solve's skips: no -0.0), its largest |entry|, and (finite) its nonzeros by
+// columns (cptr, cidx: the rows of each) and by rows (rptr, ridx, rval: each row's columns, ascending, and values,
+// G's rows without its strided reads); the buffers kept from one projection to the next (no allocation)
+struct GInfo {
+  bool finite = false, is_clean = false, sparse = false;
+  double gmax = 0.0;
+  std::vector<Eigen::Index> cptr, cidx, rptr, ridx, fill;
+  std::vector<double> rval;
+  void set(const MatrixXd &G) {
+    const Eigen::Index m = G.rows();
+    gmax = G.cwiseAbs().maxCoeff();
+    finite = G.allFinite();
+    is_clean = finite && clean(G);
+    cptr.assign((size_t)m + 1, 0), rptr.assign((size_t)m + 1, 0), cidx.clear();
+    if (finite) {
+      for (Eigen::Index k = 0; k < m; ++k) {
+        const double *g = G.col(k).data();
+        for (Eigen::Index i = 0; i < m; ++i)
+          if (g[i] != 0.0) cidx.push_back(i), ++rptr[(size_t)i + 1];
+        cptr[(size_t)k + 1] = (Eigen::Index)cidx.size();
+      }
+      for (Eigen::Index i = 0; i < m; ++i) rptr[(size_t)i + 1] += rptr[(size_t)i];
+      ridx.resize(cidx.size()), rval.resize(cidx.size());
+      fill.assign(rptr.begin(), rptr.end() - 1);
+      for (Eigen::Index k = 0; k < m; ++k)
+        for (Eigen::Index t = cptr[(size_t)k]; t < cptr[(size_t)k + 1]; ++t) {
+          const Eigen::Index i = cidx[(size_t)t], at = fill[(size_t)i]++;
+          ridx[(size_t)at] = k, rval[(size_t)at] = G(i, k);
+        }
+    }
+    sparse = is_clean && cidx.size() <= (size_t)(kSparseRow * m);  // G_AA's solves on its nonzeros (sparse_lu_solve)
+  }
+};
+
+// lu_solve(G_AA, rhs, x, true, true)'s bits (the dense elimination with its skips) for a submatrix G_AA of a clean G
+// (gi.is_clean; A: idx, ascending; pos: a row's place in idx, -1 outside A), on a row-major copy of G_AA: row i's
+// update by the pivot row j runs over the columns j < k < hi_j (hi_j: past row j's last nonzero, fill included),
+// contiguous, instead of the list of row j's nonzero columns. Where a_jk = +0 in that range, a_ik - l a_jk = a_ik:
+// l is finite (|l| <= 1 by the partial pivoting) and no entry of a clean matrix is or becomes -0.0 (lu_solve's
+// comment), so the bits are the skips'. A row i with no nonzero before column lo_i has a_ij = +0 for j < lo_i (an
+// update needs a_ij != 0), which no pivot search can pick. The buffers kept from one solve to the next.
+struct BandLU {
+  std::vector<double> a;
+  std::vector<Eigen::Index> lo, hi;
+};
+bool band_lu_solve(BandLU &w, const GInfo &gi, const std::vector<Eigen::Index> &idx, const Eigen::Index *pos,
+                   const VectorXd &rhs, VectorXd &x) {
+  using I = Eigen::Index;
+  const I n = (I)idx.size();
+  w.a.assign((size_t)(n * n), 0.0), w.lo.assign((size_t)n, n), w.hi.assign((size_t)n, 0);
+  double *a = w.a.data();
+  I *lo = w.lo.data(), *hi = w.hi.data();
+  for (I i = 0; i < n; ++i) {
+    const I r = idx[(size_t)i];
+    for (I t = gi.rptr[(size_t)r]; t < gi.rptr[(size_t)r + 1]; ++t) {
+      const I c = pos[gi.ridx[(size_t)t]];
+      if (c < 0) continue;
+      a[i * n + c] = gi.rval[(size_t)t];
+      lo[i] = std::min(lo[i], c), hi[i] = std::max(hi[i], c + 1);
+    }
+  }
+  x = rhs;
+  for (I j = 0; j < n; ++j) {
+    I p = j;
+    double best = std::abs(a[j * n + j]);
+    for (I i = j + 1; i < n && !std::isnan(best); ++i) {
+      if (lo[i] > j) continue;  // a_ij = +0
+      const double v = std::abs(a[i * n + j]);
+      if (std::isnan(v) || v > best) best = v, p = i;
+    }
+    const double piv = a[p * n + j];
+    if (!(piv != 0.0 && std::isfinite(piv))) return false;
+    if (p != j) {
+      const I e = std::max(hi[j], hi[p]);  // both rows +0 from column e on
+      for (I k = j; k < e; ++k) std::swap(a[j * n + k], a[p * n + k]);
+      std::swap(lo[j], lo[p]), std::swap(hi[j], hi[p]);
+      std::swap(x[j], x[p]);
+    }
+    const double *rj = a + j * n;
+    const I hj = hi[j];
+    const double xj = x[j];
+    for (I i = j + 1; i < n; ++i) {
+      double *ri = a + i * n;
+      const double aij = ri[j];
+      const double l = aij == 0.0 ? std::copysign(0.0, piv) : aij / piv;
+      if (l != 0.0) {
+        for (I k = j + 1; k < hj; ++k) ri[k] = ri[k] - l * rj[k];
+        hi[i] = std::max(hi[i], hj);
+      }
+      x[i] = x[i] - l * xj;
+    }
+  }
+  for (I j = n - 1; j >= 0; --j) {
+    x[j] = x[j] / a[j * n + j];
+    const double xj = x[j];
+    for (I i = 0; i < j; ++i) x[i] = x[i] - a[i * n + j] * xj;
+  }
+  return x.allFinite();
+}
+
 // qp._active_set cold (Goldfarb-Idnani's dual active set on min 1/2 lam'G lam - r'lam, lam >= 0), operation
-// for operation; false where qp._active_set returns None (the Python step then takes it, and piqp)
-bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double tol, std::vector<char> &act,
-                VectorXd &lam) {
+// for operation; false where qp._active_set returns None (the Python step then takes it, and piqp). gi: G's GInfo.
+bool active_set(const Constants &C, const MatrixXd &G, const GInfo &gi, const VectorXd &r, double tol,
+                std::vector<char> &act, VectorXd &lam) {
   const Eigen::Index m = r.size();
   const double inf = std::numeric_limits<double>::infinity();
   act.assign(m, 0);
   lam = VectorXd::Zero(m);
   int moves = 0;
-  const double gmax = G.cwiseAbs().maxCoeff();
-  std::vector<Eigen::Index> idx;
-  VectorXd d, rhs, Gp;
-  MatrixXd GA;
-  VectorXd s(m);
-  const bool finite = G.allFinite();
-  const bool is_clean = finite && clean(G);  // lu_solve on G's submatrices: finite, no -0.0
-  // G's nonzeros by columns (cptr, cidx: the rows of each) and by rows (rptr, ridx, rval: each row's columns,
-  // ascending, and values: G's rows without its strided reads), kept from call to call (no allocation)
-  thread_local std::vector<Eigen::Index> cptr, cidx, rptr, ridx;
-  thread_local std::vector<double> rval;
-  cptr.assign((size_t)m + 1, 0), rptr.assign((size_t)m + 1, 0), cidx.clear();
-  if (finite) {
-    for (Eigen::Index k = 0; k < m; ++k) {
-      const double *g = G.col(k).data();
-      for (Eigen::Index i = 0; i < m; ++i)
-        if (g[i] != 0.0) cidx.push_back(i), ++rptr[(size_t)i + 1];
-      cptr[(size_t)k + 1] = (Eigen::Index)cidx.size();
-    }
-    for (Eigen::Index i = 0; i < m; ++i) rptr[(size_t)i + 1] += rptr[(size_t)i];
-    ridx.resize(cidx.size()), rval.resize(cidx.size());
-    thread_local std::vector<Eigen::Index> fill;
-    fill.assign(rptr.begin(), rptr.end() - 1);
-    for (Eigen::Index k = 0; k < m; ++k)
-      for (Eigen::Index t = cptr[(size_t)k]; t < cptr[(size_t)k + 1]; ++t) {
-        const Eigen::Index i = cidx[(size_t)t], at = fill[(size_t)i]++;
-        ridx[(size_t)at] = k, rval[(size_t)at] = G(i, k);
-      }
-  }
-  const bool sparse = is_clean && cidx.size() <= (size_t)(kSparseRow * m);  // G_AA's solves on its nonzeros
+  const double gmax = gi.gmax;
+  thread_local std::vector<Eigen::Index> idx;
+  thread_local VectorXd d, rhs, Gp, s;
+  thread_local MatrixXd GA;
+  idx.clear();
+  s.resize(m);
+  const bool finite = gi.finite, is_clean = gi.is_clean;  // lu_solve on G's submatrices: finite, no -0.0
+  const auto &cptr = gi.cptr, &cidx = gi.cidx, &rptr = gi.rptr, &ridx = gi.ridx;
+  const auto &rval = gi.rval;
+  const bool sparse = gi.sparse;  // G_AA's solves on its nonzeros
   thread_local SparseLU w;  // G_AA by its nonzeros, for sparse_lu_solve (no k x k copy a move)
-  std::vector<Eigen::Index> posA(finite ? (size_t)m : 0, -1);  // a row's place in idx, -1 outside A
+  thread_local BandLU band;  // G_AA row-major, for band_lu_solve (G clean)
+  thread_local std::vector<Eigen::Index> posA;  // a row's place in idx, -1 outside A (reset where idx was set)
+  posA.assign(finite ? (size_t)m : 0, -1);
   bool lam_finite = true;
   // odot(G[p], x) over row p's nonzero terms (G and x finite: the others add +-0, settled by the + 0.0), x indexed
   // through `at` (-1: outside x)
@@ -590,6 +673,8 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
     if (best >= -tol) return true;
     while (true) {  // add p, dropping the rows whose multipliers reach zero on the way
       if (++moves > C.moves_per_row * m + C.moves_extra) return false;
+      if (finite)
+        for (Eigen::Index i : idx) posA[(size_t)i] = -1;
       idx.clear();
       for (Eigen::Index i = 0; i < m; ++i)
         if (act[i]) idx.push_back(i);
@@ -598,16 +683,16 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
       if (k) {
         rhs.resize(k);
         for (Eigen::Index i = 0; i < k; ++i) rhs[i] = -G(idx[i], p);
-        if (finite) {
-          std::fill(posA.begin(), posA.end(), -1);
+        if (finite)
           for (Eigen::Index i = 0; i < k; ++i) posA[(size_t)idx[i]] = i;
-        }
         if (sparse && k > kSparseLU) {  // lu_solve's bits from G_AA's nonzeros
           w.set_size(k);
           for (Eigen::Index i = 0; i < k; ++i)
             for (Eigen::Index t = rptr[(size_t)idx[i]]; t < rptr[(size_t)idx[i] + 1]; ++t)
               if (posA[(size_t)ridx[(size_t)t]] >= 0) w.a[(size_t)i].emplace_back(posA[(size_t)ridx[(size_t)t]], rval[(size_t)t]);
           if (!sparse_lu_solve(w, rhs, d)) return false;
+        } else if (is_clean) {  // lu_solve's bits on G_AA row-major, its updates over each pivot row's band
+          if (!band_lu_solve(band, gi, idx, posA.data(), rhs, d)) return false;
         } else {
           GA.resize(k, k);
           for (Eigen::Index i = 0; i < k; ++i)
@@ -640,7 +725,13 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
       const double t = t1 <= t2 ? t1 : t2;
       for (Eigen::Index j = 0; j < k; ++j) lam[idx[j]] = lam[idx[j]] + t * d[j];
       lam[p] = lam[p] + t;
-      for (Eigen::Index i = 0; i < m; ++i) lam[i] = std::max(lam[i], 0.0), lam_finite = lam_finite && std::isfinite(lam[i]);
+      // np.maximum(lam, 0.0) on the entries just moved (A and p): every other one is +0.0 (never moved, or set at its
+      // drop) or clamped at an earlier move, and the clamp leaves a clamped entry as it is; so is lam_finite
+      for (Eigen::Index j = 0; j < k; ++j) {
+        double &l = lam[idx[j]];
+        l = std::max(l, 0.0), lam_finite = lam_finite && std::isfinite(l);
+      }
+      lam[p] = std::max(lam[p], 0.0), lam_finite = lam_finite && std::isfinite(lam[p]);
       if (t1 <= t2) {
         act[p] = 1;
         break;
@@ -651,57 +742,140 @@ bool active_set(const Constants &C, const MatrixXd &G, const VectorXd &r, double
   }
 }
 
+// W's nonzeros by columns (wptr, widx: the velocities each contact's row moves) and whether W is finite, built once
+// a projection (project); the buffers kept from one projection to the next
+struct WInfo {
+  bool finite = false;
+  std::vector<Eigen::Index> wptr, widx;
+  void set(const MatrixXd &W) {
+    const Eigen::Index nv = W.rows(), m = W.cols();
+    finite = W.allFinite();
+    wptr.assign((size_t)m + 1, 0), widx.clear();
+    for (Eigen::Index j = 0; j < m && finite; ++j) {
+      for (Eigen::Index k = 0; k < nv; ++k)
+        if (W(k, j) != 0.0) widx.push_back(k);
+      wptr[(size_t)j + 1] = (Eigen::Index)widx.size();
+    }
+  }
+};
+
+// otimes_t(W, x) (sums.ordered(W.T, x)) over W's nonzero terms where W and x are finite (a term with W_kj = +-0 adds
+// +-0 to the sum: the same sum, its sign as a zero settled by the + 0.0; contact_space's argument), else otimes_t
+void otimes_t_nz(const MatrixXd &W, const WInfo &wi, const VectorXd &x, VectorXd &y) {
+  if (!wi.finite || !x.allFinite() || W.rows() == 0) {
+    y = otimes_t(W, x);
+    return;
+  }
+  const Eigen::Index m = W.cols();
+  y.resize(m);
+  for (Eigen::Index j = 0; j < m; ++j) {
+    const double *w = W.col(j).data();
+    double sum = 0.0;
+    bool first = true;
+    for (Eigen::Index t = wi.wptr[(size_t)j]; t < wi.wptr[(size_t)j + 1]; ++t) {
+      const Eigen::Index k = wi.widx[(size_t)t];
+      const double term = w[k] * x[k];
+      sum = first ? term : sum + term;
+      first = false;
+    }
+    y[j] = sum + 0.0;
+  }
+}
+
 // MiW = Minv @ W and G = W.T @ MiW as omatmul sums them (k ascending, + 0.0), over the nonzero terms only: a term
 // with a zero factor adds +-0 to the sum (the same sum; its sign as a zero settled by the + 0.0), so where Minv and W
 // are finite this gives omatmul's bits at the cost of the nonzeros (M block diagonal over the trees, a row of W
-// nonzero on the two bodies of its contact: docs/theory.md §2.8); anything non-finite takes omatmul itself
-void contact_space(const MatrixXd &Minv, const MatrixXd &W, MatrixXd &MiW, MatrixXd &G) {
+// nonzero on the two bodies of its contact: docs/theory.md §2.8); anything non-finite takes omatmul itself. wi: W's
+// WInfo; the nonzero lists in flat buffers kept from one call to the next (no allocation)
+void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, MatrixXd &MiW, MatrixXd &G) {
   const Eigen::Index nv = W.rows(), m = W.cols();
-  if (!Minv.allFinite() || !W.allFinite()) {
+  if (!Minv.allFinite() || !wi.finite) {
     omatmul(Minv, W, MiW);
     omatmul(W.transpose(), MiW, G);
     return;
   }
-  std::vector<std::vector<Eigen::Index>> mcol((size_t)nv), wcol((size_t)m);
-  for (Eigen::Index k = 0; k < nv; ++k)
-    for (Eigen::Index i = 0; i < nv; ++i)
-      if (Minv(i, k) != 0.0) mcol[(size_t)k].push_back(i);
-  for (Eigen::Index j = 0; j < m; ++j)
-    for (Eigen::Index k = 0; k < nv; ++k)
-      if (W(k, j) != 0.0) wcol[(size_t)j].push_back(k);
+  using I = Eigen::Index;
+  thread_local std::vector<I> mptr, midx, rptr, rcol, fill;  // Minv's nonzeros by columns; W's by rows (rptr, rcol, rval)
+  thread_local std::vector<double> rval;
+  mptr.assign((size_t)nv + 1, 0), midx.clear();
+  for (I k = 0; k < nv; ++k) {
+    for (I i = 0; i < nv; ++i)
+      if (Minv(i, k) != 0.0) midx.push_back(i);
+    mptr[(size_t)k + 1] = (I)midx.size();
+  }
+  const auto &wptr = wi.wptr, &widx = wi.widx;
   MiW.setZero(nv, m);
-  for (Eigen::Index j = 0; j < m; ++j) {
+  for (I j = 0; j < m; ++j) {
     double *y = MiW.col(j).data();
-    for (Eigen::Index k : wcol[(size_t)j]) {
+    for (I t = wptr[(size_t)j]; t < wptr[(size_t)j + 1]; ++t) {
+      const I k = widx[(size_t)t];
       const double xk = W(k, j);
       const double *a = Minv.col(k).data();
-      for (Eigen::Index i : mcol[(size_t)k]) y[i] = y[i] + a[i] * xk;
+      for (I s = mptr[(size_t)k]; s < mptr[(size_t)k + 1]; ++s) {
+        const I i = midx[(size_t)s];
+        y[i] = y[i] + a[i] * xk;
+      }
     }
-    for (Eigen::Index i = 0; i < nv; ++i) y[i] = y[i] + 0.0;
+    for (I i = 0; i < nv; ++i) y[i] = y[i] + 0.0;
   }
-  std::vector<std::vector<std::pair<Eigen::Index, double>>> wrow((size_t)nv);  // each row of W: (column, value)
-  for (Eigen::Index j = 0; j < m; ++j)
-    for (Eigen::Index k : wcol[(size_t)j]) wrow[(size_t)k].emplace_back(j, W(k, j));
+  // each row of W: (column, value), columns ascending
+  rptr.assign((size_t)nv + 1, 0);
+  for (I t = 0; t < (I)widx.size(); ++t) ++rptr[(size_t)widx[(size_t)t] + 1];
+  for (I k = 0; k < nv; ++k) rptr[(size_t)k + 1] += rptr[(size_t)k];
+  rcol.resize(widx.size()), rval.resize(widx.size());
+  fill.assign(rptr.begin(), rptr.end() - 1);
+  for (I j = 0; j < m; ++j)
+    for (I t = wptr[(size_t)j]; t < wptr[(size_t)j + 1]; ++t) {
+      const I k = widx[(size_t)t], at = fill[(size_t)k]++;
+      rcol[(size_t)at] = j, rval[(size_t)at] = W(k, j);
+    }
   G.resize(m, m);
-  VectorXd g = VectorXd::Zero(m);
-  for (Eigen::Index j = 0; j < m; ++j) {  // G's column j (written in memory order): the sums over k ascending
+  thread_local VectorXd g;
+  g.setZero(m);
+  for (I j = 0; j < m; ++j) {  // G's column j (written in memory order): the sums over k ascending
     const double *y = MiW.col(j).data();
-    for (Eigen::Index k = 0; k < nv; ++k) {
+    for (I k = 0; k < nv; ++k) {
       const double ykj = y[k];
       if (ykj == 0.0) continue;
-      for (const auto &e : wrow[(size_t)k]) g[e.first] = g[e.first] + e.second * ykj;
+      for (I t = rptr[(size_t)k]; t < rptr[(size_t)k + 1]; ++t) {
+        const I c = rcol[(size_t)t];
+        g[c] = g[c] + rval[(size_t)t] * ykj;
+      }
     }
     double *gj = G.col(j).data();
-    for (Eigen::Index i = 0; i < m; ++i) gj[i] = g[i] + 0.0, g[i] = 0.0;
+    for (I i = 0; i < m; ++i) gj[i] = g[i] + 0.0, g[i] = 0.0;
   }
+}
+
+// lu_solve(G[sel][:, sel], rhs, x) for project's final solves: band_lu_solve where G is clean (the same bits), else
+// lu_solve on the copy
+bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Index> &sel, const VectorXd &rhs,
+               VectorXd &x) {
+  const Eigen::Index k = (Eigen::Index)sel.size();
+  if (gi.is_clean) {
+    thread_local BandLU band;
+    thread_local std::vector<Eigen::Index> pos;
+    pos.assign((size_t)G.rows(), -1);
+    for (Eigen::Index i = 0; i < k; ++i) pos[(size_t)sel[(size_t)i]] = i;
+    return band_lu_solve(band, gi, sel, pos.data(), rhs, x);
+  }
+  MatrixXd GA(k, k);
+  for (Eigen::Index i = 0; i < k; ++i)
+    for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(sel[(size_t)i], sel[(size_t)j]);
+  return lu_solve(GA, rhs, x);
 }
 
 // qp.solve (primal form, Polish.ACTIVE_SET, at most qp.COLD_START_ROWS rows): the screen, the closed form for
 // one row, else qp._polish cold: the active set, re-solved on its final set and checked. Throws Fallback where
-// qp.solve would go on to piqp.
+// qp.solve would go on to piqp. G's and W's nonzeros are found once (GInfo, WInfo) and each product W'v is
+// formed once (W'v0 for the screen and r; W'vp for r2 and the last check, or W'v2 where the second pass is kept).
 Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv) {
   const Eigen::Index m = W.cols(), nv = W.rows();
-  const VectorXd slack0 = otimes_t(W, v0) - b;
+  thread_local WInfo wi;
+  wi.set(W);
+  VectorXd Wv0;
+  otimes_t_nz(W, wi, v0, Wv0);
+  const VectorXd slack0 = Wv0 - b;
   if (slack0.minCoeff() >= -C.screen * (1.0 + v0.cwiseAbs().maxCoeff())) return {v0, VectorXd::Zero(m), Projection::ADMISSIBLE};
   if (m == 1) {
     const VectorXd w = W.col(0);
@@ -712,27 +886,30 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
   }
   const double scale = 1.0 + v0.cwiseAbs().maxCoeff();
   MatrixXd MiW, G;  // Minv @ W, W.T @ MiW
-  contact_space(Minv, W, MiW, G);
-  const VectorXd r = b - otimes_t(W, v0);
+  contact_space(Minv, W, wi, MiW, G);
+  thread_local GInfo gi;
+  gi.set(G);
+  const VectorXd r = b - Wv0;
   std::vector<char> act;
   VectorXd lam;
-  if (!active_set(C, G, r, C.screen * scale, act, lam)) throw Fallback{"active set did not settle"};
+  if (!active_set(C, G, gi, r, C.screen * scale, act, lam)) throw Fallback{"active set did not settle"};
   std::vector<Eigen::Index> idx;
   for (Eigen::Index i = 0; i < m; ++i)
     if (act[i]) idx.push_back(i);
   const Eigen::Index k = (Eigen::Index)idx.size();
   VectorXd lp = VectorXd::Zero(m), vp;
+  VectorXd Wvp;  // W'vp for the last check
   if (!k) {
     vp = v0;
+    Wvp = Wv0;
   } else {
-    MatrixXd GA(k, k), MiWA(nv, k);
+    MatrixXd MiWA(nv, k);
     VectorXd rA(k), lamA;
     for (Eigen::Index i = 0; i < k; ++i) {
       rA[i] = r[idx[i]];
       MiWA.col(i) = MiW.col(idx[i]);
-      for (Eigen::Index j = 0; j < k; ++j) GA(i, j) = G(idx[i], idx[j]);
     }
-    if (!lu_solve(GA, rA, lamA) || lamA.minCoeff() < -C.accept * std::max(1.0, lamA.maxCoeff()))
+    if (!solve_sub(G, gi, idx, rA, lamA) || lamA.minCoeff() < -C.accept * std::max(1.0, lamA.maxCoeff()))
       throw Fallback{"active set's final solve rejected"};
     for (Eigen::Index i = 0; i < k; ++i) lamA[i] = std::max(lamA[i], 0.0);
     vp = v0 + otimes(MiWA, lamA);
@@ -742,26 +919,24 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
       if (lamA[i] > 0.0) pi.push_back(i), iP.push_back(idx[i]);
     const Eigen::Index kp = (Eigen::Index)iP.size();
     if (kp) {
-      MatrixXd GP(kp, kp), WP(nv, kp), MiWP(nv, kp);
-      for (Eigen::Index i = 0; i < kp; ++i) {
-        WP.col(i) = W.col(iP[i]), MiWP.col(i) = MiW.col(iP[i]);
-        for (Eigen::Index j = 0; j < kp; ++j) GP(i, j) = G(iP[i], iP[j]);
-      }
+      MatrixXd WP(nv, kp), MiWP(nv, kp);
+      for (Eigen::Index i = 0; i < kp; ++i) WP.col(i) = W.col(iP[i]), MiWP.col(i) = MiW.col(iP[i]);
       const VectorXd WPv = otimes_t(WP, vp);
       VectorXd rP(kp), dP;
       for (Eigen::Index i = 0; i < kp; ++i) rP[i] = b[iP[i]] - WPv[i];
-      if (lu_solve(GP, rP, dP) && dP.cwiseAbs().maxCoeff() <= C.refine * (1.0 + lamA.maxCoeff())) {
+      if (solve_sub(G, gi, iP, rP, dP) && dP.cwiseAbs().maxCoeff() <= C.refine * (1.0 + lamA.maxCoeff())) {
         for (Eigen::Index i = 0; i < kp; ++i) lamA[pi[i]] = std::max(lamA[pi[i]] + dP[i], 0.0);
         vp = vp + otimes(MiWP, dP);
       }
     }
     for (Eigen::Index i = 0; i < k; ++i) lp[idx[i]] = lamA[i];
     // qp._polish's second pass: the active set on the answer's own residual
-    const VectorXd r2 = b - otimes_t(W, vp);
+    otimes_t_nz(W, wi, vp, Wvp);
+    const VectorXd r2 = b - Wvp;
     const double tol2 = C.second_pass * (b.cwiseAbs().maxCoeff() + W.cwiseAbs().maxCoeff() * vp.cwiseAbs().maxCoeff());
     std::vector<char> act2;
     VectorXd dl;
-    if (active_set(C, G, r2, tol2, act2, dl)) {
+    if (active_set(C, G, gi, r2, tol2, act2, dl)) {
       std::vector<Eigen::Index> i2;
       for (Eigen::Index i = 0; i < m; ++i)
         if (act2[i]) i2.push_back(i);
@@ -771,14 +946,17 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
         VectorXd d2(k2);
         for (Eigen::Index i = 0; i < k2; ++i) MiW2.col(i) = MiW.col(i2[i]), d2[i] = dl[i2[i]];
         const VectorXd v2 = vp + otimes(MiW2, d2);
-        if ((otimes_t(W, v2) - b).minCoeff() >= -r2.maxCoeff()) {
+        VectorXd Wv2;
+        otimes_t_nz(W, wi, v2, Wv2);
+        if ((Wv2 - b).minCoeff() >= -r2.maxCoeff()) {
           vp = v2;
+          Wvp = std::move(Wv2);
           for (Eigen::Index i = 0; i < k2; ++i) lp[i2[i]] = lp[i2[i]] + d2[i];
         }
       }
     }
   }
-  if ((otimes_t(W, vp) - b).minCoeff() < -C.accept * scale) throw Fallback{"active set's answer rejected"};
+  if ((Wvp - b).minCoeff() < -C.accept * scale) throw Fallback{"active set's answer rejected"};
   return {vp, lp, Projection::ACTIVE_SET};
 }
 
@@ -2140,6 +2318,25 @@ NB_MODULE(_step, mod) {
     if (!lu_solve(A, rhs, x)) return nb::none();
     return nb::cast(x);
   }, nb::arg("A"), nb::arg("rhs"));
+  // band_lu_solve on a clean A (finite, no -0.0: a contact-space G) and the rows and columns sel of it (ascending), as
+  // the active set solves G_AA: x, or None where it fails (tests/test_compiled.py holds it bit-identical to
+  // qp._lu_solve of A[sel][:, sel])
+  mod.def("lu_solve_band", [](const MatrixXd &A, const VectorXd &rhs, std::vector<Eigen::Index> sel) -> nb::object {
+    if (A.rows() != A.cols() || (Eigen::Index)sel.size() != rhs.size()) throw nb::value_error("A (n, n), rhs (len(sel),) expected");
+    if (!clean(A)) throw nb::value_error("A: finite, without -0.0 expected");
+    std::vector<Eigen::Index> pos((size_t)A.rows(), -1);
+    for (size_t i = 0; i < sel.size(); ++i) {
+      if (sel[i] < 0 || sel[i] >= A.rows() || (i && sel[i] <= sel[i - 1])) throw nb::value_error("sel: ascending rows of A");
+      pos[(size_t)sel[i]] = (Eigen::Index)i;
+    }
+    if (sel.empty()) return nb::cast(VectorXd(0));
+    GInfo gi;
+    gi.set(A);
+    BandLU w;
+    VectorXd x;
+    if (!band_lu_solve(w, gi, sel, pos.data(), rhs, x)) return nb::none();
+    return nb::cast(x);
+  }, nb::arg("A"), nb::arg("rhs"), nb::arg("sel"));
   // how this build does floating point (docs/theory.md §2.8): the options CMakeLists.txt compiled it with, whether
   // the target has FMA instructions, FLT_EVAL_METHOD (0: every double operation rounds to double), and a probe
   // a * b + c on run-time values, contracted to one fused rounding only if the build contracts

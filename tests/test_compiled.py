@@ -168,6 +168,35 @@ def test_kernels_are_bit_identical_to_qp():
             assert ref is None or x.view(np.int64).tolist() == ref.view(np.int64).tolist()
 
 
+def test_band_solve_is_bit_identical_to_qp():
+    """The active set's solve of G_AA on its row-major band (src/step.cpp band_lu_solve: each pivot row's update run
+    over the columns up to its last nonzero, zeros of that range included) against qp._lu_solve of A[sel][:, sel],
+    bit for bit: the clean systems of test_qp.lu_systems (SPD, pivoting, banded, scattered, a row swap at every column,
+    right-hand sides of signed zeros), random subsets of their rows as the active set takes them, ties in a pivot
+    column, and None on the same singular systems."""
+    from test_qp import lu_systems
+    rng = np.random.default_rng(11)
+    tie = np.array([[1.0, 2.0, 0.0], [0.0, 1.0, 3.0], [-1.0, 0.0, 5.0]])  # |a_00| = |a_20|: the first is the pivot
+    cases = [(tie, np.array([1.0, -0.0, 2.0]))]
+    for seed in range(6):
+        cases += [(A, rhs) for A, rhs in lu_systems(seed)
+                  if np.isfinite(A).all() and not (np.signbit(A) & (A == 0.0)).any()]
+    checked = 0
+    for A, rhs in cases:
+        n = A.shape[0]
+        for sel in (np.arange(n), np.flatnonzero(rng.random(n) < 0.6)):
+            if not sel.size:
+                continue
+            r = rhs[sel].copy()
+            x, ref = _ext().lu_solve_band(A, r, sel.tolist()), qp._lu_solve(A[np.ix_(sel, sel)], r)
+            assert (x is None) == (ref is None), (n, sel)
+            assert ref is None or x.view(np.int64).tolist() == ref.view(np.int64).tolist(), (n, sel)
+            checked += ref is not None
+    assert checked >= 150
+    with pytest.raises(ValueError, match="without -0.0"):
+        _ext().lu_solve_band(np.array([[1.0, -0.0], [0.0, 1.0]]), np.ones(2), [0, 1])
+
+
 def test_the_build_does_not_contract():
     """The extension is compiled as §2.8 requires: with -ffp-contract=off (reported by the build, CMakeLists.txt),
     doubles rounded at each operation (FLT_EVAL_METHOD 0, no x87 excess precision), and its probe a * b + c on
