@@ -9,7 +9,6 @@ those do not apply; the loop is driver.drive (§9).
 from __future__ import annotations
 
 import math
-import weakref
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -18,15 +17,16 @@ import numpy as np
 import pinocchio as pin
 
 from . import compiled_events
+from .adaptive_static import FIXED_POINT, extrapolator_of, features_of, static_of
 from .actuation import refuse_driven
 from .drive import refuse as refuse_drives
 from .data import Data, make_data
 from .errors import SimulationError
+from .hermite import CHECK, CHECK_BASIS, CHECK_FLOATS, QUINTIC, poly, polyslope, polyval
 from .checkpoint import Checkpoint
 from .driver import Check, drive
-from .event_rules import (G_REGION, G_RES, LAM_EPS, V_TOL, EventState, dynamics, features, make_rules, model_features,
+from .event_rules import (G_REGION, G_RES, LAM_EPS, V_TOL, EventState, dynamics, features, make_rules,
                           phase_sets, resolve, sample_grid, thin_limit)
-from .gaps import UnsupportedModel
 from .model import Model, initial_state
 from .options import Bias
 from .protocol import FixedStep, Report, Segment, Status
@@ -40,47 +40,13 @@ from .trajectory import Trajectory
 ORDERS = (4, 6, 8)  # n = 1..order/2 midpoint steps of H/n, extrapolated in h^2
 DEFAULT_ORDER = 6
 SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0  # step-size control as scipy's solve_ivp
-CHECK_POINTS = 16  # interior instants of a step where the gaps' interpolants are checked
 LAND_ITER = 4  # Newton corrections of a landed step (dt = -g/gamma)
 G_LAND = 1e-15  # [m] a landed gap within this of 0 is not corrected further
 BURST_EVENTS = 64  # this many events within one fixed step dt: an accumulation, fixed steps
 BACK_STEPS = 8  # consecutive quiet fixed steps before returning to extrapolated steps
 V_BACK = 1e-6  # [m/s] closed contacts slower than this after a fixed step: at rest
-FIXED_POINT = 1e-3  # the midpoint bias's fixed point is iterated to this fraction of the step tolerance
-MAX_FEATURES = 64  # more features than box pairs' (very many contacts): fixed steps throughout
 H_MIN = 1e-14  # [s] smallest extrapolated step before giving up on a phase (fixed steps then)
 BOX_TRAVEL = 0.25  # a step's travel while boxes are near, in their smallest half side (_box_limit)
-
-
-# The quintic Hermite basis on [0, 1] in powers of tau: row k holds the coefficients of tau^0..tau^5
-# of the basis function of value 0, slope 0, curvature 0, value 1, slope 1, curvature 1.
-QUINTIC = np.array([[1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1.5, 1.5, -0.5],
-                    [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5]])
-_POWERS = np.arange(6)
-_CHECK = np.linspace(0.0, 1.0, CHECK_POINTS + 1)
-_CHECK_BASIS = ordered(_CHECK[:, None] ** _POWERS, QUINTIC.T)  # (points, 6)
-_CHECK_FLOATS = _CHECK.tolist()
-
-
-def _poly(coef: np.ndarray) -> np.ndarray:
-    """Power coefficients (6, ...) of the quintic Hermite interpolant of Hermite data coef (6, ...)."""
-    return ordered(QUINTIC.T, coef)
-
-
-def _polyval(p: np.ndarray, x: float):
-    """p[0] + p[1] x + ... + p[5] x^5 (Horner), p (6, ...)."""
-    y = p[5]
-    for k in range(4, -1, -1):
-        y = y * x + p[k]
-    return y
-
-
-def _polyslope(p: np.ndarray, x: float):
-    """d/dx of _polyval(p, x)."""
-    y = 5.0 * p[5]
-    for k in range(4, 0, -1):
-        y = y * x + k * p[k]
-    return y
 
 
 def brentq(f, a: float, b: float, **kwargs) -> float:
@@ -101,79 +67,8 @@ def _root(f, lo: float, hi: float, xtol: float) -> float:
     return brentq(f, lo, hi, xtol=xtol)
 
 
-_FEATURES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> _features(model)
-_EXTRAPOLATORS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> {(seq, ..., atol): step}
-
-
-def _features(model: Model) -> tuple[tuple, str | None]:
-    """(the features an adaptive run of `model` locates events on, why none: None where it does), made once per model
-    (a model is never modified after build_model): event_rules.model_features but cylinders on boxes and more than
-    MAX_FEATURES features not counting box pairs'."""
-    got = _FEATURES.get(model)
-    if got is not None:
-        return got
-    try:
-        feats, why = model_features(model), None
-    except UnsupportedModel as exc:
-        feats, why = (), str(exc)
-    names = {p.index: p.name for p in model.pairs}
-    cyl_box = sorted({names[f.pair] for f in feats if f.kind in ("rim_box", "side_edge")})
-    if cyl_box:  # their stand-ins and screening jump (docs/theory.md §7.2): the event-driven integrator's only
-        feats, why = (), f"cylinder vs box pairs ({', '.join(cyl_box[:3])}): event-driven only"
-    n = sum(f.box is None for f in feats)
-    if n > MAX_FEATURES:
-        feats, why = (), f"{n} features (not counting box pairs') > MAX_FEATURES = {MAX_FEATURES}"
-    got = _FEATURES[model] = (feats, why)
-    return got
-
-
-def _extrapolator(model: Model, seq: tuple, ratios: tuple, lie: bool, rtol: float, atol: float):
-    """compiled_events.extrapolator, made once per model and tolerances: the compiled step keeps nothing from one
-    call to the next (its Pinocchio Data is scratch), so the runs of one model share it."""
-    key = (seq, ratios, lie, rtol, atol)
-    made = _EXTRAPOLATORS.setdefault(model, {})
-    if key not in made:
-        made[key] = compiled_events.extrapolator(model, seq=seq, ratios=ratios, lie=lie, rtol=rtol, atol=atol,
-                                                 fixed_point=FIXED_POINT)
-    return made[key]
-
-
 _NONE = np.zeros(0)
 _NONE.flags.writeable = False  # an _End's multipliers and margins without C (read-only, shared)
-
-
-class _Static:
-    """What an adaptive run reads of its model and features alone, made once per model (_static): lie (a joint with
-    nq != nv), neutral (pin.neutral, read-only), flat (_size: a vector space whose neutral is 0), is_box (which
-    features are box pairs'), any_box, box_half (the smallest half side of their boxes [m]), far (k -> _End.near of
-    k compiled features, AdaptiveRun._far)."""
-
-    __slots__ = ("feats", "lie", "neutral", "flat", "is_box", "any_box", "box_half", "far")
-
-    def __init__(self, model: Model, feats: tuple):
-        pm = model.pin
-        self.feats = feats
-        self.lie = any(pm.joints[j].nq != pm.joints[j].nv for j in range(1, pm.njoints))
-        self.neutral = pin.neutral(pm)
-        self.neutral.flags.writeable = False
-        self.flat = not self.lie and not self.neutral.any()
-        self.is_box = np.array([f.box is not None for f in feats], bool)
-        self.is_box.flags.writeable = False
-        self.any_box = bool(self.is_box.any())
-        self.box_half = min([min(f.box.a.half, f.box.b.half) for f in feats if f.box is not None], default=np.inf)
-        self.far: dict = {}
-
-
-_STATICS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> _Static of its run's features
-
-
-def _static(model: Model, feats: tuple) -> _Static:
-    """The _Static of `model` on `feats`, made once per model and features (a model is never modified after
-    build_model; its runs share it: nothing in it is written to but far's entries, each made once)."""
-    got = _STATICS.get(model)
-    if got is None or got.feats is not feats:
-        got = _STATICS[model] = _Static(model, feats)
-    return got
 
 
 class _End:
@@ -260,11 +155,11 @@ class AdaptiveRun:
 
     def __init__(self, model: Model, data: Data, e: float, rtol: float, atol: float, order: int,
                  max_step: float, max_events: int, *, state: State | None = None, t_end: float = np.inf):
-        feats, self.unsupported = _features(model)
+        feats, self.unsupported = features_of(model)
         self.rules = make_rules(model, data, e, feats)  # what the event rules read of the model (event_rules.py)
         self.model, self.data, self.e, self.feats, self.gap_tol = model, data, e, self.rules.feats, self.rules.gap_tol
         self.pm, self.pd, self.nv, self.zero = model.pin, data.pin, model.nv, np.zeros(model.nv)
-        st = _static(model, self.feats)
+        st = static_of(model, self.feats)
         self.is_box, self.box_half, self.any_box, self.lie = st.is_box, st.box_half, st.any_box, st.lie
         self.neutral, self.flat, self._fars = st.neutral, st.flat, st.far
         if order not in ORDERS:
@@ -274,12 +169,12 @@ class AdaptiveRun:
         seq = self.seq  # the extrapolation's divisors: ratios[j][m - 1] = (seq[j] / seq[j - m])^2 - 1
         self.ratios = tuple(tuple((seq[j] / seq[j - m]) ** 2 - 1.0 for m in range(1, j + 1)) for j in range(len(seq)))
         # the compiled _step without a persistent set (src/events.hpp; None: the Python one, step_impl = "python")
-        self.extrapolate = _extrapolator(model, self.seq, self.ratios, self.lie, rtol, atol)
+        self.extrapolate = extrapolator_of(model, self.seq, self.ratios, self.lie, rtol, atol)
         # the samples on the dense output and their figures, a step's at once (None: dense() one by one)
         self.sampler = compiled_events.sampler(model, data, lie=self.lie, basis=QUINTIC)
         # the event location in free flight without box features (src/locate.hpp; None: the Python one)
         self.locate = None if self.any_box else compiled_events.locator(
-            model, check=_CHECK, check_basis=_CHECK_BASIS, quintic=QUINTIC, v_tol=V_TOL)
+            model, check=CHECK, check_basis=CHECK_BASIS, quintic=QUINTIC, v_tol=V_TOL)
         self.h_fix = model.options.dt
         state = state or initial_state(model, data)
         self.s = Carried(State(float(state.t), np.array(state.q, float), np.array(state.u, float)), float(state.t),
@@ -395,10 +290,10 @@ class AdaptiveRun:
             c1 = _lu_solve(pin.dIntegrate(self.pm, e0.q, d1, pin.ArgumentPosition.ARG1), e1.a) + Jinv_dot_u
         else:
             s1, c1 = e1.u, e1.a
-        p = _poly(np.array([np.zeros(self.nv), H * e0.u, H * H * e0.a, d1, H * s1, H * H * c1]))
+        p = poly(np.array([np.zeros(self.nv), H * e0.u, H * H * e0.a, d1, H * s1, H * H * c1]))
 
         def at(tau: float):
-            d, s = _polyval(p, tau), (_polyslope(p, tau) / H if H > 0 else e0.u)
+            d, s = polyval(p, tau), (polyslope(p, tau) / H if H > 0 else e0.u)
             if not self.lie:
                 return e0.q + d, s
             J = pin.dIntegrate(self.pm, e0.q, d, pin.ArgumentPosition.ARG1)
@@ -444,7 +339,7 @@ class AdaptiveRun:
                 return (tau, "gap" if kind == 0 else "return", k) if status else None
         H = e1.t - e0.t
         best = None
-        taus = _CHECK
+        taus = CHECK
         if len(e0.g):
             coef = np.array([e0.g, H * e0.gamma, H * H * e0.gdd, e1.g, H * e1.gamma, H * H * e1.gdd])
             # box-box gaps (docs/theory.md §7.1) are maxima over faces and an edge pair's stand-in: not
@@ -470,7 +365,7 @@ class AdaptiveRun:
                     if best is None or tau < best[0]:
                         best = (tau, "gap", k)
             done = box  # located above, or too far to close
-            G = ordered(_CHECK_BASIS, coef)  # (points, features)
+            G = ordered(CHECK_BASIS, coef)  # (points, features)
             G[-1] = e1.g
             crossing = np.flatnonzero((G[:, :nw] < 0.0).any(axis=0) & ~done[:nw])
             first = {int(k): int(np.argmax(G[:, k] < 0.0)) for k in crossing}
@@ -480,10 +375,10 @@ class AdaptiveRun:
             for k, j in first.items():
                 if j > j_min:  # a later bracket: its root is later than one of the first bracket's
                     continue
-                pk = _poly(coef[:, k])
+                pk = poly(coef[:, k])
 
                 def f(x, pk=pk):
-                    return float(_polyval(pk, x))
+                    return float(polyval(pk, x))
                 tau = _root(f, taus[j - 1], taus[j], 1e-15)
                 if best is None or tau < best[0]:
                     best = (tau, "gap", k)
@@ -497,7 +392,7 @@ class AdaptiveRun:
                 def fr(x, gc=gc):
                     return float(gc[0] * (1 - 3 * x * x + 2 * x ** 3) + gc[1] * (x - 2 * x * x + x ** 3)
                                  + gc[2] * (3 * x * x - 2 * x ** 3) + gc[3] * (x ** 3 - x * x))
-                vals = np.array([fr(x) for x in _CHECK_FLOATS])
+                vals = np.array([fr(x) for x in CHECK_FLOATS])
                 if (vals[1:] < 0).any() and vals[0] >= 0:
                     j = int(np.argmax(vals[1:] < 0)) + 1
                     tau = _root(fr, taus[j - 1], taus[j], 1e-15)

@@ -57,7 +57,7 @@ def sampler_unsupported(model, data, *, lie: bool) -> str | None:
 def sampler(model, data, *, lie: bool, basis) -> Callable | None:
     """The samples of one step on its dense output, (t0, q0, u0, a0, t1, q1, u1, a1, grid) -> (q (n, nq), u (n, nv),
     kinetic (n,) [J], potential (n,) [J], pair distances (n, pairs) [m]) as AdaptiveRun._segment's dense(t) and
-    Recorder.sample give them, or None where it does not apply (sampler_unsupported). basis: adaptive.QUINTIC."""
+    Recorder.sample give them, or None where it does not apply (sampler_unsupported). basis: hermite.QUINTIC."""
     if sampler_unsupported(model, data, lie=lie) is not None:
         return None
     ds = compiled._module.DenseSampler(compiled._context(model, data).stepper, *compiled.forest_args(model, data),
@@ -180,7 +180,7 @@ def locator(model, *, check, check_basis, quintic, v_tol: float) -> Callable | N
     brentq's arithmetic), (t0, g0, gamma0, gdd0, t1, g1, gamma1, gdd1, nw) -> (status, tau, kind, k): status 1 an
     event at tau of kind 0 (a gap) or 1 (a return) of watched feature k, 0 none, -1 Python's to locate; or None
     where it does not apply (the compiled step does not load, or predates it; step_impl python). check, check_basis,
-    quintic: adaptive._CHECK, _CHECK_BASIS, QUINTIC; v_tol: event_rules.V_TOL."""
+    quintic: hermite.CHECK, CHECK_BASIS, QUINTIC; v_tol: event_rules.V_TOL."""
     if compiled.loop_refusal(model, "EventLocator", "the compiled event location") is not None:
         return None
     if not _LOCATOR:

@@ -85,7 +85,7 @@ def _simulate(model, data, state, progress, checkpoint, spill, check, strict, py
                                  spill=spill, check=check)
     n, every = opts.n_steps, opts.save_every
     return drive(TimeStepping(model, data, state), model, data, progress=progress, checkpoint=checkpoint,
-                 spill=spill, check=check, capacity=1 + n // every + 1,  # the samples (recording.RESERVE_BYTES)
+                 spill=spill, check=check, capacity=1 + n // every + 1,  # the samples (columns.RESERVE_BYTES)
                  fast=None if python_run else compiled_run.runner)
 
 

@@ -232,7 +232,7 @@ def _write_npz(fh, arrays: dict[str, np.ndarray]) -> None:
 
 def _pieces(a: np.ndarray):
     """The bytes of a C-contiguous array in _PIECE-byte memoryviews, without a copy. Pages of a
-    read-only file map under `a` (a spilling recording's arrays, recording._Columns) are handed
+    read-only file map under `a` (a spilling recording's arrays, columns.Columns) are handed
     back once read, so streaming such an array through costs no memory."""
     data = memoryview(a.reshape(-1).view(np.uint8))
     mm = _read_only_map(a)

@@ -16,7 +16,7 @@ class DenseSampler {
  public:
   using Rows = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
   // stepper: the run's compiled Stepper (its GeometryData is the Python run's data.geom); trees, tree_of_joint,
-  // local_joint: as Runner's (src/forest.hpp); basis: adaptive.QUINTIC (6 x 6), row k the power coefficients of
+  // local_joint: as Runner's (src/forest.hpp); basis: hermite.QUINTIC (6 x 6), row k the power coefficients of
   // the basis function of Hermite datum k
   DenseSampler(nb::object stepper, const ForestFigures::TreeArgs &trees, std::vector<int64_t> tree_of_joint,
                std::vector<int64_t> local_joint, std::vector<std::vector<double>> basis)

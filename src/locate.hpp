@@ -9,8 +9,8 @@
 
 class EventLocator {
  public:
-  // check: the check instants tau_p in [0, 1] (adaptive._CHECK); check_basis: (points, 6) adaptive._CHECK_BASIS;
-  // quintic: (6, 6) adaptive.QUINTIC; v_tol [m/s]: event_rules.V_TOL
+  // check: the check instants tau_p in [0, 1] (hermite.CHECK); check_basis: (points, 6) hermite.CHECK_BASIS;
+  // quintic: (6, 6) hermite.QUINTIC; v_tol [m/s]: event_rules.V_TOL
   EventLocator(VectorXd check, MatrixXd check_basis, MatrixXd quintic, double v_tol)
       : check_(std::move(check)), basis_(std::move(check_basis)), quintic_(std::move(quintic)), v_tol_(v_tol) {
     if (basis_.rows() != check_.size() || basis_.cols() != 6 || quintic_.rows() != 6 || quintic_.cols() != 6 ||

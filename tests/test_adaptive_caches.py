@@ -1,5 +1,5 @@
 """What the adaptive integrator keeps per model and shares between calls (docs/theory.md §8): the per-model caches
-(adaptive._static, compiled_events._feature_args) go with their model and are never shared by two models, a run
+(adaptive_static.static_of, compiled_events._feature_args) go with their model and are never shared by two models, a run
 after others of its model gives a fresh run's bits, the shared read-only arrays stay unwritten, and the shortcuts
 that replace a general computation by its special case give the general one's floats: the error scale on a vector
 space (q for pin.difference(neutral, q)), the rank test (np.linalg.matrix_rank at its tolerance's edge), the gaps an
@@ -17,7 +17,7 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import adaptive, compiled_events, event_rules
+from moreau_sim import adaptive, adaptive_static, compiled_events, event_rules
 from moreau_sim.adaptive import AdaptiveRun
 from moreau_sim.data import make_data
 from moreau_sim.event_rules import features, phase_sets, resolve
@@ -92,16 +92,16 @@ def test_a_models_caches_go_with_it_and_two_models_do_not_share():
     (weakly keyed: with the model and its runs gone, its entries go)."""
     a, b = model_of("newton_cradle_5", duration=0.05), model_of("newton_cradle_5", duration=0.05)
     ra, rb = run_of(a), run_of(b)
-    sa, sb = adaptive._STATICS[a], adaptive._STATICS[b]
+    sa, sb = adaptive_static._STATICS[a], adaptive_static._STATICS[b]
     assert sa is not sb and sa.feats is ra.feats and sb.feats is rb.feats and sa.feats is not sb.feats
     assert compiled_events._FEATURE_ARGS[a] is not compiled_events._FEATURE_ARGS[b]
-    assert run_of(a).flat is ra.flat and adaptive._STATICS[a] is sa  # made once per model
+    assert run_of(a).flat is ra.flat and adaptive_static._STATICS[a] is sa  # made once per model
     gone = weakref.ref(a)
     del a, ra, sa
     gc.collect()
     # (the caches are weakly keyed: their entries of a go with it; test_run_caches: a model ms.simulate ran goes too)
     assert gone() is None
-    assert adaptive._STATICS[b] is sb and b in compiled_events._FEATURE_ARGS and rb.step().t > 0.0
+    assert adaptive_static._STATICS[b] is sb and b in compiled_events._FEATURE_ARGS and rb.step().t > 0.0
 
 
 def test_shared_arrays_are_read_only():

@@ -23,7 +23,8 @@ import moreau_sim as ms
 import moreau_sim.compiled as compiled
 from moreau_sim import compiled_events
 from moreau_sim.actuation import refuse_driven
-from moreau_sim.adaptive import FIXED_POINT, AdaptiveRun
+from moreau_sim.adaptive import AdaptiveRun
+from moreau_sim.adaptive_static import FIXED_POINT
 from moreau_sim.data import make_data
 from moreau_sim.drive import refuse as refuse_drives
 from moreau_sim.driver import drive

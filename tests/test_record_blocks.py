@@ -12,13 +12,14 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import compiled_events, driver, invariants, recording, trajectory
+from moreau_sim import columns, compiled_events, driver, invariants, recording, trajectory
 from moreau_sim.adaptive import AdaptiveRun, simulate_adaptive
+from moreau_sim.columns import Columns
 from moreau_sim.data import make_data
 from moreau_sim.errors import SimulationError
 from moreau_sim.invariants import Invariant, Invariants, InvariantViolation
 from moreau_sim.ledger import QUAD_FLOATS, _quad
-from moreau_sim.recording import Recorder, _Columns
+from moreau_sim.recording import Recorder
 from moreau_sim.state import State
 from moreau_sim.sums import ordered
 from moreau_sim.testing.references import BALL_GAP, ball_apex_times, ball_impact_times
@@ -336,9 +337,9 @@ def test_a_group_keeps_spare_rows_up_to_fit_slack_bytes(spare):
     """At the end of a recording a group cuts its unused rows when they are more than FIT_SLACK_BYTES, and keeps
     them when they are at most that; its arrays are its n rows either way."""
     sizes = {"nq": 1, "nv": 1, "pairs": 1}
-    row = sum(_Columns(trajectory.IMPACTS, sizes, 1).row_bytes.values())
-    rows = recording.FIT_SLACK_BYTES // row + (1 if spare > 0 else 0) + 3
-    g = _Columns(trajectory.IMPACTS, sizes, rows)
+    row = sum(Columns(trajectory.IMPACTS, sizes, 1).row_bytes.values())
+    rows = columns.FIT_SLACK_BYTES // row + (1 if spare > 0 else 0) + 3
+    g = Columns(trajectory.IMPACTS, sizes, rows)
     for j in range(3):
         i = g.free()
         g.cols["impact_t"][i] = 0.5 * j

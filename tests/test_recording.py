@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import recording, trajectory
+from moreau_sim import columns, trajectory
 from moreau_sim.checkpoint import Checkpoint
 from moreau_sim.recording import LOG_RELATIVE
 
@@ -89,7 +89,7 @@ def test_a_spilling_recording_is_bitwise_the_in_memory_one(monkeypatch, tmp_path
     candidates too): the same arrays (dtypes, shapes, bits) and
     checksum, read-only; a checkpoint written mid-run and a run resumed from it into spill files
     give them too; the saved file reads back the same; the spill files never have a name."""
-    monkeypatch.setattr(recording, "SPILL_BYTES", 300)
+    monkeypatch.setattr(columns, "SPILL_BYTES", 300)
     base = scene(name)
     h = base.options.dt * h_factor
     sc = base.with_options(dt=h, duration=steps * h, restitution=e, save_every=2)
@@ -106,7 +106,7 @@ def test_a_spilling_recording_is_bitwise_the_in_memory_one(monkeypatch, tmp_path
     if name == "zeno_ball" and e != 1.0:  # a stretch of persistent steps across the spills (e = 1: no rest)
         assert plain.log_steps.max() > 1000  # (e = 0: all but the first steps; the checkpoint is inside it)
     if name == "box_stack_5":  # stretches of more rows than a block holds
-        block = recording.SPILL_BYTES // sum(np.dtype(d).itemsize * (3 if s else 1)
+        block = columns.SPILL_BYTES // sum(np.dtype(d).itemsize * (3 if s else 1)
                                              for d, s in trajectory.LOG.values())
         assert max(np.count_nonzero(plain.log_step == k) for k in np.unique(plain.log_step[plain.log_steps > 1])) \
             > block
@@ -122,9 +122,9 @@ def test_a_spilling_recording_is_bitwise_the_in_memory_one(monkeypatch, tmp_path
 MEMORY_PROBE = """
 import json, resource, sys
 import moreau_sim as ms
-from moreau_sim import recording
+from moreau_sim import columns
 spill = sys.argv[3] if len(sys.argv) > 3 else None
-recording.SPILL_BYTES = 1 << 19  # blocks of 5461 samples and 4332 percussion rows
+columns.SPILL_BYTES = 1 << 19  # blocks of 5461 samples and 4332 percussion rows
 sc = ms.load_scene(sys.argv[1]).with_options(step_impl="compiled")
 ms.simulate(ms.build_model(sc.with_options(duration=1.0)), progress=False, spill=spill).save(sys.argv[2])  # warm
 model = ms.build_model(sc.with_options(duration=100.0))
@@ -162,8 +162,8 @@ def test_a_full_disk_under_the_spill_files_is_a_named_error(monkeypatch, tmp_pat
 
     from moreau_sim.cli import main
 
-    monkeypatch.setattr(recording, "SPILL_BYTES", 10_000)
-    write = recording._write_at
+    monkeypatch.setattr(columns, "SPILL_BYTES", 10_000)
+    write = columns.write_at
     calls = []
 
     def full(f, a, offset):
@@ -172,7 +172,7 @@ def test_a_full_disk_under_the_spill_files_is_a_named_error(monkeypatch, tmp_pat
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         write(f, a, offset)
 
-    monkeypatch.setattr(recording, "_write_at", full)
+    monkeypatch.setattr(columns, "write_at", full)
     out = tmp_path / "ball.npz"
     r = CliRunner().invoke(main, ["run", str(SCENES / "zeno_ball.toml"), "-o", str(out), "--duration", "2"])
     assert r.exit_code == 2, r.output
