@@ -148,12 +148,12 @@ def test_an_interrupt_in_a_compiled_run_resumes_bitwise(tmp_path, monkeypatch):
 
 def test_spilled_compiled_run(tmp_path, monkeypatch):
     """Spilling to disk (a small block: the columns spill many times) leaves the arrays unchanged."""
-    from moreau_sim import recording
+    from moreau_sim import columns
 
     sc = ms.load_scene(Path(__file__).resolve().parent.parent / "scenes" / "newton_cradle_5.toml")
     sc = sc.with_options(duration=0.4)
     ref = _run(sc, True)
-    monkeypatch.setattr(recording, "SPILL_BYTES", 4096)
+    monkeypatch.setattr(columns, "SPILL_BYTES", 4096)
     new = _run(sc, False, spill=tmp_path)
     assert new.meta["run"]["loop"] == "compiled"
     assert _arrays_differ(ref, new) == [] and ref.meta["ledger"] == new.meta["ledger"]
