@@ -552,14 +552,24 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3, help="timed repeats of runs with h >= 1e-4 (median)")
     ap.add_argument("--peers", default=",".join(peers.PEERS), help="peers to try (comma-separated)")
     ap.add_argument("--no-solvers", action="store_true", help="skip the impact-solver micro-benchmark")
+    ap.add_argument("--cases", default="", help="only these cases (comma-separated keys; default: all)")
+    ap.add_argument("--steps", default="", help="the fixed steps h [s] (comma-separated, each dividing OUTPUT_DT; "
+                                                "default: STEPS)")
     add_table_option(ap, "work_precision.json", "docs/benchmarks.md")
     a = ap.parse_args(argv)
     if rewrite_tables(a, doc_tables):
         return 0
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    steps = QUICK_STEPS if a.quick else STEPS
-    cases = [c for c in CASES if not (a.quick and c.key in QUICK_SKIP)]
+    steps = tuple(float(x) for x in a.steps.split(",") if x) or (QUICK_STEPS if a.quick else STEPS)
+    bad = [h for h in steps if not (h > 0 and abs(OUTPUT_DT / h - round(OUTPUT_DT / h)) < 1e-9)]
+    if bad:
+        ap.error(f"--steps: {bad[0]:g} does not divide OUTPUT_DT = {OUTPUT_DT:g} s")
+    keys = [k for k in a.cases.split(",") if k]
+    unknown = sorted(set(keys) - {c.key for c in CASES})
+    if unknown:
+        ap.error(f"--cases: unknown case {unknown[0]!r} (one of {', '.join(c.key for c in CASES)})")
+    cases = [c for c in CASES if not (a.quick and c.key in QUICK_SKIP) and (not keys or c.key in keys)]
     repeats = 1 if a.quick else a.repeats
     wanted = [p for p in a.peers.split(",") if p]
     avail = peers.available()
@@ -579,10 +589,10 @@ def main(argv=None) -> int:
     models, refs = {}, {}
     for case in cases:
         T = case.T_quick if a.quick else case.T
-        for h in steps:
+        for h in {*steps, STEPS[0]}:  # the reference and the adaptive runs: dt = STEPS[0] whatever --steps says
             models[case.key, h] = ms.build_model(ms.load_scene(scene_path(case.scene)).with_options(
                 restitution=case.e, dt=h, duration=T))
-        refs[case.key] = reference(case, T, models[case.key, steps[0]])
+        refs[case.key] = reference(case, T, models[case.key, STEPS[0]])
         if case.peer_scene is None:
             print(f"NOTE: {case.key}: no peer can express this scene (the peers' runners cover "
                   f"{', '.join(sorted({c.peer_scene for c in cases if c.peer_scene}))})", flush=True)
@@ -646,7 +656,7 @@ def main(argv=None) -> int:
                 if p.get("failed"):
                     continue
                 try:
-                    res = run_adaptive(models[case.key, steps[0]], rtol, T, output_grid(T))
+                    res = run_adaptive(models[case.key, STEPS[0]], rtol, T, output_grid(T))
                 except ms.MoreauSimError as exc:
                     print(f"NOTE: {ADAPTIVE} failed on {case.key} rtol={rtol:g}: {str(exc).splitlines()[0]}",
                           flush=True)
@@ -654,7 +664,7 @@ def main(argv=None) -> int:
                     continue
                 p["cpu_repeats"].append(res["cpu_seconds"] / T)
                 if rep == 0:
-                    p.update(error_of(case, series(case, res), refs[case.key], models[case.key, steps[0]]))
+                    p.update(error_of(case, series(case, res), refs[case.key], models[case.key, STEPS[0]]))
                     p.update(rel_error=p["error"] / case.scale, steps=res["steps"], steps_fixed=res["steps_fixed"],
                              events=res["events"], nfev=res["nfev"], nfev_constrained=res["nfev_constrained"])
                 p["cpu_per_sim_s"] = statistics.median(p["cpu_repeats"])
