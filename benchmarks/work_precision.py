@@ -559,8 +559,6 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if rewrite_tables(a, doc_tables):
         return 0
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
     steps = tuple(float(x) for x in a.steps.split(",") if x) or (QUICK_STEPS if a.quick else STEPS)
     bad = [h for h in steps if not (h > 0 and abs(OUTPUT_DT / h - round(OUTPUT_DT / h)) < 1e-9)]
     if bad:
@@ -570,6 +568,8 @@ def main(argv=None) -> int:
     if unknown:
         ap.error(f"--cases: unknown case {unknown[0]!r} (one of {', '.join(c.key for c in CASES)})")
     cases = [c for c in CASES if not (a.quick and c.key in QUICK_SKIP) and (not keys or c.key in keys)]
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
     repeats = 1 if a.quick else a.repeats
     wanted = [p for p in a.peers.split(",") if p]
     avail = peers.available()

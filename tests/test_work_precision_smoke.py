@@ -49,3 +49,28 @@ def test_quick_sweep_writes_json_table_and_pngs(tmp_path):
     assert {"piqp primal", "pinocchio ADMM", "pinocchio PGS"} <= {r["solver"] for r in doc["solvers"]}
     assert all(r["max_abs_v_diff"] < 1e-6 for r in doc["solvers"])
     assert (tmp_path / "work_precision_table.md").read_text().startswith("| case |")
+
+
+def test_cases_and_steps_select_the_sweep(tmp_path):
+    """--cases and --steps run only those (the fixed steps asked for; the adaptive runs and the reference keep
+    dt = STEPS[0]), and the table says so."""
+    cmd = [sys.executable, "-m", "benchmarks.work_precision", "--quick", "--out", str(tmp_path), "--peers", "",
+           "--no-solvers", "--cases", "pendulum_wall", "--steps", "5e-3,2.5e-3"]
+    cp = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert cp.returncode == 0, cp.stdout[-2000:] + cp.stderr[-3000:]
+    doc = json.loads((tmp_path / "work_precision.json").read_text())
+    assert [c["key"] for c in doc["cases"]] == ["pendulum_wall"]
+    assert sorted(p["h"] for p in doc["points"] if p["method"] == "moreau-sim") == [2.5e-3, 5e-3]
+    assert {p["case"] for p in doc["points"]} == {"pendulum_wall"}
+
+
+def test_steps_that_miss_the_output_instants_or_unknown_cases_are_refused(tmp_path):
+    """A step must divide OUTPUT_DT (to round-off, 1e-9 of the ratio): 2.5e-3 does (4 steps), 3e-3 does not; an
+    unknown case is named. One line each, exit 2, nothing written."""
+    for args, says in ((["--steps", "3e-3"], "--steps: 0.003 does not divide OUTPUT_DT = 0.01 s"),
+                       (["--steps", "0"], "--steps: 0 does not divide"),
+                       (["--cases", "no_such_case"], "--cases: unknown case 'no_such_case'")):
+        cmd = [sys.executable, "-m", "benchmarks.work_precision", "--quick", "--out", str(tmp_path / "x"), *args]
+        cp = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT)
+        assert cp.returncode == 2 and says in cp.stderr and "Traceback" not in cp.stderr, cp.stderr
+        assert not (tmp_path / "x").exists()
