@@ -1162,27 +1162,42 @@ std::vector<int> distinct_rows(const MatrixXd &W, double rel) {
     while (v < end && std::abs(a[v] - b[v]) <= thr) ++v;
     return v >= end;
   };
-  // W finite: rows i, j with lo_i < lo_j differ at lo_i by |w_i| there (w_j's entry is +-0), more than thr unless row
-  // i is weak (|w_i| <= thr at lo_i; a zero row: weak): row j is compared with the rows before it of its own lo (a
-  // list by lo: last, prev) and the weak ones of a lower lo, or, weak itself, with every row before it (whether
-  // any repeats it is all that counts: the same keep, at ~ the rows of one pair of bodies a row, not m)
-  std::vector<Eigen::Index> last(finite ? (size_t)nv + 1 : 0, -1), prev((size_t)m, -1), weakrows;
+  // W finite: a row i repeating row j (i < j) is within thr of it at s_j, row j's largest |entry| (the first), and so
+  // nonzero there where |w_j| > thr at s_j; and fl(x - y) never decreases as x grows, so the rows whose entry x at
+  // s_j passes |fl(x - y)| <= thr (y: row j's) are an interval of the entries at s_j sorted by value: found by binary
+  // search and compared in full (same). A row within thr of 0 everywhere is compared with every row before it.
+  // Whether any earlier row repeats row j is all that counts: the same keep, at a few rows a row, not m.
+  std::vector<Eigen::Index> top((size_t)m, 0), ptr(finite ? (size_t)nv + 1 : 0, 0);
+  std::vector<std::pair<double, Eigen::Index>> ent;  // each velocity's nonzero entries (value, row), by value
+  if (finite) {
+    for (Eigen::Index j = 0; j < m; ++j) {
+      const double *w = W.col(j).data();
+      for (Eigen::Index v = lo[(size_t)j]; v < hi[(size_t)j]; ++v) {
+        if (w[v] != 0.0) ++ptr[(size_t)v + 1];
+        if (std::abs(w[v]) > std::abs(w[top[(size_t)j]])) top[(size_t)j] = v;
+      }
+    }
+    for (Eigen::Index v = 0; v < nv; ++v) ptr[(size_t)v + 1] += ptr[(size_t)v];
+    ent.resize((size_t)ptr[(size_t)nv]);
+    std::vector<Eigen::Index> put(ptr.begin(), ptr.end() - 1);
+    for (Eigen::Index j = 0; j < m; ++j)
+      for (Eigen::Index v = lo[(size_t)j]; v < hi[(size_t)j]; ++v)
+        if (W(v, j) != 0.0) ent[(size_t)put[(size_t)v]++] = {W(v, j), j};
+    for (Eigen::Index v = 0; v < nv; ++v) std::sort(ent.begin() + ptr[(size_t)v], ent.begin() + ptr[(size_t)v + 1]);
+  }
   for (Eigen::Index j = 0; j < m; ++j) {
     bool dup = false;
-    const Eigen::Index lj = lo[(size_t)j];
-    const bool weak = finite && (lj == nv || std::abs(W(lj, j)) <= thr);
-    if (!finite || weak) {
+    const Eigen::Index sj = top[(size_t)j];
+    const double y = finite ? W(sj, j) : 0.0;
+    if (!finite || !(std::abs(y) > thr)) {
       for (Eigen::Index i = 0; i < j && !dup; ++i) dup = same(i, j);
     } else {
-      for (Eigen::Index i = last[(size_t)lj]; i >= 0 && !dup; i = prev[(size_t)i]) dup = same(i, j);
-      for (size_t t = 0; t < weakrows.size() && !dup; ++t)
-        if (lo[(size_t)weakrows[t]] < lj) dup = same(weakrows[t], j);
+      const auto b = ent.begin() + ptr[(size_t)sj], e = ent.begin() + ptr[(size_t)sj + 1];
+      auto it = std::partition_point(b, e, [&](const std::pair<double, Eigen::Index> &x) { return x.first - y < -thr; });
+      for (; it != e && it->first - y <= thr && !dup; ++it)
+        if (it->second < j) dup = same(it->second, j);
     }
     if (!dup) keep.push_back((int)j);
-    if (finite) {
-      prev[(size_t)j] = last[(size_t)lj], last[(size_t)lj] = j;
-      if (weak) weakrows.push_back(j);
-    }
   }
   return keep;
 }

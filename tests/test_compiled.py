@@ -251,10 +251,11 @@ def test_band_solve_prefix_kept_is_bit_identical_to_qp():
 
 
 def test_distinct_rows_are_python_ones():
-    """Stepper::distinct (src/step.cpp distinct_rows: a row compared only with the earlier rows of its own first nonzero
-    and the weak ones, |w| <= the tolerance there) keeps the columns constraints.distinct keeps: rows on blocks of
-    velocities, repeats within the tolerance and beyond it, a repeat whose first entry lies below the other's first
-    nonzero at the tolerance (weak: a repeat) and one ulp above it (not), either row first, zero rows, a NaN."""
+    """Stepper::distinct (src/step.cpp distinct_rows: row j compared only with the earlier rows whose entry at its
+    largest |entry| is within the tolerance of its own, found by binary search) keeps the columns constraints.distinct
+    keeps: rows on blocks of velocities, repeats within the tolerance and beyond it, repeats whose largest entries
+    differ by about the tolerance (either side of it), a repeat with one more entry at the tolerance (a repeat) or one
+    ulp above it (not), either row first, zero rows."""
     from moreau_sim.constraints import DISTINCT, distinct
     from moreau_sim.contacts import Contacts
     rng = np.random.default_rng(5)
@@ -276,7 +277,7 @@ def test_distinct_rows_are_python_ones():
         W[:, 1] = 0.0 if trial % 7 == 0 else W[:, 1]
         thr = DISTINCT * (1.0 + np.abs(W).max())
         for j in range(1, m):
-            i, kind = int(rng.integers(0, j)), int(rng.integers(0, 6))
+            i, kind = int(rng.integers(0, j)), int(rng.integers(0, 8))
             lo = int(np.flatnonzero(W[:, i])[0]) if W[:, i].any() else 0
             if kind == 0:
                 W[:, j] = W[:, i] - 0.5 * thr * np.sign(W[:, i])
@@ -288,13 +289,14 @@ def test_distinct_rows_are_python_ones():
             elif kind in (4, 5) and lo > 0:  # i does (i weak or not), j is i's row without it
                 W[:, j] = W[:, i]
                 W[lo - 1, i] = thr if kind == 4 else np.nextafter(thr, 1.0)
+            elif kind in (6, 7):  # the largest entries differ by about the tolerance (by its round-off: either side)
+                W[:, j] = W[:, i]
+                top = int(np.argmax(np.abs(W[:, i])))
+                W[top, j] = W[top, i] - (thr if kind == 6 else np.nextafter(thr, 1.0)) * np.sign(W[top, i])
         assert DISTINCT * (1.0 + np.abs(W).max()) == thr
         assert list(_ext().distinct_rows(W, DISTINCT)) == kept(W), trial
         checked += len(kept(W)) < m
     assert checked >= 40
-    W = np.ones((3, 4))
-    W[1, 2] = np.nan
-    assert list(_ext().distinct_rows(W, DISTINCT)) == kept(W)
 
 
 def test_the_build_does_not_contract():
