@@ -199,15 +199,21 @@ class _Context:
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its two buffers, laid out as r.layout()
         says (src/step.cpp StepOut::visit, the one definition of the layout)."""
-        key = (r.outcome, r.m, r.paid)
+        outcome = r.outcome
+        key = (outcome, r.m, r.paid)
         lay = self._layouts.get(key)
-        if lay is None:
+        if lay is None:  # (name, in ints, its slice, its shape: (rows, cols) of an 'C' array, (cols, rows) of an 'F'
+            # one (its transpose's C view, the same strides as reshape(order='F') without the keyword's cost))
             lay = self._layouts[key] = [
-                (name, ints, slice(a, a + rows * (cols or 1)), (rows, cols) if cols else None, order)
+                (name, ints, slice(a, a + rows * (cols or 1)),
+                 None if not cols else (rows, cols) if order == "C" else (cols, rows), order == "F")
                 for name, ints, a, rows, cols, order in r.layout()]
-        buffers = (r.floats, r.ints if r.outcome is _module.Outcome.CONTACT else None)
-        return {name: buffers[i][s] if shape is None else buffers[i][s].reshape(shape, order=order)
-                for name, i, s, shape, order in lay}
+        buffers = (r.floats, r.ints if outcome is _module.Outcome.CONTACT else None)
+        out = {}
+        for name, i, s, shape, f_order in lay:
+            v = buffers[i][s]
+            out[name] = v if shape is None else v.reshape(shape).T if f_order else v.reshape(shape)
+        return out
 
 
 class _Prepared:

@@ -47,6 +47,7 @@
 #include "rheonomic.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cfloat>
 #include <cmath>
 #include <limits>
@@ -518,19 +519,38 @@ struct GInfo {
   double gmax = 0.0;
   std::vector<Eigen::Index> cptr, cidx, rptr, ridx, fill;
   std::vector<double> rval;
+  uint64_t gen = 0;  // which G this is: a number no other set() gives (band_lu_solve's factor cache is G's while it holds)
   void set(const MatrixXd &G) {
+    static std::atomic<uint64_t> made{0};
+    gen = ++made;
     const Eigen::Index m = G.rows();
-    gmax = G.cwiseAbs().maxCoeff();
-    finite = G.allFinite();
-    is_clean = finite && clean(G);
     cptr.assign((size_t)m + 1, 0), rptr.assign((size_t)m + 1, 0), cidx.clear();
-    if (finite) {
-      for (Eigen::Index k = 0; k < m; ++k) {
-        const double *g = G.col(k).data();
-        for (Eigen::Index i = 0; i < m; ++i)
-          if (g[i] != 0.0) cidx.push_back(i), ++rptr[(size_t)i + 1];
-        cptr[(size_t)k + 1] = (Eigen::Index)cidx.size();
+    // one pass over G: finite, clean (no -0.0), its largest |entry| (exact: the same max in any order) and its
+    // nonzeros by columns; where an entry is not finite, Eigen's max and no lists
+    finite = true;
+    bool no_negative_zero = true;
+    double top = 0.0;
+    for (Eigen::Index k = 0; k < m && finite; ++k) {
+      const double *g = G.col(k).data();
+      for (Eigen::Index i = 0; i < m; ++i) {
+        const double v = g[i];
+        if (v == 0.0) {
+          no_negative_zero = no_negative_zero && !std::signbit(v);
+          continue;
+        }
+        if (!std::isfinite(v)) {
+          finite = false;
+          break;
+        }
+        top = std::max(top, std::abs(v));
+        cidx.push_back(i), ++rptr[(size_t)i + 1];
       }
+      cptr[(size_t)k + 1] = (Eigen::Index)cidx.size();
+    }
+    if (!finite) cptr.assign((size_t)m + 1, 0), rptr.assign((size_t)m + 1, 0), cidx.clear();
+    gmax = finite && m > 0 ? top : G.cwiseAbs().maxCoeff();
+    is_clean = finite && no_negative_zero;
+    if (finite) {
       for (Eigen::Index i = 0; i < m; ++i) rptr[(size_t)i + 1] += rptr[(size_t)i];
       ridx.resize(cidx.size()), rval.resize(cidx.size());
       fill.assign(rptr.begin(), rptr.end() - 1);
@@ -551,63 +571,198 @@ struct GInfo {
 // l is finite (|l| <= 1 by the partial pivoting) and no entry of a clean matrix is or becomes -0.0 (lu_solve's
 // comment), so the bits are the skips'. A row i with no nonzero before column lo_i has a_ij = +0 for j < lo_i (an
 // update needs a_ij != 0), which no pivot search can pick. The buffers kept from one solve to the next.
+//
+// The factor's prefix kept from one solve to the next (docs/theory.md §2.8): the active set's consecutive solves are
+// of the same G with one row and column of A added at sorted place c, or dropped from it. Step j of the elimination
+// reads and writes column j and the columns right of it, and leaves column j as it is from then on (its
+// multipliers a_ij, i > j, stay where step j made them: no later swap moves them), so after c steps the columns < c
+// hold L's and U's entries, final. Where the last factor (w.a) is of the same G (gi.gen) and its rows were idx but
+// for that one, and steps 0 .. c-1 pick the same pivot rows, those columns are the last factor's, its rows at c and
+// below moved by one place: an added row at c is not step j's pivot row iff |a_cj| (after the steps before j) is
+// below the pivot's |a_pj|, or equal with the pivot row p above c (the first largest wins; a non-finite a_cj
+// fails); a dropped row must not have been a pivot row of steps j < c. Steps j < c are then done again on the
+// columns >= c only (and on an added row, every column: its multipliers are new), the right-hand side as always,
+// and the steps from c on as always: each entry gets the same operations in the same order as in the whole
+// elimination, which runs where any of this does not hold. w.reused: the steps taken from the last factor.
 struct BandLU {
-  std::vector<double> a;
+  std::vector<double> a, b;  // a: the last factor (row-major n x n: U on and above the diagonal, step j's a_ij below
+                             // it); b: the one being made
   std::vector<Eigen::Index> lo, hi;
+  // G_AA itself (row-major) and its rows' first nonzero and past their last (lo, hi before any step): the last
+  // factor's (g, glo, ghi) and the one being made's (g2, glo2, ghi2)
+  std::vector<double> g, g2;
+  std::vector<Eigen::Index> glo, ghi, glo2, ghi2;
+  bool valid = false;  // a holds a complete factor: of G gen, rows idx, step j's pivot row prow[j] and pivot piv[j]
+  uint64_t gen = 0;
+  std::vector<Eigen::Index> idx, prow;
+  std::vector<double> piv;
+  Eigen::Index reused = 0;
 };
 bool band_lu_solve(BandLU &w, const GInfo &gi, const std::vector<Eigen::Index> &idx, const Eigen::Index *pos,
                    const VectorXd &rhs, VectorXd &x) {
   using I = Eigen::Index;
   const I n = (I)idx.size();
-  w.a.assign((size_t)(n * n), 0.0), w.lo.assign((size_t)n, n), w.hi.assign((size_t)n, 0);
-  double *a = w.a.data();
-  I *lo = w.lo.data(), *hi = w.hi.data();
-  for (I i = 0; i < n; ++i) {
-    const I r = idx[(size_t)i];
-    for (I t = gi.rptr[(size_t)r]; t < gi.rptr[(size_t)r + 1]; ++t) {
-      const I c = pos[gi.ridx[(size_t)t]];
-      if (c < 0) continue;
-      a[i * n + c] = gi.rval[(size_t)t];
-      lo[i] = std::min(lo[i], c), hi[i] = std::max(hi[i], c + 1);
-    }
+  // the prefix: c steps, and the row that differs (change +1: idx[c] added, -1: the last factor's row c dropped,
+  // 0: the same rows, c = n)
+  I c = 0;
+  int change = 0;
+  if (w.valid && w.gen == gi.gen) {
+    const I n0 = (I)w.idx.size();
+    const I *o = w.idx.data(), *q = idx.data();
+    I k = 0;
+    while (k < std::min(n, n0) && q[k] == o[k]) ++k;
+    if (n == n0 && k == n) c = n;
+    else if (n == n0 + 1 && std::equal(q + k + 1, q + n, o + k)) c = k, change = 1;
+    else if (n + 1 == n0 && std::equal(q + k, q + n, o + k + 1)) c = k, change = -1;
+    if (change == -1)
+      for (I j = 0; j < c; ++j)
+        if (w.prow[(size_t)j] == c) c = 0;  // the dropped row was a pivot row
+    if (c == 0) change = 0;
   }
-  x = rhs;
-  for (I j = 0; j < n; ++j) {
-    I p = j;
-    double best = std::abs(a[j * n + j]);
-    for (I i = j + 1; i < n && !std::isnan(best); ++i) {
-      if (lo[i] > j) continue;  // a_ij = +0
-      const double v = std::abs(a[i * n + j]);
-      if (std::isnan(v) || v > best) best = v, p = i;
-    }
-    const double piv = a[p * n + j];
-    if (!(piv != 0.0 && std::isfinite(piv))) return false;
-    if (p != j) {
-      const I e = std::max(hi[j], hi[p]);  // both rows +0 from column e on
-      for (I k = j; k < e; ++k) std::swap(a[j * n + k], a[p * n + k]);
-      std::swap(lo[j], lo[p]), std::swap(hi[j], hi[p]);
-      std::swap(x[j], x[p]);
-    }
-    const double *rj = a + j * n;
-    const I hj = hi[j];
-    const double xj = x[j];
-    for (I i = j + 1; i < n; ++i) {
-      double *ri = a + i * n;
-      const double aij = ri[j];
-      const double l = aij == 0.0 ? std::copysign(0.0, piv) : aij / piv;
-      if (l != 0.0) {
-        for (I k = j + 1; k < hj; ++k) ri[k] = ri[k] - l * rj[k];
-        hi[i] = std::max(hi[i], hj);
+  w.valid = false;
+  while (true) {
+    const I add = change == 1 ? c : -1;  // the added row's place (-1: none)
+    auto to_new = [&](I i0) { return i0 < c ? i0 : i0 + change; };  // a row of the last factor in this one
+    // G_AA itself (g2) and each row's first and last nonzero (glo2, ghi2: lo_i, hi_i before any step): the last
+    // one's (g, glo, ghi) with the row and column added or dropped, where the prefix is kept; else from G's rows
+    w.g2.assign((size_t)(n * n), 0.0), w.glo2.assign((size_t)n, n), w.ghi2.assign((size_t)n, 0);
+    double *g2 = w.g2.data();
+    I *glo = w.glo2.data(), *ghi = w.ghi2.data();
+    auto scan = [&](I i) {  // row i of G_AA from G's row idx[i]
+      const I r = idx[(size_t)i];
+      for (I t = gi.rptr[(size_t)r]; t < gi.rptr[(size_t)r + 1]; ++t) {
+        const I col = pos[gi.ridx[(size_t)t]];
+        if (col < 0) continue;
+        g2[i * n + col] = gi.rval[(size_t)t];
+        glo[i] = std::min(glo[i], col), ghi[i] = std::max(ghi[i], col + 1);
       }
-      x[i] = x[i] - l * xj;
+    };
+    if (c == 0) {
+      for (I i = 0; i < n; ++i) scan(i);
+    } else {
+      const I n0 = (I)w.idx.size();
+      const double *g0 = w.g.data();
+      for (I i = 0; i < n; ++i) {
+        if (i == add) continue;
+        const I i0 = i < c ? i : i - change;  // its row in the last G_AA
+        std::copy(g0 + i0 * n0, g0 + i0 * n0 + c, g2 + i * n);
+        std::copy(g0 + i0 * n0 + c + (change == -1), g0 + i0 * n0 + n0, g2 + i * n + c + (change == 1));
+        const I l0 = w.glo[(size_t)i0], h0 = w.ghi[(size_t)i0];
+        if (change == 1) {
+          glo[i] = l0 < c ? l0 : l0 + 1, ghi[i] = h0 <= c ? h0 : h0 + 1;
+        } else if (change == -1 && (l0 == c || h0 == c + 1)) {  // the dropped column was its first or last
+          for (I k = 0; k < n; ++k)
+            if (g2[i * n + k] != 0.0) glo[i] = std::min(glo[i], k), ghi[i] = k + 1;
+        } else {
+          glo[i] = l0 <= c ? l0 : l0 + change, ghi[i] = h0 <= c ? h0 : h0 + change;
+        }
+      }
+      if (add >= 0) {  // the added row (G's row idx[c]) and column (G's column idx[c], its values from G's rows)
+        scan(add);
+        const I col = idx[(size_t)add];
+        for (I t = gi.cptr[(size_t)col]; t < gi.cptr[(size_t)col + 1]; ++t) {
+          const I r = gi.cidx[(size_t)t], i = pos[r];
+          if (i < 0 || i == add) continue;
+          const auto *b = gi.ridx.data() + gi.rptr[(size_t)r], *e = gi.ridx.data() + gi.rptr[(size_t)r + 1];
+          g2[i * n + add] = gi.rval[(size_t)(std::lower_bound(b, e, col) - gi.ridx.data())];
+          glo[i] = std::min(glo[i], add), ghi[i] = std::max(ghi[i], add + 1);
+        }
+      }
     }
+    w.b.assign(w.g2.begin(), w.g2.end()), w.lo.assign(glo, glo + n), w.hi.assign(ghi, ghi + n);
+    double *a = w.b.data();
+    I *lo = w.lo.data(), *hi = w.hi.data();
+    x = rhs;
+    bool same = true;  // steps 0 .. c-1 pick the last factor's pivot rows
+    if (c > 0) {
+      const I n0 = (I)w.idx.size();
+      const double *a0 = w.a.data();
+      for (I i0 = 0; i0 < n0; ++i0)
+        if (!(change == -1 && i0 == c)) std::copy(a0 + i0 * n0, a0 + i0 * n0 + c, a + to_new(i0) * n);
+      for (I j = 0; j < c && same; ++j) {  // steps j < c on the columns >= c, the added row and the right-hand side
+        const I p = to_new(w.prow[(size_t)j]);
+        const double piv = w.piv[(size_t)j];
+        if (add >= 0) {
+          const double v = std::abs(a[add * n + j]), best = std::abs(piv);
+          if (!(v < best || (v == best && p < add))) {
+            same = false;
+            break;
+          }
+        }
+        if (p != j) {
+          const I e = std::max(hi[j], hi[p]);
+          for (I k = c; k < e; ++k) std::swap(a[j * n + k], a[p * n + k]);
+          std::swap(lo[j], lo[p]), std::swap(hi[j], hi[p]);
+          std::swap(x[j], x[p]);
+        }
+        const double *rj = a + j * n;
+        const I hj = hi[j];
+        const double xj = x[j];
+        for (I i = j + 1; i < n; ++i) {
+          double *ri = a + i * n;
+          const double aij = ri[j];
+          const double l = aij == 0.0 ? std::copysign(0.0, piv) : aij / piv;
+          if (l != 0.0) {
+            for (I k = i == add ? j + 1 : std::max(c, j + 1); k < hj; ++k) ri[k] = ri[k] - l * rj[k];
+            hi[i] = std::max(hi[i], hj);
+          }
+          x[i] = x[i] - l * xj;
+        }
+      }
+      if (!same) {  // the whole elimination
+        c = 0, change = 0;
+        continue;
+      }
+      for (I j = 0; j < c; ++j) w.prow[(size_t)j] = to_new(w.prow[(size_t)j]);
+    }
+    w.prow.resize((size_t)n), w.piv.resize((size_t)n);
+    for (I j = c; j < n; ++j) {
+      I p = j;
+      double best = std::abs(a[j * n + j]);
+      for (I i = j + 1; i < n && !std::isnan(best); ++i) {
+        if (lo[i] > j) continue;  // a_ij = +0
+        const double v = std::abs(a[i * n + j]);
+        if (std::isnan(v) || v > best) best = v, p = i;
+      }
+      const double piv = a[p * n + j];
+      if (!(piv != 0.0 && std::isfinite(piv))) return false;
+      w.prow[(size_t)j] = p, w.piv[(size_t)j] = piv;
+      if (p != j) {
+        const I e = std::max(hi[j], hi[p]);  // both rows +0 from column e on
+        for (I k = j; k < e; ++k) std::swap(a[j * n + k], a[p * n + k]);
+        std::swap(lo[j], lo[p]), std::swap(hi[j], hi[p]);
+        std::swap(x[j], x[p]);
+      }
+      const double *rj = a + j * n;
+      const I hj = hi[j];
+      const double xj = x[j];
+      for (I i = j + 1; i < n; ++i) {
+        double *ri = a + i * n;
+        const double aij = ri[j];
+        const double l = aij == 0.0 ? std::copysign(0.0, piv) : aij / piv;
+        if (l != 0.0) {
+          for (I k = j + 1; k < hj; ++k) ri[k] = ri[k] - l * rj[k];
+          hi[i] = std::max(hi[i], hj);
+        }
+        x[i] = x[i] - l * xj;
+      }
+    }
+    for (I j = n - 1; j >= 0; --j) {
+      x[j] = x[j] / a[j * n + j];
+      const double xj = x[j];
+      for (I i = 0; i < j; ++i) x[i] = x[i] - a[i * n + j] * xj;
+    }
+    w.a.swap(w.b), w.g.swap(w.g2), w.glo.swap(w.glo2), w.ghi.swap(w.ghi2);
+    w.valid = true, w.gen = gi.gen, w.idx = idx, w.reused = c;
+    return x.allFinite();
   }
-  for (I j = n - 1; j >= 0; --j) {
-    x[j] = x[j] / a[j * n + j];
-    const double xj = x[j];
-    for (I i = 0; i < j; ++i) x[i] = x[i] - a[i * n + j] * xj;
-  }
-  return x.allFinite();
+}
+
+// The BandLU the active set's solves and project's final ones share (its factor prefix kept from one to the next:
+// the final solve is of the active set's last rows and the row added last, or of the same rows)
+BandLU &band_cache() {
+  thread_local BandLU w;
+  return w;
 }
 
 // qp._active_set cold (Goldfarb-Idnani's dual active set on min 1/2 lam'G lam - r'lam, lam >= 0), operation
@@ -630,7 +785,7 @@ bool active_set(const Constants &C, const MatrixXd &G, const GInfo &gi, const Ve
   const auto &rval = gi.rval;
   const bool sparse = gi.sparse;  // G_AA's solves on its nonzeros
   thread_local SparseLU w;  // G_AA by its nonzeros, for sparse_lu_solve (no k x k copy a move)
-  thread_local BandLU band;  // G_AA row-major, for band_lu_solve (G clean)
+  BandLU &band = band_cache();  // G_AA row-major, for band_lu_solve (G clean)
   thread_local std::vector<Eigen::Index> posA;  // a row's place in idx, -1 outside A (reset where idx was set)
   posA.assign(finite ? (size_t)m : 0, -1);
   bool lam_finite = true;
@@ -847,17 +1002,16 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
   }
 }
 
-// lu_solve(G[sel][:, sel], rhs, x) for project's final solves: band_lu_solve where G is clean (the same bits), else
-// lu_solve on the copy
+// lu_solve(G[sel][:, sel], rhs, x) for project's final solves: band_lu_solve where G is clean (the same bits; on the
+// active set's BandLU, band_cache), else lu_solve on the copy
 bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Index> &sel, const VectorXd &rhs,
                VectorXd &x) {
   const Eigen::Index k = (Eigen::Index)sel.size();
   if (gi.is_clean) {
-    thread_local BandLU band;
     thread_local std::vector<Eigen::Index> pos;
     pos.assign((size_t)G.rows(), -1);
     for (Eigen::Index i = 0; i < k; ++i) pos[(size_t)sel[(size_t)i]] = i;
-    return band_lu_solve(band, gi, sel, pos.data(), rhs, x);
+    return band_lu_solve(band_cache(), gi, sel, pos.data(), rhs, x);
   }
   MatrixXd GA(k, k);
   for (Eigen::Index i = 0; i < k; ++i)
@@ -981,6 +1135,72 @@ struct QueryGuesses {
     }
   }
 };
+
+// constraints.distinct: the columns of W kept, those whose row repeats no earlier one (max |w_i - w_j| <= rel (1 + max|W|));
+// Stepper::distinct, bound as _step.distinct_rows for the tests
+std::vector<int> distinct_rows(const MatrixXd &W, double rel) {
+  const Eigen::Index m = W.cols();
+  std::vector<int> keep;
+  if (m < 2) {
+    for (int i = 0; i < m; ++i) keep.push_back(i);
+    return keep;
+  }
+  const double thr = rel * (1.0 + W.cwiseAbs().maxCoeff());
+  const Eigen::Index nv = W.rows();
+  // W finite: max|w_i - w_j| <= thr is every |w_vi - w_vj| <= thr, compared where either row is nonzero (from
+  // the first nonzero entry of either to the last), the first that is not ending the comparison
+  const bool finite = W.allFinite();
+  std::vector<Eigen::Index> lo((size_t)m, nv), hi((size_t)m, 0);
+  for (Eigen::Index j = 0; j < m && finite; ++j)
+    for (Eigen::Index v = 0; v < nv; ++v)
+      if (W(v, j) != 0.0) lo[(size_t)j] = std::min(lo[(size_t)j], v), hi[(size_t)j] = v + 1;
+  auto same = [&](Eigen::Index i, Eigen::Index j) {
+    if (!finite) return (W.col(i) - W.col(j)).cwiseAbs().maxCoeff() <= thr;
+    const double *a = W.col(i).data(), *b = W.col(j).data();
+    Eigen::Index v = std::min(lo[(size_t)i], lo[(size_t)j]);
+    const Eigen::Index end = std::max(hi[(size_t)i], hi[(size_t)j]);
+    while (v < end && std::abs(a[v] - b[v]) <= thr) ++v;
+    return v >= end;
+  };
+  // W finite: a row i repeating row j (i < j) is within thr of it at s_j, row j's largest |entry| (the first), and so
+  // nonzero there where |w_j| > thr at s_j; and fl(x - y) never decreases as x grows, so the rows whose entry x at
+  // s_j passes |fl(x - y)| <= thr (y: row j's) are an interval of the entries at s_j sorted by value: found by binary
+  // search and compared in full (same). A row within thr of 0 everywhere is compared with every row before it.
+  // Whether any earlier row repeats row j is all that counts: the same keep, at a few rows a row, not m.
+  std::vector<Eigen::Index> top((size_t)m, 0), ptr(finite ? (size_t)nv + 1 : 0, 0);
+  std::vector<std::pair<double, Eigen::Index>> ent;  // each velocity's nonzero entries (value, row), by value
+  if (finite) {
+    for (Eigen::Index j = 0; j < m; ++j) {
+      const double *w = W.col(j).data();
+      for (Eigen::Index v = lo[(size_t)j]; v < hi[(size_t)j]; ++v) {
+        if (w[v] != 0.0) ++ptr[(size_t)v + 1];
+        if (std::abs(w[v]) > std::abs(w[top[(size_t)j]])) top[(size_t)j] = v;
+      }
+    }
+    for (Eigen::Index v = 0; v < nv; ++v) ptr[(size_t)v + 1] += ptr[(size_t)v];
+    ent.resize((size_t)ptr[(size_t)nv]);
+    std::vector<Eigen::Index> put(ptr.begin(), ptr.end() - 1);
+    for (Eigen::Index j = 0; j < m; ++j)
+      for (Eigen::Index v = lo[(size_t)j]; v < hi[(size_t)j]; ++v)
+        if (W(v, j) != 0.0) ent[(size_t)put[(size_t)v]++] = {W(v, j), j};
+    for (Eigen::Index v = 0; v < nv; ++v) std::sort(ent.begin() + ptr[(size_t)v], ent.begin() + ptr[(size_t)v + 1]);
+  }
+  for (Eigen::Index j = 0; j < m; ++j) {
+    bool dup = false;
+    const Eigen::Index sj = top[(size_t)j];
+    const double y = finite ? W(sj, j) : 0.0;
+    if (!finite || !(std::abs(y) > thr)) {
+      for (Eigen::Index i = 0; i < j && !dup; ++i) dup = same(i, j);
+    } else {
+      const auto b = ent.begin() + ptr[(size_t)sj], e = ent.begin() + ptr[(size_t)sj + 1];
+      auto it = std::partition_point(b, e, [&](const std::pair<double, Eigen::Index> &x) { return x.first - y < -thr; });
+      for (; it != e && it->first - y <= thr && !dup; ++it)
+        if (it->second < j) dup = same(it->second, j);
+    }
+    if (!dup) keep.push_back((int)j);
+  }
+  return keep;
+}
 
 class Stepper {
   friend class Runner;  // the run loop (src/run.cpp) calls the step and reads its model and geometry
@@ -1693,39 +1913,7 @@ class Stepper {
   }
 
   // constraints.distinct: drop a contact whose row repeats an earlier one (to C_.distinct relative)
-  std::vector<int> distinct(const MatrixXd &W) const {
-    const Eigen::Index m = W.cols();
-    std::vector<int> keep;
-    if (m < 2) {
-      for (int i = 0; i < m; ++i) keep.push_back(i);
-      return keep;
-    }
-    const double thr = C_.distinct * (1.0 + W.cwiseAbs().maxCoeff());
-    const Eigen::Index nv = W.rows();
-    // W finite: max|w_i - w_j| <= thr is every |w_vi - w_vj| <= thr, compared where either row is nonzero (from
-    // the first nonzero entry of either to the last), the first that is not ending the comparison
-    const bool finite = W.allFinite();
-    std::vector<Eigen::Index> lo((size_t)m, nv), hi((size_t)m, 0);
-    for (Eigen::Index j = 0; j < m && finite; ++j)
-      for (Eigen::Index v = 0; v < nv; ++v)
-        if (W(v, j) != 0.0) lo[(size_t)j] = std::min(lo[(size_t)j], v), hi[(size_t)j] = v + 1;
-    for (Eigen::Index j = 0; j < m; ++j) {
-      bool dup = false;
-      for (Eigen::Index i = 0; i < j && !dup; ++i) {
-        if (!finite) {
-          dup = (W.col(i) - W.col(j)).cwiseAbs().maxCoeff() <= thr;
-          continue;
-        }
-        const double *a = W.col(i).data(), *b = W.col(j).data();
-        Eigen::Index v = std::min(lo[(size_t)i], lo[(size_t)j]);
-        const Eigen::Index end = std::max(hi[(size_t)i], hi[(size_t)j]);
-        while (v < end && std::abs(a[v] - b[v]) <= thr) ++v;
-        dup = v >= end;
-      }
-      if (!dup) keep.push_back((int)j);
-    }
-    return keep;
-  }
+  std::vector<int> distinct(const MatrixXd &W) const { return distinct_rows(W, C_.distinct); }
 
   Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv) {
     return ::project(C_, W, v0, b, Minv);
@@ -2337,6 +2525,31 @@ NB_MODULE(_step, mod) {
     if (!band_lu_solve(w, gi, sel, pos.data(), rhs, x)) return nb::none();
     return nb::cast(x);
   }, nb::arg("A"), nb::arg("rhs"), nb::arg("sel"));
+  // constraints.distinct's columns kept (Stepper::distinct; tests/test_compiled.py holds them equal to Python's)
+  mod.def("distinct_rows", [](const MatrixXd &W, double rel) { return distinct_rows(W, rel); }, nb::arg("W"), nb::arg("rel"));
+  // band_lu_solve's factor prefix kept (its comment): on one BandLU, the rows and columns `before` of a clean A (a
+  // right-hand side of ones), then `sel` with rhs: (x or None, the elimination steps the second solve took from the
+  // first's factor) (tests/test_compiled.py holds x bit-identical to qp._lu_solve of A[sel][:, sel])
+  mod.def("lu_solve_band_after", [](const MatrixXd &A, std::vector<Eigen::Index> before, std::vector<Eigen::Index> sel,
+                                    const VectorXd &rhs) -> nb::object {
+    if (A.rows() != A.cols() || (Eigen::Index)sel.size() != rhs.size()) throw nb::value_error("A (n, n), rhs (len(sel),) expected");
+    if (!clean(A)) throw nb::value_error("A: finite, without -0.0 expected");
+    GInfo gi;
+    gi.set(A);
+    BandLU w;
+    VectorXd x;
+    for (const auto *s : {&before, &sel}) {
+      std::vector<Eigen::Index> pos((size_t)A.rows(), -1);
+      for (size_t i = 0; i < s->size(); ++i) {
+        if ((*s)[i] < 0 || (*s)[i] >= A.rows() || (i && (*s)[i] <= (*s)[i - 1])) throw nb::value_error("before, sel: ascending rows of A");
+        pos[(size_t)(*s)[i]] = (Eigen::Index)i;
+      }
+      if (s->empty()) throw nb::value_error("before, sel: not empty");
+      const bool ok = band_lu_solve(w, gi, *s, pos.data(), s == &sel ? rhs : VectorXd::Ones((Eigen::Index)s->size()).eval(), x);
+      if (s == &sel) return nb::make_tuple(ok ? nb::cast(x) : nb::none(), w.reused);
+    }
+    return nb::none();
+  }, nb::arg("A"), nb::arg("before"), nb::arg("sel"), nb::arg("rhs"));
   // how this build does floating point (docs/theory.md §2.8): the options CMakeLists.txt compiled it with, whether
   // the target has FMA instructions, FLT_EVAL_METHOD (0: every double operation rounds to double), and a probe
   // a * b + c on run-time values, contracted to one fused rounding only if the build contracts

@@ -197,6 +197,108 @@ def test_band_solve_is_bit_identical_to_qp():
         _ext().lu_solve_band(np.array([[1.0, -0.0], [0.0, 1.0]]), np.ones(2), [0, 1])
 
 
+def _band_after(A, before, sel, rhs):
+    """band_lu_solve of A[sel][:, sel] after one of A[before][:, before] on the same factor cache: (x, the steps it
+    took from the first factor), x checked bit for bit against qp._lu_solve (None alike)."""
+    x, reused = _ext().lu_solve_band_after(A, list(before), list(sel), rhs)
+    ref = qp._lu_solve(A[np.ix_(sel, sel)], rhs)
+    assert (x is None) == (ref is None), (before, sel)
+    assert ref is None or x.view(np.int64).tolist() == ref.view(np.int64).tolist(), (before, sel)
+    return x, reused
+
+
+def test_band_solve_prefix_kept_is_bit_identical_to_qp():
+    """band_lu_solve's factor prefix kept from one solve to the next (src/step.cpp: a row added to or dropped from the
+    rows at sorted place c keeps the first c elimination steps where they pick the same pivot rows), bit for bit
+    against qp._lu_solve: the clean systems of test_qp.lu_systems with a row added, a row dropped, the same rows; and
+    the condition at its edge: an added row whose |a_cj| equals the pivot's (it stays below the pivot row: kept; it
+    sits above it: it is the first largest, so the whole elimination), one ulp below (kept) and above (not), a
+    dropped row that was a pivot row (not kept) and one that was not (kept)."""
+    from test_qp import lu_systems
+    rng = np.random.default_rng(12)
+    kept = 0
+    for seed in range(6):
+        for A, rhs in lu_systems(seed):
+            if not (np.isfinite(A).all() and not (np.signbit(A) & (A == 0.0)).any()):
+                continue
+            n = A.shape[0]
+            for _ in range(3):
+                sel = np.flatnonzero(rng.random(n) < 0.7)
+                if sel.size < 2:
+                    continue
+                drop = np.delete(sel, rng.integers(sel.size))
+                for before, after in ((drop, sel), (sel, drop), (sel, sel)):
+                    kept += _band_after(A, before, after, rhs[after].copy())[1] > 0
+    assert kept >= 40
+
+    def tie(a21, pivot_above):
+        # step 0: row 0 the pivot (a_20 = 0: the added row 2 unchanged by it); step 1: |a_11| = 2 (pivot_above: row 1
+        # the pivot, above the added row) or |a_31| = 2 (row 3 the pivot, below it); the added row's a_21
+        A = np.array([[4.0, 0.0, 1.0, 1.0, 0.5],
+                      [1.0, 2.0 if pivot_above else 1.0, 3.0, 0.0, 1.0],
+                      [0.0, a21, 5.0, 1.0, 0.0],
+                      [1.0, 1.0 if pivot_above else 2.0, 0.0, 6.0, 2.0],
+                      [0.0, 0.5, 1.0, 2.0, 7.0]])
+        return _band_after(A, [0, 1, 3, 4], [0, 1, 2, 3, 4], np.array([1.0, -0.0, 2.0, -0.0, 3.0]))[1]
+
+    assert tie(2.0, True) == 2 and tie(-2.0, True) == 2  # the first largest stays the pivot row above
+    assert tie(2.0, False) == 0 and tie(-2.0, False) == 0  # the added row is the first largest: a new pivot row
+    assert tie(np.nextafter(2.0, 0.0), False) == 2 and tie(np.nextafter(2.0, 3.0), True) == 0
+    B = np.array([[1.0, 2.0, 0.0, 1.0], [3.0, 1.0, 1.0, 0.0], [5.0, 0.0, 4.0, 1.0], [0.0, 1.0, 1.0, 3.0]])
+    rhs = np.array([-0.0, 1.0, 2.0])
+    assert _band_after(B, [0, 1, 2, 3], [0, 1, 3], rhs)[1] == 0  # row 2 was step 0's pivot row
+    assert _band_after(B, [0, 1, 2, 3], [0, 2, 3], rhs)[1] == 1  # row 1 was not (step 0: row 2; the drop at c = 1)
+
+
+def test_distinct_rows_are_python_ones():
+    """Stepper::distinct (src/step.cpp distinct_rows: row j compared only with the earlier rows whose entry at its
+    largest |entry| is within the tolerance of its own, found by binary search) keeps the columns constraints.distinct
+    keeps: rows on blocks of velocities, repeats within the tolerance and beyond it, repeats whose largest entries
+    differ by about the tolerance (either side of it), a repeat with one more entry at the tolerance (a repeat) or one
+    ulp above it (not), either row first, zero rows."""
+    from moreau_sim.constraints import DISTINCT, distinct
+    from moreau_sim.contacts import Contacts
+    rng = np.random.default_rng(5)
+
+    def kept(W):
+        m = W.shape[1]
+        z3, zi = np.zeros((m, 3)), np.arange(m)
+        return distinct(Contacts(np.zeros(m), z3, z3, z3, zi, zi, zi, zi, zi), W)[0].pair.tolist()
+
+    checked = 0
+    for trial in range(80):
+        nv, m = int(rng.integers(4, 13)), int(rng.integers(3, 30))
+        W = np.zeros((nv, m))
+        for j in range(m):
+            a = int(rng.integers(1, nv))
+            W[a:int(rng.integers(a + 1, nv + 1)), j] = rng.normal(size=1)[0] + rng.normal(size=1)
+            W[a, j] = 1.0 + rng.random()  # the first nonzero, > the tolerance
+        W[-1, 0] = 100.0  # max |W|: the tolerance is thr throughout (the repeats below only shrink entries)
+        W[:, 1] = 0.0 if trial % 7 == 0 else W[:, 1]
+        thr = DISTINCT * (1.0 + np.abs(W).max())
+        for j in range(1, m):
+            i, kind = int(rng.integers(0, j)), int(rng.integers(0, 8))
+            lo = int(np.flatnonzero(W[:, i])[0]) if W[:, i].any() else 0
+            if kind == 0:
+                W[:, j] = W[:, i] - 0.5 * thr * np.sign(W[:, i])
+            elif kind == 1:
+                W[:, j] = W[:, i] - 2.0 * thr * np.sign(W[:, i])
+            elif kind in (2, 3) and lo > 0:  # j starts one velocity lower, at the tolerance (2) or one ulp above (3)
+                W[:, j] = W[:, i]
+                W[lo - 1, j] = thr if kind == 2 else np.nextafter(thr, 1.0)
+            elif kind in (4, 5) and lo > 0:  # i does (i weak or not), j is i's row without it
+                W[:, j] = W[:, i]
+                W[lo - 1, i] = thr if kind == 4 else np.nextafter(thr, 1.0)
+            elif kind in (6, 7):  # the largest entries differ by about the tolerance (by its round-off: either side)
+                W[:, j] = W[:, i]
+                top = int(np.argmax(np.abs(W[:, i])))
+                W[top, j] = W[top, i] - (thr if kind == 6 else np.nextafter(thr, 1.0)) * np.sign(W[top, i])
+        assert DISTINCT * (1.0 + np.abs(W).max()) == thr
+        assert list(_ext().distinct_rows(W, DISTINCT)) == kept(W), trial
+        checked += len(kept(W)) < m
+    assert checked >= 40
+
+
 def test_the_build_does_not_contract():
     """The extension is compiled as §2.8 requires: with -ffp-contract=off (reported by the build, CMakeLists.txt),
     doubles rounded at each operation (FLT_EVAL_METHOD 0, no x87 excess precision), and its probe a * b + c on
