@@ -2450,8 +2450,9 @@ NB_MODULE(_step, mod) {
       .def_ro("outcome", &StepOut::outcome)
       .def_ro("reason", &StepOut::reason)
       .def_ro("m", &StepOut::m)
-      .def_prop_ro("floats", [](const StepOut &o) { return o.floats; })
-      .def_prop_ro("ints", [](const StepOut &o) { return o.ints; })
+      // views of the two buffers (the StepOut kept alive by them), not copies: a read costs no copy of the buffer
+      .def_prop_ro("floats", [](StepOut &o) -> VectorXd & { return o.floats; }, nb::rv_policy::reference_internal)
+      .def_prop_ro("ints", [](StepOut &o) -> VectorXl & { return o.ints; }, nb::rv_policy::reference_internal)
       .def("layout", &StepOut::layout, "(name, in ints, offset, rows, cols (0: a vector), order 'C'/'F') per array")
       .def_ro("projection", &StepOut::projection)
       .def_ro("contact_work", &StepOut::contact_work)
