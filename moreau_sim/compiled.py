@@ -94,16 +94,20 @@ def forest_args(model, data) -> tuple[list, list, list]:
     return trees, forest.tree_of_joint.tolist(), forest.local_joint.tolist()
 
 
-def loop_refusal(model, cls: str, what: str) -> str | None:
+def loop_refusal(model, cls: str, what: str, *, whole: bool = True) -> str | None:
     """Why no compiled loop (the extension's class `cls`, named `what`: compiled_run's Runner, compiled_events's
-    Extrapolator) takes this model's run, before the loop's own reasons (None: none of these)."""
+    Extrapolator) takes this model's run, before the loop's own reasons (None: none of these). whole: the loop
+    serves an integrator that computes on a Data of the whole model (the adaptive and event-driven integrators'
+    Python parts, event_rules / gaps / adaptive on data.pin, and src/events.hpp's Extrapolator, src/adaptive.hpp's
+    FeatureGaps): refused where that Data exceeds the memory limit. The time-stepping Stepper and Runner compute on
+    the forest (docs/theory.md §2.12) and pass whole=False."""
     if model.options.step_impl is not StepImpl.COMPILED:
         return "step_impl python"
     if not available():
         return f"the compiled step is unavailable: {unavailable_reason()}"
     if not hasattr(_module, cls):
         return f"the compiled step predates {what} (rebuild)"
-    if not model.whole_data_fits():
+    if whole and not model.whole_data_fits():
         return "the whole model's Data exceeds the memory limit"
     return None
 
@@ -177,7 +181,8 @@ class _Context:
         self.why = prep.why
         self.stepper = None
         if self.why is None:
-            self.stepper = _module.Stepper(model.pin, data.pin, model.geom, data.geom, *prep.stepper)
+            # on the forest's per-tree Datas (docs/theory.md §2.12): no Data of the whole model is made
+            self.stepper = _module.Stepper(model.pin, *forest_args(model, data), model.geom, data.geom, *prep.stepper)
             if prep.shapes is not None:  # the detection's data beyond coal's narrow phase (Stepper::boxes)
                 queries = [data.point_query(g) if asked else None for g, asked in enumerate(prep.queried)]
                 self.stepper.boxes(queries, *prep.shapes, data.distance_request, data.distance_result,
