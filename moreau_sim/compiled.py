@@ -21,11 +21,15 @@ from . import box_box, broad_phase, constraints, qp
 from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, SAME_POINT, SNAP_COS, Contacts, FeatureKind
 from .data import GATE_MARGIN
 from .law import ENERGY_ROUNDOFF
+from .model import data_limit
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts, StepImpl
 from .qp import QPResult
 from .results import HOLD, MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
 from .state import State
 
+PAIR_BYTES = 6_500  # [bytes] the memory one collision pair takes in the compiled step's GeometryModel and
+# GeometryData and its pair lists (compiled._Prepared), made for a model without a pair list (model.LAZY_PAIRS);
+# measured on columns of beads: 6.2 kB a pair at 300 beads (45,150 pairs), 6.0 kB at 1000 (500,500)
 MAX_CONTACTS = qp.COLD_START_ROWS  # closed contacts a compiled step takes: those qp.solve solves by the cold active set
 # Every constant the two steps share, from its one home, as src/step.cpp's Constants reads them (by name: a
 # missing or an unknown one is an error there; tests/test_compiled.py compares them read back)
@@ -151,6 +155,11 @@ def unsupported(model) -> str | None:
     than broad_phase.MIN_PAIRS pairs is queried on the broad phase's candidates on both sides."""
     o = model.options
     geoms = model.geometries
+    if not model.listed:  # the Stepper takes every pair in a GeometryData: quadratic in bodies, refused above the limit
+        limit, what = data_limit()
+        if limit is not None and len(model.pairs) * PAIR_BYTES > limit:
+            return (f"{len(model.pairs)} collision pairs, {len(model.pairs) * PAIR_BYTES / 2 ** 30:.3g} GiB for the "
+                    f"compiled step's list of them, more than {what}")
     if not model.listed and _warm_started(model):
         # Python queries such a model's pairs on coal functors of its own (data.Data.pair_query), not the GeometryData
         return "a pair coal resolves by GJK/EPA in a scene without a pair list (more than model.LAZY_PAIRS pairs)"
