@@ -1,5 +1,6 @@
 // moreau_sim._step: the midpoint Moreau contact step of moreau_sim/stepper.py in C++, on the
-// pin.Model / pin.Data / GeometryModel / GeometryData built in Python (taken by reference through
+// pin.Model, the forest's per-tree pin.Models and pin.Datas (src/forest.hpp; no Data of the whole model,
+// docs/theory.md §2.12), GeometryModel / GeometryData built in Python (taken by reference through
 // boost.python's registry: the same Pinocchio and coal libraries as the Python bindings).
 //
 // It mirrors stepper.step stage by stage and operation by operation (the same products and sums in
