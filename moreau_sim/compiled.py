@@ -21,11 +21,15 @@ from . import box_box, broad_phase, constraints, qp
 from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, SAME_POINT, SNAP_COS, Contacts, FeatureKind
 from .data import GATE_MARGIN
 from .law import ENERGY_ROUNDOFF
+from .model import data_limit
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts, StepImpl
 from .qp import QPResult
 from .results import HOLD, MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
 from .state import State
 
+PAIR_BYTES = 6_500  # [bytes] the memory one collision pair takes in the compiled step's GeometryModel and
+# GeometryData and its pair lists (compiled._Prepared), made for a model without a pair list (model.LAZY_PAIRS);
+# measured on columns of beads: 6.2 kB a pair at 300 beads (45,150 pairs), 6.0 kB at 1000 (500,500)
 MAX_CONTACTS = qp.COLD_START_ROWS  # closed contacts a compiled step takes: those qp.solve solves by the cold active set
 # Every constant the two steps share, from its one home, as src/step.cpp's Constants reads them (by name: a
 # missing or an unknown one is an error there; tests/test_compiled.py compares them read back)
@@ -94,16 +98,20 @@ def forest_args(model, data) -> tuple[list, list, list]:
     return trees, forest.tree_of_joint.tolist(), forest.local_joint.tolist()
 
 
-def loop_refusal(model, cls: str, what: str) -> str | None:
+def loop_refusal(model, cls: str, what: str, *, whole: bool = True) -> str | None:
     """Why no compiled loop (the extension's class `cls`, named `what`: compiled_run's Runner, compiled_events's
-    Extrapolator) takes this model's run, before the loop's own reasons (None: none of these)."""
+    Extrapolator) takes this model's run, before the loop's own reasons (None: none of these). whole: the loop
+    serves an integrator that computes on a Data of the whole model (the adaptive and event-driven integrators'
+    Python parts, event_rules / gaps / adaptive on data.pin, and src/events.hpp's Extrapolator, src/adaptive.hpp's
+    FeatureGaps): refused where that Data exceeds the memory limit. The time-stepping Stepper and Runner compute on
+    the forest (docs/theory.md §2.12) and pass whole=False."""
     if model.options.step_impl is not StepImpl.COMPILED:
         return "step_impl python"
     if not available():
         return f"the compiled step is unavailable: {unavailable_reason()}"
     if not hasattr(_module, cls):
         return f"the compiled step predates {what} (rebuild)"
-    if not model.whole_data_fits():
+    if whole and not model.whole_data_fits():
         return "the whole model's Data exceeds the memory limit"
     return None
 
@@ -147,6 +155,11 @@ def unsupported(model) -> str | None:
     than broad_phase.MIN_PAIRS pairs is queried on the broad phase's candidates on both sides."""
     o = model.options
     geoms = model.geometries
+    if not model.listed:  # the Stepper takes every pair in a GeometryData: quadratic in bodies, refused above the limit
+        limit, what = data_limit()
+        if limit is not None and len(model.pairs) * PAIR_BYTES > limit:
+            return (f"{len(model.pairs)} collision pairs, {len(model.pairs) * PAIR_BYTES / 2 ** 30:.3g} GiB for the "
+                    f"compiled step's list of them, more than {what}")
     if not model.listed and _warm_started(model):
         # Python queries such a model's pairs on coal functors of its own (data.Data.pair_query), not the GeometryData
         return "a pair coal resolves by GJK/EPA in a scene without a pair list (more than model.LAZY_PAIRS pairs)"
@@ -177,7 +190,8 @@ class _Context:
         self.why = prep.why
         self.stepper = None
         if self.why is None:
-            self.stepper = _module.Stepper(model.pin, data.pin, model.geom, data.geom, *prep.stepper)
+            # on the forest's per-tree Datas (docs/theory.md §2.12): no Data of the whole model is made
+            self.stepper = _module.Stepper(model.pin, *forest_args(model, data), model.geom, data.geom, *prep.stepper)
             if prep.shapes is not None:  # the detection's data beyond coal's narrow phase (Stepper::boxes)
                 queries = [data.point_query(g) if asked else None for g, asked in enumerate(prep.queried)]
                 self.stepper.boxes(queries, *prep.shapes, data.distance_request, data.distance_result,

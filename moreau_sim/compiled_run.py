@@ -27,7 +27,7 @@ MAX_BACKOFF = 256  # steps: the most the Python run takes in a row before the Ru
 
 def unsupported(model, check) -> str | None:
     """Why the compiled run does not take this time-stepping run (None: it does)."""
-    why = compiled.loop_refusal(model, "Runner", "the run loop")
+    why = compiled.loop_refusal(model, "Runner", "the run loop", whole=False)  # on the forest (§2.12)
     if why is not None:
         return why
     why = compiled.unsupported(model)

@@ -126,7 +126,8 @@ class Model:
 
     def whole_data_fits(self) -> bool:
         """Whether one Data of the whole model (pin) fits the memory limit (check_data_size): the
-        compiled step needs it; the Python time-stepping step runs on the forest without it."""
+        adaptive and event-driven integrators' compiled parts need it (compiled.loop_refusal); the
+        time-stepping step, Python and compiled, runs on the forest without it."""
         fits = self.__dict__.get("_whole_data_fits")
         if fits is None:
             try:
@@ -346,7 +347,7 @@ def _build_model(scene: Scene) -> Model:
         raise SceneError(f"{where} [[bodies]]: nothing moves (every body has a fixed root and no joints)")
     # no Data of the whole model here: the mass matrix and the velocity bias are checked body by body,
     # on each body's own model; the time-stepping step runs on the forest (trees.py). The paths that
-    # still need the whole model's Data (the compiled step, adaptive and event-driven) check its size
+    # still need the whole model's Data (adaptive and event-driven, and their compiled parts) check its size
     # when they make it (new_data, Data.pin): refused there with one line, never here.
     forest = Forest.of_placed([tm for tm, _, _ in placed], scene.options.gravity)
     if forest.trees:  # the largest tree's Data is the largest any path needs: refused here if it cannot be made

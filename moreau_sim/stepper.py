@@ -100,7 +100,7 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
     t1 = state.t + h if t_next is None else t_next
     tau = None if model.actuation is None else torque(model, state, h)  # once a step, whichever step takes it
     if (opts.step_impl is StepImpl.COMPILED and form is None and eps is None and corner_choice is None
-            and compiled.available() and model.whole_data_fits()):  # (it runs on the whole model's Data)
+            and compiled.available()):  # (on the forest's Datas, as this step: docs/theory.md §2.12)
         r = compiled.step(model, data, state, h, e, t1, tau)  # None: a step the compiled one does not cover
         if r is not None:
             return r
@@ -143,7 +143,7 @@ def step_in_place(model: Model, data: Data, t: float, q: np.ndarray, u: np.ndarr
     h = opts.dt if h is None else h
     e = opts.restitution if e is None else e
     tau = None if model.actuation is None else torque(model, State(t, q, u), h)
-    if opts.step_impl is StepImpl.COMPILED and compiled.available() and model.whole_data_fits():
+    if opts.step_impl is StepImpl.COMPILED and compiled.available():
         r = compiled.raw_step(model, data, q, u, h, e, tau, t=t)
         if r is not None:
             q[:], u[:] = compiled.next_state(data, r)

@@ -59,7 +59,7 @@ class EventImpact {
       std::vector<Eigen::Index> appr;
       for (Eigen::Index i = 0; i < nf; ++i)
         if (g[i] <= gap_tol_ && gamma[i] < -v_tol_) appr.push_back(i);
-      const VectorXd a = pinocchio::aba(s.model_, s.data_, q, u, zero_);
+      const VectorXd a = s.aba(q, u, zero_);  // ABA on the forest (docs/theory.md §2.12)
       const Eigen::Index na = (Eigen::Index)appr.size();
       speed.resize(na), a_n.resize(na);
       bool low = true;

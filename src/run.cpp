@@ -17,7 +17,6 @@
 #include <pinocchio/algorithm/kinematics.hpp>
 
 #include "actuation.hpp"
-#include "forest.hpp"
 
 #include <array>
 #include <chrono>
@@ -45,6 +44,30 @@ template <class T> Col<T> column(const nb::dict &d, const char *name) {
 }  // namespace run_loop
 using run_loop::Col;
 using run_loop::Stop;
+
+// The forest's figures as trees.Forest and contacts.pair_distances compute them: kinetic and potential energy and
+// the pairs' distances at a state, on the forest's own Pinocchio Datas (src/forest.hpp) and the Stepper's
+// GeometryData (the Python run's, data.geom). One home for what a sample records (recording.Recorder.sample): the
+// Runner below and adaptive.hpp's DenseSampler.
+class ForestFigures {
+ public:
+  using TreeArgs = Forest::TreeArgs;
+  // trees: (pin.Model, pin.Data, q start, nq, v start, nv) per tree of the forest (trees.Forest, its Kinematics'
+  // datas); tree_of_joint, local_joint: the forest's maps
+  ForestFigures(Stepper &S, const TreeArgs &trees, std::vector<int64_t> tree_of_joint, std::vector<int64_t> local_joint)
+      : S_(S), forest_(trees, std::move(tree_of_joint), std::move(local_joint)) {}
+  double kinetic(const VectorXd &q, const VectorXd &u) { return forest_.kinetic(q, u); }  // Forest.kinetic
+  double potential(const VectorXd &q) { return forest_.potential(q); }  // Forest.potential
+  size_t pairs() const { return S_.gm_.collisionPairs.size(); }
+  // contacts.pair_distances into `out` (Forest.place with the geometry placements, then coal's distances)
+  void gaps(const VectorXd &q, double *out) {
+    if (!S_.gm_.collisionPairs.empty()) S_.distances(q, out);
+  }
+
+ private:
+  Stepper &S_;
+  Forest forest_;
+};
 
 class Runner {
  public:
@@ -155,7 +178,7 @@ class Runner {
 
   nb::object py_stepper_;
   Stepper &S_;
-  ForestFigures forest_;  // what a sample records (src/forest.hpp)
+  ForestFigures forest_;  // what a sample records (ForestFigures above)
   bool checks_;
   bool guard_ = false;  // Undo restores the box pairs' detection state (a model with pairs of two boxes)
   // coal's cached GJK guesses of the pairs' distance queries (requests, results) before the current step (Undo)

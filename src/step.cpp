@@ -1,5 +1,6 @@
 // moreau_sim._step: the midpoint Moreau contact step of moreau_sim/stepper.py in C++, on the
-// pin.Model / pin.Data / GeometryModel / GeometryData built in Python (taken by reference through
+// pin.Model, the forest's per-tree pin.Models and pin.Datas (src/forest.hpp; no Data of the whole model,
+// docs/theory.md §2.12), GeometryModel / GeometryData built in Python (taken by reference through
 // boost.python's registry: the same Pinocchio and coal libraries as the Python bindings).
 //
 // It mirrors stepper.step stage by stage and operation by operation (the same products and sums in
@@ -1202,21 +1203,26 @@ std::vector<int> distinct_rows(const MatrixXd &W, double rel) {
   return keep;
 }
 
+#include "forest.hpp"  // the per-tree models and Datas the Stepper computes on (docs/theory.md §2.12)
+
 class Stepper {
   friend class Runner;  // the run loop (src/run.cpp) calls the step and reads its model and geometry
-  friend class ForestFigures;  // the figures a sample records (src/forest.hpp) read its geometry
+  friend class ForestFigures;  // the figures a sample records (src/run.cpp) read its geometry
   friend class EventImpact;  // the impact at a located event (src/impact.hpp) calls the detection, rows and projection
 
  public:
-  Stepper(nb::object model, nb::object data, nb::object geom_model, nb::object geom_data,
+  // model: the scene's pin.Model (its joint maps; pin.integrate, which takes no Data); trees, tree_of_joint,
+  // local_joint: the forest the dynamics and kinematics run on (Forest, compiled.forest_args): no whole-model Data
+  Stepper(nb::object model, const Forest::TreeArgs &trees, std::vector<int64_t> tree_of_joint,
+          std::vector<int64_t> local_joint, nb::object geom_model, nb::object geom_data,
           std::vector<MatrixXd> vertices, std::vector<int> bound_kind, std::vector<Vec3> bound_a,
           std::vector<double> bound_b, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic> pairs, MatrixXd mask,
           double reach, double thinnest_pair, double tol, int tunnelling, bool separating_elastic,
           bool slow_plastic, bool bias_midpoint, bool velocity_bias, bool projection,
           const std::map<std::string, double> &constants, MatrixXd limits)
-      : py_{model, data, geom_model, geom_data},
+      : py_{model, geom_model, geom_data},
         model_(extract_ref<pinocchio::Model>(model, "pinocchio.Model")),
-        data_(extract_ref<pinocchio::Data>(data, "pinocchio.Data")),
+        forest_(trees, std::move(tree_of_joint), std::move(local_joint)),
         gm_(extract_ref<pinocchio::GeometryModel>(geom_model, "pinocchio.GeometryModel")),
         gd_(extract_ref<pinocchio::GeometryData>(geom_data, "pinocchio.GeometryData")),
         vertices_(std::move(vertices)), bound_kind_(std::move(bound_kind)), bound_a_(std::move(bound_a)),
@@ -1228,6 +1234,8 @@ class Stepper {
     if (pairs_.cols() != 5 || (Eigen::Index)gm_.collisionPairs.size() != pairs_.rows())
       throw nb::value_error("pairs: (number of collision pairs, 5) expected");
     if (mask_.rows() != model_.njoints || mask_.cols() != model_.nv) throw nb::value_error("mask: (njoints, nv)");
+    if (forest_.nq() != model_.nq || forest_.nv() != model_.nv || (int)forest_.njoints() != model_.njoints)
+      throw nb::value_error("trees: the forest of the model (nq, nv, a map entry per joint) expected");
     if (limits_.cols() != 6) throw nb::value_error("limits: (number of joint limits, 6) expected");
   }
 
@@ -1351,10 +1359,11 @@ class Stepper {
   void set_warm(std::vector<int> w) { warm_ = std::move(w); }
 
  private:
-  nb::object py_[4];  // keeps the Python objects (and so the C++ ones) alive
+  nb::object py_[3];  // keeps the Python objects (and so the C++ ones) alive
   VectorXd tau_;  // the current step's joint torques (empty: none)
-  const pinocchio::Model &model_;
-  pinocchio::Data &data_;
+  const pinocchio::Model &model_;  // the scene's (no Data of it: its joints' maps and pin.integrate)
+  Forest forest_;  // the dynamics and kinematics, per tree (docs/theory.md §2.12)
+  MatrixXd M_, Minv_, J_;  // M and M^-1 (nv, nv, block diagonal: made at first use), the WORLD Jacobians (6, nv)
   const pinocchio::GeometryModel &gm_;
   pinocchio::GeometryData &gd_;
   std::vector<MatrixXd> vertices_;
@@ -1401,31 +1410,43 @@ class Stepper {
   std::vector<int> warm_, next_warm_;  // sorted pair indices
   coal::DistanceResult saved_dres_;
 
-  // ---- pinocchio calls as the Python bindings make them (crba and Minv symmetrized)
+  // ---- Pinocchio's algorithms on the forest (trees.Forest, src/forest.hpp), as the Python bindings return them
+  // (crba and Minv symmetrized): M (nv, nv) block diagonal, and the WORLD Jacobians J_ (Forest.mass_matrix)
   const MatrixXd &crba_world(const VectorXd &q) {
-    pinocchio::crba(model_, data_, q, pinocchio::Convention::WORLD);
-    data_.M.triangularView<Eigen::StrictlyLower>() = data_.M.transpose().triangularView<Eigen::StrictlyLower>();
-    return data_.M;
+    if (M_.rows() != model_.nv) M_.setZero(model_.nv, model_.nv);  // the blocks off the trees stay zero
+    if (J_.cols() != model_.nv) J_.setZero(6, model_.nv);
+    forest_.mass_matrix(q, M_, J_);
+    return M_;
   }
-  MatrixXd minverse(const VectorXd &q) {
-    pinocchio::computeMinverse(model_, data_, q);
-    data_.Minv.triangularView<Eigen::StrictlyLower>() = data_.Minv.transpose().triangularView<Eigen::StrictlyLower>();
-    return data_.Minv;
+  MatrixXd minverse(const VectorXd &q) {  // Forest.inverse_mass_matrix
+    if (Minv_.rows() != model_.nv) Minv_.setZero(model_.nv, model_.nv);
+    forest_.inverse_mass_matrix(q, Minv_);
+    return Minv_;
   }
+  // Forest.acceleration: M^-1 (tau - h(q, v)) by ABA per tree
+  VectorXd aba(const VectorXd &q, const VectorXd &v, const VectorXd &tau) { return forest_.acceleration(q, v, tau); }
+  double kinetic(const VectorXd &q, const VectorXd &u) { return forest_.kinetic(q, u); }  // energy.kinetic
+  double potential(const VectorXd &q) { return forest_.potential(q); }  // energy.potential
   double energy(const VectorXd &q, const VectorXd &u) {
-    double T = pinocchio::computeKineticEnergy(model_, data_, q, u);
-    double V = pinocchio::computePotentialEnergy(model_, data_, q);
+    double T = kinetic(q, u);
+    double V = potential(q);
     return T + V;
   }
-  // contacts.pair_distances: NaN where coal's query failed (its -DBL_MAX is no distance)
-  VectorXd pair_distances(const VectorXd &q) {
+  // Forest.place with the geometries' placements (pin.updateGeometryPlacements on the forest)
+  void place_geometries(const VectorXd &q) { forest_.place(q, gm_, gd_); }
+  // contacts.pair_distances into out (one per pair): NaN where coal's query failed (its -DBL_MAX is no distance)
+  void distances(const VectorXd &q, double *out) {
     fresh_guesses(gd_.distanceRequests);
-    pinocchio::computeDistances(model_, data_, gm_, gd_, q);
-    VectorXd d(gd_.distanceResults.size());
+    place_geometries(q);
+    pinocchio::computeDistances(gm_, gd_);
     for (size_t k = 0; k < gd_.distanceResults.size(); ++k) {
       const double x = gd_.distanceResults[k].min_distance;
-      d[k] = std::abs(x) < C_.distance_failed ? x : std::numeric_limits<double>::quiet_NaN();
+      out[k] = std::abs(x) < C_.distance_failed ? x : std::numeric_limits<double>::quiet_NaN();
     }
+  }
+  VectorXd pair_distances(const VectorXd &q) {
+    VectorXd d(gd_.distanceResults.size());
+    distances(q, d.data());
     return d;
   }
 
@@ -1496,13 +1517,13 @@ class Stepper {
   // stepper.free_velocity (tau_: the step's joint torques, or zero)
   VectorXd free_velocity(const VectorXd &q_m, const VectorXd &u, double h) {
     const VectorXd zero = tau_.size() ? tau_ : VectorXd::Zero(model_.nv);
-    VectorXd a = pinocchio::aba(model_, data_, q_m, u, zero);
+    VectorXd a = aba(q_m, u, zero);
     VectorXd u_free = u + h * a;
     if (!bias_midpoint_ || !velocity_bias_) return u_free;
     const double scale = C_.midpoint_tolerance * (1.0 + u.cwiseAbs().maxCoeff());
     for (int it = 0; it < C_.midpoint_iterations; ++it) {
       VectorXd ubar = 0.5 * (u + u_free);
-      a = pinocchio::aba(model_, data_, q_m, ubar, zero);
+      a = aba(q_m, ubar, zero);
       VectorXd nxt = u + h * a;
       bool done = (nxt - u_free).cwiseAbs().maxCoeff() <= scale;
       u_free = nxt;
@@ -1523,7 +1544,7 @@ class Stepper {
                        int offset, bool v_is_a, double margin) {
     const MatrixXd &V = vertices_[g_vert];
     if (V.rows() == 0) return;
-    const auto &oMi = data_.oMi[joint_v], &oMo = data_.oMi[joint_other];
+    const auto &oMi = forest_.oMi((size_t)joint_v), &oMo = forest_.oMi((size_t)joint_other);
     const Eigen::Matrix3d &R = oMi.rotation();
     const Vec3 &t = oMi.translation();
     MatrixXd Vw(V.rows(), 3);  // ordered(V, R.T) + t
@@ -1687,10 +1708,10 @@ class Stepper {
       if (keep) found.push_back(r);
     }
   }
-  const Eigen::Matrix3d &rot(int joint) const { return data_.oMi[joint].rotation(); }
-  const Vec3 &trans(int joint) const { return data_.oMi[joint].translation(); }
+  const Eigen::Matrix3d &rot(int joint) const { return forest_.oMi((size_t)joint).rotation(); }
+  const Vec3 &trans(int joint) const { return forest_.oMi((size_t)joint).translation(); }
 
-  // broad_phase.BroadPhase.candidates_at (the sums of sums.dots, in its order) at the placements data_.oMi: cand_,
+  // broad_phase.BroadPhase.candidates_at (the sums of sums.dots, in its order) at the forest's placements oMi: cand_,
   // the sorted pairs whose inflated boxes overlap, with a half-space within the margin, or always examined
   void candidates() {
     const BroadPhase &B = *bp_;
@@ -1760,7 +1781,7 @@ class Stepper {
   // within tol (_near_polytopes, warm_); margin: the corner margin max(tol, travel)
   std::vector<Found> detect(const VectorXd &q_m, double travel) {
     std::vector<Found> found;
-    pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q_m);
+    place_geometries(q_m);
     next_warm_ = warm_;
     if (pairs_.rows() == 0) return found;
     const Eigen::Index np = pairs_.rows();
@@ -1885,7 +1906,7 @@ class Stepper {
   // constraints.contact_rows: w = mask_a (n'J_lin + (p_a x n)'J_ang) - mask_b (same at p_b), summed as sums.ordered
   MatrixXd contact_rows(const std::vector<Found> &f) {
     const Eigen::Index nv = model_.nv, m = (Eigen::Index)f.size();
-    const auto &J = data_.J;  // (6, nv) WORLD
+    const auto &J = J_;  // (6, nv) WORLD (crba_world)
     MatrixXd W(nv, m);
     for (Eigen::Index i = 0; i < m; ++i) {
       if (f[i].kind == C_.joint_limit) {  // the constant row sign e_{idx_v}
@@ -1982,7 +2003,7 @@ class Stepper {
       const double scale = C_.midpoint_tolerance * (1.0 + u.cwiseAbs().maxCoeff());
       for (int it = 0; it < C_.midpoint_iterations; ++it) {
         const VectorXd ubar = 0.5 * (u + ds.u_c);
-        u_free = u + h * pinocchio::aba(model_, data_, q_m, ubar, zero);
+        u_free = u + h * aba(q_m, ubar, zero);
         const VectorXd nxt = free_rows(u_free);
         double dmax = 0.0;  // np.abs(nxt - u_c[r]).max(initial=0.0), NaN kept
         for (size_t j = 0; j < r.size(); ++j) {
@@ -2203,8 +2224,8 @@ class Stepper {
     for (Eigen::Index j = 0; j < u.size(); ++j)
       if (involved[j]) s.u_S[j] = u[j];
     s.u_R = u - s.u_S;
-    s.a = pinocchio::computeKineticEnergy(model_, data_, q, s.u_S);
-    if (s.a > 0.0) s.T_R = pinocchio::computeKineticEnergy(model_, data_, q, s.u_R);
+    s.a = kinetic(q, s.u_S);
+    if (s.a > 0.0) s.T_R = kinetic(q, s.u_R);
     return s;
   }
   // stepper._alpha: the largest root of a alpha^2 + b alpha + c in [floor, 1], else the alpha of least value
@@ -2221,10 +2242,10 @@ class Stepper {
   void cap_energy(const VectorXd &q, const VectorXd &u, const VectorXd &q_m, const VectorXd &u_free, double h,
                   double e, const VectorXd &P, double work, double corr, const MatrixXd &W, const VectorXd &q_next,
                   VectorXd &u_next, VectorXd &gamma_plus, double ow, const VectorXd *rate) {
-    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
-    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
-    const double T1 = pinocchio::computeKineticEnergy(model_, data_, q_next, u_next);
-    const double V1 = pinocchio::computePotentialEnergy(model_, data_, q_next);
+    const double T0 = kinetic(q, u);
+    const double V0 = potential(q);
+    const double T1 = kinetic(q_next, u_next);
+    const double V1 = potential(q_next);
     double target = (((T0 + V0) + std::min(work, 0.0)) + corr) + ow;  // W_o: P fixed, no alpha
     const bool driven = tau_.size() != 0;
     // stepper.bounces_under_torques: a driven step whose contacts bounce (e > 0) may keep the smooth step's gain
@@ -2287,8 +2308,8 @@ class Stepper {
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
     if (m == 0 || g_next.minCoeff() >= -tol_) return false;
-    const double T0 = pinocchio::computeKineticEnergy(model_, data_, q, u);
-    const double V0 = pinocchio::computePotentialEnergy(model_, data_, q);
+    const double T0 = kinetic(q, u);
+    const double V0 = potential(q);
     const double E0 = T0 + V0;
     const double E1 = energy(q_next, u_next);
     double budget = E0 - E1 + ow;  // what the step dissipated beyond the work done on it (§5.5)
@@ -2335,9 +2356,9 @@ class Stepper {
         VectorXd u1 = VectorXd::Zero(u.size()), u0 = VectorXd::Zero(u.size()), du = VectorXd::Zero(u.size());
         for (Eigen::Index j = 0; j < u.size(); ++j)
           if (S[j]) u1[j] = u_next[j], u0[j] = u[j], du[j] = u_free[j] - u[j];
-        const double dT = pinocchio::computeKineticEnergy(model_, data_, q_next, u1) -
-                          pinocchio::computeKineticEnergy(model_, data_, q, u0);
-        still = std::abs(dT) <= C_.resting * pinocchio::computeKineticEnergy(model_, data_, q, du);
+        const double dT = kinetic(q_next, u1) -
+                          kinetic(q, u0);
+        still = std::abs(dT) <= C_.resting * kinetic(q, du);
       }
       if (still) {
         const Eigen::Index k = (Eigen::Index)rows.size();
@@ -2372,8 +2393,8 @@ class Stepper {
     if (budget <= 0.0 && !resting && !persistent) return false;
     if (!solved) res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
-    const double T_c = pinocchio::computeKineticEnergy(model_, data_, q_c, u_next);
-    const double V_c = pinocchio::computePotentialEnergy(model_, data_, q_c);
+    const double T_c = kinetic(q_c, u_next);
+    const double V_c = potential(q_c);
     double dE = T_c + V_c - E1;
     VectorXd u_c;  // the paid lift's u_{k+1} (stepper._scaled), where `scaled`; else u_next itself
     bool scaled = false;
@@ -2387,7 +2408,7 @@ class Stepper {
           u_c = sp.u_R + alpha_of(sp.a, (T_c - sp.a) - sp.T_R, sp.T_R - (E1 - V_c), 0.0) * sp.u_S;
           scaled = true;
         }
-        dE = (pinocchio::computeKineticEnergy(model_, data_, q_c, scaled ? u_c : u_next) + V_c) - E1;
+        dE = (kinetic(q_c, scaled ? u_c : u_next) + V_c) - E1;
         paid = dE <= roundoff(T0, V0, T_c, V_c);
       }
       if (!paid && budget <= 0.0) return false;  // a step that gained: nothing to spend
@@ -2461,7 +2482,8 @@ NB_MODULE(_step, mod) {
       .def_ro("drive_work_free", &StepOut::drive_work_free)
       .def_ro("paid", &StepOut::paid);
   nb::class_<Stepper>(mod, "Stepper")
-      .def(nb::init<nb::object, nb::object, nb::object, nb::object, std::vector<MatrixXd>, std::vector<int>,
+      .def(nb::init<nb::object, const Forest::TreeArgs &, std::vector<int64_t>, std::vector<int64_t>, nb::object,
+                    nb::object, std::vector<MatrixXd>, std::vector<int>,
                     std::vector<Vec3>, std::vector<double>, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic>,
                     MatrixXd, double, double, double, int, bool, bool, bool, bool, bool,
                     const std::map<std::string, double> &, MatrixXd>())

@@ -6,7 +6,8 @@
   within 1e-15 relative); the contact-space matrix W'M^-1W tree by tree equals the dense product;
 - a column of 1000 touching beads builds and steps on the Python step (no persistent penetration,
   no energy gain);
-- a scene whose whole-model Data is refused (the memory limit) runs on the Python step.
+- a scene whose whole-model Data is refused (the memory limit) runs on the compiled step and run loop, on the
+  forest, with the Python step's bits, and building them makes no Data of the whole model.
 """
 
 from __future__ import annotations
@@ -18,7 +19,9 @@ import pinocchio as pin
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import energy, trees
+import moreau_sim.data
+import moreau_sim.model
+from moreau_sim import compiled, energy, trees
 from moreau_sim.bodies import load_body
 from moreau_sim.data import make_data
 from moreau_sim.errors import SceneError
@@ -100,17 +103,72 @@ def _run_column(model, steps: int):
     return state
 
 
-def test_refused_whole_data_runs_on_the_python_step(monkeypatch):
-    """A scene whose whole-model Data exceeds the memory limit: the compiled step's Data is refused
-    with one line, and the Python step runs it on the forest."""
-    model = build_model(column(20).with_options(step_impl="compiled"))
-    monkeypatch.setenv(DATA_LIMIT_VARIABLE, "1e-7")  # 107 bytes: no Data of nv = 20 fits (256 kB)
-    data = make_data(model)
+def _no_whole_data(monkeypatch):
+    """Make any use of a Data of the whole model, or of its guard, fail the test (model.new_data on the whole
+    model, Data.pin, Model.whole_data_fits): the paths under test never need one."""
+    def refused(*args, **kwargs):
+        raise AssertionError("a Data of the whole model was asked for")
+    monkeypatch.setattr(moreau_sim.data.Data, "pin", property(refused))
+    monkeypatch.setattr(moreau_sim.model.Model, "whole_data_fits", refused)
+
+
+def _same_arrays(a, b) -> bool:
+    """The two runs' arrays, bit for bit (dtype, shape, bytes)."""
+    x, y = a.arrays, b.arrays
+    return set(x) == set(y) and all(x[k].dtype == y[k].dtype and x[k].shape == y[k].shape and
+                                    x[k].tobytes() == y[k].tobytes() for k in x)
+
+
+@pytest.mark.skipif(not compiled.available(), reason="the compiled step is not built")
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("h", [2e-4, 1e-3])
+def test_refused_whole_data_gets_the_compiled_step(monkeypatch, e, h):
+    """A scene whose whole-model Data exceeds the memory limit (a Data of nv = 20 refused: 256 kB over
+    107 bytes) gets the compiled time-stepping step and run loop, on the forest (docs/theory.md §2.12),
+    with the Python step's bits: the same arrays from the Python run, the compiled run loop and the
+    compiled step under the Python loop; no Data of the whole model is made on any of these paths."""
+    monkeypatch.setenv(DATA_LIMIT_VARIABLE, "1e-7")
+    sc = column(20).with_options(restitution=e, dt=h, duration=0.02)
     with pytest.raises(SceneError, match="nv = 20 degrees of freedom"):
-        data.pin  # noqa: B018
-    assert not model.whole_data_fits()
-    state = _run_column(model, 40)
-    assert np.all(np.diff(state.q) > -1e-3)  # the beads stay in order
+        make_data(build_model(sc)).pin  # noqa: B018
+    _no_whole_data(monkeypatch)
+    runs = {}
+    for impl, python_run in (("python", True), ("compiled", True), ("compiled", False)):
+        model = build_model(sc.with_options(step_impl=impl))
+        data = make_data(model)
+        runs[impl, python_run] = run = ms.simulate(model, data=data, python_run=python_run)
+        assert run.meta["status"] == "complete"
+        steps = compiled.counts(data)
+        if impl == "compiled":  # every step compiled: the beads touch, contact steps
+            assert steps["contact"] + steps["flight"] == len(run.arrays["t"]) - 1 > 0 and steps["contact"] > 0
+            assert set(steps) <= {"contact", "flight"}
+            assert run.meta["run"]["loop"] == ("python" if python_run else "compiled")
+    ref = runs["python", True]
+    assert _same_arrays(ref, runs["compiled", True]) and _same_arrays(ref, runs["compiled", False])
+    assert ref.meta["ledger"] == runs["compiled", False].meta["ledger"]
+
+
+@pytest.mark.skipif(not compiled.available(), reason="the compiled step is not built")
+def test_compiled_step_builds_no_whole_data(monkeypatch):
+    """Building a compiled Stepper (and its run loop) makes no Data of the whole model: model.new_data is asked
+    for the trees' models only (each of nv = 1), never the scene's (nv = 20)."""
+    made = []
+    real = moreau_sim.model.new_data
+
+    def counted(m, where, **kw):
+        made.append(m.nv)
+        return real(m, where, **kw)
+    monkeypatch.setattr(moreau_sim.model, "new_data", counted)
+    monkeypatch.setattr(moreau_sim.data, "new_data", counted)
+    _no_whole_data(monkeypatch)
+    model = build_model(column(20).with_options(step_impl="compiled"))
+    data = make_data(model)
+    state = initial_state(model, data)
+    r = step(model, data, state)
+    assert compiled.counts(data) == {"contact": 1} and r.qp is not None
+    assert made and set(made) == {1}  # one Data per tree, each of one velocity
+    ms.simulate(model, data=data)
+    assert set(made) == {1}
 
 
 @pytest.mark.slow
@@ -288,3 +346,16 @@ def test_the_velocity_bias_probe_does_not_depend_on_the_process_history():
             pin.randomConfiguration(free, -np.ones(free.nq), np.ones(free.nq))
         seen.add((build_model(boxes).velocity_bias, build_model(beads).velocity_bias))
     assert seen == {(True, False)}
+
+
+def test_compiled_pairs_limit_edge(monkeypatch):
+    """A model without a pair list (more than model.LAZY_PAIRS pairs) gets the compiled step while its pairs'
+    GeometryData (compiled.PAIR_BYTES a pair) fits the memory limit, and is refused in one line one byte below."""
+    model = build_model(column(250).with_options(step_impl="compiled"))
+    assert not model.listed
+    need = len(model.pairs) * compiled.PAIR_BYTES
+    monkeypatch.setenv(DATA_LIMIT_VARIABLE, repr(need / 2 ** 30))
+    assert compiled.unsupported(model) is None
+    monkeypatch.setenv(DATA_LIMIT_VARIABLE, repr((need - 1) / 2 ** 30))
+    why = compiled.unsupported(model)
+    assert why is not None and why.startswith(f"{len(model.pairs)} collision pairs") and "\n" not in why
