@@ -30,6 +30,10 @@ from .state import State
 PAIR_BYTES = 6_500  # [bytes] the memory one collision pair takes in the compiled step's GeometryModel and
 # GeometryData and its pair lists (compiled._Prepared), made for a model without a pair list (model.LAZY_PAIRS);
 # measured on columns of beads: 6.2 kB a pair at 300 beads (45,150 pairs), 6.0 kB at 1000 (500,500)
+COMPILED_PAIRS = 100_000  # a model without a pair list and more pairs than this gets no compiled step: its list of
+# them costs seconds and GB to build (a column of 1000 beads, 500,500 pairs: 7.9 s, 3.1 GB, measured 2026-11-28),
+# quadratic in bodies, where the Python step's broad phase needs none; and its contacts above MAX_CONTACTS rows
+# go back to the Python step anyway (docs/theory.md §2.12)
 MAX_CONTACTS = qp.COLD_START_ROWS  # closed contacts a compiled step takes: those qp.solve solves by the cold active set
 # Every constant the two steps share, from its one home, as src/step.cpp's Constants reads them (by name: a
 # missing or an unknown one is an error there; tests/test_compiled.py compares them read back)
@@ -155,6 +159,9 @@ def unsupported(model) -> str | None:
     than broad_phase.MIN_PAIRS pairs is queried on the broad phase's candidates on both sides."""
     o = model.options
     geoms = model.geometries
+    if not model.listed and len(model.pairs) > COMPILED_PAIRS:
+        return (f"{len(model.pairs)} collision pairs without a pair list, more than compiled.COMPILED_PAIRS = "
+                f"{COMPILED_PAIRS} (the compiled step lists every pair; the Python step's broad phase does not)")
     if not model.listed:  # the Stepper takes every pair in a GeometryData: quadratic in bodies, refused above the limit
         limit, what = data_limit()
         if limit is not None and len(model.pairs) * PAIR_BYTES > limit:

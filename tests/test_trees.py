@@ -359,3 +359,16 @@ def test_compiled_pairs_limit_edge(monkeypatch):
     monkeypatch.setenv(DATA_LIMIT_VARIABLE, repr((need - 1) / 2 ** 30))
     why = compiled.unsupported(model)
     assert why is not None and why.startswith(f"{len(model.pairs)} collision pairs") and "\n" not in why
+
+
+def test_compiled_pairs_count_edge(monkeypatch):
+    """A model without a pair list gets the compiled step up to compiled.COMPILED_PAIRS pairs and is refused in one
+    line one pair above (its list would cost seconds and GB where the Python step's broad phase needs none)."""
+    model = build_model(column(250).with_options(step_impl="compiled"))
+    assert not model.listed
+    monkeypatch.setattr(compiled, "COMPILED_PAIRS", len(model.pairs))
+    assert compiled.unsupported(model) is None
+    monkeypatch.setattr(compiled, "COMPILED_PAIRS", len(model.pairs) - 1)
+    why = compiled.unsupported(model)
+    assert why is not None and why.startswith(f"{len(model.pairs)} collision pairs without a pair list") \
+        and "\n" not in why
