@@ -675,6 +675,29 @@ bool band_lu_solve(BandLU &w, const GInfo &gi, const std::vector<Eigen::Index> &
     I *lo = w.lo.data(), *hi = w.hi.data();
     x = rhs;
     bool same = true;  // steps 0 .. c-1 pick the last factor's pivot rows
+    // elimination step j on pivot row p (value piv): rows j and p swapped from column `from` on, then each row i
+    // below updated from column first(i) on (the dense lu_solve's operations, in its order)
+    auto eliminate = [&](I j, I p, double piv, I from, auto first) {
+      if (p != j) {
+        const I e = std::max(hi[j], hi[p]);  // both rows +0 from column e on
+        for (I k = from; k < e; ++k) std::swap(a[j * n + k], a[p * n + k]);
+        std::swap(lo[j], lo[p]), std::swap(hi[j], hi[p]);
+        std::swap(x[j], x[p]);
+      }
+      const double *rj = a + j * n;
+      const I hj = hi[j];
+      const double xj = x[j];
+      for (I i = j + 1; i < n; ++i) {
+        double *ri = a + i * n;
+        const double aij = ri[j];
+        const double l = aij == 0.0 ? std::copysign(0.0, piv) : aij / piv;
+        if (l != 0.0) {
+          for (I k = first(i); k < hj; ++k) ri[k] = ri[k] - l * rj[k];
+          hi[i] = std::max(hi[i], hj);
+        }
+        x[i] = x[i] - l * xj;
+      }
+    };
     if (c > 0) {
       const I n0 = (I)w.idx.size();
       const double *a0 = w.a.data();
@@ -690,25 +713,7 @@ bool band_lu_solve(BandLU &w, const GInfo &gi, const std::vector<Eigen::Index> &
             break;
           }
         }
-        if (p != j) {
-          const I e = std::max(hi[j], hi[p]);
-          for (I k = c; k < e; ++k) std::swap(a[j * n + k], a[p * n + k]);
-          std::swap(lo[j], lo[p]), std::swap(hi[j], hi[p]);
-          std::swap(x[j], x[p]);
-        }
-        const double *rj = a + j * n;
-        const I hj = hi[j];
-        const double xj = x[j];
-        for (I i = j + 1; i < n; ++i) {
-          double *ri = a + i * n;
-          const double aij = ri[j];
-          const double l = aij == 0.0 ? std::copysign(0.0, piv) : aij / piv;
-          if (l != 0.0) {
-            for (I k = i == add ? j + 1 : std::max(c, j + 1); k < hj; ++k) ri[k] = ri[k] - l * rj[k];
-            hi[i] = std::max(hi[i], hj);
-          }
-          x[i] = x[i] - l * xj;
-        }
+        eliminate(j, p, piv, c, [&](I i) { return i == add ? j + 1 : std::max(c, j + 1); });
       }
       if (!same) {  // the whole elimination
         c = 0, change = 0;
@@ -728,25 +733,7 @@ bool band_lu_solve(BandLU &w, const GInfo &gi, const std::vector<Eigen::Index> &
       const double piv = a[p * n + j];
       if (!(piv != 0.0 && std::isfinite(piv))) return false;
       w.prow[(size_t)j] = p, w.piv[(size_t)j] = piv;
-      if (p != j) {
-        const I e = std::max(hi[j], hi[p]);  // both rows +0 from column e on
-        for (I k = j; k < e; ++k) std::swap(a[j * n + k], a[p * n + k]);
-        std::swap(lo[j], lo[p]), std::swap(hi[j], hi[p]);
-        std::swap(x[j], x[p]);
-      }
-      const double *rj = a + j * n;
-      const I hj = hi[j];
-      const double xj = x[j];
-      for (I i = j + 1; i < n; ++i) {
-        double *ri = a + i * n;
-        const double aij = ri[j];
-        const double l = aij == 0.0 ? std::copysign(0.0, piv) : aij / piv;
-        if (l != 0.0) {
-          for (I k = j + 1; k < hj; ++k) ri[k] = ri[k] - l * rj[k];
-          hi[i] = std::max(hi[i], hj);
-        }
-        x[i] = x[i] - l * xj;
-      }
+      eliminate(j, p, piv, j, [j](I) { return j + 1; });
     }
     for (I j = n - 1; j >= 0; --j) {
       x[j] = x[j] / a[j * n + j];
