@@ -119,7 +119,6 @@ def _same_arrays(a, b) -> bool:
                                     x[k].tobytes() == y[k].tobytes() for k in x)
 
 
-@pytest.mark.skipif(not compiled.available(), reason="the compiled step is not built")
 @pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
 @pytest.mark.parametrize("h", [2e-4, 1e-3])
 def test_refused_whole_data_gets_the_compiled_step(monkeypatch, e, h):
@@ -127,6 +126,7 @@ def test_refused_whole_data_gets_the_compiled_step(monkeypatch, e, h):
     107 bytes) gets the compiled time-stepping step and run loop, on the forest (docs/theory.md §2.12),
     with the Python step's bits: the same arrays from the Python run, the compiled run loop and the
     compiled step under the Python loop; no Data of the whole model is made on any of these paths."""
+    assert compiled.available(), compiled.unavailable_reason()  # a skipped test would prove nothing
     monkeypatch.setenv(DATA_LIMIT_VARIABLE, "1e-7")
     sc = column(20).with_options(restitution=e, dt=h, duration=0.02)
     with pytest.raises(SceneError, match="nv = 20 degrees of freedom"):
@@ -148,10 +148,10 @@ def test_refused_whole_data_gets_the_compiled_step(monkeypatch, e, h):
     assert ref.meta["ledger"] == runs["compiled", False].meta["ledger"]
 
 
-@pytest.mark.skipif(not compiled.available(), reason="the compiled step is not built")
 def test_compiled_step_builds_no_whole_data(monkeypatch):
     """Building a compiled Stepper (and its run loop) makes no Data of the whole model: model.new_data is asked
     for the trees' models only (each of nv = 1), never the scene's (nv = 20)."""
+    assert compiled.available(), compiled.unavailable_reason()  # a skipped test would prove nothing
     made = []
     real = moreau_sim.model.new_data
 
