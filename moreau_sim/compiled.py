@@ -159,14 +159,15 @@ def unsupported(model) -> str | None:
     than broad_phase.MIN_PAIRS pairs is queried on the broad phase's candidates on both sides."""
     o = model.options
     geoms = model.geometries
-    if not model.listed and len(model.pairs) > COMPILED_PAIRS:
-        return (f"{len(model.pairs)} collision pairs without a pair list, more than compiled.COMPILED_PAIRS = "
-                f"{COMPILED_PAIRS} (the compiled step lists every pair; the Python step's broad phase does not)")
-    if not model.listed:  # the Stepper takes every pair in a GeometryData: quadratic in bodies, refused above the limit
+    if not model.listed:  # the Stepper takes every pair in a GeometryData: quadratic in bodies, refused above limits
+        n = len(model.pairs)
+        if n > COMPILED_PAIRS:
+            return (f"{n} collision pairs without a pair list, more than compiled.COMPILED_PAIRS = "
+                    f"{COMPILED_PAIRS} (the compiled step lists every pair; the Python step's broad phase does not)")
         limit, what = data_limit()
-        if limit is not None and len(model.pairs) * PAIR_BYTES > limit:
-            return (f"{len(model.pairs)} collision pairs, {len(model.pairs) * PAIR_BYTES / 2 ** 30:.3g} GiB for the "
-                    f"compiled step's list of them, more than {what}")
+        if limit is not None and n * PAIR_BYTES > limit:
+            return (f"{n} collision pairs, {n * PAIR_BYTES / 2 ** 30:.3g} GiB for the compiled step's list of them, "
+                    f"more than {what}")
     if not model.listed and _warm_started(model):
         # Python queries such a model's pairs on coal functors of its own (data.Data.pair_query), not the GeometryData
         return "a pair coal resolves by GJK/EPA in a scene without a pair list (more than model.LAZY_PAIRS pairs)"
