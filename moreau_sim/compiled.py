@@ -21,19 +21,11 @@ from . import box_box, broad_phase, constraints, qp
 from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, SAME_POINT, SNAP_COS, Contacts, FeatureKind
 from .data import GATE_MARGIN
 from .law import ENERGY_ROUNDOFF
-from .model import data_limit
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts, StepImpl
 from .qp import QPResult
 from .results import HOLD, MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
 from .state import State
 
-PAIR_BYTES = 6_500  # [bytes] the memory one collision pair takes in the compiled step's GeometryModel and
-# GeometryData and its pair lists (compiled._Prepared), made for a model without a pair list (model.LAZY_PAIRS);
-# measured on columns of beads: 6.2 kB a pair at 300 beads (45,150 pairs), 6.0 kB at 1000 (500,500)
-COMPILED_PAIRS = 100_000  # a model without a pair list and more pairs than this gets no compiled step: its list of
-# them costs seconds and GB to build (a column of 1000 beads, 500,500 pairs: 7.9 s, 3.1 GB, measured 2026-11-28),
-# quadratic in bodies, where the Python step's broad phase needs none; and its contacts above MAX_CONTACTS rows
-# go back to the Python step anyway (docs/theory.md §2.12)
 MAX_CONTACTS = qp.COLD_START_ROWS  # closed contacts a compiled step takes: those qp.solve solves by the cold active set
 # Every constant the two steps share, from its one home, as src/step.cpp's Constants reads them (by name: a
 # missing or an unknown one is an error there; tests/test_compiled.py compares them read back)
@@ -117,6 +109,8 @@ def loop_refusal(model, cls: str, what: str, *, whole: bool = True) -> str | Non
         return f"the compiled step predates {what} (rebuild)"
     if whole and not model.whole_data_fits():
         return "the whole model's Data exceeds the memory limit"
+    if not model.listed:  # the loops record every pair's distance on a GeometryData of every pair
+        return "a scene without a pair list (more than model.LAZY_PAIRS pairs): its samples are recorded in Python"
     return None
 
 
@@ -154,23 +148,12 @@ def _warm_started(model) -> bool:
 
 def unsupported(model) -> str | None:
     """Why the compiled step never takes this model's steps (None: it takes the ones it covers). Every pair coal
-    resolves by GJK/EPA (two boxes, two convex meshes, a cylinder on a box, ...) runs on the same GeometryData on
-    both sides, its warm start saved before the detection and restored where a step is handed back; a model of more
-    than broad_phase.MIN_PAIRS pairs is queried on the broad phase's candidates on both sides."""
+    resolves by GJK/EPA (two boxes, two convex meshes, a cylinder on a box, ...) runs on the same coal objects on
+    both sides (the GeometryData's; in a scene without a pair list, those data.Data.pair_query makes at first use),
+    its warm start saved before the detection and restored where a step is handed back; a model of more than
+    broad_phase.MIN_PAIRS pairs is queried on the broad phase's candidates on both sides (docs/theory.md §2.12)."""
     o = model.options
     geoms = model.geometries
-    if not model.listed:  # the Stepper takes every pair in a GeometryData: quadratic in bodies, refused above limits
-        n = len(model.pairs)
-        if n > COMPILED_PAIRS:
-            return (f"{n} collision pairs without a pair list, more than compiled.COMPILED_PAIRS = "
-                    f"{COMPILED_PAIRS} (the compiled step lists every pair; the Python step's broad phase does not)")
-        limit, what = data_limit()
-        if limit is not None and n * PAIR_BYTES > limit:
-            return (f"{n} collision pairs, {n * PAIR_BYTES / 2 ** 30:.3g} GiB for the compiled step's list of them, "
-                    f"more than {what}")
-    if not model.listed and _warm_started(model):
-        # Python queries such a model's pairs on coal functors of its own (data.Data.pair_query), not the GeometryData
-        return "a pair coal resolves by GJK/EPA in a scene without a pair list (more than model.LAZY_PAIRS pairs)"
     if model.polytope_pair_set and not all(_axis_aligned(model, g) for g, go in enumerate(geoms)
                                            if isinstance(go.geometry, coal.Box)):
         # the face axis of two boxes becomes the patch's normal: exact both ways only for faces along the axes
@@ -199,7 +182,13 @@ class _Context:
         self.stepper = None
         if self.why is None:
             # on the forest's per-tree Datas (docs/theory.md §2.12): no Data of the whole model is made
-            self.stepper = _module.Stepper(model.pin, *forest_args(model, data), model.geom, data.geom, *prep.stepper)
+            # a model without a pair list: a GeometryData of its geometries alone (placements), not data.geom's of
+            # every pair; its pairs' coal objects are Python's (Stepper::table)
+            geom_data = data.geom if model.listed else pinocchio.GeometryData(prep.geom)
+            self.stepper = _module.Stepper(model.pin, *forest_args(model, data), prep.geom, geom_data, *prep.stepper)
+            if prep.table is not None:  # (through a weak reference: data holds the Stepper, no cycle through C++)
+                ref = weakref.ref(data)
+                self.stepper.table(*prep.table, lambda k: ref().pair_query(k), lambda k: ref().distance_query(k))
             if prep.shapes is not None:  # the detection's data beyond coal's narrow phase (Stepper::boxes)
                 queries = [data.point_query(g) if asked else None for g, asked in enumerate(prep.queried)]
                 self.stepper.boxes(queries, *prep.shapes, data.distance_request, data.distance_result,
@@ -243,21 +232,35 @@ class _Prepared:
     build_model), made once per model (_prepared): why (unsupported), the Stepper's arguments after (model, data,
     geometry model, geometry data), Stepper::boxes's after the point queries and before coal's request and result
     objects (shapes; None: no pair), the geometries a point query is made for (queried), Stepper::broad's (broad;
-    None: no broad phase), carries (the detection carries state from step to step: boxes, or coal's GJK warm starts)."""
+    None: no broad phase), carries (the detection carries state from step to step: boxes, or coal's GJK warm starts);
+    for a model without a pair list (model.listed false), Stepper::table's arrays before Python's query makers (table)
+    and the GeometryModel of its geometries with no pair (geom; each run makes its GeometryData): the Stepper then
+    holds nothing per pair but what the broad phase's candidates query (src/pair_table.hpp, docs/theory.md §2.12)."""
 
-    __slots__ = ("why", "stepper", "shapes", "queried", "broad", "carries")
+    __slots__ = ("why", "stepper", "shapes", "queried", "broad", "carries", "table", "geom")
 
     def __init__(self, model):
         self.carries = bool(model.polytope_pair_set) or _warm_started(model)
         self.why = unsupported(model)
-        self.stepper = self.shapes = self.broad = None
+        self.stepper = self.shapes = self.broad = self.table = None
+        self.geom = model.geom if model.listed else None
         self.queried = ()
         if self.why is not None:
             return
         o = model.options
         kinds = [0 if b[0] == "plane" else 1 for b in model.bounds]
-        pairs = np.array([(p.first, p.second, p.joint_first, p.joint_second, int(p.patch)) for p in model.pairs],
-                         dtype=np.int64).reshape(-1, 5)
+        if model.listed:
+            pairs = np.array([(p.first, p.second, p.joint_first, p.joint_second, int(p.patch)) for p in model.pairs],
+                             dtype=np.int64).reshape(-1, 5)
+        else:
+            pairs = np.zeros((0, 5), dtype=np.int64)
+            t = model.pair_table
+            faces = [bool(len(model.face_normals[g]) and len(model.vertices[g])) for g in range(t.G)]
+            self.table = (t.G, t.joint.tolist(), t.removed.tolist(), t.start.tolist(),
+                          *(x.astype(int).tolist() for x in (t.half, t.poly, t.flat)), faces)
+            self.geom = pinocchio.GeometryModel()
+            for go in model.geometries:
+                self.geom.addGeometryObject(go)
         self.stepper = (
             [np.asarray(V, float).reshape(-1, 3) for V in model.vertices], kinds,
             [np.asarray(b[1], float) for b in model.bounds], [float(b[2]) for b in model.bounds], pairs,
@@ -283,9 +286,15 @@ class _Prepared:
         gobs = model.geometries
         G = len(gobs)
         other = np.zeros(G, bool)  # a vertex of a pair's other geometry may come near it
-        for p in model.pairs:
-            for g, v in ((p.first, p.second), (p.second, p.first)):
-                other[g] |= bool(len(model.vertices[v])) and model.bounds[g][0] == "sphere"
+        if model.listed:
+            for p in model.pairs:
+                for g, v in ((p.first, p.second), (p.second, p.first)):
+                    other[g] |= bool(len(model.vertices[v])) and model.bounds[g][0] == "sphere"
+        else:  # the same, each geometry against those with vertices, without listing the pairs
+            t, with_vertices = model.pair_table, np.array([g for g in range(G) if len(model.vertices[g])], np.int64)
+            for g in range(G):
+                other[g] = (model.bounds[g][0] == "sphere" and len(with_vertices) > 0
+                            and bool(t.chosen(np.full(len(with_vertices), g), with_vertices).any()))
         queried, edges = [], []
         for g, go in enumerate(gobs):
             box = isinstance(go.geometry, coal.Box)
@@ -303,7 +312,7 @@ class _Prepared:
                        [np.asarray(d, float) for _, d in planes], edges,
                        [np.zeros((0, 3)) if e is None else np.asarray(e, float).reshape(-1, 3)
                         for e in model.vertex_edges], cones,
-                       [int(p.index in model.polytope_pair_set) for p in model.pairs])
+                       [int(p.index in model.polytope_pair_set) for p in model.pairs] if model.listed else [])
 
 
 _PREPARED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> its _Prepared

@@ -8,7 +8,8 @@
 // pairs (moreau_sim/compiled.py _analytic), its warm-started GJK/EPA on the same
 // GeometryData (the guesses saved before the detection, restored where a step is handed back), pairs of two boxes
 // (src/box_box.hpp: point queries, contact patches, the warm start of contacts.detect), on the broad phase's
-// candidates (broad_phase.py) in a model of more than its MIN_PAIRS pairs; any number of velocities: polytope
+// candidates (broad_phase.py) in a model of more than its MIN_PAIRS pairs, and in a scene without a pair list on
+// its pair table (src/pair_table.hpp) through the coal objects the Python step makes per pair; any number of velocities: polytope
 // vertices against a half-space (contacts._vertex_contacts, kind "plane") or any other shape (coal's point query),
 // coal's witness contact (smooth shapes), patches (contacts._face_axis, _snap), flight steps; the
 // restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed form for one
@@ -45,6 +46,7 @@
 #include <coal/shape/geometric_shapes.h>
 
 #include "box_box.hpp"
+#include "pair_table.hpp"
 #include "rheonomic.hpp"
 
 #include <algorithm>
@@ -1344,6 +1346,25 @@ class Stepper {
   // the broad phase's candidates at the last detection (broad())
   std::vector<int> last_candidates() const { return cand_; }
   void set_warm(std::vector<int> w) { warm_ = std::move(w); }
+  // The pairs of a scene without their list (moreau_sim/pair_table.py PairTable, the same arrays; src/pair_table.hpp):
+  // the Stepper then holds no pair list (its GeometryModel has the geometries and no pair) and queries coal on the
+  // broad phase's candidates through the objects Python's Data makes per pair at first use: collide_query(k) ->
+  // (CollisionRequest, CollisionResult, ComputeCollision) (data.Data.pair_query), distance_query(k) ->
+  // (DistanceRequest, DistanceResult, ComputeDistance) (data.Data.distance_query), shared with the Python step
+  void table(int64_t G, std::vector<int64_t> joint, std::vector<int64_t> removed, std::vector<int64_t> start,
+             std::vector<int> half, std::vector<int> poly, std::vector<int> flat, std::vector<int> faces,
+             nb::object collide_query, nb::object distance_query) {
+    const size_t n = (size_t)G;
+    if (G != (int64_t)gm_.geometryObjects.size() || joint.size() != n || start.size() != n + 1 || half.size() != n ||
+        poly.size() != n || flat.size() != n || faces.size() != n || pairs_.rows() != 0)
+      throw nb::value_error("table: one entry per geometry (start: G + 1), and no pair list");
+    if (!std::is_sorted(removed.begin(), removed.end())) throw nb::value_error("table: removed keys sorted");
+    const auto flags = [](const std::vector<int> &x) { return std::vector<char>(x.begin(), x.end()); };
+    table_ = pairs::Table{G, std::move(joint), std::move(removed), std::move(start), flags(half), flags(poly),
+                          flags(flat), flags(faces)};
+    collide_query_ = std::move(collide_query), distance_query_ = std::move(distance_query);
+    cq_.clear(), dq_.clear(), query_keep_.clear();
+  }
 
  private:
   nb::object py_[3];  // keeps the Python objects (and so the C++ ones) alive
@@ -1382,6 +1403,21 @@ class Stepper {
     std::unordered_map<int64_t, int> index;  // min(i, j) G + max(i, j) -> the pair of geometries i, j
   };
   std::optional<BroadPhase> bp_;
+  std::optional<pairs::Table> table_;  // table(): the pairs of a scene without their list (pairs_ then has no row)
+  struct CollisionQuery {  // a pair's coal collision objects: the GeometryData's, or Python's (table mode)
+    coal::CollisionRequest *req;
+    coal::CollisionResult *res;
+    coal::ComputeCollision *f;
+  };
+  struct DistanceQuery {  // a pair's coal distance objects (table mode: Python's)
+    coal::DistanceRequest *req;
+    coal::DistanceResult *res;
+    coal::ComputeDistance *f;
+  };
+  nb::object collide_query_, distance_query_;
+  std::unordered_map<int, CollisionQuery> cq_;
+  std::unordered_map<int, DistanceQuery> dq_;
+  std::vector<nb::object> query_keep_;  // the Python objects behind cq_ and dq_
   std::vector<int> cand_;  // the broad phase's candidates at the last detection (sorted)
   MatrixXd bp_c_, bp_h_;  // scratch: the geometries' boxes in the world
   std::vector<nb::object> keep_;
@@ -1436,6 +1472,104 @@ class Stepper {
     distances(q, d.data());
     return d;
   }
+  // contacts.pair_distances(near=True) of a scene without a pair list: the broad phase's candidates at q (ascending)
+  // with their distances, coal's query on Python's objects (data.Data.distance); every other pair is +inf. NaN where
+  // coal's query failed (a distance neither below C_.distance_failed in size nor +inf)
+  std::vector<std::pair<int, double>> near_distances(const VectorXd &q) {
+    place_geometries(q);
+    std::vector<int> cand;
+    candidates(cand);
+    for (int k : cand) fresh_guess(distance_of(k).req->cached_gjk_guess);
+    std::vector<std::pair<int, double>> out;
+    out.reserve(cand.size());
+    for (int k : cand) {
+      const DistanceQuery d = distance_of(k);
+      const pairs::Row r = table_->row(k);
+      d.res->clear();
+      (*d.f)(placement(r.first), placement(r.second), *d.req, *d.res);
+      const double x = d.res->min_distance;
+      out.push_back({k, (std::abs(x) < C_.distance_failed || x == INFINITY) ? x : std::numeric_limits<double>::quiet_NaN()});
+    }
+    return out;
+  }
+  // the correction's guard above (stepper.correct_positions) in table mode, with contacts.pair_distances(near=True):
+  // no pair deeper at q_c than its floor min(distance at q_next, 0) (+ half the depth a paid lift lifts, scaled) less
+  // tol; a pair not among the candidates at q_next has distance +inf (floor 0), not among those at q_c: +inf
+  bool near_distances_hold(const VectorXd &q_next, const VectorXd &q_c, const std::vector<Found> &con,
+                           const VectorXd &g_next, bool scaled) {
+    const auto before = near_distances(q_next), after = near_distances(q_c);
+    std::unordered_map<int, double> lifted;  // np.minimum.at(lifted, pair, g_next) from 0, the pairs it touches
+    if (scaled)
+      for (size_t i = 0; i < con.size(); ++i) {
+        const Eigen::Index p = con[i].pair;
+        if (p < 0 || p >= npairs()) continue;
+        const auto it = lifted.find((int)p);
+        const double l = it == lifted.end() ? 0.0 : it->second, gi = g_next[(Eigen::Index)i];
+        lifted[(int)p] = (std::isnan(l) || std::isnan(gi)) ? std::numeric_limits<double>::quiet_NaN() : std::min(l, gi);
+      }
+    for (const auto &[k, a] : after) {
+      const auto it = std::lower_bound(before.begin(), before.end(), std::pair<int, double>(k, -INFINITY));
+      const double b = (it != before.end() && it->first == k) ? it->second : INFINITY;
+      double floor = std::isnan(b) ? b : std::min(b, 0.0);
+      if (scaled) {
+        const auto l = lifted.find(k);
+        floor = floor + 0.5 * (l == lifted.end() ? 0.0 : l->second);
+      }
+      if (a < floor - tol_) return false;
+    }
+    return true;
+  }
+  coal::Transform3s placement(int g) const {
+    const auto &o = gd_.oMg[(size_t)g];
+    return coal::Transform3s(o.rotation(), o.translation());
+  }
+
+  // the pairs: as many as the list's rows or the table's; pair k's geometries and joints; two polytopes
+  Eigen::Index npairs() const { return table_ ? (Eigen::Index)table_->size() : pairs_.rows(); }
+  pairs::Row pair(Eigen::Index k) const {
+    if (table_) return table_->row(k);
+    return {(int)pairs_(k, 0), (int)pairs_(k, 1), (int)pairs_(k, 2), (int)pairs_(k, 3), pairs_(k, 4) != 0};
+  }
+  bool polytope(Eigen::Index k) const {
+    if (table_) return table_->polytope(table_->row(k));
+    return k < (Eigen::Index)polytope_.size() && polytope_[(size_t)k];
+  }
+  // pair k's coal collision objects: the GeometryData's, or (table mode) Python's, made by it at first use
+  CollisionQuery collision_of(int k) {
+    if (!table_)
+      return {&gd_.collisionRequests[(size_t)k], &gd_.collisionResults[(size_t)k], &gd_.collision_functors[(size_t)k]};
+    const auto it = cq_.find(k);
+    if (it != cq_.end()) return it->second;
+    const nb::tuple t = nb::cast<nb::tuple>(collide_query_(k));
+    if (t.size() != 3) throw nb::value_error("collide_query: (request, result, functor) expected");
+    query_keep_.push_back(t);
+    const CollisionQuery c{&extract_ref<coal::CollisionRequest>(t[0], "coal.CollisionRequest"),
+                           &extract_ref<coal::CollisionResult>(t[1], "coal.CollisionResult"),
+                           &extract_ref<coal::ComputeCollision>(t[2], "coal.ComputeCollision")};
+    return cq_[k] = c;
+  }
+  DistanceQuery distance_of(int k) {
+    const auto it = dq_.find(k);
+    if (it != dq_.end()) return it->second;
+    const nb::tuple t = nb::cast<nb::tuple>(distance_query_(k));
+    if (t.size() != 3) throw nb::value_error("distance_query: (request, result, functor) expected");
+    query_keep_.push_back(t);
+    const DistanceQuery d{&extract_ref<coal::DistanceRequest>(t[0], "coal.DistanceRequest"),
+                          &extract_ref<coal::DistanceResult>(t[1], "coal.DistanceResult"),
+                          &extract_ref<coal::ComputeDistance>(t[2], "coal.ComputeDistance")};
+    return dq_[k] = d;
+  }
+  // coal's collision query of pair k: pinocchio's computeCollision, or (table mode) the same query on Python's objects
+  // as data.Data.collide makes it (pinocchio's distance_upper_bound, a cleared result, the pair's functor)
+  bool collide(int k) {
+    if (!table_) return pinocchio::computeCollision(gm_, gd_, (pinocchio::PairIndex)k);
+    const CollisionQuery c = collision_of(k);
+    const pairs::Row r = table_->row(k);
+    c.req->distance_upper_bound = c.req->security_margin + 1e-6;
+    c.res->clear();
+    (*c.f)(placement(r.first), placement(r.second), *c.req, *c.res);
+    return c.res->isCollision();
+  }
 
   // contacts.fresh_guesses, operation by operation: a cached GJK guess shorter than C_.guess_min (or
   // non-finite) is rescaled to unit length, (1, 0, 0) if it has no direction (coal 3.0.3 fails from a
@@ -1465,17 +1599,19 @@ class Stepper {
   std::vector<Guesses> saved_;
   std::vector<int> saved_pairs_;  // the pairs saved_ holds (saved_all_: every pair, in order)
   bool saved_all_ = true;
-  void save_one(Guesses &s, size_t k) const {
-    const coal::GJKSolver &sv = gd_.collision_functors[k].*SolverOf::member();
-    const auto &rq = gd_.collisionRequests[k];
-    const auto &rs = gd_.collisionResults[k];
+  void save_one(Guesses &s, size_t k) {
+    const CollisionQuery c = collision_of((int)k);
+    const coal::GJKSolver &sv = (*c.f).*SolverOf::member();
+    const auto &rq = *c.req;
+    const auto &rs = *c.res;
     s = {sv.cached_guess, rq.cached_gjk_guess, rs.cached_gjk_guess, sv.support_func_cached_guess,
          rq.cached_support_func_guess, rs.cached_support_func_guess};
   }
   void restore_one(const Guesses &s, size_t k) {
-    coal::GJKSolver &sv = gd_.collision_functors[k].*SolverOf::member();
-    auto &rq = gd_.collisionRequests[k];
-    auto &rs = gd_.collisionResults[k];
+    const CollisionQuery c = collision_of((int)k);
+    coal::GJKSolver &sv = (*c.f).*SolverOf::member();
+    auto &rq = *c.req;
+    auto &rs = *c.res;
     sv.cached_guess = s.solver, sv.support_func_cached_guess = s.solver_hint;
     rq.cached_gjk_guess = s.request, rq.cached_support_func_guess = s.request_hint;
     rs.cached_gjk_guess = s.result, rs.cached_support_func_guess = s.result_hint;
@@ -1698,9 +1834,9 @@ class Stepper {
   const Eigen::Matrix3d &rot(int joint) const { return forest_.oMi((size_t)joint).rotation(); }
   const Vec3 &trans(int joint) const { return forest_.oMi((size_t)joint).translation(); }
 
-  // broad_phase.BroadPhase.candidates_at (the sums of sums.dots, in its order) at the forest's placements oMi: cand_,
-  // the sorted pairs whose inflated boxes overlap, with a half-space within the margin, or always examined
-  void candidates() {
+  // broad_phase.BroadPhase.candidates_at (the sums of sums.dots, in its order) at the forest's placements oMi: into
+  // out, the sorted pairs whose inflated boxes overlap, with a half-space within the margin, or always examined
+  void candidates(std::vector<int> &out) {
     const BroadPhase &B = *bp_;
     const Eigen::Index G = (Eigen::Index)B.joint.size();
     bp_c_.resize(G, 3), bp_h_.resize(G, 3);
@@ -1713,11 +1849,11 @@ class Stepper {
                        std::abs(R(i, 2)) * B.half(g, 2)) + 0.0;
       }
     }
-    cand_.assign(B.always.begin(), B.always.end());
+    out.assign(B.always.begin(), B.always.end());
     // _sweep: every two bounded geometries whose boxes, inflated by the margin, overlap (the same set whichever the
     // axis of the sweep: the one where the boxes spread most)
     const size_t nb = B.bounded.size();
-    if (nb >= 2 && !B.index.empty()) {
+    if (nb >= 2 && (table_ || !B.index.empty())) {
       std::vector<Eigen::Index> b(B.bounded.begin(), B.bounded.end());
       Eigen::Matrix<double, Eigen::Dynamic, 3> lo(nb, 3), hi(nb, 3);
       for (size_t a = 0; a < nb; ++a)
@@ -1742,8 +1878,13 @@ class Stepper {
           if (!(lo(i, 0) <= hi(j, 0) && lo(j, 0) <= hi(i, 0) && lo(i, 1) <= hi(j, 1) && lo(j, 1) <= hi(i, 1) &&
                 lo(i, 2) <= hi(j, 2) && lo(j, 2) <= hi(i, 2)))
             continue;
-          const auto it = B.index.find(std::min(b[i], b[j]) * nG + std::max(b[i], b[j]));
-          if (it != B.index.end()) cand_.push_back(it->second);
+          const int64_t lo = std::min(b[i], b[j]), hi = std::max(b[i], b[j]);
+          if (table_) {
+            if (table_->chosen(lo, hi)) out.push_back((int)table_->index(lo, hi));
+            continue;
+          }
+          const auto it = B.index.find(lo * nG + hi);
+          if (it != B.index.end()) out.push_back(it->second);
         }
       }
     }
@@ -1757,10 +1898,10 @@ class Stepper {
       const double d = B.half_d[k] + (((n[0] * t[0] + n[1] * t[1]) + n[2] * t[2]) + 0.0);
       const double nc = ((n[0] * bp_c_(o, 0) + n[1] * bp_c_(o, 1)) + n[2] * bp_c_(o, 2)) + 0.0;
       const double nh = ((std::abs(n[0]) * bp_h_(o, 0) + std::abs(n[1]) * bp_h_(o, 1)) + std::abs(n[2]) * bp_h_(o, 2)) + 0.0;
-      if ((nc - nh) - d <= B.margin) cand_.push_back(B.half_pair[k]);
+      if ((nc - nh) - d <= B.margin) out.push_back(B.half_pair[k]);
     }
-    std::sort(cand_.begin(), cand_.end());
-    cand_.erase(std::unique(cand_.begin(), cand_.end()), cand_.end());
+    std::sort(out.begin(), out.end());
+    out.erase(std::unique(out.begin(), out.end()), out.end());
   }
 
   // contacts.detect: coal's narrow phase on every pair (a model of more than broad_phase.MIN_PAIRS pairs: on the broad
@@ -1770,34 +1911,40 @@ class Stepper {
     std::vector<Found> found;
     place_geometries(q_m);
     next_warm_ = warm_;
-    if (pairs_.rows() == 0) return found;
-    const Eigen::Index np = pairs_.rows();
-    std::vector<char> hit(np, 0);
+    const Eigen::Index np = npairs();
+    if (np == 0) return found;
+    std::vector<int> hits;  // the pairs coal's narrow phase finds colliding, ascending
     if (bp_) {
-      candidates();
+      candidates(cand_);
       save_guesses(cand_);
-      for (int k : cand_) fresh_guess(gd_.collisionRequests[k].cached_gjk_guess);
-      for (int k : cand_) hit[k] = pinocchio::computeCollision(gm_, gd_, (pinocchio::PairIndex)k);
+      for (int k : cand_) fresh_guess(collision_of(k).req->cached_gjk_guess);
+      for (int k : cand_)
+        if (collide(k)) hits.push_back(k);
     } else {
+      if (table_) throw Fallback{"a scene without a pair list and no broad phase"};
       save_guesses();
       fresh_guesses(gd_.collisionRequests);
       pinocchio::computeCollisions(gm_, gd_, false);
-      for (Eigen::Index k = 0; k < np; ++k) hit[k] = gd_.collisionResults[k].isCollision();
+      for (Eigen::Index k = 0; k < np; ++k)
+        if (gd_.collisionResults[(size_t)k].isCollision()) hits.push_back((int)k);
     }
-    std::vector<char> near(np, 0);
+    std::vector<int> near;  // ascending, as warm_
     for (int k : warm_) {  // _near_polytopes: model.polytope_pair_ids, two geometries with vertices and bounding spheres
       if (k >= np || !shapes_) continue;
-      const int g1 = (int)pairs_(k, 0), g2 = (int)pairs_(k, 1), j1 = (int)pairs_(k, 2), j2 = (int)pairs_(k, 3);
+      const pairs::Row p = pair(k);
+      const int g1 = p.first, g2 = p.second, j1 = p.joint_first, j2 = p.joint_second;
       if (bound_kind_[g1] != 1 || bound_kind_[g2] != 1 || !vertices_[g1].rows() || !vertices_[g2].rows()) continue;
       const Vec3 d = (rot(j1) * bound_a_[g1] + trans(j1)) - (rot(j2) * bound_a_[g2] + trans(j2));
-      near[k] = std::sqrt(d.dot(d)) - bound_b_[g1] - bound_b_[g2] <= tol_;
+      if (std::sqrt(d.dot(d)) - bound_b_[g1] - bound_b_[g2] <= tol_) near.push_back(k);
     }
+    std::vector<int> todo;  // sorted(hits | near)
+    std::set_union(hits.begin(), hits.end(), near.begin(), near.end(), std::back_inserter(todo));
     const double margin = std::max(tol_, travel);
-    for (Eigen::Index k = 0; k < np; ++k) {
-      if (!hit[k] && !near[k]) continue;
-      const auto &res = gd_.collisionResults[k];
-      const int first = (int)pairs_(k, 0), second = (int)pairs_(k, 1), jf = (int)pairs_(k, 2), js = (int)pairs_(k, 3);
-      const bool patch = pairs_(k, 4) != 0;
+    for (const int k : todo) {
+      const bool hit = std::binary_search(hits.begin(), hits.end(), k);
+      const pairs::Row p = pair(k);
+      const int first = p.first, second = p.second, jf = p.joint_first, js = p.joint_second;
+      const bool patch = p.patch;
       const size_t start = found.size();
       const int na = (int)vertices_[first].rows(), nb_ = (int)vertices_[second].rows();
       if (na) vertex_contacts(first, jf, second, js, found, (int)k, 0, true, margin);
@@ -1821,8 +1968,8 @@ class Stepper {
         for (const auto &x : cands)
           if (x.g >= floor) edges.push_back({x.g, x.pa, x.pb, x.n, (int)k, x.face ? C_.face : C_.edge, x.feature});
       }
-      if (hit[k]) {
-        const auto &c = res.getContact(0);
+      if (hit) {
+        const auto &c = collision_of(k).res->getContact(0);
         const Vec3 n = -c.normal;
         const double depth = c.penetration_depth;
         if (!(std::abs(depth) < 1e100 && std::isfinite(n.dot(n)))) throw Fallback{"coal's contact needs the EPA fallback"};
@@ -1834,7 +1981,7 @@ class Stepper {
           if (!shapes_) throw Fallback{"contact patch"};
           // the patch about the face normal nearest to coal's: two polytopes' face axis, else the face normal within
           // contacts._SNAP of coal's normal (contacts._snap)
-          const Vec3 n_face = polytope_[k] ? boxbox::face_axis(vertices_[first], rot(jf), trans(jf), face_n_[first],
+          const Vec3 n_face = polytope(k) ? boxbox::face_axis(vertices_[first], rot(jf), trans(jf), face_n_[first],
                                                                vertices_[second], rot(js), trans(js), face_n_[second])
                                            : snap(first, jf, second, js, n);
           // with vertex contacts, the patch must lie in their plane (contacts.detect's literal 1 - 1e-9)
@@ -1887,7 +2034,8 @@ class Stepper {
   // a contact's joints (A, B): its pair's, or a joint limit's (its joint, the world)
   std::pair<int, int> joints_of(const Found &f) const {
     if (f.kind == C_.joint_limit) return {f.feature, 0};
-    return {(int)pairs_(f.pair, 2), (int)pairs_(f.pair, 3)};
+    const pairs::Row p = pair(f.pair);
+    return {p.joint_first, p.joint_second};
   }
 
   // constraints.contact_rows: w = mask_a (n'J_lin + (p_a x n)'J_ang) - mask_b (same at p_b), summed as sums.ordered
@@ -1897,12 +2045,13 @@ class Stepper {
     MatrixXd W(nv, m);
     for (Eigen::Index i = 0; i < m; ++i) {
       if (f[i].kind == C_.joint_limit) {  // the constant row sign e_{idx_v}
-        const Eigen::Index k = f[i].pair - (Eigen::Index)pairs_.rows();
+        const Eigen::Index k = f[i].pair - npairs();
         W.col(i).setZero();
         W((Eigen::Index)limits_(k, 3), i) = limits_(k, 4);
         continue;
       }
-      const int ja = (int)pairs_(f[i].pair, 2), jb = (int)pairs_(f[i].pair, 3);
+      const pairs::Row p = pair(f[i].pair);
+      const int ja = p.joint_first, jb = p.joint_second;
       const Vec3 &n = f[i].n;
       Vec3 c[2];
       for (int s = 0; s < 2; ++s) {
@@ -2050,9 +2199,9 @@ class Stepper {
       Vec3 V;
       for (Eigen::Index i = 0; i < m; ++i) {
         if (con[i].kind == C_.joint_limit) continue;
-        const Eigen::Index p = con[i].pair;
+        const pairs::Row p = pair(con[i].pair);
         for (int s = 0; s < 2; ++s) {  // the normal points from second to first
-          if (!rh_.velocity((size_t)pairs_(p, s == 0 ? 1 : 0), t_m, V)) continue;
+          if (!rh_.velocity((size_t)(s == 0 ? p.second : p.first), t_m, V)) continue;
           if (!has_rate) rate = VectorXd::Zero(m), has_rate = true;
           const Vec3 &n = con[i].n;
           rate[i] = rate[i] + (s == 0 ? -1.0 : 1.0) * (((n[0] * V[0] + n[1] * V[1]) + n[2] * V[2]) + 0.0);
@@ -2372,9 +2521,8 @@ class Stepper {
         deep = true;
         const int p = con[i].pair;
         persistent = con[i].kind != C_.joint_limit &&
-                     ((p < (int)polytope_.size() && polytope_[p]) ||
-                      (con[i].kind == C_.vertex && p < (int)pairs_.rows() &&
-                       (bound_kind_[pairs_(p, 0)] == 0 || bound_kind_[pairs_(p, 1)] == 0)));
+                     (polytope(p) || (con[i].kind == C_.vertex && p < npairs() &&
+                                      (bound_kind_[pair(p).first] == 0 || bound_kind_[pair(p).second] == 0)));
       }
     persistent = persistent && deep;
     if (budget <= 0.0 && !resting && !persistent) return false;
@@ -2412,6 +2560,9 @@ class Stepper {
         if (dE > budget) return false;
       }
     }
+    if (table_) {
+      if (!near_distances_hold(q_next, q_c, con, g_next, scaled)) return false;
+    } else {
     const VectorXd before = pair_distances(q_next), after = pair_distances(q_c);
     VectorXd floor = before.cwiseMin(0.0);  // np.minimum(before, 0.0): NaN kept
     for (Eigen::Index k = 0; k < floor.size(); ++k)
@@ -2429,6 +2580,7 @@ class Stepper {
     }
     for (Eigen::Index k = 0; k < before.size(); ++k)
       if (after[k] < floor[k] - tol_) return false;
+    }
     q_next = q_c;
     corr = dE;
     if (!scaled) return false;
@@ -2480,6 +2632,7 @@ NB_MODULE(_step, mod) {
       .def_prop_ro("constants", &Stepper::constants)
       .def("boxes", &Stepper::boxes)
       .def("broad", &Stepper::broad)
+      .def("table", &Stepper::table)
       .def_prop_ro("candidates", &Stepper::last_candidates)
       .def_prop_rw("warm", &Stepper::warm, &Stepper::set_warm);
   bind_run(mod);

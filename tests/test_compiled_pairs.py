@@ -155,3 +155,109 @@ def test_two_convex_meshes_compiled_and_identical(e, h):
     assert len(ms.build_model(sc).polytope_pair_set) == 3
     ref, new, counts = _both(sc)
     _check(ref, new, counts, compiled_share=0.15)
+
+
+def _as_table(monkeypatch) -> None:
+    """Scenes built from here on without a pair list (model.LAZY_PAIRS) and with the broad phase
+    (broad_phase.MIN_PAIRS): the configuration of every scene above 20,000 pairs, on small scenes."""
+    monkeypatch.setattr(ms.model, "LAZY_PAIRS", 0)
+    monkeypatch.setattr(broad_phase, "MIN_PAIRS", 0)
+
+
+def _steps(model, n: int) -> tuple[list, object]:
+    """n steps of ms.step from the initial state: each step's (q, u, P bytes, correction energy), and the Data."""
+    data = make_data(model)
+    st, out = ms.initial_state(model, data), []
+    for _ in range(n):
+        r = ms.step(model, data, st)
+        st = r.state
+        out.append((st.q.tobytes(), st.u.tobytes(), r.P.tobytes(), r.correction_energy))
+    return out, data
+
+
+@pytest.mark.parametrize("name, steps, share", [
+    ("box_stack_10", 120, 1.0), ("panda_table", 200, 0.9), ("block_on_step", 200, 0.9),
+    ("column_of_beads_100", 200, 1.0), ("solo12_stand", 100, 1.0), ("alternating_stack_10", 20, 0.0)])
+def test_a_table_of_pairs_compiled_and_identical(name, steps, share, monkeypatch):
+    """A scene without a pair list: the compiled step holds nothing per pair (src/pair_table.hpp mirrors
+    pair_table.PairTable) and queries coal on the broad phase's candidates through the objects the Python step
+    makes per pair at first use (data.Data.pair_query), GJK warm starts included, restored where a step is handed
+    back (alternating_stack_10 hands back every step, block_on_step its corner): every step is the Python step's
+    on the same table bit for bit, and no GeometryData of every pair is made (docs/theory.md §2.12)."""
+    _as_table(monkeypatch)
+    sc = _scene(name)
+    ref, _ = _steps(ms.build_model(sc.with_options(step_impl="python")), steps)
+    model = ms.build_model(sc.with_options(step_impl="compiled"))
+    assert not model.listed and compiled.unsupported(model) is None
+    new, data = _steps(model, steps)
+    counts = compiled.counts(data)
+    assert counts["flight"] + counts["contact"] >= share * steps, dict(counts)
+    assert share > 0 or counts["flight"] + counts["contact"] < steps
+    assert new == ref
+    assert data._geom is None and model.geometry_model is None
+
+
+@pytest.mark.parametrize("e", [0.0, 0.9])
+def test_the_correction_guard_on_a_table_of_pairs(e, monkeypatch):
+    """column_of_beads_100 without a pair list: the position correction's guard (no other pair pushed deeper,
+    contacts.pair_distances(near=True): the candidates' distances, +inf for the other pairs) runs on the coal
+    distance objects the Python step makes per pair (data.Data.distance_query): the steps, corrected ones among them,
+    are the Python step's bit for bit."""
+    _as_table(monkeypatch)
+    sc = _scene("column_of_beads_100", restitution=e)
+    ref, _ = _steps(ms.build_model(sc.with_options(step_impl="python")), 200)
+    model = ms.build_model(sc.with_options(step_impl="compiled"))
+    new, data = _steps(model, 200)
+    assert new == ref
+    assert any(c != 0.0 for *_, c in new) and len(data._coal_distance) > 0
+    assert compiled.counts(data)["contact"] > 0 and not any(k.startswith("python") for k in compiled.counts(data))
+
+
+def test_a_table_with_left_out_pairs_names_the_python_candidates(monkeypatch):
+    """A column whose scene leaves out the pairs that cannot touch (bead i with i + 2 and beyond, the upper beads with
+    the ground: sorted keys removed from every row of the table) built without a pair list: the compiled step's pair
+    indices (src/pair_table.hpp's index, geometries) are PairTable's, its candidates broad_phase's at every step's
+    midpoint, and its steps the Python step's bit for bit."""
+    _as_table(monkeypatch)
+    b = ms.SceneBuilder("column_left_out", folder=str(SCENES), restitution=0.5, dt=5e-4, duration=0.05,
+                        step_impl="compiled")
+    n = 12
+    for k in range(n):
+        b.add_body(f"bead{k}", "../models/ball.urdf", root_joint="prismatic", axis=(0, 0, 1), q0=[0.1 + 0.2 * k])
+    b.add_halfspace("ground")
+    for i in range(n):
+        for j in range(i + 2, n):
+            b.exclude(f"bead{i}", f"bead{j}")
+    for k in range(1, n, 2):
+        b.exclude(f"bead{k}", "ground")
+    model = ms.build_model(b.build())
+    table = model.pair_table
+    assert not model.listed and len(table.removed) > 0 and len(table) == n - 1 + (n + 1) // 2
+    data, probe = make_data(model), make_data(model)
+    bp = broad_phase.of(model, max(model.options.contact_tolerance, GATE_MARGIN))
+    ref, _ = _steps(ms.build_model(b.build().with_options(step_impl="python")), 60)
+    st, h = ms.initial_state(model, data), model.options.dt
+    for k in range(60):
+        r = ms.step(model, data, st)
+        q_m = pin.integrate(model.pin, st.q, 0.5 * h * st.u)
+        model.forest.place(probe.kinematics, q_m, model.geometries, probe.oMg)
+        assert data._compiled_step.stepper.candidates == bp.candidates(probe).tolist()
+        assert (r.state.q.tobytes(), r.state.u.tobytes()) == ref[k][:2]
+        st = r.state
+    assert compiled.counts(data)["contact"] == 60
+
+
+def test_a_scene_above_the_pair_list_limit_gets_the_compiled_step():
+    """A 250-bead column (31,125 pairs, above model.LAZY_PAIRS: no pair list) gets the compiled step with nothing
+    made per pair but the broad phase's candidates' coal objects (about two a bead), where it used to build a
+    GeometryData of every pair (quadratic in beads); the compiled run loops record every pair's distance, so they
+    refuse such a scene in one line (the run takes its steps through ms.step's compiled step)."""
+    from benchmarks.scaling import column
+
+    model = ms.build_model(column(250).with_options(step_impl="compiled"))
+    assert not model.listed and compiled.unsupported(model) is None
+    data = make_data(model)
+    ms.step(model, data, ms.initial_state(model, data))
+    assert data._geom is None and 0 < len(data._coal) <= 2 * 250
+    why = compiled.loop_refusal(model, "Runner", "the run loop", whole=False)
+    assert why is not None and why.startswith("a scene without a pair list") and "\n" not in why

@@ -346,29 +346,3 @@ def test_the_velocity_bias_probe_does_not_depend_on_the_process_history():
             pin.randomConfiguration(free, -np.ones(free.nq), np.ones(free.nq))
         seen.add((build_model(boxes).velocity_bias, build_model(beads).velocity_bias))
     assert seen == {(True, False)}
-
-
-def test_compiled_pairs_limit_edge(monkeypatch):
-    """A model without a pair list (more than model.LAZY_PAIRS pairs) gets the compiled step while its pairs'
-    GeometryData (compiled.PAIR_BYTES a pair) fits the memory limit, and is refused in one line one byte below."""
-    model = build_model(column(250).with_options(step_impl="compiled"))
-    assert not model.listed
-    need = len(model.pairs) * compiled.PAIR_BYTES
-    monkeypatch.setenv(DATA_LIMIT_VARIABLE, repr(need / 2 ** 30))
-    assert compiled.unsupported(model) is None
-    monkeypatch.setenv(DATA_LIMIT_VARIABLE, repr((need - 1) / 2 ** 30))
-    why = compiled.unsupported(model)
-    assert why is not None and why.startswith(f"{len(model.pairs)} collision pairs") and "\n" not in why
-
-
-def test_compiled_pairs_count_edge(monkeypatch):
-    """A model without a pair list gets the compiled step up to compiled.COMPILED_PAIRS pairs and is refused in one
-    line one pair above (its list would cost seconds and GB where the Python step's broad phase needs none)."""
-    model = build_model(column(250).with_options(step_impl="compiled"))
-    assert not model.listed
-    monkeypatch.setattr(compiled, "COMPILED_PAIRS", len(model.pairs))
-    assert compiled.unsupported(model) is None
-    monkeypatch.setattr(compiled, "COMPILED_PAIRS", len(model.pairs) - 1)
-    why = compiled.unsupported(model)
-    assert why is not None and why.startswith(f"{len(model.pairs)} collision pairs without a pair list") \
-        and "\n" not in why
