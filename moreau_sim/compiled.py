@@ -21,11 +21,14 @@ from . import box_box, broad_phase, constraints, qp
 from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, SAME_POINT, SNAP_COS, Contacts, FeatureKind
 from .data import GATE_MARGIN
 from .law import ENERGY_ROUNDOFF
+from .model import data_limit
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts, StepImpl
 from .qp import QPResult
 from .results import HOLD, MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult
 from .state import State
 
+DENSE_COPIES = 3  # the compiled step's dense (nv, nv) matrices: M and M^-1 (src/step.cpp Stepper: block diagonal, zero
+# off the blocks) and M in a contact step's StepOut; a model whose copies exceed the memory limit gets no compiled step
 MAX_CONTACTS = qp.COLD_START_ROWS  # closed contacts a compiled step takes: those qp.solve solves by the cold active set
 # Every constant the two steps share, from its one home, as src/step.cpp's Constants reads them (by name: a
 # missing or an unknown one is an error there; tests/test_compiled.py compares them read back)
@@ -154,6 +157,11 @@ def unsupported(model) -> str | None:
     broad_phase.MIN_PAIRS pairs is queried on the broad phase's candidates on both sides (docs/theory.md §2.12)."""
     o = model.options
     geoms = model.geometries
+    need = DENSE_COPIES * 8 * model.nv ** 2
+    limit, what = data_limit()
+    if limit is not None and need > limit:
+        return (f"its dense mass matrices ({DENSE_COPIES} of ({model.nv}, {model.nv}), {need / 2 ** 30:.3g} GiB) "
+                f"exceed {what}")
     if model.polytope_pair_set and not all(_axis_aligned(model, g) for g, go in enumerate(geoms)
                                            if isinstance(go.geometry, coal.Box)):
         # the face axis of two boxes becomes the patch's normal: exact both ways only for faces along the axes

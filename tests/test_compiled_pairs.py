@@ -261,3 +261,17 @@ def test_a_scene_above_the_pair_list_limit_gets_the_compiled_step():
     assert data._geom is None and 0 < len(data._coal) <= 2 * 250
     why = compiled.loop_refusal(model, "Runner", "the run loop", whole=False)
     assert why is not None and why.startswith("a scene without a pair list") and "\n" not in why
+
+
+def test_the_dense_matrices_limit_edge(monkeypatch):
+    """The compiled step forms M and M^-1 dense (compiled.DENSE_COPIES of (nv, nv) doubles): a model gets it while they
+    fit the memory limit, and is refused in one line one byte below (its steps then go to the Python step)."""
+    from moreau_sim.model import DATA_LIMIT_VARIABLE
+
+    model = ms.build_model(_scene("box_stack_10", step_impl="compiled"))
+    need = compiled.DENSE_COPIES * 8 * model.nv ** 2
+    monkeypatch.setenv(DATA_LIMIT_VARIABLE, repr(need / 2 ** 30))
+    assert compiled.unsupported(model) is None
+    monkeypatch.setenv(DATA_LIMIT_VARIABLE, repr((need - 1) / 2 ** 30))
+    why = compiled.unsupported(model)
+    assert why is not None and why.startswith("its dense mass matrices") and "\n" not in why
