@@ -171,30 +171,21 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def too_big(nv: int) -> str | None:
-    """Why a model of nv velocities is not built here (its Data would take over half the free memory), or None."""
-    free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    need = ms.model.DATA_BYTES_PER_NV3 * nv ** 3
-    if ms.model.DATA_PEAK * need > free / 2:
-        return (f"a Pinocchio Data of nv = {nv} allocates ~{need / 1e9:.3g} GB (four nv^3 tensors, "
-                f"stack-of-tasks/pinocchio#2949; twice that while built), over half of the {free / 1e9:.0f} GB free")
-    return None
-
-
 def beads_one(n: int, repeat: int, n_states: int) -> dict:
     """One column size, in this process: build, Data, steps of both step_impls, peak RSS, then MuJoCo.
     The Python step runs on the forest (moreau_sim/trees.py: no Data of the whole model) at every size
-    built; the compiled step only where a Data of the whole model fits (too_big)."""
+    built; the compiled step where it takes the model (compiled.unsupported: since it runs on the forest too, no Data
+    of the whole model is needed; its dense M and M^-1 must fit the memory limit)."""
     out = {"beads": n}
     why = None
     if n > LARGE:
         repeat, n_states = 1, min(n_states, 3)
-    big = too_big(n)
-    impls = IMPLS if big is None else ("python",)
     if why is None:
         t0 = CLOCK()
         base = ms.build_model(column(n))
         out["build_s"] = CLOCK() - t0
+        big = compiled.unsupported(base)
+        impls = IMPLS if big is None else ("python",)
         out["build_rss_mb"] = peak_rss_mb()
         t0 = CLOCK()
         data = ms.make_data(base)
@@ -280,16 +271,16 @@ def boxes_one(n: int) -> dict:
                    us_last_third=py["us_last_third"], contacts=py["contacts"],
                    contacts_last_third=py["contacts_last_third"], energy0=e0, max_energy_gain=py["max_energy_gain"],
                    final_max_speed=py["final_max_speed"])
-        big = too_big(model.nv)
+        fast = ms.build_model(pile(n).with_options(step_impl="compiled"))
+        big = compiled.unsupported(fast)
         if big is None:  # the compiled step on the same model: its own Data, the steps it takes counted
-            fast = ms.build_model(pile(n).with_options(step_impl="compiled"))
             fdata = ms.make_data(fast)
             c = _pile_run(fast, fdata, ms.initial_state(fast, fdata), e0)
             c["paths"] = dict(compiled.counts(fdata))
             q, u = c.pop("q"), c.pop("u")
             c["same_as_python"] = bool(np.array_equal(q, py["q"]) and np.array_equal(u, py["u"]))
             out["compiled"] = c
-            del fdata, fast
+            del fdata
         else:
             out["compiled"] = {"skipped": big}
         out["peak_rss_mb"] = peak_rss_mb()
