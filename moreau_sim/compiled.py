@@ -266,9 +266,7 @@ class _Prepared:
             faces = [bool(len(model.face_normals[g]) and len(model.vertices[g])) for g in range(t.G)]
             self.table = (t.G, t.joint.tolist(), t.removed.tolist(), t.start.tolist(),
                           *(x.astype(int).tolist() for x in (t.half, t.poly, t.flat)), faces)
-            self.geom = pinocchio.GeometryModel()
-            for go in model.geometries:
-                self.geom.addGeometryObject(go)
+            self.geom = _module.geometry_model(list(model.geometries))  # in one pass (addGeometryObject: cubic)
         self.stepper = (
             [np.asarray(V, float).reshape(-1, 3) for V in model.vertices], kinds,
             [np.asarray(b[1], float) for b in model.bounds], [float(b[2]) for b in model.bounds], pairs,

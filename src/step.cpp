@@ -2637,6 +2637,18 @@ NB_MODULE(_step, mod) {
       .def_prop_rw("warm", &Stepper::warm, &Stepper::set_warm);
   bind_run(mod);
   bind_events(mod);
+  // The GeometryModel of these geometries and no pair (a scene without a pair list: the Stepper's placements, Stepper::
+  // table), made in one pass: pinocchio's addGeometryObject resizes a G x G pair map at each call (cubic in
+  // geometries: 17 s at 3000); its pair map stays empty, so no pair may be added to it
+  mod.def("geometry_model", [](std::vector<nb::object> objects) {
+    pinocchio::GeometryModel gm;
+    gm.geometryObjects.reserve(objects.size());
+    for (const nb::object &o : objects)
+      gm.geometryObjects.push_back(extract_ref<pinocchio::GeometryObject>(o, "pinocchio.GeometryObject"));
+    gm.ngeoms = gm.geometryObjects.size();
+    const bp::object out(gm);  // boost.python's pin.GeometryModel (a copy)
+    return nb::borrow<nb::object>(out.ptr());
+  });
   // the names the constants dict must hold (moreau_sim/compiled.py CONSTANTS), and a dict as the step reads it
   mod.def("constant_names", []() { return Constants::keys(); });
   mod.def("read_constants", [](const std::map<std::string, double> &d) { return Constants::from(d).as_dict(); },
