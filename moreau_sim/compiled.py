@@ -365,6 +365,8 @@ def raw_step(model, data, q: np.ndarray, u: np.ndarray, h: float, e: float, tau:
         return None
     if boxes:
         data.warm_start_pairs = set(ctx.stepper.warm)
+    if data.active_rows:  # a compiled step projects at most MAX_CONTACTS rows: no warm start kept (stepper.keep_active)
+        data.active_rows = frozenset()
     ctx.counts["flight" if r.outcome is _module.Outcome.FLIGHT else "contact"] += 1
     return r
 

@@ -1,7 +1,7 @@
 """The one QP projection of the package: v = argmin 1/2 (v - v0)'M(v - v0) s.t. W'v >= b, by a dual active
-set (from nothing up to COLD_START_ROWS rows, from piqp's answer above, on sparse matrices above SPARSE_ROWS),
-re-solved on its final active set (docs/theory.md §1.3, §1.5); its floating-point order, shared with
-src/step.cpp: §2.8."""
+set (from nothing up to COLD_START_ROWS rows; above, warm-started from the caller's `start`, the previous step's
+final active set, with piqp's answer on sparse matrices as its fallback), re-solved on its final active set
+(docs/theory.md §1.3, §1.5); its floating-point order, shared with src/step.cpp: §2.8."""
 
 from __future__ import annotations
 
@@ -67,7 +67,9 @@ COLD_START_ROWS = 200  # up to this many rows (= SPARSE_ROWS) the active set sta
 # 200, not 100, since the paid position lift is compiled (measured 2026-11-28, CPU, medians of 3 interleaved rounds,
 # load 3.5-5.6): the 27-cube pile 41.8 -> 3.3 ms a step (mean; every step compiled, none handed back), columns of 150
 # and 199 beads 6.4 -> 1.7 and 8.3 -> 2.9 ms, 100 beads 0.73 -> 0.74 ms and box_stack_10 resting 401 -> 400 us unchanged
-SPARSE_ROWS = 200  # above this many rows the sparse path (_solve_sparse) solves (piqp's start, SuperLU)
+SPARSE_ROWS = 200  # above this many rows the active set starts from `start` (solve), the rows the caller takes as
+# active (the stepper: the previous step's final set, matched by the contacts' identities), and where it fails the
+# sparse path (_solve_sparse: piqp's start, SuperLU) solves; the compiled step runs the same warm start (§1.3)
 # The active set's tolerances (src/step.cpp receives them from compiled.CONSTANTS):
 SCREEN = 1e-13  # v0 is admissible, and a row of the active set met, when W'v - b >= -SCREEN (1 + max|v0|)
 DEPENDENT = 1e-12  # row p depends on the active rows when z = G_pp + G_pA d <= DEPENDENT G_pp
@@ -502,13 +504,15 @@ def _no_answer(status, iters: int, v: np.ndarray, lam: np.ndarray) -> QPResult |
 def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None = None,
           Minv: np.ndarray | None = None, form: QPForm = QPForm.PRIMAL, eps: float = 1e-10,
           max_iter: int = 250, polish: Polish = Polish.ACTIVE_SET, screen: bool = True,
-          polish_tol: float = 1e-9) -> QPResult:
+          polish_tol: float = 1e-9, start: np.ndarray | None = None) -> QPResult:
     """Project v0 onto {v : W' v >= b} (b = 0 by default) in the metric M with piqp.
 
     Minv: M^-1 if the caller has it (Pinocchio's computeMinverse), else it is computed.
     screen: return v0 itself when it is already admissible to round-off (no QP).
     polish_tol: the acceptance tolerance of Polish.LEAST_SQUARES (rows with multipliers above
-    sqrt(polish_tol) are active; the polished v must satisfy W'v >= -polish_tol)."""
+    sqrt(polish_tol) are active; the polished v must satisfy W'v >= -polish_tol).
+    start: above SPARSE_ROWS rows (Polish.ACTIVE_SET), the rows the active set starts from (bool (m,); None or
+    none set: from nothing); at or below, it is not read (the cold start, docs/theory.md §1.3)."""
     m = W.shape[1]
     b = np.zeros(m) if b is None else np.asarray(b, float)
     if polish is Polish.ACTIVE_SET and Minv is None:
@@ -516,15 +520,17 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if not np.isfinite(v0).all():  # an overflow upstream: no projection of it is meaningful
         return QPResult("NON_FINITE_INPUT", False, 0, False, v0.copy(), np.zeros(m))
     cold = polish is Polish.ACTIVE_SET and m <= COLD_START_ROWS
-    if polish is Polish.ACTIVE_SET and m > SPARSE_ROWS:
-        return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
+    warm = polish is Polish.ACTIVE_SET and m > SPARSE_ROWS
     if screen and (ordered(W.T, v0) - b).min() >= -SCREEN * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
         return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), M, W, v0, b)
-    if cold:
-        p = _polish(W, v0, b, Minv)
+    if cold or warm:  # above SPARSE_ROWS warm-started from `start` (its moves grow with the rows that change)
+        act = None if not warm or start is None or not np.any(start) else np.asarray(start, bool)
+        p = _polish(W, v0, b, Minv, act)
         if p is not None:
             return QPResult("ACTIVE_SET", True, p[2], True, p[0], p[1], M, W, v0, b)
+    if warm:  # the active set failed (its move limit, a singular or rejected solve): piqp + SuperLU, as before
+        return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
     s = _piqp(piqp.DenseSolver, eps, max_iter)
     if form is QPForm.PRIMAL:
         s.setup(M, -ordered(M, v0), None, None, W.T, b, None)
