@@ -214,3 +214,54 @@ def test_a_column_above_sparse_rows_steps_with_the_cold_bits(e, h, monkeypatch):
     u, u_k = runs["warm"][i][0].state.u, runs["warm"][i - 1][0].state.u
     assert u_k[-1] < -V and abs(u[-1] + e * u_k[-1]) <= 1e-12  # u+ = -e u_k: v = 0 on the resting column
     assert np.abs(u[:-1]).max() <= 1e-12
+
+
+def _compiled_or_fail():
+    from moreau_sim import compiled
+
+    assert compiled.available(), compiled.unavailable_reason()
+    return compiled
+
+
+@pytest.mark.parametrize("e", [0.0, 0.9])
+def test_both_steps_take_a_column_above_sparse_rows_with_the_same_bits(e):
+    """The hit column of 240 beads by the Python step and by the compiled step (src/step.cpp: the same warm start,
+    the same matching, no hand-back above SPARSE_ROWS rows): the same bits every step, the same kept set; one step in
+    the middle taken by the Python step (eps given) keeps the two in step (the kept set crosses both ways)."""
+    compiled = _compiled_or_fail()
+    n, h = 240, 5e-4
+    sc = _hit(n, 2.0, e, h)
+    out = {}
+    for impl in ("python", "compiled", "mixed"):
+        model = ms.build_model(sc.with_options(step_impl="python" if impl == "python" else "compiled"))
+        data = make_data(model)
+        st, rs = ms.initial_state(model, data), []
+        for k in range(10):
+            eps = model.options.qp_tolerance if impl == "mixed" and k in (4, 5) else None
+            r = ms.step(model, data, st, eps=eps)
+            rs.append((r, data.active_rows))
+            st = r.state
+        out[impl] = (rs, compiled.counts(data))
+    assert set(out["compiled"][1]) <= {"flight", "contact"} and out["compiled"][1]["contact"] == 10
+    assert out["mixed"][1]["contact"] == 8
+    for impl in ("compiled", "mixed"):
+        for (a, ka), (b, kb) in zip(out["python"][0], out[impl][0]):
+            assert a.contacts.m == b.contacts.m > qp.SPARSE_ROWS and a.qp.status == b.qp.status == "ACTIVE_SET"
+            for x, y in ((a.state.q, b.state.q), (a.state.u, b.state.u), (a.P, b.P), (a.qp.lam, b.qp.lam)):
+                assert _bits(x) == _bits(y)
+            assert ka == kb and len(ka) >= n - 1
+
+
+def test_a_compiled_run_above_sparse_rows_records_the_python_runs_bits():
+    """simulate() of the hit column (240 beads) by the Python step, by the compiled step in the Python loop and by
+    the compiled run loop (src/run.cpp's Runner over the Stepper): every recorded array the same bits; the compiled
+    loop takes every step."""
+    _compiled_or_fail()
+    sc = _hit(240, 2.0, 0.5, 5e-4).with_options(duration=4e-3)
+    runs = [ms.simulate(ms.build_model(sc.with_options(step_impl=impl)), progress=False, python_run=python_run)
+            for impl, python_run in (("python", True), ("compiled", True), ("compiled", False))]
+    ref = runs[0]
+    for new in runs[1:]:
+        assert set(new.arrays) == set(ref.arrays)
+        assert [k for k in ref.arrays if ref.arrays[k].tobytes() != new.arrays[k].tobytes()] == []
+    assert runs[2].meta["run"]["loop"] == "compiled" and runs[2].meta["run"]["python_steps"] == 0
