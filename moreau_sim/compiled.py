@@ -42,7 +42,8 @@ MAX_CONTACTS = 1000  # closed contacts a compiled step takes: qp.solve's active 
 CONSTANTS = {
     "midpoint_iterations": MIDPOINT_ITERATIONS, "midpoint_tolerance": MIDPOINT_TOLERANCE, "resting": RESTING,
     "hold": HOLD, "vertex": int(FeatureKind.VERTEX), "witness": int(FeatureKind.WITNESS), "max_contacts": MAX_CONTACTS,
-    "sparse_rows": qp.SPARSE_ROWS, "screen": qp.SCREEN, "dependent": qp.DEPENDENT, "met": qp.MET, "accept": qp.ACCEPT, "refine": qp.REFINE,
+    "sparse_rows": qp.SPARSE_ROWS, "screen": qp.SCREEN, "dependent": qp.DEPENDENT, "met": qp.MET, "accept": qp.ACCEPT,
+    "refine": qp.REFINE,
     "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA,
     "distinct": constraints.DISTINCT, "guess_min": GUESS_MIN, "distance_failed": DISTANCE_FAILED,
     "joint_limit": int(FeatureKind.JOINT_LIMIT),
