@@ -44,7 +44,7 @@ CONSTANTS = {
     "hold": HOLD, "vertex": int(FeatureKind.VERTEX), "witness": int(FeatureKind.WITNESS), "max_contacts": MAX_CONTACTS,
     "sparse_rows": qp.SPARSE_ROWS, "screen": qp.SCREEN, "dependent": qp.DEPENDENT, "met": qp.MET, "accept": qp.ACCEPT,
     "refine": qp.REFINE,
-    "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA,
+    "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA, "start_passes": qp.START_PASSES,
     "distinct": constraints.DISTINCT, "guess_min": GUESS_MIN, "distance_failed": DISTANCE_FAILED,
     "joint_limit": int(FeatureKind.JOINT_LIMIT),
     "energy_roundoff": ENERGY_ROUNDOFF, "patch": int(FeatureKind.PATCH), "same_point": SAME_POINT,

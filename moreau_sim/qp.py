@@ -27,6 +27,7 @@ class QPResult:
     without piqp, or "ADMISSIBLE" when v0 already satisfies every constraint (no QP to solve); ok:
     solved and usable; iterations: piqp's interior-point iterations, or the active set's moves;
     polished: the answer is the active set's exact one (Polish.ACTIVE_SET) or the least-squares one; v (nv,), lam (m,);
+    active (status ACTIVE_SET): the first pass's final active set (bool (m,): independent rows, the next step's start);
     the problem it solved, where it solved one: M, W (nv, m), v0 (nv,), b (m,) (None otherwise);
     residual (property): the KKT residual of (v, lam), computed when asked (it costs ~5 us)."""
 
@@ -40,6 +41,7 @@ class QPResult:
     W: np.ndarray | None = field(default=None, repr=False, compare=False)
     v0: np.ndarray | None = field(default=None, repr=False, compare=False)
     b: np.ndarray | None = field(default=None, repr=False, compare=False)
+    active: np.ndarray | None = field(default=None, repr=False, compare=False)  # ACTIVE_SET: the first pass's final set
 
     @property
     def residual(self) -> float:
@@ -78,6 +80,8 @@ ACCEPT = 1e-12  # the answer is kept when lam_A >= -ACCEPT max(1, lam_A) and W'v
 REFINE = 1e-8  # the refinement step is taken when it moves lam_A by at most REFINE (1 + max(lam_A))
 SECOND_PASS = 1e-15  # the second pass's tolerance, relative to max|b| + max|W| max|v|
 MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_ROW m + MOVES_EXTRA moves
+START_PASSES = 4  # a warm start's rows with negative multipliers are dropped and the rest solved again, at most
+# this many solves; a start still negative (or singular) then: from nothing (_active_set)
 
 
 LU_SCALAR = 12  # up to this many unknowns _lu_factor works on Python floats (fewer calls than numpy's row operations)
@@ -336,7 +340,8 @@ def _sparse_mul(A, x):
 def _active_set(G, r, tol, act=None, mul=np.matmul):
     """The contact-space QP  min 1/2 lam'G lam - r'lam, lam >= 0  (G = W'M^-1 W, r = b - W'v0) by
     Goldfarb and Idnani's dual active-set method (docs/theory.md §1). From lam = 0 (or the warm start
-    `act`, the rows taken as active) it adds the most violated inactive row p (slack s = G lam - r below
+    `act`, the rows taken as active: lam_A = G_AA^-1 r_A with its negative rows dropped, START_PASSES solves at
+    most, else from nothing) it adds the most violated inactive row p (slack s = G lam - r below
     -tol; the first such row on ties): lam_A moves along G_AA d = -G_Ap and lam_p by t until row p is
     tight (t = -s_p/z, z = G_pp + G_pA d), or until a multiplier of A reaches zero first (that row leaves
     A, and the same p is tried again). A row dependent on A (z <= 1e-12 G_pp: four corners of a face on
@@ -352,16 +357,19 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
         G = G.tocsc()
         G.sort_indices()
         Gr, diag = G.tocsr(), G.diagonal()
-    if act is None:
-        act = np.zeros(m, bool)
-    else:
-        idx = np.flatnonzero(act)
-        x = _solve(_sub(G, idx), r[idx])
-        if x is None or x.min(initial=0.0) < 0.0:
-            act = np.zeros(m, bool)  # not a valid start: from nothing
-        else:
-            act = act.copy()
-            lam[idx] = x
+    start, act = act, np.zeros(m, bool)
+    if start is not None:  # lam_A = G_AA^-1 r_A, its negative rows dropped (START_PASSES solves at most)
+        cur = start.copy()
+        for _ in range(START_PASSES):
+            idx = np.flatnonzero(cur)
+            x = _solve(_sub(G, idx), r[idx]) if idx.size else None
+            if x is None:  # singular, or nothing left: from nothing
+                break
+            neg = x < 0.0
+            if not neg.any():
+                act, lam[idx] = cur, x
+                break
+            cur[idx[neg]] = False
     moves, gmax = 0, (np.abs(G.data).max(initial=0.0) if sparse else np.abs(G).max())
     while True:
         s = mul(G, lam) - r
@@ -412,7 +420,7 @@ def _polish(W, v0, b, Minv, act=None):
     """The exact projection by the active set (_active_set from nothing, or warm-started from `act`; dense
     products by `ordered`), re-solved on its final set A: G_AA lam_A = b_A - W_A'v0 (_solve),
     v = v0 + M^-1 W_A lam_A. Kept only if lam_A >= 0 and W'v >= b to round-off (the KKT conditions;
-    M (v - v0) = W lam holds by construction); else None."""
+    M (v - v0) = W lam holds by construction); else None. Returns (v, lam, moves, the first pass's final set A)."""
     m = W.shape[1]
     sparse = _issparse(W)
     mul = _sparse_mul if sparse else ordered
@@ -420,7 +428,7 @@ def _polish(W, v0, b, Minv, act=None):
         w = W[:, 0]
         Miw = mul(Minv, w)
         lam1 = max(0.0, float(b[0] - mul(w, v0)) / float(mul(w, Miw)))
-        return v0 + lam1 * Miw, np.array([lam1]), 1
+        return v0 + lam1 * Miw, np.array([lam1]), 1, np.array([lam1 > 0.0])
     scale = 1.0 + np.abs(v0).max(initial=0.0)
     MiW = mul(Minv, W)
     G = mul(W.T, MiW)
@@ -432,6 +440,7 @@ def _polish(W, v0, b, Minv, act=None):
     if sol is None:
         return None
     act, lam, moves = sol
+    first = act.copy()  # returned: the next step's start (stepper.keep_active), independent rows by construction
     idx = np.flatnonzero(act)
     lp = np.zeros(m)
     if not idx.size:
@@ -470,7 +479,7 @@ def _polish(W, v0, b, Minv, act=None):
                 moves += sol[2]
     if (mul(W.T, vp) - b).min() < -ACCEPT * scale:
         return None
-    return vp, lp, moves
+    return vp, lp, moves, first
 
 
 class Polish(enum.Enum):
@@ -528,7 +537,7 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
         act = None if not warm or start is None or not np.any(start) else np.asarray(start, bool)
         p = _polish(W, v0, b, Minv, act)
         if p is not None:
-            return QPResult("ACTIVE_SET", True, p[2], True, p[0], p[1], M, W, v0, b)
+            return QPResult("ACTIVE_SET", True, p[2], True, p[0], p[1], M, W, v0, b, p[3])
     if warm:  # the active set failed (its move limit, a singular or rejected solve): piqp + SuperLU, as before
         return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
     s = _piqp(piqp.DenseSolver, eps, max_iter)

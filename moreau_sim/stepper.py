@@ -260,13 +260,15 @@ def warm_start(data: Data, contacts) -> np.ndarray | None:
 
 
 def keep_active(data: Data, imp: ImpactSolution) -> None:
-    """data.active_rows after a step's projection: the identities of its rows with lam_i > 0 where it had more
-    than qp.SPARSE_ROWS rows and solved, else none (warm_start reads them at the next step)."""
+    """data.active_rows after a step's projection where it had more than qp.SPARSE_ROWS rows and solved: the
+    identities of the rows of the active set's final set (its first pass's: independent rows by construction, so
+    that the next start G_AA lam_A = r_A is not singular), or where piqp answered of its rows with lam_i > 0; else
+    none (warm_start reads them at the next step; src/step.cpp keeps the same)."""
     c, res = imp.contacts, imp.qp
     if c.m <= qp.SPARSE_ROWS or not res.ok or len(res.lam) != c.m:
         data.active_rows = frozenset()
         return
-    sel = np.flatnonzero(res.lam > 0.0)
+    sel = np.flatnonzero(res.lam > 0.0 if res.active is None else res.active)
     data.active_rows = frozenset(zip(c.pair[sel].tolist(), c.kind[sel].tolist(), c.feature[sel].tolist()))
 
 

@@ -85,7 +85,7 @@ struct Constants {
   int max_contacts;  // compiled.MAX_CONTACTS
   int sparse_rows;  // qp.SPARSE_ROWS: above it the projection starts from the previous step's final set (§1.3)
   double screen, dependent, met, accept, refine, second_pass;  // qp.SCREEN, DEPENDENT, MET, ACCEPT, REFINE, SECOND_PASS
-  int moves_per_row, moves_extra;  // qp.MOVES_PER_ROW, MOVES_EXTRA
+  int moves_per_row, moves_extra, start_passes;  // qp.MOVES_PER_ROW, MOVES_EXTRA, START_PASSES
   double distinct;  // constraints.distinct's relative tolerance
   double guess_min, distance_failed;  // contacts.GUESS_MIN, DISTANCE_FAILED
   double energy_roundoff;  // law.ENERGY_ROUNDOFF
@@ -97,7 +97,7 @@ struct Constants {
   static const std::vector<std::string> &keys() {
     static const std::vector<std::string> k = {
         "midpoint_iterations", "midpoint_tolerance", "resting", "hold", "vertex", "witness", "max_contacts", "sparse_rows",
-        "screen", "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct",
+        "screen", "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "start_passes", "distinct",
         "guess_min", "distance_failed", "joint_limit",
         "energy_roundoff", "patch", "same_point", "cone", "edge_end", "parallel", "depth_ratio", "snap", "edge", "face"};
     return k;
@@ -123,6 +123,7 @@ struct Constants {
     c.max_contacts = geti("max_contacts"), c.sparse_rows = geti("sparse_rows"), c.screen = get("screen"), c.dependent = get("dependent");
     c.met = get("met"), c.accept = get("accept"), c.refine = get("refine"), c.second_pass = get("second_pass");
     c.moves_per_row = geti("moves_per_row"), c.moves_extra = geti("moves_extra"), c.distinct = get("distinct");
+    c.start_passes = geti("start_passes");
     c.guess_min = get("guess_min"), c.distance_failed = get("distance_failed");
     c.joint_limit = geti("joint_limit");
     c.energy_roundoff = get("energy_roundoff");
@@ -136,7 +137,7 @@ struct Constants {
             {"resting", resting}, {"hold", hold}, {"vertex", vertex}, {"witness", witness},
             {"max_contacts", max_contacts}, {"sparse_rows", sparse_rows},
             {"screen", screen}, {"dependent", dependent}, {"met", met}, {"accept", accept}, {"refine", refine},
-            {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra},
+            {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra}, {"start_passes", start_passes},
             {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed},
             {"joint_limit", joint_limit},
             {"energy_roundoff", energy_roundoff}, {"patch", patch}, {"same_point", same_point}, {"cone", cone},
@@ -169,9 +170,10 @@ struct Fallback {
   std::string why;
 };
 
-struct Solved {  // a projection: v, lam, how it was solved
+struct Solved {  // a projection: v, lam, how it was solved; act: the active set's first pass's final set (qp._polish)
   VectorXd v, lam;
   Projection status;
+  std::vector<char> act = {};
 };
 
 // One step as it crosses to Python (bound as moreau_sim._step.StepOut; moreau_sim/compiled.py makes it a
@@ -769,14 +771,25 @@ bool active_set(const Constants &C, const MatrixXd &G, const GInfo &gi, const Ve
   const double inf = std::numeric_limits<double>::infinity();
   act.assign(m, 0);
   lam = VectorXd::Zero(m);
-  if (start) {  // qp._active_set's warm start (docs/theory.md §1.3)
+  if (start) {  // qp._active_set's warm start: lam_A = G_AA^-1 r_A, its negative rows dropped (docs/theory.md §1.3)
+    std::vector<char> cur(*start);
     std::vector<Eigen::Index> sel;
-    for (Eigen::Index i = 0; i < m; ++i)
-      if ((*start)[(size_t)i]) sel.push_back(i);
-    VectorXd rA((Eigen::Index)sel.size()), x;
-    for (size_t i = 0; i < sel.size(); ++i) rA[(Eigen::Index)i] = r[sel[i]];
-    if (solve_sub(G, gi, sel, rA, x) && !(x.size() && x.minCoeff() < 0.0)) {
-      for (size_t i = 0; i < sel.size(); ++i) act[(size_t)sel[i]] = 1, lam[sel[i]] = x[(Eigen::Index)i];
+    VectorXd rA, x;
+    for (int pass = 0; pass < C.start_passes; ++pass) {
+      sel.clear();
+      for (Eigen::Index i = 0; i < m; ++i)
+        if (cur[(size_t)i]) sel.push_back(i);
+      if (sel.empty()) break;
+      rA.resize((Eigen::Index)sel.size());
+      for (size_t i = 0; i < sel.size(); ++i) rA[(Eigen::Index)i] = r[sel[i]];
+      if (!solve_sub(G, gi, sel, rA, x)) break;  // singular: from nothing
+      bool neg = false;
+      for (size_t i = 0; i < sel.size(); ++i)
+        if (x[(Eigen::Index)i] < 0.0) cur[(size_t)sel[i]] = 0, neg = true;
+      if (!neg) {
+        for (size_t i = 0; i < sel.size(); ++i) act[(size_t)sel[i]] = 1, lam[sel[i]] = x[(Eigen::Index)i];
+        break;
+      }
     }
   }
   int moves = 0;
@@ -1119,7 +1132,7 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
     }
   }
   if ((Wvp - b).minCoeff() < -C.accept * scale) throw Fallback{"active set's answer rejected"};
-  return {vp, lp, Projection::ACTIVE_SET};
+  return {vp, lp, Projection::ACTIVE_SET, std::move(act)};
 }
 
 }  // namespace
@@ -2152,9 +2165,9 @@ class Stepper {
                                               std::array<int64_t, 3>{con[i].pair, con[i].kind, con[i].feature});
     }
     Solved res = ::project(C_, Wl, vfl, b, Minv, start.empty() ? nullptr : &start);
-    if (warm) {  // stepper.keep_active: the rows with lam_i > 0
+    if (warm && (Eigen::Index)res.act.size() == m) {  // stepper.keep_active: the first pass's final set
       for (Eigen::Index i = 0; i < m; ++i)
-        if (res.lam[i] > 0.0) next_active_.push_back({con[i].pair, con[i].kind, con[i].feature});
+        if (res.act[(size_t)i]) next_active_.push_back({con[i].pair, con[i].kind, con[i].feature});
       std::sort(next_active_.begin(), next_active_.end());
     }
     VectorXd u_next = res.v - e * (ul - res.v);

@@ -20,9 +20,10 @@ def _bits(x) -> list:
     return np.ascontiguousarray(x, float).view(np.int64).tolist()
 
 
-def _column_problem(n: int, h: float, up: int = 0):
+def _column_problem(n: int, h: float, up: int = 0, speed: float = 1.0):
     """n beads of 1 kg on vertical prismatic joints resting on each other and the ground (row k: bead k over bead
-    k - 1 or the ground), v0 their free velocity -g h; the top `up` beads moving up at 1 m/s (their rows separate)."""
+    k - 1 or the ground), v0 their free velocity -g h; the top `up` beads moving up at `speed` [m/s] (their rows
+    separate)."""
     W = np.zeros((n, n))
     W[0, 0] = 1.0
     for k in range(1, n):
@@ -30,7 +31,7 @@ def _column_problem(n: int, h: float, up: int = 0):
     gh = 9.81 * h
     v0 = np.full(n, -gh)
     if up:
-        v0[n - up:] = 1.0
+        v0[n - up:] = speed
     return np.eye(n), W, v0, gh
 
 
@@ -61,6 +62,26 @@ def test_the_warm_start_gives_the_cold_bits_where_the_projection_is_unique(n, h)
         assert warm.status == "ACTIVE_SET" and warm.polished
         assert _bits(warm.v) == _bits(cold.v) and _bits(warm.lam) == _bits(cold.lam)
     assert qp.solve(M, W, v0, Minv=M, start=_rows(cold)).iterations < cold.iterations
+
+
+def test_a_start_s_negative_rows_are_dropped_up_to_start_passes_solves(monkeypatch):
+    """A start of the final set and one row that must leave (the top beads separate slowly): its first solve has a
+    negative multiplier there; that row is dropped and the rest solved again. With START_PASSES = 1 the start is
+    refused (from nothing: the cold start's moves), with 2 or more it is kept (no move in the first pass); the same
+    bits either way."""
+    n, up = 260, 9
+    M, W, v0, _ = _column_problem(n, 1e-3, up, speed=1e-6)
+    cold = qp.solve(M, W, v0, Minv=M)
+    start = _rows(cold).copy()
+    assert not start[n - up]
+    start[n - up] = True  # the row under the separating beads
+    moves = {}
+    for passes in range(1, 4):
+        monkeypatch.setattr(qp, "START_PASSES", passes)
+        r = qp.solve(M, W, v0, Minv=M, start=start)
+        assert r.status == "ACTIVE_SET" and _bits(r.v) == _bits(cold.v) and _bits(r.lam) == _bits(cold.lam)
+        moves[passes] = r.iterations
+    assert moves[1] == cold.iterations > moves[2] == moves[3]
 
 
 def test_at_or_below_sparse_rows_the_start_is_not_read():
@@ -138,9 +159,10 @@ def test_rows_are_matched_by_their_contacts_identity():
     assert stepper.warm_start(SimpleNamespace(active_rows=frozenset()), _contacts(keys)) is None
 
 
-def test_the_kept_set_is_the_rows_that_pushed_above_sparse_rows():
-    """keep_active: the identities of the rows with lam > 0 (a zero multiplier is not kept) above SPARSE_ROWS
-    rows; none at or below, and none after a failed projection."""
+def test_the_kept_set_is_the_final_active_set_above_sparse_rows():
+    """keep_active: the identities of the active set's final rows (its first pass's), or of piqp's rows with
+    lam > 0 (a zero multiplier is not kept), above SPARSE_ROWS rows; none at or below, none after a failed
+    projection."""
     m = qp.SPARSE_ROWS + 1
     keys = [(p, 0, p % 3) for p in range(m)]
     lam = np.zeros(m)
@@ -151,8 +173,13 @@ def test_the_kept_set_is_the_rows_that_pushed_above_sparse_rows():
         return SimpleNamespace(contacts=c, qp=res)
 
     data = SimpleNamespace(active_rows=frozenset({(1, 2, 3)}))
-    stepper.keep_active(data, imp(_contacts(keys), lam))
+    stepper.keep_active(data, imp(_contacts(keys), lam))  # piqp's answer (no active set): its rows with lam > 0
     assert data.active_rows == {keys[0], keys[4], keys[m - 1]}
+    first = np.zeros(m, bool)
+    first[[2, 4]] = True  # the active set's answer: its first pass's final set, whatever lam
+    res = qp.QPResult("ACTIVE_SET", True, 0, True, np.zeros(1), lam, active=first)
+    stepper.keep_active(data, SimpleNamespace(contacts=_contacts(keys), qp=res))
+    assert data.active_rows == {keys[2], keys[4]}
     stepper.keep_active(data, imp(_contacts(keys), lam, ok=False))
     assert data.active_rows == frozenset()
     data.active_rows = frozenset({(1, 2, 3)})
@@ -178,8 +205,8 @@ def _hit(n: int, V: float, e: float, h: float) -> ms.Scene:
 def test_a_column_above_sparse_rows_steps_with_the_cold_bits(e, h, monkeypatch):
     """A column of 240 beads (above SPARSE_ROWS rows), its top bead falling onto it at 2 m/s, stepped by the Python
     step with the warm start and with the cold start (stepper.warm_start disabled): the same bits every step while
-    the top contact appears, pushes and (e > 0) opens again; every projection the active set's, the kept set the
-    contacts that pushed; the top bead leaves with e times its speed, the column stays at rest (the ground takes
+    the top contact appears, pushes and (e > 0) opens again; every projection the active set's, the kept set its
+    final active set; the top bead leaves with e times its speed, the column stays at rest (the ground takes
     the blow), no energy gained."""
     n, V = 240, 2.0
     sc = _hit(n, V, e, h)
@@ -206,7 +233,7 @@ def test_a_column_above_sparse_rows_steps_with_the_cold_bits(e, h, monkeypatch):
         for x, y in ((a.state.q, b.state.q), (a.state.u, b.state.u), (a.P, b.P)):
             assert _bits(x) == _bits(y)
         c = a.contacts
-        assert kept == {(p, k, f) for p, k, f, lam in zip(c.pair, c.kind, c.feature, a.qp.lam) if lam > 0.0}
+        assert kept == {(p, k, f) for p, k, f, x in zip(c.pair, c.kind, c.feature, a.qp.active) if x}
         E = ms.energy.total(model, data, a.state.q, a.state.u)
         assert E <= E0 * (1 + 1e-12)
         E0 = E
