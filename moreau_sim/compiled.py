@@ -29,14 +29,17 @@ from .state import State
 
 DENSE_COPIES = 3  # the compiled step's dense (nv, nv) matrices: M and M^-1 (src/step.cpp Stepper: block diagonal, zero
 # off the blocks) and M in a contact step's StepOut; a model whose copies exceed the memory limit gets no compiled step
-MAX_CONTACTS = qp.COLD_START_ROWS  # closed contacts a compiled step takes: those qp.solve solves by the cold active set
+MAX_CONTACTS = qp.WARM_ROWS  # closed contacts a compiled step takes: qp.solve's active set, cold up to
+# qp.SPARSE_ROWS rows and warm-started above (docs/theory.md §1.3); what bounds it is memory: G = W'M^-1 W and its
+# factor's copy, m^2 doubles each (16 MB at 1000 rows), and the compiled run's log reserves this many rows a call
 # Every constant the two steps share, from its one home, as src/step.cpp's Constants reads them (by name: a
 # missing or an unknown one is an error there; tests/test_compiled.py compares them read back)
 CONSTANTS = {
     "midpoint_iterations": MIDPOINT_ITERATIONS, "midpoint_tolerance": MIDPOINT_TOLERANCE, "resting": RESTING,
     "hold": HOLD, "vertex": int(FeatureKind.VERTEX), "witness": int(FeatureKind.WITNESS), "max_contacts": MAX_CONTACTS,
-    "screen": qp.SCREEN, "dependent": qp.DEPENDENT, "met": qp.MET, "accept": qp.ACCEPT, "refine": qp.REFINE,
-    "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW, "moves_extra": qp.MOVES_EXTRA,
+    "sparse_rows": qp.SPARSE_ROWS, "screen": qp.SCREEN, "dependent": qp.DEPENDENT, "met": qp.MET, "accept": qp.ACCEPT,
+    "refine": qp.REFINE, "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW,
+    "moves_extra": qp.MOVES_EXTRA, "start_passes": qp.START_PASSES,
     "distinct": constraints.DISTINCT, "guess_min": GUESS_MIN, "distance_failed": DISTANCE_FAILED,
     "joint_limit": int(FeatureKind.JOINT_LIMIT),
     "energy_roundoff": ENERGY_ROUNDOFF, "patch": int(FeatureKind.PATCH), "same_point": SAME_POINT,
@@ -176,7 +179,8 @@ def unsupported(model) -> str | None:
 class _Context:
     """The compiled stepper of one (model, data) and the count of steps by the way they went."""
 
-    __slots__ = ("model", "stepper", "counts", "why", "_layouts", "boxes", "carries", "nq", "nv", "timed")
+    __slots__ = ("model", "stepper", "counts", "why", "_layouts", "boxes", "carries", "nq", "nv", "timed",
+                 "active_sent")
 
     def __init__(self, model, data):
         self.model = model
@@ -188,6 +192,7 @@ class _Context:
         self.counts: Counter = Counter()
         self.why = prep.why
         self.stepper = None
+        self.active_sent = None  # the data.active_rows last sent to the Stepper, or read from it (raw_step)
         if self.why is None:
             # on the forest's per-tree Datas (docs/theory.md §2.12): no Data of the whole model is made
             # a model without a pair list: a GeometryData of its geometries alone (placements), not data.geom's of
@@ -370,16 +375,22 @@ def raw_step(model, data, q: np.ndarray, u: np.ndarray, h: float, e: float, tau:
     boxes = ctx.boxes
     if boxes:  # contacts.detect's warm start, kept in data between steps whichever step takes them
         ctx.stepper.warm = sorted(data.warm_start_pairs)
+    rows = data.active_rows  # the projection's warm start (stepper.keep_active), likewise: sent where it changed
+    if rows is not ctx.active_sent:
+        ctx.stepper.active = sorted(rows)
+        ctx.active_sent = rows
     try:
         r = ctx.stepper.step(q, u, h, e, _EMPTY if tau is None else tau, t=math.nan if t is None else t)
     except TypeError:  # an extension built before torques or times: the Python step takes them
         ctx.counts["python: the compiled step predates joint torques or step times (rebuild)"] += 1
         return None
-    if r.outcome is _module.Outcome.FALLBACK:
+    if r.outcome is _module.Outcome.FALLBACK:  # the Stepper's set unchanged: the Python step keeps data's
         ctx.counts[f"python: {r.reason}"] += 1
         return None
     if boxes:
         data.warm_start_pairs = set(ctx.stepper.warm)
+    if ctx.stepper.active_count or rows:  # the set this step kept (above qp.SPARSE_ROWS rows), else none
+        data.active_rows = ctx.active_sent = frozenset(map(tuple, ctx.stepper.active))
     ctx.counts["flight" if r.outcome is _module.Outcome.FLIGHT else "contact"] += 1
     return r
 

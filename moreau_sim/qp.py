@@ -1,7 +1,7 @@
 """The one QP projection of the package: v = argmin 1/2 (v - v0)'M(v - v0) s.t. W'v >= b, by a dual active
-set (from nothing up to COLD_START_ROWS rows, from piqp's answer above, on sparse matrices above SPARSE_ROWS),
-re-solved on its final active set (docs/theory.md §1.3, §1.5); its floating-point order, shared with
-src/step.cpp: §2.8."""
+set (from nothing up to COLD_START_ROWS rows; above, warm-started from the caller's `start`, the previous step's
+final active set, with piqp's answer on sparse matrices as its fallback), re-solved on its final active set
+(docs/theory.md §1.3, §1.5); its floating-point order, shared with src/step.cpp: §2.8."""
 
 from __future__ import annotations
 
@@ -27,6 +27,7 @@ class QPResult:
     without piqp, or "ADMISSIBLE" when v0 already satisfies every constraint (no QP to solve); ok:
     solved and usable; iterations: piqp's interior-point iterations, or the active set's moves;
     polished: the answer is the active set's exact one (Polish.ACTIVE_SET) or the least-squares one; v (nv,), lam (m,);
+    active (status ACTIVE_SET): the first pass's final active set (bool (m,): independent rows, the next step's start);
     the problem it solved, where it solved one: M, W (nv, m), v0 (nv,), b (m,) (None otherwise);
     residual (property): the KKT residual of (v, lam), computed when asked (it costs ~5 us)."""
 
@@ -40,6 +41,7 @@ class QPResult:
     W: np.ndarray | None = field(default=None, repr=False, compare=False)
     v0: np.ndarray | None = field(default=None, repr=False, compare=False)
     b: np.ndarray | None = field(default=None, repr=False, compare=False)
+    active: np.ndarray | None = field(default=None, repr=False, compare=False)  # ACTIVE_SET: the first pass's final set
 
     @property
     def residual(self) -> float:
@@ -67,7 +69,9 @@ COLD_START_ROWS = 200  # up to this many rows (= SPARSE_ROWS) the active set sta
 # 200, not 100, since the paid position lift is compiled (measured 2026-11-28, CPU, medians of 3 interleaved rounds,
 # load 3.5-5.6): the 27-cube pile 41.8 -> 3.3 ms a step (mean; every step compiled, none handed back), columns of 150
 # and 199 beads 6.4 -> 1.7 and 8.3 -> 2.9 ms, 100 beads 0.73 -> 0.74 ms and box_stack_10 resting 401 -> 400 us unchanged
-SPARSE_ROWS = 200  # above this many rows the sparse path (_solve_sparse) solves (piqp's start, SuperLU)
+SPARSE_ROWS = 200  # above this many rows the active set starts from `start` (solve), the rows the caller takes as
+# active (the stepper: the previous step's final set, matched by the contacts' identities), and where it fails the
+# sparse path (_solve_sparse: piqp's start, SuperLU) solves; the compiled step runs the same warm start (§1.3)
 # The active set's tolerances (src/step.cpp receives them from compiled.CONSTANTS):
 SCREEN = 1e-13  # v0 is admissible, and a row of the active set met, when W'v - b >= -SCREEN (1 + max|v0|)
 DEPENDENT = 1e-12  # row p depends on the active rows when z = G_pp + G_pA d <= DEPENDENT G_pp
@@ -76,6 +80,11 @@ ACCEPT = 1e-12  # the answer is kept when lam_A >= -ACCEPT max(1, lam_A) and W'v
 REFINE = 1e-8  # the refinement step is taken when it moves lam_A by at most REFINE (1 + max(lam_A))
 SECOND_PASS = 1e-15  # the second pass's tolerance, relative to max|b| + max|W| max|v|
 MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_ROW m + MOVES_EXTRA moves
+WARM_ROWS = 1000  # up to this many rows (compiled.MAX_CONTACTS) the warm-started active set is the first path; above,
+# the sparse path alone: there the dense G and the cold start's moves cost minutes (a 3000-bead column's first step
+# 485 s, against 0.46 s by the sparse path, measured 2026-11-28); the compiled step hands such steps back
+START_PASSES = 4  # a warm start's rows with negative multipliers are dropped and the rest solved again, at most
+# this many solves; a start still negative (or singular) then: from nothing (_active_set)
 
 
 LU_SCALAR = 12  # up to this many unknowns _lu_factor works on Python floats (fewer calls than numpy's row operations)
@@ -334,7 +343,8 @@ def _sparse_mul(A, x):
 def _active_set(G, r, tol, act=None, mul=np.matmul):
     """The contact-space QP  min 1/2 lam'G lam - r'lam, lam >= 0  (G = W'M^-1 W, r = b - W'v0) by
     Goldfarb and Idnani's dual active-set method (docs/theory.md §1). From lam = 0 (or the warm start
-    `act`, the rows taken as active) it adds the most violated inactive row p (slack s = G lam - r below
+    `act`, the rows taken as active: lam_A = G_AA^-1 r_A with its negative rows dropped, START_PASSES solves at
+    most, else from nothing) it adds the most violated inactive row p (slack s = G lam - r below
     -tol; the first such row on ties): lam_A moves along G_AA d = -G_Ap and lam_p by t until row p is
     tight (t = -s_p/z, z = G_pp + G_pA d), or until a multiplier of A reaches zero first (that row leaves
     A, and the same p is tried again). A row dependent on A (z <= 1e-12 G_pp: four corners of a face on
@@ -350,16 +360,19 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
         G = G.tocsc()
         G.sort_indices()
         Gr, diag = G.tocsr(), G.diagonal()
-    if act is None:
-        act = np.zeros(m, bool)
-    else:
-        idx = np.flatnonzero(act)
-        x = _solve(_sub(G, idx), r[idx])
-        if x is None or x.min(initial=0.0) < 0.0:
-            act = np.zeros(m, bool)  # not a valid start: from nothing
-        else:
-            act = act.copy()
-            lam[idx] = x
+    start, act = act, np.zeros(m, bool)
+    if start is not None:  # lam_A = G_AA^-1 r_A, its negative rows dropped (START_PASSES solves at most)
+        cur = start.copy()
+        for _ in range(START_PASSES):
+            idx = np.flatnonzero(cur)
+            x = _solve(_sub(G, idx), r[idx]) if idx.size else None
+            if x is None:  # singular, or nothing left: from nothing
+                break
+            neg = x < 0.0
+            if not neg.any():
+                act, lam[idx] = cur, x
+                break
+            cur[idx[neg]] = False
     moves, gmax = 0, (np.abs(G.data).max(initial=0.0) if sparse else np.abs(G).max())
     while True:
         s = mul(G, lam) - r
@@ -410,7 +423,7 @@ def _polish(W, v0, b, Minv, act=None):
     """The exact projection by the active set (_active_set from nothing, or warm-started from `act`; dense
     products by `ordered`), re-solved on its final set A: G_AA lam_A = b_A - W_A'v0 (_solve),
     v = v0 + M^-1 W_A lam_A. Kept only if lam_A >= 0 and W'v >= b to round-off (the KKT conditions;
-    M (v - v0) = W lam holds by construction); else None."""
+    M (v - v0) = W lam holds by construction); else None. Returns (v, lam, moves, the first pass's final set A)."""
     m = W.shape[1]
     sparse = _issparse(W)
     mul = _sparse_mul if sparse else ordered
@@ -418,7 +431,7 @@ def _polish(W, v0, b, Minv, act=None):
         w = W[:, 0]
         Miw = mul(Minv, w)
         lam1 = max(0.0, float(b[0] - mul(w, v0)) / float(mul(w, Miw)))
-        return v0 + lam1 * Miw, np.array([lam1]), 1
+        return v0 + lam1 * Miw, np.array([lam1]), 1, np.array([lam1 > 0.0])
     scale = 1.0 + np.abs(v0).max(initial=0.0)
     MiW = mul(Minv, W)
     G = mul(W.T, MiW)
@@ -430,6 +443,7 @@ def _polish(W, v0, b, Minv, act=None):
     if sol is None:
         return None
     act, lam, moves = sol
+    first = act.copy()  # returned: the next step's start (stepper.keep_active), independent rows by construction
     idx = np.flatnonzero(act)
     lp = np.zeros(m)
     if not idx.size:
@@ -468,7 +482,7 @@ def _polish(W, v0, b, Minv, act=None):
                 moves += sol[2]
     if (mul(W.T, vp) - b).min() < -ACCEPT * scale:
         return None
-    return vp, lp, moves
+    return vp, lp, moves, first
 
 
 class Polish(enum.Enum):
@@ -502,13 +516,15 @@ def _no_answer(status, iters: int, v: np.ndarray, lam: np.ndarray) -> QPResult |
 def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None = None,
           Minv: np.ndarray | None = None, form: QPForm = QPForm.PRIMAL, eps: float = 1e-10,
           max_iter: int = 250, polish: Polish = Polish.ACTIVE_SET, screen: bool = True,
-          polish_tol: float = 1e-9) -> QPResult:
+          polish_tol: float = 1e-9, start: np.ndarray | None = None) -> QPResult:
     """Project v0 onto {v : W' v >= b} (b = 0 by default) in the metric M with piqp.
 
     Minv: M^-1 if the caller has it (Pinocchio's computeMinverse), else it is computed.
     screen: return v0 itself when it is already admissible to round-off (no QP).
     polish_tol: the acceptance tolerance of Polish.LEAST_SQUARES (rows with multipliers above
-    sqrt(polish_tol) are active; the polished v must satisfy W'v >= -polish_tol)."""
+    sqrt(polish_tol) are active; the polished v must satisfy W'v >= -polish_tol).
+    start: above SPARSE_ROWS rows (Polish.ACTIVE_SET), the rows the active set starts from (bool (m,); None or
+    none set: from nothing); at or below, it is not read (the cold start, docs/theory.md §1.3)."""
     m = W.shape[1]
     b = np.zeros(m) if b is None else np.asarray(b, float)
     if polish is Polish.ACTIVE_SET and Minv is None:
@@ -516,15 +532,19 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if not np.isfinite(v0).all():  # an overflow upstream: no projection of it is meaningful
         return QPResult("NON_FINITE_INPUT", False, 0, False, v0.copy(), np.zeros(m))
     cold = polish is Polish.ACTIVE_SET and m <= COLD_START_ROWS
-    if polish is Polish.ACTIVE_SET and m > SPARSE_ROWS:
+    if polish is Polish.ACTIVE_SET and m > WARM_ROWS:  # the sparse path alone (WARM_ROWS)
         return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
+    warm = polish is Polish.ACTIVE_SET and m > SPARSE_ROWS
     if screen and (ordered(W.T, v0) - b).min() >= -SCREEN * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
         return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), M, W, v0, b)
-    if cold:
-        p = _polish(W, v0, b, Minv)
+    if cold or warm:  # above SPARSE_ROWS warm-started from `start` (its moves grow with the rows that change)
+        act = None if not warm or start is None or not np.any(start) else np.asarray(start, bool)
+        p = _polish(W, v0, b, Minv, act)
         if p is not None:
-            return QPResult("ACTIVE_SET", True, p[2], True, p[0], p[1], M, W, v0, b)
+            return QPResult("ACTIVE_SET", True, p[2], True, p[0], p[1], M, W, v0, b, p[3])
+    if warm:  # the active set failed (its move limit, a singular or rejected solve): piqp + SuperLU, as before
+        return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
     s = _piqp(piqp.DenseSolver, eps, max_iter)
     if form is QPForm.PRIMAL:
         s.setup(M, -ordered(M, v0), None, None, W.T, b, None)

@@ -105,13 +105,18 @@ def step(model: Model, data: Data, state: State, *, h: float | None = None, e: f
         if r is not None:
             return r
     pb = assemble(model, data, state, h=h, e=e, tau=tau)
+    start = warm_start(data, pb.contacts) if pb.closed and pb.pieces is None else None
+    data.active_rows = frozenset()  # until this step's projection says otherwise (keep_active)
     if not pb.closed:
         q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * pb.u_free)
         return StepResult(State(t1, q_next, pb.u_free), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None,
                           u_free=pb.u_free, tau=pb.tau, obstacle_work=0.0 if pb.drive is None else pb.drive.work_free)
     ds = pb.drive  # a driven joint (§2.13): the law in the free rows, then u_{k+1} = (u_r, xdot(t_{k+1}))
-    imp = solve_impact(pb if ds is None else ds.reduced(pb), opts, form=form, eps=eps, corner_choice=corner_choice)
+    imp = solve_impact(pb if ds is None else ds.reduced(pb), opts, form=form, eps=eps, corner_choice=corner_choice,
+                       start=start)
     imp = imp if ds is None else ds.expanded(pb, imp)
+    if pb.pieces is None:
+        keep_active(data, imp)
     q_next = pin.integrate(model.pin, pb.q_m, 0.5 * h * imp.u_next)
     corr, u_law = 0.0, None
     if opts.position_correction is PositionCorrection.PROJECTION and imp.qp.ok:  # a failed QP: simulate names it
@@ -243,11 +248,36 @@ def midpoint_fixed_point(acc, u: np.ndarray, h: float, u1: np.ndarray, tol: floa
     return u1
 
 
+def warm_start(data: Data, contacts) -> np.ndarray | None:
+    """The projection's start above qp.SPARSE_ROWS rows (docs/theory.md §1.3): the rows whose contact's identity
+    (pair, kind, feature) pushed in the last step's projection (data.active_rows, keep_active); a row without a
+    match starts inactive. None at or below qp.SPARSE_ROWS rows (the cold start) or without a kept set."""
+    prev = data.active_rows
+    if contacts.m <= qp.SPARSE_ROWS or not prev:
+        return None
+    keys = zip(contacts.pair.tolist(), contacts.kind.tolist(), contacts.feature.tolist())
+    return np.fromiter((k in prev for k in keys), bool, contacts.m)
+
+
+def keep_active(data: Data, imp: ImpactSolution) -> None:
+    """data.active_rows after a step's projection where it had more than qp.SPARSE_ROWS rows and solved: the
+    identities of the rows of the active set's final set (its first pass's: independent rows by construction, so
+    that the next start G_AA lam_A = r_A is not singular), or where piqp answered of its rows with lam_i > 0; else
+    none (warm_start reads them at the next step; src/step.cpp keeps the same)."""
+    c, res = imp.contacts, imp.qp
+    if c.m <= qp.SPARSE_ROWS or not res.ok or len(res.lam) != c.m:
+        data.active_rows = frozenset()
+        return
+    sel = np.flatnonzero(res.lam > 0.0 if res.active is None else res.active)
+    data.active_rows = frozenset(zip(c.pair[sel].tolist(), c.kind[sel].tolist(), c.feature[sel].tolist()))
+
+
 def solve_impact(pb: ContactProblem, options: Options, *, form: QPForm | None = None, eps: float | None = None,
-                 corner_choice: int | None = None) -> ImpactSolution:
+                 corner_choice: int | None = None, start: np.ndarray | None = None) -> ImpactSolution:
     """The discrete impact law on a problem with closed contacts: the projection of v_free with the
     per-contact restitution bounds (docs/theory.md §2.7), or at a corner the set-valued law (§3)
-    with the options' selection policy (or candidate `corner_choice`)."""
+    with the options' selection policy (or candidate `corner_choice`). start: the projection's warm start
+    above qp.SPARSE_ROWS rows (warm_start; None: from nothing)."""
     u, e, W, contacts = pb.u, pb.e, pb.W, pb.contacts
     branch = None
     if pb.pieces is not None:
@@ -262,7 +292,7 @@ def solve_impact(pb: ContactProblem, options: Options, *, form: QPForm | None = 
         if pb.rate is not None:
             b = -pb.rate if b is None else b - pb.rate
         res = project(pb.M, W, pb.v_free, b=b, Minv=pb.Minv, form=form or options.qp_form,
-                      eps=eps or options.qp_tolerance)
+                      eps=eps or options.qp_tolerance, start=start)
     u_next = outcome(res.v, u, e)
     P = percussion(res.lam, e)
     gamma_plus = ordered(W.T, u_next)

@@ -256,8 +256,10 @@ class Runner {
     Runner &R;
     bool committed = false;
     ~Undo() {
-      if (committed || !R.guard_) return;
+      if (committed) return;
       Stepper &S = R.S_;
+      S.active_.swap(S.next_active_);  // the projection's warm start, as before the step (Stepper::step swapped it)
+      if (!R.guard_) return;
       S.restore_guesses();
       S.warm_.swap(S.next_warm_);
       R.dist_.restore(S.gd_.distanceRequests, S.gd_.distanceResults);

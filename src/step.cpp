@@ -23,6 +23,7 @@
 // does not settle (where qp.solve turns to piqp), a driven step whose contact only driven rows move.
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
+#include <nanobind/stl/array.h>
 #include <nanobind/stl/map.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/tuple.h>
@@ -50,6 +51,7 @@
 #include "rheonomic.hpp"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cfloat>
 #include <cmath>
@@ -82,9 +84,10 @@ struct Constants {
   double midpoint_tolerance;  // stepper.MIDPOINT_TOLERANCE
   double resting, hold;  // results.RESTING, HOLD
   int vertex, witness, joint_limit;  // contacts.FeatureKind.VERTEX, .WITNESS, .JOINT_LIMIT
-  int max_contacts;  // qp.COLD_START_ROWS
+  int max_contacts;  // compiled.MAX_CONTACTS
+  int sparse_rows;  // qp.SPARSE_ROWS: above it the projection starts from the previous step's final set (§1.3)
   double screen, dependent, met, accept, refine, second_pass;  // qp.SCREEN, DEPENDENT, MET, ACCEPT, REFINE, SECOND_PASS
-  int moves_per_row, moves_extra;  // qp.MOVES_PER_ROW, MOVES_EXTRA
+  int moves_per_row, moves_extra, start_passes;  // qp.MOVES_PER_ROW, MOVES_EXTRA, START_PASSES
   double distinct;  // constraints.distinct's relative tolerance
   double guess_min, distance_failed;  // contacts.GUESS_MIN, DISTANCE_FAILED
   double energy_roundoff;  // law.ENERGY_ROUNDOFF
@@ -95,8 +98,8 @@ struct Constants {
 
   static const std::vector<std::string> &keys() {
     static const std::vector<std::string> k = {
-        "midpoint_iterations", "midpoint_tolerance", "resting", "hold", "vertex", "witness", "max_contacts", "screen",
-        "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "distinct",
+        "midpoint_iterations", "midpoint_tolerance", "resting", "hold", "vertex", "witness", "max_contacts", "sparse_rows",
+        "screen", "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "start_passes", "distinct",
         "guess_min", "distance_failed", "joint_limit",
         "energy_roundoff", "patch", "same_point", "cone", "edge_end", "parallel", "depth_ratio", "snap", "edge", "face"};
     return k;
@@ -119,9 +122,10 @@ struct Constants {
     Constants c;
     c.midpoint_iterations = geti("midpoint_iterations"), c.midpoint_tolerance = get("midpoint_tolerance");
     c.resting = get("resting"), c.hold = get("hold"), c.vertex = geti("vertex"), c.witness = geti("witness");
-    c.max_contacts = geti("max_contacts"), c.screen = get("screen"), c.dependent = get("dependent");
+    c.max_contacts = geti("max_contacts"), c.sparse_rows = geti("sparse_rows"), c.screen = get("screen"), c.dependent = get("dependent");
     c.met = get("met"), c.accept = get("accept"), c.refine = get("refine"), c.second_pass = get("second_pass");
     c.moves_per_row = geti("moves_per_row"), c.moves_extra = geti("moves_extra"), c.distinct = get("distinct");
+    c.start_passes = geti("start_passes");
     c.guess_min = get("guess_min"), c.distance_failed = get("distance_failed");
     c.joint_limit = geti("joint_limit");
     c.energy_roundoff = get("energy_roundoff");
@@ -133,9 +137,9 @@ struct Constants {
   std::map<std::string, double> as_dict() const {
     return {{"midpoint_iterations", midpoint_iterations}, {"midpoint_tolerance", midpoint_tolerance},
             {"resting", resting}, {"hold", hold}, {"vertex", vertex}, {"witness", witness},
-            {"max_contacts", max_contacts},
+            {"max_contacts", max_contacts}, {"sparse_rows", sparse_rows},
             {"screen", screen}, {"dependent", dependent}, {"met", met}, {"accept", accept}, {"refine", refine},
-            {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra},
+            {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra}, {"start_passes", start_passes},
             {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed},
             {"joint_limit", joint_limit},
             {"energy_roundoff", energy_roundoff}, {"patch", patch}, {"same_point", same_point}, {"cone", cone},
@@ -168,9 +172,10 @@ struct Fallback {
   std::string why;
 };
 
-struct Solved {  // a projection: v, lam, how it was solved
+struct Solved {  // a projection: v, lam, how it was solved; act: the active set's first pass's final set (qp._polish)
   VectorXd v, lam;
   Projection status;
+  std::vector<char> act = {};
 };
 
 // One step as it crosses to Python (bound as moreau_sim._step.StepOut; moreau_sim/compiled.py makes it a
@@ -755,14 +760,40 @@ BandLU &band_cache() {
   return w;
 }
 
-// qp._active_set cold (Goldfarb-Idnani's dual active set on min 1/2 lam'G lam - r'lam, lam >= 0), operation
-// for operation; false where qp._active_set returns None (the Python step then takes it, and piqp). gi: G's GInfo.
+bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Index> &sel, const VectorXd &rhs,
+               VectorXd &x);
+
+// qp._active_set (Goldfarb-Idnani's dual active set on min 1/2 lam'G lam - r'lam, lam >= 0), operation for
+// operation, from nothing or from `start` (qp._active_set's act: the rows taken as active, lam_A = G_AA^-1 r_A, a
+// start that is singular or has a negative multiplier: from nothing); false where qp._active_set returns None (the
+// Python step then takes it, and piqp). gi: G's GInfo.
 bool active_set(const Constants &C, const MatrixXd &G, const GInfo &gi, const VectorXd &r, double tol,
-                std::vector<char> &act, VectorXd &lam) {
+                std::vector<char> &act, VectorXd &lam, const std::vector<char> *start = nullptr) {
   const Eigen::Index m = r.size();
   const double inf = std::numeric_limits<double>::infinity();
   act.assign(m, 0);
   lam = VectorXd::Zero(m);
+  if (start) {  // qp._active_set's warm start: lam_A = G_AA^-1 r_A, its negative rows dropped (docs/theory.md §1.3)
+    std::vector<char> cur(*start);
+    std::vector<Eigen::Index> sel;
+    VectorXd rA, x;
+    for (int pass = 0; pass < C.start_passes; ++pass) {
+      sel.clear();
+      for (Eigen::Index i = 0; i < m; ++i)
+        if (cur[(size_t)i]) sel.push_back(i);
+      if (sel.empty()) break;
+      rA.resize((Eigen::Index)sel.size());
+      for (size_t i = 0; i < sel.size(); ++i) rA[(Eigen::Index)i] = r[sel[i]];
+      if (!solve_sub(G, gi, sel, rA, x)) break;  // singular: from nothing
+      bool neg = false;
+      for (size_t i = 0; i < sel.size(); ++i)
+        if (x[(Eigen::Index)i] < 0.0) cur[(size_t)sel[i]] = 0, neg = true;
+      if (!neg) {
+        for (size_t i = 0; i < sel.size(); ++i) act[(size_t)sel[i]] = 1, lam[sel[i]] = x[(Eigen::Index)i];
+        break;
+      }
+    }
+  }
   int moves = 0;
   const double gmax = gi.gmax;
   thread_local std::vector<Eigen::Index> idx;
@@ -778,7 +809,7 @@ bool active_set(const Constants &C, const MatrixXd &G, const GInfo &gi, const Ve
   BandLU &band = band_cache();  // G_AA row-major, for band_lu_solve (G clean)
   thread_local std::vector<Eigen::Index> posA;  // a row's place in idx, -1 outside A (reset where idx was set)
   posA.assign(finite ? (size_t)m : 0, -1);
-  bool lam_finite = true;
+  bool lam_finite = lam.allFinite();
   // odot(G[p], x) over row p's nonzero terms (G and x finite: the others add +-0, settled by the + 0.0), x indexed
   // through `at` (-1: outside x)
   auto row_dot = [&](Eigen::Index p, const double *x, const Eigen::Index *at) {
@@ -1009,11 +1040,12 @@ bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Inde
   return lu_solve(GA, rhs, x);
 }
 
-// qp.solve (primal form, Polish.ACTIVE_SET, at most qp.COLD_START_ROWS rows): the screen, the closed form for
-// one row, else qp._polish cold: the active set, re-solved on its final set and checked. Throws Fallback where
-// qp.solve would go on to piqp. G's and W's nonzeros are found once (GInfo, WInfo) and each product W'v is
+// qp.solve (primal form, Polish.ACTIVE_SET): the screen, the closed form for one row, else qp._polish: the active
+// set (from nothing, or above qp.SPARSE_ROWS rows from `start`: qp.solve's start, the previous step's final set),
+// re-solved on its final set and checked. Throws Fallback where qp.solve would go on to piqp. G's and W's nonzeros are found once (GInfo, WInfo) and each product W'v is
 // formed once (W'v0 for the screen and r; W'vp for r2 and the last check, or W'v2 where the second pass is kept).
-Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv) {
+Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
+               const std::vector<char> *start = nullptr) {
   const Eigen::Index m = W.cols(), nv = W.rows();
   thread_local WInfo wi;
   wi.set(W);
@@ -1036,7 +1068,8 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
   const VectorXd r = b - Wv0;
   std::vector<char> act;
   VectorXd lam;
-  if (!active_set(C, G, gi, r, C.screen * scale, act, lam)) throw Fallback{"active set did not settle"};
+  if (m <= C.sparse_rows || (start && std::find(start->begin(), start->end(), 1) == start->end())) start = nullptr;
+  if (!active_set(C, G, gi, r, C.screen * scale, act, lam, start)) throw Fallback{"active set did not settle"};
   std::vector<Eigen::Index> idx;
   for (Eigen::Index i = 0; i < m; ++i)
     if (act[i]) idx.push_back(i);
@@ -1101,7 +1134,7 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
     }
   }
   if ((Wvp - b).minCoeff() < -C.accept * scale) throw Fallback{"active set's answer rejected"};
-  return {vp, lp, Projection::ACTIVE_SET};
+  return {vp, lp, Projection::ACTIVE_SET, std::move(act)};
 }
 
 }  // namespace
@@ -1235,8 +1268,10 @@ class Stepper {
       throw nb::value_error("t: the step's start time is needed (a moving static or a driven joint)");
     tau_ = tau;  // the step's joint torques (actuation.py), evaluated by Python at (t_m, q_m, u_k); empty: none
     try {
+      next_active_.clear();  // step_ fills it where its projection has more than C_.sparse_rows rows
       step_(q, u, h, e, t, out);
       warm_.swap(next_warm_);  // the pairs with contacts at this detection (contacts.detect's warm start)
+      active_.swap(next_active_);  // the projection's warm start (stepper.keep_active)
     } catch (const Fallback &f) {
       restore_guesses();
       out = StepOut();
@@ -1365,6 +1400,14 @@ class Stepper {
     collide_query_ = std::move(collide_query), distance_query_ = std::move(distance_query);
     cq_.clear(), dq_.clear(), query_keep_.clear();
   }
+  // the projection's warm start (data.active_rows: the (pair, kind, feature) of the rows that pushed in the last
+  // step's projection above qp.SPARSE_ROWS rows, sorted): set before a step, read after it
+  std::vector<std::array<int64_t, 3>> active() const { return active_; }
+  void set_active(std::vector<std::array<int64_t, 3>> a) {
+    std::sort(a.begin(), a.end());
+    active_ = std::move(a);
+  }
+  size_t active_count() const { return active_.size(); }
 
  private:
   nb::object py_[3];  // keeps the Python objects (and so the C++ ones) alive
@@ -1431,6 +1474,7 @@ class Stepper {
   std::vector<Vec3> half_;  // a box's half sides
   std::vector<char> polytope_;
   std::vector<int> warm_, next_warm_;  // sorted pair indices
+  std::vector<std::array<int64_t, 3>> active_, next_active_;  // sorted (pair, kind, feature): stepper.warm_start
   coal::DistanceResult saved_dres_;
 
   // ---- Pinocchio's algorithms on the forest (trees.Forest, src/forest.hpp), as the Python bindings return them
@@ -2260,7 +2304,21 @@ class Stepper {
         for (Eigen::Index i = 0; i < m; ++i) b[i] = ((e - e_i[i]) * gamma_minus[i]) / (1.0 + e);
     }
     if (has_rate) b = any ? VectorXd(b - rate) : VectorXd(-rate);
-    Solved res = project(Wl, vfl, b, Minv);
+    // stepper.warm_start: above C_.sparse_rows rows the rows whose (pair, kind, feature) pushed at the last step
+    std::vector<char> start;
+    const bool warm = m > C_.sparse_rows;
+    if (warm && !active_.empty()) {
+      start.assign((size_t)m, 0);
+      for (Eigen::Index i = 0; i < m; ++i)
+        start[(size_t)i] = std::binary_search(active_.begin(), active_.end(),
+                                              std::array<int64_t, 3>{con[i].pair, con[i].kind, con[i].feature});
+    }
+    Solved res = ::project(C_, Wl, vfl, b, Minv, start.empty() ? nullptr : &start);
+    if (warm && (Eigen::Index)res.act.size() == m) {  // stepper.keep_active: the first pass's final set
+      for (Eigen::Index i = 0; i < m; ++i)
+        if (res.act[(size_t)i]) next_active_.push_back({con[i].pair, con[i].kind, con[i].feature});
+      std::sort(next_active_.begin(), next_active_.end());
+    }
     VectorXd u_next = res.v - e * (ul - res.v);
     VectorXd P = (1.0 + e) * res.lam;
     VectorXd gamma_plus = otimes_t(Wl, u_next);
@@ -2634,7 +2692,9 @@ NB_MODULE(_step, mod) {
       .def("broad", &Stepper::broad)
       .def("table", &Stepper::table)
       .def_prop_ro("candidates", &Stepper::last_candidates)
-      .def_prop_rw("warm", &Stepper::warm, &Stepper::set_warm);
+      .def_prop_rw("warm", &Stepper::warm, &Stepper::set_warm)
+      .def_prop_rw("active", &Stepper::active, &Stepper::set_active)
+      .def_prop_ro("active_count", &Stepper::active_count);
   bind_run(mod);
   bind_events(mod);
   // The GeometryModel of these geometries and no pair (a scene without a pair list: the Stepper's placements, Stepper::

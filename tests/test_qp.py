@@ -258,16 +258,21 @@ def _column_problem(n):
 @pytest.mark.parametrize("form", list(QPForm))
 @pytest.mark.parametrize("n", [13, 50, 101, 400, 600])
 def test_sparse_path_solves_a_resting_column_exactly(n, form):
-    """Above SPARSE_ROWS rows the sparse path (piqp's SparseSolver, the active set on CSC matrices), and the
-    dense one below (the cold active set), give the closed form to round-off, polished, with a KKT residual at
-    round-off."""
+    """The active set (from nothing: no start given) and, above SPARSE_ROWS rows, its fallback the sparse path
+    (piqp's SparseSolver, the active set on CSC matrices) give the closed form to round-off, polished, with a KKT
+    residual at round-off."""
     M, W, v0, gh = _column_problem(n)
     res = qp.solve(M, W, v0, Minv=M, form=form)
-    cold = n <= qp.COLD_START_ROWS  # the dense cold active set (either form), no piqp
-    assert res.ok and res.polished and res.status == ("ACTIVE_SET" if cold else "PIQP_SOLVED")
-    np.testing.assert_allclose(res.v, 0.0, rtol=0, atol=1e-15 * n)
-    np.testing.assert_allclose(res.lam, gh * (n - np.arange(n)), rtol=1e-13, atol=0)
-    assert res.residual <= 1e-15 * n
+    assert res.ok and res.polished and res.status == "ACTIVE_SET"  # either form: no piqp
+    answers = [res]
+    if n > qp.SPARSE_ROWS:
+        sp = qp._solve_sparse(M, W, v0, np.zeros(n), M, form, 1e-10, 250, True)
+        assert sp.ok and sp.polished and sp.status == "PIQP_SOLVED"
+        answers.append(sp)
+    for res in answers:
+        np.testing.assert_allclose(res.v, 0.0, rtol=0, atol=1e-15 * n)
+        np.testing.assert_allclose(res.lam, gh * (n - np.arange(n)), rtol=1e-13, atol=0)
+        assert res.residual <= 1e-15 * n
 
 
 @pytest.mark.parametrize("bounds", [False, True])
@@ -277,6 +282,8 @@ def test_sparse_path_is_the_projection_the_cold_active_set_gives(seed, bounds, m
     (its threshold lowered to 12 rows): the answer equals the dense cold active set's (qp._polish on
     the dense matrices, the small-problem method) to round-off, and is repeatable bit for bit."""
     monkeypatch.setattr(qp, "SPARSE_ROWS", 12)
+    polish = qp._polish  # the dense cold active set, the reference
+    _sparse_path_only(monkeypatch)
     rng = np.random.default_rng(seed)
     blocks = [rng.standard_normal((k, k)) for k in rng.integers(1, 4, 12)]
     M = np.zeros((sum(len(B) for B in blocks),) * 2)
@@ -295,13 +302,20 @@ def test_sparse_path_is_the_projection_the_cold_active_set_gives(seed, bounds, m
     Minv = np.linalg.inv(M)
     res = qp.solve(M, W, v0, b=b, Minv=Minv)
     again = qp.solve(M, W, v0, b=b, Minv=Minv)
-    ref = qp._polish(W, v0, b, Minv)
-    assert res.ok and res.polished and ref is not None
+    ref = polish(W, v0, b, Minv)
+    assert res.ok and res.polished and res.status == "PIQP_SOLVED" and ref is not None
     scale = 1.0 + np.abs(v0).max() + np.abs(res.lam).max() * np.abs(W).max()
     assert res.residual <= 1e-13 * scale
     np.testing.assert_allclose(res.v, ref[0], rtol=0, atol=1e-12 * scale)
     np.testing.assert_array_equal(res.v, again.v)
     np.testing.assert_array_equal(res.lam, again.lam)
+
+
+def _sparse_path_only(monkeypatch):
+    """Above SPARSE_ROWS rows, the warm-started active set (qp._polish on the dense matrices) made to fail: the
+    sparse path, its fallback, answers (its own qp._polish on CSC matrices left as it is)."""
+    polish = qp._polish
+    monkeypatch.setattr(qp, "_polish", lambda W, *a: polish(W, *a) if qp._issparse(W) else None)
 
 
 @pytest.mark.parametrize("e", [0.0, 0.9])
@@ -314,6 +328,7 @@ def test_a_resting_column_of_120_beads_takes_the_sparse_path_exactly(e, monkeypa
 
     monkeypatch.setattr(qp, "SPARSE_ROWS", 100)
     monkeypatch.setattr(qp, "COLD_START_ROWS", 100)
+    _sparse_path_only(monkeypatch)
 
     n = 120
     model = ms.build_model(column(n, step_impl="python").with_options(restitution=e))
@@ -338,6 +353,7 @@ def test_a_run_of_a_resting_column_of_120_beads_keeps_its_energy(monkeypatch):
 
     monkeypatch.setattr(qp, "SPARSE_ROWS", 100)
     monkeypatch.setattr(qp, "COLD_START_ROWS", 100)
+    _sparse_path_only(monkeypatch)
 
     model = ms.build_model(column(120, step_impl="python").with_options(duration=4e-3))
     traj = ms.simulate(model, progress=False)
