@@ -9,7 +9,8 @@
 // GeometryData (the guesses saved before the detection, restored where a step is handed back), pairs of two boxes
 // (src/box_box.hpp: point queries, contact patches, the warm start of contacts.detect), on the broad phase's
 // candidates (broad_phase.py) in a model of more than its MIN_PAIRS pairs, and in a scene without a pair list on
-// its pair table (src/pair_table.hpp) through the coal objects the Python step makes per pair; any number of velocities: polytope
+// its pair table (src/pair_table.hpp) through the coal objects the Python step makes per pair; any number of
+// velocities: polytope
 // vertices against a half-space (contacts._vertex_contacts, kind "plane") or any other shape (coal's point query),
 // coal's witness contact (smooth shapes), patches (contacts._face_axis, _snap), flight steps; the
 // restitution rules (law.restitution_bounds); the projection (qp.solve's screen, the closed form for one
@@ -1582,26 +1583,25 @@ class Stepper {
   CollisionQuery collision_of(int k) {
     if (!table_)
       return {&gd_.collisionRequests[(size_t)k], &gd_.collisionResults[(size_t)k], &gd_.collision_functors[(size_t)k]};
-    const auto it = cq_.find(k);
-    if (it != cq_.end()) return it->second;
-    const nb::tuple t = nb::cast<nb::tuple>(collide_query_(k));
-    if (t.size() != 3) throw nb::value_error("collide_query: (request, result, functor) expected");
-    query_keep_.push_back(t);
-    const CollisionQuery c{&extract_ref<coal::CollisionRequest>(t[0], "coal.CollisionRequest"),
-                           &extract_ref<coal::CollisionResult>(t[1], "coal.CollisionResult"),
-                           &extract_ref<coal::ComputeCollision>(t[2], "coal.ComputeCollision")};
-    return cq_[k] = c;
+    return made<coal::CollisionRequest, coal::CollisionResult, coal::ComputeCollision>(cq_, collide_query_, k,
+                                                                                       "Collision");
   }
   DistanceQuery distance_of(int k) {
-    const auto it = dq_.find(k);
-    if (it != dq_.end()) return it->second;
-    const nb::tuple t = nb::cast<nb::tuple>(distance_query_(k));
-    if (t.size() != 3) throw nb::value_error("distance_query: (request, result, functor) expected");
+    return made<coal::DistanceRequest, coal::DistanceResult, coal::ComputeDistance>(dq_, distance_query_, k,
+                                                                                    "Distance");
+  }
+  // pair k's (request, result, functor) as make(k), Python's Data, makes them at first use: cached, the objects kept
+  template <class Req, class Res, class F, class Q>
+  Q made(std::unordered_map<int, Q> &cache, const nb::object &make, int k, const std::string &kind) {
+    const auto it = cache.find(k);
+    if (it != cache.end()) return it->second;
+    const nb::tuple t = nb::cast<nb::tuple>(make(k));
+    if (t.size() != 3) throw nb::value_error((kind + " query: (request, result, functor) expected").c_str());
     query_keep_.push_back(t);
-    const DistanceQuery d{&extract_ref<coal::DistanceRequest>(t[0], "coal.DistanceRequest"),
-                          &extract_ref<coal::DistanceResult>(t[1], "coal.DistanceResult"),
-                          &extract_ref<coal::ComputeDistance>(t[2], "coal.ComputeDistance")};
-    return dq_[k] = d;
+    const Q q{&extract_ref<Req>(t[0], ("coal." + kind + "Request").c_str()),
+              &extract_ref<Res>(t[1], ("coal." + kind + "Result").c_str()),
+              &extract_ref<F>(t[2], ("coal.Compute" + kind).c_str())};
+    return cache[k] = q;
   }
   // coal's collision query of pair k: pinocchio's computeCollision, or (table mode) the same query on Python's objects
   // as data.Data.collide makes it (pinocchio's distance_upper_bound, a cleared result, the pair's functor)
