@@ -30,7 +30,7 @@ def unsupported(model, check) -> str | None:
     why = compiled.loop_refusal(model, "Runner", "the run loop", whole=False)  # on the forest (§2.12)
     if why is not None:
         return why
-    why = compiled.unsupported(model)
+    why = compiled._prepared(model).why  # compiled.unsupported, once per model (the compiled step's own verdict)
     if why is not None:
         return why
     if check is not None and type(check) is not Invariants:

@@ -64,9 +64,9 @@ class Data:
         self.box_edges: dict = {}  # geometry index -> its box's 12 edges in the joint frame (contacts, filled lazily)
         # the detection's warm start: the pairs with contacts at the last detection (contacts._near_polytopes)
         self.warm_start_pairs: set = set()
-        # the projection's warm start above qp.SPARSE_ROWS rows: the identities (pair, kind, feature) of the rows
-        # that pushed (lam > 0) in the last step's projection, where it had more rows than that; else empty
-        # (stepper.step, docs/theory.md §1.3)
+        # the projection's warm start above qp.SPARSE_ROWS rows: the identities (pair, kind, feature) of the rows of
+        # the last step's final active set (its first pass's; piqp's answer: lam > 0), where it had more rows than
+        # that; else empty (stepper.keep_active, docs/theory.md §1.3)
         self.active_rows: frozenset = frozenset()
         self.patch_request = coal.ContactPatchRequest()
         self.patch_request.setPatchTolerance(PATCH_TOLERANCE)
