@@ -459,6 +459,10 @@ bool sparse_lu_solve(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
 // lu_solve runs sparse_lu_solve on a clean matrix above kSparseLU rows with at most kSparseRow nonzeros a row on
 // average (the same bits; below or denser, the dense loops cost less than the lists: ten boxes' G, ~24 a row)
 constexpr Eigen::Index kSparseLU = 16, kSparseRow = 8;
+// Above kWideRows rows the active set's solves take sparse_lu_solve up to kWideRow nonzeros a row of G on average:
+// there band_lu_solve's k x k copies of G_AA a solve (and its O(k^2) loops) cost more than the lists (a 64-box
+// pile, ~500 rows, ~30 a row); at ten boxes (76 rows, ~24 a row) the band's dense loops cost less
+constexpr Eigen::Index kWideRows = 200, kWideRow = 64;
 
 // qp._lu_solve: x = A^-1 rhs by Gaussian elimination with partial pivoting (the first largest |a_ij| of the
 // column; a NaN in it: no pivot), then back substitution by columns, each entry with the same operations in the
@@ -569,7 +573,8 @@ struct GInfo {
           ridx[(size_t)at] = k, rval[(size_t)at] = G(i, k);
         }
     }
-    sparse = is_clean && cidx.size() <= (size_t)(kSparseRow * m);  // G_AA's solves on its nonzeros (sparse_lu_solve)
+    const size_t nnz = cidx.size();  // G_AA's solves on its nonzeros (sparse_lu_solve; kWideRows)
+    sparse = is_clean && (nnz <= (size_t)(kSparseRow * m) || (m > kWideRows && nnz <= (size_t)(kWideRow * m)));
   }
 };
 
@@ -761,6 +766,19 @@ BandLU &band_cache() {
   return w;
 }
 
+// lu_solve(G[sel][:, sel], rhs, x)'s bits by sparse_lu_solve on G_AA's nonzeros, from G's rows (gi: G clean; pos:
+// a row's place in sel, -1 outside it); its work arrays kept from one solve to the next (no k x k copy)
+bool sub_lu_solve(const GInfo &gi, const std::vector<Eigen::Index> &sel, const Eigen::Index *pos, const VectorXd &rhs,
+                  VectorXd &x) {
+  thread_local SparseLU w;
+  const Eigen::Index k = (Eigen::Index)sel.size();
+  w.set_size(k);
+  for (Eigen::Index i = 0; i < k; ++i)
+    for (Eigen::Index t = gi.rptr[(size_t)sel[(size_t)i]]; t < gi.rptr[(size_t)sel[(size_t)i] + 1]; ++t)
+      if (pos[gi.ridx[(size_t)t]] >= 0) w.a[(size_t)i].emplace_back(pos[gi.ridx[(size_t)t]], gi.rval[(size_t)t]);
+  return sparse_lu_solve(w, rhs, x);
+}
+
 bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Index> &sel, const VectorXd &rhs,
                VectorXd &x);
 
@@ -806,7 +824,6 @@ bool active_set(const Constants &C, const MatrixXd &G, const GInfo &gi, const Ve
   const auto &cptr = gi.cptr, &cidx = gi.cidx, &rptr = gi.rptr, &ridx = gi.ridx;
   const auto &rval = gi.rval;
   const bool sparse = gi.sparse;  // G_AA's solves on its nonzeros
-  thread_local SparseLU w;  // G_AA by its nonzeros, for sparse_lu_solve (no k x k copy a move)
   BandLU &band = band_cache();  // G_AA row-major, for band_lu_solve (G clean)
   thread_local std::vector<Eigen::Index> posA;  // a row's place in idx, -1 outside A (reset where idx was set)
   posA.assign(finite ? (size_t)m : 0, -1);
@@ -863,11 +880,7 @@ bool active_set(const Constants &C, const MatrixXd &G, const GInfo &gi, const Ve
         if (finite)
           for (Eigen::Index i = 0; i < k; ++i) posA[(size_t)idx[i]] = i;
         if (sparse && k > kSparseLU) {  // lu_solve's bits from G_AA's nonzeros
-          w.set_size(k);
-          for (Eigen::Index i = 0; i < k; ++i)
-            for (Eigen::Index t = rptr[(size_t)idx[i]]; t < rptr[(size_t)idx[i] + 1]; ++t)
-              if (posA[(size_t)ridx[(size_t)t]] >= 0) w.a[(size_t)i].emplace_back(posA[(size_t)ridx[(size_t)t]], rval[(size_t)t]);
-          if (!sparse_lu_solve(w, rhs, d)) return false;
+          if (!sub_lu_solve(gi, idx, posA.data(), rhs, d)) return false;
         } else if (is_clean) {  // lu_solve's bits on G_AA row-major, its updates over each pivot row's band
           if (!band_lu_solve(band, gi, idx, posA.data(), rhs, d)) return false;
         } else {
@@ -934,6 +947,14 @@ struct WInfo {
       wptr[(size_t)j + 1] = (Eigen::Index)widx.size();
     }
   }
+  // max |W_ij| (W.cwiseAbs().maxCoeff(): the same max over the nonzeros where W is finite and has one)
+  double abs_max(const MatrixXd &W) const {
+    if (!finite || widx.empty()) return W.size() ? W.cwiseAbs().maxCoeff() : 0.0;
+    double top = 0.0;
+    for (Eigen::Index j = 0; j < W.cols(); ++j)
+      for (Eigen::Index t = wptr[(size_t)j]; t < wptr[(size_t)j + 1]; ++t) top = std::max(top, std::abs(W(widx[(size_t)t], j)));
+    return top;
+  }
 };
 
 // otimes_t(W, x) (sums.ordered(W.T, x)) over W's nonzero terms where W and x are finite (a term with W_kj = +-0 adds
@@ -964,8 +985,10 @@ void otimes_t_nz(const MatrixXd &W, const WInfo &wi, const VectorXd &x, VectorXd
 // are finite this gives omatmul's bits at the cost of the nonzeros (M block diagonal over the trees, a row of W
 // nonzero on the two bodies of its contact: docs/theory.md §2.8); anything non-finite takes omatmul itself. wi: W's
 // WInfo; the nonzero lists in flat buffers kept from one call to the next (no allocation)
-void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, MatrixXd &MiW, MatrixXd &G) {
+void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, MatrixXd &MiW, MatrixXd &G,
+                   WInfo &mi) {
   const Eigen::Index nv = W.rows(), m = W.cols();
+  mi.finite = false;
   if (!Minv.allFinite() || !wi.finite) {
     omatmul(Minv, W, MiW);
     omatmul(W.transpose(), MiW, G);
@@ -982,6 +1005,9 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
   }
   const auto &wptr = wi.wptr, &widx = wi.widx;
   MiW.setZero(nv, m);
+  thread_local std::vector<I> seen;  // the column j a row was last listed for (-1: none)
+  seen.assign((size_t)nv, -1);
+  mi.wptr.assign((size_t)m + 1, 0), mi.widx.clear();
   for (I j = 0; j < m; ++j) {
     double *y = MiW.col(j).data();
     for (I t = wptr[(size_t)j]; t < wptr[(size_t)j + 1]; ++t) {
@@ -991,10 +1017,13 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
       for (I s = mptr[(size_t)k]; s < mptr[(size_t)k + 1]; ++s) {
         const I i = midx[(size_t)s];
         y[i] = y[i] + a[i] * xk;
+        if (seen[(size_t)i] != j) seen[(size_t)i] = j, mi.widx.push_back(i);
       }
     }
+    mi.wptr[(size_t)j + 1] = (I)mi.widx.size();
     for (I i = 0; i < nv; ++i) y[i] = y[i] + 0.0;
   }
+  mi.finite = true;  // MiW's entries outside a column's list are +0.0
   // each row of W: (column, value), columns ascending
   rptr.assign((size_t)nv + 1, 0);
   for (I t = 0; t < (I)widx.size(); ++t) ++rptr[(size_t)widx[(size_t)t] + 1];
@@ -1024,6 +1053,52 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
   }
 }
 
+// otimes(A[:, cols], x) (A: MiW or W, cols ascending or not) as omatmul sums it, over the rows ai lists for each
+// column (a superset of its nonzeros; the rows outside are +0.0) where ai.finite and x is finite: a term with a zero
+// factor adds +-0 (contact_space's argument); else by omatmul on the columns copied
+VectorXd otimes_cols(const MatrixXd &A, const WInfo &ai, const std::vector<Eigen::Index> &cols, const VectorXd &x) {
+  const Eigen::Index nv = A.rows(), k = (Eigen::Index)cols.size();
+  if (!ai.finite || !x.allFinite()) {
+    MatrixXd Ac(nv, k);
+    for (Eigen::Index i = 0; i < k; ++i) Ac.col(i) = A.col(cols[(size_t)i]);
+    return otimes(Ac, x);
+  }
+  VectorXd y = VectorXd::Zero(nv);
+  for (Eigen::Index c = 0; c < k; ++c) {
+    const Eigen::Index j = cols[(size_t)c];
+    const double *a = A.col(j).data(), xc = x[c];
+    for (Eigen::Index t = ai.wptr[(size_t)j]; t < ai.wptr[(size_t)j + 1]; ++t) {
+      const Eigen::Index i = ai.widx[(size_t)t];
+      y[i] = y[i] + a[i] * xc;
+    }
+  }
+  for (Eigen::Index i = 0; i < nv; ++i) y[i] = y[i] + 0.0;
+  return y;
+}
+
+// otimes_t(W[:, cols], x) (sums.ordered(W[:, cols].T, x)): otimes_t_nz's sums on the columns cols
+VectorXd otimes_t_cols(const MatrixXd &W, const WInfo &wi, const std::vector<Eigen::Index> &cols, const VectorXd &x) {
+  const Eigen::Index k = (Eigen::Index)cols.size();
+  VectorXd y(k);
+  if (!wi.finite || !x.allFinite() || W.rows() == 0) {
+    for (Eigen::Index c = 0; c < k; ++c) y[c] = W.rows() ? odot(W.col(cols[(size_t)c]).data(), x.data(), W.rows()) : 0.0;
+    return y;
+  }
+  for (Eigen::Index c = 0; c < k; ++c) {
+    const Eigen::Index j = cols[(size_t)c];
+    const double *w = W.col(j).data();
+    double sum = 0.0;
+    bool first = true;
+    for (Eigen::Index t = wi.wptr[(size_t)j]; t < wi.wptr[(size_t)j + 1]; ++t) {
+      const double term = w[wi.widx[(size_t)t]] * x[wi.widx[(size_t)t]];
+      sum = first ? term : sum + term;
+      first = false;
+    }
+    y[c] = sum + 0.0;
+  }
+  return y;
+}
+
 // lu_solve(G[sel][:, sel], rhs, x) for project's final solves: band_lu_solve where G is clean (the same bits; on the
 // active set's BandLU, band_cache), else lu_solve on the copy
 bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Index> &sel, const VectorXd &rhs,
@@ -1033,6 +1108,7 @@ bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Inde
     thread_local std::vector<Eigen::Index> pos;
     pos.assign((size_t)G.rows(), -1);
     for (Eigen::Index i = 0; i < k; ++i) pos[(size_t)sel[(size_t)i]] = i;
+    if (gi.sparse && k > kSparseLU) return sub_lu_solve(gi, sel, pos.data(), rhs, x);
     return band_lu_solve(band_cache(), gi, sel, pos.data(), rhs, x);
   }
   MatrixXd GA(k, k);
@@ -1046,10 +1122,11 @@ bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Inde
 // re-solved on its final set and checked. Throws Fallback where qp.solve would go on to piqp. G's and W's nonzeros are found once (GInfo, WInfo) and each product W'v is
 // formed once (W'v0 for the screen and r; W'vp for r2 and the last check, or W'v2 where the second pass is kept).
 Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
-               const std::vector<char> *start = nullptr) {
+               const std::vector<char> *start = nullptr, const WInfo *given = nullptr) {
   const Eigen::Index m = W.cols(), nv = W.rows();
-  thread_local WInfo wi;
-  wi.set(W);
+  thread_local WInfo own;
+  if (!given) own.set(W);
+  const WInfo &wi = given ? *given : own;  // given: the caller's WInfo of this W
   VectorXd Wv0;
   otimes_t_nz(W, wi, v0, Wv0);
   const VectorXd slack0 = Wv0 - b;
@@ -1063,7 +1140,8 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
   }
   const double scale = 1.0 + v0.cwiseAbs().maxCoeff();
   MatrixXd MiW, G;  // Minv @ W, W.T @ MiW
-  contact_space(Minv, W, wi, MiW, G);
+  thread_local WInfo mi;  // MiW's columns' rows (contact_space)
+  contact_space(Minv, W, wi, MiW, G, mi);
   thread_local GInfo gi;
   gi.set(G);
   const VectorXd r = b - Wv0;
@@ -1081,37 +1159,31 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
     vp = v0;
     Wvp = Wv0;
   } else {
-    MatrixXd MiWA(nv, k);
     VectorXd rA(k), lamA;
-    for (Eigen::Index i = 0; i < k; ++i) {
-      rA[i] = r[idx[i]];
-      MiWA.col(i) = MiW.col(idx[i]);
-    }
+    for (Eigen::Index i = 0; i < k; ++i) rA[i] = r[idx[i]];
     if (!solve_sub(G, gi, idx, rA, lamA) || lamA.minCoeff() < -C.accept * std::max(1.0, lamA.maxCoeff()))
       throw Fallback{"active set's final solve rejected"};
     for (Eigen::Index i = 0; i < k; ++i) lamA[i] = std::max(lamA[i], 0.0);
-    vp = v0 + otimes(MiWA, lamA);
+    vp = v0 + otimes_cols(MiW, mi, idx, lamA);
     // qp._polish's refinement step: the residual of W_P'v = b_P solved for on the rows that push
     std::vector<Eigen::Index> pi, iP;
     for (Eigen::Index i = 0; i < k; ++i)
       if (lamA[i] > 0.0) pi.push_back(i), iP.push_back(idx[i]);
     const Eigen::Index kp = (Eigen::Index)iP.size();
     if (kp) {
-      MatrixXd WP(nv, kp), MiWP(nv, kp);
-      for (Eigen::Index i = 0; i < kp; ++i) WP.col(i) = W.col(iP[i]), MiWP.col(i) = MiW.col(iP[i]);
-      const VectorXd WPv = otimes_t(WP, vp);
+      const VectorXd WPv = otimes_t_cols(W, wi, iP, vp);
       VectorXd rP(kp), dP;
       for (Eigen::Index i = 0; i < kp; ++i) rP[i] = b[iP[i]] - WPv[i];
       if (solve_sub(G, gi, iP, rP, dP) && dP.cwiseAbs().maxCoeff() <= C.refine * (1.0 + lamA.maxCoeff())) {
         for (Eigen::Index i = 0; i < kp; ++i) lamA[pi[i]] = std::max(lamA[pi[i]] + dP[i], 0.0);
-        vp = vp + otimes(MiWP, dP);
+        vp = vp + otimes_cols(MiW, mi, iP, dP);
       }
     }
     for (Eigen::Index i = 0; i < k; ++i) lp[idx[i]] = lamA[i];
     // qp._polish's second pass: the active set on the answer's own residual
     otimes_t_nz(W, wi, vp, Wvp);
     const VectorXd r2 = b - Wvp;
-    const double tol2 = C.second_pass * (b.cwiseAbs().maxCoeff() + W.cwiseAbs().maxCoeff() * vp.cwiseAbs().maxCoeff());
+    const double tol2 = C.second_pass * (b.cwiseAbs().maxCoeff() + wi.abs_max(W) * vp.cwiseAbs().maxCoeff());
     std::vector<char> act2;
     VectorXd dl;
     if (active_set(C, G, gi, r2, tol2, act2, dl)) {
@@ -1120,10 +1192,9 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
         if (act2[i]) i2.push_back(i);
       const Eigen::Index k2 = (Eigen::Index)i2.size();
       if (k2) {
-        MatrixXd MiW2(nv, k2);
         VectorXd d2(k2);
-        for (Eigen::Index i = 0; i < k2; ++i) MiW2.col(i) = MiW.col(i2[i]), d2[i] = dl[i2[i]];
-        const VectorXd v2 = vp + otimes(MiW2, d2);
+        for (Eigen::Index i = 0; i < k2; ++i) d2[i] = dl[i2[i]];
+        const VectorXd v2 = vp + otimes_cols(MiW, mi, i2, d2);
         VectorXd Wv2;
         otimes_t_nz(W, wi, v2, Wv2);
         if ((Wv2 - b).minCoeff() >= -r2.maxCoeff()) {
@@ -2233,9 +2304,14 @@ class Stepper {
     MatrixXd W0 = contact_rows(found);
     std::vector<int> keep = distinct(W0);
     const Eigen::Index m = (Eigen::Index)keep.size();
-    MatrixXd W(nv, m);
+    MatrixXd W;
     std::vector<Found> con;
-    for (Eigen::Index j = 0; j < m; ++j) W.col(j) = W0.col(keep[j]), con.push_back(found[keep[j]]);
+    if (m == W0.cols()) {  // every row distinct: W is W0 (no copy)
+      W = std::move(W0), con = found;
+    } else {
+      W.resize(nv, m);
+      for (Eigen::Index j = 0; j < m; ++j) W.col(j) = W0.col(keep[j]), con.push_back(found[keep[j]]);
+    }
     // Prescribed.rates: dg_i/dt = -n_i.V(t_m) of the contacts against a moving static (§2.9); none: no rate
     VectorXd rate;
     bool has_rate = false;
@@ -2281,7 +2357,10 @@ class Stepper {
     const MatrixXd &Wl = driven ? Wk : W;
     const VectorXd &ul = driven ? uk : u, &ufl = driven ? ufk : u_free, &vfl = driven ? vfk : v_free;
     // solve_impact
-    VectorXd gamma_minus = otimes_t(Wl, ul);
+    thread_local WInfo wli;  // Wl's nonzeros: its products W'x over them (otimes_t_nz), shared with project
+    wli.set(Wl);
+    VectorXd gamma_minus;
+    otimes_t_nz(Wl, wli, ul, gamma_minus);
     if (has_rate) gamma_minus = gamma_minus + rate;  // gamma = W'u + dg/dt (§2.9)
     VectorXd b = VectorXd::Zero(m);  // law.restitution_bounds (None -> b = 0 in qp.solve)
     bool any = false;
@@ -2293,7 +2372,8 @@ class Stepper {
       }
       if (slow_plastic_ && e > 0.0 && std::min(0.0, gamma_minus.minCoeff()) < 0.0) {
         VectorXd du = ufl - ul;
-        VectorXd wdu = otimes_t(Wl, du);
+        VectorXd wdu;
+        otimes_t_nz(Wl, wli, du, wdu);
         bool slow_any = false;
         for (Eigen::Index i = 0; i < m; ++i) {
           if (gamma_minus[i] < 0.0 && gamma_minus[i] >= wdu[i]) slow_any = true, e_i[i] = 0.0;
@@ -2313,7 +2393,7 @@ class Stepper {
         start[(size_t)i] = std::binary_search(active_.begin(), active_.end(),
                                               std::array<int64_t, 3>{con[i].pair, con[i].kind, con[i].feature});
     }
-    Solved res = ::project(C_, Wl, vfl, b, Minv, start.empty() ? nullptr : &start);
+    Solved res = ::project(C_, Wl, vfl, b, Minv, start.empty() ? nullptr : &start, &wli);
     if (warm && (Eigen::Index)res.act.size() == m) {  // stepper.keep_active: the first pass's final set
       for (Eigen::Index i = 0; i < m; ++i)
         if (res.act[(size_t)i]) next_active_.push_back({con[i].pair, con[i].kind, con[i].feature});
@@ -2321,7 +2401,8 @@ class Stepper {
     }
     VectorXd u_next = res.v - e * (ul - res.v);
     VectorXd P = (1.0 + e) * res.lam;
-    VectorXd gamma_plus = otimes_t(Wl, u_next);
+    VectorXd gamma_plus;
+    otimes_t_nz(Wl, wli, u_next, gamma_plus);
     double ow = 0.0;  // the obstacle work -P.dg/dt (§5.5)
     if (has_rate) {
       gamma_plus = gamma_plus + rate;
@@ -2330,11 +2411,11 @@ class Stepper {
     VectorXd gsum = gamma_plus + gamma_minus;
     const double work = odot(P.data(), gsum.data(), m) * 0.5;
     VectorXd v = std::move(res.v), v0 = v_free;
-    MatrixXd Mout = M, Minv_c;
+    MatrixXd Mout, Minv_c;  // the StepOut's M: the driven step's embedded M_rr, else M itself (moved in at the end)
     if (driven) {  // DriveStep.expanded: u_{k+1} = (u_r, xdot), W's driven rows zero, the QP's problem embedded
       VectorXd U(nv), ve(nv), v0e(nv);
       MatrixXd We = MatrixXd::Zero(nv, m);
-      Mout.setZero();
+      Mout.setZero(nv, nv);
       for (size_t j = 0; j < rh_.r.size(); ++j) {
         const Eigen::Index rj = rh_.r[j], jj = (Eigen::Index)j;
         U[rj] = u_next[jj], ve[rj] = v[jj], v0e[rj] = vfk[jj];
@@ -2379,7 +2460,7 @@ class Stepper {
     }
     out.P = std::move(P), out.gamma_minus = std::move(gamma_minus), out.gamma_plus = std::move(gamma_plus);
     out.v_free = std::move(v0), out.b = std::move(b), out.v = std::move(v), out.lam = std::move(res.lam);
-    out.M = Mout, out.W = std::move(W), out.projection = res.status;
+    out.M = driven ? std::move(Mout) : std::move(M), out.W = std::move(W), out.projection = res.status;
     out.contact_work = work, out.correction_energy = corr, out.m = m;
     out.obstacle_work = ow, out.drive_work_free = driven ? ds.work_free : 0.0;
     out.pack();

@@ -150,6 +150,55 @@ def test_projection_is_bit_identical_to_qp_solve():
     assert solved >= 200
 
 
+def _pile_projection(seed, bodies, m):
+    """A pile-like projection: `bodies` free bodies (6 velocities each, M block diagonal), m contact rows each on
+    two bodies (one on a body alone: against the ground), several rows per pair (a face's corners: dependent rows),
+    free velocities pressing the rows."""
+    rng = np.random.default_rng(seed)
+    nv = 6 * bodies
+    M = np.zeros((nv, nv))
+    for k in range(bodies):
+        A = rng.standard_normal((6, 6))
+        M[6 * k:6 * k + 6, 6 * k:6 * k + 6] = A @ A.T + 6.0 * np.eye(6)
+    W = np.zeros((nv, m), order="F")
+    j = 0
+    while j < m:
+        a = int(rng.integers(bodies))
+        b = min(bodies - 1, a + int(rng.integers(1, 4)))
+        w = rng.standard_normal(12)
+        for _ in range(min(m - j, int(rng.integers(1, 5)))):  # up to four corners of one face pair
+            W[6 * a:6 * a + 6, j] = w[:6] + 0.1 * rng.standard_normal(6)
+            if b != a:
+                W[6 * b:6 * b + 6, j] = -w[6:]
+            j += 1
+    Minv = np.zeros_like(M)
+    for k in range(bodies):
+        Minv[6 * k:6 * k + 6, 6 * k:6 * k + 6] = np.linalg.inv(M[6 * k:6 * k + 6, 6 * k:6 * k + 6])
+    v0 = -W @ np.abs(rng.standard_normal(m)) * 0.1
+    return M, W, v0, np.zeros(m), Minv
+
+
+@pytest.mark.parametrize("m", [150, 199, 201, 260])
+def test_large_sparse_projection_is_bit_identical_to_qp_solve(m):
+    """Above kWideRows (200) rows the compiled active set solves G_AA by its nonzeros (sparse_lu_solve, also in the
+    final solves), and the final products run over the columns' nonzeros (otimes_cols): on pile-like problems of
+    150-260 rows (M block diagonal, rows on two bodies, dependent corners) the same v and multipliers as qp.solve,
+    bit for bit, on both sides of the threshold."""
+    solved = 0
+    for seed in range(3):
+        M, W, v0, b, Minv = _pile_projection(seed, m // 4, m)
+        ref = qp.solve(M, W, v0, b=b, Minv=Minv)
+        status, v, lam = _ext().project(W, v0, b, Minv, compiled.CONSTANTS)
+        if status is None:
+            assert ref.status not in ("ACTIVE_SET", "ADMISSIBLE"), (seed, v)
+            continue
+        assert ref.status == status.name, seed
+        assert v.view(np.int64).tolist() == ref.v.view(np.int64).tolist(), seed
+        assert lam.view(np.int64).tolist() == ref.lam.view(np.int64).tolist(), seed
+        solved += status is _ext().Projection.ACTIVE_SET
+    assert solved >= 2
+
+
 def test_kernels_are_bit_identical_to_qp():
     """The two kernels of docs/theory.md §2.8 alone, C++ against Python: src/step.cpp omatmul against sums.ordered
     (every product of the projection) and lu_solve against qp._lu_solve (its solves), bit for bit on random
