@@ -466,8 +466,10 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
                   and all(_flat(model, imp.contacts, i) for i in np.flatnonzero(deep)))
     if budget <= 0.0 and not resting and not persistent:  # the step gained (the cap of §2.10 takes it back):
         return q_next, 0.0, u_next  # nothing to spend
-    if res is None or not res.ok:
-        res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv)
+    if res is None or not res.ok:  # above qp.SPARSE_ROWS rows warm-started from the law's final set (§2.5)
+        law = imp.qp.active
+        res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv,
+                       start=law if law is not None and len(law) == imp.W.shape[1] else None)
     if res.status == INFEASIBLE:  # rows that contradict (a box pushed into another): the least residual (§2.5)
         res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-(g_next + shortfall(imp.W, g_next, tol)), Minv=pb.Minv)
     if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)

@@ -2442,7 +2442,7 @@ class Stepper {
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
     if (projection_)  // a paid lift (§2.5): u_next, gamma_plus those of the lift, out.u_law the law's u_{k+1}
       out.paid = correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, driven ? Minv_c : Minv, q_next,
-                                   corr, gamma_minus, con, ow, out.u_law);
+                                   corr, gamma_minus, con, ow, out.u_law, res.act);
     if (!driven)  // §2.10 (a driven joint: §2.13), with the torques' and the moving statics' work
       cap_energy(q, u, q_m, u_free, h, e, P, work, corr, W, q_next, u_next, gamma_plus, ow,
                  has_rate ? &rate : nullptr);
@@ -2578,7 +2578,7 @@ class Stepper {
   bool correct_positions(const VectorXd &q, const VectorXd &u, const VectorXd &u_free, double h, const VectorXd &g,
                          VectorXd &gamma_plus, VectorXd &u_next, const MatrixXd &M, const MatrixXd &W,
                          const MatrixXd &Minv, VectorXd &q_next, double &corr, const VectorXd &gamma_minus,
-                         const std::vector<Found> &con, double ow, VectorXd &u_law) {
+                         const std::vector<Found> &con, double ow, VectorXd &u_law, const std::vector<char> &law_act) {
     (void)M;
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
@@ -2665,7 +2665,9 @@ class Stepper {
       }
     persistent = persistent && deep;
     if (budget <= 0.0 && !resting && !persistent) return false;
-    if (!solved) res = project(W, VectorXd::Zero(model_.nv), -g_next, Minv);
+    if (!solved)  // above C_.sparse_rows rows warm-started from the law's final set (stepper.correct_positions, §2.5)
+      res = ::project(C_, W, VectorXd::Zero(model_.nv), -g_next, Minv,
+                      (Eigen::Index)law_act.size() == m ? &law_act : nullptr);
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
     const double T_c = kinetic(q_c, u_next);
     const double V_c = potential(q_c);

@@ -310,3 +310,63 @@ def test_above_warm_rows_the_sparse_path_alone_solves(monkeypatch):
     assert above.ok and above.status != "ACTIVE_SET"
     np.testing.assert_allclose(above.lam, gh * (n - np.arange(n)), rtol=1e-9, atol=0)
     np.testing.assert_allclose(above.v, at.v, rtol=0, atol=1e-12)
+
+
+def _pressed(n: int, e: float, h: float, step_impl: str = "python") -> ms.Scene:
+    """benchmarks.scaling.column's n touching beads, bead k moving down at 0.01 (k + 1) m/s: every contact closing
+    at 0.01 m/s (the first step's midpoint gaps negative, the position correction on every row)."""
+    from benchmarks.scaling import REPO
+
+    b = ms.SceneBuilder(f"column_pressed_{n}", folder=REPO / "scenes", restitution=e, dt=h, duration=0.01,
+                        step_impl=step_impl)
+    for k in range(n):
+        b.add_body(f"bead{k}", "../models/ball.urdf", root_joint="prismatic", axis=(0, 0, 1),
+                   q0=[0.1 + 0.2 * k], u0=[-0.01 * (k + 1)])
+    b.add_halfspace("ground")
+    return b.build()
+
+
+@pytest.mark.parametrize("h", [5e-4, 1e-3])
+@pytest.mark.parametrize("e", [0.0, 0.9])
+def test_the_position_correction_above_sparse_rows_starts_from_the_law_s_final_set(e, h, monkeypatch):
+    """A column of 240 beads closing on each other: the position correction's QP (240 rows, above
+    SPARSE_ROWS) starts from the law's final active set (stepper.correct_positions, docs/theory.md §2.5). Where it
+    is unique (independent rows) that changes the moves, not the answer: the same bits as the cold start (its start
+    dropped) every step; the compiled step gives the same bits; no contact ends deeper than the contact tolerance
+    + 2 h max|u| and T + V never grows beyond what the correction books."""
+    n = 240
+    seen = []
+    real = qp.solve
+
+    def spy(*args, start=None, **kw):
+        seen.append(start is not None and len(start) > qp.SPARSE_ROWS and bool(np.any(start)))
+        return real(*args, start=start, **kw)
+
+    runs = {}
+    for mode in ("warm", "cold", "compiled"):
+        model = ms.build_model(_pressed(n, e, h, "compiled" if mode == "compiled" else "python"))
+        if mode == "cold":
+            monkeypatch.setattr(stepper.qp, "solve", lambda *a, start=None, **kw: real(*a, **kw))
+        else:
+            monkeypatch.setattr(stepper.qp, "solve", spy)
+        data = make_data(model)
+        st, out = ms.initial_state(model, data), []
+        for _ in range(6):
+            r = ms.step(model, data, st)
+            out.append(r)
+            st = r.state
+        runs[mode] = (model, data, out)
+    assert any(seen)  # a correction QP warm-started above SPARSE_ROWS (the Python step's)
+    model, data, warm = runs["warm"]
+    tol = model.options.contact_tolerance
+    assert warm[0].contacts.m == n and warm[0].correction_energy != 0.0  # every contact closed and corrected
+    for a, b, c in zip(warm, runs["cold"][2], runs["compiled"][2]):
+        for x, y, z in ((a.state.q, b.state.q, c.state.q), (a.state.u, b.state.u, c.state.u)):
+            assert _bits(x) == _bits(y) == _bits(z)
+        g = np.diff(np.concatenate(([0.0], a.state.q))) - np.concatenate(([0.1], np.full(n - 1, 0.2)))
+        assert g.min() >= -(tol + 2 * h * np.abs(a.state.u).max())  # deeper only by what a step's approach makes
+    st0 = ms.initial_state(model, data)
+    E = [ms.energy.total(model, data, st0.q, st0.u)] + [ms.energy.total(model, data, r.state.q, r.state.u)
+                                                       for r in warm]
+    for k, r in enumerate(warm):  # E_{k+1} - E_k = W_c + correction_energy, W_c <= 0
+        assert E[k + 1] - E[k] - r.correction_energy <= 1e-12 * abs(E[0])
