@@ -1320,7 +1320,7 @@ class Stepper {
         gm_(extract_ref<pinocchio::GeometryModel>(geom_model, "pinocchio.GeometryModel")),
         gd_(extract_ref<pinocchio::GeometryData>(geom_data, "pinocchio.GeometryData")),
         vertices_(std::move(vertices)), bound_kind_(std::move(bound_kind)), bound_a_(std::move(bound_a)),
-        bound_b_(std::move(bound_b)), pairs_(std::move(pairs)), mask_(std::move(mask)), reach_(reach),
+        bound_b_(std::move(bound_b)), pairs_(std::move(pairs)), mask_(mask), reach_(reach),
         thinnest_(thinnest_pair), tol_(tol), tunnelling_(tunnelling), sep_elastic_(separating_elastic),
         slow_plastic_(slow_plastic), bias_midpoint_(bias_midpoint), velocity_bias_(velocity_bias),
         projection_(projection), C_(Constants::from(constants)),
@@ -1494,7 +1494,7 @@ class Stepper {
   std::vector<Vec3> bound_a_;
   std::vector<double> bound_b_;
   Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic> pairs_;  // first, second, joint_first, joint_second, patch
-  MatrixXd mask_;
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> mask_;  // row-major: a joint's row contiguous
   double reach_, thinnest_, tol_;
   int tunnelling_;  // 0 swept, 1 none, 2 always
   bool sep_elastic_, slow_plastic_, bias_midpoint_, velocity_bias_, projection_;
@@ -2481,9 +2481,9 @@ class Stepper {
       for (int k = iv; k < iv + nvj; ++k) tree[k] = root;
     }
     std::vector<bool> hit(model_.njoints, false), involved(model_.nv, false);
-    for (Eigen::Index j = 0; j < W.rows(); ++j)
-      for (Eigen::Index i = 0; i < W.cols(); ++i)
-        if (W(j, i) != 0.0) { hit[tree[j]] = true; break; }
+    for (Eigen::Index i = 0; i < W.cols(); ++i)  // each column in memory order (W column-major)
+      for (Eigen::Index j = 0; j < W.rows(); ++j)
+        if (W(j, i) != 0.0) hit[tree[j]] = true;
     for (int k = 0; k < model_.nv; ++k) involved[k] = hit[tree[k]];
     return involved;
   }
@@ -2599,9 +2599,10 @@ class Stepper {
     for (Eigen::Index j = 0; j < u.size(); ++j) dmax = std::max(dmax, std::abs(u_free[j] - u[j]));
     const double eps = C_.resting * dmax;
     std::vector<char> involved(W.rows(), 0);
-    for (Eigen::Index j = 0; j < W.rows(); ++j)
-      for (Eigen::Index i = 0; i < m; ++i)
-        if (g_next[i] < -tol_ && W(j, i) != 0.0) involved[j] = 1;
+    for (Eigen::Index i = 0; i < m; ++i)  // (W column-major: each penetrating row's column in memory order)
+      if (g_next[i] < -tol_)
+        for (Eigen::Index j = 0; j < W.rows(); ++j)
+          if (W(j, i) != 0.0) involved[j] = 1;
     for (Eigen::Index j = 0; j < W.rows() && resting; ++j)
       if (involved[j]) resting = std::abs(u_next[j]) <= eps;
     Solved res;
@@ -2621,12 +2622,11 @@ class Stepper {
         still = std::abs(gamma_minus[i]) <= eps && std::abs(gamma_plus[i]) <= eps;
       }
       if (still) {  // and the kinetic energy of their trees changes by at most resting T(q_k, u_free - u_k)
-        MatrixXd Wp(W.rows(), 0);
+        std::vector<Eigen::Index> pen;
         for (Eigen::Index i = 0; i < m; ++i)
-          if (g_next[i] < -tol_) {
-            Wp.conservativeResize(Eigen::NoChange, Wp.cols() + 1);
-            Wp.col(Wp.cols() - 1) = W.col(i);
-          }
+          if (g_next[i] < -tol_) pen.push_back(i);
+        MatrixXd Wp(W.rows(), (Eigen::Index)pen.size());
+        for (size_t c = 0; c < pen.size(); ++c) Wp.col((Eigen::Index)c) = W.col(pen[c]);
         const std::vector<bool> S = trees(Wp);
         VectorXd u1 = VectorXd::Zero(u.size()), u0 = VectorXd::Zero(u.size()), du = VectorXd::Zero(u.size());
         for (Eigen::Index j = 0; j < u.size(); ++j)
