@@ -428,26 +428,35 @@ def result(model, data, r, t1: float, tau: np.ndarray | None = None) -> StepResu
 def _result(ctx: _Context, r, t1: float, tau: np.ndarray | None) -> StepResult:
     res = object.__new__(_CompiledResult)
     f = r.floats
-    _SET_STATE(res, State(t1, *_next(ctx, f)))
-    _SET_TAU(res, tau)
-    _SET_R(res, r)
-    _SET_CTX(res, ctx)
-    _SET_FLOATS(res, f)
+    _SET["state"](res, State(t1, *_next(ctx, f)))
+    _SET["tau"](res, tau)
+    _SET["_r"](res, r)
+    _SET["_ctx"](res, ctx)
+    _SET["_floats"](res, f)
     return res
 
 
 class _CompiledResult(StepResult):
     """A StepResult of the compiled step whose fields but the state and tau are made from its StepOut where they are
-    first read, then kept (the same values, types and views of its buffers as made at once; a step's own buffers,
-    valid after the next step): ms.step on box_stack_10 resting spent ~20 us of its ~310 us making arrays and
-    objects its caller may never read (the contacts, the projection's problem; 2026-11-28). A StepResult in every
-    other way: its fields, dataclasses.fields / replace / asdict, ==; a copy, a pickle or a dataclasses.replace of it
-    is a plain StepResult."""
+    first read (__getattr__: Python asks it for a slot not filled yet), then kept in StepResult's slots (the same
+    values, types and views of its buffers as made at once; a step's own buffers, valid after the next step):
+    ms.step on box_stack_10 resting spent ~20 us of its ~310 us making arrays and objects its caller may never read
+    (the contacts, the projection's problem; 2026-11-28). A StepResult in every other way: its fields,
+    dataclasses.fields / replace / asdict, ==; a copy, a pickle or a dataclasses.replace of it is a plain
+    StepResult."""
 
-    __slots__ = ("_r", "_ctx", "_floats", "_ints")
+    __slots__ = ("_r", "_ctx", "_floats", "_ints", "_layout", "_makers")
 
     def __new__(cls, *args, **kwargs):  # the dataclass's own calls (dataclasses.replace): a plain StepResult
         return StepResult(*args, **kwargs)
+
+    def __getattr__(self, name: str):  # a slot not filled yet (or no such attribute)
+        make = _MAKE.get(name)
+        if make is None:
+            raise AttributeError(f"'StepResult' object has no attribute '{name}'")
+        value = make(self)
+        _SET[name](self, value)
+        return value
 
     def _plain(self) -> StepResult:
         return StepResult(*(getattr(self, f) for f in _FIELDS))
@@ -467,15 +476,8 @@ class _CompiledResult(StepResult):
 
     def _view(self, name: str) -> np.ndarray:
         """The StepOut's array `name`: a new view of its buffers (_Context.layout)."""
-        i, s, shape, f_order = self._ctx.layout(self._r)[name]
-        if not i:
-            return _view(self._floats, s, shape, f_order)
-        try:
-            ints = self._ints
-        except AttributeError:  # the first int array read
-            ints = self._r.ints
-            _SET_INTS(self, ints)
-        return _view(ints, s, shape, f_order)
+        i, s, shape, f_order = self._layout[name]
+        return _view(self._ints if i else self._floats, s, shape, f_order)
 
     def _qp(self) -> QPResult:
         r, v = self._r, self._view
@@ -498,27 +500,11 @@ _CONTACT = {"contacts": lambda s: Contacts(*map(s._view, Contacts.ARRAYS)), "P":
             "u_law": lambda s: s._view("u_law") if s._r.paid else None,  # a lift paid with the velocities (§2.5)
             "drive_work_free": lambda s: s._r.drive_work_free}
 _FIELDS = tuple(f.name for f in dataclasses.fields(StepResult))
-
-
-def _lazy(name: str) -> property:
-    """_CompiledResult's field `name`: StepResult's slot, filled at the first read."""
-    slot = StepResult.__dict__[name]  # the dataclass's slot (a member descriptor)
-    flight, contact = _FLIGHT[name], _CONTACT[name]
-
-    def get(self):
-        try:
-            return slot.__get__(self)
-        except AttributeError:  # not read yet
-            value = (flight if self._r.outcome is _module.Outcome.FLIGHT else contact)(self)
-            slot.__set__(self, value)
-            return value
-
-    return property(get, doc=f"StepResult.{name}, made at its first read")
-
-
 assert set(_FLIGHT) == set(_CONTACT) == set(_FIELDS) - {"state", "tau"}
-for _name in _FLIGHT:
-    setattr(_CompiledResult, _name, _lazy(_name))
-_SET_STATE, _SET_TAU = StepResult.__dict__["state"].__set__, StepResult.__dict__["tau"].__set__
-_SET_R, _SET_CTX = _CompiledResult.__dict__["_r"].__set__, _CompiledResult.__dict__["_ctx"].__set__
-_SET_FLOATS, _SET_INTS = _CompiledResult.__dict__["_floats"].__set__, _CompiledResult.__dict__["_ints"].__set__
+# what _CompiledResult.__getattr__ makes: the lazy fields (by the outcome's table), and what they are made of
+_MAKE = {name: (lambda s, n=name: s._makers[n](s)) for name in _FLIGHT} | {
+    "_makers": lambda s: _FLIGHT if s._r.outcome is _module.Outcome.FLIGHT else _CONTACT,
+    "_layout": lambda s: s._ctx.layout(s._r), "_ints": lambda s: s._r.ints}
+# the slots' setters (StepResult's own, frozen to its __setattr__; _CompiledResult's)
+_SET = {name: cls.__dict__[name].__set__ for cls in (StepResult, _CompiledResult)
+        for name in cls.__slots__}
