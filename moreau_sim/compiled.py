@@ -7,6 +7,7 @@ step back (docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import math
 import warnings
@@ -188,7 +189,7 @@ class _Context:
         prep = _prepared(model)
         self.carries = prep.carries  # the detection carries state from step to step
         self.timed = model.prescribed is not None or model.drive is not None  # its steps need their start time
-        self._layouts: dict[tuple, list] = {}  # (outcome, m, paid) -> the step's named arrays in its two buffers
+        self._layouts: dict[tuple, dict] = {}  # (outcome, m, paid) -> the step's named arrays in its two buffers
         self.counts: Counter = Counter()
         self.why = prep.why
         self.stepper = None
@@ -220,24 +221,30 @@ class _Context:
         driven = [] if model.drive is None else [(j.idx_v, schedule(j.schedule)) for j in model.drive.joints]
         self.stepper.rheonomic(moving, driven)
 
-    def arrays(self, r) -> dict:
-        """The named arrays of the extension's StepOut r: views of its two buffers, laid out as r.layout()
-        says (src/step.cpp StepOut::visit, the one definition of the layout)."""
-        outcome = r.outcome
-        key = (outcome, r.m, r.paid)
+    def layout(self, r) -> dict:
+        """Where the named arrays of the extension's StepOut r lie in its two buffers, as r.layout() says (src/step.cpp
+        StepOut::visit, the one definition of the layout): name -> (in ints, its slice, its shape: (rows, cols) of a
+        'C' array, (cols, rows) of an 'F' one, its transpose's C view, the same strides as reshape(order='F')
+        without the keyword's cost; None: a vector, in F order), made once per (outcome, m, paid)."""
+        key = (r.outcome, r.m, r.paid)
         lay = self._layouts.get(key)
-        if lay is None:  # (name, in ints, its slice, its shape: (rows, cols) of an 'C' array, (cols, rows) of an 'F'
-            # one (its transpose's C view, the same strides as reshape(order='F') without the keyword's cost))
-            lay = self._layouts[key] = [
-                (name, ints, slice(a, a + rows * (cols or 1)),
-                 None if not cols else (rows, cols) if order == "C" else (cols, rows), order == "F")
-                for name, ints, a, rows, cols, order in r.layout()]
-        buffers = (r.floats, r.ints if outcome is _module.Outcome.CONTACT else None)
-        out = {}
-        for name, i, s, shape, f_order in lay:
-            v = buffers[i][s]
-            out[name] = v if shape is None else v.reshape(shape).T if f_order else v.reshape(shape)
-        return out
+        if lay is None:
+            lay = self._layouts[key] = {
+                name: (ints, slice(a, a + rows * (cols or 1)),
+                       None if not cols else (rows, cols) if order == "C" else (cols, rows), order == "F")
+                for name, ints, a, rows, cols, order in r.layout()}
+        return lay
+
+    def arrays(self, r) -> dict:
+        """The named arrays of the extension's StepOut r: views of its two buffers (layout)."""
+        buffers = (r.floats, r.ints if r.outcome is _module.Outcome.CONTACT else None)
+        return {name: _view(buffers[i], s, shape, f_order) for name, (i, s, shape, f_order) in self.layout(r).items()}
+
+
+def _view(buffer: np.ndarray, s: slice, shape: tuple | None, f_order: bool) -> np.ndarray:
+    """The array at (s, shape, f_order) of _Context.layout in a StepOut's buffer: a view."""
+    v = buffer[s]
+    return v if shape is None else v.reshape(shape).T if f_order else v.reshape(shape)
 
 
 class _Prepared:
@@ -372,54 +379,132 @@ def raw_step(model, data, q: np.ndarray, u: np.ndarray, h: float, e: float, tau:
     if ctx.timed and t is None:
         ctx.counts["python: a moving static or a driven joint, and no time given"] += 1
         return None
-    boxes = ctx.boxes
-    if boxes:  # contacts.detect's warm start, kept in data between steps whichever step takes them
-        ctx.stepper.warm = sorted(data.warm_start_pairs)
+    stepper, boxes = ctx.stepper, ctx.boxes
+    if boxes and data.warm_start_holder is not stepper:  # contacts.detect's warm start, kept in data between steps
+        stepper.warm = sorted(data.warm_start_pairs)  # whichever step takes them (else the Stepper holds data's)
     rows = data.active_rows  # the projection's warm start (stepper.keep_active), likewise: sent where it changed
     if rows is not ctx.active_sent:
-        ctx.stepper.active = sorted(rows)
+        stepper.active = sorted(rows)
         ctx.active_sent = rows
     try:
-        r = ctx.stepper.step(q, u, h, e, _EMPTY if tau is None else tau, t=math.nan if t is None else t)
+        r = stepper.step(q, u, h, e, _EMPTY if tau is None else tau, t=math.nan if t is None else t)
     except TypeError:  # an extension built before torques or times: the Python step takes them
         ctx.counts["python: the compiled step predates joint torques or step times (rebuild)"] += 1
         return None
-    if r.outcome is _module.Outcome.FALLBACK:  # the Stepper's set unchanged: the Python step keeps data's
+    outcome = r.outcome
+    if outcome is _module.Outcome.FALLBACK:  # the Stepper's set unchanged: the Python step keeps data's
         ctx.counts[f"python: {r.reason}"] += 1
         return None
-    if boxes:
-        data.warm_start_pairs = set(ctx.stepper.warm)
-    if ctx.stepper.active_count or rows:  # the set this step kept (above qp.SPARSE_ROWS rows), else none
-        data.active_rows = ctx.active_sent = frozenset(map(tuple, ctx.stepper.active))
-    ctx.counts["flight" if r.outcome is _module.Outcome.FLIGHT else "contact"] += 1
+    if boxes:  # read from the Stepper where something asks for it (Data.warm_start_pairs)
+        data.hold_warm_start(stepper)
+    if rows or stepper.active_count:  # the set this step kept (above qp.SPARSE_ROWS rows), else none
+        data.active_rows = ctx.active_sent = frozenset(map(tuple, stepper.active))
+    ctx.counts["flight" if outcome is _module.Outcome.FLIGHT else "contact"] += 1
     return r
 
 
 def next_state(data, r) -> tuple[np.ndarray, np.ndarray]:
     """Views of q_{k+1} and u_{k+1} in the StepOut r's buffer (StepOut::visit lays them out first, either outcome)."""
-    ctx, f = data._compiled_step, r.floats
-    return f[:ctx.nq], f[ctx.nq:ctx.nq + ctx.nv]
+    return _next(data._compiled_step, r.floats)
+
+
+def _next(ctx: _Context, floats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return floats[:ctx.nq], floats[ctx.nq:ctx.nq + ctx.nv]
 
 
 def step(model, data, state: State, h: float, e: float, t1: float, tau: np.ndarray | None = None) -> StepResult | None:
     """stepper.step in C++, or None where the Python step must take it (counted in counts(data)). tau: the
     step's joint torques [N or N m] (stepper.torque; None: none), entering the free velocity on both sides."""
     r = raw_step(model, data, state.q, state.u, h, e, tau, t=state.t)
-    return None if r is None else result(model, data, r, t1, tau)
+    return None if r is None else _result(data._compiled_step, r, t1, tau)
 
 
 def result(model, data, r, t1: float, tau: np.ndarray | None = None) -> StepResult:
-    """The StepResult of the extension's StepOut r (views of its buffers), the new state at time t1 [s]."""
-    ctx = _context(model, data)
-    f = ctx.arrays(r)
-    if r.outcome is _module.Outcome.FLIGHT:
-        u = f["u_next"]
-        return StepResult(State(t1, f["q_next"], u), NO_CONTACTS, _EMPTY, _EMPTY, _EMPTY, 0.0, None, u_free=u,
-                          tau=tau, obstacle_work=r.obstacle_work)
-    contacts = Contacts(*(f[k] for k in Contacts.ARRAYS))
-    admissible = r.projection is _module.Projection.ADMISSIBLE
-    res = QPResult(r.projection.name, True, 0, not admissible, f["v"], f["lam"], f["M"], f["W"], f["v_free"], f["b"])
-    return StepResult(State(t1, f["q_next"], f["u_next"]), contacts, f["P"], f["gamma_minus"], f["gamma_plus"],
-                      r.contact_work, res, None, r.correction_energy, u_free=f["u_free"], tau=tau,
-                      obstacle_work=r.obstacle_work, drive_work_free=r.drive_work_free,
-                      u_law=f["u_law"] if r.paid else None)  # a lift paid with the velocities (§2.5)
+    """The StepResult of the extension's StepOut r (views of its buffers), the new state at time t1 [s]: its state
+    (and tau) made now, every other field where it is first read (_CompiledResult)."""
+    return _result(_context(model, data), r, t1, tau)
+
+
+def _result(ctx: _Context, r, t1: float, tau: np.ndarray | None) -> StepResult:
+    res = object.__new__(_CompiledResult)
+    f = r.floats
+    _SET["state"](res, State(t1, *_next(ctx, f)))
+    _SET["tau"](res, tau)
+    _SET["_r"](res, r)
+    _SET["_ctx"](res, ctx)
+    _SET["_floats"](res, f)
+    return res
+
+
+class _CompiledResult(StepResult):
+    """A StepResult of the compiled step whose fields but the state and tau are made from its StepOut where they are
+    first read (__getattr__: Python asks it for a slot not filled yet), then kept in StepResult's slots (the same
+    values, types and views of its buffers as made at once; a step's own buffers, valid after the next step):
+    ms.step on box_stack_10 resting spent ~20 us of its ~310 us making arrays and objects its caller may never read
+    (the contacts, the projection's problem; 2026-11-28). A StepResult in every other way: its fields,
+    dataclasses.fields / replace / asdict, ==; a copy, a pickle or a dataclasses.replace of it is a plain
+    StepResult."""
+
+    __slots__ = ("_r", "_ctx", "_floats", "_ints", "_layout", "_makers")
+
+    def __new__(cls, *args, **kwargs):  # the dataclass's own calls (dataclasses.replace): a plain StepResult
+        return StepResult(*args, **kwargs)
+
+    def __getattr__(self, name: str):  # a slot not filled yet (or no such attribute)
+        make = _MAKE.get(name)
+        if make is None:
+            raise AttributeError(f"'StepResult' object has no attribute '{name}'")
+        value = make(self)
+        _SET[name](self, value)
+        return value
+
+    def _plain(self) -> StepResult:
+        return StepResult(*(getattr(self, f) for f in _FIELDS))
+
+    def __reduce__(self):  # copy, deepcopy, pickle
+        return StepResult, tuple(getattr(self, f) for f in _FIELDS)
+
+    def __repr__(self) -> str:
+        return repr(self._plain())
+
+    def __eq__(self, other):  # as between two StepResults (the dataclass's == asks for the same class)
+        if not isinstance(other, StepResult):
+            return NotImplemented
+        return all(getattr(self, f) is getattr(other, f) or getattr(self, f) == getattr(other, f) for f in _FIELDS)
+
+    __hash__ = StepResult.__hash__
+
+    def _view(self, name: str) -> np.ndarray:
+        """The StepOut's array `name`: a new view of its buffers (_Context.layout)."""
+        i, s, shape, f_order = self._layout[name]
+        return _view(self._ints if i else self._floats, s, shape, f_order)
+
+    def _qp(self) -> QPResult:
+        r, v = self._r, self._view
+        admissible = r.projection is _module.Projection.ADMISSIBLE
+        return QPResult(r.projection.name, True, 0, not admissible, v("v"), v("lam"), v("M"), v("W"), v("v_free"),
+                        v("b"))
+
+
+# How each lazy field of a _CompiledResult is made, by outcome (as the Python step makes them: stepper.step)
+_FLIGHT = {"contacts": lambda s: NO_CONTACTS, "P": lambda s: _EMPTY, "gamma_minus": lambda s: _EMPTY,
+           "gamma_plus": lambda s: _EMPTY, "contact_work": lambda s: 0.0, "qp": lambda s: None,
+           "branch": lambda s: None, "correction_energy": lambda s: 0.0,
+           "u_free": lambda s: s.state.u,  # u_{k+1} itself, as the Python step's
+           "obstacle_work": lambda s: s._r.obstacle_work, "u_law": lambda s: None, "drive_work_free": lambda s: 0.0}
+_CONTACT = {"contacts": lambda s: Contacts(*map(s._view, Contacts.ARRAYS)), "P": lambda s: s._view("P"),
+            "gamma_minus": lambda s: s._view("gamma_minus"), "gamma_plus": lambda s: s._view("gamma_plus"),
+            "contact_work": lambda s: s._r.contact_work, "qp": _CompiledResult._qp, "branch": lambda s: None,
+            "correction_energy": lambda s: s._r.correction_energy, "u_free": lambda s: s._view("u_free"),
+            "obstacle_work": lambda s: s._r.obstacle_work,
+            "u_law": lambda s: s._view("u_law") if s._r.paid else None,  # a lift paid with the velocities (§2.5)
+            "drive_work_free": lambda s: s._r.drive_work_free}
+_FIELDS = tuple(f.name for f in dataclasses.fields(StepResult))
+assert set(_FLIGHT) == set(_CONTACT) == set(_FIELDS) - {"state", "tau"}
+# what _CompiledResult.__getattr__ makes: the lazy fields (by the outcome's table), and what they are made of
+_MAKE = {name: (lambda s, n=name: s._makers[n](s)) for name in _FLIGHT} | {
+    "_makers": lambda s: _FLIGHT if s._r.outcome is _module.Outcome.FLIGHT else _CONTACT,
+    "_layout": lambda s: s._ctx.layout(s._r), "_ints": lambda s: s._r.ints}
+# the slots' setters (StepResult's own, frozen to its __setattr__; _CompiledResult's)
+_SET = {name: cls.__dict__[name].__set__ for cls in (StepResult, _CompiledResult)
+        for name in cls.__slots__}

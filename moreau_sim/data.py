@@ -62,8 +62,10 @@ class Data:
         else:  # many pairs: no GeometryData of them all unless something asks for it (geom)
             self.oMg = [pin.SE3.Identity()] * len(model.geometries)
         self.box_edges: dict = {}  # geometry index -> its box's 12 edges in the joint frame (contacts, filled lazily)
-        # the detection's warm start: the pairs with contacts at the last detection (contacts._near_polytopes)
-        self.warm_start_pairs: set = set()
+        # the detection's warm start: the pairs with contacts at the last detection (contacts._near_polytopes); where
+        # a compiled step made it, the compiled Stepper holds it until it is read (warm_start_pairs, hold_warm_start)
+        self._warm_pairs: set | None = set()
+        self.warm_start_holder = None  # that Stepper (None: _warm_pairs is the set)
         # the projection's warm start above qp.SPARSE_ROWS rows: the identities (pair, kind, feature) of the rows of
         # the last step's final active set (its first pass's; piqp's answer: lam > 0), where it had more rows than
         # that; else empty (stepper.keep_active, docs/theory.md §1.3)
@@ -82,6 +84,25 @@ class Data:
         self.distance_result = coal.DistanceResult()
         self._point_queries: dict[int, coal.ComputeDistance] = {}
         self.shapes = [g.geometry for g in model.geometries]
+
+    @property
+    def warm_start_pairs(self) -> set:
+        """The detection's warm start: the pairs that had contacts at the last detection (contacts._near_polytopes),
+        whichever step made it; read from the compiled Stepper that holds it (hold_warm_start) at the first read."""
+        pairs = self._warm_pairs
+        if pairs is None:
+            pairs = self._warm_pairs = set(self.warm_start_holder.warm)
+            self.warm_start_holder = None  # the set read is data's own now: a change made to it is sent again
+        return pairs
+
+    @warm_start_pairs.setter
+    def warm_start_pairs(self, pairs: set) -> None:
+        self._warm_pairs, self.warm_start_holder = pairs, None
+
+    def hold_warm_start(self, stepper) -> None:
+        """The warm start is the one the compiled Stepper `stepper` holds, after the step it took (compiled.raw_step):
+        not read back from it each step, nor sent to it again at the next, unless something reads it in between."""
+        self._warm_pairs, self.warm_start_holder = None, stepper
 
     def _make_geom(self) -> None:
         model = self._model
