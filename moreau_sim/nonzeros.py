@@ -142,22 +142,23 @@ def lu_factor(n: int, rows, cols, vals):
     swaps, pneg, steps, diag = [0] * n, [False] * n, [None] * n, [0.0] * n
     isfinite = math.isfinite
     for j in range(n):
-        cand = sorted(pos[r] for r in colrows[j] if pos[r] > j)
-        p, best = j, abs(a[at[j]].get(j, 0.0))
-        for i in cand:  # the first largest |a_ij| (a NaN: the pivot is no number)
-            if best != best:
-                break
-            v = abs(a[at[i]][j])
-            if v != v or v > best:
-                p, best = i, v
+        rowj = a[at[j]]
+        p, best = j, abs(rowj.get(j, 0.0))  # the first largest |a_ij| below: A is clean (finite), no NaN
+        for r in colrows[j]:
+            i = pos[r]
+            if i > j:
+                v = abs(a[r][j])
+                if v > best or (v == best and i < p):
+                    p, best = i, v
         piv = a[at[p]].get(j, 0.0)
         if not (piv != 0.0 and isfinite(piv)):
             return None
         if p != j:
             at[j], at[p] = at[p], at[j]
             pos[at[j]], pos[at[p]] = j, p
+            rowj = a[at[j]]
         swaps[j], pneg[j], diag[j] = p, piv < 0.0, piv
-        prow = [(c, v) for c, v in a[at[j]].items() if c > j and v != 0.0]
+        prow = [(c, v) for c, v in rowj.items() if c > j and v != 0.0]
         upd = []
         for r in colrows[j]:
             i = pos[r]
@@ -169,12 +170,14 @@ def lu_factor(n: int, rows, cols, vals):
                 continue
             lo = aij / piv
             if lo != 0.0:
+                get = row.get
                 for c, v in prow:
-                    if c in row:
-                        row[c] = row[c] - lo * v
-                    else:
+                    x = get(c)
+                    if x is None:
                         row[c] = 0.0 - lo * v
                         colrows[c].append(r)
+                    else:
+                        row[c] = x - lo * v
             upd.append((i, lo))
         steps[j] = upd
     ucol: list[list] = [[] for _ in range(n)]  # back substitution by columns: U's column j from the rows above
