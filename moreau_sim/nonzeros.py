@@ -15,18 +15,18 @@ import math
 
 import numpy as np
 
-from .sums import nonzero, ordered, rows_dot
+from .sums import nonzero, ordered, padded, rows_dot
 
 
 class Rows:
     """A matrix of `shape` by the nonzero entries of its rows: ptr (n + 1,), col and val (each row's columns
     ascending). dot(x) is sums.ordered(A, x) bit for bit (x finite: over the nonzero terms; else on the dense A)."""
 
-    __slots__ = ("shape", "ptr", "col", "val", "_rows")
+    __slots__ = ("shape", "ptr", "col", "val", "_layout")
 
     def __init__(self, shape, ptr, col, val):
         self.shape, self.ptr, self.col, self.val = (int(shape[0]), int(shape[1])), ptr, col, val
-        self._rows = None
+        self._layout = None
 
     @classmethod
     def of(cls, A: np.ndarray) -> Rows:
@@ -47,9 +47,9 @@ class Rows:
         """ordered(A, x): sums.rows_dot for a finite x, else on the dense A."""
         if not np.isfinite(x).all():
             return ordered(self.dense(), x)
-        if self._rows is None:
-            self._rows = self.row_of()
-        return rows_dot(self.shape[0], self._rows, self.col, self.val, x)
+        if self._layout is None:
+            self._layout = padded(self.shape[0], self.row_of(), self.col, self.val)
+        return rows_dot(self.shape[0], None, None, None, x, self._layout)
 
     def row_dot(self, p: int, x: np.ndarray, pos: np.ndarray | None = None) -> float:
         """ordered(A[p], x) (x finite), or with pos: ordered(A[p, idx], x) where pos[c] is column c's place in idx
@@ -126,24 +126,103 @@ class Contact:
         return out
 
 
-def lu_factor(n: int, rows, cols, vals):
+def one_apart(old: np.ndarray, idx: np.ndarray) -> tuple[int, int]:
+    """(c, +1) where the ascending rows idx are old with one added at place c, (c, -1) where one was dropped from
+    old's place c, else (0, 0)."""
+    n = min(old.size, idx.size)
+    same = idx[:n] == old[:n]
+    c = n if same.all() else int(np.argmin(same))
+    if idx.size == old.size + 1 and np.array_equal(idx[c + 1:], old[c:]):
+        return c, 1
+    if idx.size + 1 == old.size and np.array_equal(idx[c:], old[c + 1:]):
+        return c, -1
+    return 0, 0
+
+
+def lu_factor(n: int, rows, cols, vals, last=None, c: int = 0, change: int = 0):
     """The elimination of qp._lu_solve on a clean n x n matrix given by its nonzero entries (rows, columns, values;
     by rows, columns ascending), at a cost of the nonzeros and their fill: each step's pivot row (the first largest
-    |a_ij|, a NaN: no number), the rows it updates with their multipliers (a_ij != 0), U's columns above the
+    |a_ij|; A clean: finite), the rows it updates with their multipliers (a_ij != 0), U's rows and columns above the
     diagonal and its diagonal; None at a zero or non-finite pivot. The factor gets only the operations
     a_ik - l a_jk with l, a_jk != 0: the others leave a_ik as it is, and no entry becomes -0.0 (docs/theory.md
-    §2.8); src/step.cpp sparse_lu_solve is the same algorithm. lu_apply gives the right-hand side its operations."""
+    §2.8); src/step.cpp sparse_lu_solve is the same algorithm. lu_apply gives the right-hand side its operations.
+
+    last, c, change: the factor of the same G's submatrix whose rows and columns were these but for one, added at
+    sorted place c (change +1) or dropped from it (-1): its first c steps are taken where they pick the same pivot
+    rows (src/step.cpp band_lu_solve's prefix rule: step j reads and writes column j and those right of it and
+    leaves column j final, so the columns < c of L and U are the last factor's; an added row at c must not be the
+    first largest |a_cj| of a step j < c, a dropped one must have been no pivot row), steps j < c are done again on
+    the columns >= c (and on an added row, every column: its multipliers are new), the steps from c on as always:
+    each entry gets the same operations in the same order; where the rule fails, the whole elimination."""
+    if last is not None and change == -1 and c in last[0][:c]:
+        last = None  # the dropped row was a pivot row
+    if last is None:
+        c, change = 0, 0
+    add = c if change == 1 else -1
     a: list[dict] = [{} for _ in range(n)]
     colrows: list[list] = [[] for _ in range(n)]
-    for r, c, v in zip(rows.tolist(), cols.tolist(), vals.tolist()):
-        a[r][c] = v
-        colrows[c].append(r)
+    entries = rows, cols, vals
+    if c:  # the columns < c of the rows but an added one: the last factor's L and U
+        keep = (cols >= c) | (rows == add)
+        entries = rows[keep], cols[keep], vals[keep]
+    for r, k, v in zip(*(e.tolist() for e in entries)):
+        a[r][k] = v
+        colrows[k].append(r)
     at, pos = list(range(n)), list(range(n))
     swaps, pneg, steps, diag = [0] * n, [False] * n, [None] * n, [0.0] * n
     isfinite = math.isfinite
-    for j in range(n):
+
+    def update(r, lo, prow):  # a_rk - lo a_jk over the pivot row's nonzero entries
+        row = a[r]
+        get = row.get
+        for k, v in prow:
+            x = get(k)
+            if x is None:
+                row[k] = 0.0 - lo * v
+                colrows[k].append(r)
+            else:
+                row[k] = x - lo * v
+
+    if c:
+        o_swaps, _, o_steps, o_urows, o_diag, _, _ = last
+        for j in range(c):  # the last factor's steps j < c, on the columns >= c and an added row
+            p = o_swaps[j] if o_swaps[j] < c else o_swaps[j] + change
+            piv = o_diag[j]
+            if add >= 0:  # the added row (at c until step c) must not be step j's pivot row
+                v = abs(a[add].get(j, 0.0))
+                if not (v < abs(piv) or (v == abs(piv) and p < add)):
+                    return lu_factor(n, rows, cols, vals)
+            if p != j:
+                at[j], at[p] = at[p], at[j]
+                pos[at[j]], pos[at[p]] = j, p
+            swaps[j], pneg[j], diag[j] = p, piv < 0.0, piv
+            rowj = a[at[j]]
+            hi = [(k, v) for k, v in rowj.items() if v != 0.0]  # its columns >= c, as steps < j left them
+            lo_part = []
+            for k, v in o_urows[j].items():  # U's row j in the columns < c: the last factor's
+                if k < c:
+                    rowj[k] = v
+                    if k > j and v != 0.0:
+                        lo_part.append((k, v))
+            upd = []
+            for i, lo in o_steps[j]:
+                if i == c and change == -1:
+                    continue
+                i = i if i < c else i + change
+                if lo != 0.0 and hi:
+                    update(at[i], lo, hi)
+                upd.append((i, lo))
+            if add >= 0 and j in a[add]:
+                aij = a[add].pop(j)
+                if aij != 0.0:
+                    lo = aij / piv
+                    if lo != 0.0:
+                        update(add, lo, lo_part + hi)
+                    upd.append((add, lo))
+            steps[j] = upd
+    for j in range(c, n):
         rowj = a[at[j]]
-        p, best = j, abs(rowj.get(j, 0.0))  # the first largest |a_ij| below: A is clean (finite), no NaN
+        p, best = j, abs(rowj.get(j, 0.0))  # the first largest |a_ij| below (A clean: no NaN)
         for r in colrows[j]:
             i = pos[r]
             if i > j:
@@ -158,34 +237,27 @@ def lu_factor(n: int, rows, cols, vals):
             pos[at[j]], pos[at[p]] = j, p
             rowj = a[at[j]]
         swaps[j], pneg[j], diag[j] = p, piv < 0.0, piv
-        prow = [(c, v) for c, v in rowj.items() if c > j and v != 0.0]
+        prow = [(k, v) for k, v in rowj.items() if k > j and v != 0.0]
         upd = []
         for r in colrows[j]:
             i = pos[r]
             if i <= j:
                 continue
-            row = a[r]
-            aij = row.pop(j)
+            aij = a[r].pop(j)
             if aij == 0.0:  # l = +-0 with the pivot's sign: lu_apply's flip of step j
                 continue
             lo = aij / piv
             if lo != 0.0:
-                get = row.get
-                for c, v in prow:
-                    x = get(c)
-                    if x is None:
-                        row[c] = 0.0 - lo * v
-                        colrows[c].append(r)
-                    else:
-                        row[c] = x - lo * v
+                update(r, lo, prow)
             upd.append((i, lo))
         steps[j] = upd
+    urows = [a[at[i]] for i in range(n)]
     ucol: list[list] = [[] for _ in range(n)]  # back substitution by columns: U's column j from the rows above
     for i in range(n):
-        for c, v in a[at[i]].items():
-            if c > i and v != 0.0:
-                ucol[c].append((i, v))
-    return swaps, pneg, steps, ucol, diag
+        for k, v in urows[i].items():
+            if k > i and v != 0.0:
+                ucol[k].append((i, v))
+    return swaps, pneg, steps, urows, diag, ucol, c  # c: the steps taken from `last`
 
 
 def lu_apply(f, rhs):
@@ -195,7 +267,7 @@ def lu_apply(f, rhs):
     next operated on or read (docs/theory.md §2.8). A non-finite x_j makes the dense answer non-finite: None."""
     if f is None:
         return None
-    swaps, pneg, steps, ucol, diag = f
+    swaps, pneg, steps, _, diag, ucol, _ = f
     n = len(diag)
     x = np.asarray(rhs, float).tolist()
     stamp, flips = [-1] * n, [0] * (n + 1)  # flips[s]: the flipping steps among 0 .. s-1

@@ -371,23 +371,31 @@ def _by_nonzeros(W, Minv):
 def _solve_nonzeros(G, idx, rhs):
     """_solve(_sub(G, idx), rhs) for a nonzeros.Contact G: G_AA from G's rows, solved by _lu_solve's elimination
     on its nonzeros (nonzeros.lu_factor; above LU_CACHED_ROWS rows with at most LU_SPARSE_NONZEROS a row, as
-    _lu_solve chooses) or on the dense G_AA; the factor kept for the next solve on the same rows (the start's, the
-    final and the refinement's solves): the same operations on the next right-hand side (docs/theory.md §2.8)."""
+    _lu_solve chooses) or on the dense G_AA. The factor is kept: applied to the next right-hand side on the same
+    rows (the start's, the final and the refinement's solves), and its first steps taken where the next rows differ
+    by one added or dropped at sorted place c (the active set's moves; nonzeros.lu_factor's prefix rule, src/step.cpp
+    band_lu_solve's): the same operations either way (docs/theory.md §2.8)."""
     key = idx.tobytes()
-    if G.factor is not None and G.factor[0] == key:
-        return G.factor[1](G.factor[2], rhs)
+    last = G.factor
+    if last is not None and last[0] == key:
+        return last[1](last[2], rhs)
     k = idx.size
     pos = np.full(G.shape[0], -1)
     pos[idx] = np.arange(k)
     rows, cols, vals = G.rows.sub(idx, pos)
     if k > LU_CACHED_ROWS and rows.size <= LU_SPARSE_NONZEROS * k:
-        G.factor = key, nonzeros.lu_apply, nonzeros.lu_factor(k, rows, cols, vals)
+        prefix = None, 0, 0
+        if last is not None and last[1] is nonzeros.lu_apply and last[2] is not None:
+            c, change = nonzeros.one_apart(last[3], idx)
+            if change and c:
+                prefix = last[2], c, change
+        G.factor = key, nonzeros.lu_apply, nonzeros.lu_factor(k, rows, cols, vals, *prefix), idx.copy()
     else:
         A = np.zeros((k, k))
         A[rows, cols] = vals
         if k <= LU_CACHED_ROWS:
             return _lu_solve(A, rhs)
-        G.factor = key, _lu_apply, _lu_factor(A)
+        G.factor = key, _lu_apply, _lu_factor(A), idx.copy()
     return G.factor[1](G.factor[2], rhs)
 
 

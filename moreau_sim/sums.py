@@ -23,19 +23,27 @@ def nonzero(A: np.ndarray):
     return np.nonzero(A)
 
 
-def rows_dot(n: int, r: np.ndarray, c: np.ndarray, v: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """ordered(A, x) for a finite x and the (n, k) matrix A with entries v at (r, c) (by rows, columns ascending) and
-    +-0 elsewhere: each row's terms in column order, as padded passes of the rows' t-th terms (a padding term
-    0 * x_0 = +-0 after a row's last one; the + 0.0 settles a zero sum's sign, ordered's docstring)."""
+def padded(n: int, r: np.ndarray, c: np.ndarray, v: np.ndarray):
+    """The (n, k) matrix with entries v at (r, c) (by rows, columns ascending) as (K, n) arrays of its rows' t-th
+    entries' columns and values, padded with column 0 and value 0.0 (rows_dot's layout)."""
     cnt = np.bincount(r, minlength=n)
-    k = int(cnt.max(initial=0))
-    if not k:
-        return np.zeros(n)
     t = np.arange(r.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    k = int(cnt.max(initial=0))
     cols, vals = np.zeros((k, n), np.intp), np.zeros((k, n))
     cols[t, r], vals[t, r] = c, v
+    return cols, vals
+
+
+def rows_dot(n: int, r: np.ndarray, c: np.ndarray, v: np.ndarray, x: np.ndarray, layout=None) -> np.ndarray:
+    """ordered(A, x) for a finite x and the (n, k) matrix A with entries v at (r, c) (by rows, columns ascending) and
+    +-0 elsewhere: each row's terms in column order, as padded passes of the rows' t-th terms (a padding term
+    0 * x_0 = +-0 after a row's last one; the + 0.0 settles a zero sum's sign, ordered's docstring). layout:
+    padded(n, r, c, v) where the caller keeps it."""
+    cols, vals = padded(n, r, c, v) if layout is None else layout
+    if not len(cols):
+        return np.zeros(n)
     out = vals[0] * x[cols[0]]
-    for t in range(1, k):
+    for t in range(1, len(cols)):
         out += vals[t] * x[cols[t]]
     return out + 0.0
 

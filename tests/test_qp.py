@@ -621,3 +621,61 @@ def test_polish_by_nonzeros_on_large_problems_is_the_dense_polish(seed, monkeypa
     ref = _polish_both(monkeypatch, Wc, vc, np.zeros(400), Mc)
     _polish_both(monkeypatch, Wc, vc, np.zeros(400), Mc, ref[3])
     _polish_both(monkeypatch, Wc, vc, np.zeros(400), Mc, np.ones(400, bool))
+
+
+def _prefix_after(A, before, sel, rhs):
+    """nonzeros.lu_factor of A[sel][:, sel] from its factor of A[before][:, before] (the prefix rule): (x, the steps
+    taken from the first factor), x checked bit for bit against the stated elimination (None alike)."""
+    def entries(s):
+        B = A[np.ix_(s, s)]
+        r, c = np.nonzero(B)
+        return len(s), r, c, B[r, c]
+
+    before, sel = np.asarray(before), np.asarray(sel)
+    first = nonzeros.lu_factor(*entries(before))
+    c, change = nonzeros.one_apart(before, sel)
+    f = nonzeros.lu_factor(*entries(sel), *((first, c, change) if first is not None and change and c else ()))
+    x, ref = nonzeros.lu_apply(f, rhs), _lu_reference(A[np.ix_(sel, sel)], rhs)
+    assert (x is None) == (ref is None), (before, sel)
+    assert ref is None or _bits(x) == _bits(ref), (before, sel)
+    return x, 0 if f is None else f[-1]
+
+
+def test_sparse_factor_prefix_is_kept_bit_for_bit():
+    """nonzeros.lu_factor's first c steps taken from the factor of the rows with one added or dropped at sorted place
+    c (the active set's consecutive solves; src/step.cpp band_lu_solve's rule), bit for bit against the stated
+    elimination: the clean systems of lu_systems with a row added, a row dropped, and the rule at its edge (as
+    test_compiled.test_band_solve_prefix_kept_is_bit_identical_to_qp): an added row whose |a_cj| equals the pivot's
+    below the pivot row (kept) or above it (the first largest: the whole elimination), one ulp below (kept) and above
+    (not), a dropped row that was a pivot row (not kept) and one that was not (kept)."""
+    rng = np.random.default_rng(12)
+    kept = 0
+    for seed in range(6):
+        for A, rhs in lu_systems(seed):
+            if not (np.isfinite(A).all() and not (np.signbit(A) & (A == 0.0)).any()):
+                continue
+            n = A.shape[0]
+            for _ in range(3):
+                sel = np.flatnonzero(rng.random(n) < 0.7)
+                if sel.size < 2:
+                    continue
+                drop = np.delete(sel, rng.integers(sel.size))
+                for before, after in ((drop, sel), (sel, drop)):
+                    kept += _prefix_after(A, before, after, rhs[after].copy())[1] > 0
+    assert kept >= 40
+
+    def tie(a21, pivot_above):
+        A = np.array([[4.0, 0.0, 1.0, 1.0, 0.5],
+                      [1.0, 2.0 if pivot_above else 1.0, 3.0, 0.0, 1.0],
+                      [0.0, a21, 5.0, 1.0, 0.0],
+                      [1.0, 1.0 if pivot_above else 2.0, 0.0, 6.0, 2.0],
+                      [0.0, 0.5, 1.0, 2.0, 7.0]])
+        return _prefix_after(A, [0, 1, 3, 4], [0, 1, 2, 3, 4], np.array([1.0, -0.0, 2.0, -0.0, 3.0]))[1]
+
+    assert tie(2.0, True) == 2 and tie(-2.0, True) == 2  # the first largest stays the pivot row above
+    assert tie(2.0, False) == 0 and tie(-2.0, False) == 0  # the added row is the first largest: a new pivot row
+    assert tie(np.nextafter(2.0, 0.0), False) == 2 and tie(np.nextafter(2.0, 3.0), True) == 0
+    B = np.array([[1.0, 2.0, 0.0, 1.0], [3.0, 1.0, 1.0, 0.0], [5.0, 0.0, 4.0, 1.0], [0.0, 1.0, 1.0, 3.0]])
+    rhs = np.array([-0.0, 1.0, 2.0])
+    assert _prefix_after(B, [0, 1, 2, 3], [0, 1, 3], rhs)[1] == 0  # row 2 was step 0's pivot row
+    assert _prefix_after(B, [0, 1, 2, 3], [0, 2, 3], rhs)[1] == 1  # row 1 was not (step 0: row 2; the drop at c = 1)
