@@ -183,6 +183,7 @@ def lu_factor(n: int, rows, cols, vals, last=None, c: int = 0, change: int = 0):
             else:
                 row[k] = x - lo * v
 
+    his: list = []  # steps j < c: the pivot row's nonzero entries in the columns >= c (U's, final)
     if c:
         o_swaps, _, o_steps, o_urows, o_diag, _, _ = last
         for j in range(c):  # the last factor's steps j < c, on the columns >= c and an added row
@@ -198,6 +199,7 @@ def lu_factor(n: int, rows, cols, vals, last=None, c: int = 0, change: int = 0):
             swaps[j], pneg[j], diag[j] = p, piv < 0.0, piv
             rowj = a[at[j]]
             hi = [(k, v) for k, v in rowj.items() if v != 0.0]  # its columns >= c, as steps < j left them
+            his.append(hi)
             lo_part = []
             for k, v in o_urows[j].items():  # U's row j in the columns < c: the last factor's
                 if k < c:
@@ -252,8 +254,12 @@ def lu_factor(n: int, rows, cols, vals, last=None, c: int = 0, change: int = 0):
             upd.append((i, lo))
         steps[j] = upd
     urows = [a[at[i]] for i in range(n)]
-    ucol: list[list] = [[] for _ in range(n)]  # back substitution by columns: U's column j from the rows above
-    for i in range(n):
+    # back substitution by columns: U's column j from the rows above (the columns < c: the last factor's)
+    ucol: list[list] = last[5][:c] + [[] for _ in range(n - c)] if c else [[] for _ in range(n)]
+    for i, hi in enumerate(his):
+        for k, v in hi:
+            ucol[k].append((i, v))
+    for i in range(c, n):
         for k, v in urows[i].items():
             if k > i and v != 0.0:
                 ucol[k].append((i, v))
