@@ -17,6 +17,7 @@ import piqp
 if TYPE_CHECKING:
     import scipy.sparse
 
+from . import nonzeros
 from .options import QPForm
 from .sums import ordered
 
@@ -83,6 +84,10 @@ MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_RO
 WARM_ROWS = 1000  # up to this many rows (compiled.MAX_CONTACTS) the warm-started active set is the first path; above,
 # the sparse path alone: there the dense G and the cold start's moves cost minutes (a 3000-bead column's first step
 # 485 s, against 0.46 s by the sparse path, measured 2026-11-28); the compiled step hands such steps back
+NONZERO_ROWS = SPARSE_ROWS  # above this many rows _polish forms its products and solves by their nonzeros
+# (nonzeros.py; the same bits; docs/theory.md §2.8). The Python step, measured 2026-11-28 (CPU, one BLAS thread,
+# medians of interleaved runs, load 1.2-3.3): a column of 300 beads 21.6 -> 12.6 ms a step, of 1000 beads
+# 172 -> 58 ms (its cold first step ~10 s -> ~1.5 s), the pile of 64 boxes 459 -> 235 ms (its active set's solves)
 START_PASSES = 4  # a warm start's rows with negative multipliers are dropped and the rest solved again, at most
 # this many solves; a start still negative (or singular) then: from nothing (_active_set)
 
@@ -100,95 +105,12 @@ def _clean(A: np.ndarray) -> bool:
     return bool(np.isfinite(A).all()) and not bool(np.signbit(A[A == 0.0]).any())
 
 
-def _negative_zero(v: float) -> bool:
-    return v == 0.0 and math.copysign(1.0, v) < 0.0
-
-
 def _lu_solve_sparse(A: np.ndarray, rhs):
     """_lu_solve's bits for a clean A (_clean) at a cost of its nonzeros and their fill, not n^3 (a column of
-    beads: G_AA tridiagonal); src/step.cpp sparse_lu_solve is the same algorithm. The factor gets only the
-    operations a_ik - l a_jk with l, a_jk != 0 (the others leave a_ik as it is, and no entry becomes -0.0); the
-    right-hand side gets every operation of the dense elimination, x_i - (+-0) x_j included, which changes x_i
-    only from -0.0 to +0.0 (when the product is -0.0: l = +-0 with the pivot's sign, back substitution's
-    a_ij = +0): those steps are counted ("flips") and applied to x_i when it is next operated on or read
-    (docs/theory.md §2.8). A non-finite x_j makes the dense answer non-finite: None, as at a zero pivot."""
-    n = A.shape[0]
+    beads: G_AA tridiagonal): nonzeros.lu_factor on A's nonzero entries, nonzeros.lu_apply on rhs (src/step.cpp
+    sparse_lu_solve is the same algorithm; docs/theory.md §2.8)."""
     rows, cols = np.nonzero(A)
-    a: list[dict] = [{} for _ in range(n)]
-    colrows: list[list] = [[] for _ in range(n)]
-    for r, c, v in zip(rows.tolist(), cols.tolist(), A[rows, cols].tolist()):
-        a[r][c] = v
-        colrows[c].append(r)
-    x = np.asarray(rhs, float).tolist()
-    at, pos = list(range(n)), list(range(n))
-    stamp, flips, diag = [-1] * n, [0] * (n + 1), [0.0] * n  # flips[s]: the flipping steps among 0 .. s-1
-    negz, isfinite = _negative_zero, math.isfinite
-    for j in range(n):
-        cand = sorted(pos[r] for r in colrows[j] if pos[r] > j)
-        p, best = j, abs(a[at[j]].get(j, 0.0))
-        for i in cand:  # the first largest |a_ij| (a NaN: the pivot is no number)
-            if best != best:
-                break
-            v = abs(a[at[i]][j])
-            if v != v or v > best:
-                p, best = i, v
-        piv = a[at[p]].get(j, 0.0)
-        if not (piv != 0.0 and isfinite(piv)):
-            return None
-        if p != j:
-            at[j], at[p] = at[p], at[j]
-            pos[at[j]], pos[at[p]] = j, p
-            x[j], x[p], stamp[j], stamp[p] = x[p], x[j], stamp[p], stamp[j]
-        diag[j] = piv
-        xj = x[j]
-        if xj == 0.0 and negz(xj) and flips[j] > flips[stamp[j] + 1]:
-            xj = x[j] = 0.0
-        if not isfinite(xj):
-            return None
-        flips[j + 1] = flips[j] + ((piv < 0.0) != (math.copysign(1.0, xj) < 0.0))
-        prow = [(c, v) for c, v in a[at[j]].items() if c > j and v != 0.0]
-        for r in colrows[j]:
-            i = pos[r]
-            if i <= j:
-                continue
-            row = a[r]
-            aij = row.pop(j)
-            if aij == 0.0:  # l = +-0 with the pivot's sign: a flip of step j
-                continue
-            lo = aij / piv
-            if lo != 0.0:
-                for c, v in prow:
-                    if c in row:
-                        row[c] = row[c] - lo * v
-                    else:
-                        row[c] = 0.0 - lo * v
-                        colrows[c].append(r)
-            xi = x[i]
-            if xi == 0.0 and negz(xi) and flips[j] > flips[stamp[i] + 1]:
-                xi = 0.0
-            x[i] = xi - lo * xj
-            stamp[i] = j
-    ucol: list[list] = [[] for _ in range(n)]  # back substitution by columns: U's column j from the rows above
-    for i in range(n):
-        for c, v in a[at[i]].items():
-            if c > i and v != 0.0:
-                ucol[c].append((i, v))
-    bflips, bstamp = [0] * (n + 1), [n] * n  # bflips[s]: the flipping steps among s .. n-1
-    for j in range(n - 1, -1, -1):
-        xj = x[j]
-        if xj == 0.0 and negz(xj) and bflips[j + 1] > bflips[bstamp[j]]:
-            xj = 0.0
-        xj = x[j] = xj / diag[j]
-        if not isfinite(xj):
-            return None
-        bflips[j] = bflips[j + 1] + (math.copysign(1.0, xj) < 0.0)
-        for i, v in ucol[j]:
-            xi = x[i]
-            if xi == 0.0 and negz(xi) and bflips[j + 1] > bflips[bstamp[i]]:
-                xi = 0.0
-            x[i] = xi - v * xj
-            bstamp[i] = j
-    return np.array(x)
+    return nonzeros.lu_apply(nonzeros.lu_factor(A.shape[0], rows, cols, A[rows, cols]), rhs)
 
 
 def _lu_solve(A, rhs):
@@ -212,6 +134,11 @@ def _lu_solve(A, rhs):
             if len(_factors) >= LU_CACHE:
                 _factors.clear()
             f = _factors[key] = _lu_factor(A)
+    return _lu_apply(f, rhs)
+
+
+def _lu_apply(f, rhs):
+    """x = A^-1 rhs by _lu_factor's factors f of A (None: None): the elimination's operations on rhs."""
     if f is None:
         return None
     swaps, lower, upper, diag = f
@@ -355,7 +282,8 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
     operation with the same LU (_lu_solve), so both steps decide alike; _sparse_mul on the sparse path)."""
     m = r.shape[0]
     lam = np.zeros(m)
-    sparse = _issparse(G)
+    sparse, nz = _issparse(G), isinstance(G, nonzeros.Contact)
+    solve = _solve_nonzeros if nz else lambda G, idx, rhs: _solve(_sub(G, idx), rhs)
     if sparse:  # the sparse path (solve): G in CSC and CSR for its columns and rows, each O(its nonzeros)
         G = G.tocsc()
         G.sort_indices()
@@ -365,7 +293,7 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
         cur = start.copy()
         for _ in range(START_PASSES):
             idx = np.flatnonzero(cur)
-            x = _solve(_sub(G, idx), r[idx]) if idx.size else None
+            x = solve(G, idx, r[idx]) if idx.size else None
             if x is None:  # singular, or nothing left: from nothing
                 break
             neg = x < 0.0
@@ -373,15 +301,17 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
                 act, lam[idx] = cur, x
                 break
             cur[idx[neg]] = False
-    moves, gmax = 0, (np.abs(G.data).max(initial=0.0) if sparse else np.abs(G).max())
+    moves, gmax = 0, (np.abs(G.data).max(initial=0.0) if sparse else G.gmax if nz else np.abs(G).max())
     while True:
-        s = mul(G, lam) - r
+        s = (G.rows.dot(lam) if nz else mul(G, lam)) - r
         s[act] = np.inf
         p = int(np.argmin(s))
         if s[p] >= -tol:
             return act, lam, moves
         if sparse:
             col, row, gpp = _line(G, p, m), _line(Gr, p, m), diag[p]
+        elif nz:  # G's column p; its row p by G.rows (row_dot)
+            col, row, gpp = G.column(p), None, float(G.diag[p])
         else:
             col, row, gpp = G[:, p], G[p], G[p, p]
         while True:  # add p, dropping the rows whose multipliers reach zero on the way
@@ -390,13 +320,21 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
                 return None
             idx = np.flatnonzero(act)
             if idx.size:
-                d = _solve(_sub(G, idx), -col[idx])
+                d = solve(G, idx, -col[idx])
                 if d is None:
                     return None
-                z = gpp + (row[idx] @ d if sparse else mul(G[p, idx], d))
+                if nz:  # ordered(G[p, idx], d) over row p's nonzero terms (d finite: _lu_solve's answer)
+                    pos = np.full(m, -1)
+                    pos[idx] = np.arange(idx.size)
+                    z = gpp + G.rows.row_dot(p, d, pos)
+                else:
+                    z = gpp + (row[idx] @ d if sparse else mul(G[p, idx], d))
             else:
                 d, z = _EMPTY, gpp
-            sp = (row @ lam if sparse else mul(G[p], lam)) - r[p]  # row p's slack now
+            if nz:  # row p's slack now: ordered(G[p], lam) over its nonzero terms where lam is finite
+                sp = (G.rows.row_dot(p, lam) if np.isfinite(lam).all() else ordered(G.rows.dense()[p], lam)) - r[p]
+            else:
+                sp = (row @ lam if sparse else mul(G[p], lam)) - r[p]  # row p's slack now
             t1 = -sp / z if z > DEPENDENT * gpp else np.inf  # row p tight (inf: p depends on A)
             neg = d < 0.0
             t2, k = np.inf, -1
@@ -419,6 +357,50 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
             act[k] = False
 
 
+def _by_nonzeros(W, Minv):
+    """(W' as nonzeros.Rows, M^-1 W and G = W'M^-1 W by their nonzeros: `ordered`'s bits) where W and M^-1 are
+    finite and G is too (a clean G: its entries sums ending + 0.0), else None (the dense products)."""
+    if not (np.isfinite(W).all() and np.isfinite(Minv).all()):
+        return None
+    WT = nonzeros.Rows.of(W.T)
+    MiW = nonzeros.product(nonzeros.Rows.of(Minv), nonzeros.Rows.of(W))
+    G = nonzeros.product(WT, MiW)
+    if not np.isfinite(G.val).all():
+        return None
+    return WT, MiW, nonzeros.Contact(G)
+
+
+def _solve_nonzeros(G, idx, rhs):
+    """_solve(_sub(G, idx), rhs) for a nonzeros.Contact G: G_AA from G's rows, solved by _lu_solve's elimination
+    on its nonzeros (nonzeros.lu_factor; above LU_CACHED_ROWS rows with at most LU_SPARSE_NONZEROS a row, as
+    _lu_solve chooses) or on the dense G_AA. The factor is kept: applied to the next right-hand side on the same
+    rows (the start's, the final and the refinement's solves), and its first steps taken where the next rows differ
+    by one added or dropped at sorted place c (the active set's moves; nonzeros.lu_factor's prefix rule, src/step.cpp
+    band_lu_solve's): the same operations either way (docs/theory.md §2.8)."""
+    key = idx.tobytes()
+    last = G.factor
+    if last is not None and last[0] == key:
+        return last[1](last[2], rhs)
+    k = idx.size
+    pos = np.full(G.shape[0], -1)
+    pos[idx] = np.arange(k)
+    rows, cols, vals = G.rows.sub(idx, pos)
+    if k > LU_CACHED_ROWS and rows.size <= LU_SPARSE_NONZEROS * k:
+        prefix = None, 0, 0
+        if last is not None and last[1] is nonzeros.lu_apply and last[2] is not None:
+            c, change = nonzeros.one_apart(last[3], idx)
+            if change and c:
+                prefix = last[2], c, change
+        G.factor = key, nonzeros.lu_apply, nonzeros.lu_factor(k, rows, cols, vals, *prefix), idx.copy()
+    else:
+        A = np.zeros((k, k))
+        A[rows, cols] = vals
+        if k <= LU_CACHED_ROWS:
+            return _lu_solve(A, rhs)
+        G.factor = key, _lu_apply, _lu_factor(A), idx.copy()
+    return G.factor[1](G.factor[2], rhs)
+
+
 def _polish(W, v0, b, Minv, act=None):
     """The exact projection by the active set (_active_set from nothing, or warm-started from `act`; dense
     products by `ordered`), re-solved on its final set A: G_AA lam_A = b_A - W_A'v0 (_solve),
@@ -433,12 +415,35 @@ def _polish(W, v0, b, Minv, act=None):
         lam1 = max(0.0, float(b[0] - mul(w, v0)) / float(mul(w, Miw)))
         return v0 + lam1 * Miw, np.array([lam1]), 1, np.array([lam1 > 0.0])
     scale = 1.0 + np.abs(v0).max(initial=0.0)
-    MiW = mul(Minv, W)
-    G = mul(W.T, MiW)
-    if sparse:
-        MiW, G = MiW.tocsc(), G.tocsc()
-        G.sort_indices()
-    r = b - mul(W.T, v0)
+    nz = _by_nonzeros(W, Minv) if not sparse and m > NONZERO_ROWS else None
+    if nz is not None:  # W'v, M^-1 W_A x and the solves of G_AA by the nonzeros (nonzeros.py): the same bits
+        WT, MiW, G = nz
+
+        def wt(v, rows=None):
+            return WT.dot(v) if rows is None else WT.dot(v)[rows]
+
+        def miw(idx, x):
+            full = np.zeros(m)
+            full[idx] = x
+            return MiW.dot(full)
+        solve, wabs = _solve_nonzeros, WT.val
+    else:
+        MiW = mul(Minv, W)
+        G = mul(W.T, MiW)
+        if sparse:
+            MiW, G = MiW.tocsc(), G.tocsc()
+            G.sort_indices()
+
+        def wt(v, rows=None):
+            return mul(W.T, v) if rows is None else mul(W[:, rows].T, v)
+
+        def miw(idx, x):
+            return mul(MiW[:, idx], x)
+
+        def solve(G, idx, rhs):
+            return _solve(_sub(G, idx), rhs)
+        wabs = W.data if sparse else W
+    r = b - wt(v0)
     sol = _active_set(G, r, SCREEN * scale, act, mul)
     if sol is None:
         return None
@@ -449,11 +454,11 @@ def _polish(W, v0, b, Minv, act=None):
     if not idx.size:
         vp = v0.copy()
     else:
-        lamA = _solve(_sub(G, idx), r[idx])
+        lamA = solve(G, idx, r[idx])
         if lamA is None or lamA.min() < -ACCEPT * max(1.0, lamA.max()):
             return None
         np.maximum(lamA, 0.0, out=lamA)
-        vp = v0 + mul(MiW[:, idx], lamA)
+        vp = v0 + miw(idx, lamA)
         # one step of iterative refinement: lamA is as exact as its magnitude allows, but a light body
         # under a heavy one (lamA ~ R times its own weight impulse) then moves by ~R eps in the directions
         # the rows hold; the residual of W_P'v = b_P is computed where v ~ 0, so accurately, and solving
@@ -461,26 +466,25 @@ def _polish(W, v0, b, Minv, act=None):
         P = lamA > 0.0
         if P.any():
             iP = idx[P]
-            dP = _solve(_sub(G, iP), b[iP] - mul(W[:, iP].T, vp))
+            dP = solve(G, iP, b[iP] - wt(vp, iP))
             if dP is not None and np.abs(dP).max() <= REFINE * (1.0 + lamA.max()):
                 lamA[P] = np.maximum(lamA[P] + dP, 0.0)
-                vp = vp + mul(MiW[:, iP], dP)
+                vp = vp + miw(iP, dP)
         lp[idx] = lamA
         # and the answer projected once more: its residual W'v - b is accurate where v ~ 0, so the rows the
         # first pass left violated at the round-off of lam (a resting 1:10,000 stack's other corners) are
         # met to that accuracy (tol2); kept when it violates no row more than before
-        r2 = b - mul(W.T, vp)
-        wmax = np.abs(W.data).max(initial=0.0) if sparse else np.abs(W).max()
-        tol2 = SECOND_PASS * (np.abs(b).max() + wmax * np.abs(vp).max())
+        r2 = b - wt(vp)
+        tol2 = SECOND_PASS * (np.abs(b).max() + np.abs(wabs).max(initial=0.0) * np.abs(vp).max())
         sol = _active_set(G, r2, tol2, None, mul)
         if sol is not None and sol[0].any():
             i2 = np.flatnonzero(sol[0])
-            v2 = vp + mul(MiW[:, i2], sol[1][i2])
-            if (mul(W.T, v2) - b).min() >= -r2.max():
+            v2 = vp + miw(i2, sol[1][i2])
+            if (wt(v2) - b).min() >= -r2.max():
                 vp = v2
                 lp[i2] += sol[1][i2]
                 moves += sol[2]
-    if (mul(W.T, vp) - b).min() < -ACCEPT * scale:
+    if (wt(vp) - b).min() < -ACCEPT * scale:
         return None
     return vp, lp, moves, first
 

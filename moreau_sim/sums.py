@@ -7,6 +7,46 @@ from __future__ import annotations
 
 import numpy as np
 
+SPARSE_SIZE = 1 << 16  # ordered(A, x) of an A with at least this many entries, at most 1 / SPARSE_FILL of them nonzero
+SPARSE_FILL = 4  # (W'u of a few hundred contacts), and x finite: over A's nonzero terms only (rows_dot)
+
+
+def nonzero(A: np.ndarray):
+    """np.nonzero(A) of a 2-d A (rows, then columns ascending; a NaN counts), from a mask of A in its memory order
+    (np.nonzero on the floats costs ~15x more; a transposed A: its columns' entries sorted by rows)."""
+    if A.flags.c_contiguous:
+        return np.divmod(np.flatnonzero(A != 0.0), max(A.shape[1], 1))
+    if A.flags.f_contiguous:
+        c, r = np.divmod(np.flatnonzero(A.T != 0.0), max(A.shape[0], 1))
+        order = np.argsort(r, kind="stable")
+        return r[order], c[order]
+    return np.nonzero(A)
+
+
+def padded(n: int, r: np.ndarray, c: np.ndarray, v: np.ndarray):
+    """The (n, k) matrix with entries v at (r, c) (by rows, columns ascending) as (K, n) arrays of its rows' t-th
+    entries' columns and values, padded with column 0 and value 0.0 (rows_dot's layout)."""
+    cnt = np.bincount(r, minlength=n)
+    t = np.arange(r.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    k = int(cnt.max(initial=0))
+    cols, vals = np.zeros((k, n), np.intp), np.zeros((k, n))
+    cols[t, r], vals[t, r] = c, v
+    return cols, vals
+
+
+def rows_dot(n: int, r: np.ndarray, c: np.ndarray, v: np.ndarray, x: np.ndarray, layout=None) -> np.ndarray:
+    """ordered(A, x) for a finite x and the (n, k) matrix A with entries v at (r, c) (by rows, columns ascending) and
+    +-0 elsewhere: each row's terms in column order, as padded passes of the rows' t-th terms (a padding term
+    0 * x_0 = +-0 after a row's last one; the + 0.0 settles a zero sum's sign, ordered's docstring). layout:
+    padded(n, r, c, v) where the caller keeps it."""
+    cols, vals = padded(n, r, c, v) if layout is None else layout
+    if not len(cols):
+        return np.zeros(n)
+    out = vals[0] * x[cols[0]]
+    for t in range(1, len(cols)):
+        out += vals[t] * x[cols[t]]
+    return out + 0.0
+
 
 def dot3(a: np.ndarray, b: np.ndarray) -> float:
     """a'b of two 3-vectors as `ordered` sums it, ((a0 b0 + a1 b1) + a2 b2) + 0.0, on Python floats (cheaper
@@ -51,6 +91,10 @@ def ordered(A, x):
     if A.ndim == 1:
         return np.add.accumulate(A * x)[-1] + 0.0 if x.ndim == 1 else ordered(A[None], x)[0]
     if x.ndim == 1:
+        if A.size >= SPARSE_SIZE and np.isfinite(x).all():  # a large A: its rows' nonzero terms (W'u) where few
+            r, c = nonzero(A)
+            if SPARSE_FILL * r.size <= A.size:
+                return rows_dot(A.shape[0], r, c, A[r, c], x)
         if A.shape[0] >= 16 * n and A.size > 4096:  # many short sums (the features' gamma = W'u): a pass per term
             out = A[:, 0] * x[0]
             for t in range(1, n):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import qp, sums
+from moreau_sim import nonzeros, qp, sums
 from moreau_sim.options import QPForm
 
 from helpers import random_problem
@@ -472,3 +472,210 @@ def test_lu_solve_is_the_stated_elimination_bit_for_bit(seed, scalar_rows, monke
                 continue
             assert x is not None and x.view(np.int64).tolist() == np.asarray(ref).view(np.int64).tolist()
             assert np.abs(A @ x - b).max() <= 1e-8 * (np.abs(A).max() * np.abs(x).max() + np.abs(b).max())
+
+
+def _bits(v):
+    return np.asarray(v, float).view(np.int64).tolist()
+
+
+def _ordered_ref(A, X):
+    """sums.ordered's statement on Python floats: each entry summed over every term in index order from the first,
+    then + 0.0 (A 2-d; X 1-d or 2-d)."""
+    def one(a, x):
+        s = a[0] * x[0]
+        for k in range(1, len(a)):
+            s = s + a[k] * x[k]
+        return s + 0.0
+    A, X = np.asarray(A).tolist(), np.asarray(X)
+    if X.ndim == 1:
+        return [one(a, X.tolist()) for a in A]
+    cols = X.T.tolist()
+    return [[one(a, x) for x in cols] for a in A]
+
+
+def _sparse(rng, n, k, per_row):
+    """An (n, k) matrix with about per_row nonzeros a row over six decades, some stored entries -0.0 (a zero term
+    either way), row 1 empty and row 2's two terms cancelling exactly."""
+    A = np.where(rng.random((n, k)) < per_row / k, rng.standard_normal((n, k)) * 10.0 ** rng.integers(-3, 3, (n, k)),
+                 0.0)
+    A[rng.random((n, k)) < 0.5 / k] = -0.0
+    A[1] = 0.0
+    A[2] = 0.0
+    A[2, :2] = 1.0
+    return A
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_products_by_nonzeros_are_ordered_bit_for_bit(seed):
+    """The products of the projection by their nonzeros (docs/theory.md §2.8) give sums.ordered's statement bit for
+    bit, signed zeros included: nonzeros.Rows.dot and sums.ordered of a large sparse A @ x (sums.rows_dot: each row's
+    nonzero terms, C- and F-ordered A, -0.0 entries, an empty row, a row that cancels to 0), nonzeros.product of two
+    sparse matrices (M^-1 W, W'M^-1 W), and with a non-finite x or a dense A the dense sum (NaN where it has one)."""
+    rng = np.random.default_rng(seed)
+    n, k = 300, 260  # 78,000 entries: above sums.SPARSE_SIZE
+    assert n * k >= sums.SPARSE_SIZE
+    A = _sparse(rng, n, k, 3.0)
+    x = rng.standard_normal(k)
+    x[rng.random(k) < 0.2] = -0.0
+    x[:2] = 1.0, -1.0  # row 2: 1 - 1 = +0
+    for a in (A, np.asfortranarray(A), np.ascontiguousarray(A.T).T):
+        assert _bits(sums.ordered(a, x)) == _bits(_ordered_ref(A, x))
+        assert _bits(nonzeros.Rows.of(a).dot(x)) == _bits(_ordered_ref(A, x))
+    R = nonzeros.Rows.of(A)
+    assert _bits(R.row_dot(0, x)) == _bits(_ordered_ref(A[:1], x)[0])
+    idx = np.flatnonzero(rng.random(k) < 0.5)
+    pos = np.full(k, -1)
+    pos[idx] = np.arange(idx.size)
+    assert _bits(R.row_dot(0, x[idx], pos)) == _bits(_ordered_ref(A[:1, idx], x[idx])[0])
+    B = _sparse(rng, k, 120, 2.0)
+    assert _bits(nonzeros.product(R, nonzeros.Rows.of(B)).dense()) == _bits(_ordered_ref(A, B))
+    assert _bits(nonzeros.product(nonzeros.Rows.of(A.T), R).dense()) == _bits(_ordered_ref(A.T, A))
+    for bad in (np.inf, np.nan):  # the dense sum: inf * 0 = NaN where the dense one has it
+        y = x.copy()
+        y[5] = bad
+        with np.errstate(invalid="ignore"):
+            np.testing.assert_array_equal(sums.ordered(A, y), _ordered_ref(A, y))
+            np.testing.assert_array_equal(R.dot(y), _ordered_ref(A, y))
+    D = rng.standard_normal((n, k))  # dense: the accumulate, as before
+    assert _bits(sums.ordered(D, x)) == _bits(_ordered_ref(D, x))
+
+
+def test_sparse_factor_is_kept_for_the_next_right_hand_side():
+    """nonzeros.lu_factor once, nonzeros.lu_apply on several right-hand sides (the active set's start, final and
+    refinement solves on the same G_AA): the stated elimination's bits each time (test_qp._lu_reference), signed
+    zeros of the right-hand side included (-rhs: every zero's sign flipped), None where it is singular."""
+    rng = np.random.default_rng(7)
+    for A, rhs in sparse_lu_systems(rng):
+        r, c = np.nonzero(A)
+        f = nonzeros.lu_factor(len(A), r, c, A[r, c])
+        for b in (rhs, -rhs, rng.standard_normal(len(rhs)), rhs):
+            x, ref = nonzeros.lu_apply(f, b), _lu_reference(A, b)
+            assert (x is None) == (ref is None)
+            if ref is not None:
+                assert _bits(x) == _bits(ref)
+
+
+def _polish_both(monkeypatch, W, v0, b, Minv, act=None):
+    """qp._polish on the dense products (NONZERO_ROWS above m) and by the nonzeros (NONZERO_ROWS 0), checked
+    equal bit for bit (None alike): the answer, the multipliers, the moves and the first pass's final set."""
+    monkeypatch.setattr(qp, "NONZERO_ROWS", 10**9)
+    ref = qp._polish(W, v0, b, Minv, act)
+    monkeypatch.setattr(qp, "NONZERO_ROWS", 0)
+    got = qp._polish(W, v0, b, Minv, act)
+    assert (got is None) == (ref is None)
+    if ref is not None:
+        assert _bits(got[0]) == _bits(ref[0]) and _bits(got[1]) == _bits(ref[1])
+        assert got[2] == ref[2] and got[3].tolist() == ref[3].tolist()
+    return ref
+
+
+@pytest.mark.parametrize("bounds", [False, True])
+@pytest.mark.parametrize("dependent", [False, True])
+def test_polish_by_nonzeros_is_the_dense_polish_bit_for_bit(dependent, bounds, monkeypatch):
+    """qp._polish above NONZERO_ROWS (W'v, M^-1 W_A x, G and its solves by the nonzeros) against the dense polish, bit
+    for bit, on the random problems of test_active_set_is_the_exact_projection (dependent rows: a face on a plane;
+    shifted bounds; W and v0 with -0.0 entries), cold and warm-started from a guess, and None alike where it fails."""
+    solved = 0
+    for seed in range(40):
+        M, W, v0, b = _random_qp(seed, dependent, bounds)
+        W[np.abs(W) < 0.3] = -0.0
+        v0[::3] = -0.0
+        Minv = np.linalg.inv(M)
+        for act in (None, np.arange(W.shape[1]) % 2 == 0):
+            solved += _polish_both(monkeypatch, W, v0, b, Minv, act) is not None
+    assert solved >= 40
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_polish_by_nonzeros_on_large_problems_is_the_dense_polish(seed, monkeypatch):
+    """Above LU_CACHED_ROWS active rows, both kinds of G_AA solve: block-diagonal M (bodies on separate root joints)
+    with rows on two bodies each (G_AA sparse: nonzeros.lu_factor, kept between solves) and a dense W (G_AA dense: the
+    numpy elimination, kept alike), 40-90 rows, cold and from a start; a column of 400 beads from its own answer (no
+    move) and from every row; and a non-finite M^-1 (the dense products): the dense polish's bits."""
+    rng = np.random.default_rng(seed)
+    blocks = [rng.standard_normal((k, k)) for k in rng.integers(1, 4, 40)]
+    nv = sum(len(B) for B in blocks)
+    M = np.zeros((nv, nv))
+    a = 0
+    for B in blocks:
+        M[a:a + len(B), a:a + len(B)] = B @ B.T + len(B) * np.eye(len(B))
+        a += len(B)
+    m = int(rng.integers(40, min(nv, 90) + 1))
+    W = np.zeros((nv, m))
+    for j in range(m):
+        W[rng.choice(nv, 2, replace=False), j] = rng.standard_normal(2)
+    Minv = np.linalg.inv(M)
+    v0 = rng.standard_normal(nv) - 2.0 * Minv @ (W @ np.ones(m))
+    b = 0.1 * rng.standard_normal(m)
+    for act in (None, rng.random(m) < 0.7):
+        assert _polish_both(monkeypatch, W, v0, b, Minv, act) is not None
+    Wd = rng.standard_normal((60, 45))
+    Md = np.eye(60) + 0.1 * np.diag(rng.random(60))
+    vd = -Wd @ np.ones(45)
+    _polish_both(monkeypatch, Wd, vd, np.zeros(45), np.linalg.inv(Md))
+    Mi = Minv.copy()
+    Mi[0, 0] = np.inf
+    with np.errstate(invalid="ignore"):  # inf * 0 in the dense products
+        _polish_both(monkeypatch, W, v0, b, Mi)
+    Mc, Wc, vc, _ = _column_problem(400)
+    ref = _polish_both(monkeypatch, Wc, vc, np.zeros(400), Mc)
+    _polish_both(monkeypatch, Wc, vc, np.zeros(400), Mc, ref[3])
+    _polish_both(monkeypatch, Wc, vc, np.zeros(400), Mc, np.ones(400, bool))
+
+
+def _prefix_after(A, before, sel, rhs):
+    """nonzeros.lu_factor of A[sel][:, sel] from its factor of A[before][:, before] (the prefix rule): (x, the steps
+    taken from the first factor), x checked bit for bit against the stated elimination (None alike)."""
+    def entries(s):
+        B = A[np.ix_(s, s)]
+        r, c = np.nonzero(B)
+        return len(s), r, c, B[r, c]
+
+    before, sel = np.asarray(before), np.asarray(sel)
+    first = nonzeros.lu_factor(*entries(before))
+    c, change = nonzeros.one_apart(before, sel)
+    f = nonzeros.lu_factor(*entries(sel), *((first, c, change) if first is not None and change and c else ()))
+    x, ref = nonzeros.lu_apply(f, rhs), _lu_reference(A[np.ix_(sel, sel)], rhs)
+    assert (x is None) == (ref is None), (before, sel)
+    assert ref is None or _bits(x) == _bits(ref), (before, sel)
+    return x, 0 if f is None else f[-1]
+
+
+def test_sparse_factor_prefix_is_kept_bit_for_bit():
+    """nonzeros.lu_factor's first c steps taken from the factor of the rows with one added or dropped at sorted place
+    c (the active set's consecutive solves; src/step.cpp band_lu_solve's rule), bit for bit against the stated
+    elimination: the clean systems of lu_systems with a row added, a row dropped, and the rule at its edge (as
+    test_compiled.test_band_solve_prefix_kept_is_bit_identical_to_qp): an added row whose |a_cj| equals the pivot's
+    below the pivot row (kept) or above it (the first largest: the whole elimination), one ulp below (kept) and above
+    (not), a dropped row that was a pivot row (not kept) and one that was not (kept)."""
+    rng = np.random.default_rng(12)
+    kept = 0
+    for seed in range(6):
+        for A, rhs in lu_systems(seed):
+            if not (np.isfinite(A).all() and not (np.signbit(A) & (A == 0.0)).any()):
+                continue
+            n = A.shape[0]
+            for _ in range(3):
+                sel = np.flatnonzero(rng.random(n) < 0.7)
+                if sel.size < 2:
+                    continue
+                drop = np.delete(sel, rng.integers(sel.size))
+                for before, after in ((drop, sel), (sel, drop)):
+                    kept += _prefix_after(A, before, after, rhs[after].copy())[1] > 0
+    assert kept >= 40
+
+    def tie(a21, pivot_above):
+        A = np.array([[4.0, 0.0, 1.0, 1.0, 0.5],
+                      [1.0, 2.0 if pivot_above else 1.0, 3.0, 0.0, 1.0],
+                      [0.0, a21, 5.0, 1.0, 0.0],
+                      [1.0, 1.0 if pivot_above else 2.0, 0.0, 6.0, 2.0],
+                      [0.0, 0.5, 1.0, 2.0, 7.0]])
+        return _prefix_after(A, [0, 1, 3, 4], [0, 1, 2, 3, 4], np.array([1.0, -0.0, 2.0, -0.0, 3.0]))[1]
+
+    assert tie(2.0, True) == 2 and tie(-2.0, True) == 2  # the first largest stays the pivot row above
+    assert tie(2.0, False) == 0 and tie(-2.0, False) == 0  # the added row is the first largest: a new pivot row
+    assert tie(np.nextafter(2.0, 0.0), False) == 2 and tie(np.nextafter(2.0, 3.0), True) == 0
+    B = np.array([[1.0, 2.0, 0.0, 1.0], [3.0, 1.0, 1.0, 0.0], [5.0, 0.0, 4.0, 1.0], [0.0, 1.0, 1.0, 3.0]])
+    rhs = np.array([-0.0, 1.0, 2.0])
+    assert _prefix_after(B, [0, 1, 2, 3], [0, 1, 3], rhs)[1] == 0  # row 2 was step 0's pivot row
+    assert _prefix_after(B, [0, 1, 2, 3], [0, 2, 3], rhs)[1] == 1  # row 1 was not (step 0: row 2; the drop at c = 1)
