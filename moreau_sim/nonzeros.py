@@ -212,16 +212,7 @@ def lu_factor(n: int, rows, cols, vals, last=None, c: int = 0, change: int = 0):
                     continue
                 i = i if i < c else i + change
                 if lo != 0.0 and hi:
-                    r = at[i]
-                    row = a[r]
-                    get = row.get
-                    for k, v in hi:
-                        x = get(k)
-                        if x is None:
-                            row[k] = 0.0 - lo * v
-                            colrows[k].append(r)
-                        else:
-                            row[k] = x - lo * v
+                    update(at[i], lo, hi)
                 upd.append((i, lo))
             if add >= 0 and j in a[add]:
                 aij = a[add].pop(j)
@@ -258,16 +249,8 @@ def lu_factor(n: int, rows, cols, vals, last=None, c: int = 0, change: int = 0):
             if aij == 0.0:  # l = +-0 with the pivot's sign: lu_apply's flip of step j
                 continue
             lo = aij / piv
-            if lo != 0.0:  # a_rk - lo a_jk over the pivot row's nonzero entries (update's, inline)
-                row = a[r]
-                get = row.get
-                for k, v in prow:
-                    x = get(k)
-                    if x is None:
-                        row[k] = 0.0 - lo * v
-                        colrows[k].append(r)
-                    else:
-                        row[k] = x - lo * v
+            if lo != 0.0:
+                update(r, lo, prow)
             upd.append((i, lo))
         steps[j] = upd
     urows = [a[at[i]] for i in range(n)]
