@@ -280,23 +280,9 @@ def test_band_solve_prefix_kept_is_bit_identical_to_qp():
                     kept += _band_after(A, before, after, rhs[after].copy())[1] > 0
     assert kept >= 40
 
-    def tie(a21, pivot_above):
-        # step 0: row 0 the pivot (a_20 = 0: the added row 2 unchanged by it); step 1: |a_11| = 2 (pivot_above: row 1
-        # the pivot, above the added row) or |a_31| = 2 (row 3 the pivot, below it); the added row's a_21
-        A = np.array([[4.0, 0.0, 1.0, 1.0, 0.5],
-                      [1.0, 2.0 if pivot_above else 1.0, 3.0, 0.0, 1.0],
-                      [0.0, a21, 5.0, 1.0, 0.0],
-                      [1.0, 1.0 if pivot_above else 2.0, 0.0, 6.0, 2.0],
-                      [0.0, 0.5, 1.0, 2.0, 7.0]])
-        return _band_after(A, [0, 1, 3, 4], [0, 1, 2, 3, 4], np.array([1.0, -0.0, 2.0, -0.0, 3.0]))[1]
+    from test_qp import check_prefix_rule_edges
 
-    assert tie(2.0, True) == 2 and tie(-2.0, True) == 2  # the first largest stays the pivot row above
-    assert tie(2.0, False) == 0 and tie(-2.0, False) == 0  # the added row is the first largest: a new pivot row
-    assert tie(np.nextafter(2.0, 0.0), False) == 2 and tie(np.nextafter(2.0, 3.0), True) == 0
-    B = np.array([[1.0, 2.0, 0.0, 1.0], [3.0, 1.0, 1.0, 0.0], [5.0, 0.0, 4.0, 1.0], [0.0, 1.0, 1.0, 3.0]])
-    rhs = np.array([-0.0, 1.0, 2.0])
-    assert _band_after(B, [0, 1, 2, 3], [0, 1, 3], rhs)[1] == 0  # row 2 was step 0's pivot row
-    assert _band_after(B, [0, 1, 2, 3], [0, 2, 3], rhs)[1] == 1  # row 1 was not (step 0: row 2; the drop at c = 1)
+    check_prefix_rule_edges(_band_after)
 
 
 def test_distinct_rows_are_python_ones():

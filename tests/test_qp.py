@@ -664,18 +664,27 @@ def test_sparse_factor_prefix_is_kept_bit_for_bit():
                     kept += _prefix_after(A, before, after, rhs[after].copy())[1] > 0
     assert kept >= 40
 
+    check_prefix_rule_edges(_prefix_after)
+
+
+def check_prefix_rule_edges(after):
+    """The factor prefix's rule at its edges (docs/theory.md §2.8), for after(A, before, sel, rhs) -> (x, the steps
+    taken from the last factor) (nonzeros.lu_factor's and src/step.cpp band_lu_solve's): an added row tied with a
+    pivot above or below it, one ulp either side, and a dropped row that was or was not a pivot row."""
     def tie(a21, pivot_above):
+        # step 0: row 0 the pivot (a_20 = 0: the added row 2 unchanged by it); step 1: |a_11| = 2 (pivot_above: row 1
+        # the pivot, above the added row) or |a_31| = 2 (row 3 the pivot, below it); the added row's a_21
         A = np.array([[4.0, 0.0, 1.0, 1.0, 0.5],
                       [1.0, 2.0 if pivot_above else 1.0, 3.0, 0.0, 1.0],
                       [0.0, a21, 5.0, 1.0, 0.0],
                       [1.0, 1.0 if pivot_above else 2.0, 0.0, 6.0, 2.0],
                       [0.0, 0.5, 1.0, 2.0, 7.0]])
-        return _prefix_after(A, [0, 1, 3, 4], [0, 1, 2, 3, 4], np.array([1.0, -0.0, 2.0, -0.0, 3.0]))[1]
+        return after(A, [0, 1, 3, 4], [0, 1, 2, 3, 4], np.array([1.0, -0.0, 2.0, -0.0, 3.0]))[1]
 
     assert tie(2.0, True) == 2 and tie(-2.0, True) == 2  # the first largest stays the pivot row above
     assert tie(2.0, False) == 0 and tie(-2.0, False) == 0  # the added row is the first largest: a new pivot row
     assert tie(np.nextafter(2.0, 0.0), False) == 2 and tie(np.nextafter(2.0, 3.0), True) == 0
     B = np.array([[1.0, 2.0, 0.0, 1.0], [3.0, 1.0, 1.0, 0.0], [5.0, 0.0, 4.0, 1.0], [0.0, 1.0, 1.0, 3.0]])
     rhs = np.array([-0.0, 1.0, 2.0])
-    assert _prefix_after(B, [0, 1, 2, 3], [0, 1, 3], rhs)[1] == 0  # row 2 was step 0's pivot row
-    assert _prefix_after(B, [0, 1, 2, 3], [0, 2, 3], rhs)[1] == 1  # row 1 was not (step 0: row 2; the drop at c = 1)
+    assert after(B, [0, 1, 2, 3], [0, 1, 3], rhs)[1] == 0  # row 2 was step 0's pivot row
+    assert after(B, [0, 1, 2, 3], [0, 2, 3], rhs)[1] == 1  # row 1 was not (step 0: row 2; the drop at c = 1)
