@@ -648,6 +648,15 @@ def test_sparse_factor_prefix_is_kept_bit_for_bit():
     test_compiled.test_band_solve_prefix_kept_is_bit_identical_to_qp): an added row whose |a_cj| equals the pivot's
     below the pivot row (kept) or above it (the first largest: the whole elimination), one ulp below (kept) and above
     (not), a dropped row that was a pivot row (not kept) and one that was not (kept)."""
+    check_prefix_rule(_prefix_after)
+
+
+def check_prefix_rule(after, same_rows: bool = False):
+    """The factor prefix's rule (docs/theory.md §2.8) for after(A, before, sel, rhs) -> (x, the steps taken from the
+    last factor), checking x itself (nonzeros.lu_factor's and src/step.cpp band_lu_solve's): the clean systems of
+    lu_systems with a row added and a row dropped (same_rows: and the same rows again), at least 40 of them keeping
+    a prefix; then at its edges: an added row tied with a pivot above or below it, one ulp either side, and a
+    dropped row that was or was not a pivot row."""
     rng = np.random.default_rng(12)
     kept = 0
     for seed in range(6):
@@ -660,17 +669,10 @@ def test_sparse_factor_prefix_is_kept_bit_for_bit():
                 if sel.size < 2:
                     continue
                 drop = np.delete(sel, rng.integers(sel.size))
-                for before, after in ((drop, sel), (sel, drop)):
-                    kept += _prefix_after(A, before, after, rhs[after].copy())[1] > 0
+                for before, now in ((drop, sel), (sel, drop)) + (((sel, sel),) if same_rows else ()):
+                    kept += after(A, before, now, rhs[now].copy())[1] > 0
     assert kept >= 40
 
-    check_prefix_rule_edges(_prefix_after)
-
-
-def check_prefix_rule_edges(after):
-    """The factor prefix's rule at its edges (docs/theory.md §2.8), for after(A, before, sel, rhs) -> (x, the steps
-    taken from the last factor) (nonzeros.lu_factor's and src/step.cpp band_lu_solve's): an added row tied with a
-    pivot above or below it, one ulp either side, and a dropped row that was or was not a pivot row."""
     def tie(a21, pivot_above):
         # step 0: row 0 the pivot (a_20 = 0: the added row 2 unchanged by it); step 1: |a_11| = 2 (pivot_above: row 1
         # the pivot, above the added row) or |a_31| = 2 (row 3 the pivot, below it); the added row's a_21
