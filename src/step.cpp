@@ -959,25 +959,26 @@ struct WInfo {
 
 // otimes_t(W, x) (sums.ordered(W.T, x)) over W's nonzero terms where W and x are finite (a term with W_kj = +-0 adds
 // +-0 to the sum: the same sum, its sign as a zero settled by the + 0.0; contact_space's argument), else otimes_t
+// odot(W.col(j), x) over column j's nonzero terms (W and x finite: otimes_t_nz's argument)
+inline double wcol_dot(const MatrixXd &W, const WInfo &wi, Eigen::Index j, const VectorXd &x) {
+  const double *w = W.col(j).data();
+  double sum = 0.0;
+  bool first = true;
+  for (Eigen::Index t = wi.wptr[(size_t)j]; t < wi.wptr[(size_t)j + 1]; ++t) {
+    const Eigen::Index k = wi.widx[(size_t)t];
+    const double term = w[k] * x[k];
+    sum = first ? term : sum + term;
+    first = false;
+  }
+  return sum + 0.0;
+}
 void otimes_t_nz(const MatrixXd &W, const WInfo &wi, const VectorXd &x, VectorXd &y) {
   if (!wi.finite || !x.allFinite() || W.rows() == 0) {
     y = otimes_t(W, x);
     return;
   }
-  const Eigen::Index m = W.cols();
-  y.resize(m);
-  for (Eigen::Index j = 0; j < m; ++j) {
-    const double *w = W.col(j).data();
-    double sum = 0.0;
-    bool first = true;
-    for (Eigen::Index t = wi.wptr[(size_t)j]; t < wi.wptr[(size_t)j + 1]; ++t) {
-      const Eigen::Index k = wi.widx[(size_t)t];
-      const double term = w[k] * x[k];
-      sum = first ? term : sum + term;
-      first = false;
-    }
-    y[j] = sum + 0.0;
-  }
+  y.resize(W.cols());
+  for (Eigen::Index j = 0; j < W.cols(); ++j) y[j] = wcol_dot(W, wi, j, x);
 }
 
 // MiW = Minv @ W and G = W.T @ MiW as omatmul sums them (k ascending, + 0.0), over the nonzero terms only: a term
@@ -1084,23 +1085,13 @@ VectorXd otimes_t_cols(const MatrixXd &W, const WInfo &wi, const std::vector<Eig
     for (Eigen::Index c = 0; c < k; ++c) y[c] = W.rows() ? odot(W.col(cols[(size_t)c]).data(), x.data(), W.rows()) : 0.0;
     return y;
   }
-  for (Eigen::Index c = 0; c < k; ++c) {
-    const Eigen::Index j = cols[(size_t)c];
-    const double *w = W.col(j).data();
-    double sum = 0.0;
-    bool first = true;
-    for (Eigen::Index t = wi.wptr[(size_t)j]; t < wi.wptr[(size_t)j + 1]; ++t) {
-      const double term = w[wi.widx[(size_t)t]] * x[wi.widx[(size_t)t]];
-      sum = first ? term : sum + term;
-      first = false;
-    }
-    y[c] = sum + 0.0;
-  }
+  for (Eigen::Index c = 0; c < k; ++c) y[c] = wcol_dot(W, wi, cols[(size_t)c], x);
   return y;
 }
 
-// lu_solve(G[sel][:, sel], rhs, x) for project's final solves: band_lu_solve where G is clean (the same bits; on the
-// active set's BandLU, band_cache), else lu_solve on the copy
+// lu_solve(G[sel][:, sel], rhs, x) for project's final solves and the warm start's: where G is clean, sub_lu_solve
+// on G_AA's nonzeros where G is sparse (GInfo::sparse) and sel has more than kSparseLU rows, else band_lu_solve (the
+// same bits; on the active set's BandLU, band_cache); else lu_solve on the copy
 bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Index> &sel, const VectorXd &rhs,
                VectorXd &x) {
   const Eigen::Index k = (Eigen::Index)sel.size();
@@ -2307,7 +2298,7 @@ class Stepper {
     MatrixXd W;
     std::vector<Found> con;
     if (m == W0.cols()) {  // every row distinct: W is W0 (no copy)
-      W = std::move(W0), con = found;
+      W = std::move(W0), con = std::move(found);
     } else {
       W.resize(nv, m);
       for (Eigen::Index j = 0; j < m; ++j) W.col(j) = W0.col(keep[j]), con.push_back(found[keep[j]]);
