@@ -1,9 +1,10 @@
 """The compiled contact step (moreau_sim._step, src/step.cpp): its guard, its constants, and its typed result
 made a results.StepResult. It must load against exactly the Pinocchio and coal it was built with (else the
 Python step runs, with one warning); it mirrors stepper.step for every pair (coal's closed-form pairs, its GJK/EPA
-with the same warm starts, pairs of two polytopes, the broad phase's candidates), up to MAX_CONTACTS contacts,
-moving statics and driven joints included (their schedules handed over once, §2.9, §2.13), and hands any other
-step back (docs/theory.md §2.8)."""
+with the same warm starts, pairs of two polytopes, the broad phase's candidates), any number of contacts (above
+qp.WARM_ROWS rows from the previous step's final set only: a cold start there is handed back), moving statics and
+driven joints included (their schedules handed over once, §2.9, §2.13), and hands any other step back
+(docs/theory.md §2.8)."""
 
 from __future__ import annotations
 
@@ -30,14 +31,11 @@ from .state import State
 
 DENSE_COPIES = 3  # the compiled step's dense (nv, nv) matrices: M and M^-1 (src/step.cpp Stepper: block diagonal, zero
 # off the blocks) and M in a contact step's StepOut; a model whose copies exceed the memory limit gets no compiled step
-MAX_CONTACTS = qp.WARM_ROWS  # closed contacts a compiled step takes: qp.solve's active set, cold up to
-# qp.SPARSE_ROWS rows and warm-started above (docs/theory.md §1.3); what bounds it is memory: G = W'M^-1 W and its
-# factor's copy, m^2 doubles each (16 MB at 1000 rows), and the compiled run's log reserves this many rows a call
 # Every constant the two steps share, from its one home, as src/step.cpp's Constants reads them (by name: a
 # missing or an unknown one is an error there; tests/test_compiled.py compares them read back)
 CONSTANTS = {
     "midpoint_iterations": MIDPOINT_ITERATIONS, "midpoint_tolerance": MIDPOINT_TOLERANCE, "resting": RESTING,
-    "hold": HOLD, "vertex": int(FeatureKind.VERTEX), "witness": int(FeatureKind.WITNESS), "max_contacts": MAX_CONTACTS,
+    "hold": HOLD, "vertex": int(FeatureKind.VERTEX), "witness": int(FeatureKind.WITNESS), "warm_rows": qp.WARM_ROWS,
     "sparse_rows": qp.SPARSE_ROWS, "screen": qp.SCREEN, "dependent": qp.DEPENDENT, "met": qp.MET, "accept": qp.ACCEPT,
     "refine": qp.REFINE, "second_pass": qp.SECOND_PASS, "moves_per_row": qp.MOVES_PER_ROW,
     "moves_extra": qp.MOVES_EXTRA, "start_passes": qp.START_PASSES,

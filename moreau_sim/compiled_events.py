@@ -114,7 +114,7 @@ class CompiledImpact:
     """event_rules._impact compiled (src/impact.hpp): the detection at q, the constraints, the Zeno rule and law.impact
     with Pinocchio's M^-1, the same floats as Python (docs/theory.md §2.8), on the run's compiled Stepper. Called as
     (q, u, e, t, last_impact, fs, closed_pairs) -> (arrays, zeno, speed, a_n, contact_work) or None where Python must
-    take the event (a corner, more contacts than the compiled step takes, an active set that does not settle, an event
+    take the event (a corner, more rows than qp.WARM_ROWS without a start, an active set that does not settle, an event
     Python refuses). arrays: the StepOut's named arrays (compiled._Context.arrays: u_next = u+, v, lam, P,
     gamma_minus, gamma_plus, M, W, the contacts); fs: event_rules.features at (q, u); closed_pairs: the pairs of its
     closed features (added to contacts.detect's warm start). reasons: why events were handed back, counted."""

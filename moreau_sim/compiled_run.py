@@ -21,6 +21,7 @@ from .ledger import REST_ACCURACY
 from .recording import LOG_RELATIVE
 from .state import State
 
+LOG_ROWS = 1000  # log rows reserved a call at least (more where one step has needed more: Runner.log_need)
 POLL_SECONDS = 0.05  # [s of wall time] the Runner returns to the driver at least this often
 MAX_BACKOFF = 256  # steps: the most the Python run takes in a row before the Runner tries again
 
@@ -90,7 +91,7 @@ class CompiledRun:
         r = self.runner
         r.load(self._carry(), sorted(self.loop.previous), list(self.check.held.items()) if self.check else [])
         groups = (rec._samples, rec._log, rec._impacts)
-        starts = [g.reserve(k) for g, k in zip(groups, (1, compiled.MAX_CONTACTS, 1))]
+        starts = [g.reserve(k) for g, k in zip(groups, (1, max(LOG_ROWS, r.log_need()), 1))]
         rooms = [len(next(iter(g.cols.values()))) - i for g, i in zip(groups, starts)]
         data = integ.data
         if self.boxes:  # contacts.detect's warm start, kept in data between steps whichever loop takes them
@@ -105,7 +106,11 @@ class CompiledRun:
         if ctx is not None:
             ctx.active_sent = data.active_rows  # what the Stepper holds (compiled.raw_step)
         t, q, u, k = r.where()
-        handed = stop is compiled._module.Stop.HAND_BACK
+        Stop = compiled._module.Stop
+        unfit = stop is Stop.FULL and k == integ.k  # a step's log rows did not fit: undone, r.log_need() says how many
+        if unfit and self.controller is None:
+            return self.advance(t_stop)  # taken again with its rows reserved
+        handed = stop is Stop.HAND_BACK or unfit  # (a controller's answer: replayed by the Python run, not asked again)
         failed = None if self.controller is None else self.controller.take_error()
         if handed and failed is None and self.controller is not None:
             # the Python run retakes the step: the controller's answer is replayed, not asked again

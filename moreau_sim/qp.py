@@ -66,7 +66,7 @@ def kkt_residual(M, W, v0, v, lam, b=None) -> float:
 
 
 COLD_START_ROWS = 200  # up to this many rows (= SPARSE_ROWS) the active set starts from nothing, and piqp is only its
-# fallback; the compiled step takes as many (compiled.MAX_CONTACTS): it runs this method, not piqp (docs/theory.md §1.3)
+# fallback; the compiled step runs this method, not piqp (docs/theory.md §1.3)
 # 200, not 100, since the paid position lift is compiled (measured 2026-11-28, CPU, medians of 3 interleaved rounds,
 # load 3.5-5.6): the 27-cube pile 41.8 -> 3.3 ms a step (mean; every step compiled, none handed back), columns of 150
 # and 199 beads 6.4 -> 1.7 and 8.3 -> 2.9 ms, 100 beads 0.73 -> 0.74 ms and box_stack_10 resting 401 -> 400 us unchanged
@@ -81,9 +81,10 @@ ACCEPT = 1e-12  # the answer is kept when lam_A >= -ACCEPT max(1, lam_A) and W'v
 REFINE = 1e-8  # the refinement step is taken when it moves lam_A by at most REFINE (1 + max(lam_A))
 SECOND_PASS = 1e-15  # the second pass's tolerance, relative to max|b| + max|W| max|v|
 MOVES_PER_ROW, MOVES_EXTRA = 5, 10  # the active set gives up after MOVES_PER_ROW m + MOVES_EXTRA moves
-WARM_ROWS = 1000  # up to this many rows (compiled.MAX_CONTACTS) the warm-started active set is the first path; above,
-# the sparse path alone: there the dense G and the cold start's moves cost minutes (a 3000-bead column's first step
-# 485 s, against 0.46 s by the sparse path, measured 2026-11-28); the compiled step hands such steps back
+WARM_ROWS = 1000  # above this many rows a projection without a start takes the sparse path alone: there the cold
+# start's moves cost too much (a 1500-bead column's first step 3.3 s in Python against 0.36 s by the sparse path,
+# measured 2026-11-28); the compiled step hands such a step back. With a start (the previous step's final set) the
+# warm-started active set is the first path at any size, in both steps (docs/theory.md §1.3)
 NONZERO_ROWS = SPARSE_ROWS  # above this many rows _polish forms its products and solves by their nonzeros
 # (nonzeros.py; the same bits; docs/theory.md §2.8). The Python step, measured 2026-11-28 (CPU, one BLAS thread,
 # medians of interleaved runs, load 1.2-3.3): a column of 300 beads 21.6 -> 12.6 ms a step, of 1000 beads
@@ -536,12 +537,12 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if not np.isfinite(v0).all():  # an overflow upstream: no projection of it is meaningful
         return QPResult("NON_FINITE_INPUT", False, 0, False, v0.copy(), np.zeros(m))
     cold = polish is Polish.ACTIVE_SET and m <= COLD_START_ROWS
-    if polish is Polish.ACTIVE_SET and m > WARM_ROWS:  # the sparse path alone (WARM_ROWS)
-        return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
     warm = polish is Polish.ACTIVE_SET and m > SPARSE_ROWS
     if screen and (ordered(W.T, v0) - b).min() >= -SCREEN * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
         return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), M, W, v0, b)
+    if warm and m > WARM_ROWS and (start is None or not np.any(start)):  # the sparse path alone (WARM_ROWS)
+        return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
     if cold or warm:  # above SPARSE_ROWS warm-started from `start` (its moves grow with the rows that change)
         act = None if not warm or start is None or not np.any(start) else np.asarray(start, bool)
         p = _polish(W, v0, b, Minv, act)

@@ -44,7 +44,6 @@ class EventImpact {
       std::sort(warm_.begin(), warm_.end());
       warm_.erase(std::unique(warm_.begin(), warm_.end()), warm_.end());
       s.closed_limits(q, found);
-      if ((int)found.size() > s.C_.max_contacts) throw Fallback{"more contacts than the compiled step takes"};
       MatrixXd M = s.crba_world(q);
       MatrixXd W0 = s.contact_rows(found);
       const std::vector<int> keep = s.distinct(W0);

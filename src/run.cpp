@@ -102,13 +102,13 @@ class Runner {
     written_ = {0, 0, 0};
     flight_ = contact_ = 0;
     const auto wall0 = std::chrono::steady_clock::now();
-    const int64_t max_rows = S_.C_.max_contacts;
     t_ = t, q_ = std::move(q), u_ = std::move(u), k_ = k;
     for (int64_t done = 0;; ++done) {
       if (k_ >= n) return Stop::FINISHED;
-      if (rooms[0] - written_[0] < 1 || rooms[1] - written_[1] < max_rows || rooms[2] - written_[2] < 1)
-        return Stop::FULL;
-      if (!step(k_, n, every, h, e, t0, starts)) return Stop::HAND_BACK;
+      log_room_ = rooms[1] - written_[1];
+      if (rooms[0] - written_[0] < 1 || log_room_ < log_need_ || rooms[2] - written_[2] < 1) return Stop::FULL;
+      full_ = false;
+      if (!step(k_, n, every, h, e, t0, starts)) return full_ ? Stop::FULL : Stop::HAND_BACK;
       if (k_ >= n) return Stop::FINISHED;
       if (t_ >= t_stop) return Stop::CHECKPOINT;
       if ((done & 63) == 63 &&
@@ -126,6 +126,8 @@ class Runner {
     c_.held.assign(held.begin(), held.end());
   }
   std::vector<std::array<int64_t, 3>> previous() const { return c_.previous; }
+  // the most log rows one step has written or asked for (compiled_run.py reserves at least this many a call)
+  int64_t log_need() const { return log_need_; }
   std::vector<std::pair<int64_t, double>> held() const { return c_.held; }
   // (t, q, u, steps done) after the last step taken (new arrays)
   std::tuple<double, VectorXd, VectorXd, int64_t> where() const { return {t_, q_, u_, k_}; }
@@ -190,6 +192,8 @@ class Runner {
   VectorXd q_, u_;
   int64_t k_ = 0;
   std::array<int64_t, 3> written_{0, 0, 0};
+  int64_t log_room_ = 0, log_need_ = 1;  // the log's rows free for the next step; the most one step has needed
+  bool full_ = false;  // step() returned false for want of log rows (advance: Stop::FULL, not a hand-back)
   int64_t flight_ = 0, contact_ = 0;
   std::vector<Eigen::Index> logged_;  // step(): the contacts of the step's log rows (kept: no allocation a step)
   std::optional<actuation::Actuation> act_;  // the joint torques (none: a passive run)
@@ -320,12 +324,12 @@ class Runner {
       for (Eigen::Index i = 0; i < m; ++i) keys[i] = {r.pair[i], r.kind[i], r.feature[i]};
       bool held = true;  // Recorder._held: every contact closed in the step before
       for (Eigen::Index i = 0; i < m && held; ++i)
-        held = std::find(c.previous.begin(), c.previous.end(), keys[i]) != c.previous.end();
+        held = std::binary_search(c.previous.begin(), c.previous.end(), keys[i]);
       persistent = held && at_rest(r, u_) && law_kept(r, u_, e);
       for (Eigen::Index i = 0; i < m; ++i) {
         if (!(r.P[i] > cut)) continue;
         logged.push_back(i);
-        if (std::find(c.previous.begin(), c.previous.end(), keys[i]) == c.previous.end()) c.new_impact = 1.0;
+        if (!std::binary_search(c.previous.begin(), c.previous.end(), keys[i])) c.new_impact = 1.0;
       }
       const int64_t k = (int64_t)logged.size(), end = starts[1] + written_[1];  // end: the log's next row
       fold = persistent && k && (int64_t)c.rest == k;
@@ -335,8 +339,13 @@ class Runner {
         fold = *l_pair.at(row) == key[0] && *l_kind.at(row) == key[1] && *l_feature.at(row) == key[2];
       }
       if (!fold) {
+        if (k > log_room_) {  // no room for its rows: undone, and the next call reserves them (compiled_run.py)
+          log_need_ = k, full_ = true;
+          return false;
+        }
+        log_need_ = std::max(log_need_, k);
         for (const Eigen::Index i : logged) {
-          const bool fresh = std::find(c.previous.begin(), c.previous.end(), keys[i]) == c.previous.end();
+          const bool fresh = !std::binary_search(c.previous.begin(), c.previous.end(), keys[i]);
           const int64_t row = end + nlog++;
           *l_step.at(row) = index, *l_t.at(row) = tm, *l_pair.at(row) = keys[i][0], *l_kind.at(row) = keys[i][1];
           *l_feature.at(row) = keys[i][2], *l_gap.at(row) = r.g[i], *l_P.at(row) = r.P[i];
@@ -556,6 +565,7 @@ void bind_run(nb::module_ &mod) {
       .def("carry", &Runner::carry)
       .def("load", &Runner::load)
       .def("previous", &Runner::previous)
+      .def("log_need", &Runner::log_need)
       .def("held", &Runner::held)
       .def("where", &Runner::where)
       .def("written", &Runner::written)

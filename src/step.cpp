@@ -20,8 +20,8 @@
 // driven joints' reduced step (drive_start; the schedules of src/rheonomic.hpp, handed over once by
 // Stepper::rheonomic). Anything else returns FALLBACK with a reason and the Python step (the reference) takes the
 // step: corners, edge contacts of two boxes, a point query against a box turned in its joint frame, swept
-// detection, coal's EPA fallback, more than max_contacts contacts (qp.COLD_START_ROWS), a projection the active set
-// does not settle (where qp.solve turns to piqp), a driven step whose contact only driven rows move.
+// detection, coal's EPA fallback, a projection of more than qp.WARM_ROWS rows without a start (qp.solve's sparse
+// path alone), a projection the active set does not settle (where qp.solve turns to piqp), a driven step whose contact only driven rows move.
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/stl/array.h>
@@ -85,7 +85,7 @@ struct Constants {
   double midpoint_tolerance;  // stepper.MIDPOINT_TOLERANCE
   double resting, hold;  // results.RESTING, HOLD
   int vertex, witness, joint_limit;  // contacts.FeatureKind.VERTEX, .WITNESS, .JOINT_LIMIT
-  int max_contacts;  // compiled.MAX_CONTACTS
+  int warm_rows;  // qp.WARM_ROWS: above it a projection without a start hands back (qp.solve's sparse path, §1.3)
   int sparse_rows;  // qp.SPARSE_ROWS: above it the projection starts from the previous step's final set (§1.3)
   double screen, dependent, met, accept, refine, second_pass;  // qp.SCREEN, DEPENDENT, MET, ACCEPT, REFINE, SECOND_PASS
   int moves_per_row, moves_extra, start_passes;  // qp.MOVES_PER_ROW, MOVES_EXTRA, START_PASSES
@@ -99,7 +99,7 @@ struct Constants {
 
   static const std::vector<std::string> &keys() {
     static const std::vector<std::string> k = {
-        "midpoint_iterations", "midpoint_tolerance", "resting", "hold", "vertex", "witness", "max_contacts", "sparse_rows",
+        "midpoint_iterations", "midpoint_tolerance", "resting", "hold", "vertex", "witness", "warm_rows", "sparse_rows",
         "screen", "dependent", "met", "accept", "refine", "second_pass", "moves_per_row", "moves_extra", "start_passes", "distinct",
         "guess_min", "distance_failed", "joint_limit",
         "energy_roundoff", "patch", "same_point", "cone", "edge_end", "parallel", "depth_ratio", "snap", "edge", "face"};
@@ -123,7 +123,7 @@ struct Constants {
     Constants c;
     c.midpoint_iterations = geti("midpoint_iterations"), c.midpoint_tolerance = get("midpoint_tolerance");
     c.resting = get("resting"), c.hold = get("hold"), c.vertex = geti("vertex"), c.witness = geti("witness");
-    c.max_contacts = geti("max_contacts"), c.sparse_rows = geti("sparse_rows"), c.screen = get("screen"), c.dependent = get("dependent");
+    c.warm_rows = geti("warm_rows"), c.sparse_rows = geti("sparse_rows"), c.screen = get("screen"), c.dependent = get("dependent");
     c.met = get("met"), c.accept = get("accept"), c.refine = get("refine"), c.second_pass = get("second_pass");
     c.moves_per_row = geti("moves_per_row"), c.moves_extra = geti("moves_extra"), c.distinct = get("distinct");
     c.start_passes = geti("start_passes");
@@ -138,7 +138,7 @@ struct Constants {
   std::map<std::string, double> as_dict() const {
     return {{"midpoint_iterations", midpoint_iterations}, {"midpoint_tolerance", midpoint_tolerance},
             {"resting", resting}, {"hold", hold}, {"vertex", vertex}, {"witness", witness},
-            {"max_contacts", max_contacts}, {"sparse_rows", sparse_rows},
+            {"warm_rows", warm_rows}, {"sparse_rows", sparse_rows},
             {"screen", screen}, {"dependent", dependent}, {"met", met}, {"accept", accept}, {"refine", refine},
             {"second_pass", second_pass}, {"moves_per_row", moves_per_row}, {"moves_extra", moves_extra}, {"start_passes", start_passes},
             {"distinct", distinct}, {"guess_min", guess_min}, {"distance_failed", distance_failed},
@@ -1129,6 +1129,9 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
     VectorXd v = v0 + lam1 * Miw;
     return {v, VectorXd::Constant(1, lam1), Projection::ACTIVE_SET};
   }
+  if (m <= C.sparse_rows || (start && std::find(start->begin(), start->end(), 1) == start->end())) start = nullptr;
+  // above qp.WARM_ROWS rows a projection without a start goes to qp.solve's sparse path (piqp + SuperLU's start)
+  if (m > C.warm_rows && !start) throw Fallback{"more rows than the active set takes from nothing"};
   const double scale = 1.0 + v0.cwiseAbs().maxCoeff();
   MatrixXd MiW, G;  // Minv @ W, W.T @ MiW
   thread_local WInfo mi;  // MiW's columns' rows (contact_space)
@@ -1138,7 +1141,6 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
   const VectorXd r = b - Wv0;
   std::vector<char> act;
   VectorXd lam;
-  if (m <= C.sparse_rows || (start && std::find(start->begin(), start->end(), 1) == start->end())) start = nullptr;
   if (!active_set(C, G, gi, r, C.screen * scale, act, lam, start)) throw Fallback{"active set did not settle"};
   std::vector<Eigen::Index> idx;
   for (Eigen::Index i = 0; i < m; ++i)
@@ -2289,7 +2291,6 @@ class Stepper {
       out.pack();
       return;
     }
-    if ((int)found.size() > C_.max_contacts) throw Fallback{"more contacts than the compiled step takes"};
     // constraints.assemble_constraints: M by CRBA (fills the WORLD Jacobians), rows, distinct rows
     MatrixXd M = crba_world(q_m);
     MatrixXd W0 = contact_rows(found);
@@ -2628,7 +2629,6 @@ class Stepper {
       }
       if (still) {
         const Eigen::Index k = (Eigen::Index)rows.size();
-        if (m + k > C_.max_contacts) throw Fallback{"a lift at rest along the normals: more rows than the active set takes"};
         MatrixXd Wn(W.rows(), m + k);
         VectorXd bn(m + k);
         Wn.leftCols(m) = W;

@@ -387,7 +387,7 @@ def test_constants_are_passed_from_python():
     # their homes, by name
     assert (C["midpoint_iterations"], C["resting"]) == (stepper.MIDPOINT_ITERATIONS, results.RESTING)
     assert (C["vertex"], C["witness"]) == (FeatureKind.VERTEX, FeatureKind.WITNESS)
-    assert (C["max_contacts"], C["sparse_rows"]) == (compiled.MAX_CONTACTS, qp.SPARSE_ROWS)
+    assert (C["warm_rows"], C["sparse_rows"]) == (qp.WARM_ROWS, qp.SPARSE_ROWS)
     assert (C["screen"], C["distinct"]) == (qp.SCREEN, constraints.DISTINCT)
     # and the stepper of a model holds them
     model = build_model(load_scene(SCENES[0].parent / "box_drop.toml"))

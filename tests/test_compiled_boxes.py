@@ -1,8 +1,8 @@
 """The compiled step on pairs of two boxes (src/step.cpp detect, src/box_box.hpp): it takes the steps of a resting
 stack of boxes itself, and its trajectory is the Python step's bit for bit (docs/theory.md §2.8); the steps it
-hands back (a vertex at a box's corner, edge contacts, a paid position lift, more than compiled.MAX_CONTACTS
-contacts) leave coal's warm start and the detection's warm start (data.warm_start_pairs)
-as the Python step finds them, so the Python step that takes them continues the same trajectory."""
+hands back (a vertex at a box's corner, edge contacts, a paid position lift) leave coal's warm start and the
+detection's warm start (data.warm_start_pairs) as the Python step finds them, so the Python step that takes them
+continues the same trajectory."""
 
 from __future__ import annotations
 
@@ -47,7 +47,7 @@ def test_box_models_are_compiled():
 @pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
 @pytest.mark.parametrize("h", [1e-2, 1e-3])
 def test_resting_stack_every_step_compiled_and_identical(e, h):
-    """box_stack_5 at rest (32 patch corners and 4 ground vertices a step, m = 36 <= MAX_CONTACTS): every step
+    """box_stack_5 at rest (32 patch corners and 4 ground vertices a step, m = 36): every step
     compiled, and q, u and the detection's warm start equal to the Python step's, bit for bit."""
     n = 20
     ref, ref_warm, py = _steps("box_stack_5", StepImpl.PYTHON, n, restitution=e, dt=h)
@@ -60,8 +60,8 @@ def test_resting_stack_every_step_compiled_and_identical(e, h):
 
 
 @pytest.mark.parametrize("name, n", [
-    # box_stack_10 at rest has 76 contacts (above the former 64-row limit; compiled.MAX_CONTACTS =
-    # qp.COLD_START_ROWS = 200 now, the cold active set on both sides)
+    # box_stack_10 at rest has 76 contacts (above the former 64-row limit; up to qp.COLD_START_ROWS = 200 rows the
+    # cold active set on both sides)
     ("box_stack_10", 5),
     # heavy_on_light_box_100: equal boxes face on face, each vertex of the top one at an edge of the one below
     # (three face planes within the margin, one of them separating: a smooth contact with that face's normal,

@@ -106,7 +106,7 @@ def test_panda_table_compiled_and_identical(e):
 def test_a_27_cube_pile_compiled_and_identical(e):
     """benchmarks.scaling's pile of 27 cubes in a bin (486 pairs: the broad phase) falling and landing: the compiled
     step queries the broad phase's candidates and takes the steps with edge contacts itself (test_compiled_edges), the
-    hand-backs (corners, more rows than compiled.MAX_CONTACTS) retaken by the Python step, the Python
+    hand-backs (corners) retaken by the Python step, the Python
     step's run bit for bit."""
     ref, new, counts = _both(_pile(27, restitution=e, duration=0.25))
     assert "python: edge contacts of two boxes" not in counts, dict(counts)

@@ -1,5 +1,5 @@
 """The projection above the former row limit of 100 (issue 24): the cold dual active set up to qp.COLD_START_ROWS
-(200) rows in both steps (compiled.MAX_CONTACTS), its solves on the nonzeros of G_AA (src/step.cpp sparse_lu_solve,
+(200) rows in both steps, its solves on the nonzeros of G_AA (src/step.cpp sparse_lu_solve,
 qp._lu_solve_sparse) with the dense elimination's bits, signed zeros included (docs/theory.md §1.3, §2.8). A column
 of N touching beads (benchmarks.scaling.column, N rows, 100 < N < 200) is stepped by the compiled step on
 every step and gives the Python step's bits, with the law's closed forms: at rest the percussion under bead k

@@ -296,20 +296,73 @@ def test_a_compiled_run_above_sparse_rows_records_the_python_runs_bits(monkeypat
     assert runs[2].meta["run"]["loop"] == "compiled" and runs[2].meta["run"]["python_steps"] == 0
 
 
-def test_above_warm_rows_the_sparse_path_alone_solves(monkeypatch):
-    """Up to qp.WARM_ROWS rows (compiled.MAX_CONTACTS) the active set solves above SPARSE_ROWS; one row more and the
-    sparse path (piqp + SuperLU) alone does, start or none (a 3000-bead column's cold start took minutes), with the
-    same projection to its tolerance and the column's closed form lam_k = (n - k) g h."""
+def test_above_warm_rows_a_projection_without_a_start_takes_the_sparse_path_alone(monkeypatch):
+    """Above qp.WARM_ROWS rows a projection without a start (none given, or none of its rows set) goes to the sparse
+    path alone (piqp + SuperLU: the cold start's moves cost too much there); with a start the warm-started active
+    set solves at any size. At the edge (WARM_ROWS = m) the cold active set still solves. Every answer the same
+    projection to its tolerance and the column's closed form lam_k = (n - k) g h."""
     n = qp.SPARSE_ROWS + 20
     M, W, v0, gh = _column_problem(n, 1e-3)
     monkeypatch.setattr(qp, "WARM_ROWS", n)
-    at = qp.solve(M, W, v0, Minv=M, start=np.ones(n, bool))
+    at = qp.solve(M, W, v0, Minv=M)
     assert at.status == "ACTIVE_SET"
     monkeypatch.setattr(qp, "WARM_ROWS", n - 1)
-    above = qp.solve(M, W, v0, Minv=M, start=np.ones(n, bool))
-    assert above.ok and above.status != "ACTIVE_SET"
-    np.testing.assert_allclose(above.lam, gh * (n - np.arange(n)), rtol=1e-9, atol=0)
-    np.testing.assert_allclose(above.v, at.v, rtol=0, atol=1e-12)
+    for start in (None, np.zeros(n, bool)):
+        above = qp.solve(M, W, v0, Minv=M, start=start)
+        assert above.ok and above.status == "PIQP_SOLVED"
+        np.testing.assert_allclose(above.lam, gh * (n - np.arange(n)), rtol=1e-9, atol=0)
+        np.testing.assert_allclose(above.v, at.v, rtol=0, atol=1e-12)
+    warm = qp.solve(M, W, v0, Minv=M, start=np.arange(n) % 2 == 0)
+    assert warm.status == "ACTIVE_SET"
+    np.testing.assert_allclose(warm.lam, gh * (n - np.arange(n)), rtol=1e-12, atol=0)
+
+
+def test_above_warm_rows_a_cold_step_is_handed_back_and_the_warm_ones_stay_compiled(monkeypatch):
+    """qp.WARM_ROWS lowered to 230, under the hit column's 240 rows: its first step has no start, so the Python
+    step takes the sparse path alone and the compiled step hands that step back (src/step.cpp project); every later
+    step starts from the last final set and stays compiled, by ms.step and in the compiled run loop. With
+    compiled_run.LOG_ROWS lowered to 4 a step's log rows outgrow the room reserved: the Runner undoes that step and
+    takes it again with them reserved (Runner.log_need). Every array the Python step's bits."""
+    from moreau_sim import compiled_run
+
+    compiled = _compiled_or_fail()
+    monkeypatch.setattr(qp, "WARM_ROWS", 230)
+    monkeypatch.setitem(compiled.CONSTANTS, "warm_rows", 230)
+    monkeypatch.setattr(compiled_run, "LOG_ROWS", 4)
+    monkeypatch.setattr(ms.model, "LAZY_PAIRS", 10 ** 5)  # a pair list: the run loop takes the scene
+    sc = _hit(240, 2.0, 0.5, 5e-4).with_options(duration=4e-3)
+    out = {}
+    for impl in ("python", "compiled"):
+        model = ms.build_model(sc.with_options(step_impl=impl))
+        data = make_data(model)
+        st, rs = ms.initial_state(model, data), []
+        for _ in range(6):
+            r = ms.step(model, data, st)
+            rs.append(r)
+            st = r.state
+        out[impl] = (rs, compiled.counts(data))
+    assert out["compiled"][1] == {"python: more rows than the active set takes from nothing": 1, "contact": 5}
+    for a, b in zip(*(out[i][0] for i in ("python", "compiled"))):
+        assert a.contacts.m == b.contacts.m > qp.WARM_ROWS
+        for x, y in ((a.state.q, b.state.q), (a.state.u, b.state.u), (a.P, b.P), (a.qp.lam, b.qp.lam)):
+            assert _bits(x) == _bits(y)
+    assert [r.qp.status for r in out["python"][0]] == ["PIQP_SOLVED"] + ["ACTIVE_SET"] * 5
+    depth, deepest = [0], [0]  # advance's calls within a call: the Runner's retries
+    real = compiled_run.CompiledRun.advance
+
+    def spy(self, t_stop):
+        depth[0] += 1
+        deepest[0] = max(deepest[0], depth[0])
+        try:
+            return real(self, t_stop)
+        finally:
+            depth[0] -= 1
+    monkeypatch.setattr(compiled_run.CompiledRun, "advance", spy)
+    runs = [ms.simulate(ms.build_model(sc.with_options(step_impl=impl)), progress=False, python_run=python_run)
+            for impl, python_run in (("python", True), ("compiled", False))]
+    assert [k for k in runs[0].arrays if runs[0].arrays[k].tobytes() != runs[1].arrays[k].tobytes()] == []
+    assert runs[1].meta["run"]["loop"] == "compiled" and runs[1].meta["run"]["python_steps"] == 1
+    assert deepest[0] == 2  # one retry a call at most: the rows one step needs are reserved for the next
 
 
 def _pressed(n: int, e: float, h: float, step_impl: str = "python") -> ms.Scene:
