@@ -21,7 +21,8 @@
 // Stepper::rheonomic). Anything else returns FALLBACK with a reason and the Python step (the reference) takes the
 // step: corners, edge contacts of two boxes, a point query against a box turned in its joint frame, swept
 // detection, coal's EPA fallback, a projection of more than qp.WARM_ROWS rows without a start (qp.solve's sparse
-// path alone), a projection the active set does not settle (where qp.solve turns to piqp), a driven step whose contact only driven rows move.
+// path alone), a projection the active set does not settle (where qp.solve turns to piqp), a driven step whose
+// contact only driven rows move.
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/stl/array.h>
