@@ -220,22 +220,23 @@ class _Context:
         self.stepper.rheonomic(moving, driven)
 
     def layout(self, r) -> dict:
-        """Where the named arrays of the extension's StepOut r lie in its two buffers, as r.layout() says (src/step.cpp
-        StepOut::visit, the one definition of the layout): name -> (in ints, its slice, its shape: (rows, cols) of a
+        """Where the named arrays of the extension's StepOut r lie in its buffers, as r.layout() says (src/step.cpp
+        StepOut::visit, the one definition of the layout): name -> (its buffer: 0 floats, 1 ints, 2 M, 3 W (their own
+        storage, flat); its slice, its shape: (rows, cols) of a
         'C' array, (cols, rows) of an 'F' one, its transpose's C view, the same strides as reshape(order='F')
         without the keyword's cost; None: a vector, in F order), made once per (outcome, m, paid)."""
         key = (r.outcome, r.m, r.paid)
         lay = self._layouts.get(key)
         if lay is None:
             lay = self._layouts[key] = {
-                name: (ints, slice(a, a + rows * (cols or 1)),
+                name: (buffer, slice(a, a + rows * (cols or 1)),
                        None if not cols else (rows, cols) if order == "C" else (cols, rows), order == "F")
-                for name, ints, a, rows, cols, order in r.layout()}
+                for name, buffer, a, rows, cols, order in r.layout()}
         return lay
 
     def arrays(self, r) -> dict:
-        """The named arrays of the extension's StepOut r: views of its two buffers (layout)."""
-        buffers = (r.floats, r.ints if r.outcome is _module.Outcome.CONTACT else None)
+        """The named arrays of the extension's StepOut r: views of its buffers (layout)."""
+        buffers = (r.floats, *((r.ints, r.M, r.W) if r.outcome is _module.Outcome.CONTACT else ()))
         return {name: _view(buffers[i], s, shape, f_order) for name, (i, s, shape, f_order) in self.layout(r).items()}
 
 
@@ -443,7 +444,7 @@ class _CompiledResult(StepResult):
     dataclasses.fields / replace / asdict, ==; a copy, a pickle or a dataclasses.replace of it is a plain
     StepResult."""
 
-    __slots__ = ("_r", "_ctx", "_floats", "_ints", "_layout", "_makers")
+    __slots__ = ("_r", "_ctx", "_floats", "_buffers", "_layout", "_makers")
 
     def __new__(cls, *args, **kwargs):  # the dataclass's own calls (dataclasses.replace): a plain StepResult
         return StepResult(*args, **kwargs)
@@ -475,7 +476,7 @@ class _CompiledResult(StepResult):
     def _view(self, name: str) -> np.ndarray:
         """The StepOut's array `name`: a new view of its buffers (_Context.layout)."""
         i, s, shape, f_order = self._layout[name]
-        return _view(self._ints if i else self._floats, s, shape, f_order)
+        return _view(self._buffers[i], s, shape, f_order)
 
     def _qp(self) -> QPResult:
         r, v = self._r, self._view
@@ -502,7 +503,7 @@ assert set(_FLIGHT) == set(_CONTACT) == set(_FIELDS) - {"state", "tau"}
 # what _CompiledResult.__getattr__ makes: the lazy fields (by the outcome's table), and what they are made of
 _MAKE = {name: (lambda s, n=name: s._makers[n](s)) for name in _FLIGHT} | {
     "_makers": lambda s: _FLIGHT if s._r.outcome is _module.Outcome.FLIGHT else _CONTACT,
-    "_layout": lambda s: s._ctx.layout(s._r), "_ints": lambda s: s._r.ints}
+    "_layout": lambda s: s._ctx.layout(s._r), "_buffers": lambda s: (s._floats, s._r.ints, s._r.M, s._r.W)}
 # the slots' setters (StepResult's own, frozen to its __setattr__; _CompiledResult's)
 _SET = {name: cls.__dict__[name].__set__ for cls in (StepResult, _CompiledResult)
         for name in cls.__slots__}

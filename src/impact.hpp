@@ -97,7 +97,6 @@ class EventImpact {
       }
       out.v = std::move(res.v), out.lam = std::move(res.lam), out.M = M, out.W = std::move(W);
       out.projection = res.status, out.contact_work = -loss, out.m = m;
-      out.pack();
     } catch (const Fallback &f) {
       s.restore_guesses();
       out = StepOut();

@@ -25,6 +25,7 @@
 // contact only driven rows move.
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
+#include <nanobind/ndarray.h>
 #include <nanobind/stl/array.h>
 #include <nanobind/stl/map.h>
 #include <nanobind/stl/string.h>
@@ -32,6 +33,9 @@
 #include <nanobind/stl/vector.h>
 
 #include <boost/python.hpp>
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
 
 #include <pinocchio/multibody/model.hpp>
 #include <pinocchio/multibody/data.hpp>
@@ -183,7 +187,9 @@ struct Solved {  // a projection: v, lam, how it was solved; act: the active set
 // One step as it crosses to Python (bound as moreau_sim._step.StepOut; moreau_sim/compiled.py makes it a
 // results.StepResult). Its outcome, reason (FALLBACK), m, the projection's status and two scalars are
 // attributes; its arrays, named below, cross in two buffers (floats, ints: two numpy arrays per step, each
-// made costs ~1 us) laid out by visit(), the one definition of the layout, which layout() gives Python.
+// made costs ~1 us) laid out by visit(), the one definition of the layout, which layout() gives Python; M and W
+// cross as views of their own storage (nv^2 and nv m doubles: no copy). The buffers are filled when Python first
+// reads them (pack): a step the compiled run loop takes (src/run.cpp) never fills them.
 // FLIGHT: q_next, u_next (= u_free); CONTACT: all (u_law only where paid).
 struct StepOut {
   Outcome outcome = Outcome::FALLBACK;
@@ -206,45 +212,51 @@ struct StepOut {
   // u_law, the law's u_{k+1} before it (results.StepResult.u_law, what the ledger measures the law on, §5.2)
   bool paid = false;
   VectorXd u_law;
-  VectorXd floats;  // the arrays that cross, laid out by visit()
+  VectorXd floats;  // the arrays that cross, laid out by visit() (filled by pack())
   VectorXl ints;
+  bool packed = false;
 
-  // every array that crosses, in order: f(name, data, rows, cols, order) (cols 0: a vector; order 'C' or 'F')
+  // every array that crosses, in order: f(name, data, rows, cols, order, own) (cols 0: a vector; order 'C' or
+  // 'F'; own: 0 in the floats or ints buffer, else the array's own buffer, kM or kW)
+  static constexpr int kM = 2, kW = 3;
   template <class F> void visit(F &&f) {
-    f("q_next", q_next.data(), q_next.size(), 0, 'C');
-    f("u_next", u_next.data(), u_next.size(), 0, 'C');
+    f("q_next", q_next.data(), q_next.size(), 0, 'C', 0);
+    f("u_next", u_next.data(), u_next.size(), 0, 'C', 0);
     if (outcome != Outcome::CONTACT) return;
     const Eigen::Index nv = u_next.size();
-    f("u_free", u_free.data(), nv, 0, 'C');
-    f("g", g.data(), m, 0, 'C');
-    f("point_a", point_a.data(), m, 3, 'C');
-    f("point_b", point_b.data(), m, 3, 'C');
-    f("normal", normal.data(), m, 3, 'C');
-    f("P", P.data(), m, 0, 'C');
-    f("gamma_minus", gamma_minus.data(), m, 0, 'C');
-    f("gamma_plus", gamma_plus.data(), m, 0, 'C');
-    f("v_free", v_free.data(), nv, 0, 'C');
-    f("b", b.data(), m, 0, 'C');
-    f("v", v.data(), nv, 0, 'C');
-    f("lam", lam.data(), m, 0, 'C');
-    f("M", M.data(), nv, nv, 'C');
-    f("W", W.data(), nv, m, 'F');
-    f("pair", pair.data(), m, 0, 'C');
-    f("kind", kind.data(), m, 0, 'C');
-    f("feature", feature.data(), m, 0, 'C');
-    f("joint_a", joint_a.data(), m, 0, 'C');
-    f("joint_b", joint_b.data(), m, 0, 'C');
-    if (paid) f("u_law", u_law.data(), nv, 0, 'C');
+    f("u_free", u_free.data(), nv, 0, 'C', 0);
+    f("g", g.data(), m, 0, 'C', 0);
+    f("point_a", point_a.data(), m, 3, 'C', 0);
+    f("point_b", point_b.data(), m, 3, 'C', 0);
+    f("normal", normal.data(), m, 3, 'C', 0);
+    f("P", P.data(), m, 0, 'C', 0);
+    f("gamma_minus", gamma_minus.data(), m, 0, 'C', 0);
+    f("gamma_plus", gamma_plus.data(), m, 0, 'C', 0);
+    f("v_free", v_free.data(), nv, 0, 'C', 0);
+    f("b", b.data(), m, 0, 'C', 0);
+    f("v", v.data(), nv, 0, 'C', 0);
+    f("lam", lam.data(), m, 0, 'C', 0);
+    f("M", M.data(), nv, nv, 'C', kM);
+    f("W", W.data(), nv, m, 'F', kW);
+    f("pair", pair.data(), m, 0, 'C', 0);
+    f("kind", kind.data(), m, 0, 'C', 0);
+    f("feature", feature.data(), m, 0, 'C', 0);
+    f("joint_a", joint_a.data(), m, 0, 'C', 0);
+    f("joint_b", joint_b.data(), m, 0, 'C', 0);
+    if (paid) f("u_law", u_law.data(), nv, 0, 'C', 0);
   }
   template <class T> static constexpr bool is_int = std::is_same_v<std::remove_const_t<T>, int64_t>;
   void pack() {
+    if (packed) return;
+    packed = true;
     Eigen::Index nf = 0, ni = 0;
-    visit([&](const char *, auto *p, Eigen::Index r, Eigen::Index c, char) {
-      (is_int<std::remove_pointer_t<decltype(p)>> ? ni : nf) += r * (c ? c : 1);
+    visit([&](const char *, auto *p, Eigen::Index r, Eigen::Index c, char, int own) {
+      if (!own) (is_int<std::remove_pointer_t<decltype(p)>> ? ni : nf) += r * (c ? c : 1);
     });
     floats.resize(nf), ints.resize(ni);
     nf = ni = 0;
-    visit([&](const char *, auto *p, Eigen::Index r, Eigen::Index c, char) {
+    visit([&](const char *, auto *p, Eigen::Index r, Eigen::Index c, char, int own) {
+      if (own) return;
       const Eigen::Index n = r * (c ? c : 1);
       if constexpr (is_int<std::remove_pointer_t<decltype(p)>>)
         std::copy(p, p + n, ints.data() + ni), ni += n;
@@ -252,18 +264,27 @@ struct StepOut {
         std::copy(p, p + n, floats.data() + nf), nf += n;
     });
   }
-  // (name, in ints, offset, rows, cols, order) of each array, in order
-  std::vector<std::tuple<std::string, bool, Eigen::Index, Eigen::Index, Eigen::Index, char>> layout() {
-    std::vector<std::tuple<std::string, bool, Eigen::Index, Eigen::Index, Eigen::Index, char>> out;
+  // (name, buffer: 0 floats, 1 ints, kM, kW; offset, rows, cols, order) of each array, in order
+  std::vector<std::tuple<std::string, int, Eigen::Index, Eigen::Index, Eigen::Index, char>> layout() {
+    std::vector<std::tuple<std::string, int, Eigen::Index, Eigen::Index, Eigen::Index, char>> out;
     Eigen::Index nf = 0, ni = 0;
-    visit([&](const char *name, auto *p, Eigen::Index r, Eigen::Index c, char order) {
+    visit([&](const char *name, auto *p, Eigen::Index r, Eigen::Index c, char order, int own) {
       const bool i = is_int<std::remove_pointer_t<decltype(p)>>;
-      out.emplace_back(name, i, i ? ni : nf, r, c, order);
+      if (own) {
+        out.emplace_back(name, own, 0, r, c, order);
+        return;
+      }
+      out.emplace_back(name, i ? 1 : 0, i ? ni : nf, r, c, order);
       (i ? ni : nf) += r * (c ? c : 1);
     });
     return out;
   }
 };
+
+// A flat numpy view of n doubles at p, kept alive by owner (StepOut's M and W)
+nb::ndarray<nb::numpy, double, nb::ndim<1>> flat_view(double *p, Eigen::Index n, nb::handle owner) {
+  return nb::ndarray<nb::numpy, double, nb::ndim<1>>(p, {(size_t)n}, owner);
+}
 
 }  // namespace
 
@@ -2289,7 +2310,6 @@ class Stepper {
       out.u_next = u_free;
       out.u_free = std::move(u_free);
       out.outcome = Outcome::FLIGHT;
-      out.pack();
       return;
     }
     // constraints.assemble_constraints: M by CRBA (fills the WORLD Jacobians), rows, distinct rows
@@ -2456,7 +2476,6 @@ class Stepper {
     out.M = driven ? std::move(Mout) : std::move(M), out.W = std::move(W), out.projection = res.status;
     out.contact_work = work, out.correction_energy = corr, out.m = m;
     out.obstacle_work = ow, out.drive_work_free = driven ? ds.work_free : 0.0;
-    out.pack();
   }
 
   // stepper._roundoff
@@ -2732,6 +2751,14 @@ class Stepper {
 
 NB_MODULE(_step, mod) {
   mod.doc() = "The compiled midpoint Moreau contact step (moreau_sim/compiled.py).";
+#ifdef __GLIBC__
+  // A step allocates its dense matrices afresh (M, M^-1, W, G: nv^2, nv m, m^2 doubles) and frees them. glibc's
+  // threshold for serving an allocation by mmap follows the largest block freed so far, so one of 8 MB (a 1000-bead
+  // column's M) can go to mmap at every step and fault its pages in anew (a third of that step). Fixed at glibc's
+  // largest, 32 MB, and the heap kept up to 128 MB, blocks up to 32 MB are reused from the heap.
+  mallopt(M_MMAP_THRESHOLD, 32 * 1024 * 1024);
+  mallopt(M_TRIM_THRESHOLD, 128 * 1024 * 1024);
+#endif
   nb::enum_<Outcome>(mod, "Outcome", "What a compiled step did: FLIGHT, CONTACT, or FALLBACK (the Python step takes it)")
       .value("FLIGHT", Outcome::FLIGHT)
       .value("CONTACT", Outcome::CONTACT)
@@ -2743,10 +2770,14 @@ NB_MODULE(_step, mod) {
       .def_ro("outcome", &StepOut::outcome)
       .def_ro("reason", &StepOut::reason)
       .def_ro("m", &StepOut::m)
-      // views of the two buffers (the StepOut kept alive by them), not copies: a read costs no copy of the buffer
-      .def_prop_ro("floats", [](StepOut &o) -> VectorXd & { return o.floats; }, nb::rv_policy::reference_internal)
-      .def_prop_ro("ints", [](StepOut &o) -> VectorXl & { return o.ints; }, nb::rv_policy::reference_internal)
-      .def("layout", &StepOut::layout, "(name, in ints, offset, rows, cols (0: a vector), order 'C'/'F') per array")
+      // views of the two buffers (filled at the first read) and of M's and W's storage, flat (the StepOut kept
+      // alive by them), not copies: a read costs no copy of the buffer
+      .def_prop_ro("floats", [](StepOut &o) -> VectorXd & { o.pack(); return o.floats; }, nb::rv_policy::reference_internal)
+      .def_prop_ro("ints", [](StepOut &o) -> VectorXl & { o.pack(); return o.ints; }, nb::rv_policy::reference_internal)
+      .def_prop_ro("M", [](nb::pointer_and_handle<StepOut> o) { return flat_view(o.p->M.data(), o.p->M.size(), o.h); })
+      .def_prop_ro("W", [](nb::pointer_and_handle<StepOut> o) { return flat_view(o.p->W.data(), o.p->W.size(), o.h); })
+      .def("layout", &StepOut::layout,
+           "(name, buffer: 0 floats, 1 ints, 2 M, 3 W; offset, rows, cols (0: a vector), order 'C'/'F') per array")
       .def_ro("projection", &StepOut::projection)
       .def_ro("contact_work", &StepOut::contact_work)
       .def_ro("correction_energy", &StepOut::correction_energy)
