@@ -243,6 +243,16 @@ def test_a_column_above_sparse_rows_steps_with_the_cold_bits(e, h, monkeypatch):
     assert np.abs(u[:-1]).max() <= 1e-12
 
 
+def _stepped(model: ms.Model, n: int) -> tuple:
+    """(data, the StepResults of n steps by ms.step from the scene's initial state)."""
+    data = make_data(model)
+    st, out = ms.initial_state(model, data), []
+    for _ in range(n):
+        out.append(ms.step(model, data, st))
+        st = out[-1].state
+    return data, out
+
+
 def _compiled_or_fail():
     from moreau_sim import compiled
 
@@ -333,13 +343,7 @@ def test_above_warm_rows_a_cold_step_is_handed_back_and_the_warm_ones_stay_compi
     sc = _hit(240, 2.0, 0.5, 5e-4).with_options(duration=4e-3)
     out = {}
     for impl in ("python", "compiled"):
-        model = ms.build_model(sc.with_options(step_impl=impl))
-        data = make_data(model)
-        st, rs = ms.initial_state(model, data), []
-        for _ in range(6):
-            r = ms.step(model, data, st)
-            rs.append(r)
-            st = r.state
+        data, rs = _stepped(ms.build_model(sc.with_options(step_impl=impl)), 6)
         out[impl] = (rs, compiled.counts(data))
     assert out["compiled"][1] == {"python: more rows than the active set takes from nothing": 1, "contact": 5}
     for a, b in zip(*(out[i][0] for i in ("python", "compiled"))):
@@ -402,12 +406,7 @@ def test_the_position_correction_above_sparse_rows_starts_from_the_law_s_final_s
             monkeypatch.setattr(stepper.qp, "solve", lambda *a, start=None, **kw: real(*a, **kw))
         else:
             monkeypatch.setattr(stepper.qp, "solve", spy)
-        data = make_data(model)
-        st, out = ms.initial_state(model, data), []
-        for _ in range(6):
-            r = ms.step(model, data, st)
-            out.append(r)
-            st = r.state
+        data, out = _stepped(model, 6)
         runs[mode] = (model, data, out)
     assert any(seen)  # a correction QP warm-started above SPARSE_ROWS (the Python step's)
     model, data, warm = runs["warm"]
