@@ -182,7 +182,9 @@ struct Solved {  // a projection: v, lam, how it was solved; act: the active set
 // One step as it crosses to Python (bound as moreau_sim._step.StepOut; moreau_sim/compiled.py makes it a
 // results.StepResult). Its outcome, reason (FALLBACK), m, the projection's status and two scalars are
 // attributes; its arrays, named below, cross in two buffers (floats, ints: two numpy arrays per step, each
-// made costs ~1 us) laid out by visit(), the one definition of the layout, which layout() gives Python.
+// made costs ~1 us) laid out by visit(), the one definition of the layout, which layout() gives Python; M and W
+// (O(nv^2), O(nv m)) cross as views of their own (buffers 2 and 3, made only where Python reads them), not copied
+// into floats.
 // FLIGHT: q_next, u_next (= u_free); CONTACT: all (u_law only where paid).
 struct StepOut {
   Outcome outcome = Outcome::FALLBACK;
@@ -208,7 +210,9 @@ struct StepOut {
   VectorXd floats;  // the arrays that cross, laid out by visit()
   VectorXl ints;
 
-  // every array that crosses, in order: f(name, data, rows, cols, order) (cols 0: a vector; order 'C' or 'F')
+  // every array that crosses, in order: f(name, data, rows, cols, order) (cols 0: a vector; order 'C' or 'F');
+  // M and W (own()) are not packed: their own buffers
+  static bool own(const char *name) { return name[0] == 'M' || name[0] == 'W'; }
   template <class F> void visit(F &&f) {
     f("q_next", q_next.data(), q_next.size(), 0, 'C');
     f("u_next", u_next.data(), u_next.size(), 0, 'C');
@@ -238,12 +242,13 @@ struct StepOut {
   template <class T> static constexpr bool is_int = std::is_same_v<std::remove_const_t<T>, int64_t>;
   void pack() {
     Eigen::Index nf = 0, ni = 0;
-    visit([&](const char *, auto *p, Eigen::Index r, Eigen::Index c, char) {
-      (is_int<std::remove_pointer_t<decltype(p)>> ? ni : nf) += r * (c ? c : 1);
+    visit([&](const char *name, auto *p, Eigen::Index r, Eigen::Index c, char) {
+      if (!own(name)) (is_int<std::remove_pointer_t<decltype(p)>> ? ni : nf) += r * (c ? c : 1);
     });
     floats.resize(nf), ints.resize(ni);
     nf = ni = 0;
-    visit([&](const char *, auto *p, Eigen::Index r, Eigen::Index c, char) {
+    visit([&](const char *name, auto *p, Eigen::Index r, Eigen::Index c, char) {
+      if (own(name)) return;
       const Eigen::Index n = r * (c ? c : 1);
       if constexpr (is_int<std::remove_pointer_t<decltype(p)>>)
         std::copy(p, p + n, ints.data() + ni), ni += n;
@@ -251,13 +256,17 @@ struct StepOut {
         std::copy(p, p + n, floats.data() + nf), nf += n;
     });
   }
-  // (name, in ints, offset, rows, cols, order) of each array, in order
-  std::vector<std::tuple<std::string, bool, Eigen::Index, Eigen::Index, Eigen::Index, char>> layout() {
-    std::vector<std::tuple<std::string, bool, Eigen::Index, Eigen::Index, Eigen::Index, char>> out;
+  // (name, buffer: 0 floats, 1 ints, 2 M, 3 W, offset, rows, cols, order) of each array, in order
+  std::vector<std::tuple<std::string, int, Eigen::Index, Eigen::Index, Eigen::Index, char>> layout() {
+    std::vector<std::tuple<std::string, int, Eigen::Index, Eigen::Index, Eigen::Index, char>> out;
     Eigen::Index nf = 0, ni = 0;
     visit([&](const char *name, auto *p, Eigen::Index r, Eigen::Index c, char order) {
+      if (own(name)) {
+        out.emplace_back(name, name[0] == 'M' ? 2 : 3, 0, r, c, order);
+        return;
+      }
       const bool i = is_int<std::remove_pointer_t<decltype(p)>>;
-      out.emplace_back(name, i, i ? ni : nf, r, c, order);
+      out.emplace_back(name, i ? 1 : 0, i ? ni : nf, r, c, order);
       (i ? ni : nf) += r * (c ? c : 1);
     });
     return out;
@@ -1130,7 +1139,9 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
     return {v, VectorXd::Constant(1, lam1), Projection::ACTIVE_SET};
   }
   const double scale = 1.0 + v0.cwiseAbs().maxCoeff();
-  MatrixXd MiW, G;  // Minv @ W, W.T @ MiW
+  // Minv @ W, W.T @ MiW: kept from one call to the next (no fresh O(nv m) allocation; every entry written by
+  // contact_space); project is never re-entered while its MiW, G are in use
+  thread_local MatrixXd MiW, G;
   thread_local WInfo mi;  // MiW's columns' rows (contact_space)
   contact_space(Minv, W, wi, MiW, G, mi);
   thread_local GInfo gi;
@@ -1548,7 +1559,7 @@ class Stepper {
     forest_.mass_matrix(q, M_, J_);
     return M_;
   }
-  MatrixXd minverse(const VectorXd &q) {  // Forest.inverse_mass_matrix
+  const MatrixXd &minverse(const VectorXd &q) {  // Forest.inverse_mass_matrix
     if (Minv_.rows() != model_.nv) Minv_.setZero(model_.nv, model_.nv);
     forest_.inverse_mass_matrix(q, Minv_);
     return Minv_;
@@ -2291,7 +2302,7 @@ class Stepper {
     }
     if ((int)found.size() > C_.max_contacts) throw Fallback{"more contacts than the compiled step takes"};
     // constraints.assemble_constraints: M by CRBA (fills the WORLD Jacobians), rows, distinct rows
-    MatrixXd M = crba_world(q_m);
+    const MatrixXd &M = crba_world(q_m);  // M_ itself (no copy): nothing below makes M again
     MatrixXd W0 = contact_rows(found);
     std::vector<int> keep = distinct(W0);
     const Eigen::Index m = (Eigen::Index)keep.size();
@@ -2321,12 +2332,13 @@ class Stepper {
     }
     // the problem the law is solved in (stepper.assemble): every velocity row, or a driven step's free rows
     // (DriveStep.reduced: W_r, M_rr, the rate W_d' (xdot + e u_d^k)/(1 + e) added)
-    MatrixXd Minv, Wk;
+    MatrixXd Minv_d, Wk;  // Minv_d: the driven step's M_rr^-1
+    const MatrixXd *Minvp = &Minv_d;  // M^-1: Minv_ itself (no copy), or Minv_d
     VectorXd u_free, v_free, uk, ufk, vfk;
     DriveStep ds;
     MatrixXd Mrr;
     if (!driven) {
-      Minv = minverse(q_m);
+      Minvp = &minverse(q_m);
       u_free = free_velocity(q_m, u, h);
       v_free = (u_free + e * u) / (1.0 + e);
     } else {
@@ -2342,9 +2354,10 @@ class Stepper {
       for (Eigen::Index i = 0; i < m; ++i)
         if (!(Wk.col(i).array() != 0.0).any()) throw Fallback{"a contact only driven joints move"};
       Mrr = take(M, rh_.r, rh_.r);
-      Minv = inverse(Mrr);
+      Minv_d = inverse(Mrr);
       uk = take(u, rh_.r), ufk = take(u_free, rh_.r), vfk = take(v_free, rh_.r);
     }
+    const MatrixXd &Minv = *Minvp;
     const MatrixXd &Wl = driven ? Wk : W;
     const VectorXd &ul = driven ? uk : u, &ufl = driven ? ufk : u_free, &vfl = driven ? vfk : v_free;
     // solve_impact
@@ -2451,7 +2464,11 @@ class Stepper {
     }
     out.P = std::move(P), out.gamma_minus = std::move(gamma_minus), out.gamma_plus = std::move(gamma_plus);
     out.v_free = std::move(v0), out.b = std::move(b), out.v = std::move(v), out.lam = std::move(res.lam);
-    out.M = driven ? std::move(Mout) : std::move(M), out.W = std::move(W), out.projection = res.status;
+    if (driven)
+      out.M = Mout;
+    else
+      out.M = M;
+    out.W = std::move(W), out.projection = res.status;
     out.contact_work = work, out.correction_energy = corr, out.m = m;
     out.obstacle_work = ow, out.drive_work_free = driven ? ds.work_free : 0.0;
     out.pack();
@@ -2745,6 +2762,9 @@ NB_MODULE(_step, mod) {
       // views of the two buffers (the StepOut kept alive by them), not copies: a read costs no copy of the buffer
       .def_prop_ro("floats", [](StepOut &o) -> VectorXd & { return o.floats; }, nb::rv_policy::reference_internal)
       .def_prop_ro("ints", [](StepOut &o) -> VectorXl & { return o.ints; }, nb::rv_policy::reference_internal)
+      // M (nv, nv, 'C') and W (nv, m, 'F'): views of their own buffers (layout's buffers 2, 3), already shaped
+      .def_prop_ro("M", [](StepOut &o) -> decltype(StepOut::M) & { return o.M; }, nb::rv_policy::reference_internal)
+      .def_prop_ro("W", [](StepOut &o) -> MatrixXd & { return o.W; }, nb::rv_policy::reference_internal)
       .def("layout", &StepOut::layout, "(name, in ints, offset, rows, cols (0: a vector), order 'C'/'F') per array")
       .def_ro("projection", &StepOut::projection)
       .def_ro("contact_work", &StepOut::contact_work)
