@@ -22,6 +22,8 @@
 // step: corners, edge contacts of two boxes, a point query against a box turned in its joint frame, swept
 // detection, coal's EPA fallback, more than max_contacts contacts (qp.COLD_START_ROWS), a projection the active set
 // does not settle (where qp.solve turns to piqp), a driven step whose contact only driven rows move.
+#include <memory>
+#include <mutex>
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/stl/array.h>
@@ -186,7 +188,41 @@ struct Solved {  // a projection: v, lam, how it was solved; act: the active set
 // (O(nv^2), O(nv m)) cross as views of their own (buffers 2 and 3, made only where Python reads them), not copied
 // into floats.
 // FLIGHT: q_next, u_next (= u_free); CONTACT: all (u_law only where paid).
+using RowMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+// A StepOut's M and W handed back where Python drops the step (~StepOut), taken by a later step of the same sizes
+// (no fresh O(nv^2) allocation, no page faults, per step): at most two of each kept. Every entry of a matrix taken
+// is written before it is read (contact_rows, M's assignment).
+struct Spare {
+  std::mutex mu;
+  std::vector<MatrixXd> W;
+  std::vector<RowMatrixXd> M;
+  template <class Mat> static Mat take(std::mutex &mu, std::vector<Mat> &v, Eigen::Index r, Eigen::Index c) {
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      for (size_t k = 0; k < v.size(); ++k)
+        if (v[k].size() == r * c) {
+          Mat x = std::move(v[k]);
+          v.erase(v.begin() + (std::ptrdiff_t)k);
+          x.resize(r, c);  // the same number of entries: no reallocation
+          return x;
+        }
+    }
+    return Mat(r, c);
+  }
+  template <class Mat> static void give(std::mutex &mu, std::vector<Mat> &v, Mat &x) {
+    if (!x.size()) return;
+    std::lock_guard<std::mutex> lock(mu);
+    if (v.size() < 2) v.push_back(std::move(x));
+  }
+};
 struct StepOut {
+  StepOut() = default;
+  StepOut(StepOut &&) = default;
+  StepOut &operator=(StepOut &&) = default;
+  ~StepOut() {
+    if (spare) Spare::give(spare->mu, spare->M, M), Spare::give(spare->mu, spare->W, W);
+  }
+  std::shared_ptr<Spare> spare;  // where M and W go back (the Stepper's)
   Outcome outcome = Outcome::FALLBACK;
   std::string reason;
   Eigen::Index m = 0;
@@ -196,7 +232,7 @@ struct StepOut {
   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> point_a, point_b, normal;
   VectorXl pair, kind, feature, joint_a, joint_b;
   VectorXd P, gamma_minus, gamma_plus, v_free, b, v, lam;
-  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> M;
+  RowMatrixXd M;
   MatrixXd W;  // (nv, m), column-major as constraints.contact_rows makes it
   Projection projection = Projection::ADMISSIBLE;
   double contact_work = 0.0, correction_energy = 0.0;
@@ -1337,6 +1373,7 @@ class Stepper {
 
   StepOut step(const VectorXd &q, const VectorXd &u, double h, double e, const VectorXd &tau, double t) {
     StepOut out;
+    out.spare = spare_;
     if (tau.size() != 0 && tau.size() != model_.nv) throw nb::value_error("tau: size nv (or empty) expected");
     if ((rh_.driven() || !rh_.moving.empty()) && !std::isfinite(t))
       throw nb::value_error("t: the step's start time is needed (a moving static or a driven joint)");
@@ -1349,6 +1386,7 @@ class Stepper {
     } catch (const Fallback &f) {
       restore_guesses();
       out = StepOut();
+      out.spare = spare_;
       out.outcome = Outcome::FALLBACK, out.reason = f.why;
     }
     return out;
@@ -1488,6 +1526,7 @@ class Stepper {
   VectorXd tau_;  // the current step's joint torques (empty: none)
   const pinocchio::Model &model_;  // the scene's (no Data of it: its joints' maps and pin.integrate)
   Forest forest_;  // the dynamics and kinematics, per tree (docs/theory.md §2.12)
+  std::shared_ptr<Spare> spare_ = std::make_shared<Spare>();  // the StepOuts' M and W, handed back (Spare)
   MatrixXd M_, Minv_, J_;  // M and M^-1 (nv, nv, block diagonal: made at first use), the WORLD Jacobians (6, nv)
   const pinocchio::GeometryModel &gm_;
   pinocchio::GeometryData &gd_;
@@ -2159,7 +2198,7 @@ class Stepper {
   MatrixXd contact_rows(const std::vector<Found> &f) {
     const Eigen::Index nv = model_.nv, m = (Eigen::Index)f.size();
     const auto &J = J_;  // (6, nv) WORLD (crba_world)
-    MatrixXd W(nv, m);
+    MatrixXd W = Spare::take(spare_->mu, spare_->W, nv, m);  // every entry written below
     for (Eigen::Index i = 0; i < m; ++i) {
       if (f[i].kind == C_.joint_limit) {  // the constant row sign e_{idx_v}
         const Eigen::Index k = f[i].pair - npairs();
@@ -2311,8 +2350,9 @@ class Stepper {
     if (m == W0.cols()) {  // every row distinct: W is W0 (no copy)
       W = std::move(W0), con = std::move(found);
     } else {
-      W.resize(nv, m);
+      W = Spare::take(spare_->mu, spare_->W, nv, m);  // every column written below
       for (Eigen::Index j = 0; j < m; ++j) W.col(j) = W0.col(keep[j]), con.push_back(found[keep[j]]);
+      Spare::give(spare_->mu, spare_->W, W0);
     }
     // Prescribed.rates: dg_i/dt = -n_i.V(t_m) of the contacts against a moving static (§2.9); none: no rate
     VectorXd rate;
@@ -2464,6 +2504,7 @@ class Stepper {
     }
     out.P = std::move(P), out.gamma_minus = std::move(gamma_minus), out.gamma_plus = std::move(gamma_plus);
     out.v_free = std::move(v0), out.b = std::move(b), out.v = std::move(v), out.lam = std::move(res.lam);
+    out.M = Spare::take(spare_->mu, spare_->M, nv, nv);  // every entry assigned below
     if (driven)
       out.M = Mout;
     else
@@ -2765,7 +2806,7 @@ NB_MODULE(_step, mod) {
       // M (nv, nv, 'C') and W (nv, m, 'F'): views of their own buffers (layout's buffers 2, 3), already shaped
       .def_prop_ro("M", [](StepOut &o) -> decltype(StepOut::M) & { return o.M; }, nb::rv_policy::reference_internal)
       .def_prop_ro("W", [](StepOut &o) -> MatrixXd & { return o.W; }, nb::rv_policy::reference_internal)
-      .def("layout", &StepOut::layout, "(name, in ints, offset, rows, cols (0: a vector), order 'C'/'F') per array")
+      .def("layout", &StepOut::layout, "(name, buffer: 0 floats 1 ints 2 M 3 W, offset, rows, cols (0: a vector), order 'C'/'F') per array")
       .def_ro("projection", &StepOut::projection)
       .def_ro("contact_work", &StepOut::contact_work)
       .def_ro("correction_energy", &StepOut::correction_energy)
