@@ -187,7 +187,7 @@ class _Context:
         prep = _prepared(model)
         self.carries = prep.carries  # the detection carries state from step to step
         self.timed = model.prescribed is not None or model.drive is not None  # its steps need their start time
-        self._layouts: dict[tuple, dict] = {}  # (outcome, m, paid) -> the step's named arrays in its two buffers
+        self._layouts: dict[tuple, dict] = {}  # (outcome, m, paid) -> the step's named arrays in its buffers
         self.counts: Counter = Counter()
         self.why = prep.why
         self.stepper = None
@@ -221,27 +221,30 @@ class _Context:
 
     def layout(self, r) -> dict:
         """Where the named arrays of the extension's StepOut r lie in its buffers, as r.layout() says (src/step.cpp
-        StepOut::visit, the one definition of the layout): name -> (its buffer: 0 floats, 1 ints, 2 M, 3 W (their own
-        storage, flat); its slice, its shape: (rows, cols) of a
-        'C' array, (cols, rows) of an 'F' one, its transpose's C view, the same strides as reshape(order='F')
-        without the keyword's cost; None: a vector, in F order), made once per (outcome, m, paid)."""
+        StepOut::visit, the one definition of the layout): name -> (its buffer: 0 floats, 1 ints, 2 M, 3 W; its
+        slice, None for M and W: their own buffers, r.M and r.W, already shaped; its shape: (rows, cols) of a 'C'
+        array, (cols, rows) of an 'F' one, its transpose's C view, the same strides as reshape(order='F') without
+        the keyword's cost; None: a vector, in F order), made once per (outcome, m, paid)."""
         key = (r.outcome, r.m, r.paid)
         lay = self._layouts.get(key)
         if lay is None:
             lay = self._layouts[key] = {
-                name: (buffer, slice(a, a + rows * (cols or 1)),
+                name: (i, slice(a, a + rows * (cols or 1)) if i < 2 else None,
                        None if not cols else (rows, cols) if order == "C" else (cols, rows), order == "F")
-                for name, buffer, a, rows, cols, order in r.layout()}
+                for name, i, a, rows, cols, order in r.layout()}
         return lay
 
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its buffers (layout)."""
-        buffers = (r.floats, *((r.ints, r.M, r.W) if r.outcome is _module.Outcome.CONTACT else ()))
+        contact = r.outcome is _module.Outcome.CONTACT
+        buffers = (r.floats, *((r.ints, r.M, r.W) if contact else (None,) * 3))
         return {name: _view(buffers[i], s, shape, f_order) for name, (i, s, shape, f_order) in self.layout(r).items()}
 
 
 def _view(buffer: np.ndarray, s: slice, shape: tuple | None, f_order: bool) -> np.ndarray:
-    """The array at (s, shape, f_order) of _Context.layout in a StepOut's buffer: a view."""
+    """The array at (s, shape, f_order) of _Context.layout in a StepOut's buffer: a view (s None: the buffer itself)."""
+    if s is None:
+        return buffer
     v = buffer[s]
     return v if shape is None else v.reshape(shape).T if f_order else v.reshape(shape)
 

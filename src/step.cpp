@@ -23,9 +23,10 @@
 // detection, coal's EPA fallback, a projection of more than qp.WARM_ROWS rows without a start (qp.solve's sparse
 // path alone), a projection the active set does not settle (where qp.solve turns to piqp), a driven step whose
 // contact only driven rows move.
+#include <memory>
+#include <mutex>
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
-#include <nanobind/ndarray.h>
 #include <nanobind/stl/array.h>
 #include <nanobind/stl/map.h>
 #include <nanobind/stl/string.h>
@@ -188,10 +189,45 @@ struct Solved {  // a projection: v, lam, how it was solved; act: the active set
 // results.StepResult). Its outcome, reason (FALLBACK), m, the projection's status and two scalars are
 // attributes; its arrays, named below, cross in two buffers (floats, ints: two numpy arrays per step, each
 // made costs ~1 us) laid out by visit(), the one definition of the layout, which layout() gives Python; M and W
-// cross as views of their own storage (nv^2 and nv m doubles: no copy). The buffers are filled when Python first
-// reads them (pack): a step the compiled run loop takes (src/run.cpp) never fills them.
+// (O(nv^2), O(nv m)) cross as views of their own (buffers 2 and 3, made only where Python reads them), not copied
+// into floats. The two buffers are filled when Python first reads them (pack): a step the compiled run loop
+// takes (src/run.cpp) never fills them.
 // FLIGHT: q_next, u_next (= u_free); CONTACT: all (u_law only where paid).
+using RowMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+// A StepOut's M and W handed back where Python drops the step (~StepOut), taken by a later step of the same sizes
+// (no fresh O(nv^2) allocation, no page faults, per step): at most two of each kept. Every entry of a matrix taken
+// is written before it is read (contact_rows, M's assignment).
+struct Spare {
+  std::mutex mu;
+  std::vector<MatrixXd> W;
+  std::vector<RowMatrixXd> M;
+  template <class Mat> static Mat take(std::mutex &mu, std::vector<Mat> &v, Eigen::Index r, Eigen::Index c) {
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      for (size_t k = 0; k < v.size(); ++k)
+        if (v[k].size() == r * c) {
+          Mat x = std::move(v[k]);
+          v.erase(v.begin() + (std::ptrdiff_t)k);
+          x.resize(r, c);  // the same number of entries: no reallocation
+          return x;
+        }
+    }
+    return Mat(r, c);
+  }
+  template <class Mat> static void give(std::mutex &mu, std::vector<Mat> &v, Mat &x) {
+    if (!x.size()) return;
+    std::lock_guard<std::mutex> lock(mu);
+    if (v.size() < 2) v.push_back(std::move(x));
+  }
+};
 struct StepOut {
+  StepOut() = default;
+  StepOut(StepOut &&) = default;
+  StepOut &operator=(StepOut &&) = default;
+  ~StepOut() {
+    if (spare) Spare::give(spare->mu, spare->M, M), Spare::give(spare->mu, spare->W, W);
+  }
+  std::shared_ptr<Spare> spare;  // where M and W go back (the Stepper's)
   Outcome outcome = Outcome::FALLBACK;
   std::string reason;
   Eigen::Index m = 0;
@@ -201,7 +237,7 @@ struct StepOut {
   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> point_a, point_b, normal;
   VectorXl pair, kind, feature, joint_a, joint_b;
   VectorXd P, gamma_minus, gamma_plus, v_free, b, v, lam;
-  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> M;
+  RowMatrixXd M;
   MatrixXd W;  // (nv, m), column-major as constraints.contact_rows makes it
   Projection projection = Projection::ADMISSIBLE;
   double contact_work = 0.0, correction_energy = 0.0;
@@ -216,47 +252,47 @@ struct StepOut {
   VectorXl ints;
   bool packed = false;
 
-  // every array that crosses, in order: f(name, data, rows, cols, order, own) (cols 0: a vector; order 'C' or
-  // 'F'; own: 0 in the floats or ints buffer, else the array's own buffer, kM or kW)
-  static constexpr int kM = 2, kW = 3;
+  // every array that crosses, in order: f(name, data, rows, cols, order) (cols 0: a vector; order 'C' or 'F');
+  // M and W (own()) are not packed: their own buffers
+  static bool own(const char *name) { return name[0] == 'M' || name[0] == 'W'; }
   template <class F> void visit(F &&f) {
-    f("q_next", q_next.data(), q_next.size(), 0, 'C', 0);
-    f("u_next", u_next.data(), u_next.size(), 0, 'C', 0);
+    f("q_next", q_next.data(), q_next.size(), 0, 'C');
+    f("u_next", u_next.data(), u_next.size(), 0, 'C');
     if (outcome != Outcome::CONTACT) return;
     const Eigen::Index nv = u_next.size();
-    f("u_free", u_free.data(), nv, 0, 'C', 0);
-    f("g", g.data(), m, 0, 'C', 0);
-    f("point_a", point_a.data(), m, 3, 'C', 0);
-    f("point_b", point_b.data(), m, 3, 'C', 0);
-    f("normal", normal.data(), m, 3, 'C', 0);
-    f("P", P.data(), m, 0, 'C', 0);
-    f("gamma_minus", gamma_minus.data(), m, 0, 'C', 0);
-    f("gamma_plus", gamma_plus.data(), m, 0, 'C', 0);
-    f("v_free", v_free.data(), nv, 0, 'C', 0);
-    f("b", b.data(), m, 0, 'C', 0);
-    f("v", v.data(), nv, 0, 'C', 0);
-    f("lam", lam.data(), m, 0, 'C', 0);
-    f("M", M.data(), nv, nv, 'C', kM);
-    f("W", W.data(), nv, m, 'F', kW);
-    f("pair", pair.data(), m, 0, 'C', 0);
-    f("kind", kind.data(), m, 0, 'C', 0);
-    f("feature", feature.data(), m, 0, 'C', 0);
-    f("joint_a", joint_a.data(), m, 0, 'C', 0);
-    f("joint_b", joint_b.data(), m, 0, 'C', 0);
-    if (paid) f("u_law", u_law.data(), nv, 0, 'C', 0);
+    f("u_free", u_free.data(), nv, 0, 'C');
+    f("g", g.data(), m, 0, 'C');
+    f("point_a", point_a.data(), m, 3, 'C');
+    f("point_b", point_b.data(), m, 3, 'C');
+    f("normal", normal.data(), m, 3, 'C');
+    f("P", P.data(), m, 0, 'C');
+    f("gamma_minus", gamma_minus.data(), m, 0, 'C');
+    f("gamma_plus", gamma_plus.data(), m, 0, 'C');
+    f("v_free", v_free.data(), nv, 0, 'C');
+    f("b", b.data(), m, 0, 'C');
+    f("v", v.data(), nv, 0, 'C');
+    f("lam", lam.data(), m, 0, 'C');
+    f("M", M.data(), nv, nv, 'C');
+    f("W", W.data(), nv, m, 'F');
+    f("pair", pair.data(), m, 0, 'C');
+    f("kind", kind.data(), m, 0, 'C');
+    f("feature", feature.data(), m, 0, 'C');
+    f("joint_a", joint_a.data(), m, 0, 'C');
+    f("joint_b", joint_b.data(), m, 0, 'C');
+    if (paid) f("u_law", u_law.data(), nv, 0, 'C');
   }
   template <class T> static constexpr bool is_int = std::is_same_v<std::remove_const_t<T>, int64_t>;
   void pack() {
     if (packed) return;
     packed = true;
     Eigen::Index nf = 0, ni = 0;
-    visit([&](const char *, auto *p, Eigen::Index r, Eigen::Index c, char, int own) {
-      if (!own) (is_int<std::remove_pointer_t<decltype(p)>> ? ni : nf) += r * (c ? c : 1);
+    visit([&](const char *name, auto *p, Eigen::Index r, Eigen::Index c, char) {
+      if (!own(name)) (is_int<std::remove_pointer_t<decltype(p)>> ? ni : nf) += r * (c ? c : 1);
     });
     floats.resize(nf), ints.resize(ni);
     nf = ni = 0;
-    visit([&](const char *, auto *p, Eigen::Index r, Eigen::Index c, char, int own) {
-      if (own) return;
+    visit([&](const char *name, auto *p, Eigen::Index r, Eigen::Index c, char) {
+      if (own(name)) return;
       const Eigen::Index n = r * (c ? c : 1);
       if constexpr (is_int<std::remove_pointer_t<decltype(p)>>)
         std::copy(p, p + n, ints.data() + ni), ni += n;
@@ -264,27 +300,22 @@ struct StepOut {
         std::copy(p, p + n, floats.data() + nf), nf += n;
     });
   }
-  // (name, buffer: 0 floats, 1 ints, kM, kW; offset, rows, cols, order) of each array, in order
+  // (name, buffer: 0 floats, 1 ints, 2 M, 3 W, offset, rows, cols, order) of each array, in order
   std::vector<std::tuple<std::string, int, Eigen::Index, Eigen::Index, Eigen::Index, char>> layout() {
     std::vector<std::tuple<std::string, int, Eigen::Index, Eigen::Index, Eigen::Index, char>> out;
     Eigen::Index nf = 0, ni = 0;
-    visit([&](const char *name, auto *p, Eigen::Index r, Eigen::Index c, char order, int own) {
-      const bool i = is_int<std::remove_pointer_t<decltype(p)>>;
-      if (own) {
-        out.emplace_back(name, own, 0, r, c, order);
+    visit([&](const char *name, auto *p, Eigen::Index r, Eigen::Index c, char order) {
+      if (own(name)) {
+        out.emplace_back(name, name[0] == 'M' ? 2 : 3, 0, r, c, order);
         return;
       }
+      const bool i = is_int<std::remove_pointer_t<decltype(p)>>;
       out.emplace_back(name, i ? 1 : 0, i ? ni : nf, r, c, order);
       (i ? ni : nf) += r * (c ? c : 1);
     });
     return out;
   }
 };
-
-// A flat numpy view of n doubles at p, kept alive by owner (StepOut's M and W)
-nb::ndarray<nb::numpy, double, nb::ndim<1>> flat_view(double *p, Eigen::Index n, nb::handle owner) {
-  return nb::ndarray<nb::numpy, double, nb::ndim<1>>(p, {(size_t)n}, owner);
-}
 
 }  // namespace
 
@@ -1155,7 +1186,9 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
   // above qp.WARM_ROWS rows a projection without a start goes to qp.solve's sparse path (piqp + SuperLU's start)
   if (m > C.warm_rows && !start) throw Fallback{"more rows than the active set takes from nothing"};
   const double scale = 1.0 + v0.cwiseAbs().maxCoeff();
-  MatrixXd MiW, G;  // Minv @ W, W.T @ MiW
+  // Minv @ W, W.T @ MiW: kept from one call to the next (no fresh O(nv m) allocation; every entry written by
+  // contact_space); project is never re-entered while its MiW, G are in use
+  thread_local MatrixXd MiW, G;
   thread_local WInfo mi;  // MiW's columns' rows (contact_space)
   contact_space(Minv, W, wi, MiW, G, mi);
   thread_local GInfo gi;
@@ -1350,6 +1383,7 @@ class Stepper {
 
   StepOut step(const VectorXd &q, const VectorXd &u, double h, double e, const VectorXd &tau, double t) {
     StepOut out;
+    out.spare = spare_;
     if (tau.size() != 0 && tau.size() != model_.nv) throw nb::value_error("tau: size nv (or empty) expected");
     if ((rh_.driven() || !rh_.moving.empty()) && !std::isfinite(t))
       throw nb::value_error("t: the step's start time is needed (a moving static or a driven joint)");
@@ -1362,6 +1396,7 @@ class Stepper {
     } catch (const Fallback &f) {
       restore_guesses();
       out = StepOut();
+      out.spare = spare_;
       out.outcome = Outcome::FALLBACK, out.reason = f.why;
     }
     return out;
@@ -1501,6 +1536,7 @@ class Stepper {
   VectorXd tau_;  // the current step's joint torques (empty: none)
   const pinocchio::Model &model_;  // the scene's (no Data of it: its joints' maps and pin.integrate)
   Forest forest_;  // the dynamics and kinematics, per tree (docs/theory.md §2.12)
+  std::shared_ptr<Spare> spare_ = std::make_shared<Spare>();  // the StepOuts' M and W, handed back (Spare)
   MatrixXd M_, Minv_, J_;  // M and M^-1 (nv, nv, block diagonal: made at first use), the WORLD Jacobians (6, nv)
   const pinocchio::GeometryModel &gm_;
   pinocchio::GeometryData &gd_;
@@ -1572,7 +1608,7 @@ class Stepper {
     forest_.mass_matrix(q, M_, J_);
     return M_;
   }
-  MatrixXd minverse(const VectorXd &q) {  // Forest.inverse_mass_matrix
+  const MatrixXd &minverse(const VectorXd &q) {  // Forest.inverse_mass_matrix
     if (Minv_.rows() != model_.nv) Minv_.setZero(model_.nv, model_.nv);
     forest_.inverse_mass_matrix(q, Minv_);
     return Minv_;
@@ -2172,7 +2208,7 @@ class Stepper {
   MatrixXd contact_rows(const std::vector<Found> &f) {
     const Eigen::Index nv = model_.nv, m = (Eigen::Index)f.size();
     const auto &J = J_;  // (6, nv) WORLD (crba_world)
-    MatrixXd W(nv, m);
+    MatrixXd W = Spare::take(spare_->mu, spare_->W, nv, m);  // every entry written below
     for (Eigen::Index i = 0; i < m; ++i) {
       if (f[i].kind == C_.joint_limit) {  // the constant row sign e_{idx_v}
         const Eigen::Index k = f[i].pair - npairs();
@@ -2313,7 +2349,7 @@ class Stepper {
       return;
     }
     // constraints.assemble_constraints: M by CRBA (fills the WORLD Jacobians), rows, distinct rows
-    MatrixXd M = crba_world(q_m);
+    const MatrixXd &M = crba_world(q_m);  // M_ itself (no copy): nothing below makes M again
     MatrixXd W0 = contact_rows(found);
     std::vector<int> keep = distinct(W0);
     const Eigen::Index m = (Eigen::Index)keep.size();
@@ -2322,8 +2358,9 @@ class Stepper {
     if (m == W0.cols()) {  // every row distinct: W is W0 (no copy)
       W = std::move(W0), con = std::move(found);
     } else {
-      W.resize(nv, m);
+      W = Spare::take(spare_->mu, spare_->W, nv, m);  // every column written below
       for (Eigen::Index j = 0; j < m; ++j) W.col(j) = W0.col(keep[j]), con.push_back(found[keep[j]]);
+      Spare::give(spare_->mu, spare_->W, W0);
     }
     // Prescribed.rates: dg_i/dt = -n_i.V(t_m) of the contacts against a moving static (§2.9); none: no rate
     VectorXd rate;
@@ -2343,12 +2380,13 @@ class Stepper {
     }
     // the problem the law is solved in (stepper.assemble): every velocity row, or a driven step's free rows
     // (DriveStep.reduced: W_r, M_rr, the rate W_d' (xdot + e u_d^k)/(1 + e) added)
-    MatrixXd Minv, Wk;
+    MatrixXd Minv_d, Wk;  // Minv_d: the driven step's M_rr^-1
+    const MatrixXd *Minvp = &Minv_d;  // M^-1: Minv_ itself (no copy), or Minv_d
     VectorXd u_free, v_free, uk, ufk, vfk;
     DriveStep ds;
     MatrixXd Mrr;
     if (!driven) {
-      Minv = minverse(q_m);
+      Minvp = &minverse(q_m);
       u_free = free_velocity(q_m, u, h);
       v_free = (u_free + e * u) / (1.0 + e);
     } else {
@@ -2364,9 +2402,10 @@ class Stepper {
       for (Eigen::Index i = 0; i < m; ++i)
         if (!(Wk.col(i).array() != 0.0).any()) throw Fallback{"a contact only driven joints move"};
       Mrr = take(M, rh_.r, rh_.r);
-      Minv = inverse(Mrr);
+      Minv_d = inverse(Mrr);
       uk = take(u, rh_.r), ufk = take(u_free, rh_.r), vfk = take(v_free, rh_.r);
     }
+    const MatrixXd &Minv = *Minvp;
     const MatrixXd &Wl = driven ? Wk : W;
     const VectorXd &ul = driven ? uk : u, &ufl = driven ? ufk : u_free, &vfl = driven ? vfk : v_free;
     // solve_impact
@@ -2473,7 +2512,12 @@ class Stepper {
     }
     out.P = std::move(P), out.gamma_minus = std::move(gamma_minus), out.gamma_plus = std::move(gamma_plus);
     out.v_free = std::move(v0), out.b = std::move(b), out.v = std::move(v), out.lam = std::move(res.lam);
-    out.M = driven ? std::move(Mout) : std::move(M), out.W = std::move(W), out.projection = res.status;
+    out.M = Spare::take(spare_->mu, spare_->M, nv, nv);  // every entry assigned below
+    if (driven)
+      out.M = Mout;
+    else
+      out.M = M;
+    out.W = std::move(W), out.projection = res.status;
     out.contact_work = work, out.correction_energy = corr, out.m = m;
     out.obstacle_work = ow, out.drive_work_free = driven ? ds.work_free : 0.0;
   }
@@ -2770,14 +2814,14 @@ NB_MODULE(_step, mod) {
       .def_ro("outcome", &StepOut::outcome)
       .def_ro("reason", &StepOut::reason)
       .def_ro("m", &StepOut::m)
-      // views of the two buffers (filled at the first read) and of M's and W's storage, flat (the StepOut kept
-      // alive by them), not copies: a read costs no copy of the buffer
+      // views of the two buffers (filled at the first read; the StepOut kept alive by them), not copies: a read
+      // costs no copy of the buffer
       .def_prop_ro("floats", [](StepOut &o) -> VectorXd & { o.pack(); return o.floats; }, nb::rv_policy::reference_internal)
       .def_prop_ro("ints", [](StepOut &o) -> VectorXl & { o.pack(); return o.ints; }, nb::rv_policy::reference_internal)
-      .def_prop_ro("M", [](nb::pointer_and_handle<StepOut> o) { return flat_view(o.p->M.data(), o.p->M.size(), o.h); })
-      .def_prop_ro("W", [](nb::pointer_and_handle<StepOut> o) { return flat_view(o.p->W.data(), o.p->W.size(), o.h); })
-      .def("layout", &StepOut::layout,
-           "(name, buffer: 0 floats, 1 ints, 2 M, 3 W; offset, rows, cols (0: a vector), order 'C'/'F') per array")
+      // M (nv, nv, 'C') and W (nv, m, 'F'): views of their own buffers (layout's buffers 2, 3), already shaped
+      .def_prop_ro("M", [](StepOut &o) -> decltype(StepOut::M) & { return o.M; }, nb::rv_policy::reference_internal)
+      .def_prop_ro("W", [](StepOut &o) -> MatrixXd & { return o.W; }, nb::rv_policy::reference_internal)
+      .def("layout", &StepOut::layout, "(name, buffer: 0 floats 1 ints 2 M 3 W, offset, rows, cols (0: a vector), order 'C'/'F') per array")
       .def_ro("projection", &StepOut::projection)
       .def_ro("contact_work", &StepOut::contact_work)
       .def_ro("correction_energy", &StepOut::correction_energy)

@@ -437,6 +437,38 @@ def test_the_result_crosses_by_name():
     assert contact > 50 and counts["contact"] + counts["python: a paid position lift"] == contact, dict(counts)
 
 
+def test_kept_buffers_give_python_bits_as_the_rows_come_and_go():
+    """The compiled step keeps its large buffers (M, M^-1, the projection's MiW and G) from one step to the next,
+    resized only where the rows' count changes, and hands M and W to Python as views of the step's own arrays: on
+    column_of_beads (its contact count rising and falling from step to step) every contact step gives the Python
+    step's contacts, impact and projection problem bit for bit, and a result kept from an earlier step still holds
+    its own M and W after later steps."""
+    scene = load_scene(SCENES[0].parent / "column_of_beads.toml")
+    models = {impl: build_model(scene.with_options(step_impl=impl.value)) for impl in StepImpl}
+    datas = {impl: make_data(m) for impl, m in models.items()}
+    state = {impl: ms.initial_state(m) for impl, m in models.items()}
+    kept, ms_seen = [], []
+    for _ in range(1500):
+        rs = {impl: ms.step(models[impl], datas[impl], state[impl]) for impl in StepImpl}
+        for impl in StepImpl:
+            state[impl] = rs[impl].state
+        a, b = rs[StepImpl.PYTHON], rs[StepImpl.COMPILED]
+        assert np.array_equal(a.state.q, b.state.q) and np.array_equal(a.state.u, b.state.u)
+        if a.qp is None:
+            continue
+        ms_seen.append(a.contacts.m)
+        for key in ("M", "W", "v0", "b", "v", "lam"):
+            assert np.array_equal(getattr(a.qp, key), getattr(b.qp, key)), key
+        for key in ("P", "gamma_minus", "gamma_plus"):
+            assert np.array_equal(getattr(a, key), getattr(b, key)), key
+        kept.append((b, b.qp.M.copy(), b.qp.W.copy()))
+    steps = np.diff(ms_seen)
+    assert (steps > 0).any() and (steps < 0).any(), ms_seen  # the rows came and went
+    assert compiled.counts(datas[StepImpl.COMPILED])["contact"] > 100
+    for b, M, W in kept:
+        assert np.array_equal(b.qp.M, M) and np.array_equal(b.qp.W, W)
+
+
 @pytest.mark.parametrize("name", ["column_of_beads_100", "quadruped_drop"])
 def test_python_step_is_bit_reproducible(name):
     """The Python step alone, twice in one process (other arrays allocated in between, so numpy's land at other
