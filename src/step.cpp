@@ -23,6 +23,7 @@
 // detection, coal's EPA fallback, a projection of more than qp.WARM_ROWS rows without a start (qp.solve's sparse
 // path alone), a projection the active set does not settle (where qp.solve turns to piqp), a driven step whose
 // contact only driven rows move.
+#include <cstring>
 #include <memory>
 #include <mutex>
 #include <nanobind/nanobind.h>
@@ -253,8 +254,8 @@ struct StepOut {
   bool packed = false;
 
   // every array that crosses, in order: f(name, data, rows, cols, order) (cols 0: a vector; order 'C' or 'F');
-  // M and W (own()) are not packed: their own buffers
-  static bool own(const char *name) { return name[0] == 'M' || name[0] == 'W'; }
+  // M and W are not packed: own(name), their own buffer (layout's 2, 3; 0: in floats or ints)
+  static int own(const char *name) { return !std::strcmp(name, "M") ? 2 : !std::strcmp(name, "W") ? 3 : 0; }
   template <class F> void visit(F &&f) {
     f("q_next", q_next.data(), q_next.size(), 0, 'C');
     f("u_next", u_next.data(), u_next.size(), 0, 'C');
@@ -305,8 +306,8 @@ struct StepOut {
     std::vector<std::tuple<std::string, int, Eigen::Index, Eigen::Index, Eigen::Index, char>> out;
     Eigen::Index nf = 0, ni = 0;
     visit([&](const char *name, auto *p, Eigen::Index r, Eigen::Index c, char order) {
-      if (own(name)) {
-        out.emplace_back(name, name[0] == 'M' ? 2 : 3, 0, r, c, order);
+      if (const int b = own(name)) {
+        out.emplace_back(name, b, 0, r, c, order);
         return;
       }
       const bool i = is_int<std::remove_pointer_t<decltype(p)>>;
@@ -2463,7 +2464,7 @@ class Stepper {
     VectorXd gsum = gamma_plus + gamma_minus;
     const double work = odot(P.data(), gsum.data(), m) * 0.5;
     VectorXd v = std::move(res.v), v0 = v_free;
-    MatrixXd Mout, Minv_c;  // the StepOut's M: the driven step's embedded M_rr, else M itself (moved in at the end)
+    MatrixXd Mout, Minv_c;  // the driven step's embedded M_rr (the StepOut's M; else M itself, copied in at the end)
     if (driven) {  // DriveStep.expanded: u_{k+1} = (u_r, xdot), W's driven rows zero, the QP's problem embedded
       VectorXd U(nv), ve(nv), v0e(nv);
       MatrixXd We = MatrixXd::Zero(nv, m);
