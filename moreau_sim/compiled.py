@@ -284,7 +284,7 @@ class _Prepared:
         self.stepper = (
             [np.asarray(V, float).reshape(-1, 3) for V in model.vertices], kinds,
             [np.asarray(b[1], float) for b in model.bounds], [float(b[2]) for b in model.bounds], pairs,
-            np.asarray(model.support_mask, float), float(model.reach), float(model.thinnest_pair),
+            float(model.reach), float(model.thinnest_pair),
             float(o.contact_tolerance), _TUNNELLING[o.tunnelling], o.separating is Separating.ELASTIC,
             o.slow_impacts is SlowImpacts.PLASTIC, o.bias is Bias.MIDPOINT, bool(model.velocity_bias),
             o.position_correction is PositionCorrection.PROJECTION, CONSTANTS,

@@ -29,7 +29,7 @@ def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
     Needs data.kinematics.J = the WORLD joint Jacobians at the same q as `contacts`
     (the forest's mass_matrix fills it: trees.py).
     w_i = n_i' (J_A(p_A) - J_B(p_B)) = n' J_lin + (p x n)' J_ang: the unit wrench [n; p x n] at the
-    world origin applied to the WORLD Jacobian, masked to the joints that move each body."""
+    world origin applied to the WORLD Jacobian, masked to the joints that move each body (+0.0 elsewhere)."""
     m = contacts.m
     if m == 0:
         return np.zeros((model.nv, 0))
@@ -41,7 +41,9 @@ def contact_rows(model: Model, data: Data, contacts: Contacts) -> np.ndarray:
                   p[:, 0] * nn[:, 1] - p[:, 1] * nn[:, 0]), axis=1)  # p x n
     R = ordered(nn, J[:3]) + ordered(c, J[3:])  # (2m, nv): A, then B (src/step.cpp contact_rows: the same sums)
     mask = model.support_mask
-    W = (R[:m] * mask[contacts.joint_a] - R[m:] * mask[contacts.joint_b]).T
+    A, B = mask[contacts.joint_a], mask[contacts.joint_b]
+    W = (R[:m] * A - R[m:] * B).T
+    W[((A == 0.0) & (B == 0.0)).T] = 0.0  # +0.0 on the velocities that move neither body (src/step.cpp: not computed)
     lim = contacts.kind == FeatureKind.JOINT_LIMIT
     if lim.any():  # a joint limit's row is the constant +-e_i (its zero normal gave a zero row above)
         W[:, lim] = limit_rows(model.limits, contacts.pair[lim], model.nv)

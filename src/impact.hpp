@@ -95,7 +95,8 @@ class EventImpact {
         const auto jab = s.joints_of(con[i]);
         out.joint_a[i] = jab.first, out.joint_b[i] = jab.second;
       }
-      out.v = std::move(res.v), out.lam = std::move(res.lam), out.M = M, out.W = std::move(W);
+      out.v = std::move(res.v), out.lam = std::move(res.lam), out.W = std::move(W);
+      out.set_M(M, s.blocks_);
       out.projection = res.status, out.contact_work = -loss, out.m = m;
     } catch (const Fallback &f) {
       s.restore_guesses();

@@ -235,16 +235,6 @@ class Runner {
   double potential(const VectorXd &q) { return forest_.potential(q); }
   void gaps(const VectorXd &q, double *out) { forest_.gaps(q, out); }
 
-  // ---- ledger.impact_terms's products: x'Mx as ledger._quad sums it, (x'M) x, each entry in index order (odot) --
-  // M (n, n) in C order (StepOut's M, as compiled.py hands it to the ledger)
-  static double quad(const double *M, const VectorXd &x, VectorXd &tmp) {
-    const Eigen::Index n = x.size();
-    if (n == 0) return 0.0;
-    tmp.resize(n);
-    for (Eigen::Index j = 0; j < n; ++j) tmp[j] = odot(x.data(), M + j, n, 1, n);
-    return odot(tmp.data(), x.data(), n);
-  }
-
   static double pymax(double a, double b) { return b > a ? b : a; }  // Python's max(a, b)
 
   // ---- undoing a step the Stepper took (a check that fires, a non-finite figure): the detection state it moved ----
@@ -380,14 +370,13 @@ class Runner {
     } else {  // ledger.impact_terms(M, v_free, v, u_k, u_{k+1}, e, P, b), the smooth step at q_free
       double law = 0.0, T_minus = 0.0, T_plus = 0.0;
       if (!persistent) {
-        const double *M = r.M.data();
         VectorXd tmp;
         // u_{k+1} as the law left it: before a lift the correction paid with the velocities (§2.5; Recorder's u_law)
         const VectorXd u_plus = (r.paid ? r.u_law : r.u_next) - e * (r.v_free - u_);
         const VectorXd res = r.v_free - r.v;
-        law = 0.5 * (1.0 - e * e) * quad(M, res, tmp);
+        law = 0.5 * (1.0 - e * e) * r.quad_M(res, tmp);
         law -= odot(r.P.data(), r.b.data(), m);  // b: the restitution bounds (zeros without; P.0 = +0.0)
-        T_minus = 0.5 * quad(M, r.v_free, tmp), T_plus = 0.5 * quad(M, u_plus, tmp);
+        T_minus = 0.5 * r.quad_M(r.v_free, tmp), T_plus = 0.5 * r.quad_M(u_plus, tmp);
       }
       const VectorXd q_half = pinocchio::integrate(S_.model_, q_, (0.5 * h) * u_);
       const VectorXd q_free = pinocchio::integrate(S_.model_, q_half, (0.5 * h) * r.u_free);

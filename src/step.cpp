@@ -195,6 +195,9 @@ struct Solved {  // a projection: v, lam, how it was solved; act: the active set
 // takes (src/run.cpp) never fills them.
 // FLIGHT: q_next, u_next (= u_free); CONTACT: all (u_law only where paid).
 using RowMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+// the diagonal blocks of a block-diagonal (nv, nv) matrix, (first index, size) each, in order, covering 0..nv: the
+// kinematic trees' M and M^-1 (docs/theory.md §2.12)
+using Blocks = std::vector<std::pair<Eigen::Index, Eigen::Index>>;
 // A StepOut's M and W handed back where Python drops the step (~StepOut), taken by a later step of the same sizes
 // (no fresh O(nv^2) allocation, no page faults, per step): at most two of each kept. Every entry of a matrix taken
 // is written before it is read (contact_rows, M's assignment).
@@ -228,6 +231,36 @@ struct StepOut {
   ~StepOut() {
     if (spare) Spare::give(spare->mu, spare->M, M), Spare::give(spare->mu, spare->W, W);
   }
+  // M is block diagonal over the kinematic trees (docs/theory.md §2.12): the step keeps its blocks (set_M, O(sum of
+  // the trees' nv^2)), the dense (nv, nv) M is made at Python's first read (dense_M), and the run loop's quadratic
+  // forms run over the blocks (quad_M)
+  void set_M(const MatrixXd &A, const Blocks &blocks) {
+    nM = A.rows(), mblocks = blocks;
+    Eigen::Index n = 0;
+    for (const auto &b : blocks) n += b.second * b.second;
+    mval.resize(n);
+    n = 0;
+    for (const auto &b : blocks)
+      for (Eigen::Index k = 0; k < b.second; ++k)
+        for (Eigen::Index i = 0; i < b.second; ++i) mval[n++] = A(b.first + i, b.first + k);
+  }
+  RowMatrixXd &dense_M() {
+    if (M.rows() == nM) return M;
+    if (spare)
+      M = Spare::take(spare->mu, spare->M, nM, nM);
+    else
+      M.resize(nM, nM);
+    M.setZero();  // the entries off the trees' blocks are +0.0, as in the Stepper's M
+    Eigen::Index n = 0;
+    for (const auto &b : mblocks)
+      for (Eigen::Index k = 0; k < b.second; ++k)
+        for (Eigen::Index i = 0; i < b.second; ++i) M(b.first + i, b.first + k) = mval[n++];
+    return M;
+  }
+  // x'Mx as the dense form sums it (tmp_j = sums.ordered(x, M[:, j]) then sums.ordered(tmp, x): odot) over the
+  // blocks' entries only where x is finite (a term with a zero factor adds +-0: contact_space's argument); else on
+  // the dense M
+  double quad_M(const VectorXd &x, VectorXd &tmp);
   std::shared_ptr<Spare> spare;  // where M and W go back (the Stepper's)
   Outcome outcome = Outcome::FALLBACK;
   std::string reason;
@@ -238,7 +271,10 @@ struct StepOut {
   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> point_a, point_b, normal;
   VectorXl pair, kind, feature, joint_a, joint_b;
   VectorXd P, gamma_minus, gamma_plus, v_free, b, v, lam;
-  RowMatrixXd M;
+  RowMatrixXd M;  // dense_M's (empty until Python reads it)
+  Eigen::Index nM = 0;
+  Blocks mblocks;  // (first velocity, nv) of each tree
+  VectorXd mval;  // the blocks' entries, block after block, each column-major
   MatrixXd W;  // (nv, m), column-major as constraints.contact_rows makes it
   Projection projection = Projection::ADMISSIBLE;
   double contact_work = 0.0, correction_energy = 0.0;
@@ -331,6 +367,23 @@ inline double odot(const double *a, const double *b, Eigen::Index n, Eigen::Inde
 }
 // sums.ordered(A, X) for matrices A (r, n) and X (n, c) (Eigen, column-major), into Y (r, c): each entry summed
 // as odot does, the loops arranged so that the innermost runs over independent entries (vectorizable)
+double StepOut::quad_M(const VectorXd &x, VectorXd &tmp) {
+  const Eigen::Index n = x.size();
+  if (n == 0) return 0.0;
+  tmp.resize(n);
+  if (!x.allFinite()) {
+    const RowMatrixXd &A = dense_M();
+    for (Eigen::Index j = 0; j < n; ++j) tmp[j] = odot(x.data(), A.data() + j, n, 1, n);
+  } else {
+    Eigen::Index at = 0;
+    for (const auto &b : mblocks) {
+      for (Eigen::Index k = 0; k < b.second; ++k, at += b.second)
+        tmp[b.first + k] = odot(x.data() + b.first, mval.data() + at, b.second);
+    }
+  }
+  return odot(tmp.data(), x.data(), n);
+}
+
 void omatmul(const MatrixXd &A, const MatrixXd &X, MatrixXd &Y) {
   const Eigen::Index r = A.rows(), n = A.cols(), c = X.cols();
   Y.resize(r, c);
@@ -1041,23 +1094,30 @@ void otimes_t_nz(const MatrixXd &W, const WInfo &wi, const VectorXd &x, VectorXd
 // nonzero on the two bodies of its contact: docs/theory.md §2.8); anything non-finite takes omatmul itself. wi: W's
 // WInfo; the nonzero lists in flat buffers kept from one call to the next (no allocation)
 void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, MatrixXd &MiW, MatrixXd &G,
-                   WInfo &mi) {
+                   WInfo &mi, const Blocks *blocks = nullptr) {
   const Eigen::Index nv = W.rows(), m = W.cols();
+  using I = Eigen::Index;
+  // blocks: Minv's diagonal blocks (first row, size) in order, covering 0..nv, Minv +0.0 off them (the forest's M^-1:
+  // docs/theory.md §2.12); none: one block, all of Minv
+  const Blocks all{{0, nv}};
+  const Blocks &B = blocks ? *blocks : all;
+  bool finite = wi.finite;
+  for (size_t b = 0; b < B.size() && finite; ++b) finite = Minv.block(B[b].first, B[b].first, B[b].second, B[b].second).allFinite();
   mi.finite = false;
-  if (!Minv.allFinite() || !wi.finite) {
+  if (!finite) {
     omatmul(Minv, W, MiW);
     omatmul(W.transpose(), MiW, G);
     return;
   }
-  using I = Eigen::Index;
   thread_local std::vector<I> mptr, midx, rptr, rcol, fill;  // Minv's nonzeros by columns; W's by rows (rptr, rcol, rval)
   thread_local std::vector<double> rval;
   mptr.assign((size_t)nv + 1, 0), midx.clear();
-  for (I k = 0; k < nv; ++k) {
-    for (I i = 0; i < nv; ++i)
-      if (Minv(i, k) != 0.0) midx.push_back(i);
-    mptr[(size_t)k + 1] = (I)midx.size();
-  }
+  for (const auto &bk : B)
+    for (I k = bk.first; k < bk.first + bk.second; ++k) {
+      for (I i = bk.first; i < bk.first + bk.second; ++i)
+        if (Minv(i, k) != 0.0) midx.push_back(i);
+      mptr[(size_t)k + 1] = (I)midx.size();
+    }
   const auto &wptr = wi.wptr, &widx = wi.widx;
   MiW.setZero(nv, m);
   thread_local std::vector<I> seen;  // the column j a row was last listed for (-1: none)
@@ -1076,7 +1136,9 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
       }
     }
     mi.wptr[(size_t)j + 1] = (I)mi.widx.size();
-    for (I i = 0; i < nv; ++i) y[i] = y[i] + 0.0;
+    // the rows listed ascending (G's sums below run over k ascending); y's other entries are +0.0 (setZero)
+    std::sort(mi.widx.begin() + mi.wptr[(size_t)j], mi.widx.end());
+    for (I t = mi.wptr[(size_t)j]; t < mi.wptr[(size_t)j + 1]; ++t) y[mi.widx[(size_t)t]] = y[mi.widx[(size_t)t]] + 0.0;
   }
   mi.finite = true;  // MiW's entries outside a column's list are +0.0
   // each row of W: (column, value), columns ascending
@@ -1095,7 +1157,8 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
   g.setZero(m);
   for (I j = 0; j < m; ++j) {  // G's column j (written in memory order): the sums over k ascending
     const double *y = MiW.col(j).data();
-    for (I k = 0; k < nv; ++k) {
+    for (I t = mi.wptr[(size_t)j]; t < mi.wptr[(size_t)j + 1]; ++t) {  // MiW's nonzeros in column j, k ascending
+      const I k = mi.widx[(size_t)t];
       const double ykj = y[k];
       if (ykj == 0.0) continue;
       for (I t = rptr[(size_t)k]; t < rptr[(size_t)k + 1]; ++t) {
@@ -1167,7 +1230,7 @@ bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Inde
 // re-solved on its final set and checked. Throws Fallback where qp.solve would go on to piqp. G's and W's nonzeros are found once (GInfo, WInfo) and each product W'v is
 // formed once (W'v0 for the screen and r; W'vp for r2 and the last check, or W'v2 where the second pass is kept).
 Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
-               const std::vector<char> *start = nullptr, const WInfo *given = nullptr) {
+               const std::vector<char> *start = nullptr, const WInfo *given = nullptr, const Blocks *blocks = nullptr) {
   const Eigen::Index m = W.cols(), nv = W.rows();
   thread_local WInfo own;
   if (!given) own.set(W);
@@ -1191,7 +1254,7 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
   // contact_space); project is never re-entered while its MiW, G are in use
   thread_local MatrixXd MiW, G;
   thread_local WInfo mi;  // MiW's columns' rows (contact_space)
-  contact_space(Minv, W, wi, MiW, G, mi);
+  contact_space(Minv, W, wi, MiW, G, mi, blocks);
   thread_local GInfo gi;
   gi.set(G);
   const VectorXd r = b - Wv0;
@@ -1282,22 +1345,26 @@ struct QueryGuesses {
 
 // constraints.distinct: the columns of W kept, those whose row repeats no earlier one (max |w_i - w_j| <= rel (1 + max|W|));
 // Stepper::distinct, bound as _step.distinct_rows for the tests
-std::vector<int> distinct_rows(const MatrixXd &W, double rel) {
+std::vector<int> distinct_rows(const MatrixXd &W, double rel, const WInfo *given = nullptr) {
   const Eigen::Index m = W.cols();
   std::vector<int> keep;
   if (m < 2) {
     for (int i = 0; i < m; ++i) keep.push_back(i);
     return keep;
   }
-  const double thr = rel * (1.0 + W.cwiseAbs().maxCoeff());
+  // W's nonzeros by columns (given: the caller's, contact_rows'), ascending
+  thread_local WInfo own;
+  if (!given) own.set(W);
+  const WInfo &wi = given ? *given : own;
+  const double thr = rel * (1.0 + wi.abs_max(W));
   const Eigen::Index nv = W.rows();
   // W finite: max|w_i - w_j| <= thr is every |w_vi - w_vj| <= thr, compared where either row is nonzero (from
   // the first nonzero entry of either to the last), the first that is not ending the comparison
-  const bool finite = W.allFinite();
+  const bool finite = wi.finite;
   std::vector<Eigen::Index> lo((size_t)m, nv), hi((size_t)m, 0);
   for (Eigen::Index j = 0; j < m && finite; ++j)
-    for (Eigen::Index v = 0; v < nv; ++v)
-      if (W(v, j) != 0.0) lo[(size_t)j] = std::min(lo[(size_t)j], v), hi[(size_t)j] = v + 1;
+    if (wi.wptr[(size_t)j + 1] > wi.wptr[(size_t)j])
+      lo[(size_t)j] = wi.widx[(size_t)wi.wptr[(size_t)j]], hi[(size_t)j] = wi.widx[(size_t)wi.wptr[(size_t)j + 1] - 1] + 1;
   auto same = [&](Eigen::Index i, Eigen::Index j) {
     if (!finite) return (W.col(i) - W.col(j)).cwiseAbs().maxCoeff() <= thr;
     const double *a = W.col(i).data(), *b = W.col(j).data();
@@ -1314,10 +1381,11 @@ std::vector<int> distinct_rows(const MatrixXd &W, double rel) {
   std::vector<Eigen::Index> top((size_t)m, 0), ptr(finite ? (size_t)nv + 1 : 0, 0);
   std::vector<std::pair<double, Eigen::Index>> ent;  // each velocity's nonzero entries (value, row), by value
   if (finite) {
-    for (Eigen::Index j = 0; j < m; ++j) {
+    for (Eigen::Index j = 0; j < m; ++j) {  // over the nonzeros, ascending: the first largest |entry|, as a scan
       const double *w = W.col(j).data();
-      for (Eigen::Index v = lo[(size_t)j]; v < hi[(size_t)j]; ++v) {
-        if (w[v] != 0.0) ++ptr[(size_t)v + 1];
+      for (Eigen::Index t = wi.wptr[(size_t)j]; t < wi.wptr[(size_t)j + 1]; ++t) {
+        const Eigen::Index v = wi.widx[(size_t)t];
+        ++ptr[(size_t)v + 1];
         if (std::abs(w[v]) > std::abs(w[top[(size_t)j]])) top[(size_t)j] = v;
       }
     }
@@ -1325,8 +1393,10 @@ std::vector<int> distinct_rows(const MatrixXd &W, double rel) {
     ent.resize((size_t)ptr[(size_t)nv]);
     std::vector<Eigen::Index> put(ptr.begin(), ptr.end() - 1);
     for (Eigen::Index j = 0; j < m; ++j)
-      for (Eigen::Index v = lo[(size_t)j]; v < hi[(size_t)j]; ++v)
-        if (W(v, j) != 0.0) ent[(size_t)put[(size_t)v]++] = {W(v, j), j};
+      for (Eigen::Index t = wi.wptr[(size_t)j]; t < wi.wptr[(size_t)j + 1]; ++t) {
+        const Eigen::Index v = wi.widx[(size_t)t];
+        ent[(size_t)put[(size_t)v]++] = {W(v, j), j};
+      }
     for (Eigen::Index v = 0; v < nv; ++v) std::sort(ent.begin() + ptr[(size_t)v], ent.begin() + ptr[(size_t)v + 1]);
   }
   for (Eigen::Index j = 0; j < m; ++j) {
@@ -1359,7 +1429,7 @@ class Stepper {
   Stepper(nb::object model, const Forest::TreeArgs &trees, std::vector<int64_t> tree_of_joint,
           std::vector<int64_t> local_joint, nb::object geom_model, nb::object geom_data,
           std::vector<MatrixXd> vertices, std::vector<int> bound_kind, std::vector<Vec3> bound_a,
-          std::vector<double> bound_b, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic> pairs, MatrixXd mask,
+          std::vector<double> bound_b, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic> pairs,
           double reach, double thinnest_pair, double tol, int tunnelling, bool separating_elastic,
           bool slow_plastic, bool bias_midpoint, bool velocity_bias, bool projection,
           const std::map<std::string, double> &constants, MatrixXd limits)
@@ -1369,16 +1439,24 @@ class Stepper {
         gm_(extract_ref<pinocchio::GeometryModel>(geom_model, "pinocchio.GeometryModel")),
         gd_(extract_ref<pinocchio::GeometryData>(geom_data, "pinocchio.GeometryData")),
         vertices_(std::move(vertices)), bound_kind_(std::move(bound_kind)), bound_a_(std::move(bound_a)),
-        bound_b_(std::move(bound_b)), pairs_(std::move(pairs)), mask_(mask), reach_(reach),
+        bound_b_(std::move(bound_b)), pairs_(std::move(pairs)), reach_(reach),
         thinnest_(thinnest_pair), tol_(tol), tunnelling_(tunnelling), sep_elastic_(separating_elastic),
         slow_plastic_(slow_plastic), bias_midpoint_(bias_midpoint), velocity_bias_(velocity_bias),
         projection_(projection), C_(Constants::from(constants)),
         limits_(std::move(limits)) {
     if (pairs_.cols() != 5 || (Eigen::Index)gm_.collisionPairs.size() != pairs_.rows())
       throw nb::value_error("pairs: (number of collision pairs, 5) expected");
-    if (mask_.rows() != model_.njoints || mask_.cols() != model_.nv) throw nb::value_error("mask: (njoints, nv)");
+    support_.resize((size_t)model_.njoints);
+    for (int j = 1; j < model_.njoints; ++j) {
+      for (size_t k = 1; k < model_.supports[(size_t)j].size(); ++k) {
+        const auto &jm = model_.joints[(size_t)model_.supports[(size_t)j][k]];
+        for (int v = 0; v < jm.nv(); ++v) support_[(size_t)j].push_back((Eigen::Index)(jm.idx_v() + v));
+      }
+      std::sort(support_[(size_t)j].begin(), support_[(size_t)j].end());
+    }
     if (forest_.nq() != model_.nq || forest_.nv() != model_.nv || (int)forest_.njoints() != model_.njoints)
       throw nb::value_error("trees: the forest of the model (nq, nv, a map entry per joint) expected");
+    for (const auto &tr : forest_.trees()) blocks_.emplace_back((Eigen::Index)tr.v0, (Eigen::Index)tr.nv);
     if (limits_.cols() != 6) throw nb::value_error("limits: (number of joint limits, 6) expected");
   }
 
@@ -1537,6 +1615,7 @@ class Stepper {
   VectorXd tau_;  // the current step's joint torques (empty: none)
   const pinocchio::Model &model_;  // the scene's (no Data of it: its joints' maps and pin.integrate)
   Forest forest_;  // the dynamics and kinematics, per tree (docs/theory.md §2.12)
+  Blocks blocks_;  // (first velocity, nv) of each tree: M's and M^-1's blocks
   std::shared_ptr<Spare> spare_ = std::make_shared<Spare>();  // the StepOuts' M and W, handed back (Spare)
   MatrixXd M_, Minv_, J_;  // M and M^-1 (nv, nv, block diagonal: made at first use), the WORLD Jacobians (6, nv)
   const pinocchio::GeometryModel &gm_;
@@ -1546,7 +1625,9 @@ class Stepper {
   std::vector<Vec3> bound_a_;
   std::vector<double> bound_b_;
   Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic> pairs_;  // first, second, joint_first, joint_second, patch
-  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> mask_;  // row-major: a joint's row contiguous
+  // the velocities that move each joint (model.support_mask's ones: the joints of model.supports[j] but the
+  // universe), ascending
+  std::vector<std::vector<Eigen::Index>> support_;
   double reach_, thinnest_, tol_;
   int tunnelling_;  // 0 swept, 1 none, 2 always
   bool sep_elastic_, slow_plastic_, bias_midpoint_, velocity_bias_, projection_;
@@ -2205,39 +2286,64 @@ class Stepper {
     return {p.joint_first, p.joint_second};
   }
 
-  // constraints.contact_rows: w = mask_a (n'J_lin + (p_a x n)'J_ang) - mask_b (same at p_b), summed as sums.ordered
-  MatrixXd contact_rows(const std::vector<Found> &f) {
+  // constraints.contact_rows: w = mask_a (n'J_lin + (p_a x n)'J_ang) - mask_b (same at p_b), summed as sums.ordered,
+  // on the velocities that move body a or b (support_); +0.0 on the others. wi (if given): W's nonzeros, as
+  // WInfo::set finds them (no second pass over W)
+  MatrixXd contact_rows(const std::vector<Found> &f, WInfo *wi = nullptr) {
     const Eigen::Index nv = model_.nv, m = (Eigen::Index)f.size();
     const auto &J = J_;  // (6, nv) WORLD (crba_world)
     MatrixXd W = Spare::take(spare_->mu, spare_->W, nv, m);  // every entry written below
+    bool finite = true;
+    if (wi) wi->wptr.assign((size_t)m + 1, 0), wi->widx.clear();
     for (Eigen::Index i = 0; i < m; ++i) {
+      W.col(i).setZero();
       if (f[i].kind == C_.joint_limit) {  // the constant row sign e_{idx_v}
         const Eigen::Index k = f[i].pair - npairs();
-        W.col(i).setZero();
-        W((Eigen::Index)limits_(k, 3), i) = limits_(k, 4);
+        const Eigen::Index v = (Eigen::Index)limits_(k, 3);
+        W(v, i) = limits_(k, 4);
+        finite = finite && std::isfinite(W(v, i));
+        if (wi && W(v, i) != 0.0) wi->widx.push_back(v);
+        if (wi) wi->wptr[(size_t)i + 1] = (Eigen::Index)wi->widx.size();
         continue;
       }
       const pairs::Row p = pair(f[i].pair);
-      const int ja = p.joint_first, jb = p.joint_second;
+      const std::vector<Eigen::Index> &sa = support_[(size_t)p.joint_first], &sb = support_[(size_t)p.joint_second];
       const Vec3 &n = f[i].n;
       Vec3 c[2];
       for (int s = 0; s < 2; ++s) {
         const Vec3 &p = s == 0 ? f[i].pa : f[i].pb;
         c[s] = Vec3(p[1] * n[2] - p[2] * n[1], p[2] * n[0] - p[0] * n[2], p[0] * n[1] - p[1] * n[0]);
       }
-      for (Eigen::Index v = 0; v < nv; ++v) {
+      size_t a = 0, b = 0;  // the two supports merged, ascending
+      while (a < sa.size() || b < sb.size()) {
+        Eigen::Index v;
+        double ma = 0.0, mb = 0.0;  // mask_a, mask_b at v
+        if (b == sb.size() || (a < sa.size() && sa[a] < sb[b]))
+          v = sa[a++], ma = 1.0;
+        else if (a == sa.size() || sb[b] < sa[a])
+          v = sb[b++], mb = 1.0;
+        else
+          v = sa[a++], ++b, ma = mb = 1.0;
         const double lin = ((n[0] * J(0, v) + n[1] * J(1, v)) + n[2] * J(2, v)) + 0.0;
         double side[2];
         for (int s = 0; s < 2; ++s)
           side[s] = lin + (((c[s][0] * J(3, v) + c[s][1] * J(4, v)) + c[s][2] * J(5, v)) + 0.0);
-        W(v, i) = side[0] * mask_(ja, v) - side[1] * mask_(jb, v);
+        const double w = side[0] * ma - side[1] * mb;
+        W(v, i) = w;
+        finite = finite && std::isfinite(w);
+        if (wi && w != 0.0) wi->widx.push_back(v);
       }
+      if (wi) wi->wptr[(size_t)i + 1] = (Eigen::Index)wi->widx.size();
+    }
+    if (wi) {
+      wi->finite = finite;
+      if (!finite) wi->wptr.assign((size_t)m + 1, 0), wi->widx.clear();  // WInfo::set's lists of a W not finite
     }
     return W;
   }
 
   // constraints.distinct: drop a contact whose row repeats an earlier one (to C_.distinct relative)
-  std::vector<int> distinct(const MatrixXd &W) const { return distinct_rows(W, C_.distinct); }
+  std::vector<int> distinct(const MatrixXd &W, const WInfo *wi = nullptr) const { return distinct_rows(W, C_.distinct, wi); }
 
   Solved project(const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv) {
     return ::project(C_, W, v0, b, Minv);
@@ -2351,16 +2457,24 @@ class Stepper {
     }
     // constraints.assemble_constraints: M by CRBA (fills the WORLD Jacobians), rows, distinct rows
     const MatrixXd &M = crba_world(q_m);  // M_ itself (no copy): nothing below makes M again
-    MatrixXd W0 = contact_rows(found);
-    std::vector<int> keep = distinct(W0);
+    thread_local WInfo wi0, wli;  // W0's nonzeros (contact_rows); Wl's: its products W'x over them (otimes_t_nz)
+    MatrixXd W0 = contact_rows(found, &wi0);
+    std::vector<int> keep = distinct(W0, &wi0);
     const Eigen::Index m = (Eigen::Index)keep.size();
     MatrixXd W;
     std::vector<Found> con;
     if (m == W0.cols()) {  // every row distinct: W is W0 (no copy)
       W = std::move(W0), con = std::move(found);
+      std::swap(wli, wi0);
     } else {
       W = Spare::take(spare_->mu, spare_->W, nv, m);  // every column written below
-      for (Eigen::Index j = 0; j < m; ++j) W.col(j) = W0.col(keep[j]), con.push_back(found[keep[j]]);
+      wli.finite = wi0.finite, wli.wptr.assign(1, 0), wli.widx.clear();
+      for (Eigen::Index j = 0; j < m; ++j) {
+        W.col(j) = W0.col(keep[j]), con.push_back(found[keep[j]]);
+        const size_t c = (size_t)keep[j];
+        wli.widx.insert(wli.widx.end(), wi0.widx.begin() + wi0.wptr[c], wi0.widx.begin() + wi0.wptr[c + 1]);
+        wli.wptr.push_back((Eigen::Index)wli.widx.size());
+      }
       Spare::give(spare_->mu, spare_->W, W0);
     }
     // Prescribed.rates: dg_i/dt = -n_i.V(t_m) of the contacts against a moving static (§2.9); none: no rate
@@ -2410,8 +2524,7 @@ class Stepper {
     const MatrixXd &Wl = driven ? Wk : W;
     const VectorXd &ul = driven ? uk : u, &ufl = driven ? ufk : u_free, &vfl = driven ? vfk : v_free;
     // solve_impact
-    thread_local WInfo wli;  // Wl's nonzeros: its products W'x over them (otimes_t_nz), shared with project
-    wli.set(Wl);
+    if (driven) wli.set(Wl);  // Wl = W_r; else W, whose lists contact_rows made (shared with project)
     VectorXd gamma_minus;
     otimes_t_nz(Wl, wli, ul, gamma_minus);
     if (has_rate) gamma_minus = gamma_minus + rate;  // gamma = W'u + dg/dt (§2.9)
@@ -2446,7 +2559,7 @@ class Stepper {
         start[(size_t)i] = std::binary_search(active_.begin(), active_.end(),
                                               std::array<int64_t, 3>{con[i].pair, con[i].kind, con[i].feature});
     }
-    Solved res = ::project(C_, Wl, vfl, b, Minv, start.empty() ? nullptr : &start, &wli);
+    Solved res = ::project(C_, Wl, vfl, b, Minv, start.empty() ? nullptr : &start, &wli, driven ? nullptr : &blocks_);
     if (warm && (Eigen::Index)res.act.size() == m) {  // stepper.keep_active: the first pass's final set
       for (Eigen::Index i = 0; i < m; ++i)
         if (res.act[(size_t)i]) next_active_.push_back({con[i].pair, con[i].kind, con[i].feature});
@@ -2513,11 +2626,7 @@ class Stepper {
     }
     out.P = std::move(P), out.gamma_minus = std::move(gamma_minus), out.gamma_plus = std::move(gamma_plus);
     out.v_free = std::move(v0), out.b = std::move(b), out.v = std::move(v), out.lam = std::move(res.lam);
-    out.M = Spare::take(spare_->mu, spare_->M, nv, nv);  // every entry assigned below
-    if (driven)
-      out.M = Mout;
-    else
-      out.M = M;
+    out.set_M(driven ? Mout : M, blocks_);  // the trees' blocks (the driven step's M_rr embedded: zero off them too)
     out.W = std::move(W), out.projection = res.status;
     out.contact_work = work, out.correction_energy = corr, out.m = m;
     out.obstacle_work = ow, out.drive_work_free = driven ? ds.work_free : 0.0;
@@ -2723,7 +2832,8 @@ class Stepper {
     if (budget <= 0.0 && !resting && !persistent) return false;
     if (!solved)  // above C_.sparse_rows rows warm-started from the law's final set (stepper.correct_positions, §2.5)
       res = ::project(C_, W, VectorXd::Zero(model_.nv), -g_next, Minv,
-                      (Eigen::Index)law_act.size() == m ? &law_act : nullptr);
+                      (Eigen::Index)law_act.size() == m ? &law_act : nullptr, nullptr,
+                      rh_.driven() ? nullptr : &blocks_);  // a driven step's Minv: DriveStep.for_correction's
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
     const double T_c = kinetic(q_c, u_next);
     const double V_c = potential(q_c);
@@ -2820,7 +2930,7 @@ NB_MODULE(_step, mod) {
       .def_prop_ro("floats", [](StepOut &o) -> VectorXd & { o.pack(); return o.floats; }, nb::rv_policy::reference_internal)
       .def_prop_ro("ints", [](StepOut &o) -> VectorXl & { o.pack(); return o.ints; }, nb::rv_policy::reference_internal)
       // M (nv, nv, 'C') and W (nv, m, 'F'): views of their own buffers (layout's buffers 2, 3), already shaped
-      .def_prop_ro("M", [](StepOut &o) -> decltype(StepOut::M) & { return o.M; }, nb::rv_policy::reference_internal)
+      .def_prop_ro("M", [](StepOut &o) -> decltype(StepOut::M) & { return o.dense_M(); }, nb::rv_policy::reference_internal)
       .def_prop_ro("W", [](StepOut &o) -> MatrixXd & { return o.W; }, nb::rv_policy::reference_internal)
       .def("layout", &StepOut::layout, "(name, buffer: 0 floats 1 ints 2 M 3 W, offset, rows, cols (0: a vector), order 'C'/'F') per array")
       .def_ro("projection", &StepOut::projection)
@@ -2833,7 +2943,7 @@ NB_MODULE(_step, mod) {
       .def(nb::init<nb::object, const Forest::TreeArgs &, std::vector<int64_t>, std::vector<int64_t>, nb::object,
                     nb::object, std::vector<MatrixXd>, std::vector<int>,
                     std::vector<Vec3>, std::vector<double>, Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic>,
-                    MatrixXd, double, double, double, int, bool, bool, bool, bool, bool,
+                    double, double, double, int, bool, bool, bool, bool, bool,
                     const std::map<std::string, double> &, MatrixXd>())
       .def("step", &Stepper::step, nb::arg("q"), nb::arg("u"), nb::arg("h"), nb::arg("e"),
            nb::arg("tau") = VectorXd(), nb::arg("t") = std::numeric_limits<double>::quiet_NaN())
@@ -2912,7 +3022,7 @@ NB_MODULE(_step, mod) {
     return nb::cast(x);
   }, nb::arg("A"), nb::arg("rhs"), nb::arg("sel"));
   // constraints.distinct's columns kept (Stepper::distinct; tests/test_compiled.py holds them equal to Python's)
-  mod.def("distinct_rows", [](const MatrixXd &W, double rel) { return distinct_rows(W, rel); }, nb::arg("W"), nb::arg("rel"));
+  mod.def("distinct_rows", [](const MatrixXd &W, double rel) { return distinct_rows(W, rel, nullptr); }, nb::arg("W"), nb::arg("rel"));
   // band_lu_solve's factor prefix kept (its comment): on one BandLU, the rows and columns `before` of a clean A (a
   // right-hand side of ones), then `sel` with rhs: (x or None, the elimination steps the second solve took from the
   // first's factor) (tests/test_compiled.py holds x bit-identical to qp._lu_solve of A[sel][:, sel])
