@@ -640,9 +640,12 @@ struct GInfo {
   std::vector<Eigen::Index> cptr, cidx, rptr, ridx, fill;
   std::vector<double> rval;
   uint64_t gen = 0;  // which G this is: a number no other set() gives (band_lu_solve's factor cache is G's while it holds)
-  void set(const MatrixXd &G) {
+  static uint64_t next_gen() {
     static std::atomic<uint64_t> made{0};
-    gen = ++made;
+    return ++made;
+  }
+  void set(const MatrixXd &G) {
+    gen = next_gen();
     const Eigen::Index m = G.rows();
     cptr.assign((size_t)m + 1, 0), rptr.assign((size_t)m + 1, 0), cidx.clear();
     // one pass over G: finite, clean (no -0.0), its largest |entry| (exact: the same max in any order) and its
@@ -667,6 +670,39 @@ struct GInfo {
       }
       cptr[(size_t)k + 1] = (Eigen::Index)cidx.size();
     }
+    finish(G, finite, no_negative_zero, top);
+  }
+  // set(G) where G's entries outside the rows `rows` lists for each column (ptr, ascending; a superset of its
+  // nonzeros) are +0.0: the same lists, flags and max, at the cost of the listed entries (contact_space's G)
+  void set_listed(const MatrixXd &G, const std::vector<Eigen::Index> &ptr, const std::vector<Eigen::Index> &rows) {
+    gen = next_gen();
+    const Eigen::Index m = G.rows();
+    cptr.assign((size_t)m + 1, 0), rptr.assign((size_t)m + 1, 0), cidx.clear();
+    bool fin = true, no_negative_zero = true;
+    double top = 0.0;
+    for (Eigen::Index k = 0; k < m && fin; ++k) {
+      const double *g = G.col(k).data();
+      for (Eigen::Index t = ptr[(size_t)k]; t < ptr[(size_t)k + 1]; ++t) {
+        const Eigen::Index i = rows[(size_t)t];
+        const double v = g[i];
+        if (v == 0.0) {
+          no_negative_zero = no_negative_zero && !std::signbit(v);
+          continue;
+        }
+        if (!std::isfinite(v)) {
+          fin = false;
+          break;
+        }
+        top = std::max(top, std::abs(v));
+        cidx.push_back(i), ++rptr[(size_t)i + 1];
+      }
+      cptr[(size_t)k + 1] = (Eigen::Index)cidx.size();
+    }
+    finish(G, fin, no_negative_zero, top);
+  }
+  void finish(const MatrixXd &G, bool fin, bool no_negative_zero, double top) {
+    const Eigen::Index m = G.rows();
+    finite = fin;
     if (!finite) cptr.assign((size_t)m + 1, 0), rptr.assign((size_t)m + 1, 0), cidx.clear();
     gmax = finite && m > 0 ? top : G.cwiseAbs().maxCoeff();
     is_clean = finite && no_negative_zero;
@@ -1094,7 +1130,7 @@ void otimes_t_nz(const MatrixXd &W, const WInfo &wi, const VectorXd &x, VectorXd
 // nonzero on the two bodies of its contact: docs/theory.md §2.8); anything non-finite takes omatmul itself. wi: W's
 // WInfo; the nonzero lists in flat buffers kept from one call to the next (no allocation)
 void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, MatrixXd &MiW, MatrixXd &G,
-                   WInfo &mi, const Blocks *blocks = nullptr) {
+                   WInfo &mi, GInfo &gi, const Blocks *blocks = nullptr) {
   const Eigen::Index nv = W.rows(), m = W.cols();
   using I = Eigen::Index;
   // blocks: Minv's diagonal blocks (first row, size) in order, covering 0..nv, Minv +0.0 off them (the forest's M^-1:
@@ -1103,12 +1139,30 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
   const Blocks &B = blocks ? *blocks : all;
   bool finite = wi.finite;
   for (size_t b = 0; b < B.size() && finite; ++b) finite = Minv.block(B[b].first, B[b].first, B[b].second, B[b].second).allFinite();
-  mi.finite = false;
+  // MiW and G are +0.0 outside the entries the last call listed (mi's lists, G's nonzeros), where `kept` says so
+  // and they are the same matrices of the same sizes: those entries are reset, not the whole of them
+  thread_local bool kept = false;
+  thread_local const double *kept_at[2] = {nullptr, nullptr};
+  const bool reuse = kept && MiW.rows() == nv && MiW.cols() == m && G.rows() == m && G.cols() == m &&
+                     kept_at[0] == MiW.data() && kept_at[1] == G.data();
+  kept = false;
   if (!finite) {
+    mi.finite = false;
     omatmul(Minv, W, MiW);
     omatmul(W.transpose(), MiW, G);
+    gi.set(G);
     return;
   }
+  if (reuse) {
+    for (I j = 0; j < m; ++j) {
+      double *y = MiW.col(j).data(), *gj = G.col(j).data();
+      for (I t = mi.wptr[(size_t)j]; t < mi.wptr[(size_t)j + 1]; ++t) y[mi.widx[(size_t)t]] = 0.0;
+      for (I t = gi.cptr[(size_t)j]; t < gi.cptr[(size_t)j + 1]; ++t) gj[gi.cidx[(size_t)t]] = 0.0;
+    }
+  } else {
+    MiW.setZero(nv, m), G.setZero(m, m);
+  }
+  mi.finite = false;
   thread_local std::vector<I> mptr, midx, rptr, rcol, fill;  // Minv's nonzeros by columns; W's by rows (rptr, rcol, rval)
   thread_local std::vector<double> rval;
   mptr.assign((size_t)nv + 1, 0), midx.clear();
@@ -1119,7 +1173,6 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
       mptr[(size_t)k + 1] = (I)midx.size();
     }
   const auto &wptr = wi.wptr, &widx = wi.widx;
-  MiW.setZero(nv, m);
   thread_local std::vector<I> seen;  // the column j a row was last listed for (-1: none)
   seen.assign((size_t)nv, -1);
   mi.wptr.assign((size_t)m + 1, 0), mi.widx.clear();
@@ -1152,10 +1205,12 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
       const I k = widx[(size_t)t], at = fill[(size_t)k]++;
       rcol[(size_t)at] = j, rval[(size_t)at] = W(k, j);
     }
-  G.resize(m, m);
   thread_local VectorXd g;
+  thread_local std::vector<I> gptr, grow, hit;  // G's rows each column's sums reached (ascending); hit: last column
   g.setZero(m);
-  for (I j = 0; j < m; ++j) {  // G's column j (written in memory order): the sums over k ascending
+  hit.assign((size_t)m, -1);
+  gptr.assign((size_t)m + 1, 0), grow.clear();
+  for (I j = 0; j < m; ++j) {  // G's column j: the sums over k ascending; the rows no term reaches stay +0.0
     const double *y = MiW.col(j).data();
     for (I t = mi.wptr[(size_t)j]; t < mi.wptr[(size_t)j + 1]; ++t) {  // MiW's nonzeros in column j, k ascending
       const I k = mi.widx[(size_t)t];
@@ -1164,11 +1219,20 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
       for (I t = rptr[(size_t)k]; t < rptr[(size_t)k + 1]; ++t) {
         const I c = rcol[(size_t)t];
         g[c] = g[c] + rval[(size_t)t] * ykj;
+        if (hit[(size_t)c] != j) hit[(size_t)c] = j, grow.push_back(c);
       }
     }
+    gptr[(size_t)j + 1] = (I)grow.size();
+    std::sort(grow.begin() + gptr[(size_t)j], grow.end());
     double *gj = G.col(j).data();
-    for (I i = 0; i < m; ++i) gj[i] = g[i] + 0.0, g[i] = 0.0;
+    for (I t = gptr[(size_t)j]; t < gptr[(size_t)j + 1]; ++t) {
+      const I i = grow[(size_t)t];
+      gj[i] = g[i] + 0.0, g[i] = 0.0;
+    }
   }
+  gi.set_listed(G, gptr, grow);
+  // what the next call resets: mi's lists and G's nonzeros (G not finite: all of it, next time)
+  kept = gi.finite, kept_at[0] = MiW.data(), kept_at[1] = G.data();
 }
 
 // otimes(A[:, cols], x) (A: MiW or W, cols ascending or not) as omatmul sums it, over the rows ai lists for each
@@ -1254,9 +1318,8 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
   // contact_space); project is never re-entered while its MiW, G are in use
   thread_local MatrixXd MiW, G;
   thread_local WInfo mi;  // MiW's columns' rows (contact_space)
-  contact_space(Minv, W, wi, MiW, G, mi, blocks);
-  thread_local GInfo gi;
-  gi.set(G);
+  thread_local GInfo gi;  // G's nonzeros (contact_space)
+  contact_space(Minv, W, wi, MiW, G, mi, gi, blocks);
   const VectorXd r = b - Wv0;
   std::vector<char> act;
   VectorXd lam;
