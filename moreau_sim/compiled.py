@@ -237,8 +237,15 @@ class _Context:
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its buffers (layout)."""
         contact = r.outcome is _module.Outcome.CONTACT
-        buffers = (r.floats, *((r.ints, r.M, r.W) if contact else (None,) * 3))
+        buffers = (r.floats, *((r.ints, r.M, _read_only(r.W)) if contact else (None,) * 3))
         return {name: _view(buffers[i], s, shape, f_order) for name, (i, s, shape, f_order) in self.layout(r).items()}
+
+
+def _read_only(W: np.ndarray) -> np.ndarray:
+    """A StepOut's W as Python sees it: read-only (the extension clears the entries it wrote when the step is
+    dropped and reuses the storage, src/step.cpp Spare: an entry written from Python would outlive the step)."""
+    W.flags.writeable = False
+    return W
 
 
 def _view(buffer: np.ndarray, s: slice, shape: tuple | None, f_order: bool) -> np.ndarray:
@@ -506,7 +513,7 @@ assert set(_FLIGHT) == set(_CONTACT) == set(_FIELDS) - {"state", "tau"}
 # what _CompiledResult.__getattr__ makes: the lazy fields (by the outcome's table), and what they are made of
 _MAKE = {name: (lambda s, n=name: s._makers[n](s)) for name in _FLIGHT} | {
     "_makers": lambda s: _FLIGHT if s._r.outcome is _module.Outcome.FLIGHT else _CONTACT,
-    "_layout": lambda s: s._ctx.layout(s._r), "_buffers": lambda s: (s._floats, s._r.ints, s._r.M, s._r.W)}
+    "_layout": lambda s: s._ctx.layout(s._r), "_buffers": lambda s: (s._floats, s._r.ints, s._r.M, _read_only(s._r.W))}
 # the slots' setters (StepResult's own, frozen to its __setattr__; _CompiledResult's)
 _SET = {name: cls.__dict__[name].__set__ for cls in (StepResult, _CompiledResult)
         for name in cls.__slots__}

@@ -261,13 +261,28 @@ class Runner {
   };
 
   // ledger.at_rest: |gamma_i^k|, |gamma_i^{k+1}| <= REST_ACCURACY rho_i, rho = |W|' (|u_k| + |u_free - u_k|) (odot)
+  // (over the rows of W the step wrote, StepOut::wptr, where x is finite: the other terms add +-0, contact_space's
+  // argument)
   bool at_rest(const StepOut &r, const VectorXd &u) const {
     const VectorXd x = u.cwiseAbs() + (r.u_free - u).cwiseAbs();
     const Eigen::Index nv = r.W.rows();
+    const bool listed = r.wptr.size() == (size_t)r.m + 1 && x.allFinite();
     VectorXd w(nv);
     for (Eigen::Index i = 0; i < r.m; ++i) {
-      w = r.W.col(i).cwiseAbs();
-      const double bound = rest_accuracy_ * (nv ? odot(w.data(), x.data(), nv) : 0.0);
+      double sum = 0.0;
+      if (listed) {
+        const Eigen::Index a = r.wptr[(size_t)i], b = r.wptr[(size_t)i + 1];
+        for (Eigen::Index t = a; t < b; ++t) {
+          const Eigen::Index v = r.wrow[(size_t)t];
+          const double term = std::abs(r.W(v, i)) * x[v];
+          sum = t == a ? term : sum + term;
+        }
+        sum = sum + 0.0;
+      } else if (nv) {
+        w = r.W.col(i).cwiseAbs();
+        sum = odot(w.data(), x.data(), nv);
+      }
+      const double bound = rest_accuracy_ * sum;
       if (!(std::abs(r.gamma_minus[i]) <= bound && std::abs(r.gamma_plus[i]) <= bound)) return false;
     }
     return true;

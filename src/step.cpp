@@ -218,6 +218,25 @@ struct Spare {
     }
     return Mat(r, c);
   }
+  // take, every entry +0.0: the W store holds only such matrices (~StepOut and the step clear what they wrote)
+  static MatrixXd take_zero(std::mutex &mu, std::vector<MatrixXd> &v, Eigen::Index r, Eigen::Index c) {
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      for (size_t k = 0; k < v.size(); ++k)
+        if (v[k].size() == r * c) {
+          MatrixXd x = std::move(v[k]);
+          v.erase(v.begin() + (std::ptrdiff_t)k);
+          x.resize(r, c);
+          return x;
+        }
+    }
+    return MatrixXd::Zero(r, c);
+  }
+  // W's entries at the rows `rows` lists for each column (ptr) set to +0.0: all of W's that may be other than +0.0
+  static void clear(MatrixXd &W, const std::vector<Eigen::Index> &ptr, const std::vector<Eigen::Index> &rows) {
+    for (Eigen::Index j = 0; j + 1 < (Eigen::Index)ptr.size(); ++j)
+      for (Eigen::Index t = ptr[(size_t)j]; t < ptr[(size_t)j + 1]; ++t) W(rows[(size_t)t], j) = 0.0;
+  }
   template <class Mat> static void give(std::mutex &mu, std::vector<Mat> &v, Mat &x) {
     if (!x.size()) return;
     std::lock_guard<std::mutex> lock(mu);
@@ -229,7 +248,14 @@ struct StepOut {
   StepOut(StepOut &&) = default;
   StepOut &operator=(StepOut &&) = default;
   ~StepOut() {
-    if (spare) Spare::give(spare->mu, spare->M, M), Spare::give(spare->mu, spare->W, W);
+    if (!spare) return;
+    Spare::give(spare->mu, spare->M, M);
+    if (!W.size()) return;
+    if (wptr.size() == (size_t)W.cols() + 1)  // the W store's matrices are +0.0 everywhere (Spare::take_zero)
+      Spare::clear(W, wptr, wrow);
+    else
+      W.setZero();
+    Spare::give(spare->mu, spare->W, W);
   }
   // M is block diagonal over the kinematic trees (docs/theory.md §2.12): the step keeps its blocks (set_M, O(sum of
   // the trees' nv^2)), the dense (nv, nv) M is made at Python's first read (dense_M), and the run loop's quadratic
@@ -276,6 +302,9 @@ struct StepOut {
   Blocks mblocks;  // (first velocity, nv) of each tree
   VectorXd mval;  // the blocks' entries, block after block, each column-major
   MatrixXd W;  // (nv, m), column-major as constraints.contact_rows makes it
+  // the rows of each column of W that may be other than +0.0 (wptr: m + 1 entries; else unknown), ascending: the
+  // entries ~StepOut clears and the run loop's sums run over
+  std::vector<Eigen::Index> wptr, wrow;
   Projection projection = Projection::ADMISSIBLE;
   double contact_work = 0.0, correction_energy = 0.0;
   // the work of prescribed motion (moving statics' -P.dg/dt, a drive's W_p: results.StepResult.obstacle_work) and a
@@ -2352,14 +2381,16 @@ class Stepper {
   // constraints.contact_rows: w = mask_a (n'J_lin + (p_a x n)'J_ang) - mask_b (same at p_b), summed as sums.ordered,
   // on the velocities that move body a or b (support_); +0.0 on the others. wi (if given): W's nonzeros, as
   // WInfo::set finds them (no second pass over W)
-  MatrixXd contact_rows(const std::vector<Found> &f, WInfo *wi = nullptr) {
+  // written (if given): the rows written in each column (ptr, rows; the others +0.0)
+  MatrixXd contact_rows(const std::vector<Found> &f, WInfo *wi = nullptr,
+                        std::pair<std::vector<Eigen::Index>, std::vector<Eigen::Index>> *written = nullptr) {
     const Eigen::Index nv = model_.nv, m = (Eigen::Index)f.size();
     const auto &J = J_;  // (6, nv) WORLD (crba_world)
-    MatrixXd W = Spare::take(spare_->mu, spare_->W, nv, m);  // every entry written below
+    MatrixXd W = Spare::take_zero(spare_->mu, spare_->W, nv, m);  // +0.0 but where written below
     bool finite = true;
     if (wi) wi->wptr.assign((size_t)m + 1, 0), wi->widx.clear();
+    if (written) written->first.assign(1, 0), written->second.clear();
     for (Eigen::Index i = 0; i < m; ++i) {
-      W.col(i).setZero();
       if (f[i].kind == C_.joint_limit) {  // the constant row sign e_{idx_v}
         const Eigen::Index k = f[i].pair - npairs();
         const Eigen::Index v = (Eigen::Index)limits_(k, 3);
@@ -2367,6 +2398,7 @@ class Stepper {
         finite = finite && std::isfinite(W(v, i));
         if (wi && W(v, i) != 0.0) wi->widx.push_back(v);
         if (wi) wi->wptr[(size_t)i + 1] = (Eigen::Index)wi->widx.size();
+        if (written) written->second.push_back(v), written->first.push_back((Eigen::Index)written->second.size());
         continue;
       }
       const pairs::Row p = pair(f[i].pair);
@@ -2395,8 +2427,10 @@ class Stepper {
         W(v, i) = w;
         finite = finite && std::isfinite(w);
         if (wi && w != 0.0) wi->widx.push_back(v);
+        if (written) written->second.push_back(v);
       }
       if (wi) wi->wptr[(size_t)i + 1] = (Eigen::Index)wi->widx.size();
+      if (written) written->first.push_back((Eigen::Index)written->second.size());
     }
     if (wi) {
       wi->finite = finite;
@@ -2521,23 +2555,31 @@ class Stepper {
     // constraints.assemble_constraints: M by CRBA (fills the WORLD Jacobians), rows, distinct rows
     const MatrixXd &M = crba_world(q_m);  // M_ itself (no copy): nothing below makes M again
     thread_local WInfo wi0, wli;  // W0's nonzeros (contact_rows); Wl's: its products W'x over them (otimes_t_nz)
-    MatrixXd W0 = contact_rows(found, &wi0);
+    std::pair<std::vector<Eigen::Index>, std::vector<Eigen::Index>> wr0, wr;  // the rows written (contact_rows)
+    MatrixXd W0 = contact_rows(found, &wi0, &wr0);
     std::vector<int> keep = distinct(W0, &wi0);
     const Eigen::Index m = (Eigen::Index)keep.size();
     MatrixXd W;
     std::vector<Found> con;
     if (m == W0.cols()) {  // every row distinct: W is W0 (no copy)
       W = std::move(W0), con = std::move(found);
-      std::swap(wli, wi0);
-    } else {
-      W = Spare::take(spare_->mu, spare_->W, nv, m);  // every column written below
+      std::swap(wli, wi0), std::swap(wr, wr0);
+    } else {  // the kept columns' written entries (the others +0.0 in both)
+      W = Spare::take_zero(spare_->mu, spare_->W, nv, m);
       wli.finite = wi0.finite, wli.wptr.assign(1, 0), wli.widx.clear();
+      wr.first.assign(1, 0), wr.second.clear();
       for (Eigen::Index j = 0; j < m; ++j) {
-        W.col(j) = W0.col(keep[j]), con.push_back(found[keep[j]]);
+        con.push_back(found[keep[j]]);
         const size_t c = (size_t)keep[j];
+        for (Eigen::Index t = wr0.first[c]; t < wr0.first[c + 1]; ++t) {
+          const Eigen::Index v = wr0.second[(size_t)t];
+          W(v, j) = W0(v, keep[j]), wr.second.push_back(v);
+        }
+        wr.first.push_back((Eigen::Index)wr.second.size());
         wli.widx.insert(wli.widx.end(), wi0.widx.begin() + wi0.wptr[c], wi0.widx.begin() + wi0.wptr[c + 1]);
         wli.wptr.push_back((Eigen::Index)wli.widx.size());
       }
+      Spare::clear(W0, wr0.first, wr0.second);
       Spare::give(spare_->mu, spare_->W, W0);
     }
     // Prescribed.rates: dg_i/dt = -n_i.V(t_m) of the contacts against a moving static (§2.9); none: no rate
@@ -2691,6 +2733,7 @@ class Stepper {
     out.v_free = std::move(v0), out.b = std::move(b), out.v = std::move(v), out.lam = std::move(res.lam);
     out.set_M(driven ? Mout : M, blocks_);  // the trees' blocks (the driven step's M_rr embedded: zero off them too)
     out.W = std::move(W), out.projection = res.status;
+    if (!driven) out.wptr = std::move(wr.first), out.wrow = std::move(wr.second);  // driven: W embedded (unknown)
     out.contact_work = work, out.correction_energy = corr, out.m = m;
     out.obstacle_work = ow, out.drive_work_free = driven ? ds.work_free : 0.0;
   }
@@ -2994,7 +3037,7 @@ NB_MODULE(_step, mod) {
       .def_prop_ro("ints", [](StepOut &o) -> VectorXl & { o.pack(); return o.ints; }, nb::rv_policy::reference_internal)
       // M (nv, nv, 'C') and W (nv, m, 'F'): views of their own buffers (layout's buffers 2, 3), already shaped
       .def_prop_ro("M", [](StepOut &o) -> decltype(StepOut::M) & { return o.dense_M(); }, nb::rv_policy::reference_internal)
-      .def_prop_ro("W", [](StepOut &o) -> MatrixXd & { return o.W; }, nb::rv_policy::reference_internal)
+      .def_prop_ro("W", [](StepOut &o) -> const MatrixXd & { return o.W; }, nb::rv_policy::reference_internal)
       .def("layout", &StepOut::layout, "(name, buffer: 0 floats 1 ints 2 M 3 W, offset, rows, cols (0: a vector), order 'C'/'F') per array")
       .def_ro("projection", &StepOut::projection)
       .def_ro("contact_work", &StepOut::contact_work)
