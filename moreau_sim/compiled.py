@@ -191,7 +191,7 @@ class _Context:
         self.counts: Counter = Counter()
         self.why = prep.why
         self.stepper = None
-        self.active_sent = None  # the data.active_rows last sent to the Stepper, or read from it (raw_step)
+        self.active_sent = None  # the data.active_rows last sent to the Stepper (raw_step)
         if self.why is None:
             # on the forest's per-tree Datas (docs/theory.md §2.12): no Data of the whole model is made
             # a model without a pair list: a GeometryData of its geometries alone (placements), not data.geom's of
@@ -391,10 +391,11 @@ def raw_step(model, data, q: np.ndarray, u: np.ndarray, h: float, e: float, tau:
     stepper, boxes = ctx.stepper, ctx.boxes
     if boxes and data.warm_start_holder is not stepper:  # contacts.detect's warm start, kept in data between steps
         stepper.warm = sorted(data.warm_start_pairs)  # whichever step takes them (else the Stepper holds data's)
-    rows = data.active_rows  # the projection's warm start (stepper.keep_active), likewise: sent where it changed
-    if rows is not ctx.active_sent:
-        stepper.active = sorted(rows)
-        ctx.active_sent = rows
+    if data.active_holder is not stepper:  # the projection's warm start (stepper.keep_active), likewise
+        rows = data.active_rows  # sent where it changed
+        if rows is not ctx.active_sent:
+            stepper.active = sorted(rows)
+            ctx.active_sent = rows
     try:
         r = stepper.step(q, u, h, e, _EMPTY if tau is None else tau, t=math.nan if t is None else t)
     except TypeError:  # an extension built before torques or times: the Python step takes them
@@ -406,8 +407,7 @@ def raw_step(model, data, q: np.ndarray, u: np.ndarray, h: float, e: float, tau:
         return None
     if boxes:  # read from the Stepper where something asks for it (Data.warm_start_pairs)
         data.hold_warm_start(stepper)
-    if rows or stepper.active_count:  # the set this step kept (above qp.SPARSE_ROWS rows), else none
-        data.active_rows = ctx.active_sent = frozenset(map(tuple, stepper.active))
+    data.hold_active(stepper)  # the set this step kept (above qp.SPARSE_ROWS rows), else none: read where asked
     ctx.counts["flight" if outcome is _module.Outcome.FLIGHT else "contact"] += 1
     return r
 

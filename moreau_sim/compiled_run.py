@@ -96,15 +96,13 @@ class CompiledRun:
         data = integ.data
         if self.boxes:  # contacts.detect's warm start, kept in data between steps whichever loop takes them
             self.stepper.warm = sorted(data.warm_start_pairs)
-        self.stepper.active = sorted(data.active_rows)  # the projection's warm start (stepper.keep_active), likewise
+        if data.active_holder is not self.stepper:  # the projection's warm start (stepper.keep_active), likewise
+            self.stepper.active = sorted(data.active_rows)
         stop = r.advance(st.t, st.q, st.u, integ.k, integ.n, integ.every, integ.h, integ.e, integ.t0, t_stop,
                          POLL_SECONDS, *(g.cols for g in groups), starts, rooms)
         if self.boxes:  # as the last step the Runner kept left it (a step it undoes leaves it as it was)
             data.warm_start_pairs = set(self.stepper.warm)
-        data.active_rows = frozenset(map(tuple, self.stepper.active))  # as the last step the Runner kept left it
-        ctx = getattr(data, "_compiled_step", None)
-        if ctx is not None:
-            ctx.active_sent = data.active_rows  # what the Stepper holds (compiled.raw_step)
+        data.hold_active(self.stepper)  # as the last step the Runner kept left it (read where asked)
         t, q, u, k = r.where()
         Stop = compiled._module.Stop
         unfit = stop is Stop.FULL and k == integ.k  # a step's log rows did not fit: undone, r.log_need() says how many

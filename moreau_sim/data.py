@@ -69,7 +69,9 @@ class Data:
         # the projection's warm start above qp.SPARSE_ROWS rows: the identities (pair, kind, feature) of the rows of
         # the last step's final active set (its first pass's; piqp's answer: lam > 0), where it had more rows than
         # that; else empty (stepper.keep_active, docs/theory.md §1.3)
-        self.active_rows: frozenset = frozenset()
+        # (a compiled Stepper holds the set it kept until the set is read: active_rows, hold_active)
+        self._active_rows: frozenset | None = frozenset()
+        self.active_holder = None  # that Stepper (None: _active_rows is the set)
         self.patch_request = coal.ContactPatchRequest()
         self.patch_request.setPatchTolerance(PATCH_TOLERANCE)
         self.patch_collision = coal.CollisionResult()
@@ -103,6 +105,25 @@ class Data:
         """The warm start is the one the compiled Stepper `stepper` holds, after the step it took (compiled.raw_step):
         not read back from it each step, nor sent to it again at the next, unless something reads it in between."""
         self._warm_pairs, self.warm_start_holder = None, stepper
+
+    @property
+    def active_rows(self) -> frozenset:
+        """The projection's warm start (above), whichever step made it; read from the compiled Stepper that holds
+        it (hold_active) at the first read."""
+        rows = self._active_rows
+        if rows is None:
+            rows = self._active_rows = frozenset(map(tuple, self.active_holder.active))
+            self.active_holder = None  # the set read is data's own now: it is sent again where a step needs it
+        return rows
+
+    @active_rows.setter
+    def active_rows(self, rows: frozenset) -> None:
+        self._active_rows, self.active_holder = rows, None
+
+    def hold_active(self, stepper) -> None:
+        """The warm start is the set the compiled Stepper `stepper` kept at the step it took: not read back from it
+        each step (m rows), nor sent to it again at the next, unless something reads it in between."""
+        self._active_rows, self.active_holder = None, stepper
 
     def _make_geom(self) -> None:
         model = self._model

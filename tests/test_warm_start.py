@@ -422,3 +422,30 @@ def test_the_position_correction_above_sparse_rows_starts_from_the_law_s_final_s
                                                        for r in warm]
     for k, r in enumerate(warm):  # E_{k+1} - E_k = W_c + correction_energy, W_c <= 0
         assert E[k + 1] - E[k] - r.correction_energy <= 1e-12 * abs(E[0])
+
+
+def test_the_kept_set_stays_in_the_compiled_stepper_until_read():
+    """The compiled step leaves the set it kept in its Stepper (data.hold_active: not read back each step, m rows);
+    read after six steps it is the Python step's kept set, bit for bit the same run; after the read the set is
+    data's own again and is sent back, and the next steps still match the Python step's bits."""
+    compiled = _compiled_or_fail()
+    sc = _hit(240, 2.0, 0.5, 5e-4)
+    runs = {}
+    for impl in ("python", "compiled"):
+        model = ms.build_model(sc.with_options(step_impl=impl))
+        data = make_data(model)
+        st, rs, kept = ms.initial_state(model, data), [], []
+        for k in range(9):
+            r = ms.step(model, data, st)
+            st = r.state
+            rs.append(r)
+            if impl == "compiled" and k < 5:
+                assert data.active_holder is not None  # not read back
+            if k == 5:
+                kept = data.active_rows
+                assert data.active_holder is None
+        runs[impl] = (rs, kept, compiled.counts(data))
+    assert runs["compiled"][2]["contact"] == 9
+    assert len(runs["python"][1]) >= 239 and runs["python"][1] == runs["compiled"][1]
+    for a, b in zip(runs["python"][0], runs["compiled"][0]):
+        assert _bits(a.state.q) == _bits(b.state.q) and _bits(a.state.u) == _bits(b.state.u)
