@@ -4,8 +4,10 @@ KeyboardInterrupt so that what was computed is kept, and the exit status names t
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
+import threading
 
 EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + the signal's number, as a shell reports it
 _received: list[int] = []
@@ -47,3 +49,26 @@ def signal_name() -> str:
 def exit_status() -> int:
     """130 after SIGINT (or Ctrl-C), 143 after SIGTERM."""
     return EXIT_STATUS[_received[-1]] if _received else 130
+
+
+@contextlib.contextmanager
+def held():
+    """SIGINT and SIGTERM held back while a file is written (main thread; a handler set from Python), then
+    delivered to the handler they had: the KeyboardInterrupt they raise comes after the write, not inside
+    zipfile's writer, which would close its archive half-written and replace the interrupt with an error of its
+    own."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    previous = {s: signal.getsignal(s) for s in EXIT_STATUS}
+    previous = {s: h for s, h in previous.items() if h is not None}  # None: set outside Python, left alone
+    for s in previous:
+        signal.signal(s, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        for s in dict.fromkeys(pending):
+            signal.raise_signal(s)

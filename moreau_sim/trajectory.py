@@ -47,6 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
+from moreau_sim import interrupts
+
 FORMAT = "moreau-sim trajectory 4"  # 4: log_steps; 3: the ledger arrays; 2: log_kind + log_feature (1: one feature id)
 
 # name -> (dtype, trailing shape); "nq", "nv", "pairs" are the model's sizes
@@ -197,20 +199,22 @@ _SHOWN = {"scene", "status", "integrator", "steps", "events", "samples", "t_end"
 def atomic_write(path: str | Path, write) -> Path:
     """Write `path` atomically: write(tmp) fills a temporary file beside it (NAME.PID.XXXX.tmp, which
     _remove_orphans recognises once its writer is gone), renamed into place with the usual file mode;
-    removed when writing fails or is interrupted. Every file the package writes goes through here."""
+    removed when writing fails. Ctrl-C and SIGTERM wait until the file is in place (interrupts.held). Every file
+    the package writes goes through here."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f"{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
-    try:
-        os.close(fd)
-        write(Path(tmp))
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual mode
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with interrupts.held():
+        fd, tmp = tempfile.mkstemp(prefix=f"{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
+        try:
+            os.close(fd)
+            write(Path(tmp))
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual mode
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
     return path
 
 

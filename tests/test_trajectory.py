@@ -99,3 +99,31 @@ def test_unreadable_files_are_named(traj, tmp_path):
         ms.load_trajectory(partial)
     with pytest.raises(ValueError, match="nowhere.npz"):
         ms.load_trajectory(tmp_path / "nowhere.npz")
+
+
+def test_a_signal_while_a_file_is_written_waits_until_it_is_in_place(tmp_path):
+    """SIGTERM arriving inside a write (here: sent by the writer itself, between two members of a ZIP archive) is
+    held until the file is complete and renamed into place, then raises KeyboardInterrupt as the command line's
+    handler does (interrupts.raising): the archive whole, no zipfile error in its place, no temporary file left."""
+    import signal
+    import zipfile
+
+    from moreau_sim import interrupts
+    from moreau_sim.trajectory import atomic_write
+
+    def write(tmp):
+        with zipfile.ZipFile(tmp, "w") as z:
+            z.writestr("a", b"1" * 1000)
+            os.kill(os.getpid(), signal.SIGTERM)
+            z.writestr("b", b"2" * 1000)
+
+    previous = interrupts.raising()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            atomic_write(tmp_path / "f.zip", write)
+        assert interrupts.exit_status() == 143
+    finally:
+        interrupts.restore(previous)
+    with zipfile.ZipFile(tmp_path / "f.zip") as z:
+        assert z.read("b") == b"2" * 1000
+    assert [p.name for p in tmp_path.iterdir()] == ["f.zip"]
