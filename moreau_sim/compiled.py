@@ -236,9 +236,23 @@ class _Context:
 
     def arrays(self, r) -> dict:
         """The named arrays of the extension's StepOut r: views of its buffers (layout)."""
-        contact = r.outcome is _module.Outcome.CONTACT
-        buffers = (r.floats, *((r.ints, r.M, _read_only(r.W)) if contact else (None,) * 3))
+        buffers = _Buffers(r, r.floats)
         return {name: _view(buffers[i], s, shape, f_order) for name, (i, s, shape, f_order) in self.layout(r).items()}
+
+
+class _Buffers:
+    """A StepOut's buffers by layout's number (0 floats, 1 ints, 2 M, 3 W), each read from it where an array in it
+    is asked for: M is made dense from its trees' blocks at its first read (src/step.cpp StepOut::dense_M), not
+    where the contacts are."""
+
+    __slots__ = ("_r", "_floats")
+
+    def __init__(self, r, floats: np.ndarray):
+        self._r, self._floats = r, floats
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        r = self._r
+        return self._floats if i == 0 else r.ints if i == 1 else r.M if i == 2 else _read_only(r.W)
 
 
 def _read_only(W: np.ndarray) -> np.ndarray:
@@ -513,7 +527,7 @@ assert set(_FLIGHT) == set(_CONTACT) == set(_FIELDS) - {"state", "tau"}
 # what _CompiledResult.__getattr__ makes: the lazy fields (by the outcome's table), and what they are made of
 _MAKE = {name: (lambda s, n=name: s._makers[n](s)) for name in _FLIGHT} | {
     "_makers": lambda s: _FLIGHT if s._r.outcome is _module.Outcome.FLIGHT else _CONTACT,
-    "_layout": lambda s: s._ctx.layout(s._r), "_buffers": lambda s: (s._floats, s._r.ints, s._r.M, _read_only(s._r.W))}
+    "_layout": lambda s: s._ctx.layout(s._r), "_buffers": lambda s: _Buffers(s._r, s._floats)}
 # the slots' setters (StepResult's own, frozen to its __setattr__; _CompiledResult's)
 _SET = {name: cls.__dict__[name].__set__ for cls in (StepResult, _CompiledResult)
         for name in cls.__slots__}
