@@ -595,6 +595,8 @@ bool sparse_lu_solve(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
 // lu_solve runs sparse_lu_solve on a clean matrix above kSparseLU rows with at most kSparseRow nonzeros a row on
 // average (the same bits; below or denser, the dense loops cost less than the lists: ten boxes' G, ~24 a row)
 constexpr Eigen::Index kSparseLU = 16, kSparseRow = 8;
+// contact_space passes over every entry of MiW and G up to this many (nv m and m^2), over their lists above
+constexpr Eigen::Index kScanEntries = Eigen::Index(1) << 16;
 // Above kWideRows rows the active set's solves take sparse_lu_solve up to kWideRow nonzeros a row of G on average:
 // there band_lu_solve's k x k copies of G_AA a solve (and its O(k^2) loops) cost more than the lists (a 64-box
 // pile, ~500 rows, ~30 a row); at ten boxes (76 rows, ~24 a row) the band's dense loops cost less
@@ -1192,6 +1194,9 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
     MiW.setZero(nv, m), G.setZero(m, m);
   }
   mi.finite = false;
+  // small problems pass over every entry (a scan costs less than sorting the lists); larger ones over the lists,
+  // sorted: the same sums, k ascending, the same bits
+  const bool scan = nv * m <= kScanEntries && m * m <= kScanEntries;
   thread_local std::vector<I> mptr, midx, rptr, rcol, fill;  // Minv's nonzeros by columns; W's by rows (rptr, rcol, rval)
   thread_local std::vector<double> rval;
   mptr.assign((size_t)nv + 1, 0), midx.clear();
@@ -1218,6 +1223,10 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
       }
     }
     mi.wptr[(size_t)j + 1] = (I)mi.widx.size();
+    if (scan) {
+      for (I i = 0; i < nv; ++i) y[i] = y[i] + 0.0;
+      continue;
+    }
     // the rows listed ascending (G's sums below run over k ascending); y's other entries are +0.0 (setZero)
     std::sort(mi.widx.begin() + mi.wptr[(size_t)j], mi.widx.end());
     for (I t = mi.wptr[(size_t)j]; t < mi.wptr[(size_t)j + 1]; ++t) y[mi.widx[(size_t)t]] = y[mi.widx[(size_t)t]] + 0.0;
@@ -1237,6 +1246,24 @@ void contact_space(const MatrixXd &Minv, const MatrixXd &W, const WInfo &wi, Mat
   thread_local VectorXd g;
   thread_local std::vector<I> gptr, grow, hit;  // G's rows each column's sums reached (ascending); hit: last column
   g.setZero(m);
+  if (scan) {  // every entry of MiW's column j, k ascending; every entry of G's column written
+    for (I j = 0; j < m; ++j) {
+      const double *y = MiW.col(j).data();
+      for (I k = 0; k < nv; ++k) {
+        const double ykj = y[k];
+        if (ykj == 0.0) continue;
+        for (I t = rptr[(size_t)k]; t < rptr[(size_t)k + 1]; ++t) {
+          const I c = rcol[(size_t)t];
+          g[c] = g[c] + rval[(size_t)t] * ykj;
+        }
+      }
+      double *gj = G.col(j).data();
+      for (I i = 0; i < m; ++i) gj[i] = g[i] + 0.0, g[i] = 0.0;
+    }
+    gi.set(G);
+    kept = gi.finite, kept_at[0] = MiW.data(), kept_at[1] = G.data();
+    return;
+  }
   hit.assign((size_t)m, -1);
   gptr.assign((size_t)m + 1, 0), grow.clear();
   for (I j = 0; j < m; ++j) {  // G's column j: the sums over k ascending; the rows no term reaches stay +0.0

@@ -449,3 +449,22 @@ def test_the_kept_set_stays_in_the_compiled_stepper_until_read():
     assert len(runs["python"][1]) >= 239 and runs["python"][1] == runs["compiled"][1]
     for a, b in zip(runs["python"][0], runs["compiled"][0]):
         assert _bits(a.state.q) == _bits(b.state.q) and _bits(a.state.u) == _bits(b.state.u)
+
+
+@pytest.mark.parametrize("n", [256, 257])
+def test_contact_space_below_and_above_its_scan_size_gives_the_python_bits(n):
+    """src/step.cpp contact_space passes over every entry of M^-1 W and W'M^-1 W up to kScanEntries = 2^16 (nv m
+    and m^2) and over their nonzeros, listed and sorted, above: the hit column of 256 beads (255 and 256 rows: 65,280
+    and 65,536 entries, scanned) and of 257 (65,792: listed), compiled, gives the Python step's bits every step."""
+    compiled = _compiled_or_fail()
+    sc = _hit(n, 2.0, 0.5, 5e-4)
+    runs = {}
+    for impl in ("python", "compiled"):
+        model = ms.build_model(sc.with_options(step_impl=impl))
+        data, rs = _stepped(model, 8)
+        runs[impl] = (rs, compiled.counts(data))
+    assert runs["compiled"][1]["contact"] == 8
+    assert {r.contacts.m for r in runs["python"][0]} == {n - 1, n}
+    for a, b in zip(runs["python"][0], runs["compiled"][0]):
+        for x, y in ((a.state.q, b.state.q), (a.state.u, b.state.u), (a.P, b.P), (a.qp.lam, b.qp.lam)):
+            assert _bits(x) == _bits(y)
