@@ -675,37 +675,24 @@ struct GInfo {
     static std::atomic<uint64_t> made{0};
     return ++made;
   }
+  // one pass over G: finite, clean (no -0.0), its largest |entry| (exact: the same max in any order) and its
+  // nonzeros by columns; where an entry is not finite, Eigen's max and no lists
   void set(const MatrixXd &G) {
-    gen = next_gen();
-    const Eigen::Index m = G.rows();
-    cptr.assign((size_t)m + 1, 0), rptr.assign((size_t)m + 1, 0), cidx.clear();
-    // one pass over G: finite, clean (no -0.0), its largest |entry| (exact: the same max in any order) and its
-    // nonzeros by columns; where an entry is not finite, Eigen's max and no lists
-    finite = true;
-    bool no_negative_zero = true;
-    double top = 0.0;
-    for (Eigen::Index k = 0; k < m && finite; ++k) {
-      const double *g = G.col(k).data();
-      for (Eigen::Index i = 0; i < m; ++i) {
-        const double v = g[i];
-        if (v == 0.0) {
-          no_negative_zero = no_negative_zero && !std::signbit(v);
-          continue;
-        }
-        if (!std::isfinite(v)) {
-          finite = false;
-          break;
-        }
-        top = std::max(top, std::abs(v));
-        cidx.push_back(i), ++rptr[(size_t)i + 1];
-      }
-      cptr[(size_t)k + 1] = (Eigen::Index)cidx.size();
-    }
-    finish(G, finite, no_negative_zero, top);
+    collect(G, [&](Eigen::Index, auto &&entry) {
+      for (Eigen::Index i = 0; i < G.rows(); ++i)
+        if (!entry(i)) return;
+    });
   }
   // set(G) where G's entries outside the rows `rows` lists for each column (ptr, ascending; a superset of its
   // nonzeros) are +0.0: the same lists, flags and max, at the cost of the listed entries (contact_space's G)
   void set_listed(const MatrixXd &G, const std::vector<Eigen::Index> &ptr, const std::vector<Eigen::Index> &rows) {
+    collect(G, [&](Eigen::Index k, auto &&entry) {
+      for (Eigen::Index t = ptr[(size_t)k]; t < ptr[(size_t)k + 1]; ++t)
+        if (!entry(rows[(size_t)t])) return;
+    });
+  }
+  // set's pass over the entries each(k, entry) hands entry(i) for column k, ascending (false: not finite, stop)
+  template <class Each> void collect(const MatrixXd &G, Each &&each) {
     gen = next_gen();
     const Eigen::Index m = G.rows();
     cptr.assign((size_t)m + 1, 0), rptr.assign((size_t)m + 1, 0), cidx.clear();
@@ -713,20 +700,17 @@ struct GInfo {
     double top = 0.0;
     for (Eigen::Index k = 0; k < m && fin; ++k) {
       const double *g = G.col(k).data();
-      for (Eigen::Index t = ptr[(size_t)k]; t < ptr[(size_t)k + 1]; ++t) {
-        const Eigen::Index i = rows[(size_t)t];
+      each(k, [&](Eigen::Index i) {
         const double v = g[i];
         if (v == 0.0) {
           no_negative_zero = no_negative_zero && !std::signbit(v);
-          continue;
+          return true;
         }
-        if (!std::isfinite(v)) {
-          fin = false;
-          break;
-        }
+        if (!std::isfinite(v)) return fin = false;
         top = std::max(top, std::abs(v));
         cidx.push_back(i), ++rptr[(size_t)i + 1];
-      }
+        return true;
+      });
       cptr[(size_t)k + 1] = (Eigen::Index)cidx.size();
     }
     finish(G, fin, no_negative_zero, top);
