@@ -37,6 +37,36 @@ def _pin_box_support() -> None:
 _pin_box_support()
 
 
+class _Held:
+    """A value of Data that a compiled Stepper may hold after the step it took (compiled.raw_step): not read back
+    from it each step, nor sent to it again at the next, unless something reads it in between. The first read
+    converts the Stepper's copy (`read`); assigning a value makes it data's own again. Data's attribute `holder`
+    names that Stepper (None: the value is data's)."""
+
+    def __init__(self, read, holder: str):
+        self.read, self.holder = read, holder
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.slot = "_" + name
+
+    def __get__(self, data, owner=None):
+        if data is None:
+            return self
+        value = getattr(data, self.slot)
+        if value is None:
+            value = self.read(getattr(data, self.holder))
+            self.__set__(data, value)  # data's own now: a change made to it is sent again
+        return value
+
+    def __set__(self, data, value) -> None:
+        setattr(data, self.slot, value)
+        setattr(data, self.holder, None)
+
+    def hold(self, data, stepper) -> None:
+        setattr(data, self.slot, None)
+        setattr(data, self.holder, stepper)
+
+
 class Data:
     """Scratch reused by every step: the forest's kinematics (`kinematics`: each tree's Pinocchio
     Data, trees.py), the whole model's Pinocchio data (`pin`, made at first use: the compiled step
@@ -46,6 +76,10 @@ class Data:
     contacts._near_polytopes).
 
     Create one per thread and per run with :func:`make_data`; the state itself is in State."""
+
+    # read from the compiled Stepper that holds them (hold_warm_start, hold_active) at the first read
+    warm_start_pairs = _Held(lambda stepper: set(stepper.warm), "warm_start_holder")
+    active_rows = _Held(lambda stepper: frozenset(map(tuple, stepper.active)), "active_holder")
 
     def __init__(self, model: Model):
         self._model = model
@@ -64,14 +98,12 @@ class Data:
         self.box_edges: dict = {}  # geometry index -> its box's 12 edges in the joint frame (contacts, filled lazily)
         # the detection's warm start: the pairs with contacts at the last detection (contacts._near_polytopes); where
         # a compiled step made it, the compiled Stepper holds it until it is read (warm_start_pairs, hold_warm_start)
-        self._warm_pairs: set | None = set()
-        self.warm_start_holder = None  # that Stepper (None: _warm_pairs is the set)
+        self.warm_start_pairs = set()
         # the projection's warm start above qp.SPARSE_ROWS rows: the identities (pair, kind, feature) of the rows of
         # the last step's final active set (its first pass's; piqp's answer: lam > 0), where it had more rows than
         # that; else empty (stepper.keep_active, docs/theory.md §1.3)
         # (a compiled Stepper holds the set it kept until the set is read: active_rows, hold_active)
-        self._active_rows: frozenset | None = frozenset()
-        self.active_holder = None  # that Stepper (None: _active_rows is the set)
+        self.active_rows = frozenset()
         self.patch_request = coal.ContactPatchRequest()
         self.patch_request.setPatchTolerance(PATCH_TOLERANCE)
         self.patch_collision = coal.CollisionResult()
@@ -87,43 +119,13 @@ class Data:
         self._point_queries: dict[int, coal.ComputeDistance] = {}
         self.shapes = [g.geometry for g in model.geometries]
 
-    @property
-    def warm_start_pairs(self) -> set:
-        """The detection's warm start: the pairs that had contacts at the last detection (contacts._near_polytopes),
-        whichever step made it; read from the compiled Stepper that holds it (hold_warm_start) at the first read."""
-        pairs = self._warm_pairs
-        if pairs is None:
-            pairs = self._warm_pairs = set(self.warm_start_holder.warm)
-            self.warm_start_holder = None  # the set read is data's own now: a change made to it is sent again
-        return pairs
-
-    @warm_start_pairs.setter
-    def warm_start_pairs(self, pairs: set) -> None:
-        self._warm_pairs, self.warm_start_holder = pairs, None
-
     def hold_warm_start(self, stepper) -> None:
-        """The warm start is the one the compiled Stepper `stepper` holds, after the step it took (compiled.raw_step):
-        not read back from it each step, nor sent to it again at the next, unless something reads it in between."""
-        self._warm_pairs, self.warm_start_holder = None, stepper
-
-    @property
-    def active_rows(self) -> frozenset:
-        """The projection's warm start (above), whichever step made it; read from the compiled Stepper that holds
-        it (hold_active) at the first read."""
-        rows = self._active_rows
-        if rows is None:
-            rows = self._active_rows = frozenset(map(tuple, self.active_holder.active))
-            self.active_holder = None  # the set read is data's own now: it is sent again where a step needs it
-        return rows
-
-    @active_rows.setter
-    def active_rows(self, rows: frozenset) -> None:
-        self._active_rows, self.active_holder = rows, None
+        """The detection's warm start is the one the compiled Stepper `stepper` holds after its step (_Held)."""
+        Data.warm_start_pairs.hold(self, stepper)
 
     def hold_active(self, stepper) -> None:
-        """The warm start is the set the compiled Stepper `stepper` kept at the step it took: not read back from it
-        each step (m rows), nor sent to it again at the next, unless something reads it in between."""
-        self._active_rows, self.active_holder = None, stepper
+        """The projection's warm start is the set the compiled Stepper `stepper` kept at its step (_Held)."""
+        Data.active_rows.hold(self, stepper)
 
     def _make_geom(self) -> None:
         model = self._model
