@@ -205,7 +205,10 @@ struct Spare {
   std::mutex mu;
   std::vector<MatrixXd> W;
   std::vector<RowMatrixXd> M;
-  template <class Mat> static Mat take(std::mutex &mu, std::vector<Mat> &v, Eigen::Index r, Eigen::Index c) {
+  // a stored matrix of r*c entries, else a new one; `zeroed`: the new one +0.0 everywhere, as the W store's are
+  // (~StepOut and the step clear what they wrote)
+  template <class Mat>
+  static Mat take(std::mutex &mu, std::vector<Mat> &v, Eigen::Index r, Eigen::Index c, bool zeroed = false) {
     {
       std::lock_guard<std::mutex> lock(mu);
       for (size_t k = 0; k < v.size(); ++k)
@@ -216,21 +219,7 @@ struct Spare {
           return x;
         }
     }
-    return Mat(r, c);
-  }
-  // take, every entry +0.0: the W store holds only such matrices (~StepOut and the step clear what they wrote)
-  static MatrixXd take_zero(std::mutex &mu, std::vector<MatrixXd> &v, Eigen::Index r, Eigen::Index c) {
-    {
-      std::lock_guard<std::mutex> lock(mu);
-      for (size_t k = 0; k < v.size(); ++k)
-        if (v[k].size() == r * c) {
-          MatrixXd x = std::move(v[k]);
-          v.erase(v.begin() + (std::ptrdiff_t)k);
-          x.resize(r, c);
-          return x;
-        }
-    }
-    return MatrixXd::Zero(r, c);
+    return zeroed ? Mat(Mat::Zero(r, c)) : Mat(r, c);
   }
   // W's entries at the rows `rows` lists for each column (ptr) set to +0.0: all of W's that may be other than +0.0
   static void clear(MatrixXd &W, const std::vector<Eigen::Index> &ptr, const std::vector<Eigen::Index> &rows) {
@@ -251,7 +240,7 @@ struct StepOut {
     if (!spare) return;
     Spare::give(spare->mu, spare->M, M);
     if (!W.size()) return;
-    if (wptr.size() == (size_t)W.cols() + 1)  // the W store's matrices are +0.0 everywhere (Spare::take_zero)
+    if (wptr.size() == (size_t)W.cols() + 1)  // the W store's matrices are +0.0 everywhere (Spare::take, zeroed)
       Spare::clear(W, wptr, wrow);
     else
       W.setZero();
@@ -1711,7 +1700,6 @@ class Stepper {
     std::sort(a.begin(), a.end());
     active_ = std::move(a);
   }
-  size_t active_count() const { return active_.size(); }
 
  private:
   nb::object py_[3];  // keeps the Python objects (and so the C++ ones) alive
@@ -2397,7 +2385,7 @@ class Stepper {
                         std::pair<std::vector<Eigen::Index>, std::vector<Eigen::Index>> *written = nullptr) {
     const Eigen::Index nv = model_.nv, m = (Eigen::Index)f.size();
     const auto &J = J_;  // (6, nv) WORLD (crba_world)
-    MatrixXd W = Spare::take_zero(spare_->mu, spare_->W, nv, m);  // +0.0 but where written below
+    MatrixXd W = Spare::take(spare_->mu, spare_->W, nv, m, true);  // +0.0 but where written below
     bool finite = true;
     if (wi) wi->wptr.assign((size_t)m + 1, 0), wi->widx.clear();
     if (written) written->first.assign(1, 0), written->second.clear();
@@ -2576,7 +2564,7 @@ class Stepper {
       W = std::move(W0), con = std::move(found);
       std::swap(wli, wi0), std::swap(wr, wr0);
     } else {  // the kept columns' written entries (the others +0.0 in both)
-      W = Spare::take_zero(spare_->mu, spare_->W, nv, m);
+      W = Spare::take(spare_->mu, spare_->W, nv, m, true);
       wli.finite = wi0.finite, wli.wptr.assign(1, 0), wli.widx.clear();
       wr.first.assign(1, 0), wr.second.clear();
       for (Eigen::Index j = 0; j < m; ++j) {
@@ -3071,8 +3059,7 @@ NB_MODULE(_step, mod) {
       .def("table", &Stepper::table)
       .def_prop_ro("candidates", &Stepper::last_candidates)
       .def_prop_rw("warm", &Stepper::warm, &Stepper::set_warm)
-      .def_prop_rw("active", &Stepper::active, &Stepper::set_active)
-      .def_prop_ro("active_count", &Stepper::active_count);
+      .def_prop_rw("active", &Stepper::active, &Stepper::set_active);
   bind_run(mod);
   bind_events(mod);
   // The GeometryModel of these geometries and no pair (a scene without a pair list: the Stepper's placements, Stepper::
