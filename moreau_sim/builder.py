@@ -35,6 +35,7 @@ class SceneBuilder:
         self.bodies: list[dict] = []
         self.statics: list[dict] = []
         self.collisions: dict[str, list] = {}
+        self._resolved: dict[str, str] = {}  # _path's answers: many bodies name one model file
         self.set(**options)
 
     def set(self, **options) -> SceneBuilder:
@@ -115,7 +116,11 @@ class SceneBuilder:
 
     def _path(self, p: str | Path) -> str:
         text = str(p)
-        return text if text.startswith("package://") else str((self.folder / p).resolve())
+        if text.startswith("package://"):
+            return text
+        if text not in self._resolved:
+            self._resolved[text] = str((self.folder / p).resolve())
+        return self._resolved[text]
 
 
 def _plain(value):

@@ -7,6 +7,7 @@ single place that reads them. Errors name the file and the field
 
 from __future__ import annotations
 
+from collections import Counter
 import dataclasses
 import math
 import tomllib
@@ -173,7 +174,9 @@ def _parse_options(sim: dict, out: dict, where: str) -> Options:
         raise SceneError(str(exc).replace("options:", f"{where} [simulation]", 1)) from None
 
 
-def _parse_body(t: dict, where: str, base: Path) -> Body:
+def _parse_body(t: dict, where: str, base: Path, files: dict) -> Body:
+    """One [[bodies]] table; `files` keeps the files found in this scene (many bodies share one model file: each
+    is looked up once, by its value and package folders)."""
     require(isinstance(t, dict), where, "must be a table")
     _unknown(t, _BODY, where)
     require("mjcf" not in t or "urdf" not in t, where, "give either 'urdf' or 'mjcf', not both")
@@ -190,13 +193,18 @@ def _parse_body(t: dict, where: str, base: Path) -> Body:
         dirs = [real_path(base / d, f"{w} package_dirs") for d in t["package_dirs"]]
     key = "mjcf" if "mjcf" in t else "urdf"
     require(isinstance(t[key], str) and t[key] != "", f"{w} {key}", "must be a path string or a package:// URI")
-    urdf = resolve_model_file(t[key], base, dirs, f"{w} {key}")
+    found = (key, t[key], tuple(dirs))
+    if found not in files:
+        files[found] = resolve_model_file(t[key], base, dirs, f"{w} {key}")
+    urdf = files[found]
     kw: dict[str, Any] = dict(name=name, urdf=urdf, root_joint=choice(RootJoint, t["root_joint"], f"{w} root_joint"),
                               mjcf=key == "mjcf", package_dirs=tuple(dirs))
     if "meshes" in t:
         kw["meshes"] = choice(MeshMode, t["meshes"], f"{w} meshes")
     if "srdf" not in t:  # the SRDF shipped beside a URDF applies unless the scene says otherwise
-        kw["srdf"] = None if kw["mjcf"] else find_srdf(urdf)
+        if ("srdf", urdf) not in files:
+            files["srdf", urdf] = None if kw["mjcf"] else find_srdf(urdf)
+        kw["srdf"] = files["srdf", urdf]
     elif t["srdf"] is not False:
         require(isinstance(t["srdf"], str) and t["srdf"] != "", f"{w} srdf",
                 f"must be a path string, a package:// URI, or false (no SRDF), got {t['srdf']!r}")
@@ -343,10 +351,11 @@ def parse_scene(text: str, *, path: Path | str | None = None) -> Scene:
     bodies_t, statics_t = doc.get("bodies", []), doc.get("statics", [])
     require(isinstance(bodies_t, list), f"{where} [[bodies]]", "must be an array of tables")
     require(isinstance(statics_t, list), f"{where} [[statics]]", "must be an array of tables")
-    bodies = tuple(_parse_body(t, f"{where} [[bodies]][{i}]", base) for i, t in enumerate(bodies_t))
+    files: dict = {}
+    bodies = tuple(_parse_body(t, f"{where} [[bodies]][{i}]", base, files) for i, t in enumerate(bodies_t))
     statics = tuple(_parse_static(t, f"{where} [[statics]][{i}]") for i, t in enumerate(statics_t))
     names = [b.name for b in bodies] + [s.name for s in statics]
-    dup = sorted({n for n in names if names.count(n) > 1})
+    dup = sorted(n for n, k in Counter(names).items() if k > 1)
     require(not dup, where, f"duplicate body/static names {dup}")
 
     col = _table(doc, "collisions", where)
@@ -356,13 +365,14 @@ def parse_scene(text: str, *, path: Path | str | None = None) -> Scene:
     act_t = doc.get("actuators", [])
     require(isinstance(act_t, list), f"{where} [[actuators]]", "must be an array of tables")
     actuators = tuple(_parse_actuator(t, f"{where} [[actuators]][{i}]") for i, t in enumerate(act_t))
+    body_names = {b.name for b in bodies}
     for a in actuators:
-        require(a.body in [b.name for b in bodies], f"{a.where} body", f"names no body of the scene ({a.body!r})")
+        require(a.body in body_names, f"{a.where} body", f"names no body of the scene ({a.body!r})")
     drive_t = doc.get("drives", [])
     require(isinstance(drive_t, list), f"{where} [[drives]]", "must be an array of tables")
     drives = tuple(_parse_drive(t, f"{where} [[drives]][{i}]") for i, t in enumerate(drive_t))
     for dr in drives:
-        require(dr.body in [b.name for b in bodies], f"{dr.where} body", f"names no body of the scene ({dr.body!r})")
+        require(dr.body in body_names, f"{dr.where} body", f"names no body of the scene ({dr.body!r})")
     return Scene(name=name, description=description, options=options, bodies=bodies, statics=statics,
                  collisions=collisions, actuators=actuators, drives=drives, output=output,
                  path=real_path(Path(path), where) if path else None, source=text)

@@ -50,3 +50,24 @@ def test_save_makes_the_missing_folder(tmp_path):
     """docs/scenes.md's `b.save("out/ball_and_box.toml")` in a fresh clone (no out/ yet)."""
     path = ball_builder().save(tmp_path / "out" / "deeper" / "ball.toml")
     assert path.is_file() and ms.load_scene(path).options == ball_builder().build().options
+
+
+def test_bodies_sharing_a_model_file_each_have_it_and_errors_still_name_the_body(tmp_path):
+    """A model file is looked up once per scene however many bodies name it (scene._parse_body's `files`);
+    every body still gets it, its SRDF lookup and its errors: the first body naming a missing file is named,
+    and duplicate names are all listed."""
+    b = ms.SceneBuilder("beads", folder=ROOT / "scenes")
+    for k in range(5):
+        b.add_body(f"bead{k}", "../models/ball.urdf", root_joint="prismatic", axis=(0, 0, 1), q0=[0.1 + 0.2 * k])
+    sc = b.add_halfspace("ground").build()
+    assert {bd.urdf for bd in sc.bodies} == {(ROOT / "models" / "ball.urdf").resolve()}
+    assert {bd.srdf for bd in sc.bodies} == {None}
+    b.add_body("bead5", tmp_path / "gone.urdf", root_joint="prismatic", axis=(0, 0, 1))
+    b.add_body("bead6", tmp_path / "gone.urdf", root_joint="prismatic", axis=(0, 0, 1))
+    with pytest.raises(ms.SceneError, match=r"\[\[bodies\]\]\[5\] \(bead5\) urdf: file not found"):
+        b.build()
+    dup = ms.SceneBuilder("dup", folder=ROOT / "scenes")
+    for name in ("a", "b", "a", "c", "b"):
+        dup.add_body(name, "../models/ball.urdf", root_joint="free")
+    with pytest.raises(ms.SceneError, match=r"duplicate body/static names \['a', 'b'\]"):
+        dup.build()
