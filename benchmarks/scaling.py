@@ -182,7 +182,9 @@ def beads_one(n: int, repeat: int, n_states: int) -> dict:
         repeat, n_states = 1, min(n_states, 3)
     if why is None:
         t0 = CLOCK()
-        base = ms.build_model(column(n))
+        scene = column(n)
+        out["scene_s"], t0 = CLOCK() - t0, CLOCK()
+        base = ms.build_model(scene)
         out["build_s"] = CLOCK() - t0
         big = compiled.unsupported(base)
         impls = IMPLS if big is None else ("python",)
@@ -259,7 +261,9 @@ def boxes_one(n: int) -> dict:
     why = None  # the Python step only: on the forest (moreau_sim/trees.py), no Data of the whole model
     if why is None:
         t0 = CLOCK()
-        model = ms.build_model(pile(n))
+        scene = pile(n)
+        out["scene_s"], t0 = CLOCK() - t0, CLOCK()
+        model = ms.build_model(scene)
         out["build_s"] = CLOCK() - t0
         t0 = CLOCK()
         data = ms.make_data(model)
@@ -312,10 +316,11 @@ def _pile_run(model, data, st, e0: float) -> dict:
 
 def build_one(kind: str, n: int) -> dict:
     """One build_model of a column of n beads or a pile of n boxes, in this process: CPU seconds, peak RSS."""
-    scene = column(n) if kind == "beads" else pile(n)
     t0 = CLOCK()
+    scene = column(n) if kind == "beads" else pile(n)
+    scene_s, t0 = CLOCK() - t0, CLOCK()
     model = ms.build_model(scene)
-    return {kind: n, "build_s": CLOCK() - t0, "build_rss_mb": peak_rss_mb(), "nv": model.nv,
+    return {kind: n, "scene_s": scene_s, "build_s": CLOCK() - t0, "build_rss_mb": peak_rss_mb(), "nv": model.nv,
             "pairs": len(model.pairs)}
 
 
@@ -338,14 +343,15 @@ def build_table(data: dict) -> str:
     out = [f"Run of {meta['date']} (git `{meta['commit']}`, {meta['cpus']} cores shared, load {meta['load']:.1f}): "
            f"CPU seconds of `build_model`, the least of {meta['repeat']} child processes per size, and the "
            "largest peak RSS of those children (the interpreter and its imports included).", "",
-           "| scene | size | nv | pairs (model) | build_model s | peak RSS MB |", "|---|---:|---:|---:|---:|---:|"]
+           "| scene | size | nv | pairs (model) | scene s (SceneBuilder) | build_model s | peak RSS MB |",
+           "|---|---:|---:|---:|---:|---:|---:|"]
     for kind, label in (("beads", "column of beads"), ("boxes", "pile of boxes")):
         for r in data[kind]:
             if "failed" in r:
-                out.append(f"| {label} | {r[kind]} | failed: {r['failed']} | | | |")
+                out.append(f"| {label} | {r[kind]} | failed: {r['failed']} | | | | |")
                 continue
-            out.append(f"| {label} | {r[kind]} | {r['nv']} | {r['pairs']} | {r['build_s']:.3g} | "
-                       f"{r['build_rss_mb']:.0f} |")
+            out.append(f"| {label} | {r[kind]} | {r['nv']} | {r['pairs']} | {_f(r.get('scene_s'))} | "
+                       f"{r['build_s']:.3g} | {r['build_rss_mb']:.0f} |")
     b = [r for r in data["beads"] if "failed" not in r]
     large = [r for r in b if r["beads"] >= LARGE]
     if len(b) >= 2:
@@ -499,31 +505,32 @@ def markdown_table(data: dict) -> str:
            f"the run's {int(round(PILE_T / PILE_H))} steps; MuJoCo: median of `mj_step` timed in a Python loop "
            "after the same warm-up. Peak RSS of a child process per size (moreau-sim's part, before MuJoCo runs).",
            "", "| beads | pairs (model) | broad-phase candidates | contacts | compiled | paths (compiled) | Python | "
-           "MuJoCo (ncon) | build_model s | make_data s | peak RSS MB after build_model | peak RSS MB |",
-           "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|"]
+           "MuJoCo (ncon) | scene s (SceneBuilder) | build_model s | make_data s | peak RSS MB after build_model | "
+           "peak RSS MB |",
+           "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in data["beads"]:
         mj = r.get("mujoco")
         mjs = f"{mj['us']:.1f} ({mj['contacts']:.0f})" if mj else "–"
         if "skipped" in r or "failed" in r:
             why = r.get("skipped") or f"failed: {r['failed']}"
-            out.append(f"| {r['beads']} | not built: {why} | | | | | | {mjs} | | | | |")
+            out.append(f"| {r['beads']} | not built: {why} | | | | | | {mjs} | | | | | |")
             continue
         c = r["compiled"]
         paths = ", ".join(f"{k}: {v}" for k, v in sorted(c.get("paths", {}).items())) or "no Data of the whole model"
         us = f"{c['us']:.1f}" if "us" in c else "–"
         out.append(f"| {r['beads']} | {r['pairs']} | {r['candidates']} | {r['contacts']:.0f} | "
-                   f"{us} | {paths} | {r['python']['us']:.1f} | {mjs} | {r['build_s']:.3g} | "
+                   f"{us} | {paths} | {r['python']['us']:.1f} | {mjs} | {_f(r.get('scene_s'))} | {r['build_s']:.3g} | "
                    f"{r['data_s']:.3g} | {_f(r.get('build_rss_mb'), '{:.0f}')} | {r['peak_rss_mb']:.0f} |")
     out += ["", "| boxes | nv | pairs (model) | contacts (median; last third) | Python step | last third | "
             "compiled step (paths; same bits as Python) | MuJoCo (ncon) | ratio ours / MuJoCo (Python; compiled) | "
-            "max energy gain J (E0) | max \\|u\\| at the end | build_model s | make_data s | peak RSS MB |",
-            "|---:|---:|---:|---|---:|---:|---|---:|---|---|---:|---:|---:|---:|"]
+            "max energy gain J (E0) | max \\|u\\| at the end | scene s | build_model s | make_data s | peak RSS MB |",
+            "|---:|---:|---:|---|---:|---:|---|---:|---|---|---:|---:|---:|---:|---:|"]
     for r in data["boxes"]:
         mj = r.get("mujoco")
         mjs = f"{mj['us']:.1f} ({mj['contacts']:.0f})" if mj else "–"
         if "skipped" in r or "failed" in r:
             why = r.get("skipped") or f"failed: {r['failed']}"
-            out.append(f"| {r['boxes']} | {6 * r['boxes']} | not built: {why} | | | | | {mjs} | | | | | | |")
+            out.append(f"| {r['boxes']} | {6 * r['boxes']} | not built: {why} | | | | | {mjs} | | | | | | | |")
             continue
         c = r.get("compiled") or {"skipped": "not measured"}
         if "us" in c:
@@ -535,7 +542,7 @@ def markdown_table(data: dict) -> str:
         out.append(f"| {r['boxes']} | {r['nv']} | {r['pairs']} | {r['contacts']:.0f}; {r['contacts_last_third']:.0f} | "
                    f"{r['us']:.0f} | {r['us_last_third']:.0f} | {cs} | {mjs} | {ratio} | "
                    f"{r['max_energy_gain']:.2g} ({r['energy0']:.3g}) | {r['final_max_speed']:.2g} | "
-                   f"{r['build_s']:.3g} | {r['data_s']:.3g} | {r['peak_rss_mb']:.0f} |")
+                   f"{_f(r.get('scene_s'))} | {r['build_s']:.3g} | {r['data_s']:.3g} | {r['peak_rss_mb']:.0f} |")
     out += ["", f"Fitted log-log slopes: per step against contacts, beads "
             f"{measured(data['beads'])[0]['beads']}–{measured(data['beads'])[-1]['beads']}: compiled "
             f"{s['compiled']:.2f}, Python {s['python']:.2f} (above {warm_rows(data)} contacts: "
