@@ -443,16 +443,26 @@ bool clean(const MatrixXd &A) {
   return true;
 }
 
-// A square matrix by its rows' stored entries (column, value; an entry not stored is +0.0) and sparse_lu_solve's
-// work arrays, kept from one solve to the next (their capacity: no allocation a move in active_set)
+// nonzeros.lu_factor's factor of a clean square matrix given by its rows' stored entries (column, value; an entry
+// not stored is +0.0), made by sparse_lu_factor and applied by sparse_lu_apply; the work arrays kept from one
+// factor to the next (their capacity: no allocation a move in active_set)
 struct SparseLU {
   using I = Eigen::Index;
-  std::vector<std::vector<std::pair<I, double>>> a;  // the rows: set them (set_size, then fill a[r]) before a solve
+  // the rows by id (set them: set_size, then fill a[r]); after the factor, row at[i] holds U's row i (columns >= i)
+  std::vector<std::vector<std::pair<I, double>>> a;
   std::vector<std::vector<I>> colrows;
-  std::vector<std::vector<std::pair<I, double>>> ucol;
-  std::vector<I> at, pos, slot, stamp, cand, flips, bflips, bstamp;
+  std::vector<std::vector<std::pair<I, double>>> ucol;  // U's column k above the diagonal: (row, value)
+  std::vector<I> at, pos, slot, cand, swaps;
+  std::vector<char> pneg;
   std::vector<double> diag;
-  std::vector<std::pair<I, double>> prow;
+  std::vector<I> sptr;  // step j's updates (row position, multiplier): steps[sptr[j] .. sptr[j + 1])
+  std::vector<std::pair<I, double>> steps, prow, lo_part;
+  std::vector<I> stamp, flips, bflips, bstamp;  // sparse_lu_apply's
+  // which factor this is (SparseCache): of G gen, its rows idx; the steps taken from the last factor
+  bool valid = false;
+  uint64_t gen = 0;
+  std::vector<I> idx;
+  I reused = 0;
   void set_size(I n) {
     if ((I)a.size() < n) a.resize((size_t)n), colrows.resize((size_t)n), ucol.resize((size_t)n);
     for (I r = 0; r < n; ++r) a[(size_t)r].clear();
@@ -461,40 +471,128 @@ struct SparseLU {
   I n_ = 0;
 };
 
-// lu_solve's elimination on a clean A given by its nonzero entries, at a cost of the nonzeros and their fill
-// instead of n^2 (n^3 without the skips): the same bits as the dense elimination, every entry of x included.
-// The factor gets the operations of the skip path only (a_ik - l a_jk with l, a_jk != 0: the others leave a_ik
-// as it is, and no entry of A ever becomes -0.0). The right-hand side gets every operation in the dense code,
-// x_i - (+-0) x_j included, which leaves x_i as it is unless it is -0.0 and the product is -0.0 (-0 - -0 = +0);
-// those products (of the rows i with a_ij = 0, l = +-0 with the pivot's sign; of back substitution's
-// a_ij = +0) are counted per column ("flips") and applied to an x_i when it is next operated on or read
-// (a -0.0 turns +0.0 if a flip happened in between): x_j non-finite makes the dense result non-finite, so false
-bool sparse_lu_solve(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
+// nonzeros.lu_factor: lu_solve's elimination on a clean A (w.a) at a cost of the nonzeros and their fill instead of
+// n^2 (n^3 without the skips). The factor gets the operations of the skip path only (a_ik - l a_jk with l, a_jk != 0:
+// the others leave a_ik as it is, and no entry of A ever becomes -0.0): each step's pivot row, its multipliers, U.
+// last, c, change: the factor of the same G's submatrix whose rows were these but for one, added at sorted place c
+// (change +1) or dropped from it (-1): its first c steps taken where they pick the same pivot rows (band_lu_solve's
+// prefix rule, docs/theory.md §2.8), the columns < c of w.a's rows then ignored but on an added row; where the
+// rule fails, refill() sets w.a again and the whole elimination runs. false at a zero or non-finite pivot.
+template <class Refill>
+bool sparse_lu_factor(SparseLU &w, const SparseLU *last, Eigen::Index c, int change, Refill &&refill) {
   using I = Eigen::Index;
   const I n = w.n_;
+  w.reused = 0;
+  if (last && change == -1)
+    for (I j = 0; j < c; ++j)
+      if (last->swaps[(size_t)j] == c) {  // the dropped row was a pivot row
+        last = nullptr;
+        break;
+      }
+  if (!last || !change) c = 0, change = 0, last = nullptr;
+  const I add = change == 1 ? c : -1;
   auto &a = w.a;
-  auto &colrows = w.colrows;  // the rows (by id) with an entry stored in each column
-  auto &at = w.at, &pos = w.pos, &slot = w.slot, &stamp = w.stamp, &cand = w.cand;
-  auto &flips = w.flips;  // flips[s]: the flipping steps among 0 .. s-1
-  auto &diag = w.diag;
-  auto &prow = w.prow;
-  x = rhs;
+  auto &colrows = w.colrows;
+  auto &at = w.at, &pos = w.pos, &slot = w.slot, &cand = w.cand;
   for (I r = 0; r < n; ++r) colrows[(size_t)r].clear();
-  for (I r = 0; r < n; ++r)
-    for (auto &e : a[(size_t)r]) colrows[(size_t)e.first].push_back(r);
-  at.resize((size_t)n), pos.resize((size_t)n), slot.assign((size_t)n, -1), stamp.assign((size_t)n, -1);
+  for (I r = 0; r < n; ++r) {
+    auto &row = a[(size_t)r];
+    if (c && r != add)  // the columns < c: the last factor's L and U
+      row.erase(std::remove_if(row.begin(), row.end(), [c](const std::pair<I, double> &e) { return e.first < c; }),
+                row.end());
+    for (auto &e : row) colrows[(size_t)e.first].push_back(r);
+  }
+  at.resize((size_t)n), pos.resize((size_t)n), slot.assign((size_t)n, -1);
   for (I i = 0; i < n; ++i) at[(size_t)i] = pos[(size_t)i] = i;
-  flips.assign((size_t)n + 1, 0), diag.resize((size_t)n);
-  // x at position i as the dense elimination has it before step j (its last explicit operation at stamp[i])
-  auto settle = [&](I i, I j) {
-    if (x[i] == 0.0 && std::signbit(x[i]) && flips[(size_t)j] - flips[(size_t)(stamp[(size_t)i] + 1)] > 0) x[i] = 0.0;
-  };
-  auto entry = [&](I r, I c) -> std::pair<I, double> * {
+  w.swaps.resize((size_t)n), w.pneg.resize((size_t)n), w.diag.resize((size_t)n);
+  w.sptr.assign(1, 0), w.steps.clear();
+  auto entry = [&](I r, I col) -> std::pair<I, double> * {
     for (auto &e : a[(size_t)r])
-      if (e.first == c) return &e;
+      if (e.first == col) return &e;
     return nullptr;
   };
-  for (I j = 0; j < n; ++j) {
+  auto take = [&](I r, I col) {  // row r's entry at col removed: its value (+0.0 where none is stored)
+    auto &row = a[(size_t)r];
+    for (size_t t = 0; t < row.size(); ++t)
+      if (row[t].first == col) {
+        const double v = row[t].second;
+        row[t] = row.back();
+        row.pop_back();
+        return v;
+      }
+    return 0.0;
+  };
+  auto update = [&](I r, double l, const std::vector<std::pair<I, double>> &pr) {  // a_rk - l a_jk over pr
+    auto &row = a[(size_t)r];
+    for (size_t t = 0; t < row.size(); ++t) slot[(size_t)row[t].first] = (I)t;
+    for (auto &e : pr) {
+      const I s = slot[(size_t)e.first];
+      if (s >= 0) {
+        row[(size_t)s].second = row[(size_t)s].second - l * e.second;
+      } else {
+        row.emplace_back(e.first, 0.0 - l * e.second);
+        colrows[(size_t)e.first].push_back(r);
+      }
+    }
+    for (auto &e : row) slot[(size_t)e.first] = -1;
+  };
+  auto swap_rows = [&](I j, I p) {
+    std::swap(at[(size_t)j], at[(size_t)p]);
+    pos[(size_t)at[(size_t)j]] = j, pos[(size_t)at[(size_t)p]] = p;
+  };
+  auto &ucol = w.ucol;
+  for (I k = c; k < n; ++k) ucol[(size_t)k].clear();
+  auto &prow = w.prow, &lo_part = w.lo_part;
+  if (c) {
+    for (I k = 0; k < c; ++k) ucol[(size_t)k] = last->ucol[(size_t)k];  // U's columns < c: the last factor's
+    for (I j = 0; j < c; ++j) {  // the last factor's steps j < c, on the columns >= c and an added row
+      const I s0 = last->swaps[(size_t)j];
+      const I p = s0 < c ? s0 : s0 + change;
+      const double piv = last->diag[(size_t)j];
+      if (add >= 0) {  // the added row (at c until step c) must not be step j's pivot row
+        const auto *e = entry(add, j);
+        const double v = e ? std::abs(e->second) : 0.0;
+        if (!(v < std::abs(piv) || (v == std::abs(piv) && p < add))) {
+          refill();
+          return sparse_lu_factor(w, nullptr, 0, 0, refill);
+        }
+      }
+      if (p != j) swap_rows(j, p);
+      w.swaps[(size_t)j] = p, w.pneg[(size_t)j] = piv < 0.0, w.diag[(size_t)j] = piv;
+      auto &rowj = a[(size_t)at[(size_t)j]];
+      prow.clear();  // its columns >= c, as the steps before j left them (U's, final)
+      for (auto &e : rowj)
+        if (e.second != 0.0) prow.push_back(e);
+      for (auto &e : prow) ucol[(size_t)e.first].emplace_back(j, e.second);
+      lo_part.clear();
+      for (auto &e : last->a[(size_t)last->at[(size_t)j]])  // U's row j in the columns < c: the last factor's
+        if (e.first < c) {
+          rowj.push_back(e);
+          if (e.first > j && e.second != 0.0) lo_part.push_back(e);
+        }
+      for (I t = last->sptr[(size_t)j]; t < last->sptr[(size_t)j + 1]; ++t) {
+        I i = last->steps[(size_t)t].first;
+        const double l = last->steps[(size_t)t].second;
+        if (i == c && change == -1) continue;
+        i = i < c ? i : i + change;
+        if (l != 0.0 && !prow.empty()) update(at[(size_t)i], l, prow);
+        w.steps.emplace_back(i, l);
+      }
+      if (add >= 0 && entry(add, j)) {
+        const double aij = take(add, j);
+        if (aij != 0.0) {
+          const double l = aij / piv;
+          if (l != 0.0) {
+            lo_part.insert(lo_part.end(), prow.begin(), prow.end());
+            update(add, l, lo_part);
+          }
+          w.steps.emplace_back(add, l);
+        }
+      }
+      w.sptr.push_back((I)w.steps.size());
+    }
+  }
+  for (I j = c; j < n; ++j) {
     cand.clear();
     for (I r : colrows[(size_t)j])
       if (pos[(size_t)r] > j) cand.push_back(pos[(size_t)r]);
@@ -510,58 +608,58 @@ bool sparse_lu_solve(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
     const auto *pe = entry(at[(size_t)p], j);
     const double piv = pe ? pe->second : 0.0;
     if (!(piv != 0.0 && std::isfinite(piv))) return false;
-    if (p != j) {
-      std::swap(at[(size_t)j], at[(size_t)p]);
-      pos[(size_t)at[(size_t)j]] = j, pos[(size_t)at[(size_t)p]] = p;
-      std::swap(x[j], x[p]);
-      std::swap(stamp[(size_t)j], stamp[(size_t)p]);
-    }
-    diag[(size_t)j] = piv;
-    settle(j, j);
-    if (!std::isfinite(x[j])) return false;
-    flips[(size_t)j + 1] = flips[(size_t)j] + (std::signbit(piv) != std::signbit(x[j]));
-    const I R = at[(size_t)j];
+    if (p != j) swap_rows(j, p);
+    w.swaps[(size_t)j] = p, w.pneg[(size_t)j] = piv < 0.0, w.diag[(size_t)j] = piv;
     prow.clear();
-    for (auto &e : a[(size_t)R])
+    for (auto &e : a[(size_t)at[(size_t)j]])
       if (e.first > j && e.second != 0.0) prow.push_back(e);
     for (I r : colrows[(size_t)j]) {
       const I i = pos[(size_t)r];
       if (i <= j) continue;
-      auto &row = a[(size_t)r];
-      double aij = 0.0;
-      for (size_t t = 0; t < row.size(); ++t)
-        if (row[t].first == j) {
-          aij = row[t].second;
-          row[t] = row.back();
-          row.pop_back();
-          break;
-        }
-      if (aij == 0.0) continue;  // l = +-0 with the pivot's sign: a flip of step j
+      const double aij = take(r, j);
+      if (aij == 0.0) continue;  // l = +-0 with the pivot's sign: a flip of step j (sparse_lu_apply)
       const double l = aij / piv;
-      if (l != 0.0) {
-        for (size_t t = 0; t < row.size(); ++t) slot[(size_t)row[t].first] = (I)t;
-        for (auto &e : prow) {
-          const I s = slot[(size_t)e.first];
-          if (s >= 0) {
-            row[(size_t)s].second = row[(size_t)s].second - l * e.second;
-          } else {
-            row.emplace_back(e.first, 0.0 - l * e.second);
-            colrows[(size_t)e.first].push_back(r);
-          }
-        }
-        for (auto &e : row) slot[(size_t)e.first] = -1;
-      }
+      if (l != 0.0) update(r, l, prow);
+      w.steps.emplace_back(i, l);
+    }
+    w.sptr.push_back((I)w.steps.size());
+    for (auto &e : prow) ucol[(size_t)e.first].emplace_back(j, e.second);
+  }
+  w.reused = c;
+  return true;
+}
+bool sparse_lu_factor(SparseLU &w) {
+  return sparse_lu_factor(w, nullptr, 0, 0, [] {});
+}
+
+// nonzeros.lu_apply: x = A^-1 rhs by sparse_lu_factor's factor, the right-hand side getting every operation of the
+// dense elimination, x_i - (+-0) x_j included, which leaves x_i as it is unless it is -0.0 and the product is -0.0
+// (-0 - -0 = +0); those products (of the rows i with a_ij = 0, l = +-0 with the pivot's sign; of back substitution's
+// a_ij = +0) are counted per step ("flips") and applied to an x_i when it is next operated on or read (a -0.0 turns
+// +0.0 if a flip happened in between): x_j non-finite makes the dense result non-finite, so false
+bool sparse_lu_apply(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
+  using I = Eigen::Index;
+  const I n = w.n_;
+  x = rhs;
+  auto &stamp = w.stamp, &flips = w.flips;  // flips[s]: the flipping steps among 0 .. s-1
+  stamp.assign((size_t)n, -1), flips.assign((size_t)n + 1, 0);
+  auto settle = [&](I i, I j) {  // x at position i as the dense elimination has it before step j
+    if (x[i] == 0.0 && std::signbit(x[i]) && flips[(size_t)j] - flips[(size_t)(stamp[(size_t)i] + 1)] > 0) x[i] = 0.0;
+  };
+  for (I j = 0; j < n; ++j) {
+    const I p = w.swaps[(size_t)j];
+    if (p != j) std::swap(x[j], x[p]), std::swap(stamp[(size_t)j], stamp[(size_t)p]);
+    settle(j, j);
+    const double xj = x[j];
+    if (!std::isfinite(xj)) return false;
+    flips[(size_t)j + 1] = flips[(size_t)j] + ((bool)w.pneg[(size_t)j] != std::signbit(xj));
+    for (I t = w.sptr[(size_t)j]; t < w.sptr[(size_t)j + 1]; ++t) {
+      const I i = w.steps[(size_t)t].first;
       settle(i, j);
-      x[i] = x[i] - l * x[j];
+      x[i] = x[i] - w.steps[(size_t)t].second * xj;
       stamp[(size_t)i] = j;
     }
   }
-  // back substitution by columns: U's column j from the rows above it
-  auto &ucol = w.ucol;
-  for (I i = 0; i < n; ++i) ucol[(size_t)i].clear();
-  for (I i = 0; i < n; ++i)
-    for (auto &e : a[(size_t)at[(size_t)i]])
-      if (e.first > i && e.second != 0.0) ucol[(size_t)e.first].emplace_back(i, e.second);
   auto &bflips = w.bflips, &bstamp = w.bstamp;  // bflips[s]: the flipping steps among s .. n-1
   bflips.assign((size_t)n + 1, 0), bstamp.assign((size_t)n, n);
   auto bsettle = [&](I i, I j) {  // before step j of back substitution
@@ -569,16 +667,20 @@ bool sparse_lu_solve(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
   };
   for (I j = n - 1; j >= 0; --j) {
     bsettle(j, j);
-    x[j] = x[j] / diag[(size_t)j];
+    x[j] = x[j] / w.diag[(size_t)j];
     if (!std::isfinite(x[j])) return false;
     bflips[(size_t)j] = bflips[(size_t)j + 1] + std::signbit(x[j]);
-    for (auto &e : ucol[(size_t)j]) {
+    for (auto &e : w.ucol[(size_t)j]) {
       bsettle(e.first, j);
       x[e.first] = x[e.first] - e.second * x[j];
       bstamp[(size_t)e.first] = j;
     }
   }
   return x.allFinite();
+}
+
+bool sparse_lu_solve(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
+  return sparse_lu_factor(w) && sparse_lu_apply(w, rhs, x);
 }
 
 // lu_solve runs sparse_lu_solve on a clean matrix above kSparseLU rows with at most kSparseRow nonzeros a row on
@@ -913,17 +1015,58 @@ BandLU &band_cache() {
   return w;
 }
 
-// lu_solve(G[sel][:, sel], rhs, x)'s bits by sparse_lu_solve on G_AA's nonzeros, from G's rows (gi: G clean; pos:
-// a row's place in sel, -1 outside it); its work arrays kept from one solve to the next (no k x k copy)
+// sub_lu_solve's factors (qp._solve_nonzeros' G.factor): the last one made and the one being made
+struct SparseCache {
+  SparseLU f[2];
+  int last = 0;
+};
+
+// nonzeros.one_apart: (c, +1) where the ascending rows idx are old with one added at place c, (c, -1) where one was
+// dropped from old's place c, else (0, 0)
+std::pair<Eigen::Index, int> one_apart(const std::vector<Eigen::Index> &old, const std::vector<Eigen::Index> &idx) {
+  const size_t n = std::min(old.size(), idx.size());
+  size_t c = 0;
+  while (c < n && idx[c] == old[c]) ++c;
+  if (idx.size() == old.size() + 1 && std::equal(idx.begin() + (std::ptrdiff_t)c + 1, idx.end(), old.begin() + (std::ptrdiff_t)c))
+    return {(Eigen::Index)c, 1};
+  if (idx.size() + 1 == old.size() && std::equal(idx.begin() + (std::ptrdiff_t)c, idx.end(), old.begin() + (std::ptrdiff_t)c + 1))
+    return {(Eigen::Index)c, -1};
+  return {0, 0};
+}
+
+// lu_solve(G[sel][:, sel], rhs, x)'s bits by sparse_lu_factor on G_AA's nonzeros, from G's rows (gi: G clean; pos:
+// a row's place in sel, -1 outside it), as qp._solve_nonzeros: the last factor applied again where the rows are the
+// same (the start's, the final and the refinement's solves), its first steps taken where they differ by one row
+// added or dropped (the active set's moves; sparse_lu_factor's prefix rule); cache.f[cache.last].reused: the steps
+// taken from the factor before
+bool sub_lu_solve(SparseCache &cache, const GInfo &gi, const std::vector<Eigen::Index> &sel, const Eigen::Index *pos,
+                  const VectorXd &rhs, VectorXd &x) {
+  using I = Eigen::Index;
+  SparseLU &last = cache.f[cache.last];
+  const I k = (I)sel.size();
+  const bool same_g = last.valid && last.gen == gi.gen;
+  if (same_g && last.idx == sel) {
+    last.reused = k;
+    return sparse_lu_apply(last, rhs, x);
+  }
+  SparseLU &w = cache.f[1 - cache.last];
+  auto fill = [&] {
+    w.set_size(k);
+    for (I i = 0; i < k; ++i)
+      for (I t = gi.rptr[(size_t)sel[(size_t)i]]; t < gi.rptr[(size_t)sel[(size_t)i] + 1]; ++t)
+        if (pos[gi.ridx[(size_t)t]] >= 0) w.a[(size_t)i].emplace_back(pos[gi.ridx[(size_t)t]], gi.rval[(size_t)t]);
+  };
+  fill();
+  const auto [c, change] = same_g ? one_apart(last.idx, sel) : std::pair<I, int>{0, 0};
+  const bool ok = sparse_lu_factor(w, same_g && change && c ? &last : nullptr, c, change, fill);
+  cache.last = 1 - cache.last;
+  w.valid = ok, w.gen = gi.gen, w.idx = sel;
+  return ok && sparse_lu_apply(w, rhs, x);
+}
 bool sub_lu_solve(const GInfo &gi, const std::vector<Eigen::Index> &sel, const Eigen::Index *pos, const VectorXd &rhs,
                   VectorXd &x) {
-  thread_local SparseLU w;
-  const Eigen::Index k = (Eigen::Index)sel.size();
-  w.set_size(k);
-  for (Eigen::Index i = 0; i < k; ++i)
-    for (Eigen::Index t = gi.rptr[(size_t)sel[(size_t)i]]; t < gi.rptr[(size_t)sel[(size_t)i] + 1]; ++t)
-      if (pos[gi.ridx[(size_t)t]] >= 0) w.a[(size_t)i].emplace_back(pos[gi.ridx[(size_t)t]], gi.rval[(size_t)t]);
-  return sparse_lu_solve(w, rhs, x);
+  thread_local SparseCache cache;
+  return sub_lu_solve(cache, gi, sel, pos, rhs, x);
 }
 
 bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Index> &sel, const VectorXd &rhs,
@@ -3127,16 +3270,18 @@ NB_MODULE(_step, mod) {
   }, nb::arg("A"), nb::arg("rhs"), nb::arg("sel"));
   // constraints.distinct's columns kept (Stepper::distinct; tests/test_compiled.py holds them equal to Python's)
   mod.def("distinct_rows", [](const MatrixXd &W, double rel) { return distinct_rows(W, rel, nullptr); }, nb::arg("W"), nb::arg("rel"));
-  // band_lu_solve's factor prefix kept (its comment): on one BandLU, the rows and columns `before` of a clean A (a
-  // right-hand side of ones), then `sel` with rhs: (x or None, the elimination steps the second solve took from the
-  // first's factor) (tests/test_compiled.py holds x bit-identical to qp._lu_solve of A[sel][:, sel])
-  mod.def("lu_solve_band_after", [](const MatrixXd &A, std::vector<Eigen::Index> before, std::vector<Eigen::Index> sel,
-                                    const VectorXd &rhs) -> nb::object {
+  // the factor prefix kept (band_lu_solve's comment; sparse: sub_lu_solve's, sparse_lu_factor): on one BandLU (or
+  // SparseCache), the rows and columns `before` of a clean A (a right-hand side of ones), then `sel` with rhs: (x or
+  // None, the elimination steps the second solve took from the first's factor) (tests/test_compiled.py holds x
+  // bit-identical to qp._lu_solve of A[sel][:, sel])
+  mod.def("lu_solve_after", [](const MatrixXd &A, std::vector<Eigen::Index> before, std::vector<Eigen::Index> sel,
+                               const VectorXd &rhs, bool sparse) -> nb::object {
     if (A.rows() != A.cols() || (Eigen::Index)sel.size() != rhs.size()) throw nb::value_error("A (n, n), rhs (len(sel),) expected");
     if (!clean(A)) throw nb::value_error("A: finite, without -0.0 expected");
     GInfo gi;
     gi.set(A);
     BandLU w;
+    SparseCache sc;
     VectorXd x;
     for (const auto *s : {&before, &sel}) {
       std::vector<Eigen::Index> pos((size_t)A.rows(), -1);
@@ -3145,11 +3290,12 @@ NB_MODULE(_step, mod) {
         pos[(size_t)(*s)[i]] = (Eigen::Index)i;
       }
       if (s->empty()) throw nb::value_error("before, sel: not empty");
-      const bool ok = band_lu_solve(w, gi, *s, pos.data(), s == &sel ? rhs : VectorXd::Ones((Eigen::Index)s->size()).eval(), x);
-      if (s == &sel) return nb::make_tuple(ok ? nb::cast(x) : nb::none(), w.reused);
+      const VectorXd b = s == &sel ? rhs : VectorXd::Ones((Eigen::Index)s->size()).eval();
+      const bool ok = sparse ? sub_lu_solve(sc, gi, *s, pos.data(), b, x) : band_lu_solve(w, gi, *s, pos.data(), b, x);
+      if (s == &sel) return nb::make_tuple(ok ? nb::cast(x) : nb::none(), sparse ? sc.f[sc.last].reused : w.reused);
     }
     return nb::none();
-  }, nb::arg("A"), nb::arg("before"), nb::arg("sel"), nb::arg("rhs"));
+  }, nb::arg("A"), nb::arg("before"), nb::arg("sel"), nb::arg("rhs"), nb::kw_only(), nb::arg("sparse") = false);
   // how this build does floating point (docs/theory.md §2.8): the options CMakeLists.txt compiled it with, whether
   // the target has FMA instructions, FLT_EVAL_METHOD (0: every double operation rounds to double), and a probe
   // a * b + c on run-time values, contracted to one fused rounding only if the build contracts

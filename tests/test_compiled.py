@@ -28,6 +28,7 @@ holds the 100:1 stack bit-identical).
 
 from __future__ import annotations
 
+import functools
 import warnings
 from pathlib import Path
 
@@ -246,19 +247,22 @@ def test_band_solve_is_bit_identical_to_qp():
         _ext().lu_solve_band(np.array([[1.0, -0.0], [0.0, 1.0]]), np.ones(2), [0, 1])
 
 
-def _band_after(A, before, sel, rhs):
-    """band_lu_solve of A[sel][:, sel] after one of A[before][:, before] on the same factor cache: (x, the steps it
-    took from the first factor), x checked bit for bit against qp._lu_solve (None alike)."""
-    x, reused = _ext().lu_solve_band_after(A, list(before), list(sel), rhs)
+def _after(A, before, sel, rhs, sparse=False):
+    """band_lu_solve (sparse: sub_lu_solve, sparse_lu_factor) of A[sel][:, sel] after one of A[before][:, before] on
+    the same factor cache: (x, the steps it took from the first factor), x checked bit for bit against qp._lu_solve
+    (None alike)."""
+    x, reused = _ext().lu_solve_after(A, list(before), list(sel), rhs, sparse=sparse)
     ref = qp._lu_solve(A[np.ix_(sel, sel)], rhs)
     assert (x is None) == (ref is None), (before, sel)
     assert ref is None or x.view(np.int64).tolist() == ref.view(np.int64).tolist(), (before, sel)
     return x, reused
 
 
-def test_band_solve_prefix_kept_is_bit_identical_to_qp():
-    """band_lu_solve's factor prefix kept from one solve to the next (src/step.cpp: a row added to or dropped from the
-    rows at sorted place c keeps the first c elimination steps where they pick the same pivot rows), bit for bit
+@pytest.mark.parametrize("sparse", [False, True], ids=["band", "sparse"])
+def test_solve_prefix_kept_is_bit_identical_to_qp(sparse):
+    """The factor prefix kept from one solve to the next (src/step.cpp band_lu_solve, and sub_lu_solve's
+    sparse_lu_factor as nonzeros.lu_factor: a row added to or dropped from the rows at sorted place c keeps the first
+    c elimination steps where they pick the same pivot rows; the same rows apply the last factor again), bit for bit
     against qp._lu_solve: the clean systems of test_qp.lu_systems with a row added, a row dropped, the same rows; and
     the condition at its edge: an added row whose |a_cj| equals the pivot's (it stays below the pivot row: kept; it
     sits above it: it is the first largest, so the whole elimination), one ulp below (kept) and above (not), a
@@ -266,7 +270,7 @@ def test_band_solve_prefix_kept_is_bit_identical_to_qp():
 
     from test_qp import check_prefix_rule
 
-    check_prefix_rule(_band_after, same_rows=True)
+    check_prefix_rule(functools.partial(_after, sparse=sparse), same_rows=True)
 
 
 def test_distinct_rows_are_python_ones():
