@@ -679,6 +679,7 @@ bool sparse_lu_apply(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
   return x.allFinite();
 }
 
+// x = A^-1 rhs on w.a's entries: the factor made and applied once (lu_solve; the active set's solves: sub_lu_solve)
 bool sparse_lu_solve(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
   return sparse_lu_factor(w) && sparse_lu_apply(w, rhs, x);
 }
@@ -688,7 +689,7 @@ bool sparse_lu_solve(SparseLU &w, const VectorXd &rhs, VectorXd &x) {
 constexpr Eigen::Index kSparseLU = 16, kSparseRow = 8;
 // contact_space passes over every entry of MiW and G up to this many (nv m and m^2), over their lists above
 constexpr Eigen::Index kScanEntries = Eigen::Index(1) << 16;
-// Above kWideRows rows the active set's solves take sparse_lu_solve up to kWideRow nonzeros a row of G on average:
+// Above kWideRows rows the active set's solves take the sparse factor (sub_lu_solve) up to kWideRow nonzeros a row of G on average:
 // there band_lu_solve's k x k copies of G_AA a solve (and its O(k^2) loops) cost more than the lists (a 64-box
 // pile, ~500 rows, ~30 a row); at ten boxes (76 rows, ~24 a row) the band's dense loops cost less
 constexpr Eigen::Index kWideRows = 200, kWideRow = 64;
@@ -822,7 +823,7 @@ struct GInfo {
           ridx[(size_t)at] = k, rval[(size_t)at] = G(i, k);
         }
     }
-    const size_t nnz = cidx.size();  // G_AA's solves on its nonzeros (sparse_lu_solve; kWideRows)
+    const size_t nnz = cidx.size();  // G_AA's solves on its nonzeros (sub_lu_solve; kWideRows)
     sparse = is_clean && (nnz <= (size_t)(kSparseRow * m) || (m > kWideRows && nnz <= (size_t)(kWideRow * m)));
   }
 };
