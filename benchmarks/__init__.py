@@ -15,6 +15,7 @@ Modules:
   mj_step per step, whole runs per step, and the cost targets' verdicts, one run.
 - adaptive_costs: the adaptive integrator against the event-driven one and the fixed step.
 - scaling: columns of 10 to 10,000 beads and piles of free boxes against MuJoCo: per step, build, memory.
+- big_pile: a pile of 1000 free boxes under the compiled step alone, against MuJoCo on the same pile.
 - robots_table: the bundled robot scenes' figures (docs/robots.md).
 - actuated_costs: actuated whole runs (the scene's PD, a Python controller) against the passive run per step.
 - doc_tables: every table of docs/*.md generated from the committed JSON, and the drift check.

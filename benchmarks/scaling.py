@@ -475,6 +475,8 @@ def plot(data: dict, png: Path) -> None:
     a2.set_title(f"a pile of N cubes dropped into a bin, {PILE_T} s at h = {PILE_H}\n(red dashes: not built)",
                  fontsize=9)
     fitted(a3, n, [r["build_s"] for r in b], "o", f"beads: build_model s (slope {s['build_beads']:.2f})")
+    if all("scene_s" in r for r in b):  # what a user waits for: the SceneBuilder's scene, then build_model
+        a3.loglog(n, [r["scene_s"] + r["build_s"] for r in b], "s:", label="beads: scene + build_model s")
     a3.loglog(n, [r["data_s"] for r in b], "o--", label="beads: make_data s")
     a3.loglog(n, [r["peak_rss_mb"] / 1024 for r in b], "d-", label="beads: peak RSS GB (after stepping)")
     a3.loglog(n, [r["build_rss_mb"] / 1024 for r in b if "build_rss_mb" in r], "d--",
