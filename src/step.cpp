@@ -457,6 +457,8 @@ struct SparseLU {
   std::vector<double> diag;
   std::vector<I> sptr;  // step j's updates (row position, multiplier): steps[sptr[j] .. sptr[j + 1])
   std::vector<std::pair<I, double>> steps, prow, lo_part;
+  std::vector<uint64_t> seen;  // update's marks: pivot row entries met in the row (== tick)
+  uint64_t tick = 0;
   std::vector<I> stamp, flips, bflips, bstamp;  // sparse_lu_apply's
   // which factor this is (SparseCache): of G gen, its rows idx; the steps taken from the last factor
   bool valid = false;
@@ -522,19 +524,25 @@ bool sparse_lu_factor(SparseLU &w, const SparseLU *last, Eigen::Index c, int cha
       }
     return 0.0;
   };
-  auto update = [&](I r, double l, const std::vector<std::pair<I, double>> &pr) {  // a_rk - l a_jk over pr
+  // a pivot row's entries pr by column (slot: an entry's place in pr, -1 elsewhere), set once for the rows a step
+  // updates; update(r, l, pr): a_rk - l a_jk over pr's columns, row r's entries in place and its fill appended in
+  // pr's order (each entry one operation, as in the dense elimination's skip path)
+  auto scatter = [&](const std::vector<std::pair<I, double>> &pr, bool on) {
+    for (size_t t = 0; t < pr.size(); ++t) slot[(size_t)pr[t].first] = on ? (I)t : -1;
+    if (w.seen.size() < pr.size()) w.seen.resize(pr.size(), 0);
+  };
+  auto update = [&](I r, double l, const std::vector<std::pair<I, double>> &pr) {  // pr scattered
     auto &row = a[(size_t)r];
-    for (size_t t = 0; t < row.size(); ++t) slot[(size_t)row[t].first] = (I)t;
-    for (auto &e : pr) {
-      const I s = slot[(size_t)e.first];
-      if (s >= 0) {
-        row[(size_t)s].second = row[(size_t)s].second - l * e.second;
-      } else {
-        row.emplace_back(e.first, 0.0 - l * e.second);
-        colrows[(size_t)e.first].push_back(r);
-      }
+    const uint64_t tick = ++w.tick;
+    for (auto &e : row) {
+      const I t = slot[(size_t)e.first];
+      if (t >= 0) e.second = e.second - l * pr[(size_t)t].second, w.seen[(size_t)t] = tick;
     }
-    for (auto &e : row) slot[(size_t)e.first] = -1;
+    for (size_t t = 0; t < pr.size(); ++t)
+      if (w.seen[t] != tick) {
+        row.emplace_back(pr[t].first, 0.0 - l * pr[t].second);
+        colrows[(size_t)pr[t].first].push_back(r);
+      }
   };
   auto swap_rows = [&](I j, I p) {
     std::swap(at[(size_t)j], at[(size_t)p]);
@@ -570,6 +578,7 @@ bool sparse_lu_factor(SparseLU &w, const SparseLU *last, Eigen::Index c, int cha
           rowj.push_back(e);
           if (e.first > j && e.second != 0.0) lo_part.push_back(e);
         }
+      scatter(prow, true);
       for (I t = last->sptr[(size_t)j]; t < last->sptr[(size_t)j + 1]; ++t) {
         I i = last->steps[(size_t)t].first;
         const double l = last->steps[(size_t)t].second;
@@ -578,13 +587,16 @@ bool sparse_lu_factor(SparseLU &w, const SparseLU *last, Eigen::Index c, int cha
         if (l != 0.0 && !prow.empty()) update(at[(size_t)i], l, prow);
         w.steps.emplace_back(i, l);
       }
+      scatter(prow, false);
       if (add >= 0 && entry(add, j)) {
         const double aij = take(add, j);
         if (aij != 0.0) {
           const double l = aij / piv;
           if (l != 0.0) {
             lo_part.insert(lo_part.end(), prow.begin(), prow.end());
+            scatter(lo_part, true);
             update(add, l, lo_part);
+            scatter(lo_part, false);
           }
           w.steps.emplace_back(add, l);
         }
@@ -613,6 +625,7 @@ bool sparse_lu_factor(SparseLU &w, const SparseLU *last, Eigen::Index c, int cha
     prow.clear();
     for (auto &e : a[(size_t)at[(size_t)j]])
       if (e.first > j && e.second != 0.0) prow.push_back(e);
+    scatter(prow, true);
     for (I r : colrows[(size_t)j]) {
       const I i = pos[(size_t)r];
       if (i <= j) continue;
@@ -622,6 +635,7 @@ bool sparse_lu_factor(SparseLU &w, const SparseLU *last, Eigen::Index c, int cha
       if (l != 0.0) update(r, l, prow);
       w.steps.emplace_back(i, l);
     }
+    scatter(prow, false);
     w.sptr.push_back((I)w.steps.size());
     for (auto &e : prow) ucol[(size_t)e.first].emplace_back(j, e.second);
   }
