@@ -26,7 +26,7 @@ import moreau_sim as ms
 from moreau_sim import compiled, energy
 
 from . import OUT, add_plot_option, redraw
-from .scaling import CLOCK, PILE_H, PILE_T, _commit, mujoco_run, peak_rss_mb, pile
+from .scaling import CLOCK, PILE_H, PILE_T, _commit, mujoco_run, peak_rss_mb, pile, pile_steps
 
 
 def run(n: int, path: Path) -> dict:
@@ -45,16 +45,14 @@ def run(n: int, path: Path) -> dict:
     out = {"meta": {"date": time.strftime("%Y-%m-%d", time.gmtime()), "commit": _commit(), "cpus": os.cpu_count(),
                     "load": os.getloadavg()[0], "h": PILE_H, "T": PILE_T},
            "boxes": n, "nv": model.nv, "build_s": build, "energy0": e0, "ms": [], "contacts": [], "gain": 0.0}
-    for k in range(steps):
-        t = CLOCK()
-        r = ms.step(model, data, st)
-        out["ms"].append((CLOCK() - t) * 1e3)
-        out["contacts"].append(r.contacts.m + len(r.contacts.corners))
-        st = r.state
-        out["gain"] = max(out["gain"], energy.total(model, data, st.q, st.u) - e0)
+    for k, (seconds, m, gain, now) in enumerate(pile_steps(model, data, st, e0)):
+        out["ms"].append(seconds * 1e3)
+        out["contacts"].append(m)
+        out["gain"] = gain
         if k % 50 == 49 or k == steps - 1:
-            out.update(steps=k + 1, energy=energy.total(model, data, st.q, st.u), max_speed=float(np.abs(st.u).max()),
-                       paths=dict(compiled.counts(data)), peak_rss_mb=peak_rss_mb())
+            out.update(steps=k + 1, energy=energy.total(model, data, now.q, now.u),
+                       max_speed=float(np.abs(now.u).max()), paths=dict(compiled.counts(data)),
+                       peak_rss_mb=peak_rss_mb())
             path.write_text(json.dumps(out), encoding="utf-8")
             print(f"step {k + 1}/{steps}: {out['ms'][-1]:.1f} ms, {out['contacts'][-1]} contacts, "
                   f"largest gain {out['gain']:.2g} J", flush=True)

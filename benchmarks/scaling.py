@@ -296,17 +296,25 @@ def boxes_one(n: int) -> dict:
     return out
 
 
-def _pile_run(model, data, st, e0: float) -> dict:
-    """The pile's run of PILE_T s from st, every step timed (CPU): per step medians [us], contacts (with corners),
-    the largest rise of T + V over e0 [J], the largest |u| at the end, and the final q, u."""
-    times, contacts, gain = [], [], 0.0
+def pile_steps(model, data, st, e0: float):
+    """The pile's run of PILE_T s from st, a step at a time: (the step's CPU seconds, its contacts with corners, the
+    largest rise of T + V over e0 so far [J], the state after it)."""
+    gain = 0.0
     for _ in range(int(round(PILE_T / PILE_H))):
         t = CLOCK()
         r = ms.step(model, data, st)
-        times.append(CLOCK() - t)
-        contacts.append(r.contacts.m + len(r.contacts.corners))
+        seconds = CLOCK() - t
         st = r.state
         gain = max(gain, energy.total(model, data, st.q, st.u) - e0)
+        yield seconds, r.contacts.m + len(r.contacts.corners), gain, st
+
+
+def _pile_run(model, data, st, e0: float) -> dict:
+    """The pile's run of PILE_T s from st, every step timed (CPU): per step medians [us], contacts (with corners),
+    the largest rise of T + V over e0 [J], the largest |u| at the end, and the final q, u."""
+    run = list(pile_steps(model, data, st, e0))
+    times, contacts = [r[0] for r in run], [r[1] for r in run]
+    gain, st = run[-1][2:]
     third = len(times) // 3
     return {"steps": len(times), "us": statistics.median(times) * 1e6,
             "us_last_third": statistics.median(times[-third:]) * 1e6, "contacts": statistics.median(contacts),
