@@ -235,9 +235,15 @@ class _Context:
         return lay
 
     def arrays(self, r) -> dict:
-        """The named arrays of the extension's StepOut r: views of its buffers (layout)."""
-        buffers = _Buffers(r, r.floats)
-        return {name: _view(buffers[i], s, shape, f_order) for name, (i, s, shape, f_order) in self.layout(r).items()}
+        """The named arrays of the extension's StepOut r: views of its buffers (layout), each buffer read once."""
+        got = [r.floats, None, None, None]
+        out = {}
+        for name, (i, s, shape, f_order) in self.layout(r).items():
+            b = got[i]
+            if b is None:
+                b = got[i] = _Buffers.read(r, i)
+            out[name] = _view(b, s, shape, f_order)
+        return out
 
 
 class _Buffers:
@@ -251,8 +257,12 @@ class _Buffers:
         self._r, self._floats = r, floats
 
     def __getitem__(self, i: int) -> np.ndarray:
-        r = self._r
-        return self._floats if i == 0 else r.ints if i == 1 else r.M if i == 2 else _read_only(r.W)
+        return self._floats if i == 0 else self.read(self._r, i)
+
+    @staticmethod
+    def read(r, i: int) -> np.ndarray:
+        """Buffer i (1 ints, 2 M, 3 W) of the StepOut r."""
+        return r.ints if i == 1 else r.M if i == 2 else _read_only(r.W)
 
 
 def _read_only(W: np.ndarray) -> np.ndarray:
