@@ -270,8 +270,8 @@ inline void bind_adaptive(nb::module_ &mod) {
       .def(nb::init<nb::object, const ForestFigures::TreeArgs &, std::vector<int64_t>, std::vector<int64_t>,
                     std::vector<std::vector<double>>>(),
            nb::arg("stepper"), nb::arg("trees"), nb::arg("tree_of_joint"), nb::arg("local_joint"), nb::arg("basis"))
-      .def("samples", &DenseSampler::samples, nb::arg("t0"), nb::arg("q0"), nb::arg("u0"), nb::arg("a0"),
-           nb::arg("t1"), nb::arg("q1"), nb::arg("u1"), nb::arg("a1"), nb::arg("grid"),
+      .def("samples", &owned::Method<&DenseSampler::samples>::call, nb::arg("t0"), nb::arg("q0"), nb::arg("u0"),
+           nb::arg("a0"), nb::arg("t1"), nb::arg("q1"), nb::arg("u1"), nb::arg("a1"), nb::arg("grid"),
            "(q, u, kinetic, potential, gaps) at the instants grid of the step t0 -> t1 (AdaptiveRun._segment)");
   nb::class_<FeatureGaps>(mod, "FeatureGaps",
                            "Gaps.features of points on static planes and of sphere pairs (src/adaptive.hpp)")
@@ -280,8 +280,9 @@ inline void bind_adaptive(nb::module_ &mod) {
                     std::vector<double>, FeatureGaps::Rows>(),
            nb::arg("model"), nb::arg("data"), nb::arg("kind"), nb::arg("joint"), nb::arg("joint_b"), nb::arg("p"),
            nb::arg("n"), nb::arg("p_b"), nb::arg("d"), nb::arg("r"), nb::arg("r_b"), nb::arg("mask"))
-      .def("features", &FeatureGaps::features, nb::arg("q"), nb::arg("u"), nb::arg("idx"), nb::arg("rows"),
+      .def("features", &owned::Method<&FeatureGaps::features>::call, nb::arg("q"), nb::arg("u"), nb::arg("idx"),
+           nb::arg("rows"),
            "(g, W, drift, gamma) of the features idx at (q, u) (gaps.Gaps.features)")
-      .def("end", &FeatureGaps::end, nb::arg("q"), nb::arg("u"), nb::arg("idx"),
+      .def("end", &owned::Method<&FeatureGaps::end>::call, nb::arg("q"), nb::arg("u"), nb::arg("idx"),
            "(a, g, gamma, gdd) of a free step end on the features idx (adaptive.AdaptiveRun._end)");
 }

@@ -92,6 +92,6 @@ inline void bind_events(nb::module_ &mod) {
                     int>(),
            nb::arg("model"), nb::arg("seq"), nb::arg("ratios"), nb::arg("lie"), nb::arg("velocity_bias"),
            nb::arg("rtol"), nb::arg("atol"), nb::arg("fixed_point"), nb::arg("iterations"))
-      .def("step", &Extrapolator::step, nb::arg("q0"), nb::arg("u0"), nb::arg("H"),
+      .def("step", &owned::Method<&Extrapolator::step>::call, nb::arg("q0"), nb::arg("u0"), nb::arg("H"),
            "(q1, u1, error estimate) of the step of size H from (q0, u0) (adaptive.AdaptiveRun._step)");
 }

@@ -122,8 +122,8 @@ inline void bind_impact(nb::module_ &mod) {
   nb::class_<EventImpact>(mod, "EventImpact", "The impact at a located event (src/impact.hpp)")
       .def(nb::init<nb::object, double, double, double, double, double>(), nb::arg("stepper"), nb::arg("gap_tol"),
            nb::arg("v_tol"), nb::arg("g_zeno"), nb::arg("v_zeno"), nb::arg("dt_zeno"))
-      .def("impact", &EventImpact::impact, nb::arg("q"), nb::arg("u"), nb::arg("e"), nb::arg("t"),
-           nb::arg("last_impact"), nb::arg("g"), nb::arg("gamma"), nb::arg("W"), nb::arg("drift"),
+      .def("impact", &owned::Method<&EventImpact::impact>::call, nb::arg("q"), nb::arg("u"), nb::arg("e"),
+           nb::arg("t"), nb::arg("last_impact"), nb::arg("g"), nb::arg("gamma"), nb::arg("W"), nb::arg("drift"),
            "(StepOut, zeno, speed, a_n): event_rules._impact at (t, q, u), or a FALLBACK StepOut (Python takes it)")
       .def_prop_ro("warm", &EventImpact::warm);
 }

@@ -3161,6 +3161,7 @@ class Stepper {
   }
 };
 
+#include "owned.hpp"  // results as NumPy arrays over their own storage (the adaptive integrator's calls)
 #include "run.cpp"  // the run loop over a Stepper (moreau_sim/compiled_run.py)
 #include "events.hpp"  // the adaptive integrator's extrapolated step (moreau_sim/compiled_events.py)
 #include "adaptive.hpp"  // the adaptive integrator's samples on its dense output (moreau_sim/compiled_events.py)
