@@ -69,10 +69,10 @@ def save(path: Path, rec: Recorder, meta: dict, *, integ, loop: dict, data: Data
     rec.trajectory(meta, final=False).save(path)
 
 
-def load(path: Path, model: Model, rec: Recorder, data: Data, integ) -> tuple[dict, float]:
+def load(path: Path, model: Model, rec: Recorder, data: Data, integ) -> tuple[dict, float, float]:
     """Restore `integ`, `rec` and `data` from the checkpoint at `path`, the recorder one array at
     a time (a spilling recorder writes each to its file: a resumed run needs no more memory than
-    the first); returns (the driver's state, the wall time so far [s]). SceneError naming the
+    the first); returns (the driver's state, the wall and CPU time so far [s]). SceneError naming the
     file when it is damaged or belongs to another run."""
     try:
         with read_npz(path) as z:
@@ -91,4 +91,5 @@ def load(path: Path, model: Model, rec: Recorder, data: Data, integ) -> tuple[di
     except ValueError as exc:
         raise SceneError(f"{exc}; delete it to start again") from None
     data.restore_warm_start(ck["warm_start"])
-    return ck["loop"], float(meta.get("run", {}).get("wall_seconds") or 0.0)
+    run = meta.get("run", {})
+    return ck["loop"], float(run.get("wall_seconds") or 0.0), float(run.get("cpu_seconds") or 0.0)

@@ -51,18 +51,19 @@ def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | Non
     (SimulationInterrupted on Ctrl-C) with .trajectory up to the stop."""
     rec = Recorder(model, data, capacity, spill=spill)
     loop = _Loop(integ, rec, grid, check)
-    wall_before = 0.0
+    wall_before = cpu_before = 0.0
     resume = checkpoint is not None and checkpoint.resume and Path(checkpoint.path).exists()
     if resume:
-        loop_state, wall_before = ckpt.load(Path(checkpoint.path), model, rec, data, integ)
+        loop_state, wall_before, cpu_before = ckpt.load(Path(checkpoint.path), model, rec, data, integ)
         loop.load(loop_state)
-    wall0 = time.perf_counter()
+    wall0, cpu0 = time.perf_counter(), time.process_time()
 
-    def wall() -> float:
-        return wall_before + time.perf_counter() - wall0
+    def clock() -> tuple[float, float]:
+        """The run's wall and CPU time so far [s] (a resumed run's before its checkpoint included)."""
+        return wall_before + time.perf_counter() - wall0, cpu_before + time.process_time() - cpu0
 
     def partial(status: str) -> Trajectory:
-        return rec.trajectory(loop.meta(status, wall()))
+        return rec.trajectory(loop.meta(status, *clock()))
 
     every = checkpoint.every if checkpoint is not None else None
     next_ck = np.inf if every is None else loop.t_ck + every
@@ -96,7 +97,7 @@ def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | Non
                 if t >= next_ck:
                     loop.t_ck = t
                     next_ck = t + every
-                    ckpt.save(Path(checkpoint.path), rec, loop.meta("checkpoint", wall()), integ=integ,
+                    ckpt.save(Path(checkpoint.path), rec, loop.meta("checkpoint", *clock()), integ=integ,
                               loop=loop.state_dict(), data=data)
                 if time.perf_counter() >= refresh:  # ~50 ns a step: the bar moves with wall time, not steps
                     _show(bar, integ, wall0)
@@ -105,7 +106,7 @@ def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | Non
             bar.close()
         loop.end(integ.state)  # in named_stops: a strict violation at the end leaves with the samples
     done = RunStatus.FLAGGED if loop.violations else RunStatus.COMPLETE
-    traj = rec.trajectory(loop.meta(done.value, wall()))
+    traj = rec.trajectory(loop.meta(done.value, *clock()))
     if checkpoint is not None and not checkpoint.keep:
         Path(checkpoint.path).unlink(missing_ok=True)
     return traj
@@ -255,8 +256,11 @@ class _Loop:
             elif v is not None:
                 self.violations.append(v)
 
-    def meta(self, status: str, wall: float) -> dict:
+    def meta(self, status: str, wall: float, cpu: float) -> dict:
+        """The integrator's meta with the run's CPU time [s] (time.process_time of the loop: from the initial state
+        to the last, recording and checks included, building the model and the run's set-up not) in meta["run"]."""
         meta = self.integ.meta(status, wall, self.points)
+        meta["run"]["cpu_seconds"] = cpu
         return {**meta, "invariants": self.violations} if self.violations else meta
 
     def state_dict(self) -> dict:

@@ -135,5 +135,6 @@ def summary(traj: Trajectory) -> Summary:
         "law_difference_max": traj.meta.get("ledger", {}).get("max_law_difference"),
         "min_gap": float(gaps.min()) if gaps.size else None,
         "wall_seconds": run_.get("wall_seconds"),
+        "cpu_seconds": run_.get("cpu_seconds"),  # the run loop's CPU time (driver.drive)
         "us_per_step": run_.get("us_per_step"),
     })

@@ -108,7 +108,7 @@ class Status(enum.Enum):
 _FINISHED = {Status.COMPLETE.value, Status.FLAGGED.value}  # a point that ran to its end: not recomputed
 
 
-WALL_COLUMNS = ("wall_seconds", "us_per_step")  # differ between identical runs; all others do not
+WALL_COLUMNS = ("wall_seconds", "cpu_seconds", "us_per_step")  # differ between identical runs; all others do not
 _TEXT_COLUMNS = {"id", "status", "message", "scene", "npz"}  # the other result columns are numbers
 
 

@@ -186,14 +186,15 @@ class Summary(dict):
                  f"corner impacts with several outcomes {self.get('branching_steps')}",
                  f"  energy {g('energy_start', unit=' J')} -> {g('energy_end', unit=' J')} (contact work "
                  f"{g('contact_work_total', unit=' J')}, max rise {g('energy_max_increase', '.3g', ' J')})",
-                 f"  min gap {g('min_gap', '.3g', ' m')}, wall time {g('wall_seconds', '.3f', ' s')}"]
+                 f"  min gap {g('min_gap', '.3g', ' m')}, wall time {g('wall_seconds', '.3f', ' s')}, "
+                 f"CPU {g('cpu_seconds', '.3f', ' s')}"]
         return "\n".join(lines + [f"  {k} = {v:.6g}" if isinstance(v, float) else f"  {k} = {v}"
                                   for k, v in self.items() if k not in _SHOWN and v is not None])
 
 
 _SHOWN = {"scene", "status", "integrator", "steps", "events", "samples", "t_end", "impacts", "percussions_logged",
           "branching_steps", "energy_start", "energy_end", "contact_work_total", "energy_max_increase", "min_gap",
-          "wall_seconds"}
+          "wall_seconds", "cpu_seconds"}
 
 
 def atomic_write(path: str | Path, write) -> Path:

@@ -76,13 +76,17 @@ def test_every_integrator_resumes_bitwise(tmp_path, integrator, name, duration, 
     path = tmp_path / "c.npz"
     full = ms.simulate(ms.build_model(sc), progress=False,
                        checkpoint=Checkpoint(path=path, every=duration / 7, keep=True))
-    ck = ms.load_trajectory(path).meta["checkpoint"]
+    saved = ms.load_trajectory(path).meta
+    ck, before = saved["checkpoint"], saved["run"]
     assert 0 < ck["t"] < duration  # the last checkpoint, mid-run
     resumed = ms.simulate(ms.build_model(sc), progress=False, checkpoint=Checkpoint(path=path, resume=True))
     assert resumed.complete and same_arrays(full, resumed) == []
     assert resumed.meta["ledger"] == full.meta["ledger"]
     for k in ("events", "impacts", "steps"):
         assert resumed.meta["run"][k] == full.meta["run"][k]
+    # the CPU and wall time of the run before its checkpoint are counted in the resumed run's
+    assert resumed.meta["run"]["cpu_seconds"] >= before["cpu_seconds"] > 0.0
+    assert resumed.meta["run"]["wall_seconds"] >= before["wall_seconds"] > 0.0
     assert resumed.meta["zeno"] == full.meta["zeno"] and resumed.meta.get("fallbacks") == full.meta.get("fallbacks")
 
 

@@ -90,3 +90,18 @@ def test_state_dict_round_trips_through_json(integrator):
     b.load_state_dict(d)
     assert b.state_dict() == a.state_dict() and b.position() == a.position()
     assert np.array_equal(b.state.q, a.state.q) and np.array_equal(b.state.u, a.state.u)
+
+
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+def test_the_run_loop_cpu_time_is_in_meta_and_the_summary(integrator):
+    """meta["run"]["cpu_seconds"]: the run loop's CPU time, within the CPU time of the whole ms.simulate call (which
+    also builds the run and assembles the trajectory), and no more than the process used; the summary carries it."""
+    import time
+
+    model = ms.build_model(scene("bouncing_ball", duration=1.0, restitution=0.8, integrator=integrator))
+    c0 = time.process_time()
+    traj = ms.simulate(model, progress=False)
+    whole = time.process_time() - c0
+    cpu = traj.meta["run"]["cpu_seconds"]
+    assert isinstance(cpu, float) and 0.0 < cpu <= whole
+    assert ms.summary(traj)["cpu_seconds"] == cpu and "CPU" in str(ms.summary(traj))

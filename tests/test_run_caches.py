@@ -20,7 +20,7 @@ from moreau_sim.errors import SceneError
 from helpers import scene
 
 INTEGRATORS = ["adaptive", "event-driven", "time-stepping"]
-TIMINGS = {"wall_seconds", "us_per_step", "created"}  # the meta that says when and how long
+TIMINGS = {"wall_seconds", "cpu_seconds", "us_per_step", "created"}  # the meta that says when and how long
 
 
 def _model(name: str, integrator: str, **options):
