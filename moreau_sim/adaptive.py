@@ -67,6 +67,7 @@ def _root(f, lo: float, hi: float, xtol: float) -> float:
     return brentq(f, lo, hi, xtol=xtol)
 
 
+_ACCEPTED, _LANDED, _REFUSED, _NONFINITE, _LOCATE = range(5)  # PhaseStep.step's status (src/phase.hpp)
 _NONE = np.zeros(0)
 _NONE.flags.writeable = False  # an _End's multipliers and margins without C (read-only, shared)
 
@@ -175,6 +176,11 @@ class AdaptiveRun:
         # the event location in free flight without box features (src/locate.hpp; None: the Python one)
         self.locate = None if self.any_box else compiled_events.locator(
             model, check=CHECK, check_basis=CHECK_BASIS, quintic=QUINTIC, v_tol=V_TOL)
+        # a step in free flight in one call (src/phase.hpp: the three above and the step-size control, the same
+        # floats; None: they are called one by one)
+        self.phase = None if not self.flat else compiled_events.phase_step(
+            self.extrapolate, self.rules.gaps.compiled, self.locate, rtol=rtol, atol=atol, order=order, h_min=H_MIN,
+            safety=SAFETY, min_factor=MIN_FACTOR, land_iter=LAND_ITER, g_land=G_LAND)
         self.h_fix = model.options.dt
         state = state or initial_state(model, data)
         self.s = Carried(State(float(state.t), np.array(state.q, float), np.array(state.u, float)), float(state.t),
@@ -454,28 +460,45 @@ class AdaptiveRun:
         t, q, u, t_end = self.s.state.t, self.s.state.q, self.s.state.u, self.t_end
         C, watch, low = self.s.C, self.s.watch, self.s.low
         e0, H = self.s.e0, self.s.H
-        z0 = self._size(q, u)
         limit = min(self.max_step, self._rise_limit(e0, len(watch)), self._box_limit(e0),
                     thin_limit(self.rules, u, e0.a))  # (functions of the step's start)
-        while True:
-            self.s.t = t
-            h = min(H, limit, t_end - t)
-            q1, u1, d = self._step(q, u, h, C)
-            err = self._error(z0, q1, u1, d)
-            if not np.isfinite(err):  # an overflow (or a failed library call): no step size helps
-                raise SimulationError(f"the error estimate of an extrapolated step of {h:.3g} s is non-finite")
-            if err <= 1.0:
-                break
-            self.s.rejected += 1
-            H = h * max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
-            if H < H_MIN:  # no step size passes: fixed steps
-                self.s.H = min(self.max_step, 10.0 * self.h_fix)
-                self.s.mode = self._fall(t, self.s.t_back, "the error test refused every step size")
-                return Report(Status.RUNNING, t, self.s.state, records, work)
+        self.s.t = t
+        watched = watch + low
+        landed = None
+        if self.phase is not None and not C and watched:  # compiled in one call: the same floats (src/phase.hpp)
+            status, h, err, rejected, ends, landings, _, got, landed = self.phase(
+                t, q, u, H, limit, t_end, e0.t, e0.q, e0.u, e0.g, e0.gamma, e0.gdd, watched, len(watch))
+            self.s.rejected += rejected
+            self.s.ev.nfev += ends
+            self.s.landings += landings
+            if status == _NONFINITE:
+                self._nonfinite(h)
+            if status == _REFUSED:
+                return self._refused(t, records, work)
+            if got is not None:  # accepted (the event location Python's where the locator handed it back)
+                t1, q1, u1, a1, g1, gamma1, gdd1 = got
+                e1 = _End(t1, q1, u1, a1, _NONE, g1, gamma1, gdd1, _NONE, self._far(len(watched)))
+                ev = None if status == _ACCEPTED else self._first_event(e0, e1, len(watch), C, watched)
+            else:
+                ev = (landed[0], "gap" if landed[1] == 0 else "return", landed[2])
+        else:
+            z0 = self._size(q, u)
+            while True:
+                h = min(H, limit, t_end - t)
+                q1, u1, d = self._step(q, u, h, C)
+                err = self._error(z0, q1, u1, d)
+                if not np.isfinite(err):
+                    self._nonfinite(h)
+                if err <= 1.0:
+                    break
+                self.s.rejected += 1
+                H = h * max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
+                if H < H_MIN:  # no step size passes: fixed steps
+                    return self._refused(t, records, work)
+            t1 = t_end if h >= t_end - t else t + h
+            e1 = self._end(t1, q1, u1, C, watched)
+            ev = self._first_event(e0, e1, len(watch), C, watched)
         last = h >= t_end - t
-        t1 = t_end if last else t + h
-        e1 = self._end(t1, q1, u1, C, watch + low)
-        ev = self._first_event(e0, e1, len(watch), C, watch + low)
         grow = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, SAFETY * err ** (-1.0 / (self.order - 1)))
         if ev is None:
             self.s.accepted += 1
@@ -491,9 +514,13 @@ class AdaptiveRun:
                 self.s.e0 = self._end(t1, q1, u1, C, self.s.watch + self.s.low)
             return Report(Status.RUNNING, t1, self.s.state, records, work, segments=(seg,))
         tau, kind, k = ev
-        hs, q1, u1, end = self._land(e0, tau * h, C, watch + low, k if kind == "gap" else None)
-        hs = min(hs, t_end - t)
-        e1 = self._end(t + hs, q1, u1, C, watch + low, end)
+        if landed is None:
+            hs, q1, u1, end = self._land(e0, tau * h, C, watched, k if kind == "gap" else None)
+            hs = min(hs, t_end - t)
+            e1 = self._end(t + hs, q1, u1, C, watched, end)
+        else:  # (compiled: the landing and its end, _land's and _end's)
+            hs, q1, u1, a1, g1, gamma1, gdd1 = landed[3:]
+            e1 = _End(t + hs, q1, u1, a1, _NONE, g1, gamma1, gdd1, _NONE, self._far(len(watched)))
         segs = (self._segment(e0, e1, len(C), False),)
         self.s.stuck = self.s.stuck + 1 if hs < 1e-13 else 0
         t = t + hs
@@ -513,6 +540,16 @@ class AdaptiveRun:
             self.s.mode = self._fall(t, self.s.t_back, f"{len(self.s.burst)} events within dt = {self.h_fix:g} s"
                                    if len(self.s.burst) >= BURST_EVENTS else "100 events without time advancing")
         return Report(Status.RUNNING, t, self.s.state, records, work, segments=segs)
+
+    def _nonfinite(self, h: float) -> None:
+        """An overflow (or a failed library call) in a step of size h [s]: no step size helps."""
+        raise SimulationError(f"the error estimate of an extrapolated step of {h:.3g} s is non-finite")
+
+    def _refused(self, t: float, records: tuple, work: float) -> Report:
+        """No step size passes the error test at t [s]: fixed steps from here."""
+        self.s.H = min(self.max_step, 10.0 * self.h_fix)
+        self.s.mode = self._fall(t, self.s.t_back, "the error test refused every step size")
+        return Report(Status.RUNNING, t, self.s.state, records, work)
 
     def _start_phase(self) -> tuple[tuple, float]:
         """The decisions at an event (or the start, or back from fixed steps); the phase's sets."""

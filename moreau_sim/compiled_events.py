@@ -3,9 +3,10 @@ midpoint steps and their extrapolation (docs/theory.md §8) without a persistent
 adaptive.AdaptiveRun._step computes them (docs/theory.md §2.8), so that a run gives the Python run's arrays bit
 for bit; the samples on the dense output between events with what each records, all the samples of a step in
 one call, and the gaps of points on static planes (the ball's) and of sphere pairs (the cradle's) with their
-rows (src/adaptive.hpp); and the impact at a located event (src/impact.hpp: event_rules._impact but at corners and
-where features coal misses are added). The
-event location, the persistent set at events and the constrained phases stay in Python."""
+rows (src/adaptive.hpp); the impact at a located event (src/impact.hpp: event_rules._impact but at corners and
+where features coal misses are added); and a step in free flight in one call (src/phase.hpp: the step sizes, the
+step's end, the event location, the landing). The persistent set at events and the constrained phases stay in
+Python."""
 
 from __future__ import annotations
 
@@ -73,6 +74,19 @@ def _rows(basis) -> list:
     if not _ROWS or _ROWS[0][0] is not basis:
         _ROWS[:] = [(basis, [list(map(float, r)) for r in basis])]
     return _ROWS[0][1]
+
+
+def phase_step(extrapolate, gaps, locate, *, rtol: float, atol: float, order: int, h_min: float, safety: float,
+               min_factor: float, land_iter: int, g_land: float) -> Callable | None:
+    """AdaptiveRun.step's free flight in one call (src/phase.hpp: the same floats), on the run's compiled extrapolated
+    step (extrapolator()'s), gaps (feature_gaps()'s FeatureGaps) and event location (locator()'s), or None where one
+    of them is missing. (t, q, u, H, limit, t_end, t0, q0, u0, g0, gamma0, gdd0, idx, nw) -> (status, h, err,
+    rejected, ends, landings, H, accepted, event), PhaseStep.step's; the constants are adaptive's."""
+    if extrapolate is None or gaps is None or locate is None:
+        return None
+    return compiled._module.PhaseStep(extrapolate.__self__, gaps, locate.__self__, float(rtol), float(atol),
+                                      int(order), float(h_min), float(safety), float(min_factor), int(land_iter),
+                                      float(g_land)).step
 
 
 COMPILED_KINDS = {"point_plane": 0, "sphere_sphere": 1}  # the feature kinds FeatureGaps takes (src/adaptive.hpp)

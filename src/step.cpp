@@ -3167,6 +3167,7 @@ class Stepper {
 #include "adaptive.hpp"  // the adaptive integrator's samples on its dense output (moreau_sim/compiled_events.py)
 #include "impact.hpp"  // the impact at a located event (moreau_sim/compiled_events.py)
 #include "locate.hpp"  // the adaptive integrator's event location in free flight (moreau_sim/compiled_events.py)
+#include "phase.hpp"  // the adaptive integrator's step in free flight in one call (moreau_sim/compiled_events.py)
 
 NB_MODULE(_step, mod) {
   mod.doc() = "The compiled midpoint Moreau contact step (moreau_sim/compiled.py).";
@@ -3331,4 +3332,5 @@ NB_MODULE(_step, mod) {
   bind_adaptive(mod);
   bind_impact(mod);
   bind_locate(mod);
+  bind_phase(mod);
 }

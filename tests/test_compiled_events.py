@@ -44,8 +44,8 @@ G, D0 = 9.81, 0.9  # gravity [m/s^2]; the ball's initial gap [m] (centre at 1 m,
 
 
 def _run(scene, impl: StepImpl):
-    """The adaptive run of `scene` with step_impl `impl`: (arrays, compiled extrapolated steps taken, compiled
-    sample calls)."""
+    """The adaptive run of `scene` with step_impl `impl`: (arrays, compiled extrapolated steps taken, one by one or
+    in a free-flight step's one call (src/phase.hpp), compiled sample calls)."""
     model = build_model(scene.with_options(step_impl=impl.value, integrator="adaptive"))
     refuse_driven(model, "adaptive")  # as simulate_adaptive refuses them
     refuse_drives(model, "adaptive")
@@ -62,6 +62,13 @@ def _run(scene, impl: StepImpl):
             taken[0] += 1
             return inner(q0, u0, H)
         run.extrapolate = counted
+    if run.phase is not None:
+        inner_phase = run.phase
+
+        def counted_phase(*args):
+            taken[0] += 1
+            return inner_phase(*args)
+        run.phase = counted_phase
     sampled = [0]
     if run.sampler is not None:
         inner_sampler = run.sampler

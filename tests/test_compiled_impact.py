@@ -28,7 +28,7 @@ from moreau_sim.adaptive import DEFAULT_ORDER, AdaptiveRun
 from moreau_sim.data import make_data
 from moreau_sim.drive import refuse as refuse_drives
 from moreau_sim.driver import drive
-from moreau_sim.errors import SceneError
+from moreau_sim.errors import SceneError, SimulationError
 from moreau_sim.event_driven import EventDrivenRun
 from moreau_sim.event_rules import sample_grid
 from moreau_sim.gaps import UnsupportedModel, feature_list
@@ -214,9 +214,10 @@ LOCATE_SCENES = ["bouncing_ball", "zeno_ball", "newton_cradle_5", "newton_cradle
                  "pendulum_wall", "column_of_beads", "fast_impact"]
 
 
-def _adaptive(name: str, locate: bool, **options):
-    """The adaptive run of scene `name` with the compiled event location (or the Python one): (arrays, compiled
-    locations that answered)."""
+def _adaptive(name: str, locate: bool, *, phase: bool = False, **options):
+    """The adaptive run of scene `name` with the compiled event location (or the Python one), its free-flight steps
+    in one call (phase, src/phase.hpp) or with the calls one by one: (trajectory, compiled locations (or with phase,
+    free-flight steps in one call) that answered)."""
     model = build_model(load_scene(SCENE_DIR / f"{name}.toml").with_options(integrator="adaptive", **options))
     data = make_data(model)
     state = initial_state(model, data)
@@ -227,7 +228,19 @@ def _adaptive(name: str, locate: bool, **options):
     answered = [0]
     if not locate:
         run.locate = None
-    elif run.locate is not None:
+    if phase:
+        assert run.phase is not None or name in NO_PHASE
+        if run.phase is not None:
+            whole = run.phase
+
+            def counted_phase(*args):
+                got = whole(*args)
+                answered[0] += got[0] in (0, 1)  # accepted or landed in the call
+                return got
+            run.phase = counted_phase
+        return drive(run, model, data, grid=grid, capacity=len(grid)), answered[0]
+    run.phase = None
+    if locate and run.locate is not None:
         inner = run.locate
 
         def counted(*args):
@@ -235,7 +248,7 @@ def _adaptive(name: str, locate: bool, **options):
             answered[0] += got[0] >= 0
             return got
         run.locate = counted
-    return drive(run, model, data, grid=grid, capacity=len(grid)).arrays, answered[0]
+    return drive(run, model, data, grid=grid, capacity=len(grid)), answered[0]
 
 
 @pytest.mark.parametrize("name", LOCATE_SCENES)
@@ -246,7 +259,74 @@ def test_same_runs_with_the_compiled_event_location(name):
     got, answered = _adaptive(name, True, duration=1.0)
     assert none == 0
     assert answered > 0
-    _same(ref, got)
+    _same(ref.arrays, got.arrays)
+
+
+# no free-flight step in one call: a free body (a Lie group: box_drop), features the compiled gaps do not take
+# (a sphere against a box: pendulum_wall, fast_impact)
+NO_PHASE = {"box_drop", "pendulum_wall", "fast_impact"}
+
+
+@pytest.mark.parametrize("e", [0.5, 1.0])
+@pytest.mark.parametrize("name", LOCATE_SCENES)
+def test_same_runs_with_the_free_flight_step_in_one_call(name, e):
+    """The adaptive run with its free-flight steps in one call (src/phase.hpp: the step sizes, the step's end, the
+    event location, the landing) and with those calls one by one: the same arrays bit for bit and the same counts
+    (steps refused and landed, step ends evaluated); the call answered where the model qualifies."""
+    ref, _ = _adaptive(name, True, duration=1.0, restitution=e)
+    got, answered = _adaptive(name, True, phase=True, duration=1.0, restitution=e)
+    assert (answered > 0) is (name not in NO_PHASE)
+    _same(ref.arrays, got.arrays)
+    for k in ("steps", "steps_extrapolated", "steps_refused", "steps_landed", "events", "impacts", "nfev"):
+        assert got.meta["run"][k] == ref.meta["run"][k], k
+
+
+def _phase_run(name: str, phase: bool, tol: tuple | None = None, **options):
+    """The adaptive run of scene `name` (its free-flight steps in one call or not) to its end or its error:
+    (trajectory, error message or None, statuses the one call returned)."""
+    model = build_model(load_scene(SCENE_DIR / f"{name}.toml").with_options(integrator="adaptive", duration=0.5,
+                                                                             **options))
+    data = make_data(model)
+    state = initial_state(model, data)
+    t_end, grid = sample_grid(model, state, None, None)
+    o = model.options
+    rtol, atol = tol or (o.rtol, o.atol)  # (tol: below what the scene's options accept)
+    run = AdaptiveRun(model, data, o.restitution, rtol, atol, DEFAULT_ORDER, 1.0, 10 ** 6, state=state, t_end=t_end)
+    statuses = []
+    if phase:
+        whole = run.phase
+
+        def counted(*args):
+            got = whole(*args)
+            statuses.append(got[0])
+            return got
+        run.phase = counted
+    else:
+        run.phase = None
+    try:
+        return drive(run, model, data, grid=grid, capacity=len(grid)), None, statuses
+    except SimulationError as exc:
+        return exc.trajectory, str(exc), statuses
+
+
+def test_free_flight_step_in_one_call_at_its_edges():
+    """The one call's two ways out before a step is accepted, as the calls one by one take them: no step size passing
+    the error test (the cradle at rtol = atol = 1e-30, its swing not a polynomial in t: down to H_MIN, then fixed
+    steps, the same fallback at the same instant) and an error estimate that is not finite (the ball at rtol = atol =
+    0: d / 0; the same error at the same step)."""
+    from moreau_sim.adaptive import _NONFINITE, _REFUSED
+
+    ref, err_ref, _ = _phase_run("newton_cradle_5", False, rtol=1e-30, atol=1e-30)
+    got, err_got, statuses = _phase_run("newton_cradle_5", True, rtol=1e-30, atol=1e-30)
+    assert err_ref is None and err_got is None and _REFUSED in statuses
+    assert got.meta["fallbacks"] == ref.meta["fallbacks"]
+    assert got.meta["fallbacks"][0]["reason"] == "the error test refused every step size"
+    _same(ref.arrays, got.arrays)
+    with np.errstate(divide="ignore", invalid="ignore"):  # (the Python estimate's d / 0)
+        ref, err_ref, _ = _phase_run("bouncing_ball", False, tol=(0.0, 0.0))
+    got, err_got, statuses = _phase_run("bouncing_ball", True, tol=(0.0, 0.0))
+    assert statuses == [_NONFINITE] and err_got == err_ref and "error estimate of an extrapolated step" in err_got
+    _same(ref.arrays, got.arrays)
 
 
 @pytest.mark.parametrize("name", ["bouncing_ball", "newton_cradle_5", "column_of_beads"])
