@@ -14,6 +14,8 @@ Modules:
 - compiled_costs: the compiled step against the Python step, Siconos's Moreau-Jean step and MuJoCo's
   mj_step per step, whole runs per step, and the cost targets' verdicts, one run.
 - adaptive_costs: the adaptive integrator against the event-driven one and the fixed step.
+- events: the ball and the touching cradle under the adaptive integrator against Siconos's event-driven
+  integrator, the whole ms.simulate call and its loop (meta run.cpu_seconds), at equal sampling.
 - scaling: columns of 10 to 10,000 beads and piles of free boxes against MuJoCo: per step, build, memory.
 - big_pile: a pile of 1000 free boxes under the compiled step alone, against MuJoCo on the same pile.
 - robots_table: the bundled robot scenes' figures (docs/robots.md).
@@ -22,7 +24,7 @@ Modules:
 - check_peers: every available peer against the exact references.
 
 Every driver writes to out/ by default; `--out docs/bench` (work_precision, step_costs,
-compiled_costs, adaptive_costs, robots_table, stability) regenerates the committed files. The
+compiled_costs, adaptive_costs, events, robots_table, stability) regenerates the committed files. The
 tables of figures in docs/*.md are generated from the committed JSON, never typed: each sits
 between the markers of `splice_table`, and each driver's `--table JSON DOC` rewrites its own
 (doc_tables: all of them at once, and the check that none drifted).
