@@ -67,7 +67,6 @@ def _root(f, lo: float, hi: float, xtol: float) -> float:
     return brentq(f, lo, hi, xtol=xtol)
 
 
-_ACCEPTED, _LANDED, _REFUSED, _NONFINITE, _LOCATE = range(5)  # PhaseStep.step's status (src/phase.hpp)
 _NONE = np.zeros(0)
 _NONE.flags.writeable = False  # an _End's multipliers and margins without C (read-only, shared)
 
@@ -181,6 +180,7 @@ class AdaptiveRun:
         self.phase = None if not self.flat else compiled_events.phase_step(
             self.extrapolate, self.rules.gaps.compiled, self.locate, rtol=rtol, atol=atol, order=order, h_min=H_MIN,
             safety=SAFETY, min_factor=MIN_FACTOR, land_iter=LAND_ITER, g_land=G_LAND)
+        self.phase_status = None if self.phase is None else compiled_events.phase_statuses()
         self.h_fix = model.options.dt
         state = state or initial_state(model, data)
         self.s = Carried(State(float(state.t), np.array(state.q, float), np.array(state.u, float)), float(state.t),
@@ -471,14 +471,15 @@ class AdaptiveRun:
             self.s.rejected += rejected
             self.s.ev.nfev += ends
             self.s.landings += landings
-            if status == _NONFINITE:
+            S = self.phase_status
+            if status is S.NONFINITE:
                 self._nonfinite(h)
-            if status == _REFUSED:
+            if status is S.REFUSED:
                 return self._refused(t, records, work)
             if got is not None:  # accepted (the event location Python's where the locator handed it back)
                 t1, q1, u1, a1, g1, gamma1, gdd1 = got
                 e1 = _End(t1, q1, u1, a1, _NONE, g1, gamma1, gdd1, _NONE, self._far(len(watched)))
-                ev = None if status == _ACCEPTED else self._first_event(e0, e1, len(watch), C, watched)
+                ev = None if status is S.ACCEPTED else self._first_event(e0, e1, len(watch), C, watched)
             else:
                 ev = (landed[0], "gap" if landed[1] == 0 else "return", landed[2])
         else:

@@ -81,12 +81,19 @@ def phase_step(extrapolate, gaps, locate, *, rtol: float, atol: float, order: in
     """AdaptiveRun.step's free flight in one call (src/phase.hpp: the same floats), on the run's compiled extrapolated
     step (extrapolator()'s), gaps (feature_gaps()'s FeatureGaps) and event location (locator()'s), or None where one
     of them is missing. (t, q, u, H, limit, t_end, t0, q0, u0, g0, gamma0, gdd0, idx, nw) -> (status, h, err,
-    rejected, ends, landings, H, accepted, event), PhaseStep.step's; the constants are adaptive's."""
+    rejected, ends, landings, H, accepted, event), PhaseStep.step's (status: phase_statuses()); the constants are
+    adaptive's."""
     if extrapolate is None or gaps is None or locate is None:
         return None
     return compiled._module.PhaseStep(extrapolate.__self__, gaps, locate.__self__, float(rtol), float(atol),
                                       int(order), float(h_min), float(safety), float(min_factor), int(land_iter),
                                       float(g_land)).step
+
+
+def phase_statuses():
+    """Why a free-flight step in one call returned (moreau_sim._step.PhaseStatus, src/phase.hpp: ACCEPTED, LANDED,
+    REFUSED, NONFINITE, LOCATE); only where phase_step made one (the extension loaded)."""
+    return compiled._module.PhaseStatus
 
 
 COMPILED_KINDS = {"point_plane": 0, "sphere_sphere": 1}  # the feature kinds FeatureGaps takes (src/adaptive.hpp)

@@ -8,8 +8,8 @@
 
 class PhaseStep {
  public:
-  // Why step() returned (its first result; moreau_sim.adaptive reads them by these numbers)
-  enum Status : int { ACCEPTED = 0, LANDED = 1, REFUSED = 2, NONFINITE = 3, LOCATE = 4 };
+  // Why step() returned (its first result; moreau_sim._step.PhaseStatus)
+  enum class Status { ACCEPTED, LANDED, REFUSED, NONFINITE, LOCATE };
 
   // extrapolator, gaps, locator: the run's Extrapolator, FeatureGaps and EventLocator; rtol, atol, order: the
   // run's; h_min, safety, min_factor, land_iter, g_land: adaptive.H_MIN, SAFETY, MIN_FACTOR, LAND_ITER, G_LAND
@@ -51,12 +51,12 @@ class PhaseStep {
       VectorXd d;
       std::tie(q1, u1, d) = ex_.step(q, u, h);
       err = error(z0, q1, u1, d);
-      if (!std::isfinite(err)) return result(NONFINITE, h, err, rejected, ends, landings);
+      if (!std::isfinite(err)) return result(Status::NONFINITE, h, err, rejected, ends, landings);
       if (err <= 1.0) break;
       ++rejected;
       const double f = safety_ * std::pow(err, exponent_);
       H = h * (min_factor_ < f ? f : min_factor_);  // max(MIN_FACTOR, f) as Python's max picks
-      if (H < h_min_) return result(REFUSED, h, err, rejected, ends, landings, H);
+      if (H < h_min_) return result(Status::REFUSED, h, err, rejected, ends, landings, H);
     }
     const bool last = h >= t_end - t;
     const double t1 = last ? t_end : t + h;
@@ -64,7 +64,7 @@ class PhaseStep {
     ++ends;
     auto [status, tau, kind, k] = loc_.first(t0, g0, gamma0, gdd0, t1, g1, gamma1, gdd1, nw);
     if (status <= 0)
-      return result(status < 0 ? LOCATE : ACCEPTED, h, err, rejected, ends, landings, 0.0,
+      return result(status < 0 ? Status::LOCATE : Status::ACCEPTED, h, err, rejected, ends, landings, 0.0,
                     nb::make_tuple(t1, owned::array(std::move(q1)), owned::array(std::move(u1)),
                                    owned::array(std::move(a1)), owned::array(std::move(g1)),
                                    owned::array(std::move(gamma1)), owned::array(std::move(gdd1))));
@@ -92,7 +92,7 @@ class PhaseStep {
     nb::object event = nb::make_tuple(tau, kind, k, hs, owned::array(std::move(qs)), owned::array(std::move(us)),
                                       owned::array(std::move(as)), owned::array(std::move(gs)),
                                       owned::array(std::move(gams)), owned::array(std::move(gdds)));
-    return result(LANDED, h, err, rejected, ends, landings, 0.0, nb::none(), event);
+    return result(Status::LANDED, h, err, rejected, ends, landings, 0.0, nb::none(), event);
   }
 
  private:
@@ -126,13 +126,19 @@ class PhaseStep {
     return std::sqrt((s + 0.0) / (double)n);
   }
 
-  static nb::tuple result(int status, double h, double err, int rejected, int ends, int landings, double H = 0.0,
+  static nb::tuple result(Status status, double h, double err, int rejected, int ends, int landings, double H = 0.0,
                           nb::object accepted = nb::none(), nb::object event = nb::none()) {
     return nb::make_tuple(status, h, err, rejected, ends, landings, H, accepted, event);
   }
 };
 
 inline void bind_phase(nb::module_ &mod) {
+  nb::enum_<PhaseStep::Status>(mod, "PhaseStatus", "Why PhaseStep.step returned (src/phase.hpp)")
+      .value("ACCEPTED", PhaseStep::Status::ACCEPTED)
+      .value("LANDED", PhaseStep::Status::LANDED)
+      .value("REFUSED", PhaseStep::Status::REFUSED)
+      .value("NONFINITE", PhaseStep::Status::NONFINITE)
+      .value("LOCATE", PhaseStep::Status::LOCATE);
   nb::class_<PhaseStep>(mod, "PhaseStep", "The adaptive integrator's step in free flight in one call (src/phase.hpp)")
       .def(nb::init<nb::object, nb::object, nb::object, double, double, int, double, double, double, int, double>(),
            nb::arg("extrapolator"), nb::arg("gaps"), nb::arg("locator"), nb::arg("rtol"), nb::arg("atol"),
