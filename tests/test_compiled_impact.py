@@ -281,13 +281,16 @@ def test_same_runs_with_the_free_flight_step_in_one_call(name, e):
         assert got.meta["run"][k] == ref.meta["run"][k], k
 
 
-def _phase_run(name: str, phase: bool, tol: tuple | None = None, **options):
+def _phase_run(name: str, phase: bool, tol: tuple | None = None, u0=None, q0=None, **options):
     """The adaptive run of scene `name` (its free-flight steps in one call or not) to its end or its error:
-    (trajectory, error message or None, statuses the one call returned)."""
+    (trajectory, error message or None, the statuses the one call returned, with a landing's kind: 0 a gap, 1 a
+    return)."""
     model = build_model(load_scene(SCENE_DIR / f"{name}.toml").with_options(integrator="adaptive", duration=0.5,
                                                                              **options))
     data = make_data(model)
     state = initial_state(model, data)
+    if q0 is not None:  # (not the scene's start: within G_RES of contact, rising; the start checks passed above)
+        state = dataclasses.replace(state, q=np.array(q0, float), u=np.array(u0, float))
     t_end, grid = sample_grid(model, state, None, None)
     o = model.options
     rtol, atol = tol or (o.rtol, o.atol)  # (tol: below what the scene's options accept)
@@ -298,7 +301,7 @@ def _phase_run(name: str, phase: bool, tol: tuple | None = None, **options):
 
         def counted(*args):
             got = whole(*args)
-            statuses.append(got[0])
+            statuses.append(got[0] if got[8] is None else (got[0], got[8][1]))
             return got
         run.phase = counted
     else:
@@ -314,10 +317,9 @@ def test_free_flight_step_in_one_call_at_its_edges():
     the error test (the cradle at rtol = atol = 1e-30, its swing not a polynomial in t: down to H_MIN, then fixed
     steps, the same fallback at the same instant) and an error estimate that is not finite (the ball at rtol = atol =
     0: d / 0; the same error at the same step)."""
-    S = compiled._module.PhaseStatus
-
     ref, err_ref, _ = _phase_run("newton_cradle_5", False, rtol=1e-30, atol=1e-30)
     got, err_got, statuses = _phase_run("newton_cradle_5", True, rtol=1e-30, atol=1e-30)
+    S = compiled_events.phase_statuses()  # (the extension loaded by now)
     assert err_ref is None and err_got is None and S.REFUSED in statuses
     assert got.meta["fallbacks"] == ref.meta["fallbacks"]
     assert got.meta["fallbacks"][0]["reason"] == "the error test refused every step size"
@@ -327,6 +329,24 @@ def test_free_flight_step_in_one_call_at_its_edges():
     got, err_got, statuses = _phase_run("bouncing_ball", True, tol=(0.0, 0.0))
     assert statuses == [S.NONFINITE] and err_got == err_ref and "error estimate of an extrapolated step" in err_got
     _same(ref.arrays, got.arrays)
+
+
+@pytest.mark.parametrize("v", [1e-8, 1e-7, 1e-6])
+def test_free_flight_step_in_one_call_lands_on_a_return(v):
+    """A ball within G_RES of the ground rising at v [m/s], too slowly to leave G_RES (apex v^2 / 2g): its gap is
+    watched by its return (its rate below -2 V_TOL), and the one call lands on that return, one step and no Newton
+    (AdaptiveRun._land's), as the calls one by one do: the same arrays and counts."""
+    from moreau_sim.kinematics import G_RES
+
+    start = {"q0": [0.1 + 0.25 * G_RES], "u0": [v]}  # (the ball's radius 0.1 m)
+    ref, err_ref, _ = _phase_run("bouncing_ball", False, **start, restitution=0.5)
+    got, err_got, statuses = _phase_run("bouncing_ball", True, **start, restitution=0.5)
+    assert err_ref is None and err_got is None
+    landed = [st for st in statuses if isinstance(st, tuple)]
+    assert landed == [(compiled_events.phase_statuses().LANDED, 1)] and got.meta["run"]["events"] == 1
+    _same(ref.arrays, got.arrays)
+    for k in ("steps", "steps_refused", "steps_landed", "nfev", "impacts"):
+        assert got.meta["run"][k] == ref.meta["run"][k], k
 
 
 @pytest.mark.parametrize("name", ["bouncing_ball", "newton_cradle_5", "column_of_beads"])
