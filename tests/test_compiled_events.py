@@ -43,6 +43,14 @@ MUST_SAMPLE = MUST_COMPILE - {"box_drop", "spinning_box"}  # free bodies: a Lie 
 G, D0 = 9.81, 0.9  # gravity [m/s^2]; the ball's initial gap [m] (centre at 1 m, r = 0.1 m)
 
 
+def _counted(call, box: list):
+    """`call`, counting its calls in box[0]."""
+    def counted(*args):
+        box[0] += 1
+        return call(*args)
+    return counted
+
+
 def _run(scene, impl: StepImpl):
     """The adaptive run of `scene` with step_impl `impl`: (arrays, compiled extrapolated steps taken, one by one or
     in a free-flight step's one call (src/phase.hpp), compiled sample calls)."""
@@ -55,28 +63,10 @@ def _run(scene, impl: StepImpl):
     o = model.options
     run = AdaptiveRun(model, data, o.restitution, o.rtol, o.atol, 6, 1.0, 10 ** 6, state=state, t_end=t_end)
     taken = [0]
-    if run.extrapolate is not None:
-        inner = run.extrapolate
-
-        def counted(q0, u0, H):
-            taken[0] += 1
-            return inner(q0, u0, H)
-        run.extrapolate = counted
-    if run.phase is not None:
-        inner_phase = run.phase
-
-        def counted_phase(*args):
-            taken[0] += 1
-            return inner_phase(*args)
-        run.phase = counted_phase
     sampled = [0]
-    if run.sampler is not None:
-        inner_sampler = run.sampler
-
-        def counted_samples(*args):
-            sampled[0] += 1
-            return inner_sampler(*args)
-        run.sampler = counted_samples
+    for name, box in (("extrapolate", taken), ("phase", taken), ("sampler", sampled)):
+        if getattr(run, name) is not None:
+            setattr(run, name, _counted(getattr(run, name), box))
     try:
         traj = drive(run, model, data, grid=grid, capacity=len(grid))
     except Exception as exc:  # a run that fails fails alike both ways, up to the same sample
