@@ -68,6 +68,17 @@ SCENES = REPO / "scenes"
 OUT = Path("out")  # default output folder of every driver, relative to the current directory
 
 
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (files, no display), imported where a chart is drawn: a benchmark that
+    only measures never loads it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def scene_path(name: str) -> Path:
     """The bundled scene file scenes/<name>.toml."""
     return SCENES / f"{name}.toml"

@@ -25,7 +25,7 @@ import moreau_sim as ms
 from moreau_sim.recording import versions
 from moreau_sim.scene import Actuator
 
-from . import OUT, add_plot_option, redraw, scene_path
+from . import OUT, add_plot_option, pyplot, redraw, scene_path
 
 SCENES = {"bouncing_ball": 3.0, "pendulum_wall": 3.0, "quadruped_drop": 1.0, "solo12_stand": 2.0,
           "a1_drop_recover": 1.0}  # scene: duration [s]
@@ -64,10 +64,7 @@ def measure(names, repeat: int) -> tuple[dict, set]:
 
 def plot(res: dict, png: Path) -> None:
     """Bars: each scene's PD run and zero-controller run per step over its passive run, the target line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     names = list(res["us_per_step"])
     x = np.arange(len(names))

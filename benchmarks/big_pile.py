@@ -25,7 +25,7 @@ import numpy as np
 import moreau_sim as ms
 from moreau_sim import compiled, energy
 
-from . import OUT, add_plot_option, redraw
+from . import OUT, add_plot_option, pyplot, redraw
 from .scaling import CLOCK, PILE_H, PILE_T, _commit, mujoco_run, peak_rss_mb, pile, pile_steps
 
 
@@ -71,10 +71,7 @@ def summary(d: dict) -> str:
 
 
 def plot(d: dict, png: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     t = (np.arange(len(d["ms"])) + 1) * d["meta"]["h"]
     fig, ax = plt.subplots(figsize=(8, 4.5))

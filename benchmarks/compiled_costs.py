@@ -38,7 +38,7 @@ import moreau_sim as ms
 from moreau_sim import compiled
 from moreau_sim.recording import versions
 
-from . import OUT, add_plot_option, add_table_option, redraw, rewrite_tables, scene_path
+from . import OUT, add_plot_option, add_table_option, pyplot, redraw, rewrite_tables, scene_path
 from .step_costs import best  # best of `repeat` timings, us
 
 # (label, scene, phase: "flight", "contact", or "late-contact" = the last third of the run's contact states)
@@ -444,9 +444,7 @@ def doc_tables(res: dict) -> dict[str, str]:
 def plot(res: dict, path: Path) -> None:
     """Bars per case (log scale): Python step, compiled step, Siconos, MuJoCo; the whole runs last;
     the cost targets as red marks over their case."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     def name(scene: str) -> str:  # a long scene name on two lines
         return scene.replace("_", "_\n", 1) if len(scene) > 11 else scene

@@ -32,7 +32,7 @@ import moreau_sim as ms
 from moreau_sim.recording import versions
 from moreau_sim.testing.references import ball_impact_times, cradle_simultaneous
 
-from . import OUT, add_plot_option, add_table_option, redraw, rewrite_tables, scene_path
+from . import OUT, add_plot_option, add_table_option, pyplot, redraw, rewrite_tables, scene_path
 
 SAMPLE = 0.025  # [s] every method's output interval
 RTOL, ATOL = 1e-10, 1e-12  # the adaptive integrator's tolerances
@@ -138,10 +138,7 @@ def doc_tables(res: dict) -> dict:
 
 def plot(res: dict, png: Path) -> None:
     """Bars per case: ours (whole call, loop) and Siconos ED's loop, CPU per simulated second, log scale."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     labels = list(res["cases"])
     x = np.arange(len(labels))

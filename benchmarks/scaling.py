@@ -55,7 +55,7 @@ import moreau_sim as ms
 from moreau_sim import compiled, energy, qp
 from moreau_sim.recording import versions
 
-from . import OUT, REPO, add_plot_option, add_table_option, redraw, rewrite_tables
+from . import OUT, REPO, add_plot_option, add_table_option, pyplot, redraw, rewrite_tables
 
 CLOCK = time.process_time  # CPU time of this process: the shared 2-core machine runs at load 5-15
 
@@ -429,10 +429,7 @@ def slopes(data: dict) -> dict:
 
 
 def plot(data: dict, png: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     s = data["slopes"]
     fig, (a1, a2, a3) = plt.subplots(1, 3, figsize=(16, 6), layout="constrained")

@@ -39,7 +39,7 @@ from moreau_sim.options import Options, RootJoint
 from moreau_sim.recording import versions
 from moreau_sim.testing.references import ZENO_GAP, G, cradle_simultaneous, zeno_rest_bound, zeno_time
 
-from . import OUT, REPO, add_table_option, peers, rewrite_tables, scene_path
+from . import OUT, REPO, add_table_option, peers, pyplot, rewrite_tables, scene_path
 from .spec import to_jsonable
 
 PLAIN = {"position_correction": "none", "bias": "explicit"}
@@ -412,10 +412,7 @@ def evaluate(R: list[Row], methods, log) -> None:
 
 # ------------------------------------------------------------------------------------- plots
 def plots(R: list[Row], img: Path) -> list[tuple[str, str]]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     out = []
     style = {"moreau-sim": ("C0", "-"), "moreau-sim plain": ("C1", "--"), "moreau-sim + swept": ("C5", "-"),

@@ -34,7 +34,7 @@ from moreau_sim.options import QPForm
 from moreau_sim.recording import versions
 from moreau_sim.stepper import assemble, free_velocity
 
-from . import OUT, SCENES, add_plot_option, add_table_option, redraw, rewrite_tables, scene_path
+from . import OUT, SCENES, add_plot_option, add_table_option, pyplot, redraw, rewrite_tables, scene_path
 
 TARGETS = {"bouncing_ball": {"flight": 10, "contact": 40}, "newton_cradle_5": {"contact": 150},
            "box_drop": {"contact": 80}}
@@ -114,10 +114,7 @@ PARTS = (("dyn", "dynamics (Pinocchio)", "tab:blue"), ("coll", "collision detect
 def plot(results: dict, png: Path) -> None:
     """One row per scene and state (a step in flight, a step with contacts): left, the time of one
     step (log scale); right, the share of each part of it. `results`: a step_costs.json's "scenes"."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     def state(kind: str, m: float) -> str:
         return "in flight" if kind == "flight" else f"{m:.0f} contact" + ("" if m == 1 else "s")

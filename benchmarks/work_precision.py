@@ -56,7 +56,7 @@ from moreau_sim.stepper import assemble
 from moreau_sim.testing import metrics
 from moreau_sim.testing.references import ball_apex_gaps, cradle_simultaneous
 
-from . import OUT, REPO, add_table_option, peers, rewrite_tables, scene_path
+from . import OUT, REPO, add_table_option, peers, pyplot, rewrite_tables, scene_path
 from .spec import min_corner_height, to_jsonable
 
 STEPS = (1e-2, 2e-3, 1e-3, 2e-4, 1e-4, 2e-5, 1e-5)  # each divides OUTPUT_DT
@@ -499,9 +499,7 @@ def doc_tables(doc: dict) -> dict[str, str]:
 
 
 def plot(case: Case, points: list, path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(7, 5))
     clamped = False
