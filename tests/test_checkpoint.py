@@ -84,9 +84,8 @@ def test_every_integrator_resumes_bitwise(tmp_path, integrator, name, duration, 
     assert resumed.meta["ledger"] == full.meta["ledger"]
     for k in ("events", "impacts", "steps"):
         assert resumed.meta["run"][k] == full.meta["run"][k]
-    # the CPU and wall time of the run before its checkpoint are counted in the resumed run's
+    # the loop's CPU time before the checkpoint is carried into the resumed run's (bookkeeping, not a speed)
     assert resumed.meta["run"]["cpu_seconds"] >= before["cpu_seconds"] > 0.0
-    assert resumed.meta["run"]["wall_seconds"] >= before["wall_seconds"] > 0.0
     assert resumed.meta["zeno"] == full.meta["zeno"] and resumed.meta.get("fallbacks") == full.meta.get("fallbacks")
 
 
