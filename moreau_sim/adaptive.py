@@ -264,14 +264,18 @@ class AdaptiveRun:
             got.flags.writeable = False
         return got
 
+    def _free_end(self, t, q, u, a, g, gamma, gdd) -> _End:
+        """The step end at (t, q, u) in free flight on compiled features: their (a, g, gamma, gdd) as FeatureGaps.end
+        gives them (no multipliers, no regions, no box feature near)."""
+        return _End(t, q, u, a, _NONE, g, gamma, gdd, _NONE, self._far(len(g)))
+
     def _end(self, t, q, u, C, idx, end=None) -> _End:
         """The step end at (t, q, u) with the persistent set C, of the watched features idx; end: their compiled
         (a, g, gamma, gdd) at (q, u) where already computed (_land's)."""
         pg = self.rules.gaps.compiled
         if pg is not None and not C and idx:  # free flight, compiled features: the same floats
             self.s.ev.nfev += 1  # (dynamics counts its calls)
-            a, g, gamma, gdd = pg.end(q, u, idx) if end is None else end
-            return _End(t, q, u, a, _NONE, g, gamma, gdd, _NONE, self._far(len(idx)))
+            return self._free_end(t, q, u, *(pg.end(q, u, idx) if end is None else end))
         a, lam, fc = dynamics(self.rules, self.s.ev, q, u, C)
         margin = fc.margin if C else np.zeros(0)  # C's distances to their regions' ends
         if idx:
@@ -466,7 +470,7 @@ class AdaptiveRun:
         watched = watch + low
         landed = None
         if self.phase is not None and not C and watched:  # compiled in one call: the same floats (src/phase.hpp)
-            status, h, err, rejected, ends, landings, _, got, landed = self.phase(
+            status, h, err, rejected, ends, landings, got, landed = self.phase(
                 t, q, u, H, limit, t_end, e0.t, e0.q, e0.u, e0.g, e0.gamma, e0.gdd, watched, len(watch))
             self.s.rejected += rejected
             self.s.ev.nfev += ends
@@ -477,8 +481,8 @@ class AdaptiveRun:
             if status is S.REFUSED:
                 return self._refused(t, records, work)
             if got is not None:  # accepted (the event location Python's where the locator handed it back)
-                t1, q1, u1, a1, g1, gamma1, gdd1 = got
-                e1 = _End(t1, q1, u1, a1, _NONE, g1, gamma1, gdd1, _NONE, self._far(len(watched)))
+                t1, q1, u1 = got[:3]
+                e1 = self._free_end(*got)
                 ev = None if status is S.ACCEPTED else self._first_event(e0, e1, len(watch), C, watched)
             else:
                 ev = (landed[0], "gap" if landed[1] == 0 else "return", landed[2])
@@ -520,8 +524,8 @@ class AdaptiveRun:
             hs = min(hs, t_end - t)
             e1 = self._end(t + hs, q1, u1, C, watched, end)
         else:  # (compiled: the landing and its end, _land's and _end's)
-            hs, q1, u1, a1, g1, gamma1, gdd1 = landed[3:]
-            e1 = _End(t + hs, q1, u1, a1, _NONE, g1, gamma1, gdd1, _NONE, self._far(len(watched)))
+            hs, q1, u1 = landed[3:6]
+            e1 = self._free_end(t + hs, *landed[4:])
         segs = (self._segment(e0, e1, len(C), False),)
         self.s.stuck = self.s.stuck + 1 if hs < 1e-13 else 0
         t = t + hs

@@ -81,7 +81,7 @@ def phase_step(extrapolate, gaps, locate, *, rtol: float, atol: float, order: in
     """AdaptiveRun.step's free flight in one call (src/phase.hpp: the same floats), on the run's compiled extrapolated
     step (extrapolator()'s), gaps (feature_gaps()'s FeatureGaps) and event location (locator()'s), or None where one
     of them is missing. (t, q, u, H, limit, t_end, t0, q0, u0, g0, gamma0, gdd0, idx, nw) -> (status, h, err,
-    rejected, ends, landings, H, accepted, event), PhaseStep.step's (status: phase_statuses()); the constants are
+    rejected, ends, landings, accepted, event), PhaseStep.step's (status: phase_statuses()); the constants are
     adaptive's."""
     if extrapolate is None or gaps is None or locate is None:
         return None

@@ -24,13 +24,13 @@ class PhaseStep {
 
   // From the state (t, q, u) with the step end e0 = (t0, q0, u0, g0, gamma0, gdd0) there (q0 = q, u0 = u), the
   // next step of size H at most (limit, t_end [s]: AdaptiveRun.step's) watching the features idx, the first nw by
-  // their gaps. Returns (status, h, err, rejected, ends, landings, H, accepted, event):
+  // their gaps. Returns (status, h, err, rejected, ends, landings, accepted, event):
   //  ACCEPTED: the step of size h, error estimate err, without an event; accepted = (t1, q1, u1, a1, g1, gamma1,
   //    gdd1), its end as AdaptiveRun._end gives it;
   //  LOCATE: as ACCEPTED, but the event location is Python's (the locator's status -1);
   //  LANDED: an event on the step of size h, event = (tau, kind: 0 a gap, 1 a return, k, hs, qs, us, as, gs,
   //    gammas, gdds): the landing's step of size hs and its end (AdaptiveRun._land, then _end at t + hs);
-  //  REFUSED: no step size passed (h: the last one tried; H: the next, below h_min);
+  //  REFUSED: no step size passed (h: the last one tried; the next was below h_min);
   //  NONFINITE: the error estimate of the step of size h is not finite.
   // rejected: the step sizes refused; ends: the step ends evaluated (event_rules' nfev); landings: the landing's
   // steps.
@@ -56,7 +56,7 @@ class PhaseStep {
       ++rejected;
       const double f = safety_ * std::pow(err, exponent_);
       H = h * (min_factor_ < f ? f : min_factor_);  // max(MIN_FACTOR, f) as Python's max picks
-      if (H < h_min_) return result(Status::REFUSED, h, err, rejected, ends, landings, H);
+      if (H < h_min_) return result(Status::REFUSED, h, err, rejected, ends, landings);
     }
     const bool last = h >= t_end - t;
     const double t1 = last ? t_end : t + h;
@@ -64,7 +64,7 @@ class PhaseStep {
     ++ends;
     auto [status, tau, kind, k] = loc_.first(t0, g0, gamma0, gdd0, t1, g1, gamma1, gdd1, nw);
     if (status <= 0)
-      return result(status < 0 ? Status::LOCATE : Status::ACCEPTED, h, err, rejected, ends, landings, 0.0,
+      return result(status < 0 ? Status::LOCATE : Status::ACCEPTED, h, err, rejected, ends, landings,
                     nb::make_tuple(t1, owned::array(std::move(q1)), owned::array(std::move(u1)),
                                    owned::array(std::move(a1)), owned::array(std::move(g1)),
                                    owned::array(std::move(gamma1)), owned::array(std::move(gdd1))));
@@ -92,7 +92,7 @@ class PhaseStep {
     nb::object event = nb::make_tuple(tau, kind, k, hs, owned::array(std::move(qs)), owned::array(std::move(us)),
                                       owned::array(std::move(as)), owned::array(std::move(gs)),
                                       owned::array(std::move(gams)), owned::array(std::move(gdds)));
-    return result(Status::LANDED, h, err, rejected, ends, landings, 0.0, nb::none(), event);
+    return result(Status::LANDED, h, err, rejected, ends, landings, nb::none(), event);
   }
 
  private:
@@ -126,9 +126,9 @@ class PhaseStep {
     return std::sqrt((s + 0.0) / (double)n);
   }
 
-  static nb::tuple result(Status status, double h, double err, int rejected, int ends, int landings, double H = 0.0,
+  static nb::tuple result(Status status, double h, double err, int rejected, int ends, int landings,
                           nb::object accepted = nb::none(), nb::object event = nb::none()) {
-    return nb::make_tuple(status, h, err, rejected, ends, landings, H, accepted, event);
+    return nb::make_tuple(status, h, err, rejected, ends, landings, accepted, event);
   }
 };
 
@@ -147,5 +147,5 @@ inline void bind_phase(nb::module_ &mod) {
       .def("step", &PhaseStep::step, nb::arg("t"), nb::arg("q"), nb::arg("u"), nb::arg("H"), nb::arg("limit"),
            nb::arg("t_end"), nb::arg("t0"), nb::arg("q0"), nb::arg("u0"), nb::arg("g0"), nb::arg("gamma0"),
            nb::arg("gdd0"), nb::arg("idx"), nb::arg("nw"),
-           "(status, h, err, rejected, ends, landings, H, accepted, event): AdaptiveRun.step in free flight");
+           "(status, h, err, rejected, ends, landings, accepted, event): AdaptiveRun.step in free flight");
 }

@@ -214,18 +214,23 @@ LOCATE_SCENES = ["bouncing_ball", "zeno_ball", "newton_cradle_5", "newton_cradle
                  "pendulum_wall", "column_of_beads", "fast_impact"]
 
 
-def _adaptive(name: str, locate: bool, *, phase: bool = False, **options):
-    """The adaptive run of scene `name` with the compiled event location (or the Python one), its free-flight steps
-    in one call (phase, src/phase.hpp) or with the calls one by one: (trajectory, compiled locations (or with phase,
-    free-flight steps in one call) that answered)."""
+def _adaptive(name: str, *, locate: bool = True, phase: bool = False, tol: tuple | None = None, q0=None, u0=None,
+              **options):
+    """The adaptive run of scene `name` to its end or its error, its event location compiled (locate) or Python's,
+    its free-flight steps in one call (phase, src/phase.hpp) or with the calls one by one; tol: (rtol, atol) below
+    what the scene's options accept; q0, u0: another start (the start checks passed at the scene's). Returns
+    (trajectory, error message or None, what the compiled call answered each time: with phase the one call's status,
+    with a landing's kind as (status, 0 a gap / 1 a return); else the compiled location's status)."""
     model = build_model(load_scene(SCENE_DIR / f"{name}.toml").with_options(integrator="adaptive", **options))
     data = make_data(model)
     state = initial_state(model, data)
+    if q0 is not None:
+        state = dataclasses.replace(state, q=np.array(q0, float), u=np.array(u0, float))
     t_end, grid = sample_grid(model, state, None, None)
     o = model.options
-    run = AdaptiveRun(model, data, o.restitution, o.rtol, o.atol, DEFAULT_ORDER, 1.0, 10 ** 6, state=state,
-                      t_end=t_end)
-    answered = [0]
+    rtol, atol = tol or (o.rtol, o.atol)
+    run = AdaptiveRun(model, data, o.restitution, rtol, atol, DEFAULT_ORDER, 1.0, 10 ** 6, state=state, t_end=t_end)
+    calls = []
     if not locate:
         run.locate = None
     if phase:
@@ -235,30 +240,34 @@ def _adaptive(name: str, locate: bool, *, phase: bool = False, **options):
 
             def counted_phase(*args):
                 got = whole(*args)
-                answered[0] += got[0].name in ("ACCEPTED", "LANDED")  # a step taken in the call
+                calls.append(got[0] if got[7] is None else (got[0], got[7][1]))
                 return got
             run.phase = counted_phase
-        return drive(run, model, data, grid=grid, capacity=len(grid)), answered[0]
-    run.phase = None
-    if locate and run.locate is not None:
-        inner = run.locate
+    else:
+        run.phase = None
+        if run.locate is not None:
+            inner = run.locate
 
-        def counted(*args):
-            got = inner(*args)
-            answered[0] += got[0] >= 0
-            return got
-        run.locate = counted
-    return drive(run, model, data, grid=grid, capacity=len(grid)), answered[0]
+            def counted(*args):
+                got = inner(*args)
+                calls.append(got[0])
+                return got
+            run.locate = counted
+    try:
+        return drive(run, model, data, grid=grid, capacity=len(grid)), None, calls
+    except SimulationError as exc:
+        return exc.trajectory, str(exc), calls
 
 
 @pytest.mark.parametrize("name", LOCATE_SCENES)
 def test_same_runs_with_the_compiled_event_location(name):
     """The adaptive run with the compiled event location and with the Python one: the same arrays bit for bit; the
     compiled one answered (a model with box features keeps the Python location: none there)."""
-    ref, none = _adaptive(name, False, duration=1.0)
-    got, answered = _adaptive(name, True, duration=1.0)
-    assert none == 0
-    assert answered > 0
+    ref, err_ref, none = _adaptive(name, locate=False, duration=1.0)
+    got, err_got, answers = _adaptive(name, duration=1.0)
+    assert err_ref is None and err_got is None
+    assert none == []
+    assert sum(a >= 0 for a in answers) > 0
     _same(ref.arrays, got.arrays)
 
 
@@ -273,43 +282,14 @@ def test_same_runs_with_the_free_flight_step_in_one_call(name, e):
     """The adaptive run with its free-flight steps in one call (src/phase.hpp: the step sizes, the step's end, the
     event location, the landing) and with those calls one by one: the same arrays bit for bit and the same counts
     (steps refused and landed, step ends evaluated); the call answered where the model qualifies."""
-    ref, _ = _adaptive(name, True, duration=1.0, restitution=e)
-    got, answered = _adaptive(name, True, phase=True, duration=1.0, restitution=e)
-    assert (answered > 0) is (name not in NO_PHASE)
+    ref, err_ref, _ = _adaptive(name, duration=1.0, restitution=e)
+    got, err_got, calls = _adaptive(name, phase=True, duration=1.0, restitution=e)
+    assert err_ref is None and err_got is None
+    taken = [c for c in calls if (c[0] if isinstance(c, tuple) else c).name in ("ACCEPTED", "LANDED")]
+    assert (len(taken) > 0) is (name not in NO_PHASE)
     _same(ref.arrays, got.arrays)
     for k in ("steps", "steps_extrapolated", "steps_refused", "steps_landed", "events", "impacts", "nfev"):
         assert got.meta["run"][k] == ref.meta["run"][k], k
-
-
-def _phase_run(name: str, phase: bool, tol: tuple | None = None, u0=None, q0=None, **options):
-    """The adaptive run of scene `name` (its free-flight steps in one call or not) to its end or its error:
-    (trajectory, error message or None, the statuses the one call returned, with a landing's kind: 0 a gap, 1 a
-    return)."""
-    model = build_model(load_scene(SCENE_DIR / f"{name}.toml").with_options(integrator="adaptive", duration=0.5,
-                                                                             **options))
-    data = make_data(model)
-    state = initial_state(model, data)
-    if q0 is not None:  # (not the scene's start: within G_RES of contact, rising; the start checks passed above)
-        state = dataclasses.replace(state, q=np.array(q0, float), u=np.array(u0, float))
-    t_end, grid = sample_grid(model, state, None, None)
-    o = model.options
-    rtol, atol = tol or (o.rtol, o.atol)  # (tol: below what the scene's options accept)
-    run = AdaptiveRun(model, data, o.restitution, rtol, atol, DEFAULT_ORDER, 1.0, 10 ** 6, state=state, t_end=t_end)
-    statuses = []
-    if phase:
-        whole = run.phase
-
-        def counted(*args):
-            got = whole(*args)
-            statuses.append(got[0] if got[8] is None else (got[0], got[8][1]))
-            return got
-        run.phase = counted
-    else:
-        run.phase = None
-    try:
-        return drive(run, model, data, grid=grid, capacity=len(grid)), None, statuses
-    except SimulationError as exc:
-        return exc.trajectory, str(exc), statuses
 
 
 def test_free_flight_step_in_one_call_at_its_edges():
@@ -317,16 +297,16 @@ def test_free_flight_step_in_one_call_at_its_edges():
     the error test (the cradle at rtol = atol = 1e-30, its swing not a polynomial in t: down to H_MIN, then fixed
     steps, the same fallback at the same instant) and an error estimate that is not finite (the ball at rtol = atol =
     0: d / 0; the same error at the same step)."""
-    ref, err_ref, _ = _phase_run("newton_cradle_5", False, rtol=1e-30, atol=1e-30)
-    got, err_got, statuses = _phase_run("newton_cradle_5", True, rtol=1e-30, atol=1e-30)
+    ref, err_ref, _ = _adaptive("newton_cradle_5", duration=0.5, rtol=1e-30, atol=1e-30)
+    got, err_got, statuses = _adaptive("newton_cradle_5", phase=True, duration=0.5, rtol=1e-30, atol=1e-30)
     S = compiled_events.phase_statuses()  # (the extension loaded by now)
     assert err_ref is None and err_got is None and S.REFUSED in statuses
     assert got.meta["fallbacks"] == ref.meta["fallbacks"]
     assert got.meta["fallbacks"][0]["reason"] == "the error test refused every step size"
     _same(ref.arrays, got.arrays)
     with np.errstate(divide="ignore", invalid="ignore"):  # (the Python estimate's d / 0)
-        ref, err_ref, _ = _phase_run("bouncing_ball", False, tol=(0.0, 0.0))
-    got, err_got, statuses = _phase_run("bouncing_ball", True, tol=(0.0, 0.0))
+        ref, err_ref, _ = _adaptive("bouncing_ball", duration=0.5, tol=(0.0, 0.0))
+    got, err_got, statuses = _adaptive("bouncing_ball", phase=True, duration=0.5, tol=(0.0, 0.0))
     assert statuses == [S.NONFINITE] and err_got == err_ref and "error estimate of an extrapolated step" in err_got
     _same(ref.arrays, got.arrays)
 
@@ -339,8 +319,8 @@ def test_free_flight_step_in_one_call_lands_on_a_return(v):
     from moreau_sim.kinematics import G_RES
 
     start = {"q0": [0.1 + 0.25 * G_RES], "u0": [v]}  # (the ball's radius 0.1 m)
-    ref, err_ref, _ = _phase_run("bouncing_ball", False, **start, restitution=0.5)
-    got, err_got, statuses = _phase_run("bouncing_ball", True, **start, restitution=0.5)
+    ref, err_ref, _ = _adaptive("bouncing_ball", duration=0.5, **start, restitution=0.5)
+    got, err_got, statuses = _adaptive("bouncing_ball", phase=True, duration=0.5, **start, restitution=0.5)
     assert err_ref is None and err_got is None
     landed = [st for st in statuses if isinstance(st, tuple)]
     assert landed == [(compiled_events.phase_statuses().LANDED, 1)] and got.meta["run"]["events"] == 1
