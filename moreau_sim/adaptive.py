@@ -20,11 +20,11 @@ from . import compiled_events
 from .adaptive_static import FIXED_POINT, extrapolator_of, features_of, static_of
 from .actuation import refuse_driven
 from .drive import refuse as refuse_drives
-from .data import Data, make_data
+from .data import Data
 from .errors import SimulationError
 from .hermite import CHECK, CHECK_BASIS, CHECK_FLOATS, QUINTIC, poly, polyslope, polyval
 from .checkpoint import Checkpoint
-from .driver import Check, drive
+from .driver import Check, drive, run_data
 from .event_rules import (G_REGION, G_RES, LAM_EPS, V_TOL, EventState, dynamics, features, make_rules,
                           phase_sets, resolve, sample_grid, thin_limit)
 from .model import Model, initial_state
@@ -689,13 +689,13 @@ def simulate_adaptive(model: Model, *, state: State | None = None, t_end: float 
     wall_seconds). Raises SimulationError (with .trajectory up to the failure)."""
     refuse_driven(model, "adaptive")
     refuse_drives(model, "adaptive")
-    data = data or make_data(model)
-    state = state or initial_state(model, data)
-    opts = model.options
-    t_end, t_grid = sample_grid(model, state, t_end, t_eval)
-    rtol = opts.rtol if rtol is None else float(rtol)
-    atol = opts.atol if atol is None else float(atol)
-    integ = AdaptiveRun(model, data, opts.restitution, rtol, atol, order, max_step, max_events, state=state,
-                        t_end=t_end)
-    return drive(integ, model, data, grid=t_grid, progress=progress, checkpoint=checkpoint, spill=spill, check=check,
-                 capacity=len(t_grid))
+    with run_data(model, data) as data:
+        state = state or initial_state(model, data)
+        opts = model.options
+        t_end, t_grid = sample_grid(model, state, t_end, t_eval)
+        rtol = opts.rtol if rtol is None else float(rtol)
+        atol = opts.atol if atol is None else float(atol)
+        integ = AdaptiveRun(model, data, opts.restitution, rtol, atol, order, max_step, max_events, state=state,
+                            t_end=t_end)
+        return drive(integ, model, data, grid=t_grid, progress=progress, checkpoint=checkpoint, spill=spill,
+                     check=check, capacity=len(t_grid))

@@ -188,7 +188,7 @@ class _Context:
         self.carries = prep.carries  # the detection carries state from step to step
         self.timed = model.prescribed is not None or model.drive is not None  # its steps need their start time
         self._layouts: dict[tuple, dict] = {}  # (outcome, m, paid) -> the step's named arrays in its buffers
-        self.counts: Counter = Counter()
+        self.counts: Counter = data.step_counts  # this Data's, across its Steppers (Data.reset)
         self.why = prep.why
         self.stepper = None
         self.active_sent = None  # the data.active_rows last sent to the Stepper (raw_step)
@@ -386,10 +386,14 @@ def _context(model, data) -> _Context:
     return ctx
 
 
+def guess_reset():
+    """The extension's reset of coal's cached guesses (data.Data.reset's `guesses`), or None where it did not load."""
+    return _module.fresh_guesses if available() and hasattr(_module, "fresh_guesses") else None
+
+
 def counts(data) -> Counter:
     """Steps of this data's runs by the way they went: "flight" and "contact" (compiled), "python: <reason>"."""
-    ctx = getattr(data, "_compiled_step", None)
-    return Counter() if ctx is None else ctx.counts
+    return data.step_counts
 
 
 def schedule(s) -> tuple | None:

@@ -4,6 +4,7 @@ queries, the detection's warm start). One per thread and per run; the state itse
 from __future__ import annotations
 
 import warnings
+from collections import Counter
 
 import coal
 import numpy as np
@@ -75,7 +76,8 @@ class Data:
     (it keeps a resting pair examined when coal's narrow phase misses it for a step,
     contacts._near_polytopes).
 
-    Create one per thread and per run with :func:`make_data`; the state itself is in State."""
+    Create one per thread with :func:`make_data`; a run starts by resetting it (reset), so a run's steps do not
+    depend on what ran on its Data before. The state itself is in State."""
 
     # read from the compiled Stepper that holds them (hold_warm_start, hold_active) at the first read
     warm_start_pairs = _Held(lambda stepper: set(stepper.warm), "warm_start_holder")
@@ -118,6 +120,38 @@ class Data:
         self.distance_result = coal.DistanceResult()
         self._point_queries: dict[int, coal.ComputeDistance] = {}
         self.shapes = [g.geometry for g in model.geometries]
+        # steps of this Data's runs by the way they went: "flight", "contact", "python: <reason>" (compiled.counts)
+        self.step_counts: Counter = Counter()
+
+    def reset(self, guesses=None) -> "Data":
+        """Bring back what a run carries from one step to the next to a new Data's (docs/theory.md §2.8, "A run
+        starts from a fresh Data"): the detection's and the projection's warm starts, coal's cached GJK guesses
+        (every request and result), the pairs' and points' coal queries of a PairTable (made again at first use)
+        and the compiled Stepper (made again at the next compiled step; `step_counts` stay: they count this Data's
+        runs). The Pinocchio Datas are kept: scratch that every algorithm writes before it reads. A run given this
+        Data then takes the same steps, bit for bit, as on a new one, whatever ran on it before. guesses: the
+        compiled reset of coal's guesses (compiled.guess_reset: requests, results and the GeometryData's functors
+        at C++ speed), else Python's (requests and results: the functors' own hints, a protected member, are then
+        kept; they are not read where a request enables its cached guess, as pinocchio's do). Returns self."""
+        self.__dict__.pop("_compiled_step", None)
+        self.warm_start_pairs = set()
+        self.active_rows = frozenset()
+        g = self._geom
+        requests, results = [self.fallback_request, self.distance_request], [self.patch_collision,
+                                                                            self.fallback_result, self.distance_result]
+        if guesses is not None:
+            guesses(g, requests, results)
+        else:
+            if g is not None:
+                requests += [*g.collisionRequests, *g.distanceRequests]
+                results += [*g.collisionResults, *g.distanceResults]
+            for holders, fresh in ((requests, _FRESH_REQUEST), (results, _FRESH_RESULT)):
+                for h in holders:
+                    h.cached_gjk_guess, h.cached_support_func_guess = fresh
+        self._coal.clear()
+        self._coal_distance.clear()
+        self._point_queries.clear()
+        return self
 
     def hold_warm_start(self, stepper) -> None:
         """The detection's warm start is the one the compiled Stepper `stepper` holds after its step (_Held)."""
@@ -245,6 +279,12 @@ class Data:
         return f
 
 
+# coal's cached guesses of a new request and of a new result (a GJK warm start and a support hint): what Data.reset
+# gives back to every request and result it keeps
+_FRESH_REQUEST = (coal.CollisionRequest().cached_gjk_guess, coal.CollisionRequest().cached_support_func_guess)
+_FRESH_RESULT = (coal.CollisionResult().cached_gjk_guess, coal.CollisionResult().cached_support_func_guess)
+
+
 def _gate(req: coal.CollisionRequest, tol: float) -> None:
     """The detection's settings of a pair's collision request (tol: the contact tolerance [m])."""
     # gate of the active set: a pair is examined when coal puts it within GATE_MARGIN (its
@@ -259,3 +299,12 @@ def _gate(req: coal.CollisionRequest, tol: float) -> None:
 
 def make_data(model: Model) -> Data:
     return Data(model)
+
+
+def spares(model: Model) -> list:
+    """The Datas that finished runs of `model` handed back for its next runs: the runs' own (driver.run_data, reset
+    before use) and their checks' (invariants.Invariants.data: a Data's energies are functions of (q, u) alone,
+    whatever it evaluated before). A Data in use is no other run's (list pop/append: one thread at a time). Kept on
+    the model itself, not in a weak-keyed table: a Data refers to its model, so a table's entry would keep every
+    model it saw alive; on the model the cycle goes with it."""
+    return model.__dict__.setdefault("_spare_datas", [])

@@ -5,17 +5,19 @@ recording and the energy ledger (recording.py, §5), progress, Ctrl-C/SIGTERM
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from . import checkpoint as ckpt
+from . import compiled
 from .checkpoint import Checkpoint
-from .data import Data
+from .data import Data, make_data, spares
 from .errors import SimulationError, named_stops
 from .model import Model
 from .protocol import FixedStep, Impact, Integrator, Report, RunStatus, Status
@@ -110,6 +112,31 @@ def drive(integ: Integrator, model: Model, data: Data, *, grid: np.ndarray | Non
     if checkpoint is not None and not checkpoint.keep:
         Path(checkpoint.path).unlink(missing_ok=True)
     return traj
+
+
+SPARE_NV = 64  # a model with at most this many velocities keeps the Datas of its runs for its next ones (run_data)
+
+
+@contextlib.contextmanager
+def run_data(model: Model, data: Data | None = None) -> Iterator[Data]:
+    """The Data of one run of `model`, as a new one starts it (Data.reset): `data` reset, else one of the model's
+    spares (data.spares) reset, else a new one. A spare or new Data goes back to the model's spares at the run's
+    end where the model is small (SPARE_NV): on a short run of a small model, making a Data (its Pinocchio Datas,
+    coal's requests and results, the compiled Stepper) costs as much as the run (docs/theory.md §2.8)."""
+    reset = compiled.guess_reset()
+    if data is not None:
+        yield data.reset(reset)
+        return
+    spare = spares(model)
+    try:
+        d = spare.pop().reset(reset) if spare else make_data(model)
+    except IndexError:  # (another thread took the last one)
+        d = make_data(model)
+    try:
+        yield d
+    finally:
+        if model.nv <= SPARE_NV:
+            spare.append(d)
 
 
 class _NoBar:

@@ -15,10 +15,10 @@ import pinocchio as pin
 
 from .actuation import refuse_driven
 from .drive import refuse as refuse_drives
-from .data import Data, make_data
+from .data import Data
 from .errors import SimulationError
 from .checkpoint import Checkpoint
-from .driver import Check, drive
+from .driver import Check, drive, run_data
 from .event_rules import (ACC_TOL, CYLINDER_KINDS, DT_ZENO, G_REGION, G_RES, G_ZENO, IDLE_TOL, LAM_EPS, V_TOL,  # noqa: F401
                           V_ZENO, EventState, UnsupportedModel, dynamics, features, make_rules, phase_sets, resolve,
                           sample_grid, thin_limit)
@@ -300,10 +300,10 @@ def simulate_event_driven(model: Model, *, state: State | None = None, t_end: fl
     without an analytic gap, SimulationError (with .trajectory up to the failure) otherwise."""
     refuse_driven(model, "event-driven")
     refuse_drives(model, "event-driven")
-    data = data or make_data(model)
-    state = state or initial_state(model, data)
-    t_end, t_grid = sample_grid(model, state, t_end, t_eval)
-    integ = EventDrivenRun(model, data, model.options.restitution, rtol, atol, method, max_step, max_events,
-                           state=state, t_end=t_end)
-    return drive(integ, model, data, grid=t_grid, progress=progress, checkpoint=checkpoint, spill=spill, check=check,
-                 capacity=len(t_grid))
+    with run_data(model, data) as data:
+        state = state or initial_state(model, data)
+        t_end, t_grid = sample_grid(model, state, t_end, t_eval)
+        integ = EventDrivenRun(model, data, model.options.restitution, rtol, atol, method, max_step, max_events,
+                               state=state, t_end=t_end)
+        return drive(integ, model, data, grid=t_grid, progress=progress, checkpoint=checkpoint, spill=spill,
+                     check=check, capacity=len(t_grid))

@@ -16,7 +16,7 @@ from enum import Enum
 import numpy as np
 
 from .creep import first_creep
-from .data import Data, make_data
+from .data import Data, make_data, spares
 from .energy import kinetic, potential
 from .errors import SimulationError
 from .sinking import first_paid
@@ -34,15 +34,6 @@ GAP_ROUND_OFF = 1e-12  # [m] the round-off of a gap
 ACCELERATION = 2.0  # a gap's free acceleration, of |gravity|: gravity, and as much again (a rotating contact point)
 PERSIST = 3  # penetration beyond the allowance at this many consecutive points (or samples) is a fault
 WORSEN = 10.0  # a violation already reported is reported again when it has grown by this factor
-
-def spares(model) -> list:
-    """The checks' Datas that finished runs of `model` handed back (Invariants.data): a run's checks take one (or make
-    one) and give it back at the end; a Data's energies are functions of (q, u) alone, whatever it evaluated before,
-    and a Data in use is no other run's (list pop/append: one thread at a time). Kept on the model itself, not in a
-    weak-keyed table: a Data refers to its model, so a table's entry would keep every model it saw alive; on the
-    model the cycle goes with it."""
-    return model.__dict__.setdefault("_spare_datas", [])
-
 
 class Invariant(Enum):
     """What a run checks of itself (docs/theory.md §10)."""

@@ -10,8 +10,8 @@ from .actuation import Controller, for_controller
 from .adaptive import simulate_adaptive
 from . import compiled_run
 from .checkpoint import Checkpoint
-from .data import Data, make_data
-from .driver import Check, drive
+from .data import Data
+from .driver import Check, drive, run_data
 from .errors import SimulationError, out_of_memory
 from .event_driven import simulate_event_driven
 from .invariants import Invariants
@@ -71,8 +71,6 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
 
 
 def _simulate(model, data, state, progress, checkpoint, spill, check, strict, python_run) -> Trajectory:
-    data = data or make_data(model)
-    state = state or initial_state(model, data)
     opts = model.options
     if check is None:
         rtol = opts.rtol if opts.integrator is Integrator.ADAPTIVE else _EVENT_RTOL
@@ -84,9 +82,11 @@ def _simulate(model, data, state, progress, checkpoint, spill, check, strict, py
         return simulate_adaptive(model, data=data, state=state, progress=progress, checkpoint=checkpoint,
                                  spill=spill, check=check)
     n, every = opts.n_steps, opts.save_every
-    return drive(TimeStepping(model, data, state), model, data, progress=progress, checkpoint=checkpoint,
-                 spill=spill, check=check, capacity=1 + n // every + 1,  # the samples (columns.RESERVE_BYTES)
-                 fast=None if python_run else compiled_run.runner)
+    with run_data(model, data) as data:
+        state = state or initial_state(model, data)
+        return drive(TimeStepping(model, data, state), model, data, progress=progress, checkpoint=checkpoint,
+                     spill=spill, check=check, capacity=1 + n // every + 1,  # the samples (columns.RESERVE_BYTES)
+                     fast=None if python_run else compiled_run.runner)
 
 
 def run(scene: Scene | str | Path, *, dt: float | None = None, duration: float | None = None,

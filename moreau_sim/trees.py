@@ -160,11 +160,11 @@ class Kinematics:
     """Scratch of a forest: each tree's Pinocchio Data (made at first use), the placements oMi of
     every joint by the scene's joint id (views of the trees' Datas: place() updates them), and J
     (6, nv) the WORLD Jacobians mass_matrix() fills. make: a tree's model -> its Data (default
-    createData; model.py's new_data refuses one above the memory limit in one line)."""
+    pin.Data; model.py's new_data refuses one above the memory limit in one line)."""
 
     def __init__(self, forest: Forest, make=None):
         self.forest = forest
-        self._make = make or (lambda m: m.createData())
+        self._make = make or pin.Data
         self._datas: list | None = None
         self.oMi: list = []
         self.J = np.zeros((6, forest.nv))

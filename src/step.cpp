@@ -169,6 +169,37 @@ template <class T> T &extract_ref(nb::handle h, const char *what) {
 struct SolverOf : coal::ComputeCollision {
   static coal::GJKSolver coal::ComputeCollision::*member() { return &SolverOf::solver; }
 };
+struct DistanceSolverOf : coal::ComputeDistance {  // the same hints of a distance functor
+  static coal::GJKSolver coal::ComputeDistance::*member() { return &DistanceSolverOf::solver; }
+};
+
+// data.Data.reset: every cached GJK guess and support hint a run leaves in these coal objects back to a new object's
+// (the GeometryData's requests, results and functors; requests and results of Python's), the same in every process
+void fresh_guesses(nb::object geom_data, const std::vector<nb::object> &requests, const std::vector<nb::object> &results) {
+  static const coal::CollisionRequest rq0;
+  static const coal::CollisionResult rs0;
+  static const coal::GJKSolver sv0;
+  auto request = [](coal::QueryRequest &r) {
+    r.cached_gjk_guess = rq0.cached_gjk_guess, r.cached_support_func_guess = rq0.cached_support_func_guess;
+  };
+  auto result = [](coal::QueryResult &r) {
+    r.cached_gjk_guess = rs0.cached_gjk_guess, r.cached_support_func_guess = rs0.cached_support_func_guess;
+  };
+  auto solver = [](coal::GJKSolver &sv) {
+    sv.cached_guess = sv0.cached_guess, sv.support_func_cached_guess = sv0.support_func_cached_guess;
+  };
+  if (!geom_data.is_none()) {
+    auto &gd = extract_ref<pinocchio::GeometryData>(geom_data, "pinocchio.GeometryData");
+    for (auto &r : gd.collisionRequests) request(r);
+    for (auto &r : gd.distanceRequests) request(r);
+    for (auto &r : gd.collisionResults) result(r);
+    for (auto &r : gd.distanceResults) result(r);
+    for (auto &f : gd.collision_functors) solver(f.*SolverOf::member());
+    for (auto &f : gd.distance_functors) solver(f.*DistanceSolverOf::member());
+  }
+  for (const nb::object &o : requests) request(extract_ref<coal::QueryRequest>(o, "coal request"));
+  for (const nb::object &o : results) result(extract_ref<coal::QueryResult>(o, "coal result"));
+}
 
 struct Found {
   double g;
@@ -3234,6 +3265,8 @@ NB_MODULE(_step, mod) {
     const bp::object out(gm);  // boost.python's pin.GeometryModel (a copy)
     return nb::borrow<nb::object>(out.ptr());
   });
+  mod.def("fresh_guesses", &fresh_guesses, nb::arg("geom_data").none(), nb::arg("requests"), nb::arg("results"),
+          "Every cached GJK guess and support hint of these coal objects back to a new object's (data.Data.reset)");
   // the names the constants dict must hold (moreau_sim/compiled.py CONSTANTS), and a dict as the step reads it
   mod.def("constant_names", []() { return Constants::keys(); });
   mod.def("read_constants", [](const std::map<std::string, double> &d) { return Constants::from(d).as_dict(); },

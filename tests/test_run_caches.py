@@ -1,5 +1,5 @@
-"""What a run keeps per model for the next run of it (model._STARTS: the start checks passed; invariants.spares:
-the invariant checks' Data) changes no bit: two runs of one model, and runs of two models interleaved, give the
+"""What a run keeps per model for the next run of it (model._STARTS: the start checks passed; data.spares:
+the runs' and their checks' Datas) changes no bit: two runs of one model, and runs of two models interleaved, give the
 arrays and meta (but the timings) of runs of freshly built models, under each integrator; a start the checks refuse
 is refused again (nothing is kept for it)."""
 
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import invariants, model as model_module
-from moreau_sim.data import make_data
+from moreau_sim import model as model_module
+from moreau_sim.data import make_data, spares
 from moreau_sim.errors import SceneError
 
 from helpers import scene
@@ -52,7 +52,7 @@ def test_runs_of_one_model_and_of_two_interleaved_give_the_bits_of_fresh_runs(in
     for n in names:
         assert model_module._STARTS.get(kept[n]) == kept[n].q0.tobytes()
     if integrator != "time-stepping":  # the event integrators' smooth points need the checks' own Data
-        assert invariants.spares(kept["bouncing_ball"])
+        assert spares(kept["bouncing_ball"])
 
 
 def test_a_start_the_checks_refuse_is_refused_at_every_run():
@@ -71,7 +71,7 @@ def test_a_model_a_run_kept_caches_of_goes_when_dropped(integrator):
     so a table keyed weakly by the model but holding its Data would keep every model ever run)."""
     m = _model("newton_cradle_5", integrator, duration=0.2)
     assert ms.simulate(m, progress=False).meta["status"] == "complete"
-    assert integrator == "time-stepping" or invariants.spares(m)
+    assert integrator == "time-stepping" or spares(m)
     gone = weakref.ref(m)
     del m
     gc.collect()
