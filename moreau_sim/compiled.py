@@ -388,7 +388,7 @@ def _context(model, data) -> _Context:
 
 def guess_reset():
     """The extension's reset of coal's cached guesses (data.Data.reset's `guesses`), or None where it did not load."""
-    return _module.fresh_guesses if available() and hasattr(_module, "fresh_guesses") else None
+    return _module.reset_guesses if available() and hasattr(_module, "reset_guesses") else None
 
 
 def counts(data) -> Counter:

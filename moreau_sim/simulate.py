@@ -36,6 +36,9 @@ def simulate(model: Model, *, data: Data | None = None, state: State | None = No
     (naming the step and time) whose ``.trajectory`` holds the samples up to the failure,
     marked ``status = "failed: ..."``; Ctrl-C raises :class:`SimulationInterrupted` likewise.
 
+    data: the run's scratch (default: one the model kept from an earlier run, or a new one); the run starts by
+    resetting it (data.Data.reset), so it takes the same steps whatever ran on it before (docs/theory.md §2.8).
+
     checkpoint: save a checkpoint every so often and/or resume from one
     (:class:`~moreau_sim.checkpoint.Checkpoint`); a resumed run gives the same arrays, bit for
     bit, as an uninterrupted one. The checkpoint file is removed when the run completes unless

@@ -175,7 +175,7 @@ struct DistanceSolverOf : coal::ComputeDistance {  // the same hints of a distan
 
 // data.Data.reset: every cached GJK guess and support hint a run leaves in these coal objects back to a new object's
 // (the GeometryData's requests, results and functors; requests and results of Python's), the same in every process
-void fresh_guesses(nb::object geom_data, const std::vector<nb::object> &requests, const std::vector<nb::object> &results) {
+void reset_guesses(nb::object geom_data, const std::vector<nb::object> &requests, const std::vector<nb::object> &results) {
   static const coal::CollisionRequest rq0;
   static const coal::CollisionResult rs0;
   static const coal::GJKSolver sv0;
@@ -3265,7 +3265,7 @@ NB_MODULE(_step, mod) {
     const bp::object out(gm);  // boost.python's pin.GeometryModel (a copy)
     return nb::borrow<nb::object>(out.ptr());
   });
-  mod.def("fresh_guesses", &fresh_guesses, nb::arg("geom_data").none(), nb::arg("requests"), nb::arg("results"),
+  mod.def("reset_guesses", &reset_guesses, nb::arg("geom_data").none(), nb::arg("requests"), nb::arg("results"),
           "Every cached GJK guess and support hint of these coal objects back to a new object's (data.Data.reset)");
   // the names the constants dict must hold (moreau_sim/compiled.py CONSTANTS), and a dict as the step reads it
   mod.def("constant_names", []() { return Constants::keys(); });
