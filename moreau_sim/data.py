@@ -1,5 +1,6 @@
 """Data: the scratch every step reuses (Pinocchio data, coal requests and results, cached
-queries, the detection's warm start). One per thread and per run; the state itself is State."""
+queries, the detection's warm start). One per thread; a run resets it first (Data.reset) and a small model keeps
+its runs' Datas for its next runs (spares); the state itself is State."""
 
 from __future__ import annotations
 
