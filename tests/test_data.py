@@ -104,3 +104,44 @@ def test_a_model_keeps_its_runs_datas_up_to_spare_nv_velocities(n, kept):
     with run_data(model) as data:
         pass
     assert model.nv == n and (data in spares(model)) is kept
+
+
+def test_runs_of_one_model_in_threads_each_take_their_own_data_and_the_same_steps():
+    """Four runs of one model at once, in two threads (the spares: pop and append, one Data a run)."""
+    import threading
+
+    model = ms.build_model(scene("box_stack_5", duration=0.1))
+    new = ms.simulate(model, data=make_data(model), progress=False)
+    got, errors = [], []
+
+    def work():
+        try:
+            for _ in range(2):
+                got.append(ms.simulate(model, progress=False))
+        except Exception as exc:  # (raised again below, in the test's thread)
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors and len(got) == 4
+    for traj in got:
+        _same(traj, new)
+    assert len({id(d) for d in spares(model)}) == len(spares(model))  # no Data handed back twice
+
+
+def test_a_run_after_one_that_failed_midway_on_the_same_data_takes_the_steps_of_a_new_one():
+    """A run stopped by an error leaves its Data as the error found it (a phase under way, warm starts, the Stepper's
+    sets); the next run on it, given or kept by the model, resets it all the same."""
+    from moreau_sim.adaptive import simulate_adaptive
+    from moreau_sim.errors import SimulationError
+
+    model = ms.build_model(scene("rocking_block", integrator="adaptive", duration=0.5))
+    new = ms.simulate(model, data=make_data(model), progress=False)
+    used = make_data(model)
+    for data in (used, None):
+        with pytest.raises(SimulationError, match="more than 20 events"):
+            simulate_adaptive(model, data=data, max_events=20)
+        _same(ms.simulate(model, data=data, progress=False), new)
