@@ -83,11 +83,21 @@ def _model_meta(model: Model) -> dict:
     fixed = _MODEL_META.get(model)
     if fixed is None:
         sc = model.scene
+        texts: dict[str, str] = {}
+
+        def text(path) -> str:
+            """A file's text, read once however many bodies name it: one string for them all, which the pickle
+            keeps once (a column of 10,000 beads of one URDF: one text in each trajectory's meta, not 10,000)."""
+            key = str(path)
+            if key not in texts:
+                texts[key] = Path(path).read_text(encoding="utf-8")
+            return texts[key]
+
         fixed = {
             "scene": {"name": sc.name, "description": sc.description, "path": str(sc.path) if sc.path else None,
                       "toml": sc.source,
-                      "urdf": {b.name: Path(b.urdf).read_text(encoding="utf-8") for b in sc.bodies},
-                      "srdf": {b.name: Path(b.srdf).read_text(encoding="utf-8") for b in sc.bodies if b.srdf}},
+                      "urdf": {b.name: text(b.urdf) for b in sc.bodies},
+                      "srdf": {b.name: text(b.srdf) for b in sc.bodies if b.srdf}},
             "options": model.options.to_dict(),
             "model": model.describe(),
             **model.coordinates(),  # q_names, u_names, q_units, u_units

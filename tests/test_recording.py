@@ -205,3 +205,16 @@ def test_a_format_3_checkpoint_resumes_with_a_row_a_step_before_it(tmp_path):
         if name == "log_duration":
             a, b = a[k:], b[k:]
         assert a.tobytes() == b.tobytes(), name
+
+
+def test_a_urdf_several_bodies_name_is_read_once_and_kept_once_in_the_meta():
+    """The cradle's five balls share one URDF: each body's entry in meta["scene"]["urdf"] is that file's text, one
+    string for all five (recording._model_meta reads a file once; the meta of each run keeps it once)."""
+    from pathlib import Path
+
+    model = ms.build_model(scene("newton_cradle_5", duration=0.01))
+    texts = [ms.simulate(model, progress=False).meta["scene"]["urdf"] for _ in range(2)]
+    for urdf in texts:
+        assert len(urdf) == 5 and len({id(t) for t in urdf.values()}) == 1
+        assert all(t == Path(b.urdf).read_text(encoding="utf-8") for t, b in zip(urdf.values(), model.scene.bodies))
+    assert texts[0] is not texts[1]  # each trajectory's meta is its own
