@@ -25,7 +25,7 @@ _spec = importlib.util.spec_from_file_location("invariant_table", ROOT / "script
 table = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(table)
 
-SHORT = {"time-stepping": 0.1, "adaptive": 0.05, "event-driven": 0.05}  # [s] the longest runs here (capped table runs)
+SHORT = {"time-stepping": 0.05, "adaptive": 0.03, "event-driven": 0.03}  # [s] the longest runs here (capped table runs)
 SLOW = ("column_of_beads", "alternating_stack_10", "quadruped", "solo", "panda", "box_stack_10",
         "heavy_on_light_box_10000")
 
