@@ -20,7 +20,7 @@ from moreau_sim.testing.references import (
 )
 from moreau_sim.trajectory import ARRAYS
 
-from helpers import BUNDLED, ROOT, inline_scene, lowest_corner_height, scene
+from helpers import BUNDLED, REFUSED, ROOT, inline_scene, lowest_corner_height, scene
 
 G, D0 = 9.81, 0.9  # gravity [m/s^2]; the ball's initial gap [m] (centre at 1 m, r = 0.1 m)
 T0 = ball_first_impact(D0, G)  # first impact time [s]
@@ -162,14 +162,6 @@ def test_unsupported_pair_is_named():
     b.add_cylinder("post", 0.05, 0.2, position=(0.0, 0.0, 0.1))
     with pytest.raises(UnsupportedModel, match=re.escape("pair 'box/cube_0|post' (Box vs Cylinder)")):
         simulate_event_driven(ms.build_model(b.build()))
-
-
-# The bundled scenes the event-driven integrator refuses, and what it says (everything else runs).
-REFUSED: dict = {"solo12_stand": (ms.SceneError, "does not take joint torques"),
-                 "a1_drop_recover": (ms.SceneError, "does not take joint torques"),
-                 "panda_tapping": (ms.SceneError, "does not take joint torques"),
-                 "vibrating_paddle": (ms.SceneError, "does not take a moving static"),
-                 "driven_paddle": (ms.SceneError, "does not take a driven joint")}
 
 
 @pytest.mark.parametrize("name", BUNDLED)
