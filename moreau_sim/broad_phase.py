@@ -118,7 +118,16 @@ def of(model, margin: float) -> BroadPhase | None:
     None when the model has at most MIN_PAIRS pairs (coal's narrow phase on all of them is cheaper)."""
     if len(model.pairs) <= MIN_PAIRS:
         return None
-    bp = _tables.get(model)
-    if bp is None or bp.margin != float(margin) + SLACK:
-        bp = _tables[model] = BroadPhase(model, margin)
+    return within(model, margin)
+
+
+def within(model, margin: float) -> BroadPhase:
+    """The model's broad phase at `margin` [m], whatever its number of pairs (made once per model and
+    margin: the detection's and the records' (contacts.geometry_gaps) are kept side by side)."""
+    kept = _tables.get(model)
+    if kept is None:
+        kept = _tables[model] = {}
+    bp = kept.get(float(margin))
+    if bp is None:
+        bp = kept[float(margin)] = BroadPhase(model, margin)
     return bp

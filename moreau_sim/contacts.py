@@ -540,6 +540,36 @@ def pair_distances(model: Model, data: Data, q: np.ndarray, *, near: bool = Fals
     return d
 
 
+def geometry_gaps(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
+    """(geometries,) [m]: the records' gaps of a model without a pair list (model.listed false; its n^2 / 2 pair
+    distances are never all evaluated): each geometry's least signed distance to the geometries it pairs with, where
+    it is at most model.gap_reach, else +inf; NaN where coal's query of a pair failed (docs/theory.md §6.1). coal
+    examines the broad phase's candidates at that margin (broad_phase.within: a box is never farther than its shape,
+    so every pair within the reach is among them). The same queries as pair_distances(near=True), each from a fresh
+    guess: a sample does not depend on the ones before."""
+    out = np.full(len(model.geometries), np.inf)
+    model.forest.place(data.kinematics, q, model.geometries, data.oMg)
+    reach = model.gap_reach
+    cand = broad_phase.within(model, reach).candidates(data).tolist()
+    if cand:
+        fresh_guesses([data.distance_query(k)[0] for k in cand])
+        d = np.array([data.distance(k) for k in cand])
+        d[~(np.abs(d) < DISTANCE_FAILED)] = np.nan
+        d[d > reach] = np.inf  # a candidate beyond the reach (boxes are coarser than shapes): as the others
+        pairs = model.pairs
+        first = np.array([pairs[k].first for k in cand], dtype=np.int64)
+        second = np.array([pairs[k].second for k in cand], dtype=np.int64)
+        np.minimum.at(out, first, d)  # (a NaN stays: np.minimum propagates it)
+        np.minimum.at(out, second, d)
+    return out
+
+
+def record_gaps(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
+    """The gap column of a sample at q [m] (trajectory "gap", named by model.gap_names): every pair's distance
+    (pair_distances) for a model with a pair list, each geometry's nearest (geometry_gaps) for one without."""
+    return pair_distances(model, data, q) if model.listed else geometry_gaps(model, data, q)
+
+
 def check_initial(model: Model, data: Data, q: np.ndarray) -> None:
     """model.check_start for a configuration q given to a run instead of the scene's q0 (a
     SceneError if a pair starts deeper than contact_tolerance inside another; docs/theory.md §2.5)."""

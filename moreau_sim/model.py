@@ -228,6 +228,29 @@ class Model:
     def pair_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.pairs)
 
+    @property
+    def gap_names(self) -> tuple[str, ...]:
+        """The names of the recorded gap columns (trajectory "gap"): the collision pairs' of a model with a pair
+        list; a geometry's each, for a model without one (contacts.geometry_gaps: n geometries, not n^2 / 2 pairs)."""
+        return self.pair_names if self.listed else tuple(go.name for go in self.geometries)
+
+    @property
+    def gap_reach(self) -> float:
+        """[m] how far from a geometry the records of a model without a pair list look for its nearest partner
+        (contacts.geometry_gaps; farther: +inf): half the median, over the bounded geometries, of the largest
+        side of their boxes (coal's local AABB), so about half a body of the scene."""
+        reach = self.__dict__.get("_gap_reach")
+        if reach is None:
+            sides = []
+            for go in self.geometries:
+                if not isinstance(go.geometry, (coal.Halfspace, coal.Plane)):
+                    go.geometry.computeLocalAABB()
+                    b = go.geometry.aabb_local
+                    sides.append(max(b.width(), b.height(), b.depth()))
+            reach = 0.5 * float(np.median(sides)) if sides else 0.0
+            object.__setattr__(self, "_gap_reach", reach)
+        return reach
+
     def coordinates(self) -> dict[str, list[str]]:
         """Names and SI units of every coordinate of q and velocity of u (joint name, then the
         component: x y z qx qy qz qw for a free root's world position and quaternion, vx vy vz
@@ -286,7 +309,11 @@ class Model:
                         "joints": [self.pin.names[j] for j in b.joints]}
                        for b, s in zip(self.bodies, self.scene.bodies)],
             "geometries": [g.name for g in self.geometries],
-            "collision_pairs": list(self.pair_names),
+            # a model without a pair list (more than LAZY_PAIRS pairs) names none of them: its gaps are per geometry
+            "collision_pairs": list(self.pair_names) if self.listed else None,
+            "pair_count": len(self.pairs),
+            "gap_columns": "pairs" if self.listed else "geometries",
+            "gap_reach": None if self.listed else self.gap_reach,
             "excluded_pairs": [{"pair": name, "why": why} for name, why in self.excluded],
             "joint_limits": [{"pair": lim.pair, "name": lim.name, "bound": lim.bound} for lim in self.limits],
             "restitution": o.restitution,
@@ -580,7 +607,7 @@ def check_start(model: Model, kin: Kinematics, q: np.ndarray, where: str, tol: f
         oMg = [pin.SE3.Identity()] * len(model.geometries)
         model.forest.place(kin, q, model.geometries, oMg)
         shape, g = [go.geometry for go in model.geometries], np.full(len(pairs), np.inf)
-        for k in broad_phase.of(model, tol).candidates_at(kin.oMi).tolist():
+        for k in broad_phase.within(model, tol).candidates_at(kin.oMi).tolist():
             p, tf = pairs[k], [coal.Transform3s(oMg[x]) for x in (pairs[k].first, pairs[k].second)]
             g[k] = coal.distance(shape[p.first], tf[0], shape[p.second], tf[1], coal.DistanceRequest(), coal.DistanceResult())
     g[~(np.abs(g) < DISTANCE_FAILED)] = np.nan  # a failed query proves nothing: the run's records report it

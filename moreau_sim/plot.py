@@ -14,6 +14,7 @@ from .trajectory import Trajectory, load_trajectory
 PANELS = ("energy", "gap", "percussion", "q", "u")
 DEFAULT_PANELS = ("energy", "gap", "percussion")
 TOP = 8  # pairs (or coordinates) named in a legend; the others are drawn thin and grey
+_CYCLE = tuple(f"C{i}" for i in range(TOP))  # the gap panel's colours when its columns are geometries, not pairs
 SAME = 3e-3  # curves closer than this fraction of their panel's range everywhere are drawn once, named together
 
 
@@ -33,13 +34,14 @@ def figure(traj: Trajectory | str | Path, panels: tuple[str, ...] | list[str] = 
     if not isinstance(traj, Trajectory):
         traj = load_trajectory(traj)
     a, meta = traj.arrays, traj.meta
-    pairs = list(meta.get("model", {}).get("collision_pairs", []))
-    npairs = a["gap"].shape[1]
-    pairs += [f"pair {k}" for k in range(len(pairs), npairs)]
+    mm = meta.get("model", {})
+    # {log_pair: name}: the listed pairs' (a scene without a pair list names the pairs its log holds: logged_pairs);
     # a joint limit's percussions are logged under pair = (number of pairs) + its index: name joint and side
-    limits = {int(lim["pair"]): f"limit {lim['name']}" for lim in meta.get("model", {}).get("joint_limits", [])}
-    pairs += [limits.get(k, f"pair {k}") for k in range(npairs, max(limits, default=npairs - 1) + 1)]
-    colour = _pair_colours(a, npairs, plt)
+    listed = mm.get("collision_pairs") or []
+    pairs = {k: name for k, name in enumerate(listed)}
+    pairs.update({int(k): name for k, name in mm.get("logged_pairs", {}).items()})
+    pairs.update({int(lim["pair"]): f"limit {lim['name']}" for lim in mm.get("joint_limits", [])})
+    colour = _pair_colours(a, a["gap"].shape[1] if mm.get("gap_columns") != "geometries" else 0, plt)
     fig, axes = plt.subplots(len(panels), 1, figsize=(11, 2.6 * len(panels) + 0.6), sharex=True,
                              constrained_layout=True, squeeze=False)
     for ax, panel in zip(axes[:, 0], panels):
@@ -104,21 +106,30 @@ def _gaps(ax, _, a, meta, pairs, colour):
     if not gaps.shape[1]:
         ax.text(0.5, 0.5, "no collision pairs", transform=ax.transAxes, ha="center")
         return
+    mm = meta.get("model", {})
+    per_geometry = mm.get("gap_columns") == "geometries"  # a scene without a pair list: a column per geometry
+    if per_geometry:
+        pairs = dict(enumerate(mm.get("geometries", [])))
+        colour = {k: c for k, c in zip(_top(-np.nanmin(gaps, axis=0)) if len(t) else [], _CYCLE)}
     # the pairs that come closest are the ones to see; the rest are context
     shown = set(_top(-np.nanmin(gaps, axis=0))) if len(t) else set()
     for k in range(gaps.shape[1]):
         if k not in shown:
             ax.plot(t, gaps[:, k], lw=0.5, color="0.75")
-    _curves(ax, t, [(gaps[:, k], dict(lw=1.2, color=colour.get(k, "0.4"), label=pairs[k]))
+    _curves(ax, t, [(gaps[:, k], dict(lw=1.2, color=colour.get(k, "0.4"), label=pairs.get(k, f"pair {k}")))
                     for k in sorted(shown, key=lambda k: np.nanmin(gaps[:, k]))])
     ax.axhline(0.0, color="k", lw=0.6)
     g = gaps[np.isfinite(gaps)]
     if g.size and g.max() > 0:
         lo = min(float(g.min()), 0.0)
         ax.set_ylim(lo - 0.05 * (g.max() - lo), float(np.quantile(g, 0.99)) * 1.1 + 1e-12)
-    ax.set_ylabel("gap g [m]")
     more = gaps.shape[1] - len(shown)
-    _legend(ax, f"closest {len(shown)} of {gaps.shape[1]} pairs" if more else None)
+    if per_geometry:
+        ax.set_ylabel(f"nearest gap [m]\n(within {mm.get('gap_reach', 0):.3g} m)")
+        _legend(ax, f"closest {len(shown)} of {gaps.shape[1]} geometries" if more else None)
+    else:
+        ax.set_ylabel("gap g [m]")
+        _legend(ax, f"closest {len(shown)} of {gaps.shape[1]} pairs" if more else None)
 
 
 def _percussions(ax, _, a, meta, pairs, colour):
@@ -139,7 +150,7 @@ def _percussions(ax, _, a, meta, pairs, colour):
     for k in sorted(shown):
         sel = lp == k
         dots.append((lt[sel], P[sel], dict(marker=".", ls="none", ms=2.5, color=colour.get(k, "0.4"),
-                                           label=pairs[k] if k < len(pairs) else f"pair {k}")))
+                                           label=pairs.get(int(k), f"pair {k}"))))
     for x, y, style in _together(dots, _span(P)):
         ax.plot(x, y, **style)
     # a stretch of persistent steps (a resting contact: its weight x h each step) as a line over its steps
@@ -150,7 +161,7 @@ def _percussions(ax, _, a, meta, pairs, colour):
             x = np.column_stack([lt[sel], t1, np.full(len(sel), np.nan)]).ravel()
             y = np.column_stack([P[sel], P[sel], np.full(len(sel), np.nan)]).ravel()
             if int(k) in shown:
-                name = pairs[k] if k < len(pairs) else f"pair {k}"
+                name = pairs.get(int(k), f"pair {k}")
                 ax.plot(x, y, lw=1.2, color=colour.get(int(k), "0.4"), label=f"{name} at rest (P a step)")
             else:
                 ax.plot(x, y, lw=1.2, color="0.75")

@@ -21,7 +21,7 @@ import pinocchio as pin
 
 from . import trajectory
 from .columns import Columns
-from .contacts import Contacts, pair_distances
+from .contacts import Contacts, record_gaps
 from .data import Data
 from .energy import kinetic, potential, total
 from .errors import SimulationError
@@ -172,7 +172,9 @@ class Recorder:
 
     def __init__(self, model: Model, data: Data, n_samples: int = 1, *, spill: str | Path | None = None):
         self.model, self.data = model, data
-        sizes = {"nq": model.nq, "nv": model.nv, "pairs": len(model.pairs)}
+        gaps = len(model.pairs) if model.listed else len(model.geometries)  # len(model.gap_names)
+        sizes = {"nq": model.nq, "nv": model.nv, "gaps": gaps}
+        self._far = not model.listed  # its gaps are per geometry, +inf where no partner is near: not an overflow
         self._external = (model.actuation is not None or model.prescribed is not None
                           or model.drive is not None)  # the EXTERNAL columns
         schema = {**trajectory.SAMPLES, **trajectory.EXTERNAL} if self._external else trajectory.SAMPLES
@@ -223,13 +225,14 @@ class Recorder:
         c["kinetic_energy"][i], c["potential_energy"][i] = T, V
         c["contact_work"][i] = work
         c["correction_energy"][i] = corr
-        g = c["gap"][i] = pair_distances(m, d, q) if figures is None else figures[2]
+        g = c["gap"][i] = record_gaps(m, d, q) if figures is None else figures[2]
         # their sum: finite when every gap is (an overflow of finite gaps, or inf - inf, only sends to the full tests)
         gs = self._gap_sum = (self._samples.n, sum(c["gap"][i].tolist()))
         # coal failed at a finite state (not an overflow, which finite() reports): stop, uncommitted, no sentinel
         if not math.isfinite(gs[1]) and np.isnan(g).any() and math.isfinite(T + V) and state.finite():
             k = int(np.flatnonzero(np.isnan(g))[0])
-            raise SimulationError(f"the distance of pair {m.pairs[k].name} at t = {state.t:.6g} s is undefined "
+            what = f"pair {m.pairs[k].name}" if m.listed else f"a pair of geometry {m.gap_names[k]}"
+            raise SimulationError(f"the distance of {what} at t = {state.t:.6g} s is undefined "
                                   "(coal's GJK/EPA query failed)")
         c["n_contacts"][i] = n_contacts
         self._smooth_until(T + V, state.t)  # 0 right after a step
@@ -425,7 +428,10 @@ class Recorder:
         if not (math.isfinite(c["kinetic_energy"][i]) and math.isfinite(c["potential_energy"][i])):
             return False
         n, gs = self._gap_sum
-        return (n == self._samples.n - 1 and math.isfinite(gs)) or all(map(math.isfinite, c["gap"][i].tolist()))
+        if n == self._samples.n - 1 and math.isfinite(gs):
+            return True
+        g = c["gap"][i]
+        return bool(np.isfinite(g).all() or (self._far and not np.isnan(g).any() and not np.isneginf(g).any()))
 
     def log(self, row: PercussionRow) -> None:
         """Write one row to the log (it ends any stretch of persistent steps)."""
@@ -546,7 +552,14 @@ class Recorder:
         if final:
             for g in self._groups():
                 g.fit()
-        traj = Trajectory(self.arrays(), {**meta, "ledger": self.ledger_meta()})
+        arrays = self.arrays()
+        meta = {**meta, "ledger": self.ledger_meta()}
+        m = self.model
+        if not m.listed and isinstance(meta.get("model"), dict):  # the meta lists no pair of a pair table: name the
+            n = len(m.pairs)                                      # pairs its log holds
+            logged = np.unique(arrays["log_pair"]).tolist()
+            meta["model"] = {**meta["model"], "logged_pairs": {str(k): m.pairs[k].name for k in logged if k < n}}
+        traj = Trajectory(arrays, meta)
         if final:
             for g in self._groups():
                 g.close()

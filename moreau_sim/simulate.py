@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 from pathlib import Path
 
 from .actuation import Controller, for_controller
@@ -116,7 +117,7 @@ def summary(traj: Trajectory) -> Summary:
     readably)."""
     a, run_ = traj.arrays, traj.meta.get("run", {})
     E = a["kinetic_energy"] + a["potential_energy"]
-    gaps = a["gap"]
+    min_gap = float(a["gap"].min()) if a["gap"].size else math.inf
     return Summary({
         "scene": traj.meta.get("scene", {}).get("name"),
         "status": traj.meta.get("status"),
@@ -136,7 +137,8 @@ def summary(traj: Trajectory) -> Summary:
         "correction_energy_total": float(a["correction_energy"].sum()),
         "smooth_error_total": float(a["smooth_error"].sum()),  # the ledger (docs/theory.md §5, ms.ledger)
         "law_difference_max": traj.meta.get("ledger", {}).get("max_law_difference"),
-        "min_gap": float(gaps.min()) if gaps.size else None,
+        # None also where no two geometries came within reach (a scene without a pair list records +inf there)
+        "min_gap": None if min_gap == math.inf else min_gap,
         "wall_seconds": run_.get("wall_seconds"),
         "cpu_seconds": run_.get("cpu_seconds"),  # the run loop's CPU time (driver.drive)
         "us_per_step": run_.get("us_per_step"),

@@ -5,7 +5,9 @@ Arrays (n = saved samples, k = logged contact percussions):
   t (n,) [s]; q (n, nq); u (n, nv); kinetic_energy, potential_energy (n,) [J];
   contact_work (n,) [J]: sum of the step ledger W_c over the steps since the previous sample;
   correction_energy (n,) [J]: the change of T + V made by the position correction over those steps;
-  gap (n, pairs) [m]: signed distance of each collision pair at the sample;
+  gap (n, gaps) [m]: signed distance of each collision pair at the sample; in a scene without a pair list
+  (more than model.LAZY_PAIRS pairs: meta model "gap_columns" = "geometries") one column per geometry, its
+  nearest partner's distance, +inf where none is within meta model "gap_reach" [m] (contacts.geometry_gaps);
   n_contacts (n,): closed contacts in the step that produced the sample;
   the energy ledger (docs/theory.md §5, ledger.py), summed over the steps since the previous sample:
   smooth_error (n,) [J]: the change of T + V of the contact-free part of each step,
@@ -49,12 +51,14 @@ import numpy as np
 
 from moreau_sim import interrupts
 
-FORMAT = "moreau-sim trajectory 4"  # 4: log_steps; 3: the ledger arrays; 2: log_kind + log_feature (1: one feature id)
+# 5: a gap per geometry without a pair list; 4: log_steps; 3: the ledger arrays; 2: log_kind + log_feature (1: one
+# feature id)
+FORMAT = "moreau-sim trajectory 5"
 
-# name -> (dtype, trailing shape); "nq", "nv", "pairs" are the model's sizes
+# name -> (dtype, trailing shape); "nq", "nv", "gaps" are the model's sizes (gaps: len(Model.gap_names))
 SAMPLES = {"t": (float, ()), "q": (float, ("nq",)), "u": (float, ("nv",)), "kinetic_energy": (float, ()),
            "potential_energy": (float, ()), "contact_work": (float, ()), "correction_energy": (float, ()),
-           "gap": (float, ("pairs",)), "n_contacts": (np.int64, ()), "smooth_error": (float, ()),
+           "gap": (float, ("gaps",)), "n_contacts": (np.int64, ()), "smooth_error": (float, ()),
            "dissipation": (float, ()), "law_dissipation": (float, ())}
 LOG = {"log_step": (np.int64, ()), "log_t": (float, ()), "log_pair": (np.int64, ()), "log_kind": (np.int64, ()),
        "log_feature": (np.int64, ()), "log_gap": (float, ()), "log_P": (float, ()), "log_gamma_minus": (float, ()),

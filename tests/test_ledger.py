@@ -120,7 +120,7 @@ def test_totals_name_every_quantity():
 def test_ledger_is_in_the_file_and_old_files_have_none(tmp_path):
     traj = run("box_drop", duration=0.5)
     back = ms.load_trajectory(traj.save(tmp_path / "b.npz"))
-    assert back.meta["format"] == trajectory.FORMAT == "moreau-sim trajectory 4"
+    assert back.meta["format"] == trajectory.FORMAT == "moreau-sim trajectory 5"
     assert ms.ledger(back).totals() == ms.ledger(traj).totals()
     flight = run("bouncing_ball", duration=0.1)  # no contact step: no time of a law difference, not NaN
     assert flight.meta["ledger"]["t_law_difference"] is None and np.isnan(ms.ledger(flight).t_law_difference)

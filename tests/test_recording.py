@@ -40,7 +40,7 @@ def test_arrays_follow_the_schema():
     rec.sample(ms.initial_state(model), 0.0, 0.0, 0)
     a = rec.arrays()
     assert tuple(a) == trajectory.ARRAYS
-    sizes = {"nq": model.nq, "nv": model.nv, "pairs": len(model.pairs)}
+    sizes = {"nq": model.nq, "nv": model.nv, "gaps": len(model.pairs)}  # a listed model: a gap per pair
     schema = {**trajectory.SAMPLES, **trajectory.LOG, **trajectory.BRANCHES, **trajectory.CANDIDATES,
               **trajectory.IMPACTS}
     for name, (dtype, shape) in schema.items():

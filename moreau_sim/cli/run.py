@@ -218,7 +218,11 @@ def info(scene, all_pairs, as_json):
     _list(f"driven joints ({len(d['drives'])}): body, joint, prescribed motion x(t), q(t) = q(0) + x(t) - x(0)",
           [f"{dr['body']}  {dr['joint']}  {dr['motion']}" for dr in d["drives"]], True)
     pairs = d["collision_pairs"]
-    _list(f"collision pairs ({len(pairs)}):", pairs, all_pairs)
+    if pairs is None:  # a model without a pair list (model.LAZY_PAIRS): its pairs are every two geometries but these
+        click.echo(f"  collision pairs ({d['pair_count']}): every two geometries but the excluded pairs below; "
+                   f"not listed one by one (the records' gaps are per geometry, within {d['gap_reach']:.3g} m)")
+    else:
+        _list(f"collision pairs ({len(pairs)}):", pairs, all_pairs)
     excluded = d["excluded_pairs"]
     _list(f"excluded pairs ({len(excluded)}: the SRDF's, overlapping at a reference pose, [collisions] exclude):",
           [f"{e['pair']}  ({e['why']})" for e in excluded], all_pairs)

@@ -1,0 +1,143 @@
+"""The records' gap column of a scene without a pair list (contacts.geometry_gaps, recording.Recorder): one column per
+geometry, its nearest partner's signed distance within Model.gap_reach, +inf beyond; against the distances of every
+pair, which the same scene with its pairs listed records (docs/theory.md §2.12, docs/output.md)."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from test_broad_phase import ROOT, column, pile
+
+import moreau_sim as ms
+from moreau_sim import broad_phase, plot
+from moreau_sim.contacts import geometry_gaps, pair_distances
+from moreau_sim.model import Model
+
+
+def _nearest(model: Model, gaps: np.ndarray) -> np.ndarray:
+    """(n, geometries): each geometry's least gap over its pairs, from the (n, pairs) gaps of a listed model."""
+    out = np.full((len(gaps), len(model.geometries)), np.inf)
+    for k, p in enumerate(model.pairs):
+        for g in (p.first, p.second):
+            out[:, g] = np.minimum(out[:, g], gaps[:, k])
+    return out
+
+
+def _as_table(monkeypatch) -> None:
+    """Scenes built from here on without a pair list (model.LAZY_PAIRS) and with the broad phase
+    (broad_phase.MIN_PAIRS): the configuration of every scene above 20,000 pairs, on small scenes."""
+    monkeypatch.setattr(ms.model, "LAZY_PAIRS", 0)
+    monkeypatch.setattr(broad_phase, "MIN_PAIRS", 0)
+
+
+def _both(sc: ms.Scene, monkeypatch) -> tuple:
+    """The run of sc built with its pairs listed, then as a pair table (model.LAZY_PAIRS): (listed, table) models
+    and trajectories."""
+    listed = ms.build_model(sc)
+    a = ms.simulate(listed, progress=False)
+    _as_table(monkeypatch)
+    table = ms.build_model(sc)
+    b = ms.simulate(table, progress=False)
+    assert listed.listed and not table.listed
+    return listed, a, table, b
+
+
+@pytest.mark.parametrize("integrator", ["time-stepping", "adaptive"])
+@pytest.mark.parametrize("make, T", [(lambda: column(12, exclude=False), 0.02), (lambda: pile(27), 0.06)],
+                         ids=["column", "pile"])
+def test_a_table_records_each_geometrys_nearest_gap(make, T, integrator, monkeypatch):
+    """The same run (q, u bit for bit) records per geometry what the listed run's pair gaps give, bit for bit: the
+    least over the geometry's pairs where it is within the reach, +inf elsewhere."""
+    sc = make().with_options(integrator=integrator, duration=T)
+    listed, a, table, b = _both(sc, monkeypatch)
+    assert a.meta["status"] == b.meta["status"] == "complete"
+    assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
+    assert a.gap.shape == (len(a.t), len(listed.pairs)) and b.gap.shape == (len(b.t), len(table.geometries))
+    ref = _nearest(listed, a.gap)
+    near = ref <= table.gap_reach
+    assert near.mean() > 0.5 and np.array_equal(b.gap, np.where(near, ref, np.inf))
+    assert ms.summary(b)["min_gap"] == ms.summary(a)["min_gap"]
+    m = b.meta["model"]
+    assert m["collision_pairs"] is None and m["pair_count"] == len(listed.pairs) == len(table.pairs)
+    assert m["gap_columns"] == "geometries" and m["gap_reach"] == table.gap_reach
+    assert m["geometries"] == list(table.gap_names) == [go.name for go in listed.geometries]
+    logged = sorted(set(b.log_pair.tolist()))
+    assert logged and m["logged_pairs"] == {str(k): listed.pairs[k].name for k in logged}
+    assert a.meta["model"]["gap_columns"] == "pairs" and "logged_pairs" not in a.meta["model"]
+
+
+def _two_beads(d: float, *, ground: bool = True) -> ms.Scene:
+    """Bead 0 on the ground (gap 0), bead 1 d [m] above it, on vertical prismatic joints (radius 0.1 m)."""
+    b = ms.SceneBuilder("two_beads", folder=f"{ROOT}/scenes", restitution=0.5, dt=1e-3, duration=0.01)
+    b.add_body("bead0", "../models/ball.urdf", root_joint="prismatic", axis=(0, 0, 1), q0=[0.1])
+    b.add_body("bead1", "../models/ball.urdf", root_joint="prismatic", axis=(0, 0, 1), q0=[0.3 + d])
+    if ground:
+        b.add_halfspace("ground")
+    return b.build()
+
+
+def test_the_reach_at_its_edge(monkeypatch):
+    """Bead 1 1e-12 m within the reach from bead 0 records their distance; 1e-12 m beyond it, +inf (its only other
+    partner, the ground, is farther still; the broad phase examines the pair, its boxes being within twice the
+    reach); the others record 0 all along."""
+    _as_table(monkeypatch)
+    probe = ms.build_model(_two_beads(0.0))
+    reach = probe.gap_reach
+    assert reach == 0.1  # half the bead's diameter (the median of the bounded geometries' largest sides)
+    for d, expect in ((reach - 1e-12, "finite"), (reach + 1e-12, "inf")):
+        model = ms.build_model(_two_beads(d))
+        data = ms.make_data(model)
+        q = ms.initial_state(model, data).q
+        g = geometry_gaps(model, data, q)
+        whole = pair_distances(model, data, q)  # every pair, for the reference
+        names = model.gap_names
+        assert len(names) == 3 and names[1].startswith("bead1/") and names[2] == "ground"
+        assert g[0] == g[2] == 0.0
+        if expect == "finite":
+            assert g[1] == pytest.approx(d, abs=1e-15) and g[1] == min(whole[k] for k, p in enumerate(model.pairs)
+                                                                       if 1 in (p.first, p.second))
+        else:
+            assert g[1] == np.inf and min(whole) == 0.0
+
+
+def test_a_run_with_a_geometry_beyond_reach_is_complete(monkeypatch, tmp_path):
+    """+inf in a pair table's gaps is not an overflow: the run completes, its file keeps them, the figure draws; with
+    no two geometries within reach all along (no ground), the summary's min gap is None (JSON has no inf)."""
+    _as_table(monkeypatch)
+    # bead 1 starts 1 cm beyond the reach of bead 0 and falls within it in 45 ms
+    traj = ms.simulate(ms.build_model(_two_beads(0.11).with_options(duration=0.06)), progress=False)
+    assert traj.meta["status"] == "complete" and traj.complete
+    assert np.isposinf(traj.gap[0, 1]) and np.isfinite(traj.gap[-1]).all()
+    back = ms.load_trajectory(traj.save(tmp_path / "beads.npz"))
+    assert np.array_equal(back.gap, traj.gap) and back.meta["model"]["gap_columns"] == "geometries"
+    fig = plot.figure(back)
+    names = traj.meta["model"]["geometries"]
+    gaps, percussions = ([t.get_text() for t in ax.get_legend().get_texts()] for ax in fig.axes[1:3])
+    assert names[1] in gaps and fig.axes[1].get_ylabel().startswith("nearest gap")
+    assert f"{names[0]}|{names[2]}" in "".join(percussions), percussions  # the logged pair's name (logged_pairs)
+    apart = ms.simulate(ms.build_model(_two_beads(0.5, ground=False).with_options(gravity=(0.0, 0.0, 0.0))),
+                        progress=False)
+    assert apart.meta["status"] == "complete" and np.isposinf(apart.gap).all()
+    assert ms.summary(apart)["min_gap"] is None
+    json.dumps(dict(ms.summary(apart)), allow_nan=False)
+
+
+@pytest.mark.slow
+def test_info_of_a_scene_without_a_pair_list(tmp_path):
+    """`moreau-sim info` on a column of 210 beads (22,155 pairs, above model.LAZY_PAIRS) counts the pairs and lists
+    none of them; --json says the gap columns are the geometries."""
+    b = ms.SceneBuilder("column_210", folder=f"{ROOT}/scenes", restitution=0.9, dt=5e-4, duration=0.01)
+    for k in range(210):
+        b.add_body(f"bead{k}", "../models/ball.urdf", root_joint="prismatic", axis=(0, 0, 1), q0=[0.1 + 0.2 * k])
+    b.add_halfspace("ground")
+    path = b.save(tmp_path / "column_210.toml")
+    run = [sys.executable, "-m", "moreau_sim.cli", "info", str(path)]
+    text = subprocess.run(run, capture_output=True, text=True, timeout=300)
+    assert text.returncode == 0, text.stderr
+    assert "collision pairs (22155): every two geometries but the excluded pairs below" in text.stdout
+    assert "bead0|bead1" not in text.stdout
+    d = json.loads(subprocess.run(run + ["--json"], capture_output=True, text=True, timeout=300).stdout)
+    assert d["collision_pairs"] is None and d["pair_count"] == 22155 and d["gap_columns"] == "geometries"
+    assert d["gap_reach"] == 0.1 and len(d["geometries"]) == 211
