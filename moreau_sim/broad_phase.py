@@ -69,6 +69,8 @@ class BroadPhase:
                      for ok in [t.chosen(np.full(G, a), every)]]
         unbounded = np.concatenate([np.zeros(0, np.int64), *unbounded]).astype(np.int64)
         self.always = np.setdiff1d(unbounded, self.half_pairs)
+        geoms = [t.geometries(k) for k in self.always.tolist()]  # (i, j) of each: few (the two-sided planes')
+        self.always_geoms = np.array(geoms, dtype=np.int64).reshape(-1, 2).T
         self.any_bounded = bool(len(t)) and len(self.bounded) >= 2
 
     def candidates(self, data) -> np.ndarray:
@@ -78,26 +80,34 @@ class BroadPhase:
 
     def candidates_at(self, oMi) -> np.ndarray:
         """candidates() at the joint placements oMi (the scene's joint ids)."""
+        return self.candidate_geometries_at(oMi)[0]
+
+    def candidate_geometries_at(self, oMi) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """candidates_at(oMi) and the two geometries of each, (pairs, one, other) (in either order)."""
         R = np.array([o.rotation for o in oMi])
         p = np.array([o.translation for o in oMi])
         Rg, pg = R[self.joint], p[self.joint]
         c = dots(Rg, self.centre[:, None, :]) + pg  # dots: src/step.cpp's candidates makes the same sums
         h = dots(np.abs(Rg), self.half[:, None, :])
-        out = [self.always, self._sweep(c, h)]
+        out = [(self.always, self.always_geoms[0], self.always_geoms[1]), self._sweep(c, h)]
         if len(self.half_pairs):
             n = dots(Rg[self.half_geom], self.half_n[:, None, :])  # the plane in the world
             d = self.half_d + dots(n, pg[self.half_geom])
             o = self.half_other
             gap = dots(n, c[o]) - dots(np.abs(n), h[o]) - d
-            out.append(self.half_pairs[gap <= self.margin])
-        return np.unique(np.concatenate(out))
+            near = gap <= self.margin
+            out.append((self.half_pairs[near], self.half_geom[near], o[near]))
+        k, first = np.unique(np.concatenate([x[0] for x in out]), return_index=True)
+        return (k, np.concatenate([x[1] for x in out])[first].astype(np.int64),
+                np.concatenate([x[2] for x in out])[first].astype(np.int64))
 
-    def _sweep(self, c: np.ndarray, h: np.ndarray) -> np.ndarray:
-        """Pairs of bounded geometries whose boxes, inflated by the margin, overlap: sorted along the
-        axis where the centres spread most, each box against those starting before it ends."""
+    def _sweep(self, c: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pairs of bounded geometries whose boxes, inflated by the margin, overlap, and their geometries: sorted
+        along the axis where the centres spread most, each box against those starting before it ends."""
         b = self.bounded
         if not self.any_bounded:
-            return np.zeros(0, dtype=np.int64)
+            none = np.zeros(0, dtype=np.int64)
+            return none, none, none
         lo, hi = c[b] - h[b] - self.margin, c[b] + h[b] + self.margin
         axis = int(np.argmax(c[b].var(axis=0)))
         order = np.argsort(lo[:, axis], kind="stable")
@@ -110,7 +120,8 @@ class BroadPhase:
         overlap = ((lo[i] <= hi[j]) & (lo[j] <= hi[i])).all(axis=1)
         gi, gj = b[i[overlap]], b[j[overlap]]
         ok = self.table.chosen(gi, gj)
-        return self.table.index(gi[ok], gj[ok]).astype(np.int64)
+        gi, gj = gi[ok], gj[ok]
+        return self.table.index(gi, gj).astype(np.int64), gi, gj
 
 
 def of(model, margin: float) -> BroadPhase | None:

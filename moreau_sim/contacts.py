@@ -550,15 +550,26 @@ def geometry_gaps(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
     out = np.full(len(model.geometries), np.inf)
     model.forest.place(data.kinematics, q, model.geometries, data.oMg)
     reach = model.gap_reach
-    cand = broad_phase.within(model, reach).candidates(data).tolist()
-    if cand:
-        fresh_guesses([data.distance_query(k)[0] for k in cand])
-        d = np.array([data.distance(k) for k in cand])
+    cand, gi, gj = broad_phase.within(model, reach).candidate_geometries_at(data.kinematics.oMi)
+    if len(cand):
+        # data.distance(k) of each candidate, its two placements made once per geometry: shape 1 is the geometry on
+        # the larger joint (pair_table.PairTable's Pair)
+        joint = model.pair_table.joint
+        lo, hi = np.minimum(gi, gj), np.maximum(gi, gj)
+        swap = joint[lo] < joint[hi]
+        first, second = np.where(swap, hi, lo), np.where(swap, lo, hi)
+        oMg = data.oMg
+        tf = {g: coal.Transform3s(oMg[g]) for g in np.union1d(first, second).tolist()}
+        queries = [data.distance_query(k) for k in cand.tolist()]
+        fresh_guesses([x[0] for x in queries])
+        d = []
+        for (req, res, f), a, b in zip(queries, first.tolist(), second.tolist()):
+            res.clear()
+            f(tf[a], tf[b], req, res)
+            d.append(res.min_distance)
+        d = np.array(d)
         d[~(np.abs(d) < DISTANCE_FAILED)] = np.nan
         d[d > reach] = np.inf  # a candidate beyond the reach (boxes are coarser than shapes): as the others
-        pairs = model.pairs
-        first = np.array([pairs[k].first for k in cand], dtype=np.int64)
-        second = np.array([pairs[k].second for k in cand], dtype=np.int64)
         np.minimum.at(out, first, d)  # (a NaN stays: np.minimum propagates it)
         np.minimum.at(out, second, d)
     return out
