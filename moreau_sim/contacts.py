@@ -545,8 +545,9 @@ def geometry_gaps(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
     distances are never all evaluated): each geometry's least signed distance to the geometries it pairs with, where
     it is at most model.gap_reach, else +inf; NaN where coal's query of a pair failed (docs/theory.md §6.1). coal
     examines the broad phase's candidates at that margin (broad_phase.within: a box is never farther than its shape,
-    so every pair within the reach is among them). The same queries as pair_distances(near=True), each from a fresh
-    guess: a sample does not depend on the ones before."""
+    so every pair within the reach is among them). The same queries as pair_distances(near=True), on the same coal
+    objects, each warm-started from the pair's last query (fresh_guesses); src/step.cpp's Stepper::geometry_gaps is
+    this function, for the compiled run loop."""
     out = np.full(len(model.geometries), np.inf)
     model.forest.place(data.kinematics, q, model.geometries, data.oMg)
     reach = model.gap_reach

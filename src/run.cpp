@@ -59,9 +59,13 @@ class ForestFigures {
   double kinetic(const VectorXd &q, const VectorXd &u) { return forest_.kinetic(q, u); }  // Forest.kinetic
   double potential(const VectorXd &q) { return forest_.potential(q); }  // Forest.potential
   size_t pairs() const { return S_.gm_.collisionPairs.size(); }
-  // contacts.pair_distances into `out` (Forest.place with the geometry placements, then coal's distances)
+  // a scene without a pair list (Stepper::table): its gaps are one per geometry, +inf where none is near
+  bool per_geometry() const { return S_.table_.has_value(); }
+  // the sample's gaps into `out` (recording.Recorder.sample, contacts.record_gaps): contacts.pair_distances (Forest.place
+  // with the geometry placements, then coal's distances), or contacts.geometry_gaps for a scene without a pair list
   void gaps(const VectorXd &q, double *out) {
     if (!S_.gm_.collisionPairs.empty()) S_.distances(q, out);
+    else if (per_geometry()) S_.geometry_gaps(q, out);
   }
 
  private:
@@ -250,13 +254,17 @@ class Runner {
     Runner &R;
     bool committed = false;
     ~Undo() {
-      if (committed) return;
       Stepper &S = R.S_;
+      if (committed) {
+        S.journal_end();
+        return;
+      }
       S.active_.swap(S.next_active_);  // the projection's warm start, as before the step (Stepper::step swapped it)
       if (!R.guard_) return;
       S.restore_guesses();
       S.warm_.swap(S.next_warm_);
       R.dist_.restore(S.gd_.distanceRequests, S.gd_.distanceResults);
+      S.journal_restore(), S.journal_end();  // a scene without a pair list: Python's distance queries (Stepper::table)
     }
   };
 
@@ -300,9 +308,15 @@ class Runner {
     VectorXd tau;  // stepper.torque: at (t_m, q_m, u_k), once a step (empty: none)
     if (act_ && !act_->torque(t_ + 0.5 * h, pinocchio::integrate(S_.model_, q_, (0.5 * h) * u_), u_, tau))
       return false;  // the controller failed: compiled_run.py raises its error (nothing committed)
-    if (guard_) save_distances();
+    if (guard_) {
+      save_distances();
+      if (forest_.per_geometry()) S_.journal_begin();  // Python's distance queries: their guesses as they go (Undo)
+    }
     StepOut r = S_.step(q_, u_, h, e, tau, t_);
-    if (r.outcome == Outcome::FALLBACK) return false;  // the Stepper restored what it moved
+    if (r.outcome == Outcome::FALLBACK) {  // the Stepper restored what it moved, but its guard's distance queries
+      S_.journal_restore(), S_.journal_end();
+      return false;
+    }
     Undo undo{*this};  // every return below but the commit undoes the step
     if (!(r.q_next.allFinite() && r.u_next.allFinite())) return false;  // TimeStepping.step: FAILED
     Carry c = c_;
@@ -436,8 +450,10 @@ class Runner {
       if (!S_.rh_.moving.empty())  // Recorder.sample: the gaps at the sample's time
         S_.rh_.place(const_cast<pinocchio::GeometryModel &>(S_.gm_), t1);
       gaps(r.q_next, gap);
+      const bool far = forest_.per_geometry();  // +inf: no partner within reach (Recorder.finite), not an overflow
       for (int64_t j = 0; j < s_gap.row; ++j)
-        if (!std::isfinite(gap[j])) return false;  // coal failed, or an overflow: the Python run names it
+        if (!std::isfinite(gap[j]) && !(far && gap[j] == INFINITY))
+          return false;  // coal failed, or an overflow: the Python run names it
       *s_t.at(row) = t1;
       std::copy(r.q_next.data(), r.q_next.data() + r.q_next.size(), s_q.at(row));
       std::copy(r.u_next.data(), r.u_next.data() + r.u_next.size(), s_u.at(row));

@@ -1882,6 +1882,16 @@ class Stepper {
     collide_query_ = std::move(collide_query), distance_query_ = std::move(distance_query);
     cq_.clear(), dq_.clear(), query_keep_.clear();
   }
+  // the records' reach [m] (Model.gap_reach) and the broad phase's margin for it (broad_phase.within's): a scene
+  // without a pair list records its gaps per geometry (geometry_gaps below)
+  void gap_reach(double reach, double margin) { gap_reach_ = reach, gap_margin_ = margin; }
+  // contacts.geometry_gaps at q (for the tests; the run loop writes into its sample's row)
+  VectorXd geometry_gaps_at(const VectorXd &q) {
+    if (!table_ || !bp_) throw nb::value_error("geometry_gaps: a scene without a pair list");
+    VectorXd out(gm_.geometryObjects.size());
+    geometry_gaps(q, out.data());
+    return out;
+  }
   // the projection's warm start (data.active_rows: the (pair, kind, feature) of the rows that pushed in the last
   // step's projection above qp.SPARSE_ROWS rows, sorted): set before a step, read after it
   std::vector<std::array<int64_t, 3>> active() const { return active_; }
@@ -1947,6 +1957,16 @@ class Stepper {
   std::unordered_map<int, DistanceQuery> dq_;
   std::vector<nb::object> query_keep_;  // the Python objects behind cq_ and dq_
   std::vector<int> cand_;  // the broad phase's candidates at the last detection (sorted)
+  std::vector<int> gap_cand_;  // scratch: geometry_gaps' candidates
+  double gap_reach_ = 0.0, gap_margin_ = 0.0;  // gap_reach()
+  bool journal_on_ = false;  // journal_begin()
+  struct SavedDistance {  // a distance query's guesses (request, result): journal_distance
+    coal::Vec3s req;
+    coal::support_func_guess_t req_hint;
+    coal::Vec3s res;
+    coal::support_func_guess_t res_hint;
+  };
+  std::unordered_map<int, SavedDistance> journal_;
   MatrixXd bp_c_, bp_h_;  // scratch: the geometries' boxes in the world
   std::vector<nb::object> keep_;
   coal::DistanceRequest *dreq_ = nullptr;
@@ -2008,7 +2028,10 @@ class Stepper {
     place_geometries(q);
     std::vector<int> cand;
     candidates(cand);
-    for (int k : cand) fresh_guess(distance_of(k).req->cached_gjk_guess);
+    for (int k : cand) {
+      journal_distance(k);
+      fresh_guess(distance_of(k).req->cached_gjk_guess);
+    }
     std::vector<std::pair<int, double>> out;
     out.reserve(cand.size());
     for (int k : cand) {
@@ -2020,6 +2043,51 @@ class Stepper {
       out.push_back({k, (std::abs(x) < C_.distance_failed || x == INFINITY) ? x : std::numeric_limits<double>::quiet_NaN()});
     }
     return out;
+  }
+  // contacts.geometry_gaps (a scene without a pair list: the records' gaps, one per geometry) into out: each
+  // geometry's least distance to the geometries it pairs with where it is at most gap_reach_ [m], else +inf; NaN where
+  // coal's query of a pair failed (np.minimum's: a NaN stays). coal's query on the candidates at gap_margin_ on
+  // Python's objects (data.Data.distance_query), their guesses journaled (journal_distance)
+  void geometry_gaps(const VectorXd &q, double *out) {
+    place_geometries(q);
+    std::vector<int> &cand = gap_cand_;
+    candidates(cand, gap_margin_);
+    const size_t G = gm_.geometryObjects.size();
+    std::fill(out, out + G, INFINITY);
+    for (int k : cand) {
+      journal_distance(k);
+      fresh_guess(distance_of(k).req->cached_gjk_guess);
+    }
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    for (int k : cand) {
+      const DistanceQuery d = distance_of(k);
+      const pairs::Row r = table_->row(k);
+      d.res->clear();
+      (*d.f)(placement(r.first), placement(r.second), *d.req, *d.res);
+      double x = d.res->min_distance;
+      if (!(std::abs(x) < C_.distance_failed)) x = nan;
+      if (x > gap_reach_) x = INFINITY;  // a candidate beyond the reach: as the others
+      for (const int g : {r.first, r.second}) out[g] = (std::isnan(out[g]) || std::isnan(x)) ? nan : std::min(out[g], x);
+    }
+  }
+  // the distance queries' guesses a step and its sample move in table mode (Python's objects, not the GeometryData's:
+  // the run loop's Undo restores them, src/run.cpp): journal_begin() before the step, each query's guesses saved at
+  // its first use after it, journal_restore() puts them back
+  void journal_begin() { journal_on_ = true, journal_.clear(); }
+  void journal_end() { journal_on_ = false, journal_.clear(); }
+  void journal_distance(int k) {
+    if (!journal_on_ || journal_.count(k)) return;
+    const DistanceQuery d = distance_of(k);
+    journal_[k] = SavedDistance{d.req->cached_gjk_guess, d.req->cached_support_func_guess, d.res->cached_gjk_guess,
+                                d.res->cached_support_func_guess};
+  }
+  void journal_restore() {
+    for (const auto &[k, saved] : journal_) {
+      const DistanceQuery d = distance_of(k);
+      d.req->cached_gjk_guess = saved.req, d.req->cached_support_func_guess = saved.req_hint;
+      d.res->cached_gjk_guess = saved.res, d.res->cached_support_func_guess = saved.res_hint;
+    }
+    journal_.clear();
   }
   // the correction's guard above (stepper.correct_positions) in table mode, with contacts.pair_distances(near=True):
   // no pair deeper at q_c than its floor min(distance at q_next, 0) (+ half the depth a paid lift lifts, scaled) less
@@ -2364,7 +2432,9 @@ class Stepper {
 
   // broad_phase.BroadPhase.candidates_at (the sums of sums.dots, in its order) at the forest's placements oMi: into
   // out, the sorted pairs whose inflated boxes overlap, with a half-space within the margin, or always examined
-  void candidates(std::vector<int> &out) {
+  void candidates(std::vector<int> &out) { candidates(out, bp_->margin); }
+  // the same at another margin [m] (broad_phase.within's BroadPhase(model, m).margin: m + SLACK): the records' gaps
+  void candidates(std::vector<int> &out, double margin) {
     const BroadPhase &B = *bp_;
     const Eigen::Index G = (Eigen::Index)B.joint.size();
     bp_c_.resize(G, 3), bp_h_.resize(G, 3);
@@ -2386,8 +2456,8 @@ class Stepper {
       Eigen::Matrix<double, Eigen::Dynamic, 3> lo(nb, 3), hi(nb, 3);
       for (size_t a = 0; a < nb; ++a)
         for (int i = 0; i < 3; ++i) {
-          lo(a, i) = (bp_c_(b[a], i) - bp_h_(b[a], i)) - B.margin;
-          hi(a, i) = (bp_c_(b[a], i) + bp_h_(b[a], i)) + B.margin;
+          lo(a, i) = (bp_c_(b[a], i) - bp_h_(b[a], i)) - margin;
+          hi(a, i) = (bp_c_(b[a], i) + bp_h_(b[a], i)) + margin;
         }
       int axis = 0;
       double spread = -1.0;
@@ -2426,7 +2496,7 @@ class Stepper {
       const double d = B.half_d[k] + (((n[0] * t[0] + n[1] * t[1]) + n[2] * t[2]) + 0.0);
       const double nc = ((n[0] * bp_c_(o, 0) + n[1] * bp_c_(o, 1)) + n[2] * bp_c_(o, 2)) + 0.0;
       const double nh = ((std::abs(n[0]) * bp_h_(o, 0) + std::abs(n[1]) * bp_h_(o, 1)) + std::abs(n[2]) * bp_h_(o, 2)) + 0.0;
-      if ((nc - nh) - d <= B.margin) out.push_back(B.half_pair[k]);
+      if ((nc - nh) - d <= margin) out.push_back(B.half_pair[k]);
     }
     std::sort(out.begin(), out.end());
     out.erase(std::unique(out.begin(), out.end()), out.end());
@@ -3248,6 +3318,8 @@ NB_MODULE(_step, mod) {
       .def("boxes", &Stepper::boxes)
       .def("broad", &Stepper::broad)
       .def("table", &Stepper::table)
+      .def("gap_reach", &Stepper::gap_reach, nb::arg("reach"), nb::arg("margin"))
+      .def("geometry_gaps", &Stepper::geometry_gaps_at, nb::arg("q"))
       .def_prop_ro("candidates", &Stepper::last_candidates)
       .def_prop_rw("warm", &Stepper::warm, &Stepper::set_warm)
       .def_prop_rw("active", &Stepper::active, &Stepper::set_active);

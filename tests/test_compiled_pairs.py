@@ -250,8 +250,9 @@ def test_a_table_with_left_out_pairs_names_the_python_candidates(monkeypatch):
 def test_a_scene_above_the_pair_list_limit_gets_the_compiled_step():
     """A 250-bead column (31,125 pairs, above model.LAZY_PAIRS: no pair list) gets the compiled step with nothing
     made per pair but the broad phase's candidates' coal objects (about two a bead), where it used to build a
-    GeometryData of every pair (quadratic in beads); the compiled run loops record every pair's distance, so they
-    refuse such a scene in one line (the run takes its steps through ms.step's compiled step)."""
+    GeometryData of every pair (quadratic in beads); the compiled time-stepping run loop takes its runs too,
+    recording a gap per geometry (tests/test_record_gaps.py); the event loops record every pair's distance, so they
+    refuse such a scene in one line."""
     from benchmarks.scaling import column
 
     model = ms.build_model(column(250).with_options(step_impl="compiled"))
@@ -259,8 +260,11 @@ def test_a_scene_above_the_pair_list_limit_gets_the_compiled_step():
     data = make_data(model)
     ms.step(model, data, ms.initial_state(model, data))
     assert data._geom is None and 0 < len(data._coal) <= 2 * 250
-    why = compiled.loop_refusal(model, "Runner", "the run loop", whole=False)
+    assert compiled.loop_refusal(model, "Runner", "the run loop", whole=False) is None
+    why = compiled.loop_refusal(model, "Extrapolator", "the event loop")
     assert why is not None and why.startswith("a scene without a pair list") and "\n" not in why
+    traj = ms.simulate(ms.build_model(model.scene.with_options(duration=10 * model.options.dt)), progress=False)
+    assert traj.meta["run"]["loop"] == "compiled" and traj.gap.shape == (11, 251) and traj.meta["status"] == "complete"
 
 
 def test_the_dense_matrices_limit_edge(monkeypatch):

@@ -202,7 +202,7 @@ def test_cylinder_gaps_rows_and_drift_against_finite_differences(case, seed):
 def test_cylinder_gaps_are_coals_distances():
     """quadruped_drop's cylinders at random poses: the smaller rim gap of each cylinder over the
     ground, and each foot's gap to its thigh_shoulder, equal coal's distance to round-off."""
-    from moreau_sim.recording import pair_distances
+    from moreau_sim.contacts import pair_distances
 
     model = ms.build_model(scene("quadruped_drop"))
     data = ms.make_data(model)

@@ -106,14 +106,14 @@ def test_a_failed_distance_stops_the_run_naming_the_pair(monkeypatch):
     """A distance coal cannot compute is NaN and stops the run (step, time, pair): never a sentinel in
     the records, never a silent complete run."""
     import moreau_sim.recording as recording
-    real = recording.pair_distances
+    real = recording.record_gaps
 
     def failing(model, data, q):
         g = real(model, data, q)
         if q[-1] < 0.9:
             g[0] = np.nan
         return g
-    monkeypatch.setattr(recording, "pair_distances", failing)
+    monkeypatch.setattr(recording, "record_gaps", failing)
     with pytest.raises(SimulationError) as info:  # the Python loop (the compiled one hands a NaN gap's step to it)
         ms.simulate(ms.build_model(scene("bouncing_ball", duration=1.0)), progress=False, python_run=True)
     msg = str(info.value)

@@ -11,7 +11,7 @@ import pytest
 from test_broad_phase import ROOT, column, pile
 
 import moreau_sim as ms
-from moreau_sim import broad_phase, plot
+from moreau_sim import broad_phase, compiled, plot
 from moreau_sim.contacts import geometry_gaps, pair_distances
 from moreau_sim.model import Model
 
@@ -141,3 +141,81 @@ def test_info_of_a_scene_without_a_pair_list(tmp_path):
     d = json.loads(subprocess.run(run + ["--json"], capture_output=True, text=True, timeout=300).stdout)
     assert d["collision_pairs"] is None and d["pair_count"] == 22155 and d["gap_columns"] == "geometries"
     assert d["gap_reach"] == 0.1 and len(d["geometries"]) == 211
+
+
+def _differ(a, b) -> list[str]:
+    """The arrays of two trajectories that differ in dtype, shape or bits."""
+    return sorted(k for k in set(a.arrays) | set(b.arrays) if k not in a.arrays or k not in b.arrays
+                  or a.arrays[k].dtype != b.arrays[k].dtype or a.arrays[k].tobytes() != b.arrays[k].tobytes())
+
+
+@pytest.mark.parametrize("make, T", [(lambda: column(30, exclude=False), 0.03), (lambda: pile(27), 0.3),
+                                     (lambda: _two_beads(0.11), 0.06)], ids=["column", "pile", "beyond_reach"])
+def test_the_compiled_run_records_a_table_as_the_python_run(make, T, monkeypatch):
+    """A scene without a pair list runs in the compiled run loop (src/run.cpp, its samples' gaps per geometry:
+    Stepper::geometry_gaps), with the Python run's arrays bit for bit (+inf beyond the reach included; the pile's
+    box pairs warm-start GJK from the queries before, which a step the loop undoes puts back)."""
+    _as_table(monkeypatch)
+    sc = make().with_options(duration=T, step_impl="compiled")
+    model = ms.build_model(sc)
+    assert not model.listed and compiled.loop_refusal(model, "Runner", "the run loop", whole=False) is None
+    ref = ms.simulate(model, progress=False, python_run=True)
+    new = ms.simulate(model, progress=False, python_run=False)
+    assert ref.meta["run"]["loop"] == "python" and new.meta["run"]["loop"] == "compiled"
+    assert new.meta["status"] == ref.meta["status"]  # (the pile's: flagged, a contact deeper than its allowance)
+    assert _differ(ref, new) == [] and new.meta.get("invariants") == ref.meta.get("invariants")
+    assert new.meta["run"]["python_steps"] < len(new.t) / 2  # mostly compiled
+    if sc.name == "pile_27":  # a step handed back (the Python run's), after which the loop resumes from its queries
+        assert new.meta["run"]["python_steps"] >= 1
+    if sc.name == "two_beads":
+        assert np.isposinf(new.gap[0, 1]) and np.isfinite(new.gap[-1]).all()
+
+
+@pytest.mark.parametrize("make", [lambda: column(12, exclude=False), lambda: pile(27)], ids=["column", "pile"])
+def test_the_compiled_gaps_are_pythons(make, monkeypatch):
+    """Stepper::geometry_gaps is contacts.geometry_gaps bit for bit at states spread over a run (pulled together and
+    apart: every geometry within the reach, some, none)."""
+    _as_table(monkeypatch)
+    model = ms.build_model(make().with_options(duration=0.05, step_impl="compiled"))
+    traj = ms.simulate(model, progress=False, python_run=True)
+    data = ms.make_data(model)
+    stepper = compiled._context(model, data).stepper
+    other = ms.make_data(model)
+    states = list(traj.q[:: max(len(traj.q) // 5, 1)]) + [_spread(model, traj.q[-1], f) for f in (1.2, 1.5, 1.8, 3.0)]
+    seen = set()
+    for q in states:
+        py, cpp = geometry_gaps(model, other, q), np.asarray(stepper.geometry_gaps(q))
+        assert py.tobytes() == cpp.tobytes()
+        seen.add("all" if np.isfinite(py).all() else "none" if np.isposinf(py).all() else "some")
+    assert seen == {"all", "some", "none"}
+
+
+def _spread(model: Model, q: np.ndarray, f: float) -> np.ndarray:
+    """q with every body's position (a prismatic joint's coordinate, a free joint's x y z) times f."""
+    q = q.copy()
+    for j in model.joints():
+        a = j["q"][0]
+        q[a:a + (3 if j["type"].startswith("translation") else 1)] *= f
+    return q
+
+
+def test_a_failed_distance_names_the_geometry(monkeypatch):
+    """A distance coal cannot compute (NaN) in a table's gaps stops the run naming the geometry, the step and the
+    time (as a listed scene names the pair: test_gjk_guess), its records left finite or +inf; never complete."""
+    import moreau_sim.contacts as contacts
+    _as_table(monkeypatch)
+    real = contacts.geometry_gaps  # (the recorder's record_gaps calls it for a table)
+
+    def failing(model, data, q):
+        g = real(model, data, q)
+        if q[1] < 0.39:
+            g[1] = np.nan
+        return g
+    monkeypatch.setattr(contacts, "geometry_gaps", failing)
+    model = ms.build_model(_two_beads(0.1).with_options(duration=0.05))
+    with pytest.raises(ms.SimulationError) as info:  # the Python loop (the compiled one hands a NaN gap's step to it)
+        ms.simulate(model, progress=False, python_run=True)
+    msg = str(info.value)
+    assert "step " in msg and f"a pair of geometry {model.gap_names[1]}" in msg and "undefined" in msg, msg
+    traj = info.value.trajectory
+    assert not traj.complete and not np.isnan(traj.arrays["gap"]).any()
