@@ -128,7 +128,8 @@ def test_the_27_cube_pile_flags_no_contact_deeper_than_a_step_of_its_fastest_fal
     §6.2, 3b): the exact depth of a pair (box_box.overlap) still reaches 4.7 mm (main: 99.6 mm)."""
     from benchmarks.scaling import pile, pile_layout
 
-    model = ms.build_model(pile(27))
+    # the compiled step (the default; the Python step's run bit for bit, tests/test_compiled_pairs.py), 1/20 of its time
+    model = ms.build_model(pile(27).with_options(step_impl="compiled"))
     tr = ms.simulate(model, progress=False)
     z_top = max(z for _, _, z, _ in pile_layout(27)[0]) + 0.5 * np.sqrt(3.0) * 0.1
     bound = model.options.contact_tolerance + model.options.dt * np.sqrt(2.0 * 9.81 * z_top)
