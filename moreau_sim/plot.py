@@ -122,7 +122,9 @@ def _gaps(ax, _, a, meta, pairs, colour):
     g = gaps[np.isfinite(gaps)]
     if g.size and g.max() > 0:
         lo = min(float(g.min()), 0.0)
-        ax.set_ylim(lo - 0.05 * (g.max() - lo), float(np.quantile(g, 0.99)) * 1.1 + 1e-12)
+        # a pair far apart would flatten the rest: the top 1 % left out (a geometry's gap is within the reach: all in)
+        top = float(g.max()) if per_geometry else float(np.quantile(g, 0.99))
+        ax.set_ylim(lo - 0.05 * (g.max() - lo), top * 1.1 + 1e-12)
     more = gaps.shape[1] - len(shown)
     if per_geometry:
         ax.set_ylabel(f"nearest gap [m]\n(within {mm.get('gap_reach', 0):.3g} m)")

@@ -116,6 +116,8 @@ def test_a_run_with_a_geometry_beyond_reach_is_complete(monkeypatch, tmp_path):
     names = traj.meta["model"]["geometries"]
     gaps, percussions = ([t.get_text() for t in ax.get_legend().get_texts()] for ax in fig.axes[1:3])
     assert names[1] in gaps and fig.axes[1].get_ylabel().startswith("nearest gap")
+    g = back.gap[np.isfinite(back.gap)]
+    assert fig.axes[1].get_ylim()[1] >= g.max() > 0.09  # every recorded gap in view (all within the reach)
     assert f"{names[0]}|{names[2]}" in "".join(percussions), percussions  # the logged pair's name (logged_pairs)
     apart = ms.simulate(ms.build_model(_two_beads(0.5, ground=False).with_options(gravity=(0.0, 0.0, 0.0))),
                         progress=False)
