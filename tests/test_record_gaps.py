@@ -221,3 +221,28 @@ def test_a_failed_distance_names_the_geometry(monkeypatch):
     assert "step " in msg and f"a pair of geometry {model.gap_names[1]}" in msg and "undefined" in msg, msg
     traj = info.value.trajectory
     assert not traj.complete and not np.isnan(traj.arrays["gap"]).any()
+
+
+@pytest.mark.parametrize("e", [0.0, 0.5, 0.9])
+def test_a_resting_column_without_a_pair_list_carries_its_weight(e):
+    """A column of 250 touching beads (31,375 pairs: no pair list; the compiled run loop) from rest, 40 steps: each
+    contact passes on the weight of the beads above it, P = (n - i) m |g| h a step (the closed form of a resting
+    stack, to 1e-12 of it), whatever e; every gap stays within the contact tolerance, T + V never rises."""
+    from benchmarks.scaling import column
+
+    n, h = 250, 5e-4
+    model = ms.build_model(column(n).with_options(restitution=e, duration=40 * h))
+    assert not model.listed
+    traj = ms.simulate(model, progress=False)
+    assert traj.meta["run"]["loop"] == "compiled" and traj.meta["status"] == "complete"
+    names = traj.meta["model"]["logged_pairs"]
+    m, g = 1.0, 9.81
+    for k, P, steps in zip(traj.log_pair.tolist(), traj.log_P.tolist(), traj.log_steps.tolist()):
+        below = names[str(k)].split("|")  # "bead{i}/ball_0|bead{i-1}/ball_0" or "bead0/ball_0|ground"
+        i = min(int(x.split("/")[0][4:]) for x in below if x.startswith("bead"))
+        i = i + 1 if "ground" not in below else 0  # the contact under bead i
+        assert P / steps == pytest.approx((n - i) * m * g * h, rel=1e-12, abs=0), (names[str(k)], P, steps)
+    assert len(set(traj.log_pair.tolist())) == n  # every contact pushed
+    assert traj.gap.shape == (len(traj.t), n + 1) and traj.gap.min() >= -model.options.contact_tolerance
+    E = traj.total_energy
+    assert (E - E[0]).max() <= 1e-12 * abs(E[0])
