@@ -251,26 +251,48 @@ class Data:
         return self._pin
 
     def _guess_holders(self) -> list:
-        """Every coal request and result that carries a GJK guess from one call to the next."""
-        g = self.geom  # a PairTable's pairs queried on coal directly are not in it (checkpoint: listed pairs only)
-        return [*g.collisionRequests, *g.collisionResults, *g.distanceRequests, *g.distanceResults,
-                self.patch_collision, self.fallback_request, self.fallback_result, self.distance_request,
-                self.distance_result]
+        """Every coal request and result that carries a GJK guess from one call to the next, but a PairTable's pairs'
+        (_table_holders: made per pair at its first query, not a GeometryData of every pair)."""
+        fixed = [self.patch_collision, self.fallback_request, self.fallback_result, self.distance_request,
+                 self.distance_result]
+        if not self._model.listed:
+            return fixed
+        g = self.geom
+        return [*g.collisionRequests, *g.collisionResults, *g.distanceRequests, *g.distanceResults, *fixed]
+
+    def _table_holders(self) -> dict:
+        """{"collision" | "distance": {pair: (request, result)}}: the coal objects of a PairTable's pairs queried so
+        far (pair_query, distance_query)."""
+        return {"collision": {k: v[:2] for k, v in self._coal.items()},
+                "distance": {k: v[:2] for k, v in self._coal_distance.items()}}
 
     def warm_start(self) -> dict:
         """What the next detection starts from, as JSON-able lists: warm_start_pairs and coal's
-        cached GJK guesses (requests keep enable_cached_gjk_guess, coal's default). Restoring it
-        (restore_warm_start) makes a new Data continue bit for bit (checkpoint.py)."""
+        cached GJK guesses (requests keep enable_cached_gjk_guess, coal's default); for a model without a pair
+        list, those of each pair queried so far ("table": pair, then the request's and the result's guess and
+        support hint). Restoring it (restore_warm_start) makes a new Data continue bit for bit (checkpoint.py)."""
         holders = self._guess_holders()
-        return {"pairs": sorted(self.warm_start_pairs),
-                "gjk_guess": [h.cached_gjk_guess.tolist() for h in holders],
-                "support_guess": [h.cached_support_func_guess.tolist() for h in holders]}
+        out = {"pairs": sorted(self.warm_start_pairs),
+               "gjk_guess": [h.cached_gjk_guess.tolist() for h in holders],
+               "support_guess": [h.cached_support_func_guess.tolist() for h in holders]}
+        if not self._model.listed:
+            out["table"] = {kind: [[k] + [x for h in pair for x in (h.cached_gjk_guess.tolist(),
+                                                                     h.cached_support_func_guess.tolist())]
+                                   for k, pair in sorted(queries.items())]
+                            for kind, queries in self._table_holders().items()}
+        return out
 
     def restore_warm_start(self, warm: dict) -> None:
         self.warm_start_pairs = set(warm["pairs"])
         for h, guess, support in zip(self._guess_holders(), warm["gjk_guess"], warm["support_guess"], strict=True):
             h.cached_gjk_guess = np.array(guess, float)
             h.cached_support_func_guess = np.array(support, np.int32)
+        make = {"collision": self.pair_query, "distance": self.distance_query}
+        for kind, rows in warm.get("table", {}).items():  # each pair's objects made as its first query makes them
+            for k, req_g, req_s, res_g, res_s in rows:
+                req, res = make[kind](int(k))[:2]
+                req.cached_gjk_guess, req.cached_support_func_guess = np.array(req_g, float), np.array(req_s, np.int32)
+                res.cached_gjk_guess, res.cached_support_func_guess = np.array(res_g, float), np.array(res_s, np.int32)
 
     def point_query(self, g: int) -> coal.ComputeDistance:
         """Cached coal functor: signed distance from a point to geometry g."""

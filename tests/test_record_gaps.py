@@ -246,3 +246,26 @@ def test_a_resting_column_without_a_pair_list_carries_its_weight(e):
     assert traj.gap.shape == (len(traj.t), n + 1) and traj.gap.min() >= -model.options.contact_tolerance
     E = traj.total_energy
     assert (E - E[0]).max() <= 1e-12 * abs(E[0])
+
+
+@pytest.mark.parametrize("make, T", [(lambda: column(30, exclude=False), 0.03), (lambda: pile(27), 0.15)],
+                         ids=["column", "pile"])
+def test_a_table_resumes_from_its_checkpoint_bitwise(make, T, monkeypatch, tmp_path):
+    """A run of a scene without a pair list, checkpointed mid-run and resumed (the compiled run loop; the GJK warm
+    starts of the pairs queried so far carried in Data.warm_start's "table"), gives the uninterrupted run's arrays, a
+    gap per geometry; neither run makes a GeometryModel of every pair (a column of 1000 beads: 500,500 of them)."""
+    from moreau_sim.checkpoint import Checkpoint
+
+    _as_table(monkeypatch)
+    sc = make().with_options(duration=T, step_impl="compiled", save_every=3)
+    path = tmp_path / "c.npz"
+    first, second = ms.build_model(sc), ms.build_model(sc)
+    full = ms.simulate(first, progress=False, checkpoint=Checkpoint(path=path, every=T / 3, keep=True))
+    ck = ms.load_trajectory(path).meta["checkpoint"]
+    assert 0 < ck["steps"] < round(T / sc.options.dt)
+    table = ck["warm_start"]["table"]
+    assert table["collision"] and table["distance"] and all(len(row) == 5 for row in table["collision"])
+    resumed = ms.simulate(second, progress=False, checkpoint=Checkpoint(path=path, resume=True))
+    assert resumed.complete == full.complete and _differ(full, resumed) == []
+    assert resumed.gap.shape[1] == len(resumed.meta["model"]["geometries"])
+    assert first.geometry_model is None and second.geometry_model is None
