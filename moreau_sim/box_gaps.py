@@ -44,7 +44,7 @@ class _Box:
 
 
 def box_geometry(model: Model, g: int, joint: int) -> _Box:
-    go = model.geom.geometryObjects[g]
+    go = model.geometries[g]
     h = np.asarray(go.geometry.halfSide, float)
     tg = go.placement.translation
     e0, ed, el, ef = box_box.box_edges(go.geometry, go.placement)  # the 12 edges in the joint frame

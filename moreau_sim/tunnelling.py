@@ -65,15 +65,19 @@ class SweptContact:
 def pair_distance(model: Model, data: Data, q: np.ndarray, pair: int) -> coal.DistanceResult:
     """Coal's signed distance of collision pair `pair` at q (updates the geometry placements).
     Returns coal's DistanceResult (min_distance [m], normal from the first shape to the second,
-    nearest points)."""
-    model.forest.place(data.kinematics, q, model.geometries, data.geom.oMg)
-    return pin.computeDistance(model.geom, data.geom, pair)
+    nearest points). A model without a pair list: the same query on the pair's own coal objects (data.Data.distance),
+    not on a GeometryData of every pair."""
+    model.forest.place(data.kinematics, q, model.geometries, data.oMg)
+    if model.listed:
+        return pin.computeDistance(model.geom, data.geom, pair)
+    data.distance(pair)
+    return data.distance_query(pair)[1]
 
 
 def _shape_radius(model: Model, g: int) -> float:
     """Radius of a ball about geometry g's own origin that contains the shape (inf for unbounded
     shapes: half-spaces and planes, which are static)."""
-    go = model.geom.geometryObjects[g]
+    go = model.geometries[g]
     shape = go.geometry
     if isinstance(shape, (coal.Halfspace, coal.Plane)):
         return np.inf
@@ -95,7 +99,7 @@ def motion_bounds(model: Model, data: Data, q0: np.ndarray, q1: np.ndarray) -> n
     pm = model.pin
     dq = pin.difference(pm, q0, q1)
     model.forest.place(data.kinematics, q0)
-    ngeom = model.geom.ngeoms
+    ngeom = len(model.geometries)
     mu = np.zeros(ngeom)
     # per joint: speed coefficients (linear, angular) of its velocity columns
     lin = {}
@@ -110,7 +114,7 @@ def motion_bounds(model: Model, data: Data, q0: np.ndarray, q1: np.ndarray) -> n
         jm = pm.joints[j]
         if jm.nq == 1 and jm.nv == 1 and lin[j] > 0.0 and ang[j] == 0.0:
             disp[j] = max(abs(q0[jm.idx_q]), abs(q1[jm.idx_q]))
-    for g, go in enumerate(model.geom.geometryObjects):
+    for g, go in enumerate(model.geometries):
         jg = go.parentJoint
         if jg == 0:
             continue
@@ -242,7 +246,7 @@ def swept_detect(model: Model, data: Data, q: np.ndarray, u: np.ndarray, h: floa
                 continue  # the next step's midpoint takes it, as now
         drop.add(c.pair)
         extra.append((g_m, pa, pb, c.normal, c.pair, FeatureKind.SWEPT, 0))
-    model.forest.place(data.kinematics, q_m, model.geometries, data.geom.oMg)
+    model.forest.place(data.kinematics, q_m, model.geometries, data.oMg)
     if not extra:
         return contacts
     keep = ~np.isin(contacts.pair, list(drop))
