@@ -542,3 +542,18 @@ def test_panda_table_replay_in_chromium(panda, browser, tmp_path):
     assert coloured.sum() > 1200, "the arm is not drawn"
     assert not coloured[:3].any() and not coloured[:, :3].any() and not coloured[:, -3:].any()
     assert p.errors() == []
+
+
+def test_replay_gap_of_a_scene_without_a_pair_list(monkeypatch):
+    """A gap per geometry (a scene without a pair list) is +inf where no partner is within the reach: the replay's
+    smallest-gap curve draws it at the reach, never a 0 (contact) nor a non-finite value in its JSON."""
+    from moreau_sim import broad_phase
+    from test_record_gaps import _two_beads
+
+    monkeypatch.setattr(ms.model, "LAZY_PAIRS", 0)
+    monkeypatch.setattr(broad_phase, "MIN_PAIRS", 0)
+    model = ms.build_model(_two_beads(0.11, ground=False).with_options(duration=0.01))
+    traj = ms.simulate(model, progress=False)
+    assert np.isposinf(traj.gap).all()
+    d = _plot_data(viewer.page(traj))
+    assert d["gap"] and all(g == model.gap_reach for g in d["gap"])

@@ -212,6 +212,9 @@ def _record(traj: Trajectory, model: Model, fps: float, colors: str, arrows: flo
     T, V = np.asarray(a["kinetic_energy"])[idx], np.asarray(a["potential_energy"])[idx]
     gap = np.asarray(a["gap"])
     gmin = np.nanmin(gap.reshape(len(traj.t), -1)[idx], axis=1) if gap.size else np.zeros(len(idx))
+    reach = (traj.meta.get("model") or {}).get("gap_reach")
+    if reach is not None:  # a gap per geometry, +inf where no partner is within the reach: drawn at the reach
+        gmin = np.where(np.isposinf(gmin), float(reach), gmin)
     r = lambda x: [float(f"{v:.6g}") for v in np.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)]  # noqa: E731
     meta = traj.meta
     data = {"scene": str((meta.get("scene") or {}).get("name") or model.scene.name),
