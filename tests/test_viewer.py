@@ -547,8 +547,9 @@ def test_panda_table_replay_in_chromium(panda, browser, tmp_path):
 def test_replay_gap_of_a_scene_without_a_pair_list(monkeypatch):
     """A gap per geometry (a scene without a pair list) is +inf where no partner is within the reach: the replay's
     smallest-gap curve draws it at the reach, never a 0 (contact) nor a non-finite value in its JSON."""
-    from moreau_sim import broad_phase
     from test_record_gaps import _two_beads
+
+    from moreau_sim import broad_phase
 
     monkeypatch.setattr(ms.model, "LAZY_PAIRS", 0)
     monkeypatch.setattr(broad_phase, "MIN_PAIRS", 0)
