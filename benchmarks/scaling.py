@@ -32,6 +32,7 @@ build_model alone (CPU seconds, peak RSS), each size in --repeat children: scali
     python -m benchmarks.scaling --table docs/bench/scaling.json docs/benchmarks.md
     python -m benchmarks.scaling --plot docs/bench/scaling.json   # redraw the chart from the JSON
     python -m benchmarks.scaling --build-only --repeat 2 --boxes 1000 --out docs/bench   # build_model alone
+    python -m benchmarks.scaling --runs --sizes 10 100 300 1000 3000 --out docs/bench   # whole runs, both run loops
 """
 
 from __future__ import annotations
@@ -345,6 +346,75 @@ def builds(kind: str, sizes, repeat: int) -> list:
     return rows
 
 
+def runs_one(n: int, steps: int, rounds: int) -> dict:
+    """Whole runs (ms.simulate: the steps and the records, a gap per geometry above model.LAZY_PAIRS pairs) of a
+    column of n beads from rest, `steps` steps, in this process: CPU per call with the Python run loop and the
+    compiled one, interleaved over `rounds` rounds (medians), the same arrays asserted; peak RSS."""
+    model = ms.build_model(column(n).with_options(duration=steps * 5e-4))
+    times: dict[bool, list] = {True: [], False: []}
+    ref, loop = None, None
+    for r in range(rounds):
+        for python_run in (True, False) if r % 2 == 0 else (False, True):
+            t0 = CLOCK()
+            traj = ms.simulate(model, progress=False, python_run=python_run)
+            times[python_run].append(CLOCK() - t0)
+            if not python_run:
+                loop = traj.meta["run"]["loop"]
+            if ref is None:
+                ref = traj
+            elif any(ref.arrays[k].tobytes() != traj.arrays[k].tobytes() for k in ref.arrays):
+                raise AssertionError(f"{n} beads: the two run loops' arrays differ")
+    med = {k: statistics.median(v) for k, v in times.items()}
+    return {"beads": n, "pairs": len(model.pairs), "listed": model.listed, "gap_columns": int(ref.gap.shape[1]),
+            "steps": steps, "rounds": rounds, "python_loop_s": med[True], "compiled_loop_s": med[False],
+            "compiled_loop": loop, "python_us_per_step": med[True] / steps * 1e6,
+            "compiled_us_per_step": med[False] / steps * 1e6, "peak_rss_mb": peak_rss_mb()}
+
+
+def runs_table(data: dict) -> str:
+    """The whole-run table of docs/benchmarks.md from a scaling_runs.json (--runs)."""
+    meta = data["meta"]
+    out = [f"Run of {meta['date']} (git `{meta['commit']}`, {meta['cpus']} cores shared, load {meta['load']:.1f}): "
+           f"`ms.simulate` of a column from rest, {meta['steps']} steps of 0.5 ms with a sample each, the Python run "
+           f"loop and the compiled one interleaved in one child process per size ({meta['rounds']} rounds, medians "
+           "of the CPU per call; the two loops' arrays the same bit for bit), its peak RSS.", "",
+           "| beads | pairs (model) | gap columns | Python run loop µs/step | compiled run loop µs/step | ratio | "
+           "peak RSS MB |", "|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in data["beads"]:
+        if "failed" in r:
+            out.append(f"| {r['beads']} | failed: {r['failed']} | | | | | |")
+            continue
+        out.append(f"| {r['beads']} | {r['pairs']} | {r['gap_columns']} | {r['python_us_per_step']:.0f} | "
+                   f"{r['compiled_us_per_step']:.0f} | {r['python_us_per_step'] / r['compiled_us_per_step']:.1f} | "
+                   f"{r['peak_rss_mb']:.0f} |")
+    ok = [r for r in data["beads"] if "failed" not in r]
+    if len(ok) >= 2:
+        x = [r["beads"] for r in ok]
+        out += ["", f"Fitted log-log slope against beads, {x[0]}–{x[-1]}: Python run loop "
+                f"{slope(x, [r['python_us_per_step'] for r in ok]):.2f}, compiled run loop "
+                f"{slope(x, [r['compiled_us_per_step'] for r in ok]):.2f}."]
+    return "\n".join(out)
+
+
+def plot_runs(data: dict, png: Path) -> None:
+    """Whole-run cost per step against beads, both run loops, log-log."""
+    plt = pyplot()
+    ok = [r for r in data["beads"] if "failed" not in r]
+    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
+    x = [r["beads"] for r in ok]
+    for key, label, fmt in (("python_us_per_step", "Python run loop", "o-"),
+                            ("compiled_us_per_step", "compiled run loop", "s-")):
+        y = [r[key] for r in ok]
+        ax.loglog(x, y, fmt, label=f"{label} (slope {slope(x, y):.2f})")
+    ax.set_xlabel("beads (contacts)")
+    ax.set_ylabel("CPU per step of ms.simulate [µs]")
+    ax.set_title(f"column of beads from rest, whole runs ({data['meta']['steps']} steps, a sample each)")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+
+
 def build_table(data: dict) -> str:
     """The build table of docs/benchmarks.md from a scaling_build.json (--build-only)."""
     meta = data["meta"]
@@ -373,7 +443,7 @@ def build_table(data: dict) -> str:
 def child(kind: str, n: int, a) -> dict:
     """One size measured in a child process (its own peak RSS); a failure is recorded, not raised."""
     cmd = [sys.executable, "-m", "benchmarks.scaling", "--one", kind, str(n), "--repeat", str(a.repeat),
-           "--states", str(a.states)]
+           "--states", str(a.states), "--steps", str(getattr(a, "steps", 40)), "--rounds", str(getattr(a, "rounds", 5))]
     r = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
     if r.returncode != 0:
         tail = (r.stderr.strip().splitlines() or ["no output"])[-1]
@@ -429,6 +499,8 @@ def slopes(data: dict) -> dict:
 
 
 def plot(data: dict, png: Path) -> None:
+    if data.get("meta", {}).get("runs"):  # a scaling_runs.json (--runs)
+        return plot_runs(data, png)
     plt = pyplot()
 
     s = data["slopes"]
@@ -578,6 +650,8 @@ def doc_tables(data: dict) -> dict[str, str]:
     table from a scaling.json, the build table from a scaling_build.json (--build-only)."""
     if data.get("meta", {}).get("build_only"):
         return {"scaling build table": build_table(data)}
+    if data.get("meta", {}).get("runs"):
+        return {"scaling runs table": runs_table(data)}
     return {"scaling table": markdown_table(data)}
 
 
@@ -602,6 +676,11 @@ def main(argv=None) -> int:
     ap.add_argument("--build-only", action="store_true",
                     help="only build_model of each size (--sizes beads, --boxes boxes), --repeat child processes "
                          "per size: writes scaling_build.json")
+    ap.add_argument("--runs", action="store_true",
+                    help="only whole runs (ms.simulate) of each column (--sizes), both run loops, --rounds rounds of "
+                         "--steps steps: writes scaling_runs.json and scaling_runs.png")
+    ap.add_argument("--steps", type=int, default=40, help="steps of a whole run (--runs)")
+    ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds of the two run loops (--runs)")
     ap.add_argument("--one", nargs=2, metavar=("KIND", "N"), help=argparse.SUPPRESS)  # a child: one size, JSON out
     a = ap.parse_args(argv)
     if rewrite_tables(a, doc_tables) or redraw(a, plot):
@@ -609,7 +688,8 @@ def main(argv=None) -> int:
     if a.one:
         kind, n = a.one[0], int(a.one[1])
         r = (beads_one(n, a.repeat, a.states) if kind == "beads" else forest_one(n, a.repeat) if kind == "forest"
-             else build_one(kind.removeprefix("build-"), n) if kind.startswith("build-") else boxes_one(n))
+             else build_one(kind.removeprefix("build-"), n) if kind.startswith("build-")
+             else runs_one(n, a.steps, a.rounds) if kind == "run-beads" else boxes_one(n))
         print(json.dumps(r))
         return 0
     out = Path(a.out)
@@ -625,6 +705,22 @@ def main(argv=None) -> int:
         (out / "scaling_build.json").write_text(json.dumps(data, indent=2))
         print(build_table(data))
         print(f"wrote {out / 'scaling_build.json'}")
+        return 0
+    if a.runs:
+        load = os.getloadavg()[0]
+        rows = []
+        for n in a.sizes:
+            rows.append(child("run-beads", n, a))
+            print(json.dumps(rows[-1]), flush=True)
+        data = {"beads": rows, "meta": {"runs": True, "date": time.strftime("%Y-%m-%d", time.gmtime()),
+                                        "commit": _commit(), "machine": platform.machine(), "cpus": os.cpu_count(),
+                                        "load": max(load, os.getloadavg()[0]), "versions": versions(),
+                                        "steps": a.steps, "rounds": a.rounds, "wall_s": time.time() - t_start,
+                                        "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS")}}
+        (out / "scaling_runs.json").write_text(json.dumps(data, indent=2))
+        plot_runs(data, out / "scaling_runs.png")
+        print(runs_table(data))
+        print(f"wrote {out / 'scaling_runs.json'} and {out / 'scaling_runs.png'}")
         return 0
     beads, boxes = [], []
     for n in a.sizes:

@@ -114,9 +114,13 @@ def loop_refusal(model, cls: str, what: str, *, whole: bool = True) -> str | Non
         return f"the compiled step predates {what} (rebuild)"
     if whole and not model.whole_data_fits():
         return "the whole model's Data exceeds the memory limit"
-    # the event loops record every pair's distance on a GeometryData of every pair (the Runner: a gap per geometry)
+    # the event integrators' compiled parts work on a GeometryData of every pair, and their samples record every
+    # pair's distance: a scene without a pair list has neither; one of more than GAP_PAIRS pairs records a gap per
+    # geometry, which the dense output's samples do not (the time-stepping Runner records either)
     if whole and not model.listed:
         return "a scene without a pair list (more than model.LAZY_PAIRS pairs): its samples are recorded in Python"
+    if whole and cls == "DenseSampler" and model.gaps_per_geometry:
+        return "a scene of more than model.GAP_PAIRS pairs: its samples' gaps per geometry are recorded in Python"
     return None
 
 
@@ -202,7 +206,8 @@ class _Context:
             if prep.table is not None:  # (through a weak reference: data holds the Stepper, no cycle through C++)
                 ref = weakref.ref(data)
                 self.stepper.table(*prep.table, lambda k: ref().pair_query(k), lambda k: ref().distance_query(k))
-                reach = model.gap_reach  # the records' gaps, one per geometry (contacts.geometry_gaps)
+            if model.gaps_per_geometry:  # the records' gaps, one per geometry (contacts.geometry_gaps)
+                reach = model.gap_reach
                 self.stepper.gap_reach(reach, broad_phase.within(model, reach).margin)
             if prep.shapes is not None:  # the detection's data beyond coal's narrow phase (Stepper::boxes)
                 queries = [data.point_query(g) if asked else None for g, asked in enumerate(prep.queried)]

@@ -541,13 +541,14 @@ def pair_distances(model: Model, data: Data, q: np.ndarray, *, near: bool = Fals
 
 
 def geometry_gaps(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
-    """(geometries,) [m]: the records' gaps of a model without a pair list (model.listed false; its n^2 / 2 pair
-    distances are never all evaluated): each geometry's least signed distance to the geometries it pairs with, where
-    it is at most model.gap_reach, else +inf; NaN where coal's query of a pair failed (docs/theory.md §6.1). coal
-    examines the broad phase's candidates at that margin (broad_phase.within: a box is never farther than its shape,
-    so every pair within the reach is among them). The same queries as pair_distances(near=True), on the same coal
-    objects, each warm-started from the pair's last query (fresh_guesses); src/step.cpp's Stepper::geometry_gaps is
-    this function, for the compiled run loop."""
+    """(geometries,) [m]: the records' gaps of a model of more than model.GAP_PAIRS pairs (Model.gaps_per_geometry;
+    its n^2 / 2 pair distances are never all evaluated): each geometry's least signed distance to the geometries it
+    pairs with, where it is at most model.gap_reach, else +inf; NaN where coal's query of a pair failed
+    (docs/theory.md §2.12). coal examines the broad phase's candidates at that margin (broad_phase.within: a box is
+    never farther than its shape, so every pair within the reach is among them): pin.computeDistance on the
+    GeometryData of a listed model, the same query on each pair's own coal objects without a list (data.Data.distance,
+    as pair_distances(near=True)), each warm-started from the pair's last query (fresh_guesses); src/step.cpp's
+    Stepper::geometry_gaps is this function, for the compiled run loop."""
     out = np.full(len(model.geometries), np.inf)
     model.forest.place(data.kinematics, q, model.geometries, data.oMg)
     reach = model.gap_reach
@@ -559,16 +560,21 @@ def geometry_gaps(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
         lo, hi = np.minimum(gi, gj), np.maximum(gi, gj)
         swap = joint[lo] < joint[hi]
         first, second = np.where(swap, hi, lo), np.where(swap, lo, hi)
-        oMg = data.oMg
-        tf = {g: coal.Transform3s(oMg[g]) for g in np.union1d(first, second).tolist()}
-        queries = [data.distance_query(k) for k in cand.tolist()]
-        fresh_guesses([x[0] for x in queries])
-        d = []
-        for (req, res, f), a, b in zip(queries, first.tolist(), second.tolist()):
-            res.clear()
-            f(tf[a], tf[b], req, res)
-            d.append(res.min_distance)
-        d = np.array(d)
+        if model.listed:
+            gm, gd = model.geom, data.geom
+            fresh_guesses([gd.distanceRequests[k] for k in cand.tolist()])
+            d = np.array([pin.computeDistance(gm, gd, k).min_distance for k in cand.tolist()])
+        else:
+            oMg = data.oMg
+            tf = {g: coal.Transform3s(oMg[g]) for g in np.union1d(first, second).tolist()}
+            queries = [data.distance_query(k) for k in cand.tolist()]
+            fresh_guesses([x[0] for x in queries])
+            d = []
+            for (req, res, f), a, b in zip(queries, first.tolist(), second.tolist()):
+                res.clear()
+                f(tf[a], tf[b], req, res)
+                d.append(res.min_distance)
+            d = np.array(d)
         d[~(np.abs(d) < DISTANCE_FAILED)] = np.nan
         d[d > reach] = np.inf  # a candidate beyond the reach (boxes are coarser than shapes): as the others
         np.minimum.at(out, first, d)  # (a NaN stays: np.minimum propagates it)
@@ -578,8 +584,8 @@ def geometry_gaps(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
 
 def record_gaps(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
     """The gap column of a sample at q [m] (trajectory "gap", named by model.gap_names): every pair's distance
-    (pair_distances) for a model with a pair list, each geometry's nearest (geometry_gaps) for one without."""
-    return pair_distances(model, data, q) if model.listed else geometry_gaps(model, data, q)
+    (pair_distances), or each geometry's nearest (geometry_gaps) for a model of more than model.GAP_PAIRS pairs."""
+    return geometry_gaps(model, data, q) if model.gaps_per_geometry else pair_distances(model, data, q)
 
 
 def check_initial(model: Model, data: Data, q: np.ndarray) -> None:

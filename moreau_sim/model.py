@@ -229,14 +229,20 @@ class Model:
         return tuple(p.name for p in self.pairs)
 
     @property
+    def gaps_per_geometry(self) -> bool:
+        """Whether a sample records a gap per geometry (contacts.geometry_gaps: n geometries, not n^2 / 2 pairs), not
+        per pair: a model of more than GAP_PAIRS pairs (every model without a pair list)."""
+        return not self.listed or len(self.pairs) > GAP_PAIRS
+
+    @property
     def gap_names(self) -> tuple[str, ...]:
-        """The names of the recorded gap columns (trajectory "gap"): the collision pairs' of a model with a pair
-        list; a geometry's each, for a model without one (contacts.geometry_gaps: n geometries, not n^2 / 2 pairs)."""
-        return self.pair_names if self.listed else tuple(go.name for go in self.geometries)
+        """The names of the recorded gap columns (trajectory "gap"): the collision pairs', or the geometries'
+        (gaps_per_geometry)."""
+        return tuple(go.name for go in self.geometries) if self.gaps_per_geometry else self.pair_names
 
     @property
     def gap_reach(self) -> float:
-        """[m] how far from a geometry the records of a model without a pair list look for its nearest partner
+        """[m] how far from a geometry the records of a model of gaps_per_geometry look for its nearest partner
         (contacts.geometry_gaps; farther: +inf): half the median, over the bounded geometries, of the largest
         side of their boxes (coal's local AABB), so about half a body of the scene."""
         reach = self.__dict__.get("_gap_reach")
@@ -312,8 +318,8 @@ class Model:
             # a model without a pair list (more than LAZY_PAIRS pairs) names none of them: its gaps are per geometry
             "collision_pairs": list(self.pair_names) if self.listed else None,
             "pair_count": len(self.pairs),
-            "gap_columns": "pairs" if self.listed else "geometries",
-            "gap_reach": None if self.listed else self.gap_reach,
+            "gap_columns": "geometries" if self.gaps_per_geometry else "pairs",
+            "gap_reach": self.gap_reach if self.gaps_per_geometry else None,
             "excluded_pairs": [{"pair": name, "why": why} for name, why in self.excluded],
             "joint_limits": [{"pair": lim.pair, "name": lim.name, "bound": lim.bound} for lim in self.limits],
             "restitution": o.restitution,
@@ -441,6 +447,7 @@ def _load(body, where: str, loaded: dict) -> tuple[pin.Model, pin.GeometryModel,
 
 
 LAZY_PAIRS = 20_000  # above this many pairs no list, GeometryModel nor GeometryData of them is made with the model
+GAP_PAIRS = 1000  # above this many pairs a sample records a gap per geometry, not per pair (Model.gaps_per_geometry)
 
 
 DATA_BYTES_PER_NV3 = 32  # Pinocchio 4.1's Data: four nv x nv x nv tensors of doubles (second-order derivatives)

@@ -107,7 +107,7 @@ def _gaps(ax, _, a, meta, pairs, colour):
         ax.text(0.5, 0.5, "no collision pairs", transform=ax.transAxes, ha="center")
         return
     mm = meta.get("model", {})
-    per_geometry = mm.get("gap_columns") == "geometries"  # a scene without a pair list: a column per geometry
+    per_geometry = mm.get("gap_columns") == "geometries"  # more than model.GAP_PAIRS pairs: a column per geometry
     if per_geometry:
         pairs = dict(enumerate(mm.get("geometries", [])))
         colour = {k: c for k, c in zip(_top(-np.nanmin(gaps, axis=0)) if len(t) else [], _CYCLE)}

@@ -172,9 +172,9 @@ class Recorder:
 
     def __init__(self, model: Model, data: Data, n_samples: int = 1, *, spill: str | Path | None = None):
         self.model, self.data = model, data
-        gaps = len(model.pairs) if model.listed else len(model.geometries)  # len(model.gap_names)
+        gaps = len(model.geometries) if model.gaps_per_geometry else len(model.pairs)  # len(model.gap_names)
         sizes = {"nq": model.nq, "nv": model.nv, "gaps": gaps}
-        self._far = not model.listed  # its gaps are per geometry, +inf where no partner is near: not an overflow
+        self._far = model.gaps_per_geometry  # +inf where no partner is near: not an overflow
         self._external = (model.actuation is not None or model.prescribed is not None
                           or model.drive is not None)  # the EXTERNAL columns
         schema = {**trajectory.SAMPLES, **trajectory.EXTERNAL} if self._external else trajectory.SAMPLES
@@ -231,7 +231,7 @@ class Recorder:
         # coal failed at a finite state (not an overflow, which finite() reports): stop, uncommitted, no sentinel
         if not math.isfinite(gs[1]) and np.isnan(g).any() and math.isfinite(T + V) and state.finite():
             k = int(np.flatnonzero(np.isnan(g))[0])
-            what = f"pair {m.pairs[k].name}" if m.listed else f"a pair of geometry {m.gap_names[k]}"
+            what = f"a pair of geometry {m.gap_names[k]}" if m.gaps_per_geometry else f"pair {m.pairs[k].name}"
             raise SimulationError(f"the distance of {what} at t = {state.t:.6g} s is undefined "
                                   "(coal's GJK/EPA query failed)")
         c["n_contacts"][i] = n_contacts

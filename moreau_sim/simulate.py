@@ -137,7 +137,7 @@ def summary(traj: Trajectory) -> Summary:
         "correction_energy_total": float(a["correction_energy"].sum()),
         "smooth_error_total": float(a["smooth_error"].sum()),  # the ledger (docs/theory.md §5, ms.ledger)
         "law_difference_max": traj.meta.get("ledger", {}).get("max_law_difference"),
-        # None also where no two geometries came within reach (a scene without a pair list records +inf there)
+        # None also where no two geometries came within reach (gaps per geometry are +inf there)
         "min_gap": None if min_gap == math.inf else min_gap,
         "wall_seconds": run_.get("wall_seconds"),
         "cpu_seconds": run_.get("cpu_seconds"),  # the run loop's CPU time (driver.drive)

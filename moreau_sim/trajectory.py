@@ -5,8 +5,8 @@ Arrays (n = saved samples, k = logged contact percussions):
   t (n,) [s]; q (n, nq); u (n, nv); kinetic_energy, potential_energy (n,) [J];
   contact_work (n,) [J]: sum of the step ledger W_c over the steps since the previous sample;
   correction_energy (n,) [J]: the change of T + V made by the position correction over those steps;
-  gap (n, gaps) [m]: signed distance of each collision pair at the sample; in a scene without a pair list
-  (more than model.LAZY_PAIRS pairs: meta model "gap_columns" = "geometries") one column per geometry, its
+  gap (n, gaps) [m]: signed distance of each collision pair at the sample; in a scene of more than model.GAP_PAIRS
+  pairs (Model.gaps_per_geometry: meta model "gap_columns" = "geometries") one column per geometry, its
   nearest partner's distance, +inf where none is within meta model "gap_reach" [m] (contacts.geometry_gaps);
   n_contacts (n,): closed contacts in the step that produced the sample;
   the energy ledger (docs/theory.md §5, ledger.py), summed over the steps since the previous sample:
@@ -51,7 +51,7 @@ import numpy as np
 
 from moreau_sim import interrupts
 
-# 5: a gap per geometry without a pair list; 4: log_steps; 3: the ledger arrays; 2: log_kind + log_feature (1: one
+# 5: a gap per geometry above model.GAP_PAIRS pairs; 4: log_steps; 3: the ledger arrays; 2: log_kind + log_feature (1: one
 # feature id)
 FORMAT = "moreau-sim trajectory 5"
 

@@ -59,13 +59,13 @@ class ForestFigures {
   double kinetic(const VectorXd &q, const VectorXd &u) { return forest_.kinetic(q, u); }  // Forest.kinetic
   double potential(const VectorXd &q) { return forest_.potential(q); }  // Forest.potential
   size_t pairs() const { return S_.gm_.collisionPairs.size(); }
-  // a scene without a pair list (Stepper::table): its gaps are one per geometry, +inf where none is near
-  bool per_geometry() const { return S_.table_.has_value(); }
-  // the sample's gaps into `out` (recording.Recorder.sample, contacts.record_gaps): contacts.pair_distances (Forest.place
-  // with the geometry placements, then coal's distances), or contacts.geometry_gaps for a scene without a pair list
+  // Model.gaps_per_geometry (Stepper::gap_reach): its gaps are one per geometry, +inf where none is near
+  bool per_geometry() const { return S_.gaps_per_geometry_; }
+  // the sample's gaps into `out` (recording.Recorder.sample, contacts.record_gaps): contacts.geometry_gaps, or
+  // contacts.pair_distances (Forest.place with the geometry placements, then coal's distances)
   void gaps(const VectorXd &q, double *out) {
-    if (!S_.gm_.collisionPairs.empty()) S_.distances(q, out);
-    else if (per_geometry()) S_.geometry_gaps(q, out);
+    if (per_geometry()) S_.geometry_gaps(q, out);
+    else if (!S_.gm_.collisionPairs.empty()) S_.distances(q, out);
   }
 
  private:
@@ -310,7 +310,7 @@ class Runner {
       return false;  // the controller failed: compiled_run.py raises its error (nothing committed)
     if (guard_) {
       save_distances();
-      if (forest_.per_geometry()) S_.journal_begin();  // Python's distance queries: their guesses as they go (Undo)
+      if (S_.table_) S_.journal_begin();  // Python's distance queries: their guesses as they go (Undo)
     }
     StepOut r = S_.step(q_, u_, h, e, tau, t_);
     if (r.outcome == Outcome::FALLBACK) {  // the Stepper restored what it moved, but its guard's distance queries

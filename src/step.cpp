@@ -1884,10 +1884,10 @@ class Stepper {
   }
   // the records' reach [m] (Model.gap_reach) and the broad phase's margin for it (broad_phase.within's): a scene
   // without a pair list records its gaps per geometry (geometry_gaps below)
-  void gap_reach(double reach, double margin) { gap_reach_ = reach, gap_margin_ = margin; }
+  void gap_reach(double reach, double margin) { gap_reach_ = reach, gap_margin_ = margin, gaps_per_geometry_ = true; }
   // contacts.geometry_gaps at q (for the tests; the run loop writes into its sample's row)
   VectorXd geometry_gaps_at(const VectorXd &q) {
-    if (!table_ || !bp_) throw nb::value_error("geometry_gaps: a scene without a pair list");
+    if (!gaps_per_geometry_ || !bp_) throw nb::value_error("geometry_gaps: gap_reach() first, on a broad phase");
     VectorXd out(gm_.geometryObjects.size());
     geometry_gaps(q, out.data());
     return out;
@@ -1959,6 +1959,7 @@ class Stepper {
   std::vector<int> cand_;  // the broad phase's candidates at the last detection (sorted)
   std::vector<int> gap_cand_;  // scratch: geometry_gaps' candidates
   double gap_reach_ = 0.0, gap_margin_ = 0.0;  // gap_reach()
+  bool gaps_per_geometry_ = false;  // gap_reach() was called: the samples' gaps are per geometry
   bool journal_on_ = false;  // journal_begin()
   struct SavedDistance {  // a distance query's guesses (request, result): journal_distance
     coal::Vec3s req;
@@ -2044,10 +2045,11 @@ class Stepper {
     }
     return out;
   }
-  // contacts.geometry_gaps (a scene without a pair list: the records' gaps, one per geometry) into out: each
-  // geometry's least distance to the geometries it pairs with where it is at most gap_reach_ [m], else +inf; NaN where
-  // coal's query of a pair failed (np.minimum's: a NaN stays). coal's query on the candidates at gap_margin_ on
-  // Python's objects (data.Data.distance_query), their guesses journaled (journal_distance)
+  // contacts.geometry_gaps (a model of more than model.GAP_PAIRS pairs: the records' gaps, one per geometry) into
+  // out: each geometry's least distance to the geometries it pairs with where it is at most gap_reach_ [m], else +inf;
+  // NaN where coal's query of a pair failed (np.minimum's: a NaN stays). coal's query on the candidates at
+  // gap_margin_: pinocchio's computeDistance on the GeometryData (a pair list), or on Python's objects
+  // (data.Data.distance_query, table mode), their guesses journaled (journal_distance)
   void geometry_gaps(const VectorXd &q, double *out) {
     place_geometries(q);
     std::vector<int> &cand = gap_cand_;
@@ -2055,16 +2057,25 @@ class Stepper {
     const size_t G = gm_.geometryObjects.size();
     std::fill(out, out + G, INFINITY);
     for (int k : cand) {
+      if (!table_) {
+        fresh_guess(gd_.distanceRequests[(size_t)k].cached_gjk_guess);
+        continue;
+      }
       journal_distance(k);
       fresh_guess(distance_of(k).req->cached_gjk_guess);
     }
     const double nan = std::numeric_limits<double>::quiet_NaN();
     for (int k : cand) {
-      const DistanceQuery d = distance_of(k);
-      const pairs::Row r = table_->row(k);
-      d.res->clear();
-      (*d.f)(placement(r.first), placement(r.second), *d.req, *d.res);
-      double x = d.res->min_distance;
+      const pairs::Row r = pair(k);
+      double x;
+      if (table_) {
+        const DistanceQuery d = distance_of(k);
+        d.res->clear();
+        (*d.f)(placement(r.first), placement(r.second), *d.req, *d.res);
+        x = d.res->min_distance;
+      } else {
+        x = pinocchio::computeDistance(gm_, gd_, (pinocchio::PairIndex)k).min_distance;
+      }
       if (!(std::abs(x) < C_.distance_failed)) x = nan;
       if (x > gap_reach_) x = INFINITY;  // a candidate beyond the reach: as the others
       for (const int g : {r.first, r.second}) out[g] = (std::isnan(out[g]) || std::isnan(x)) ? nan : std::min(out[g], x);

@@ -289,3 +289,26 @@ def test_the_swept_test_of_a_table_queries_its_pairs_alone(impl, monkeypatch):
         assert table.arrays[k].tobytes() == listed.arrays[k].tobytes(), k
     assert 4 in table.log_kind.tolist()  # a swept contact (contacts.FeatureKind.SWEPT) was logged
     assert table.q[:, 0].min() > 0.5  # the marble never passed the plate's top
+
+
+@pytest.mark.parametrize("integrator", ["time-stepping", "adaptive"])
+def test_a_listed_scene_of_many_pairs_records_a_gap_per_geometry(integrator, monkeypatch):
+    """A column of 50 beads lists its 1275 pairs (below model.LAZY_PAIRS) but has more than model.GAP_PAIRS: its
+    samples record a gap per geometry, the least of what the same run records per pair (model.GAP_PAIRS raised) where
+    within the reach, bit for bit, +inf elsewhere; the compiled run loop records them as the Python one."""
+    sc = column(50, exclude=False).with_options(integrator=integrator, duration=0.01, step_impl="compiled")
+    model = ms.build_model(sc)
+    assert model.listed and len(model.pairs) == 1275 > ms.model.GAP_PAIRS and model.gaps_per_geometry
+    per_geometry = ms.simulate(model, progress=False)
+    assert per_geometry.gap.shape[1] == 51 and per_geometry.meta["model"]["gap_columns"] == "geometries"
+    assert per_geometry.meta["model"]["collision_pairs"] and "logged_pairs" not in per_geometry.meta["model"]
+    if integrator == "time-stepping":
+        assert per_geometry.meta["run"]["loop"] == "compiled"
+        python = ms.simulate(model, progress=False, python_run=True)
+        assert _differ(per_geometry, python) == []
+    monkeypatch.setattr(ms.model, "GAP_PAIRS", 10 ** 6)
+    per_pair_model = ms.build_model(sc)
+    per_pair = ms.simulate(per_pair_model, progress=False)
+    assert per_pair.gap.shape[1] == 1275 and np.array_equal(per_pair.q, per_geometry.q)
+    ref = _nearest(per_pair_model, per_pair.gap)
+    assert np.array_equal(per_geometry.gap, np.where(ref <= model.gap_reach, ref, np.inf))
