@@ -51,8 +51,8 @@ import numpy as np
 
 from moreau_sim import interrupts
 
-# 5: a gap per geometry above model.GAP_PAIRS pairs; 4: log_steps; 3: the ledger arrays; 2: log_kind + log_feature (1: one
-# feature id)
+# 5: a gap per geometry above model.GAP_PAIRS pairs; 4: log_steps; 3: the ledger arrays; 2: log_kind + log_feature
+# (1: one feature id)
 FORMAT = "moreau-sim trajectory 5"
 
 # name -> (dtype, trailing shape); "nq", "nv", "gaps" are the model's sizes (gaps: len(Model.gap_names))
