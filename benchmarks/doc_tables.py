@@ -33,6 +33,7 @@ TABLES = (("docs/benchmarks.md", "docs/bench/work_precision.json", work_precisio
           ("docs/benchmarks.md", "docs/bench/events.json", events.doc_tables),
           ("docs/benchmarks.md", "docs/bench/scaling.json", scaling.doc_tables),
           ("docs/benchmarks.md", "docs/bench/scaling_build.json", scaling.doc_tables),
+          ("docs/benchmarks.md", "docs/bench/scaling_runs.json", scaling.doc_tables),
           ("docs/robots.md", "docs/bench/robots.json", robots_table.doc_tables),
           ("docs/stability.md", "docs/bench/stability.json", stability.doc_tables))
 
