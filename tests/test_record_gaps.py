@@ -1,6 +1,7 @@
-"""The records' gap column of a scene without a pair list (contacts.geometry_gaps, recording.Recorder): one column per
-geometry, its nearest partner's signed distance within Model.gap_reach, +inf beyond; against the distances of every
-pair, which the same scene with its pairs listed records (docs/theory.md §2.12, docs/output.md)."""
+"""The records' gap column of a scene of many pairs (more than model.GAP_PAIRS, and every scene without a pair list;
+contacts.geometry_gaps, recording.Recorder, src/step.cpp Stepper::geometry_gaps): one column per geometry, its nearest
+partner's signed distance within Model.gap_reach, +inf beyond; against the distances of every pair, which the same
+scene recorded per pair gives (docs/theory.md §2.12, docs/output.md)."""
 
 import json
 import subprocess
