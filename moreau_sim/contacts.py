@@ -36,7 +36,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from . import box_box, broad_phase
+from . import box_box, broad_phase, pair_table
 from .data import GATE_MARGIN, Data
 from .model import DISTANCE_FAILED, Model, check_start
 from .sums import ordered
@@ -554,12 +554,8 @@ def geometry_gaps(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
     reach = model.gap_reach
     cand, gi, gj = broad_phase.within(model, reach).candidate_geometries_at(data.kinematics.oMi)
     if len(cand):
-        # data.distance(k) of each candidate, its two placements made once per geometry: shape 1 is the geometry on
-        # the larger joint (pair_table.PairTable's Pair)
-        joint = model.pair_table.joint
-        lo, hi = np.minimum(gi, gj), np.maximum(gi, gj)
-        swap = joint[lo] < joint[hi]
-        first, second = np.where(swap, hi, lo), np.where(swap, lo, hi)
+        # data.distance(k) of each candidate, its two placements made once per geometry, in its Pair's order
+        first, second = pair_table.ordered(model.pair_table, gi, gj)
         if model.listed:
             gm, gd = model.geom, data.geom
             fresh_guesses([gd.distanceRequests[k] for k in cand.tolist()])

@@ -160,6 +160,14 @@ def thinnest(t: PairTable, ext: np.ndarray) -> float:
     return float(best.min(initial=np.inf))
 
 
+def ordered(t: PairTable, i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first, second) of the pairs of geometries (i, j) (arrays, any order) as PairTable's Pair has them: the
+    geometry on the larger joint first (coal's shape 1), the smaller geometry id first on equal joints."""
+    lo, hi = np.minimum(i, j), np.maximum(i, j)
+    swap = t.joint[lo] < t.joint[hi]
+    return np.where(swap, hi, lo), np.where(swap, lo, hi)
+
+
 def pairs_among(t: PairTable, geoms: list) -> np.ndarray:
     """(n, 5) rows (pair index, first, second, joint first, joint second) of the pairs of t between
     geometries `geoms`, in pair order, first and second as PairTable's Pair has them (the geometry on
@@ -170,8 +178,7 @@ def pairs_among(t: PairTable, geoms: list) -> np.ndarray:
     ok = t.chosen(i, j)
     lo, hi = np.minimum(i[ok], j[ok]), np.maximum(i[ok], j[ok])
     k = t.index(lo, hi).astype(np.int64)
-    swap = t.joint[lo] < t.joint[hi]
-    first, second = np.where(swap, hi, lo), np.where(swap, lo, hi)
+    first, second = ordered(t, lo, hi)
     order = np.argsort(k, kind="stable")
     return np.stack([k, first, second, t.joint[first], t.joint[second]], axis=1).reshape(-1, 5)[order]
 
