@@ -23,7 +23,7 @@ from . import box_box, broad_phase, constraints, qp
 from .contacts import DISTANCE_FAILED, GUESS_MIN, NO_CONTACTS, SAME_POINT, SNAP_COS, Contacts, FeatureKind
 from .data import GATE_MARGIN
 from .law import ENERGY_ROUNDOFF
-from .model import data_limit
+from .memory import data_limit
 from .options import PositionCorrection, QPForm, Tunnelling, Bias, Separating, SlowImpacts, StepImpl
 from .qp import QPResult
 from .results import HOLD, MIDPOINT_ITERATIONS, MIDPOINT_TOLERANCE, RESTING, StepResult

@@ -11,7 +11,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from .model import Model, new_data
+from .memory import new_data
+from .model import Model
 from .trees import Kinematics
 
 GJK_TOLERANCE = 1e-12  # coal's GJK/EPA tolerances for the contact normal (default 1e-6 is too coarse)
@@ -243,7 +244,7 @@ class Data:
     @property
     def pin(self) -> pin.Data:
         """The whole model's Pinocchio Data, made at first use; a SceneError naming its size when it
-        exceeds the memory limit (model.check_data_size: Pinocchio 4.1's Data is nv^3)."""
+        exceeds the memory limit (memory.check_data_size: Pinocchio 4.1's Data is nv^3)."""
         if self._pin is None:
             model = self._model
             where = str(model.scene.path) if model.scene.path else model.scene.name

@@ -160,7 +160,7 @@ class Kinematics:
     """Scratch of a forest: each tree's Pinocchio Data (made at first use), the placements oMi of
     every joint by the scene's joint id (views of the trees' Datas: place() updates them), and J
     (6, nv) the WORLD Jacobians mass_matrix() fills. make: a tree's model -> its Data (default
-    pin.Data; model.py's new_data refuses one above the memory limit in one line)."""
+    pin.Data; memory.new_data refuses one above the memory limit in one line)."""
 
     def __init__(self, forest: Forest, make=None):
         self.forest = forest

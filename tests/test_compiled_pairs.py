@@ -270,7 +270,7 @@ def test_a_scene_above_the_pair_list_limit_gets_the_compiled_step():
 def test_the_dense_matrices_limit_edge(monkeypatch):
     """The compiled step forms M and M^-1 dense (compiled.DENSE_COPIES of (nv, nv) doubles): a model gets it while they
     fit the memory limit, and is refused in one line one byte below (its steps then go to the Python step)."""
-    from moreau_sim.model import DATA_LIMIT_VARIABLE
+    from moreau_sim.memory import DATA_LIMIT_VARIABLE
 
     model = ms.build_model(_scene("box_stack_10", step_impl="compiled"))
     need = compiled.DENSE_COPIES * 8 * model.nv ** 2

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import bodies, model as model_module
+from moreau_sim import bodies, memory, model as model_module
 
 from helpers import MODELS, ROOT
 
@@ -105,7 +105,7 @@ def test_a_data_that_cannot_be_allocated_names_its_size(tmp_path, monkeypatch):
     """The size check against the memory available (probed, here set to 1 kB: a 10-link chain's
     Data needs 32 kB)."""
     chain_urdf(tmp_path / "chain.urdf", 11)
-    monkeypatch.setattr(model_module, "available_memory", lambda: 1000)
+    monkeypatch.setattr(memory, "available_memory", lambda: 1000)
     refused(scene(tmp_path, 'urdf = "chain.urdf"\nroot_joint = "fixed"'), "nv = 10", "more than the")
 
 
@@ -124,11 +124,11 @@ def test_the_data_limit_is_stated_and_overridable(tmp_path, monkeypatch):
     a 10-link chain's Data needs 32 kB); the refusal names it, the scene, the bodies and nv."""
     chain_urdf(tmp_path / "chain.urdf", 11)
     s = scene(tmp_path, 'urdf = "chain.urdf"\nroot_joint = "fixed"')
-    monkeypatch.setenv(model_module.DATA_LIMIT_VARIABLE, "1e-6")
+    monkeypatch.setenv(memory.DATA_LIMIT_VARIABLE, "1e-6")
     refused(s, s, "1 bodies", "nv = 10", "MOREAU_SIM_DATA_LIMIT_GB = 1e-6 GiB")
-    monkeypatch.setenv(model_module.DATA_LIMIT_VARIABLE, "lots")
+    monkeypatch.setenv(memory.DATA_LIMIT_VARIABLE, "lots")
     refused(s, "MOREAU_SIM_DATA_LIMIT_GB", "a number of GiB expected")
-    monkeypatch.setenv(model_module.DATA_LIMIT_VARIABLE, "1")
+    monkeypatch.setenv(memory.DATA_LIMIT_VARIABLE, "1")
     assert ms.build_model(ms.load_scene(s)).nv == 10
 
 

@@ -25,7 +25,8 @@ from moreau_sim import compiled, energy, trees
 from moreau_sim.bodies import load_body
 from moreau_sim.data import make_data
 from moreau_sim.errors import SceneError
-from moreau_sim.model import DATA_LIMIT_VARIABLE, build_model, initial_state
+from moreau_sim.memory import DATA_LIMIT_VARIABLE
+from moreau_sim.model import build_model, initial_state
 from moreau_sim.options import RootJoint
 from moreau_sim.scene import load_scene
 from moreau_sim.stepper import step
