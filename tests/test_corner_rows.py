@@ -116,14 +116,15 @@ def test_a_heavy_stack_has_one_row_per_corner_in_both_steps(e, h):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("h, duration", [(1e-2, 0.5), (1e-3, 0.05)])
+@pytest.mark.parametrize("h, duration", [(1e-2, 0.5)])
 @pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
 def test_the_heavy_stack_projections_are_the_exact_ones_to_2e_9(monkeypatch, e, h, duration):
     """Every velocity projection of the traced draw's first 50 steps against the same QP solved exactly (rational
     arithmetic, test_projection_accuracy._exact): within 2e-9 m/s (rad/s). With the twin rows (before the rule) the
     projections at h = 1e-2 were up to 2.9e-7, 3.8e-8 and 2.0e-7 off at e = 0, 0.5, 1 (a corner's percussion on the
     tilted twin: a yaw of 1.25e-8 rad/s of the 1 kg cube, docs/theory.md §2.11); with one row a corner 1.2e-11,
-    8.0e-10 and 1.6e-11. (At h = 1e-3 both are within 1e-14 over these steps.)"""
+    8.0e-10 and 1.6e-11. (At h = 1e-3 both are within 1e-14 over these steps: the draw's projections at that step
+    are test_projection_accuracy's, to 1e-12.)"""
     from test_projection_accuracy import _exact, _projections
 
     seen = _projections(monkeypatch, HEAVY, h, e, duration)

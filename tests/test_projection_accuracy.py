@@ -22,41 +22,51 @@ FIVE = [1e4, 1.0, 100.0, 1e5, 1e4]  # the family's draw that crept 2.3e-6 m in 6
 
 def _exact(W, v0, b, Minv):
     """argmin 1/2 (v - v0)'M(v - v0) s.t. W'v >= b with M^-1 = Minv, in exact arithmetic on the given floats:
-    the dual active set from nothing (every step exact, so no tolerance), v = v0 + M^-1 W lam as floats."""
+    the dual active set from nothing (every step exact, so no tolerance), v = v0 + M^-1 W lam as floats. On integers
+    (the floats' exact values times powers of two), G_AA's solves by Bareiss's fraction-free elimination."""
     nv, m = W.shape
-    Wf = [[Fraction(float(x)) for x in row] for row in W]
-    Mi = [[Fraction(float(x)) for x in row] for row in Minv]
-    v0f = [Fraction(float(x)) for x in v0]
-    MiW = [[sum(Mi[i][k] * Wf[k][j] for k in range(nv) if Mi[i][k] and Wf[k][j]) for j in range(m)]
-           for i in range(nv)]
-    G = [[sum(Wf[k][i] * MiW[k][j] for k in range(nv)) for j in range(m)] for i in range(m)]
-    r = [Fraction(float(b[i])) - sum(Wf[k][i] * v0f[k] for k in range(nv)) for i in range(m)]
+    # on integers: each array as n 2^-e (e common to its entries); G and r scaled by one power of two 2^K, which
+    # leaves the QP's lam unchanged (its every condition is homogeneous in (G, r))
+    (Wi, a), (Mii, c), (v0i, d), (bi, f) = (_integers(x) for x in (W, Minv, v0, b))
+    MiWi = [[sum(Mii[i][k] * Wi[k][j] for k in range(nv) if Mii[i][k] and Wi[k][j]) for j in range(m)]
+            for i in range(nv)]  # M^-1 W 2^(a + c)
+    K = max(2 * a + c, a + d, f)
+    G = [[sum(Wi[k][i] * MiWi[k][j] for k in range(nv)) << (K - 2 * a - c) for j in range(m)] for i in range(m)]
+    r = [Fraction((bi[i] << (K - f)) - (sum(Wi[k][i] * v0i[k] for k in range(nv)) << (K - a - d))) for i in range(m)]
+    MiW = [[Fraction(x, 1 << (a + c)) for x in row] for row in MiWi]
+    v0f = [Fraction(x, 1 << d) for x in v0i]
     lam, act = [Fraction(0)] * m, []
 
-    def solve(A, y):  # Gaussian elimination on fractions (G_AA is positive definite: no zero pivot)
+    def solve(A, y):  # A x = y on integers: Bareiss's fraction-free elimination, then back-substitution
         n = len(A)
-        a = [row[:] + [y[i]] for i, row in enumerate(A)]
+        a = [[int(x) for x in row] + [int(y[i])] for i, row in enumerate(A)]
+        prev = 1
         for j in range(n):
-            p = next(i for i in range(j, n) if a[i][j] != 0)
+            p = next((i for i in range(j, n) if a[i][j]), None)
+            if p is None:
+                return None
             a[j], a[p] = a[p], a[j]
             for i in range(j + 1, n):
-                if a[i][j]:
-                    f = a[i][j] / a[j][j]
-                    a[i] = [x - f * z for x, z in zip(a[i], a[j])]
+                a[i] = [0] * (j + 1) + [(a[i][k] * a[j][j] - a[i][j] * a[j][k]) // prev for k in range(j + 1, n + 1)]
+            prev = a[j][j]
         x = [Fraction(0)] * n
         for j in range(n - 1, -1, -1):
-            x[j] = (a[j][n] - sum(a[j][k] * x[k] for k in range(j + 1, n))) / a[j][j]
+            x[j] = (Fraction(a[j][n]) - sum(a[j][k] * x[k] for k in range(j + 1, n))) / a[j][j]
         return x
+
+    def answer(act):
+        v = [v0f[i] + sum(MiW[i][j] * lam[j] for j in act) for i in range(nv)]
+        return np.array([float(x) for x in v])
 
     for _ in range(10 * m + 10):
         s = [sum(G[i][j] * lam[j] for j in range(m) if lam[j]) - r[i] for i in range(m)]
         viol = [(s[i], i) for i in range(m) if i not in act and s[i] < 0]
         if not viol:
-            v = [v0f[i] + sum(MiW[i][j] * lam[j] for j in act) for i in range(nv)]
-            return np.array([float(x) for x in v])
+            return answer(act)
         p = min(viol)[1]
         while True:  # add p, dropping the rows whose multipliers reach zero first
             d = solve([[G[i][j] for j in act] for i in act], [-G[i][p] for i in act]) if act else []
+            assert d is not None, "G_AA is singular"
             z = G[p][p] + sum(G[p][j] * dj for j, dj in zip(act, d))
             sp = sum(G[p][j] * lam[j] for j in range(m) if lam[j]) - r[p]
             t1 = -sp / z if z > 0 else None
@@ -73,6 +83,15 @@ def _exact(W, v0, b, Minv):
             lam[k] = Fraction(0)
             act.remove(k)
     raise AssertionError("the exact active set did not settle")
+
+
+def _integers(x) -> tuple[list, int]:
+    """A float array's entries exactly as integers n times a common 2^-e: (the integers, nested as x is; e >= 0)."""
+    x = np.asarray(x, float)
+    ratios = [v.as_integer_ratio() for v in x.ravel().tolist()]  # (n, 2^k)
+    e = max(den.bit_length() - 1 for _, den in ratios) if ratios else 0
+    ints = [num << (e - den.bit_length() + 1) for num, den in ratios]
+    return (np.array(ints, dtype=object).reshape(x.shape).tolist(), e)
 
 
 def _projections(monkeypatch, masses, h, e, duration):
