@@ -2029,18 +2029,11 @@ class Stepper {
     place_geometries(q);
     std::vector<int> cand;
     candidates(cand);
-    for (int k : cand) {
-      journal_distance(k);
-      fresh_guess(distance_of(k).req->cached_gjk_guess);
-    }
+    for (int k : cand) table_guess(k);
     std::vector<std::pair<int, double>> out;
     out.reserve(cand.size());
     for (int k : cand) {
-      const DistanceQuery d = distance_of(k);
-      const pairs::Row r = table_->row(k);
-      d.res->clear();
-      (*d.f)(placement(r.first), placement(r.second), *d.req, *d.res);
-      const double x = d.res->min_distance;
+      const double x = table_distance(k);
       out.push_back({k, (std::abs(x) < C_.distance_failed || x == INFINITY) ? x : std::numeric_limits<double>::quiet_NaN()});
     }
     return out;
@@ -2057,29 +2050,33 @@ class Stepper {
     const size_t G = gm_.geometryObjects.size();
     std::fill(out, out + G, INFINITY);
     for (int k : cand) {
-      if (!table_) {
+      if (table_)
+        table_guess(k);
+      else
         fresh_guess(gd_.distanceRequests[(size_t)k].cached_gjk_guess);
-        continue;
-      }
-      journal_distance(k);
-      fresh_guess(distance_of(k).req->cached_gjk_guess);
     }
     const double nan = std::numeric_limits<double>::quiet_NaN();
     for (int k : cand) {
       const pairs::Row r = pair(k);
-      double x;
-      if (table_) {
-        const DistanceQuery d = distance_of(k);
-        d.res->clear();
-        (*d.f)(placement(r.first), placement(r.second), *d.req, *d.res);
-        x = d.res->min_distance;
-      } else {
-        x = pinocchio::computeDistance(gm_, gd_, (pinocchio::PairIndex)k).min_distance;
-      }
+      double x = table_ ? table_distance(k) : pinocchio::computeDistance(gm_, gd_, (pinocchio::PairIndex)k).min_distance;
       if (!(std::abs(x) < C_.distance_failed)) x = nan;
       if (x > gap_reach_) x = INFINITY;  // a candidate beyond the reach: as the others
       for (const int g : {r.first, r.second}) out[g] = (std::isnan(out[g]) || std::isnan(x)) ? nan : std::min(out[g], x);
     }
+  }
+  // a table pair's distance query (Python's coal objects, data.Data.distance_query) before its first use at a new
+  // configuration: its guesses journaled (journal_distance), then made fresh as contacts.fresh_guesses makes them
+  void table_guess(int k) {
+    journal_distance(k);
+    fresh_guess(distance_of(k).req->cached_gjk_guess);
+  }
+  // coal's distance of table pair k at the placed geometries (min_distance as coal returns it)
+  double table_distance(int k) {
+    const DistanceQuery d = distance_of(k);
+    const pairs::Row r = table_->row(k);
+    d.res->clear();
+    (*d.f)(placement(r.first), placement(r.second), *d.req, *d.res);
+    return d.res->min_distance;
   }
   // the distance queries' guesses a step and its sample move in table mode (Python's objects, not the GeometryData's:
   // the run loop's Undo restores them, src/run.cpp): journal_begin() before the step, each query's guesses saved at
