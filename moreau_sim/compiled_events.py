@@ -16,6 +16,7 @@ from collections.abc import Callable
 import numpy as np
 
 from . import compiled
+from .hermite import QUINTIC
 from .results import MIDPOINT_ITERATIONS
 
 
@@ -64,6 +65,18 @@ def sampler(model, data, *, lie: bool, basis) -> Callable | None:
     ds = compiled._module.DenseSampler(compiled._context(model, data).stepper, *compiled.forest_args(model, data),
                                        _rows(basis))
     return ds.samples
+
+
+def figures(model, data) -> Callable | None:
+    """What a sample records of given states, (Q (n, nq), U (n, nv)) -> (kinetic (n,) [J], potential (n,) [J], pair
+    distances (n, pairs) [m]) as Recorder.sample gives them (the event-driven integrator's samples on scipy's dense
+    output, recorded at once), or None where the compiled figures do not apply (sampler_unsupported, any
+    configuration space)."""
+    if sampler_unsupported(model, data, lie=False) is not None or not hasattr(compiled._module.DenseSampler, "figures"):
+        return None  # (an extension built before figures: Recorder.sample's)
+    ds = compiled._module.DenseSampler(compiled._context(model, data).stepper, *compiled.forest_args(model, data),
+                                       _rows(QUINTIC))  # (the basis: samples' only)
+    return ds.figures
 
 
 _ROWS: list = []  # (basis, its rows as lists of floats): the last basis sampler() converted

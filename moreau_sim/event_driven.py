@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from . import compiled_events
 from .actuation import refuse_driven
 from .drive import refuse as refuse_drives
 from .data import Data
@@ -84,6 +85,7 @@ class EventDrivenRun:
         self.pm, self.pd, self.nv = model.pin, data.pin, model.nv
         self.lie = any(model.pin.joints[j].nq != model.pin.joints[j].nv for j in range(1, model.pin.njoints))
         self.rtol, self.atol, self.method, self.max_step, self.max_events = rtol, atol, method, max_step, max_events
+        self.figures = compiled_events.figures(model, data)  # a sample's figures compiled (None: Recorder.sample's)
         state = state or initial_state(model, data)
         self.s = Carried(State(float(state.t), np.array(state.q, float), np.array(state.u, float)), float(state.t))
         self.t0, self.t_end = self.s.state.t, float(t_end)
@@ -233,7 +235,13 @@ class EventDrivenRun:
         def dense(tg: float):
             y = sol.sol(min(tg - t, tau_stop))
             return self.q_of(qb, y[:nv]), y[nv:]
-        samples = (Segment(dense, t_stop, end, len(C)),)
+        batch = None
+        if self.figures is not None:  # the samples' states one by one, what they record at once (the same floats)
+            def batch(tgs):
+                Q, U = zip(*(dense(tg) for tg in tgs.tolist()))
+                Q, U = np.array(Q), np.array(U)
+                return (Q, U, *self.figures(Q, U))
+        samples = (Segment(dense, t_stop, end, len(C), batch),)
         if end:
             self.s.state = State(t_stop, self.q_of(qb, y_stop[:nv]), y_stop[nv:].copy())
             return Report(Status.FINISHED, t_stop, self.s.state, records, work, segments=samples)

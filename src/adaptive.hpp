@@ -69,6 +69,23 @@ class DenseSampler {
     return {std::move(Q), std::move(U), std::move(T), std::move(V), std::move(G)};
   }
 
+  // What a sample records of the given states (Q (n, nq), U (n, nv)): (kinetic energy (n,) [J], potential energy
+  // (n,) [J], the pairs' distances (n, pairs) [m], NaN where coal's query failed), as samples() records its own and
+  // Recorder.sample records a state (the event-driven integrator's samples, whose states scipy's dense output gives;
+  // any configuration space: no interpolation here)
+  std::tuple<VectorXd, VectorXd, Rows> figures(const Rows &Q, const Rows &U) {
+    const Eigen::Index n = Q.rows();
+    if (U.rows() != n) throw nb::value_error("Q, U: as many rows expected");
+    VectorXd T(n), V(n), q, u;
+    Rows G(n, (Eigen::Index)forest_.pairs());
+    for (Eigen::Index i = 0; i < n; ++i) {
+      q = Q.row(i).transpose(), u = U.row(i).transpose();
+      T[i] = forest_.kinetic(q, u), V[i] = forest_.potential(q);
+      if (G.cols()) forest_.gaps(q, G.row(i).data());
+    }
+    return {std::move(T), std::move(V), std::move(G)};
+  }
+
  private:
   nb::object py_stepper_;  // keeps the Stepper alive
   ForestFigures forest_;
@@ -272,7 +289,9 @@ inline void bind_adaptive(nb::module_ &mod) {
            nb::arg("stepper"), nb::arg("trees"), nb::arg("tree_of_joint"), nb::arg("local_joint"), nb::arg("basis"))
       .def("samples", &owned::Method<&DenseSampler::samples>::call, nb::arg("t0"), nb::arg("q0"), nb::arg("u0"),
            nb::arg("a0"), nb::arg("t1"), nb::arg("q1"), nb::arg("u1"), nb::arg("a1"), nb::arg("grid"),
-           "(q, u, kinetic, potential, gaps) at the instants grid of the step t0 -> t1 (AdaptiveRun._segment)");
+           "(q, u, kinetic, potential, gaps) at the instants grid of the step t0 -> t1 (AdaptiveRun._segment)")
+      .def("figures", &owned::Method<&DenseSampler::figures>::call, nb::arg("Q"), nb::arg("U"),
+           "(kinetic, potential, gaps) of the states (Q, U), as Recorder.sample records them");
   nb::class_<FeatureGaps>(mod, "FeatureGaps",
                            "Gaps.features of points on static planes and of sphere pairs (src/adaptive.hpp)")
       .def(nb::init<nb::object, nb::object, std::vector<int64_t>, std::vector<int64_t>, std::vector<int64_t>,
