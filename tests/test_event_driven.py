@@ -341,6 +341,7 @@ def test_a_fast_marble_does_not_pass_a_thin_plate(integrator):
     assert tr.q[:, 0].min() > 0.51 - 1e-9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["alternating_stack_10", "heavy_on_light_box_100", "heavy_on_light_box_1000",
                                   "heavy_on_light_box_10000"])
 def test_resting_stacks_run_to_the_end(name):

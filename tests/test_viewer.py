@@ -487,6 +487,7 @@ def test_box_drop_replay_in_chromium(traj, browser, tmp_path):
     assert p.errors() == []
 
 
+@pytest.mark.slow  # (a robot's meshes in the browser: tens of seconds)
 def test_solo_drop_replay_in_chromium(solo, browser, tmp_path):
     path = viewer.export_html(solo, tmp_path / "solo_drop.html")
     p = Page(browser, path)
@@ -532,6 +533,7 @@ def test_box_stack_5_replay_in_chromium(stack, browser, tmp_path):
     assert p.errors() == []
 
 
+@pytest.mark.slow  # (a robot's meshes in the browser: tens of seconds)
 def test_panda_table_replay_in_chromium(panda, browser, tmp_path):
     p = Page(browser, viewer.export_html(panda, tmp_path / "panda_table.html"))
     p.seek(0.5, tol=0.02)
