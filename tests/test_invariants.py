@@ -1,7 +1,7 @@
 """A run checks its own invariants (moreau_sim/invariants.py, docs/theory.md §10): each check at its
 edge, on hand-made states of the bouncing ball fed to the hook with a real Recorder and real steps;
 strict runs, the CLI, regress and moreau_sim.testing counting a flagged run as a failure; and every
-bundled scene under every integrator either holding its invariants or flagged, never silent."""
+bundled scene holding its invariants under every integrator that takes it (the others refuse it by name)."""
 
 from __future__ import annotations
 

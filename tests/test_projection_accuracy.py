@@ -54,15 +54,12 @@ def _exact(W, v0, b, Minv):
             x[j] = (Fraction(a[j][n]) - sum(a[j][k] * x[k] for k in range(j + 1, n))) / a[j][j]
         return x
 
-    def answer(act):
-        v = [v0f[i] + sum(MiW[i][j] * lam[j] for j in act) for i in range(nv)]
-        return np.array([float(x) for x in v])
-
     for _ in range(10 * m + 10):
         s = [sum(G[i][j] * lam[j] for j in range(m) if lam[j]) - r[i] for i in range(m)]
         viol = [(s[i], i) for i in range(m) if i not in act and s[i] < 0]
         if not viol:
-            return answer(act)
+            v = [v0f[i] + sum(MiW[i][j] * lam[j] for j in act) for i in range(nv)]
+            return np.array([float(x) for x in v])
         p = min(viol)[1]
         while True:  # add p, dropping the rows whose multipliers reach zero first
             d = solve([[G[i][j] for j in act] for i in act], [-G[i][p] for i in act]) if act else []
