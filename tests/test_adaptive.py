@@ -183,6 +183,7 @@ def test_tolerances_from_the_scene_file(tmp_path):
             inline_scene(toml.replace(bad.split()[0] + " = 1e-1", bad + "  # "), tmp_path, "bad")
 
 
+@pytest.mark.slow  # (both event integrators over the whole scene at tight tolerances)
 def test_block_on_step_against_event_driven():
     """Box against box (docs/theory.md §7.1, §8): the corner law at t = 0, then the block's edge
     rocking on the step's edge, its flight, its landing and sliding on the top face - every impact

@@ -89,7 +89,8 @@ def test_resting_box_does_not_drift(h, duration, correction):
     assert np.max(energy(traj) - energy(traj)[0]) <= 1e-12
 
 
-@pytest.mark.parametrize("name", ["box_stack_5", "box_stack_10", "alternating_stack_10"])
+@pytest.mark.parametrize("name", ["box_stack_5", "box_stack_10", pytest.param("alternating_stack_10",
+                                                                               marks=pytest.mark.slow)])
 @pytest.mark.parametrize("h,duration", [(1e-2, 2.0), (1e-3, 0.2)])
 def test_box_stack_stays_put(name, h, duration):
     """box_stack_N.toml: drift <= 1e-6 m / 1e-6 rad, penetration <= 1e-6 m, T + V <= E0 + 1e-9 J."""
