@@ -9,14 +9,13 @@ those do not apply; the loop is driver.drive (§9).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from enum import Enum
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from . import compiled_events
+from .adaptive_carried import NO_ROWS, Carried, End, Mode
 from .adaptive_static import FIXED_POINT, extrapolator_of, features_of, static_of
 from .actuation import refuse_driven
 from .drive import refuse as refuse_drives
@@ -25,7 +24,7 @@ from .errors import SimulationError
 from .hermite import CHECK, CHECK_BASIS, CHECK_FLOATS, QUINTIC, poly, polyslope, polyval
 from .checkpoint import Checkpoint
 from .driver import Check, drive, run_data
-from .event_rules import (G_REGION, G_RES, LAM_EPS, V_TOL, EventState, dynamics, features, make_rules,
+from .event_rules import (G_REGION, G_RES, LAM_EPS, V_TOL, dynamics, features, make_rules,
                           phase_sets, resolve, sample_grid, thin_limit)
 from .model import Model, initial_state
 from .options import Bias
@@ -43,7 +42,6 @@ SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0  # step-size control as scipy's 
 LAND_ITER = 4  # Newton corrections of a landed step (dt = -g/gamma)
 G_LAND = 1e-15  # [m] a landed gap within this of 0 is not corrected further
 BURST_EVENTS = 64  # this many events within one fixed step dt: an accumulation, fixed steps
-BACK_STEPS = 8  # consecutive quiet fixed steps before returning to extrapolated steps
 V_BACK = 1e-6  # [m/s] closed contacts slower than this after a fixed step: at rest
 H_MIN = 1e-14  # [s] smallest extrapolated step before giving up on a phase (fixed steps then)
 BOX_TRAVEL = 0.25  # a step's travel while boxes are near, in their smallest half side (_box_limit)
@@ -65,85 +63,6 @@ def _root(f, lo: float, hi: float, xtol: float) -> float:
     if f(hi) > 0.0:
         return hi
     return brentq(f, lo, hi, xtol=xtol)
-
-
-_NONE = np.zeros(0)
-_NONE.flags.writeable = False  # an _End's multipliers and margins without C (read-only, shared)
-
-
-class _End:
-    """A step end: (t, q, u), the accelerations a, the multipliers of C, and of the watched
-    features (watch + low) the gaps g, rates gamma and second derivatives gdd = W'a + drift."""
-
-    __slots__ = ("t", "q", "u", "a", "lam", "g", "gamma", "gdd", "margin", "near")
-
-    def __init__(self, t, q, u, a, lam, g, gamma, gdd, margin, near):
-        self.t, self.q, self.u, self.a, self.lam, self.g, self.gamma, self.gdd = t, q, u, a, lam, g, gamma, gdd
-        self.margin = margin  # C's distances to the ends of their regions [m] (docs/theory.md §7.1)
-        self.near = near  # the watched box features whose pair's bounding spheres overlap
-
-
-class _Mode(Enum):
-    """Where an adaptive run is: at an event (the decisions are next), in a phase, in fixed steps."""
-
-    EVENT = "event"
-    PHASE = "phase"
-    FIXED = "fixed"
-
-
-@dataclass(eq=False)
-class Carried:
-    """What the adaptive integrator carries from one accepted point to the next (its checkpoint,
-    passed to the event rules): the state there; t [s] (the step under way); mode; H [s] (the
-    next extrapolated step); the event rules' EventState; the phase's sets (C persistent, shadow
-    its duplicate rows, watch by their gaps, low within G_RES by their rise and return) and its
-    step end e0 (not saved: a function of the state and the sets); released (at the current
-    event: not re-admitted there); the fixed-step bookkeeping (t_back: the last return, back_steps
-    quiet steps to return, quiet ones in a row, previous_fresh: the next is a stretch's first,
-    burst: the event times within the last dt, fallbacks); counters."""
-
-    state: State
-    t: float
-    mode: _Mode = _Mode.EVENT
-    H: float = 0.0
-    ev: EventState = field(default_factory=EventState)
-    C: tuple = ()
-    shadow: tuple = ()
-    watch: list = field(default_factory=list)
-    low: list = field(default_factory=list)
-    e0: _End | None = None
-    released: frozenset = frozenset()
-    t_back: float = -np.inf
-    back_steps: int = BACK_STEPS
-    quiet: int = 0
-    previous_fresh: bool = False
-    burst: list = field(default_factory=list)
-    fallbacks: list = field(default_factory=list)
-    stuck: int = 0
-    events: int = 0
-    accepted: int = 0
-    rejected: int = 0
-    fixed: int = 0
-    landings: int = 0
-
-    def to_json(self) -> dict:
-        s = self.state
-        return {"t": s.t, "q": s.q.tolist(), "u": s.u.tolist(), "t_now": self.t, "rules": self.ev.to_json(),
-                "mode": self.mode.value, "H": self.H, "t_back": None if self.t_back == -np.inf else self.t_back,
-                "stuck": self.stuck, "released": sorted(self.released), "burst": self.burst,
-                "back_steps": self.back_steps, "fallbacks": self.fallbacks, "previous_fresh": self.previous_fresh,
-                "quiet": self.quiet, "counts": [self.events, self.accepted, self.rejected, self.fixed, self.landings],
-                "C": list(self.C), "shadow": list(self.shadow), "low": list(self.low), "watch": list(self.watch)}
-
-    @classmethod
-    def from_json(cls, d: dict) -> "Carried":
-        events, accepted, rejected, fixed, landings = d["counts"]
-        return cls(State(float(d["t"]), np.array(d["q"], float), np.array(d["u"], float)), float(d["t_now"]),
-                   _Mode(d["mode"]), float(d["H"]), EventState.from_json(d["rules"]), tuple(d["C"]),
-                   tuple(d["shadow"]), list(d["watch"]), list(d["low"]), None, frozenset(d["released"]),
-                   -np.inf if d["t_back"] is None else float(d["t_back"]), int(d["back_steps"]), int(d["quiet"]),
-                   bool(d["previous_fresh"]), list(d["burst"]), list(d["fallbacks"]), int(d["stuck"]), events,
-                   accepted, rejected, fixed, landings)
 
 
 class AdaptiveRun:
@@ -187,7 +106,7 @@ class AdaptiveRun:
                          H=min(self.max_step, 10.0 * self.h_fix))
         self.t0, self.t_end = self.s.state.t, float(t_end)
         if self.unsupported is not None:
-            self.s.mode = _Mode.FIXED
+            self.s.mode = Mode.FIXED
             self.s.previous_fresh = True
             self.s.fallbacks.append({"t": self.s.t, "reason": self.unsupported})
 
@@ -257,19 +176,19 @@ class AdaptiveRun:
         return math.sqrt((sum((z * z).tolist()) + 0.0) / len(z))
 
     def _far(self, k: int) -> np.ndarray:
-        """_End.near of k compiled features (no box among them: all False), made once per k and read-only."""
+        """End.near of k compiled features (no box among them: all False), made once per k and read-only."""
         got = self._fars.get(k)
         if got is None:
             got = self._fars[k] = np.zeros(k, bool)
             got.flags.writeable = False
         return got
 
-    def _free_end(self, t, q, u, a, g, gamma, gdd) -> _End:
+    def _free_end(self, t, q, u, a, g, gamma, gdd) -> End:
         """The step end at (t, q, u) in free flight on compiled features: their (a, g, gamma, gdd) as FeatureGaps.end
         gives them (no multipliers, no regions, no box feature near)."""
-        return _End(t, q, u, a, _NONE, g, gamma, gdd, _NONE, self._far(len(g)))
+        return End(t, q, u, a, NO_ROWS, g, gamma, gdd, NO_ROWS, self._far(len(g)))
 
-    def _end(self, t, q, u, C, idx, end=None) -> _End:
+    def _end(self, t, q, u, C, idx, end=None) -> End:
         """The step end at (t, q, u) with the persistent set C, of the watched features idx; end: their compiled
         (a, g, gamma, gdd) at (q, u) where already computed (_land's)."""
         pg = self.rules.gaps.compiled
@@ -281,12 +200,12 @@ class AdaptiveRun:
         if idx:
             fs = features(self.rules, self.s.ev, q, u, idx)
             near = self.is_box[idx] & np.isfinite(fs.margin)
-            return _End(t, q, u, a, lam, fs.g, fs.gamma, ordered(fs.W.T, a) + fs.drift, margin, near)
+            return End(t, q, u, a, lam, fs.g, fs.gamma, ordered(fs.W.T, a) + fs.drift, margin, near)
         z = np.zeros(0)
-        return _End(t, q, u, a, lam, z, z, z, margin, np.zeros(0, bool))
+        return End(t, q, u, a, lam, z, z, z, margin, np.zeros(0, bool))
 
     # ---- dense output ----------------------------------------------------------------------
-    def _dense(self, e0: _End, e1: _End):
+    def _dense(self, e0: End, e1: End):
         """tau in [0, 1] -> (q, u) on the step from e0 to e1 (quintic Hermite in the tangent space
         about e0.q; for a Lie group the end slopes through dIntegrate)."""
         H = e1.t - e0.t
@@ -310,7 +229,7 @@ class AdaptiveRun:
             return pin.integrate(self.pm, e0.q, d), ordered(J, s)
         return at
 
-    def _segment(self, e0: _End, e1: _End, n_contacts: int, last: bool) -> Segment:
+    def _segment(self, e0: End, e1: End, n_contacts: int, last: bool) -> Segment:
         """The grid instants before e1.t (up to and including it if `last`) on the step, sampled on
         its dense output (built on first use); compiled, all at once, where it applies (the same floats)."""
         if self.sampler is not None:
@@ -320,7 +239,7 @@ class AdaptiveRun:
             batch = None
         return Segment(self._dense_at(e0, e1), e1.t, last, n_contacts, batch)
 
-    def _dense_at(self, e0: _End, e1: _End):
+    def _dense_at(self, e0: End, e1: End):
         """dense(t) -> (q, u) on the step e0 -> e1 at the instant t [s] (_dense, clamped to the step)."""
         H, at = e1.t - e0.t, []
 
@@ -340,7 +259,7 @@ class AdaptiveRun:
         return self.s.accepted + self.s.rejected + self.s.fixed + 1, self.s.t
 
     # ---- events ----------------------------------------------------------------------------
-    def _first_event(self, e0: _End, e1: _End, nw: int, C, watched):
+    def _first_event(self, e0: End, e1: End, nw: int, C, watched):
         """The earliest event on the step e0 -> e1 as (tau, kind, index into watched = watch+low / C),
         or None; without C and box features compiled where it applies (compiled_events.locator: the same floats)."""
         if self.locate is not None and not len(C):
@@ -427,7 +346,7 @@ class AdaptiveRun:
                     best = (tau, "release", int(k))
         return best
 
-    def _land(self, e0: _End, H: float, C, watched: list, k: int | None):
+    def _land(self, e0: End, H: float, C, watched: list, k: int | None):
         """Re-take the step from e0 with size H onto the event; for a gap (watched[k]), Newton on g = 0.
         Returns (size, q1, u1, end): end, in free flight on compiled features, (a, g, gamma, gdd) of `watched` at
         (q1, u1) as _end computes them (the iterations' own: their g and gamma are features()'s), else None."""
@@ -456,10 +375,10 @@ class AdaptiveRun:
         """A fixed step in fixed mode; else, at a phase's start, the decisions there
         (event_rules.resolve), then extrapolated steps until one is accepted, lands on an event
         or no step size passes (module doc). t_sample [s]: the next output instant (fixed steps land on it)."""
-        if self.s.mode is _Mode.FIXED:
+        if self.s.mode is Mode.FIXED:
             return self._fixed_step(t_sample)
         records, work = (), 0.0
-        if self.s.mode is _Mode.EVENT:
+        if self.s.mode is Mode.EVENT:
             records, work = self._start_phase()
         t, q, u, t_end = self.s.state.t, self.s.state.q, self.s.state.u, self.t_end
         C, watch, low = self.s.C, self.s.watch, self.s.low
@@ -532,7 +451,7 @@ class AdaptiveRun:
         self.s.state = State(t, q1, u1)
         self.s.H = max(h, H_MIN)
         self.s.released = frozenset({C[k]}) if kind == "release" else frozenset()
-        self.s.mode = _Mode.EVENT
+        self.s.mode = Mode.EVENT
         if not t < t_end:  # (a NaN time too: the samples left then stop the run as non-finite)
             return Report(Status.FINISHED, t, self.s.state, records, work, segments=segs + self._rest())
         self.s.events += 1
@@ -565,7 +484,7 @@ class AdaptiveRun:
         self.s.released = frozenset()
         self._phase(res.C, res.shadow, g=res.g)
         records, work = res.records, res.work
-        self.s.mode = _Mode.PHASE
+        self.s.mode = Mode.PHASE
         return records, work
 
     def _phase(self, C, shadow, low=None, watch=None, g=None) -> None:
@@ -584,7 +503,7 @@ class AdaptiveRun:
         q, u = self.s.state.q, self.s.state.u
         return (Segment(lambda tg: (q, u), np.inf, True, 0),)
 
-    def _rise_limit(self, e0: _End, nw: int) -> float:
+    def _rise_limit(self, e0: End, nw: int) -> float:
         """While a feature within G_RES of contact rises, steps stay below half its time to apex
         (its rise and fall must not fit in one step)."""
         if nw >= len(e0.gamma):  # none within G_RES
@@ -594,7 +513,7 @@ class AdaptiveRun:
               if gam > V_TOL and gdd < 0]
         return min(up) if up else np.inf
 
-    def _box_limit(self, e0: _End) -> float:
+    def _box_limit(self, e0: End) -> float:
         """While two boxes' bounding spheres overlap, no point moves more than BOX_TRAVEL of the
         smallest half side in a step: the dense checks of their gaps (_first_event) then see a
         corner's or an edge's passage through a face."""
@@ -603,12 +522,12 @@ class AdaptiveRun:
         v = float(np.abs(e0.u).max()) * self.model.reach
         return BOX_TRAVEL * self.box_half / v if v > 0.0 else np.inf
 
-    def _fall(self, t: float, t_back: float, reason: str) -> "_Mode":
+    def _fall(self, t: float, t_back: float, reason: str) -> "Mode":
         if t - t_back < 10 * self.s.back_steps * self.h_fix:
             self.s.back_steps *= 2
         self.s.fallbacks.append({"t": t, "reason": reason})
         self.s.previous_fresh, self.s.quiet = True, 0
-        return _Mode.FIXED
+        return Mode.FIXED
 
     def _fixed_step(self, t_sample: float) -> Report:
         """A fixed midpoint Moreau step of the scene's dt (landing on the next sample instant);
@@ -636,7 +555,7 @@ class AdaptiveRun:
             self.s.quiet = self.s.quiet + 1 if calm else 0
             if self.s.quiet >= self.s.back_steps:
                 self.s.fallbacks.append({"t": t1, "reason": "back to extrapolated steps"})
-                self.s.mode, self.s.t_back, self.s.stuck = _Mode.EVENT, t1, 0
+                self.s.mode, self.s.t_back, self.s.stuck = Mode.EVENT, t1, 0
                 self.s.burst.clear()
         if not t1 < t_end:
             return Report(Status.FINISHED, t1, self.s.state, (rec,), r.contact_work, r.correction_energy,
@@ -651,7 +570,7 @@ class AdaptiveRun:
 
     def load_state_dict(self, d: dict) -> None:
         self.s = Carried.from_json(d)
-        if self.s.mode is _Mode.PHASE:  # the step end e0 is a function of the state and the sets
+        if self.s.mode is Mode.PHASE:  # the step end e0 is a function of the state and the sets
             nfev, constrained = self.s.ev.nfev, self.s.ev.constrained
             self._phase(self.s.C, self.s.shadow, self.s.low, self.s.watch)
             self.s.ev.nfev, self.s.ev.constrained = nfev, constrained

@@ -333,7 +333,7 @@ def test_free_flight_step_in_one_call_lands_on_a_return(v):
 def test_first_event_is_bit_identical(name):
     """AdaptiveRun._first_event on random step ends in free flight (gaps crossing within the step, features near
     contact coming back, none): the compiled location gives Python's (tau, kind, feature) bit for bit."""
-    from moreau_sim.adaptive import _End
+    from moreau_sim.adaptive_carried import End as _End
 
     model = build_model(load_scene(SCENE_DIR / f"{name}.toml").with_options(integrator="adaptive"))
     data = make_data(model)
