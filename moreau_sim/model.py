@@ -98,7 +98,9 @@ class Model:
         else:
             pj = pair_table.PairJoints(self.pair_table)
         object.__setattr__(self, "_pair_joints", pj)
-        reach = max([float(np.linalg.norm(V, axis=1).max()) for V in self.vertices if len(V)] + [1.0])
+        # (a static's vertices do not move with u: a slab far from the world's origin is no lever arm)
+        reach = max([float(np.linalg.norm(V, axis=1).max()) for V, go in zip(self.vertices, self.geometries)
+                     if len(V) and go.parentJoint] + [1.0])
         object.__setattr__(self, "_reach", reach)
         def sides(go):  # (smallest, largest) side of the shape's box (coal's local AABB); inf for a half-space
             geo = go.geometry
@@ -190,8 +192,9 @@ class Model:
 
     @property
     def reach(self) -> float:
-        """max(1, largest distance of a vertex from its joint origin) [m]: bounds a vertex's speed
-        by reach * |u|_inf for unit-scale joints (contacts.detect, corner margin)."""
+        """max(1, largest distance of a moving vertex from its joint origin) [m]: bounds a vertex's speed
+        by reach * |u|_inf for unit-scale joints (contacts.detect, corner margin). Statics' vertices do not
+        count: they do not move with u (docs/theory.md §6.3)."""
         return self._reach
 
     @property

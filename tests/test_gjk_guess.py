@@ -81,6 +81,20 @@ def slope(h: float):
     return b.build()
 
 
+@pytest.mark.parametrize("shift", [0.0, 10.0])
+def test_a_static_is_no_lever_arm(shift):
+    """Model.reach, the lever arm that turns |u|_inf into a vertex's travel in a step (the corner margin of
+    contacts.detect, docs/theory.md §6.3), is the moving vertices' (at least 1 m): the slabs' far ends, 3.2 m from
+    the origin (13 m shifted), do not move with u. Counted, they made the slope's corner margin at h = 2e-3 12 cm
+    while a cube spun at 19 rad/s; a cube sliding off a slab's end then had its rear vertices, 9.6 cm behind
+    the end face, at a corner of the slab that the end face separates, no row pushed, and it sank 6.9 mm."""
+    b = ms.SceneBuilder("far_slab", dt=1e-3, duration=0.01)
+    b.add_box("slab", [2.0, 1.0, 0.1], position=[shift + 2.0, 0.0, 0.5], rpy=[0.0, 0.25, 0.0])
+    b.add_body("cube", MODELS / "cube.urdf", root_joint="free", position=[0.0, 0.0, 1.0])
+    model = ms.build_model(b.build())
+    assert model.reach == 1.0  # max(1 m, the cube's half diagonal 0.087 m)
+
+
 @pytest.mark.slow
 def test_penetration_on_the_slope_shrinks_with_the_step():
     """The deepest gap of the slope scene is the impact transient of one step, h v: below h sqrt(2 g z0)
@@ -91,7 +105,7 @@ def test_penetration_on_the_slope_shrinks_with_the_step():
     D = L holds on the law's velocity (§5.2), and no step gains."""
     v_max = math.sqrt(2 * 9.81 * 1.4)
     deepest = {}
-    for h in (1e-3, 5e-4, 3e-4):
+    for h in (2e-3, 1e-3, 5e-4, 3e-4):
         traj = ms.run(slope(h))
         assert traj.complete, traj.meta.get("invariants")
         deepest[h] = -float(traj.arrays["gap"].min())
