@@ -144,6 +144,13 @@ def _axis_aligned(model, g: int) -> bool:
     return bool(np.isin(model.face_normals[g], (-1.0, 0.0, 1.0)).all())
 
 
+def _exact_normals(model, g: int) -> bool:
+    """Whether geometry g's face normals turn into the world exactly, in any order of the sums: along its joint
+    frame's axes (_axis_aligned), or on the universe (a static: its joint frame is the world, the rotation the
+    identity, whose sums add signed zeros only)."""
+    return model.geometries[g].parentJoint == 0 or _axis_aligned(model, g)
+
+
 def _warm_started(model) -> bool:
     """Whether a pair of the model goes through coal's GJK/EPA (its warm start carried from step to step)."""
     geoms = model.geometries
@@ -169,10 +176,10 @@ def unsupported(model) -> str | None:
     if limit is not None and need > limit:
         return (f"its dense mass matrices ({DENSE_COPIES} of ({model.nv}, {model.nv}), {need / 2 ** 30:.3g} GiB) "
                 f"exceed {what}")
-    if model.polytope_pair_set and not all(_axis_aligned(model, g) for g, go in enumerate(geoms)
+    if model.polytope_pair_set and not all(_exact_normals(model, g) for g, go in enumerate(geoms)
                                            if isinstance(go.geometry, coal.Box)):
         # the face axis of two boxes becomes the patch's normal: exact both ways only for faces along the axes
-        return "a box turned in its joint frame (pairs of two polytopes)"
+        return "a moving box turned in its joint frame (pairs of two polytopes)"
     if o.tunnelling is Tunnelling.ALWAYS:
         return "swept detection on every step"
     if o.qp_form is not QPForm.PRIMAL:
@@ -339,8 +346,8 @@ class _Prepared:
 
     def _shapes(self, model) -> None:
         """The detection's data beyond coal's narrow phase (src/step.cpp Stepper::boxes): a point query for each
-        geometry a vertex may be queried against (contacts._vertex_contacts: not a half-space; no box turned in its
-        joint frame, whose face normals would not be exact both ways; data.point_query, made per run), the face
+        geometry a vertex may be queried against (contacts._vertex_contacts: not a half-space; no moving box turned in
+        its joint frame, whose face normals would not be exact both ways; data.point_query, made per run), the face
         normals and planes, a box's edges, the edges leaving each vertex, whether a pair is two polytopes."""
         gobs = model.geometries
         G = len(gobs)
@@ -357,7 +364,7 @@ class _Prepared:
         queried, edges = [], []
         for g, go in enumerate(gobs):
             box = isinstance(go.geometry, coal.Box)
-            queried.append(bool(other[g] and (not box or _axis_aligned(model, g))))
+            queried.append(bool(other[g] and (not box or _exact_normals(model, g))))
             if box:
                 e0, ed, el, ef = box_box.box_edges(go.geometry, go.placement)
                 edges.append(np.column_stack((e0, ed, el, ef[:, 0], ef[:, 1])))

@@ -39,7 +39,7 @@ import pinocchio as pin
 from . import box_box, broad_phase, pair_table
 from .data import GATE_MARGIN, Data
 from .model import DISTANCE_FAILED, Model, check_start
-from .sums import ordered
+from .sums import dots, ordered
 
 
 
@@ -155,15 +155,17 @@ def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p
     if planes is None or edges is None:
         return None
     n, d = planes
-    s = n @ (oMo.rotation.T @ (p - oMo.translation)) - d  # signed distance to each face plane
+    # (the sums in src/step.cpp's order, `dots` and `ordered`: exact both ways for any face normal, a box turned on
+    # the universe too; docs/theory.md §2.8)
+    s = dots(n, oMo.rotation.T @ (p - oMo.translation)) - d  # signed distance to each face plane
     on = np.flatnonzero(s >= s.max() - margin)
     if len(on) < 2:
-        return n[on] @ oMo.rotation.T if s.max() > 0.0 else None  # src/step.cpp vertex_contacts: the same rule
-    nw = n[on] @ oMo.rotation.T
-    r = edges[i] @ oMi.rotation.T  # (k, 3) edges leaving the vertex, world
-    ok = (nw @ r.T).min(axis=1, initial=0.0) >= -1e-9 if len(r) else np.ones(len(nw), bool)
+        return ordered(n[on], oMo.rotation.T) if s.max() > 0.0 else None  # src/step.cpp vertex_contacts: the same rule
+    nw = ordered(n[on], oMo.rotation.T)
+    r = ordered(edges[i], oMi.rotation.T)  # (k, 3) edges leaving the vertex, world
+    ok = dots(nw[:, None, :], r[None, :, :]).min(axis=1, initial=0.0) >= -1e-9 if len(r) else np.ones(len(nw), bool)
     if not ok.all():  # the body outside a face plane to tol: it separates (§6.2, 1c; src/step.cpp the same sums)
-        sb = [n @ (oMo.rotation.T @ (v - oMo.translation)) - d for v in body]
+        sb = [dots(n, oMo.rotation.T @ (v - oMo.translation)) - d for v in body]
         ok |= np.array([min(float(x[f]) for x in sb) >= -tol for f in on])
     return nw[ok] if ok.any() else None
 
@@ -336,13 +338,15 @@ def fresh_guesses(requests) -> None:
         req.cached_gjk_guess = np.array([x / n, y / n, z / n] if 0.0 < n < math.inf else [1.0, 0.0, 0.0])
 
 
-def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | None = None) -> Contacts:
+def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | np.ndarray | None = None) -> Contacts:
     """Closed contacts H(q) = {i : g_i(q) <= contact_tolerance} at configuration q.
 
     corner_margin [m]: a vertex inside or at a box is at a corner when its signed distances to two
-    or more face planes differ by at most this (default: the contact tolerance; the stepper adds
-    how far the vertex can move in a step, so a corner struck within the step is seen as one).
-    Updates the forest's kinematics (data.kinematics.oMi) and the geometry placements at q."""
+    or more face planes differ by at most this, and at least the contact tolerance (default: the tolerance).
+    A float is every pair's margin; an array (one entry per joint of the scene's model, the world's 0) gives a
+    pair the sum of its two joints' entries: the stepper's is how far each body can move in the step (`travel`),
+    so a corner struck within the step is seen as one, while the motion of bodies elsewhere makes none
+    (docs/theory.md §6.3). Updates the forest's kinematics (data.kinematics.oMi) and the geometry placements at q."""
     model.forest.place(data.kinematics, q, model.geometries, data.oMg)
     if not model.pairs:
         return NO_CONTACTS
@@ -361,7 +365,17 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
     if not hits and not near:
         data.warm_start_pairs = set()
         return NO_CONTACTS
-    margin = tol if corner_margin is None else max(tol, corner_margin)
+    if corner_margin is None or np.ndim(corner_margin) == 0:
+        uniform = tol if corner_margin is None else max(tol, float(corner_margin))
+
+        def margin_of(k: int) -> float:
+            return uniform
+    else:
+        joints = model.pair_joints
+
+        def margin_of(k: int) -> float:  # (src/step.cpp detect: the same sum)
+            ja, jb = joints[k]
+            return max(tol, float(corner_margin[ja]) + float(corner_margin[jb]))
     found: list = []
     corner_list: list = []
     hit_set = set(hits)
@@ -369,6 +383,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
         pair = model.pairs[k]
         res = data.collision_result(k)
         hit = k in hit_set
+        margin = margin_of(k)
         start = len(found)
         na, nb = len(model.vertices[pair.first]), len(model.vertices[pair.second])
         start_c = len(corner_list)
@@ -425,7 +440,7 @@ def detect(model: Model, data: Data, q: np.ndarray, *, corner_margin: float | No
             found.append((c.penetration_depth, np.array(c.getNearestPoint1()), np.array(c.getNearestPoint2()),
                           n, pair.index, FeatureKind.WITNESS, 0))
         _add_new(found, start, edges)
-    corners = _merge_corners(model, corner_list, margin) if corner_list else ()
+    corners = _merge_corners(model, corner_list, margin_of) if corner_list else ()
     data.warm_start_pairs = {f[4] for f in found} | {c[4] for c in corner_list}
     if not found:
         return Contacts.empty(corners) if corners else NO_CONTACTS
@@ -496,15 +511,16 @@ def from_rows(model: Model, rows: list, corners: tuple = ()) -> Contacts:
                     corners)
 
 
-def _merge_corners(model: Model, items: list, margin: float) -> tuple:
+def _merge_corners(model: Model, items: list, margin_of) -> tuple:
     """One :class:`Corner` per touching point of a pair: a vertex of A at a vertex of B is found
-    from both sides (points within `margin`: they may have crossed within the step); its ways of
+    from both sides (points within the pair's corner margin, margin_of(pair) [m]: they may have crossed
+    within the step); its ways of
     staying apart are the faces of both (duplicates dropped), at the first point found (A's
     vertex, as A's vertices are queried first)."""
     out: list = []
     for d, pa, pb, normals, pair, feat in items:
         for k, c in enumerate(out):
-            if c.pair == pair and np.abs(c.point_a - pa).max() <= margin:
+            if c.pair == pair and np.abs(c.point_a - pa).max() <= margin_of(pair):
                 allnormals = np.concatenate([c.normals, normals])
                 keep = [i for i in range(len(allnormals))
                         if not any(np.abs(allnormals[i] - allnormals[j]).max() <= 1e-12 for j in range(i))]

@@ -198,10 +198,11 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
         model.prescribed.place(model.geom, t_m)
     if tau is None and model.actuation is not None:
         tau = model.actuation.torque(t_m, q_m, u)
-    # how far a vertex can move in the step (|u| times the largest lever arm): a corner struck within
-    # the step may have crossed one face plane by up to this; a thinner pair may be passed through
+    # how far a vertex can move in the step (|u| times the largest lever arm): a thinner pair may be passed
+    # through; a corner struck within the step may have crossed one face plane by up to its two bodies' own
+    # (Forest.joint_travel: per tree)
     travel = h * float(np.abs(u).max(initial=0.0)) * model.reach
-    contacts = detect(model, data, q_m, corner_margin=travel)
+    contacts = detect(model, data, q_m, corner_margin=model.forest.joint_travel(u, h, model.reach))
     if opts.tunnelling is Tunnelling.ALWAYS or (opts.tunnelling is Tunnelling.SWEPT and travel > model.thinnest_pair):
         contacts = swept_detect(model, data, q, u, h, q_m, contacts)  # a thin obstacle crossed in the step
     if model.limits:  # the joint limits closed at q_m: constraints of the same law (limits.py)

@@ -47,6 +47,18 @@ class Forest:
             self.local_joint[tr.offset + ids] = ids
         self.tree_of_joint.setflags(write=False)
         self.local_joint.setflags(write=False)
+        moving = [t for t, tr in enumerate(self.trees) if tr.v.stop > tr.v.start]
+        self._moving = np.array(moving, dtype=np.int64)  # the trees with velocities, and where theirs start
+        self._v_starts = np.array([self.trees[t].v.start for t in moving], dtype=np.int64)
+
+    def joint_travel(self, u: np.ndarray, h: float, reach: float) -> np.ndarray:
+        """How far a vertex of each joint's tree can move in a step of h [s] at the velocities u: h |u_tree|_inf
+        reach [m] (reach: Model.reach), one entry per joint of the scene's model, 0 for the world (contacts.detect's
+        corner margins, docs/theory.md §6.3; src/step.cpp step_ the same floats)."""
+        per_tree = np.zeros(len(self.trees) + 1)  # (the last entry: the world's, tree -1)
+        if len(self._moving):
+            per_tree[self._moving] = h * np.maximum.reduceat(np.abs(u), self._v_starts) * reach
+        return per_tree[self.tree_of_joint]
 
     @classmethod
     def build(cls, body_models, placements, gravity) -> Forest:

@@ -46,6 +46,7 @@ class Forest {
   int64_t nv() const { return nv_; }
   size_t njoints() const { return oMi_.size(); }
   const std::vector<Tree> &trees() const { return trees_; }
+  const std::vector<int64_t> &tree_of_joint() const { return tree_of_joint_; }
 
   // (each tree's q and u as views of the forest's, not copies: Pinocchio's functions take them as Eigen::Ref)
   using CRef = Eigen::Ref<const VectorXd>;

@@ -38,7 +38,7 @@ class EventImpact {
       if (!u.allFinite()) throw Fallback{"a non-finite velocity"};  // qp.solve's NON_FINITE_INPUT: Python raises it
       // contacts.detect at q (corners hand the event back: Stepper::vertex_contacts), then
       // constraints.assemble_constraints: M (fills the WORLD Jacobians), the closed limits, the rows, distinct rows
-      std::vector<Found> found = s.detect(q, 0.0);
+      std::vector<Found> found = s.detect(q, nullptr);
       warm_.clear();  // contacts.detect's data.warm_start_pairs: the pairs of its contacts
       for (const Found &f : found) warm_.push_back(f.pair);
       std::sort(warm_.begin(), warm_.end());

@@ -2512,8 +2512,9 @@ class Stepper {
 
   // contacts.detect: coal's narrow phase on every pair (a model of more than broad_phase.MIN_PAIRS pairs: on the broad
   // phase's candidates, in pair order), and (box models) the box pairs with contacts at the last detection still
-  // within tol (_near_polytopes, warm_); margin: the corner margin max(tol, travel)
-  std::vector<Found> detect(const VectorXd &q_m, double travel) {
+  // within tol (_near_polytopes, warm_); a pair's corner margin: max(tol, the sum of its joints' joint_travel), or tol
+  // without it (contacts.detect's corner_margin)
+  std::vector<Found> detect(const VectorXd &q_m, const std::vector<double> *joint_travel) {
     std::vector<Found> found;
     place_geometries(q_m);
     next_warm_ = warm_;
@@ -2545,11 +2546,12 @@ class Stepper {
     }
     std::vector<int> todo;  // sorted(hits | near)
     std::set_union(hits.begin(), hits.end(), near.begin(), near.end(), std::back_inserter(todo));
-    const double margin = std::max(tol_, travel);
     for (const int k : todo) {
       const bool hit = std::binary_search(hits.begin(), hits.end(), k);
       const pairs::Row p = pair(k);
       const int first = p.first, second = p.second, jf = p.joint_first, js = p.joint_second;
+      const double margin =
+          joint_travel ? std::max(tol_, (*joint_travel)[(size_t)jf] + (*joint_travel)[(size_t)js]) : tol_;
       const bool patch = p.patch;
       const size_t start = found.size();
       const int na = (int)vertices_[first].rows(), nb_ = (int)vertices_[second].rows();
@@ -2802,7 +2804,16 @@ class Stepper {
     if (!rh_.moving.empty()) rh_.place(const_cast<pinocchio::GeometryModel &>(gm_), t_m);  // Prescribed.place
     const bool driven = rh_.driven();
     const double travel = h * (nv ? u.cwiseAbs().maxCoeff() : 0.0) * reach_;
-    std::vector<Found> found = detect(q_m, travel);
+    // trees.Forest.joint_travel: each joint's tree's h |u_tree|_inf reach, the world's 0 (the corner margins)
+    thread_local std::vector<double> tree_travel, joint_travel;
+    const auto &trees = forest_.trees();
+    tree_travel.assign(trees.size(), 0.0);
+    for (size_t k = 0; k < trees.size(); ++k)
+      if (trees[k].nv) tree_travel[k] = h * u.segment(trees[k].v0, trees[k].nv).cwiseAbs().maxCoeff() * reach_;
+    const auto &tree_of = forest_.tree_of_joint();
+    joint_travel.resize(tree_of.size());
+    for (size_t j = 0; j < tree_of.size(); ++j) joint_travel[j] = tree_of[j] < 0 ? 0.0 : tree_travel[(size_t)tree_of[j]];
+    std::vector<Found> found = detect(q_m, &joint_travel);
     if (tunnelling_ == 2 || (tunnelling_ == 0 && travel > thinnest_)) throw Fallback{"swept detection"};
     closed_limits(q_m, found);
     if (found.empty()) {

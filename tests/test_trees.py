@@ -45,6 +45,20 @@ def _states(model, n: int = 3):
     return out
 
 
+@pytest.mark.parametrize("name", ["quadruped_drop", "newton_cradle_5", "panda_table", "box_stack_5"])
+def test_joint_travel_is_each_trees_own(name):
+    """Forest.joint_travel (the corner margins' travel, docs/theory.md §6.3): every joint of a tree gets
+    h |u_tree|_inf reach, the world 0, whatever the other trees do."""
+    model = build_model(load_scene(ROOT / "scenes" / f"{name}.toml"))
+    forest, h, reach = model.forest, 1e-3, model.reach
+    for _, u in _states(model):
+        got = forest.joint_travel(u, h, reach)
+        assert got.shape == (model.pin.njoints,) and got[0] == 0.0
+        for j in range(1, model.pin.njoints):
+            tr = forest.trees[forest.tree_of_joint[j]]
+            assert got[j] == h * float(np.abs(u[tr.v]).max()) * reach
+
+
 @pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
 def test_forest_equals_whole_model(path):
     model = build_model(load_scene(path))
