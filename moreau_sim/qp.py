@@ -347,6 +347,8 @@ def _active_set(G, r, tol, act=None, mul=np.matmul):
                 if lam[p] == 0.0 and sp >= -(tol + MET * m * gmax * lam.max()):
                     return act, lam, moves  # p is met to the round-off of G lam (lam large): as met as it can be
                 return None  # the rows cannot all be met (or z is NaN)
+            if not t1 <= t2 and k < 0:  # t1 NaN and no row to drop: no answer (k = -1 would drop the last row)
+                return None
             t = t1 if t1 <= t2 else t2
             lam[idx] = lam[idx] + t * d
             lam[p] = lam[p] + t

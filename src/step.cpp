@@ -1248,6 +1248,7 @@ bool active_set(const Constants &C, const MatrixXd &G, const GInfo &gi, const Ve
       }
       if (t1 == inf && t2 == inf)  // p depends on A and no multiplier of A can shrink: met to round-off, or not
         return lam[p] == 0.0 && sp >= -(tol + C.met * (double)m * gmax * lam.maxCoeff());
+      if (!(t1 <= t2) && kk < 0) return false;  // t1 NaN, no row to drop (qp._active_set: None; was a write at -1)
       const double t = t1 <= t2 ? t1 : t2;
       for (Eigen::Index j = 0; j < k; ++j) lam[idx[j]] = lam[idx[j]] + t * d[j];
       lam[p] = lam[p] + t;
@@ -1514,6 +1515,8 @@ bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Inde
 Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
                const std::vector<char> *start = nullptr, const WInfo *given = nullptr, const Blocks *blocks = nullptr) {
   const Eigen::Index m = W.cols(), nv = W.rows();
+  // qp.solve's NON_FINITE_INPUT: the Python step takes it and stops the run naming the step (an overflow upstream)
+  if (!v0.allFinite()) throw Fallback{"a non-finite velocity to project"};
   thread_local WInfo own;
   if (!given) own.set(W);
   const WInfo &wi = given ? *given : own;  // given: the caller's WInfo of this W

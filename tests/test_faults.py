@@ -154,3 +154,24 @@ def test_a_nan_lu_is_never_used(monkeypatch):
     monkeypatch.setattr(qp, "_lu_solve", lambda A, rhs: np.full(len(rhs), np.nan))
     traj = run("resting_box", duration=0.2, step_impl="python")
     assert traj.complete and np.isfinite(traj.q).all() and np.isfinite(traj.arrays["log_P"]).all()
+
+
+def test_a_nan_slack_drops_no_row(monkeypatch):
+    """qp._active_set on a NaN residual: no answer (None). The row to drop was index -1 where none had a
+    negative step: Python's active set then cleared the last row's multiplier, src/step.cpp's wrote before its
+    arrays (a run crashed with "free(): invalid pointer")."""
+    assert qp._active_set(np.eye(2), np.array([np.nan, 1.0]), 1e-12) is None
+
+
+@pytest.mark.parametrize("step_impl", ["compiled", "python"])
+def test_a_blow_up_under_the_compiled_step_is_a_named_stop(step_impl):
+    """solo12_stand at h = 5e-3 (five times its dt): the PD torques overflow within 6 steps. Both steps stop with
+    one line naming the step and the failed QP, the samples before it kept; the compiled step crashed the process
+    before (its active set on the non-finite problem wrote outside its arrays), it now hands the step to Python
+    (src/step.cpp project: qp.solve's NON_FINITE_INPUT)."""
+    with pytest.raises(ms.SimulationError) as info:
+        run("solo12_stand", duration=0.1, dt=5e-3, restitution=0.5, step_impl=step_impl)
+    msg = str(info.value)
+    assert re.match(r"step \d+ \(t = [^)]* s -> [^)]* s\): ", msg) and "NON_FINITE_INPUT" in msg, msg
+    traj = info.value.trajectory
+    assert traj is not None and traj.meta["status"] == f"failed: {msg}" and np.isfinite(traj.q).all()
