@@ -137,7 +137,7 @@ NO_CONTACTS = Contacts.empty()
 
 
 def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p: np.ndarray,
-                    margin: float, body: np.ndarray, tol: float) -> np.ndarray | None:
+                    margin: float, body: np.ndarray, tol: float, *, with_gaps: bool = False):
     """The ways of staying apart of vertex i of g_vert touching box g_other at p (docs/theory.md
     §3): the outward normals (world) of g_other's faces whose signed distance from p is within
     `margin` of the largest one (the faces p is nearest to, or crossed within the step) and whose
@@ -150,24 +150,31 @@ def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p
     (by more than the cone test's 1e-9) still separates when the vertex's whole body (`body`: its vertices,
     world) lies outside it to within `tol`, the contact tolerance: a slightly tilted cube's vertex at the
     other's top corner, its edges dipping by the tilt, gets the top face's normal, not coal's (issue 23,
-    docs/theory.md §6.2 item 1c)."""
+    docs/theory.md §6.2 item 1c). with_gaps: (normals, their faces' signed distances from p [m], the largest signed
+    distance of any face) instead of the normals (None alike)."""
     planes, edges = model.face_planes[g_other], model.vertex_edges[g_vert]
     if planes is None or edges is None:
         return None
     n, d = planes
     # (the sums in src/step.cpp's order, `dots` and `ordered`: exact both ways for any face normal, a box turned on
     # the universe too; docs/theory.md §2.8)
-    s = dots(n, oMo.rotation.T @ (p - oMo.translation)) - d  # signed distance to each face plane
-    on = np.flatnonzero(s >= s.max() - margin)
+    s = dots(n, dots(oMo.rotation.T, p - oMo.translation)) - d  # signed distance to each face plane
+    s_max = s.max()
+    on = np.flatnonzero(s >= s_max - margin)
     if len(on) < 2:
-        return ordered(n[on], oMo.rotation.T) if s.max() > 0.0 else None  # src/step.cpp vertex_contacts: the same rule
+        if not s_max > 0.0:
+            return None
+        nw = ordered(n[on], oMo.rotation.T)  # src/step.cpp vertex_contacts: the same rule
+        return (nw, s[on], s_max) if with_gaps else nw
     nw = ordered(n[on], oMo.rotation.T)
     r = ordered(edges[i], oMi.rotation.T)  # (k, 3) edges leaving the vertex, world
     ok = dots(nw[:, None, :], r[None, :, :]).min(axis=1, initial=0.0) >= -1e-9 if len(r) else np.ones(len(nw), bool)
     if not ok.all():  # the body outside a face plane to tol: it separates (§6.2, 1c; src/step.cpp the same sums)
-        sb = [dots(n, oMo.rotation.T @ (v - oMo.translation)) - d for v in body]
+        sb = [dots(n, dots(oMo.rotation.T, v - oMo.translation)) - d for v in body]
         ok |= np.array([min(float(x[f]) for x in sb) >= -tol for f in on])
-    return nw[ok] if ok.any() else None
+    if not ok.any():
+        return None
+    return (nw[ok], s[on][ok], s_max) if with_gaps else nw[ok]
 
 
 def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_other: int, joint_other: int,
@@ -214,13 +221,17 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
                 f = int(np.argmax(sd))
                 d, nrm = float(sd[f]), -(oMo.rotation @ planes[0][f])
                 p_on_other = Vw[i] + d * nrm
-            faces = _corner_normals(model, g_vert, i, oMi, g_other, oMo, Vw[i], margin, Vw, tol)
+            got = _corner_normals(model, g_vert, i, oMi, g_other, oMo, Vw[i], margin, Vw, tol, with_gaps=True)
+            faces = None if got is None else got[0]
             if faces is not None and len(faces) >= 2:  # outward normals of the other: B -> A if the vertex is A's
                 corners.append((d, Vw[i] if v_is_a else p_on_other, p_on_other if v_is_a else Vw[i],
                                 faces if v_is_a else -faces, pair, offset + i))
                 continue
             if faces is not None:  # one face separates: a smooth contact with its exact normal
                 nrm = -faces[0]
+                if got[1][0] < got[2]:  # not the face nearest to the vertex: the gap along this normal is its plane's
+                    d = float(got[1][0])  # (coal's is the nearest face's: docs/theory.md §6.2, 1d)
+                    p_on_other = Vw[i] + d * nrm
             if v_is_a:
                 out.append((d, Vw[i], p_on_other, -nrm, pair, FeatureKind.VERTEX, offset + i))
             else:

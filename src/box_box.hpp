@@ -24,6 +24,12 @@ inline Vec3 row_rt(const RowsX3 &F, Eigen::Index f, const Mat3 &R) {
   return out;
 }
 inline double dot3(const Vec3 &a, const Vec3 &b) { return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]; }
+// R.T x summed in index order (sums.dots(R.T, x): a point in a box's frame, its planes' distances exact both ways)
+inline Vec3 rt_times(const Mat3 &R, const Vec3 &x) {
+  Vec3 out;
+  for (int j = 0; j < 3; ++j) out[j] = (R(0, j) * x[0] + R(1, j) * x[1]) + R(2, j) * x[2];
+  return out;
+}
 inline Vec3 cross3(const Vec3 &a, const Vec3 &b) {
   return Vec3(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]);
 }

@@ -2317,10 +2317,10 @@ class Stepper {
       tf.setTranslation(Vw.row(i).transpose());
       const auto &oMg = gd_.oMg[g_other];
       const coal::Transform3s tf_other(oMg.rotation(), oMg.translation());
-      const double d = (*query)(tf, tf_other, *dreq_, *dres_);
+      double d = (*query)(tf, tf_other, *dreq_, *dres_);
       if (!(d <= tol_)) continue;
       const Vec3 nrm_coal = dres_->normal;  // from the vertex towards the other shape
-      const Vec3 p_other = dres_->nearest_points[1];
+      Vec3 p_other = dres_->nearest_points[1];
       const boxbox::RowsX3 &Pn = plane_n_[g_other];
       const VectorXd &Pd = plane_d_[g_other];
       if (!(nrm_coal.allFinite() && std::abs(d) < 1e100)) {
@@ -2337,7 +2337,7 @@ class Stepper {
         // vertex at the other's top corner). A vertex outside the box within
         // margin of one face plane only is over that face (the others' planes are behind it): the face's normal, the
         // exact one, not coal's (at a gap of 1e-17 m coal's pointed 0.45 rad off: issue 23)
-        const Vec3 pl = Ro.transpose() * (Vw.row(i).transpose() - to);
+        const Vec3 pl = boxbox::rt_times(Ro, Vw.row(i).transpose() - to);  // sums.dots(R.T, x)'s sums
         VectorXd sd(Pn.rows());
         for (Eigen::Index f = 0; f < Pn.rows(); ++f) sd[f] = ((Pn(f, 0) * pl[0] + Pn(f, 1) * pl[1]) + Pn(f, 2) * pl[2]) - Pd[f];
         std::vector<Eigen::Index> on;
@@ -2348,6 +2348,7 @@ class Stepper {
           const boxbox::RowsX3 &VE = vedges_[g_vert];  // vertex i's edges in rows k_cone i .. k_cone i + k_cone - 1
           int ok = 0;
           Vec3 first;
+          Eigen::Index f_first = -1;
           for (Eigen::Index f : on) {
             const Vec3 nw = boxbox::row_rt(Pn, f, Ro);
             double lo = INFINITY;
@@ -2356,18 +2357,24 @@ class Stepper {
             if (!sep) {  // the vertex's body outside face f's plane to tol_: it separates (docs/theory.md §6.2, 1c)
               double lo_body = INFINITY;
               for (Eigen::Index j = 0; j < V.rows(); ++j) {
-                const Vec3 pj = Ro.transpose() * (Vw.row(j).transpose() - to);
+                const Vec3 pj = boxbox::rt_times(Ro, Vw.row(j).transpose() - to);
                 lo_body = std::min(lo_body, ((Pn(f, 0) * pj[0] + Pn(f, 1) * pj[1]) + Pn(f, 2) * pj[2]) - Pd[f]);
               }
               sep = lo_body >= -tol_;
             }
             if (sep) {
-              if (!ok) first = nw;
+              if (!ok) first = nw, f_first = f;
               ++ok;
             }
           }
           if (ok >= 2) throw Fallback{"a vertex at a box's edge or corner"};
-          if (ok == 1) nrm = -first;
+          if (ok == 1) {
+            nrm = -first;
+            if (sd[f_first] < sd.maxCoeff()) {  // not the nearest face: the gap along this normal is its plane's (§6.2, 1d)
+              d = sd[f_first];
+              p_other = Vw.row(i).transpose() + d * nrm;
+            }
+          }
         } else if (sd.maxCoeff() > 0.0) {  // outside, over one face only (its projection inside it): that face's normal
           nrm = -boxbox::row_rt(Pn, on[0], Ro);
         }
