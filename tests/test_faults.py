@@ -168,7 +168,9 @@ def test_a_blow_up_under_the_compiled_step_is_a_named_stop(step_impl):
     """solo12_stand at h = 5e-3 (five times its dt): the PD torques overflow within 6 steps. Both steps stop with
     one line naming the step and the failed QP, the samples before it kept; the compiled step crashed the process
     before (its active set on the non-finite problem wrote outside its arrays), it now hands the step to Python
-    (src/step.cpp project: qp.solve's NON_FINITE_INPUT)."""
+    (src/step.cpp project: qp.solve's NON_FINITE_INPUT). The stop took 4 min of CPU: the blown-up robot's thousands
+    of rows gave constraints' duplicate screen 31 million candidate pairs, compared one by one (now at once per row,
+    the same mask)."""
     with pytest.raises(ms.SimulationError) as info:
         run("solo12_stand", duration=0.1, dt=5e-3, restitution=0.5, step_impl=step_impl)
     msg = str(info.value)
