@@ -229,8 +229,8 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
                 continue
             if faces is not None:  # one face separates: a smooth contact with its exact normal
                 nrm = -faces[0]
-                if got[1][0] < got[2]:  # not the face nearest to the vertex: the gap along this normal is its plane's
-                    d = float(got[1][0])  # (coal's is the nearest face's: docs/theory.md §6.2, 1d)
+                if got[1][0] < got[2] - tol:  # beyond tol of the nearest face's: the gap along this normal is its
+                    d = float(got[1][0])  # plane's (coal's is the nearest face's: docs/theory.md §6.2, 1d)
                     p_on_other = Vw[i] + d * nrm
             if v_is_a:
                 out.append((d, Vw[i], p_on_other, -nrm, pair, FeatureKind.VERTEX, offset + i))

@@ -2370,7 +2370,7 @@ class Stepper {
           if (ok >= 2) throw Fallback{"a vertex at a box's edge or corner"};
           if (ok == 1) {
             nrm = -first;
-            if (sd[f_first] < sd.maxCoeff()) {  // not the nearest face: the gap along this normal is its plane's (§6.2, 1d)
+            if (sd[f_first] < sd.maxCoeff() - tol_) {  // beyond tol of the nearest face's: its plane's gap (§6.2, 1d)
               d = sd[f_first];
               p_other = Vw.row(i).transpose() + d * nrm;
             }
