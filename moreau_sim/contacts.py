@@ -137,7 +137,7 @@ NO_CONTACTS = Contacts.empty()
 
 
 def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p: np.ndarray,
-                    margin: float, body: np.ndarray, tol: float, *, with_gaps: bool = False):
+                    margin: float, body: np.ndarray, tol: float):
     """The ways of staying apart of vertex i of g_vert touching box g_other at p (docs/theory.md
     §3): the outward normals (world) of g_other's faces whose signed distance from p is within
     `margin` of the largest one (the faces p is nearest to, or crossed within the step) and whose
@@ -150,8 +150,8 @@ def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p
     (by more than the cone test's 1e-9) still separates when the vertex's whole body (`body`: its vertices,
     world) lies outside it to within `tol`, the contact tolerance: a slightly tilted cube's vertex at the
     other's top corner, its edges dipping by the tilt, gets the top face's normal, not coal's (issue 23,
-    docs/theory.md §6.2 item 1c). with_gaps: (normals, their faces' signed distances from p [m], the largest signed
-    distance of any face) instead of the normals (None alike)."""
+    docs/theory.md §6.2 item 1c). Returns (the normals, their faces' signed distances from p [m], the largest signed
+    distance of any face), or None."""
     planes, edges = model.face_planes[g_other], model.vertex_edges[g_vert]
     if planes is None or edges is None:
         return None
@@ -165,7 +165,7 @@ def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p
         if not s_max > 0.0:
             return None
         nw = ordered(n[on], oMo.rotation.T)  # src/step.cpp vertex_contacts: the same rule
-        return (nw, s[on], s_max) if with_gaps else nw
+        return nw, s[on], s_max
     nw = ordered(n[on], oMo.rotation.T)
     r = ordered(edges[i], oMi.rotation.T)  # (k, 3) edges leaving the vertex, world
     ok = dots(nw[:, None, :], r[None, :, :]).min(axis=1, initial=0.0) >= -1e-9 if len(r) else np.ones(len(nw), bool)
@@ -174,7 +174,7 @@ def _corner_normals(model: Model, g_vert: int, i: int, oMi, g_other: int, oMo, p
         ok |= np.array([min(float(x[f]) for x in sb) >= -tol for f in on])
     if not ok.any():
         return None
-    return (nw[ok], s[on][ok], s_max) if with_gaps else nw[ok]
+    return nw[ok], s[on][ok], s_max
 
 
 def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_other: int, joint_other: int,
@@ -221,7 +221,7 @@ def _vertex_contacts(model: Model, data: Data, g_vert: int, joint_v: int, g_othe
                 f = int(np.argmax(sd))
                 d, nrm = float(sd[f]), -(oMo.rotation @ planes[0][f])
                 p_on_other = Vw[i] + d * nrm
-            got = _corner_normals(model, g_vert, i, oMi, g_other, oMo, Vw[i], margin, Vw, tol, with_gaps=True)
+            got = _corner_normals(model, g_vert, i, oMi, g_other, oMo, Vw[i], margin, Vw, tol)
             faces = None if got is None else got[0]
             if faces is not None and len(faces) >= 2:  # outward normals of the other: B -> A if the vertex is A's
                 corners.append((d, Vw[i] if v_is_a else p_on_other, p_on_other if v_is_a else Vw[i],
