@@ -20,6 +20,7 @@ from .data import Data
 from .energy import kinetic, potential
 from .errors import SimulationError
 from .law import ENERGY_ROUNDOFF, outcome, percussion, project, restitution_bounds
+from .limits import limit_gaps
 from .model import Model
 from .options import Bias, Options, PositionCorrection, QPForm, StepImpl, Tunnelling
 from .qp import QPResult
@@ -501,8 +502,9 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
             if dE > budget:  # not linear after all: keep the uncorrected step rather than gain energy
                 return q_next, 0.0, u_next
     # the displacement only knows the closed contacts: it must not push another pair into contact
-    # (a column of beads: pushing 2 off 1 pushes 1 into 0). Otherwise the step stays uncorrected.
-    before, after = pair_distances(model, data, q_next, near=True), pair_distances(model, data, q_c, near=True)
+    # (a column of beads: pushing 2 off 1 pushes 1 into 0), nor a joint past a limit that was not closed (the
+    # limits' gaps follow the pairs', at their pair indices). Otherwise the step stays uncorrected.
+    before, after = _guarded(model, data, q_next), _guarded(model, data, q_c)
     floor = np.minimum(before, 0.0)
     if u_c is not u_next:  # a paid lift: a pair it lifts may go deeper at a feature that was not closed (a box
         # rocking across an edge: one crossing lifted presses the other), by at most half the depth it lifts,
@@ -514,6 +516,13 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     if (after < floor - tol).any():
         return q_next, 0.0, u_next
     return q_c, dE, u_c
+
+
+def _guarded(model: Model, data: Data, q: np.ndarray) -> np.ndarray:
+    """The correction's guard at q: every pair's signed distance [m] (pair_distances(near=True)), then every joint
+    limit's gap [rad or m] (its pair index len(model.pairs) + its index: docs/theory.md §2.5)."""
+    d = pair_distances(model, data, q, near=True)
+    return np.concatenate([d, limit_gaps(model.limits, q)]) if model.limits else d
 
 
 INFEASIBLE = "PIQP_PRIMAL_INFEASIBLE"  # qp.solve's status where no dq meets every linearized row

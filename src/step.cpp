@@ -2649,6 +2649,29 @@ class Stepper {
                          (int)limits_(k, 1)});
     }
   }
+  // the correction's guard on the joint limits (stepper._guarded: their gaps after the pairs' distances, at their pair
+  // indices): no limit's gap at q_c below its floor min(gap at q_next, 0) (+ half the least g_next of its rows where
+  // a paid lift lifts them, scaled) less tol
+  bool limits_hold(const VectorXd &q_next, const VectorXd &q_c, const std::vector<Found> &con, const VectorXd &g_next,
+                   bool scaled) const {
+    const Eigen::Index nl = limits_.rows();
+    if (!nl) return true;
+    auto gap = [&](const VectorXd &q, Eigen::Index k) { return limits_(k, 4) * (q[(Eigen::Index)limits_(k, 2)] - limits_(k, 5)); };
+    VectorXd lifted = VectorXd::Zero(nl);  // np.minimum.at(lifted, pair, g_next) from 0 (the limits' entries)
+    if (scaled)
+      for (size_t i = 0; i < con.size(); ++i) {
+        const Eigen::Index k = (Eigen::Index)con[i].pair - (Eigen::Index)limits_(0, 0);
+        if (k < 0 || k >= nl) continue;
+        const double l = lifted[k], gi = g_next[(Eigen::Index)i];
+        lifted[k] = (std::isnan(l) || std::isnan(gi)) ? std::numeric_limits<double>::quiet_NaN() : std::min(l, gi);
+      }
+    for (Eigen::Index k = 0; k < nl; ++k) {
+      double floor = std::min(gap(q_next, k), 0.0);
+      if (scaled) floor = floor + 0.5 * lifted[k];
+      if (gap(q_c, k) < floor - tol_) return false;
+    }
+    return true;
+  }
   // a contact's joints (A, B): its pair's, or a joint limit's (its joint, the world)
   std::pair<int, int> joints_of(const Found &f) const {
     if (f.kind == C_.joint_limit) return {f.feature, 0};
@@ -3281,6 +3304,7 @@ class Stepper {
     for (Eigen::Index k = 0; k < before.size(); ++k)
       if (after[k] < floor[k] - tol_) return false;
     }
+    if (!limits_hold(q_next, q_c, con, g_next, scaled)) return false;
     q_next = q_c;
     corr = dE;
     if (!scaled) return false;
