@@ -26,15 +26,16 @@ ENERGY_ROUNDOFF = 1e-14
 
 def project(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None = None,
             Minv: np.ndarray | None = None, form: QPForm = QPForm.PRIMAL, eps: float = 1e-10,
-            start: np.ndarray | None = None) -> qp.QPResult:
+            start: np.ndarray | None = None, blocks=None) -> qp.QPResult:
     """The proximal point of v0 on the tangent cone {v : W' v >= 0} in the kinetic metric M
     (with b: on {W' v >= b}, the per-contact restitution rules, restitution_bounds). start: the rows the
-    active set starts from above qp.SPARSE_ROWS rows (qp.solve; the stepper's previous final set).
+    active set starts from above qp.SPARSE_ROWS rows (qp.solve; the stepper's previous final set). blocks: M's
+    diagonal blocks by tree, for qp.solve's islands (docs/theory.md §1.3, islands; None: one problem).
 
     Returns the QP result: v, the multipliers lam with M (v - v0) = W lam, status and residual."""
     if W.shape[1] == 0:
         return qp.QPResult("NO_CONTACT", True, 0, False, np.array(v0, float), np.zeros(0))
-    return qp.solve(M, W, v0, b=b, Minv=Minv, form=form, eps=eps, start=start)
+    return qp.solve(M, W, v0, b=b, Minv=Minv, form=form, eps=eps, start=start, blocks=blocks)
 
 
 def outcome(v: np.ndarray, u_minus: np.ndarray, e: float) -> np.ndarray:

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
     import scipy.sparse
 
 from . import nonzeros
+from .islands import islands
 from .options import QPForm
 from .sums import ordered
 
@@ -523,7 +524,7 @@ def _no_answer(status, iters: int, v: np.ndarray, lam: np.ndarray) -> QPResult |
 def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None = None,
           Minv: np.ndarray | None = None, form: QPForm = QPForm.PRIMAL, eps: float = 1e-10,
           max_iter: int = 250, polish: Polish = Polish.ACTIVE_SET, screen: bool = True,
-          polish_tol: float = 1e-9, start: np.ndarray | None = None) -> QPResult:
+          polish_tol: float = 1e-9, start: np.ndarray | None = None, blocks=None) -> QPResult:
     """Project v0 onto {v : W' v >= b} (b = 0 by default) in the metric M with piqp.
 
     Minv: M^-1 if the caller has it (Pinocchio's computeMinverse), else it is computed.
@@ -531,7 +532,10 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     polish_tol: the acceptance tolerance of Polish.LEAST_SQUARES (rows with multipliers above
     sqrt(polish_tol) are active; the polished v must satisfy W'v >= -polish_tol).
     start: above SPARSE_ROWS rows (Polish.ACTIVE_SET), the rows the active set starts from (bool (m,); None or
-    none set: from nothing); at or below, it is not read (the cold start, docs/theory.md §1.3)."""
+    none set: from nothing); at or below, it is not read (the cold start, docs/theory.md §1.3).
+    blocks: (first velocity, nv) of each kinematic tree, M's diagonal blocks (Forest.blocks): above SPARSE_ROWS
+    rows (Polish.ACTIVE_SET) a problem whose rows fall into independent islands is solved island by island
+    (_by_islands, docs/theory.md §1.3, islands); None: as one."""
     m = W.shape[1]
     b = np.zeros(m) if b is None else np.asarray(b, float)
     if polish is Polish.ACTIVE_SET and Minv is None:
@@ -543,6 +547,11 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if screen and (ordered(W.T, v0) - b).min() >= -SCREEN * (1.0 + np.abs(v0).max()):
         # v0 already admissible (up to round-off): the projection is v0 itself, nothing to solve
         return QPResult("ADMISSIBLE", True, 0, False, v0.copy(), np.zeros(m), M, W, v0, b)
+    if warm and blocks is not None:
+        got = _by_islands(M, W, v0, b, Minv, blocks, start, form=form, eps=eps, max_iter=max_iter, screen=screen,
+                          polish_tol=polish_tol)
+        if got is not None:
+            return got
     if warm and m > WARM_ROWS and (start is None or not np.any(start)):  # the sparse path alone (WARM_ROWS)
         return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
     if cold or warm:  # above SPARSE_ROWS warm-started from `start` (its moves grow with the rows that change)
@@ -584,6 +593,32 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if p is not None:
         v, lam = p[:2]
     return QPResult("PIQP_SOLVED", True, iters, p is not None, v, lam, M, W, v0, b)
+
+
+def _by_islands(M, W, v0, b, Minv, blocks, start, **opts) -> QPResult | None:
+    """solve island by island (islands.islands; docs/theory.md §1.3, islands): each island's rows projected on its
+    own trees' velocities, with its own screen, tolerances, start (its rows of `start`) and size rules; the other
+    velocities keep v0. None where there is one island, or where an island has no answer (then solve takes the
+    whole)."""
+    parts = islands(W, blocks)
+    if parts is None:
+        return None
+    m = W.shape[1]
+    v, lam, act = v0.copy(), np.zeros(m), np.zeros(m, bool)
+    moves, status, polished = 0, "ADMISSIBLE", True
+    for dofs, rows in parts:
+        ix = np.ix_(dofs, dofs)
+        res = solve(M[ix], W[np.ix_(dofs, rows)], v0[dofs], b=b[rows], Minv=Minv[ix],
+                    start=None if start is None else start[rows], **opts)
+        if not res.ok:
+            return None
+        v[dofs], lam[rows] = res.v, res.lam
+        act[rows] = res.lam > 0.0 if res.active is None else res.active  # keep_active's rule, island by island
+        moves += res.iterations
+        if res.status != "ADMISSIBLE":
+            polished = polished and res.polished
+            status = res.status if status != "PIQP_SOLVED" else status
+    return QPResult(status, True, moves, polished, v, lam, M, W, v0, b, act)
 
 
 def _csc(A) -> scipy.sparse.csc_matrix:

@@ -57,6 +57,8 @@ class ContactProblem:
     tau: np.ndarray | None = None
     rate: np.ndarray | None = None
     drive: drive_step.DriveStep | None = None  # a step with a driven joint (drive_step.py, docs/theory.md §2.13)
+    blocks: tuple | None = None  # M's diagonal blocks by tree (Forest.blocks): the projections' islands (§1.3); None
+    # in a driven step (its reduced M; src/step.cpp passes no blocks there either)
 
     @property
     def closed(self) -> bool:
@@ -220,7 +222,8 @@ def assemble(model: Model, data: Data, state: State, *, h: float, e: float,
     u_free = u_free if ds is None else ds.u_c
     v_free = (u_free + e * u) / (1.0 + e)
     rate = None if model.prescribed is None else model.prescribed.rates(model.pairs, cs.contacts, t_m)
-    return ContactProblem(h, e, q, u, q_m, cs.contacts, u_free, v_free, cs.M, Minv, cs.W, cs.pieces, tau, rate, ds)
+    return ContactProblem(h, e, q, u, q_m, cs.contacts, u_free, v_free, cs.M, Minv, cs.W, cs.pieces, tau, rate, ds,
+                          model.forest.blocks if ds is None else None)
 
 
 def free_velocity(model: Model, data: Data, q_m: np.ndarray, u: np.ndarray, h: float, bias: Bias,
@@ -294,7 +297,7 @@ def solve_impact(pb: ContactProblem, options: Options, *, form: QPForm | None = 
         if pb.rate is not None:
             b = -pb.rate if b is None else b - pb.rate
         res = project(pb.M, W, pb.v_free, b=b, Minv=pb.Minv, form=form or options.qp_form,
-                      eps=eps or options.qp_tolerance, start=start)
+                      eps=eps or options.qp_tolerance, start=start, blocks=pb.blocks)
     u_next = outcome(res.v, u, e)
     P = percussion(res.lam, e)
     gamma_plus = ordered(W.T, u_next)
@@ -471,7 +474,7 @@ def correct_positions(model: Model, data: Data, pb: ContactProblem, imp: ImpactS
     if res is None or not res.ok:  # above qp.SPARSE_ROWS rows warm-started from the law's final set (§2.5)
         law = imp.qp.active
         res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-g_next, Minv=pb.Minv,
-                       start=law if law is not None and len(law) == imp.W.shape[1] else None)
+                       start=law if law is not None and len(law) == imp.W.shape[1] else None, blocks=pb.blocks)
     if res.status == INFEASIBLE:  # rows that contradict (a box pushed into another): the least residual (§2.5)
         res = qp.solve(pb.M, imp.W, np.zeros(model.nv), b=-(g_next + shortfall(imp.W, g_next, tol)), Minv=pb.Minv)
     if not res.ok:  # never leave the penetration silently: the run stops, naming the step (simulate)

@@ -47,6 +47,8 @@ class Forest:
             self.local_joint[tr.offset + ids] = ids
         self.tree_of_joint.setflags(write=False)
         self.local_joint.setflags(write=False)
+        # (first velocity, nv) of each tree: M's and M^-1's diagonal blocks (qp.solve's islands: docs/theory.md §1.3)
+        self.blocks = tuple((tr.v.start, tr.v.stop - tr.v.start) for tr in self.trees)
         moving = [t for t, tr in enumerate(self.trees) if tr.v.stop > tr.v.start]
         self._moving = np.array(moving, dtype=np.int64)  # the trees with velocities, and where theirs start
         self._v_starts = np.array([self.trees[t].v.start for t in moving], dtype=np.int64)

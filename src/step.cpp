@@ -1508,12 +1508,85 @@ bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Inde
   return lu_solve(GA, rhs, x);
 }
 
+Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
+               const std::vector<char> *start = nullptr, const WInfo *given = nullptr, const Blocks *blocks = nullptr);
+
+// islands.islands and qp._by_islands (docs/theory.md §1.3, islands): the rows (W's nonzeros by column, wi) fall into islands,
+// the connected components of rows and the trees they touch (blocks: M's diagonal blocks by tree); each island is
+// projected on its own trees' velocities (its own screen, tolerances, start and size rules), the other velocities keep
+// v0, act takes an island's first-pass set or, where it has none (one row, admissible), its rows with lam > 0 (as
+// stepper.keep_active reads Python's). false where there is one island or a row touches no velocity (project takes the
+// whole); an island project hands back throws Fallback, as Python then solves the whole (qp._by_islands: None)
+bool by_islands(const Constants &C, const MatrixXd &W, const WInfo &wi, const VectorXd &v0, const VectorXd &b,
+                const MatrixXd &Minv, const std::vector<char> *start, const Blocks &blocks, Solved &out) {
+  using I = Eigen::Index;
+  const I nv = W.rows(), m = W.cols(), nt = (I)blocks.size();
+  std::vector<I> tree((size_t)nv, -1), parent((size_t)nt), first_tree((size_t)m);
+  for (I t = 0; t < nt; ++t) {
+    parent[(size_t)t] = t;
+    for (I d = blocks[(size_t)t].first; d < blocks[(size_t)t].first + blocks[(size_t)t].second; ++d) tree[(size_t)d] = t;
+  }
+  auto root = [&](I t) {
+    while (parent[(size_t)t] != t) t = parent[(size_t)t] = parent[(size_t)parent[(size_t)t]];
+    return t;
+  };
+  for (I j = 0; j < m; ++j) {
+    const I t0 = wi.wptr[(size_t)j], t1 = wi.wptr[(size_t)j + 1];
+    if (t0 == t1) return false;
+    first_tree[(size_t)j] = tree[(size_t)wi.widx[(size_t)t0]];
+    for (I t = t0 + 1; t < t1; ++t) {
+      const I a = root(first_tree[(size_t)j]), c = root(tree[(size_t)wi.widx[(size_t)t]]);
+      if (a != c) parent[(size_t)std::max(a, c)] = std::min(a, c);
+    }
+  }
+  std::vector<I> label((size_t)nt, -1), of_row((size_t)m);
+  I n = 0;
+  for (I j = 0; j < m; ++j) {
+    const I r = root(first_tree[(size_t)j]);
+    if (label[(size_t)r] < 0) label[(size_t)r] = n++;
+    of_row[(size_t)j] = label[(size_t)r];
+  }
+  if (n < 2) return false;
+  std::vector<std::vector<I>> dofs((size_t)n), rows((size_t)n);
+  for (I t = 0; t < nt; ++t) {
+    const I k = label[(size_t)root(t)];
+    if (k >= 0)
+      for (I d = blocks[(size_t)t].first; d < blocks[(size_t)t].first + blocks[(size_t)t].second; ++d)
+        dofs[(size_t)k].push_back(d);
+  }
+  for (I j = 0; j < m; ++j) rows[(size_t)of_row[(size_t)j]].push_back(j);
+  out = Solved{v0, VectorXd::Zero(m), Projection::ADMISSIBLE, std::vector<char>((size_t)m, 0)};
+  for (I k = 0; k < n; ++k) {
+    const auto &D = dofs[(size_t)k], &R = rows[(size_t)k];
+    const I nd = (I)D.size(), nr = (I)R.size();
+    MatrixXd Wk(nd, nr), Mk(nd, nd);
+    VectorXd vk(nd), bk(nr);
+    for (I c = 0; c < nr; ++c)
+      for (I i = 0; i < nd; ++i) Wk(i, c) = W(D[(size_t)i], R[(size_t)c]);
+    for (I c = 0; c < nd; ++c)
+      for (I i = 0; i < nd; ++i) Mk(i, c) = Minv(D[(size_t)i], D[(size_t)c]);
+    for (I i = 0; i < nd; ++i) vk[i] = v0[D[(size_t)i]];
+    for (I c = 0; c < nr; ++c) bk[c] = b[R[(size_t)c]];
+    std::vector<char> sk;
+    if (start)
+      for (I c = 0; c < nr; ++c) sk.push_back((*start)[(size_t)R[(size_t)c]]);
+    const Solved s = project(C, Wk, vk, bk, Mk, start ? &sk : nullptr);
+    for (I i = 0; i < nd; ++i) out.v[D[(size_t)i]] = s.v[i];
+    for (I c = 0; c < nr; ++c) {
+      out.lam[R[(size_t)c]] = s.lam[c];
+      out.act[(size_t)R[(size_t)c]] = (I)s.act.size() == nr ? s.act[(size_t)c] : (char)(s.lam[c] > 0.0);
+    }
+    if (s.status != Projection::ADMISSIBLE) out.status = s.status;
+  }
+  return true;
+}
+
 // qp.solve (primal form, Polish.ACTIVE_SET): the screen, the closed form for one row, else qp._polish: the active
 // set (from nothing, or above qp.SPARSE_ROWS rows from `start`: qp.solve's start, the previous step's final set),
 // re-solved on its final set and checked. Throws Fallback where qp.solve would go on to piqp. G's and W's nonzeros are found once (GInfo, WInfo) and each product W'v is
 // formed once (W'v0 for the screen and r; W'vp for r2 and the last check, or W'v2 where the second pass is kept).
 Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
-               const std::vector<char> *start = nullptr, const WInfo *given = nullptr, const Blocks *blocks = nullptr) {
+               const std::vector<char> *start, const WInfo *given, const Blocks *blocks) {
   const Eigen::Index m = W.cols(), nv = W.rows();
   // qp.solve's NON_FINITE_INPUT: the Python step takes it and stops the run naming the step (an overflow upstream)
   if (!v0.allFinite()) throw Fallback{"a non-finite velocity to project"};
@@ -1530,6 +1603,10 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
     const double lam1 = std::max(0.0, (b[0] - odot(w.data(), v0.data(), nv)) / odot(w.data(), Miw.data(), nv));
     VectorXd v = v0 + lam1 * Miw;
     return {v, VectorXd::Constant(1, lam1), Projection::ACTIVE_SET};
+  }
+  if (blocks && m > C.sparse_rows && wi.finite) {  // qp.solve's islands (above qp.SPARSE_ROWS rows)
+    Solved split;
+    if (by_islands(C, W, wi, v0, b, Minv, start, *blocks, split)) return split;
   }
   if (m <= C.sparse_rows || (start && std::find(start->begin(), start->end(), 1) == start->end())) start = nullptr;
   // above qp.WARM_ROWS rows a projection without a start goes to qp.solve's sparse path (piqp + SuperLU's start)
@@ -3023,7 +3100,7 @@ class Stepper {
     for (Eigen::Index i = 0; i < m; ++i) g[i] = con[i].g;
     if (projection_)  // a paid lift (§2.5): u_next, gamma_plus those of the lift, out.u_law the law's u_{k+1}
       out.paid = correct_positions(q, u, u_free, h, g, gamma_plus, u_next, M, W, driven ? Minv_c : Minv, q_next,
-                                   corr, gamma_minus, con, ow, out.u_law, res.act);
+                                   corr, gamma_minus, con, ow, out.u_law, res.act, driven ? nullptr : &wli);
     if (!driven)  // §2.10 (a driven joint: §2.13), with the torques' and the moving statics' work
       cap_energy(q, u, q_m, u_free, h, e, P, work, corr, W, q_next, u_next, gamma_plus, ow,
                  has_rate ? &rate : nullptr);
@@ -3160,7 +3237,8 @@ class Stepper {
   bool correct_positions(const VectorXd &q, const VectorXd &u, const VectorXd &u_free, double h, const VectorXd &g,
                          VectorXd &gamma_plus, VectorXd &u_next, const MatrixXd &M, const MatrixXd &W,
                          const MatrixXd &Minv, VectorXd &q_next, double &corr, const VectorXd &gamma_minus,
-                         const std::vector<Found> &con, double ow, VectorXd &u_law, const std::vector<char> &law_act) {
+                         const std::vector<Found> &con, double ow, VectorXd &u_law, const std::vector<char> &law_act,
+                         const WInfo *wi) {  // wi: W's nonzeros where the law's lists are W's (not driven)
     (void)M;
     const Eigen::Index m = g.size();
     VectorXd g_next = g + (0.5 * h) * gamma_plus;
@@ -3248,7 +3326,7 @@ class Stepper {
     if (budget <= 0.0 && !resting && !persistent) return false;
     if (!solved)  // above C_.sparse_rows rows warm-started from the law's final set (stepper.correct_positions, §2.5)
       res = ::project(C_, W, VectorXd::Zero(model_.nv), -g_next, Minv,
-                      (Eigen::Index)law_act.size() == m ? &law_act : nullptr, nullptr,
+                      (Eigen::Index)law_act.size() == m ? &law_act : nullptr, wi,
                       rh_.driven() ? nullptr : &blocks_);  // a driven step's Minv: DriveStep.for_correction's
     VectorXd q_c = pinocchio::integrate(model_, q_next, res.v);
     const double T_c = kinetic(q_c, u_next);
