@@ -524,7 +524,7 @@ def _no_answer(status, iters: int, v: np.ndarray, lam: np.ndarray) -> QPResult |
 def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None = None,
           Minv: np.ndarray | None = None, form: QPForm = QPForm.PRIMAL, eps: float = 1e-10,
           max_iter: int = 250, polish: Polish = Polish.ACTIVE_SET, screen: bool = True,
-          polish_tol: float = 1e-9, start: np.ndarray | None = None, blocks=None) -> QPResult:
+          polish_tol: float = 1e-9, start: np.ndarray | None = None, blocks=None, start_any: bool = False) -> QPResult:
     """Project v0 onto {v : W' v >= b} (b = 0 by default) in the metric M with piqp.
 
     Minv: M^-1 if the caller has it (Pinocchio's computeMinverse), else it is computed.
@@ -535,7 +535,7 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     none set: from nothing); at or below, it is not read (the cold start, docs/theory.md §1.3).
     blocks: (first velocity, nv) of each kinematic tree, M's diagonal blocks (Forest.blocks): above SPARSE_ROWS
     rows (Polish.ACTIVE_SET) a problem whose rows fall into independent islands is solved island by island
-    (_by_islands, docs/theory.md §1.3, islands); None: as one."""
+    (_by_islands, docs/theory.md §1.3, islands); None: as one. start_any: `start` is read at any size (an island's)."""
     m = W.shape[1]
     b = np.zeros(m) if b is None else np.asarray(b, float)
     if polish is Polish.ACTIVE_SET and Minv is None:
@@ -555,7 +555,7 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
     if warm and m > WARM_ROWS and (start is None or not np.any(start)):  # the sparse path alone (WARM_ROWS)
         return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
     if cold or warm:  # above SPARSE_ROWS warm-started from `start` (its moves grow with the rows that change)
-        act = None if not warm or start is None or not np.any(start) else np.asarray(start, bool)
+        act = None if not (warm or start_any) or start is None or not np.any(start) else np.asarray(start, bool)
         p = _polish(W, v0, b, Minv, act)
         if p is not None:
             return QPResult("ACTIVE_SET", True, p[2], True, p[0], p[1], M, W, v0, b, p[3])
@@ -597,7 +597,8 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
 
 def _by_islands(M, W, v0, b, Minv, blocks, start, **opts) -> QPResult | None:
     """solve island by island (islands.islands; docs/theory.md §1.3, islands): each island's rows projected on its
-    own trees' velocities, with its own screen, tolerances, start (its rows of `start`) and size rules; the other
+    own trees' velocities, with its own screen, tolerances and size rules, warm-started from its rows of `start` at
+    any size (start_any: the stepper keeps the whole problem's set; from nothing where none is kept); the other
     velocities keep v0. None where there is one island, or where an island has no answer (then solve takes the
     whole)."""
     parts = islands(W, blocks)
@@ -609,7 +610,7 @@ def _by_islands(M, W, v0, b, Minv, blocks, start, **opts) -> QPResult | None:
     for dofs, rows in parts:
         ix = np.ix_(dofs, dofs)
         res = solve(M[ix], W[np.ix_(dofs, rows)], v0[dofs], b=b[rows], Minv=Minv[ix],
-                    start=None if start is None else start[rows], **opts)
+                    start=None if start is None else start[rows], start_any=True, **opts)
         if not res.ok:
             return None
         v[dofs], lam[rows] = res.v, res.lam

@@ -1509,11 +1509,13 @@ bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Inde
 }
 
 Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
-               const std::vector<char> *start = nullptr, const WInfo *given = nullptr, const Blocks *blocks = nullptr);
+               const std::vector<char> *start = nullptr, const WInfo *given = nullptr, const Blocks *blocks = nullptr,
+               bool start_any = false);
 
 // islands.islands and qp._by_islands (docs/theory.md §1.3, islands): the rows (W's nonzeros by column, wi) fall into islands,
 // the connected components of rows and the trees they touch (blocks: M's diagonal blocks by tree); each island is
-// projected on its own trees' velocities (its own screen, tolerances, start and size rules), the other velocities keep
+// projected on its own trees' velocities (its own screen, tolerances and size rules, started from its rows of start at
+// any size: start_any), the other velocities keep
 // v0, act takes an island's first-pass set or, where it has none (one row, admissible), its rows with lam > 0 (as
 // stepper.keep_active reads Python's). false where there is one island or a row touches no velocity (project takes the
 // whole); an island project hands back throws Fallback, as Python then solves the whole (qp._by_islands: None)
@@ -1570,7 +1572,7 @@ bool by_islands(const Constants &C, const MatrixXd &W, const WInfo &wi, const Ve
     std::vector<char> sk;
     if (start)
       for (I c = 0; c < nr; ++c) sk.push_back((*start)[(size_t)R[(size_t)c]]);
-    const Solved s = project(C, Wk, vk, bk, Mk, start ? &sk : nullptr);
+    const Solved s = project(C, Wk, vk, bk, Mk, start ? &sk : nullptr, nullptr, nullptr, true);
     for (I i = 0; i < nd; ++i) out.v[D[(size_t)i]] = s.v[i];
     for (I c = 0; c < nr; ++c) {
       out.lam[R[(size_t)c]] = s.lam[c];
@@ -1586,7 +1588,7 @@ bool by_islands(const Constants &C, const MatrixXd &W, const WInfo &wi, const Ve
 // re-solved on its final set and checked. Throws Fallback where qp.solve would go on to piqp. G's and W's nonzeros are found once (GInfo, WInfo) and each product W'v is
 // formed once (W'v0 for the screen and r; W'vp for r2 and the last check, or W'v2 where the second pass is kept).
 Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const VectorXd &b, const MatrixXd &Minv,
-               const std::vector<char> *start, const WInfo *given, const Blocks *blocks) {
+               const std::vector<char> *start, const WInfo *given, const Blocks *blocks, bool start_any) {
   const Eigen::Index m = W.cols(), nv = W.rows();
   // qp.solve's NON_FINITE_INPUT: the Python step takes it and stops the run naming the step (an overflow upstream)
   if (!v0.allFinite()) throw Fallback{"a non-finite velocity to project"};
@@ -1608,7 +1610,8 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
     Solved split;
     if (by_islands(C, W, wi, v0, b, Minv, start, *blocks, split)) return split;
   }
-  if (m <= C.sparse_rows || (start && std::find(start->begin(), start->end(), 1) == start->end())) start = nullptr;
+  if ((m <= C.sparse_rows && !start_any) || (start && std::find(start->begin(), start->end(), 1) == start->end()))
+    start = nullptr;
   // above qp.WARM_ROWS rows a projection without a start goes to qp.solve's sparse path (piqp + SuperLU's start)
   if (m > C.warm_rows && !start) throw Fallback{"more rows than the active set takes from nothing"};
   const double scale = 1.0 + v0.cwiseAbs().maxCoeff();

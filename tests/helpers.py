@@ -87,3 +87,14 @@ def damage_member(path: Path, member: str = "q.npy") -> None:
         + int.from_bytes(raw[info.header_offset + 28:info.header_offset + 30], "little")
     raw[start + info.compress_size // 2] ^= 0xFF
     path.write_bytes(bytes(raw))
+
+
+def slow_cases(values, slow, ids=None) -> list:
+    """values for pytest.mark.parametrize, those whose id (ids[k], else the value) is in `slow` marked slow (the
+    README's test command leaves them to the slow job: the suite's time, docs in README.md)."""
+    import pytest
+
+    ids = list(values) if ids is None else ids
+    assert set(slow) <= set(ids), set(slow) - set(ids)
+    return [pytest.param(v, marks=pytest.mark.slow, id=str(i)) if i in slow else pytest.param(v, id=str(i))
+            for v, i in zip(values, ids)]

@@ -111,7 +111,9 @@ KILLED = [("time-stepping", "box_stack_5", "30", "3"), ("adaptive", "box_stack_5
           ("event-driven", "rocking_block", "2.5", "0.1")]
 
 
-@pytest.mark.parametrize("integrator,name,duration,every", KILLED, ids=[k[0] for k in KILLED])
+@pytest.mark.parametrize("integrator,name,duration,every",
+                         [pytest.param(*k, id=k[0], marks=[pytest.mark.slow] if k[0] == "adaptive" else [])
+                          for k in KILLED])
 def test_a_killed_run_resumes_bit_identical(tmp_path, integrator, name, duration, every):
     """kill -9 of `moreau-sim run --set integrator=I --checkpoint-every` once its first checkpoint
     exists; `--resume` finishes it; every array equals the uninterrupted run's bit for bit; no

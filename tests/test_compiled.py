@@ -46,6 +46,8 @@ from moreau_sim.options import StepImpl
 from moreau_sim.scene import load_scene, parse_scene
 from moreau_sim.simulate import simulate
 
+from helpers import slow_cases
+
 SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.toml"))
 MUST_COMPILE = {"bouncing_ball", "zeno_ball", "newton_cradle_5", "box_drop", "column_of_beads_100", "quadruped_drop",
                 "solo_drop", "box_stack_10", "panda_table", "vibrating_paddle", "driven_paddle"}
@@ -77,7 +79,7 @@ def test_compiled_step_is_available():
     assert compiled.available(), compiled.unavailable_reason()
 
 
-@pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
+@pytest.mark.parametrize("path", slow_cases(SCENES, {"alternating_stack_10"}, [p.stem for p in SCENES]))
 def test_same_trajectory_both_ways(path):
     scene = load_scene(path)
     o = scene.options
@@ -480,7 +482,7 @@ def test_kept_buffers_give_python_bits_as_the_rows_come_and_go():
         assert b.qp.M.tobytes() == M.tobytes() and b.qp.W.tobytes() == W.tobytes()
 
 
-@pytest.mark.parametrize("name", ["column_of_beads_100", "quadruped_drop"])
+@pytest.mark.parametrize("name", [pytest.param("column_of_beads_100", marks=pytest.mark.slow), "quadruped_drop"])
 def test_python_step_is_bit_reproducible(name):
     """The Python step alone, twice in one process (other arrays allocated in between, so numpy's land at other
     addresses): the same trajectory bit for bit, on the larger models (100 and 18 velocities, 16-76 rows) whose

@@ -35,6 +35,8 @@ from moreau_sim.options import StepImpl
 from moreau_sim.scene import load_scene
 from moreau_sim.sums import ordered
 
+from helpers import slow_cases
+
 SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.toml"))
 HEAVY = ("quadruped", "solo", "panda", "column_of_beads_100", "box_stack_10", "heavy_on_light_box_10000")
 MUST_COMPILE = {"bouncing_ball", "zeno_ball", "newton_cradle_5", "newton_cradle_5_gapped", "fast_impact",
@@ -84,7 +86,8 @@ def test_the_compiled_extrapolated_step_is_available():
         step_impl="python"))) == "step_impl python"
 
 
-@pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
+@pytest.mark.parametrize("path", slow_cases(SCENES, {"column_of_beads", "column_of_beads_100", "block_on_step"},
+                                           [p.stem for p in SCENES]))
 def test_same_adaptive_run_both_ways(path):
     scene = load_scene(path)
     duration = min(scene.options.duration, 0.3 if any(h in path.stem for h in HEAVY) else 1.0)

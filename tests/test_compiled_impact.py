@@ -130,7 +130,8 @@ def test_the_compiled_impact_is_available():
         "moving statics or driven joints"
 
 
-@pytest.mark.parametrize("path, integrator", RUNS, ids=[f"{p.stem}-{i}" for p, i in RUNS])
+@pytest.mark.parametrize("path, integrator", [pytest.param(p, i, id=f"{p.stem}-{i}", marks=[pytest.mark.slow] if (
+    p.stem, i) == ("block_on_step", "adaptive") else []) for p, i in RUNS])
 def test_same_runs_with_the_compiled_impact(path, integrator):
     """The adaptive run of every bundled scene the compiled impact takes, and the event-driven run of a few: the same
     arrays bit for bit with the compiled impact and with the Python one; some impacts compiled where the scene has

@@ -16,7 +16,7 @@ from moreau_sim import compiled, compiled_run
 from moreau_sim.data import make_data
 from moreau_sim.options import StepImpl
 
-from helpers import MODELS, SCENES, inline_scene
+from helpers import MODELS, SCENES, inline_scene, slow_cases
 
 RHEONOMIC = ("vibrating_paddle", "driven_paddle")
 
@@ -117,7 +117,7 @@ def test_compiled_run_is_the_python_run(name, e, h):
     _same(ref, new)
 
 
-@pytest.mark.parametrize("kind", sorted(MOTIONS))
+@pytest.mark.parametrize("kind", slow_cases(sorted(MOTIONS), {"drive-table", "drive-velocity"}))
 def test_every_schedule_kind_is_evaluated_alike(tmp_path, kind):
     """Tables (held before and after, the segment's slope), constant velocities and a sine with a phase: the
     compiled step and run evaluate them as prescribed.Schedule.at does, bit for bit."""

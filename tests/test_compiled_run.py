@@ -24,6 +24,8 @@ from moreau_sim.checkpoint import Checkpoint
 from moreau_sim.errors import SimulationInterrupted
 from moreau_sim.trajectory import ARRAYS
 
+from helpers import slow_cases
+
 SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.toml"))
 MAX_STEPS = 400  # every scene: at most this many steps (the first impacts of the balls and the cradles)
 DURATION = {"bouncing_ball": 1.0, "zeno_ball": 1.5, "newton_cradle_5": 0.3, "box_drop": 1.0, "vibrating_paddle": 0.6,
@@ -54,7 +56,7 @@ def _short(path: Path, **options):
     return sc.with_options(duration=DURATION.get(sc.name, min(o.duration, MAX_STEPS * o.dt)), **options)
 
 
-@pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
+@pytest.mark.parametrize("path", slow_cases(SCENES, {"alternating_stack_10"}, [p.stem for p in SCENES]))
 def test_same_run_both_loops(path):
     """Every bundled scene the compiled loop takes gives the Python loop's arrays, status and ledger figures bit
     for bit; every other runs the Python loop, and its meta says why (its two runs would be the Python loop twice:

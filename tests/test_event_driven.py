@@ -191,7 +191,7 @@ def test_box_stacks_stay_at_rest(name, T):
     assert (E - E[0]).max() <= 1e-12 * abs(E[0])
 
 
-@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("e", [0.0, pytest.param(0.5, marks=pytest.mark.slow), 1.0])
 @pytest.mark.parametrize("case, rpy, z_rest", [("flat", (0.0, 0.0, 0.0), 0.15),
                                                ("edge", (np.pi / 4, 0.0, 0.6), 0.1 + 0.05 * np.sqrt(2))])
 def test_cube_dropped_on_a_cube(case, rpy, z_rest, e):
