@@ -108,12 +108,16 @@ def _columns(sizes, impl: str):
     return ms.build_model(b.build())
 
 
-@pytest.mark.parametrize("sizes", [(120, 100), (230, 30)])
-def test_columns_side_by_side_rest_island_by_island_bit_for_bit(sizes):
-    """Two columns of touching beads (220 and 260 rows: islands of 120 and 100 rows, each from nothing; of 230, warm
-    started from the last step's set, and 30): 40 steps from rest. The compiled step and the Python step give the
-    same bits, and the columns rest: every velocity within 1e-12 m/s of 0 (the contacts hold the weight of each bead
-    above exactly), no gap below -contact_tolerance."""
+@pytest.mark.parametrize("sizes", [(100, 100), (101, 100), (120, 100), (230, 30)])
+def test_columns_side_by_side_rest_island_by_island_bit_for_bit(sizes, monkeypatch):
+    """Two columns of touching beads (200 rows: one problem, qp.SPARSE_ROWS' edge; 201 and 220 rows: islands of 101 or
+    120 and 100 rows, from nothing at the first step, then from the kept set; 260 rows: islands of 230 and 30): 40
+    steps from rest. The compiled step and the Python step give the same bits, and the columns rest: every velocity
+    within 1e-12 m/s of 0 (the contacts hold the weight of each bead above exactly), no gap below
+    -contact_tolerance."""
+    split = []  # the Python step's projections that went island by island
+    whole = qp._by_islands
+    monkeypatch.setattr(qp, "_by_islands", lambda *a, **k: split.append(1) or whole(*a, **k))
     ends = {}
     for impl in ("compiled", "python"):
         model = _columns(sizes, impl)
@@ -122,11 +126,13 @@ def test_columns_side_by_side_rest_island_by_island_bit_for_bit(sizes):
             r = ms.step(model, data, st)
             st = r.state
             assert r.contacts.m == sum(sizes) and r.qp.ok
-            if impl == "python":
+            if impl == "python":  # (islands finds them at any size; solve splits above SPARSE_ROWS rows only)
                 assert [len(rows) for _, rows in islands(r.qp.W, model.forest.blocks)] == list(sizes)
             assert np.abs(st.u).max() <= 1e-12
         assert ms.pair_distances(model, data, st.q).min() >= -model.options.contact_tolerance
         ends[impl] = st
+        if impl == "python":
+            assert len(split) == (40 if sum(sizes) > qp.SPARSE_ROWS else 0)
         if impl == "compiled":
             assert set(ms.compiled.counts(data)) == {"contact"}, ms.compiled.counts(data)
     assert np.array_equal(ends["compiled"].q, ends["python"].q) and np.array_equal(ends["compiled"].u, ends["python"].u)
