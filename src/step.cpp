@@ -211,6 +211,11 @@ struct Fallback {
   std::string why;
 };
 
+// np.minimum's min of two doubles: NaN where either is (the correction's guard, np.minimum.at)
+inline double nan_min(double a, double b) {
+  return (std::isnan(a) || std::isnan(b)) ? std::numeric_limits<double>::quiet_NaN() : std::min(a, b);
+}
+
 struct Solved {  // a projection: v, lam, how it was solved; act: the active set's first pass's final set (qp._polish)
   VectorXd v, lam;
   Projection status;
@@ -2193,7 +2198,7 @@ class Stepper {
         if (p < 0 || p >= npairs()) continue;
         const auto it = lifted.find((int)p);
         const double l = it == lifted.end() ? 0.0 : it->second, gi = g_next[(Eigen::Index)i];
-        lifted[(int)p] = (std::isnan(l) || std::isnan(gi)) ? std::numeric_limits<double>::quiet_NaN() : std::min(l, gi);
+        lifted[(int)p] = nan_min(l, gi);
       }
     for (const auto &[k, a] : after) {
       const auto it = std::lower_bound(before.begin(), before.end(), std::pair<int, double>(k, -INFINITY));
@@ -2721,9 +2726,13 @@ class Stepper {
 
   // constraints.closed_limits: the joint limits with g = sign (q_i - bound) <= tol, appended (pair, kind, feature:
   // the limit's pair index, JOINT_LIMIT, its joint; no points, zero normals)
+  // limits.JointLimit.gap: limit k's g(q) = sign (q_i - bound) [rad or m]
+  double limit_gap(const VectorXd &q, Eigen::Index k) const {
+    return limits_(k, 4) * (q[(Eigen::Index)limits_(k, 2)] - limits_(k, 5));
+  }
   void closed_limits(const VectorXd &q_m, std::vector<Found> &found) const {
     for (Eigen::Index k = 0; k < limits_.rows(); ++k) {
-      const double g = limits_(k, 4) * (q_m[(Eigen::Index)limits_(k, 2)] - limits_(k, 5));
+      const double g = limit_gap(q_m, k);
       if (g <= tol_)
         found.push_back({g, Vec3::Zero(), Vec3::Zero(), Vec3::Zero(), (int)limits_(k, 0), C_.joint_limit,
                          (int)limits_(k, 1)});
@@ -2736,19 +2745,17 @@ class Stepper {
                    bool scaled) const {
     const Eigen::Index nl = limits_.rows();
     if (!nl) return true;
-    auto gap = [&](const VectorXd &q, Eigen::Index k) { return limits_(k, 4) * (q[(Eigen::Index)limits_(k, 2)] - limits_(k, 5)); };
     VectorXd lifted = VectorXd::Zero(nl);  // np.minimum.at(lifted, pair, g_next) from 0 (the limits' entries)
     if (scaled)
       for (size_t i = 0; i < con.size(); ++i) {
         const Eigen::Index k = (Eigen::Index)con[i].pair - (Eigen::Index)limits_(0, 0);
         if (k < 0 || k >= nl) continue;
-        const double l = lifted[k], gi = g_next[(Eigen::Index)i];
-        lifted[k] = (std::isnan(l) || std::isnan(gi)) ? std::numeric_limits<double>::quiet_NaN() : std::min(l, gi);
+        lifted[k] = nan_min(lifted[k], g_next[(Eigen::Index)i]);
       }
     for (Eigen::Index k = 0; k < nl; ++k) {
-      double floor = std::min(gap(q_next, k), 0.0);
+      double floor = std::min(limit_gap(q_next, k), 0.0);
       if (scaled) floor = floor + 0.5 * lifted[k];
-      if (gap(q_c, k) < floor - tol_) return false;
+      if (limit_gap(q_c, k) < floor - tol_) return false;
     }
     return true;
   }
@@ -3378,7 +3385,7 @@ class Stepper {
         const Eigen::Index p = con[i].pair;
         if (p < 0 || p >= floor.size()) continue;  // own = pair < len(floor)
         const double l = lifted[p], gi = g_next[i];
-        lifted[p] = (std::isnan(l) || std::isnan(gi)) ? std::numeric_limits<double>::quiet_NaN() : std::min(l, gi);
+        lifted[p] = nan_min(l, gi);
       }
       floor = floor + 0.5 * lifted;
     }
