@@ -17,7 +17,7 @@ import piqp
 if TYPE_CHECKING:
     import scipy.sparse
 
-from . import nonzeros
+from . import nonzeros, schur
 from .islands import islands
 from .options import QPForm
 from .sums import ordered
@@ -374,13 +374,15 @@ def _by_nonzeros(W, Minv):
     return WT, MiW, nonzeros.Contact(G)
 
 
-def _solve_nonzeros(G, idx, rhs):
+def _solve_nonzeros(G, idx, rhs, fresh: bool = False):
     """_solve(_sub(G, idx), rhs) for a nonzeros.Contact G: G_AA from G's rows, solved by _lu_solve's elimination
     on its nonzeros (nonzeros.lu_factor; above LU_CACHED_ROWS rows with at most LU_SPARSE_NONZEROS a row, as
     _lu_solve chooses) or on the dense G_AA. The factor is kept: applied to the next right-hand side on the same
     rows (the start's, the final and the refinement's solves), and its first steps taken where the next rows differ
     by one added or dropped at sorted place c (the active set's moves; nonzeros.lu_factor's prefix rule, src/step.cpp
-    band_lu_solve's): the same operations either way (docs/theory.md §2.8)."""
+    band_lu_solve's): the same operations either way (docs/theory.md §2.8). Above schur.SCHUR_MIN_ROWS: schur.solve."""
+    if schur.applies(G, idx.size):  # the active set's moves on a large G (docs/theory.md §1.3)
+        return schur.solve(G, idx, rhs, _lu_solve, fresh)
     key = idx.tobytes()
     last = G.factor
     if last is not None and last[0] == key:
@@ -444,7 +446,7 @@ def _polish(W, v0, b, Minv, act=None):
         def miw(idx, x):
             return mul(MiW[:, idx], x)
 
-        def solve(G, idx, rhs):
+        def solve(G, idx, rhs, fresh=False):
             return _solve(_sub(G, idx), rhs)
         wabs = W.data if sparse else W
     r = b - wt(v0)
@@ -458,7 +460,7 @@ def _polish(W, v0, b, Minv, act=None):
     if not idx.size:
         vp = v0.copy()
     else:
-        lamA = solve(G, idx, r[idx])
+        lamA = solve(G, idx, r[idx], True)  # (fresh: A's own factor, not a complement's: schur.solve)
         if lamA is None or lamA.min() < -ACCEPT * max(1.0, lamA.max()):
             return None
         np.maximum(lamA, 0.0, out=lamA)

@@ -1121,7 +1121,123 @@ bool sub_lu_solve(const GInfo &gi, const std::vector<Eigen::Index> &sel, const E
 }
 
 bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Index> &sel, const VectorXd &rhs,
-               VectorXd &x);
+               VectorXd &x, bool fresh = false);
+
+// schur.py: the active set's solves of more than kSchurMinRows rows on a G of more than kWideRows rows (gi.sparse)
+// by the factor of a base set B and a Schur complement where A is B with at most kSchurRows rows added or dropped,
+// else A factored as the new base (docs/theory.md §1.3); one base a thread (schur.py's _held), of one G (gi.gen)
+constexpr Eigen::Index kSchurMinRows = 32, kSchurRows = 40;
+struct SchurCache {
+  bool valid = false;
+  uint64_t gen = 0;
+  std::vector<Eigen::Index> B, pos;  // the base's rows (ascending) and a row's place in B (-1 outside it)
+  SparseLU f;                        // B's factor
+  std::map<std::pair<Eigen::Index, bool>, VectorXd> cols;  // z = G_BB^-1 G_Bp (row p added) or G_BB^-1 e_d (dropped)
+};
+
+bool schur_applies(const GInfo &gi, Eigen::Index m, Eigen::Index k) { return gi.sparse && m > kWideRows && k > kSchurMinRows; }
+
+// schur.solve: x = G_AA^-1 rhs (A = sel, ascending), false where schur.solve returns None
+bool schur_solve(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Index> &sel, const VectorXd &rhs,
+                 VectorXd &x, bool fresh = false) {
+  using I = Eigen::Index;
+  thread_local SchurCache sc;
+  thread_local std::vector<I> P, D;
+  thread_local std::vector<char> kept;
+  const I m = G.rows(), k = (I)sel.size();
+  bool have = sc.valid && sc.gen == gi.gen && !fresh;
+  if (have) {
+    P.clear(), D.clear();
+    kept.assign((size_t)m, 0);
+    for (I r : sel) {
+      kept[(size_t)r] = 1;
+      if (sc.pos[(size_t)r] < 0) P.push_back(r);
+    }
+    for (I r : sc.B)
+      if (!kept[(size_t)r]) D.push_back(r);
+    have = (I)(P.size() + D.size()) <= kSchurRows;
+  }
+  if (!have) {  // A becomes the base: factored
+    sc.valid = false;
+    sc.cols.clear();
+    sc.B = sel;
+    sc.pos.assign((size_t)m, -1);
+    for (I i = 0; i < k; ++i) sc.pos[(size_t)sel[(size_t)i]] = i;
+    sc.f.set_size(k);
+    for (I i = 0; i < k; ++i)
+      for (I t = gi.rptr[(size_t)sel[(size_t)i]]; t < gi.rptr[(size_t)sel[(size_t)i] + 1]; ++t)
+        if (sc.pos[(size_t)gi.ridx[(size_t)t]] >= 0)
+          sc.f.a[(size_t)i].emplace_back(sc.pos[(size_t)gi.ridx[(size_t)t]], gi.rval[(size_t)t]);
+    if (!sparse_lu_factor(sc.f)) return false;
+    sc.valid = true, sc.gen = gi.gen;
+    return sparse_lu_apply(sc.f, rhs, x);
+  }
+  if (P.empty() && D.empty()) return sparse_lu_apply(sc.f, rhs, x);
+  const I nB = (I)sc.B.size(), nP = (I)P.size(), n = nP + (I)D.size();
+  const auto &pos = sc.pos;
+  VectorXd yB = VectorXd::Zero(nB), y(nP), w;
+  for (I i = 0, ip = 0; i < k; ++i) {
+    const I at = pos[(size_t)sel[(size_t)i]];
+    if (at >= 0) yB[at] = rhs[i];
+    else y[ip++] = rhs[i];
+  }
+  if (!sparse_lu_apply(sc.f, yB, w)) return false;
+  std::vector<const VectorXd *> Z((size_t)n);
+  for (I j = 0; j < n; ++j) {  // made once per base
+    const std::pair<I, bool> key = j < nP ? std::make_pair(P[(size_t)j], true) : std::make_pair(D[(size_t)(j - nP)], false);
+    auto it = sc.cols.find(key);
+    if (it == sc.cols.end()) {
+      VectorXd c = VectorXd::Zero(nB), z;
+      if (key.second)
+        for (I i = 0; i < nB; ++i) c[i] = G(sc.B[(size_t)i], key.first);
+      else
+        c[pos[(size_t)key.first]] = 1.0;
+      if (!sparse_lu_apply(sc.f, c, z)) return false;
+      it = sc.cols.emplace(key, std::move(z)).first;
+    }
+    Z[(size_t)j] = &it->second;
+  }
+  auto row_dot = [&](I a, const VectorXd &z) {  // nonzeros.Rows.row_dot(a, z, pos)
+    double sum = 0.0;
+    bool first = true;
+    for (I t = gi.rptr[(size_t)a]; t < gi.rptr[(size_t)a + 1]; ++t) {
+      const I c = pos[(size_t)gi.ridx[(size_t)t]];
+      if (c < 0) continue;
+      const double term = gi.rval[(size_t)t] * z[c];
+      sum = first ? term : sum + term;
+      first = false;
+    }
+    return sum + 0.0;
+  };
+  MatrixXd S(n, n);
+  VectorXd t(n), s;
+  for (I i = 0; i < n; ++i) {
+    if (i < nP) {  // row a added: G_aB x_B + G_aP x_P = y_a
+      const I a = P[(size_t)i];
+      for (I j = 0; j < n; ++j) {
+        const double d = row_dot(a, *Z[(size_t)j]);
+        S(i, j) = j < nP ? G(a, P[(size_t)j]) - d : -d;
+      }
+      t[i] = y[i] - row_dot(a, w);
+    } else {  // row a dropped: held at 0
+      const I pa = pos[(size_t)D[(size_t)(i - nP)]];
+      for (I j = 0; j < n; ++j) S(i, j) = -(*Z[(size_t)j])[pa];
+      t[i] = -w[pa];
+    }
+  }
+  if (!lu_solve(S, t, s)) return false;
+  for (I j = 0; j < n; ++j) {
+    const VectorXd &z = *Z[(size_t)j];
+    const double sj = s[j];
+    for (I i = 0; i < nB; ++i) w[i] = w[i] - z[i] * sj;
+  }
+  x.resize(k);
+  for (I i = 0, ip = 0; i < k; ++i) {
+    const I at = pos[(size_t)sel[(size_t)i]];
+    x[i] = at >= 0 ? w[at] : s[ip++];
+  }
+  return x.allFinite();
+}
 
 // qp._active_set (Goldfarb-Idnani's dual active set on min 1/2 lam'G lam - r'lam, lam >= 0), operation for
 // operation, from nothing or from `start` (qp._active_set's act: the rows taken as active, lam_A = G_AA^-1 r_A, a
@@ -1220,7 +1336,9 @@ bool active_set(const Constants &C, const MatrixXd &G, const GInfo &gi, const Ve
         for (Eigen::Index i = 0; i < k; ++i) rhs[i] = -G(idx[i], p);
         if (finite)
           for (Eigen::Index i = 0; i < k; ++i) posA[(size_t)idx[i]] = i;
-        if (sparse && k > kSparseLU) {  // lu_solve's bits from G_AA's nonzeros
+        if (schur_applies(gi, m, k)) {  // schur.py: a factored base and a Schur complement
+          if (!schur_solve(G, gi, idx, rhs, d)) return false;
+        } else if (sparse && k > kSparseLU) {  // lu_solve's bits from G_AA's nonzeros
           if (!sub_lu_solve(gi, idx, posA.data(), rhs, d)) return false;
         } else if (is_clean) {  // lu_solve's bits on G_AA row-major, its updates over each pivot row's band
           if (!band_lu_solve(band, gi, idx, posA.data(), rhs, d)) return false;
@@ -1498,12 +1616,13 @@ VectorXd otimes_t_cols(const MatrixXd &W, const WInfo &wi, const std::vector<Eig
 // on G_AA's nonzeros where G is sparse (GInfo::sparse) and sel has more than kSparseLU rows, else band_lu_solve (the
 // same bits; on the active set's BandLU, band_cache); else lu_solve on the copy
 bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Index> &sel, const VectorXd &rhs,
-               VectorXd &x) {
+               VectorXd &x, bool fresh) {
   const Eigen::Index k = (Eigen::Index)sel.size();
   if (gi.is_clean) {
     thread_local std::vector<Eigen::Index> pos;
     pos.assign((size_t)G.rows(), -1);
     for (Eigen::Index i = 0; i < k; ++i) pos[(size_t)sel[(size_t)i]] = i;
+    if (schur_applies(gi, G.rows(), k)) return schur_solve(G, gi, sel, rhs, x, fresh);
     if (gi.sparse && k > kSparseLU) return sub_lu_solve(gi, sel, pos.data(), rhs, x);
     return band_lu_solve(band_cache(), gi, sel, pos.data(), rhs, x);
   }
@@ -1642,7 +1761,7 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
   } else {
     VectorXd rA(k), lamA;
     for (Eigen::Index i = 0; i < k; ++i) rA[i] = r[idx[i]];
-    if (!solve_sub(G, gi, idx, rA, lamA) || lamA.minCoeff() < -C.accept * std::max(1.0, lamA.maxCoeff()))
+    if (!solve_sub(G, gi, idx, rA, lamA, true) || lamA.minCoeff() < -C.accept * std::max(1.0, lamA.maxCoeff()))
       throw Fallback{"active set's final solve rejected"};
     for (Eigen::Index i = 0; i < k; ++i) lamA[i] = std::max(lamA[i], 0.0);
     vp = v0 + otimes_cols(MiW, mi, idx, lamA);

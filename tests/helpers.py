@@ -98,3 +98,31 @@ def slow_cases(values, slow, ids=None) -> list:
     assert set(slow) <= set(ids), set(slow) - set(ids)
     return [pytest.param(v, marks=pytest.mark.slow, id=str(i)) if i in slow else pytest.param(v, id=str(i))
             for v, i in zip(values, ids)]
+
+
+def pile_projection(seed, bodies, m):
+    """A pile-like projection: `bodies` free bodies (6 velocities each, M block diagonal), m contact rows each on
+    two bodies (one on a body alone: against the ground), several rows per pair (a face's corners: dependent rows),
+    free velocities pressing the rows."""
+    rng = np.random.default_rng(seed)
+    nv = 6 * bodies
+    M = np.zeros((nv, nv))
+    for k in range(bodies):
+        A = rng.standard_normal((6, 6))
+        M[6 * k:6 * k + 6, 6 * k:6 * k + 6] = A @ A.T + 6.0 * np.eye(6)
+    W = np.zeros((nv, m), order="F")
+    j = 0
+    while j < m:
+        a = int(rng.integers(bodies))
+        b = min(bodies - 1, a + int(rng.integers(1, 4)))
+        w = rng.standard_normal(12)
+        for _ in range(min(m - j, int(rng.integers(1, 5)))):  # up to four corners of one face pair
+            W[6 * a:6 * a + 6, j] = w[:6] + 0.1 * rng.standard_normal(6)
+            if b != a:
+                W[6 * b:6 * b + 6, j] = -w[6:]
+            j += 1
+    Minv = np.zeros_like(M)
+    for k in range(bodies):
+        Minv[6 * k:6 * k + 6, 6 * k:6 * k + 6] = np.linalg.inv(M[6 * k:6 * k + 6, 6 * k:6 * k + 6])
+    v0 = -W @ np.abs(rng.standard_normal(m)) * 0.1
+    return M, W, v0, np.zeros(m), Minv

@@ -46,7 +46,7 @@ from moreau_sim.options import StepImpl
 from moreau_sim.scene import load_scene, parse_scene
 from moreau_sim.simulate import simulate
 
-from helpers import slow_cases
+from helpers import pile_projection, slow_cases
 
 SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.toml"))
 MUST_COMPILE = {"bouncing_ball", "zeno_ball", "newton_cradle_5", "box_drop", "column_of_beads_100", "quadruped_drop",
@@ -153,34 +153,6 @@ def test_projection_is_bit_identical_to_qp_solve():
     assert solved >= 200
 
 
-def _pile_projection(seed, bodies, m):
-    """A pile-like projection: `bodies` free bodies (6 velocities each, M block diagonal), m contact rows each on
-    two bodies (one on a body alone: against the ground), several rows per pair (a face's corners: dependent rows),
-    free velocities pressing the rows."""
-    rng = np.random.default_rng(seed)
-    nv = 6 * bodies
-    M = np.zeros((nv, nv))
-    for k in range(bodies):
-        A = rng.standard_normal((6, 6))
-        M[6 * k:6 * k + 6, 6 * k:6 * k + 6] = A @ A.T + 6.0 * np.eye(6)
-    W = np.zeros((nv, m), order="F")
-    j = 0
-    while j < m:
-        a = int(rng.integers(bodies))
-        b = min(bodies - 1, a + int(rng.integers(1, 4)))
-        w = rng.standard_normal(12)
-        for _ in range(min(m - j, int(rng.integers(1, 5)))):  # up to four corners of one face pair
-            W[6 * a:6 * a + 6, j] = w[:6] + 0.1 * rng.standard_normal(6)
-            if b != a:
-                W[6 * b:6 * b + 6, j] = -w[6:]
-            j += 1
-    Minv = np.zeros_like(M)
-    for k in range(bodies):
-        Minv[6 * k:6 * k + 6, 6 * k:6 * k + 6] = np.linalg.inv(M[6 * k:6 * k + 6, 6 * k:6 * k + 6])
-    v0 = -W @ np.abs(rng.standard_normal(m)) * 0.1
-    return M, W, v0, np.zeros(m), Minv
-
-
 @pytest.mark.parametrize("m", [150, 199, 201, 260])
 def test_large_sparse_projection_is_bit_identical_to_qp_solve(m):
     """Above kWideRows (200) rows the compiled active set solves G_AA by its nonzeros (sparse_lu_solve, also in the
@@ -189,7 +161,7 @@ def test_large_sparse_projection_is_bit_identical_to_qp_solve(m):
     bit for bit, on both sides of the threshold."""
     solved = 0
     for seed in range(3):
-        M, W, v0, b, Minv = _pile_projection(seed, m // 4, m)
+        M, W, v0, b, Minv = pile_projection(seed, m // 4, m)
         ref = qp.solve(M, W, v0, b=b, Minv=Minv)
         status, v, lam = _ext().project(W, v0, b, Minv, compiled.CONSTANTS)
         if status is None:

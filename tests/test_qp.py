@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import moreau_sim as ms
-from moreau_sim import nonzeros, qp, sums
+from moreau_sim import nonzeros, qp, schur, sums
 from moreau_sim.options import QPForm
 
 from helpers import random_problem
@@ -618,9 +618,13 @@ def test_polish_by_nonzeros_on_large_problems_is_the_dense_polish(seed, monkeypa
     with np.errstate(invalid="ignore"):  # inf * 0 in the dense products
         _polish_both(monkeypatch, W, v0, b, Mi)
     Mc, Wc, vc, _ = _column_problem(400)
-    ref = _polish_both(monkeypatch, Wc, vc, np.zeros(400), Mc)
-    _polish_both(monkeypatch, Wc, vc, np.zeros(400), Mc, ref[3])
-    _polish_both(monkeypatch, Wc, vc, np.zeros(400), Mc, np.ones(400, bool))
+    with monkeypatch.context() as mp:  # the moves on the dense elimination's bits (no Schur complement: test_schur.py)
+        mp.setattr(schur, "SCHUR_MIN_ROWS", 10**9)
+        ref = _polish_both(mp, Wc, vc, np.zeros(400), Mc)
+        _polish_both(mp, Wc, vc, np.zeros(400), Mc, ref[3])
+        _polish_both(mp, Wc, vc, np.zeros(400), Mc, np.ones(400, bool))
+    got = qp._polish(Wc, vc, np.zeros(400), Mc)  # through the complement: the same set, v to round-off
+    assert got[3].tolist() == ref[3].tolist() and np.abs(got[0] - ref[0]).max() <= 1e-12 * np.abs(ref[0]).max()
 
 
 def _prefix_after(A, before, sel, rhs):
