@@ -3232,7 +3232,7 @@ class Stepper {
                                    corr, gamma_minus, con, ow, out.u_law, res.act, driven ? nullptr : &wli);
     if (!driven)  // §2.10 (a driven joint: §2.13), with the torques' and the moving statics' work
       cap_energy(q, u, q_m, u_free, h, e, P, work, corr, W, q_next, u_next, gamma_plus, ow,
-                 has_rate ? &rate : nullptr);
+                 has_rate ? &rate : nullptr, &wli);
     out.outcome = Outcome::CONTACT;
     out.q_next = std::move(q_next), out.u_next = std::move(u_next), out.u_free = std::move(u_free);
     out.g = std::move(g);
@@ -3260,7 +3260,9 @@ class Stepper {
   }
   // stepper._trees: the velocity indices of every kinematic tree (the joints below one child of the universe)
   // that W's rows involve
-  std::vector<bool> trees(const MatrixXd &W) const {
+  // (wi: W's nonzeros where known; cols: the columns of W read, all where null)
+  std::vector<bool> trees(const MatrixXd &W, const WInfo *wi = nullptr,
+                          const std::vector<Eigen::Index> *cols = nullptr) const {
     std::vector<int> tree(model_.nv, 0);
     for (int j = 1; j < model_.njoints; ++j) {
       int root = j;
@@ -3269,11 +3271,22 @@ class Stepper {
       for (int k = iv; k < iv + nvj; ++k) tree[k] = root;
     }
     std::vector<bool> hit(model_.njoints, false), involved(model_.nv, false);
-    for (Eigen::Index i = 0; i < W.cols(); ++i)  // each column in memory order (W column-major)
-      for (Eigen::Index j = 0; j < W.rows(); ++j)
-        if (W(j, i) != 0.0) hit[tree[j]] = true;
+    auto column = [&](Eigen::Index i) { nonzero_rows(W, wi, i, [&](Eigen::Index j) { hit[tree[j]] = true; }); };
+    if (cols)
+      for (Eigen::Index i : *cols) column(i);
+    else
+      for (Eigen::Index i = 0; i < W.cols(); ++i) column(i);
     for (int k = 0; k < model_.nv; ++k) involved[k] = hit[tree[k]];
     return involved;
+  }
+  // f(j) for each j with W(j, i) != 0.0 (NaN included), ascending: by wi's lists where W is finite, else every entry
+  template <class F> static void nonzero_rows(const MatrixXd &W, const WInfo *wi, Eigen::Index i, F &&f) {
+    if (wi && wi->finite) {
+      for (Eigen::Index t = wi->wptr[(size_t)i]; t < wi->wptr[(size_t)i + 1]; ++t) f(wi->widx[(size_t)t]);
+      return;
+    }
+    for (Eigen::Index j = 0; j < W.rows(); ++j)
+      if (W(j, i) != 0.0) f(j);
   }
   // stepper._split: u = u_S + u_R, u_S the velocities of the trees W's rows involve; a = T(q, u_S), T_R = T(q, u_R)
   // [J], the terms of T(q, u_R + alpha u_S) = a alpha^2 + b alpha + T_R (docs/theory.md §2.10); T_R only where a > 0
@@ -3281,8 +3294,8 @@ class Stepper {
     VectorXd u_S, u_R;
     double a, T_R;
   };
-  Split split(const MatrixXd &W, const VectorXd &q, const VectorXd &u) {
-    const std::vector<bool> involved = trees(W);
+  Split split(const MatrixXd &W, const VectorXd &q, const VectorXd &u, const WInfo *wi) {
+    const std::vector<bool> involved = trees(W, wi);
     Split s{VectorXd::Zero(u.size()), VectorXd(), 0.0, std::numeric_limits<double>::quiet_NaN()};
     for (Eigen::Index j = 0; j < u.size(); ++j)
       if (involved[j]) s.u_S[j] = u[j];
@@ -3304,7 +3317,7 @@ class Stepper {
   // gamma's sign (rate: its dg/dt, nullptr: none)
   void cap_energy(const VectorXd &q, const VectorXd &u, const VectorXd &q_m, const VectorXd &u_free, double h,
                   double e, const VectorXd &P, double work, double corr, const MatrixXd &W, const VectorXd &q_next,
-                  VectorXd &u_next, VectorXd &gamma_plus, double ow, const VectorXd *rate) {
+                  VectorXd &u_next, VectorXd &gamma_plus, double ow, const VectorXd *rate, const WInfo *wi) {
     const double T0 = kinetic(q, u);
     const double V0 = potential(q);
     const double T1 = kinetic(q_next, u_next);
@@ -3322,7 +3335,7 @@ class Stepper {
       wa = odot(f.data(), s.data(), model_.nv);
     }
     if (T1 + V1 <= (target + wa) + roundoff(T0, V0, T1, V1)) return;
-    const Split sp = split(W, q_next, u_next);
+    const Split sp = split(W, q_next, u_next, wi);
     if (!(sp.a > 0.0)) return;
     const VectorXd &u_S = sp.u_S, &u_R = sp.u_R;
     const double a = sp.a, T_R = sp.T_R;
@@ -3389,9 +3402,7 @@ class Stepper {
     const double eps = C_.resting * dmax;
     std::vector<char> involved(W.rows(), 0);
     for (Eigen::Index i = 0; i < m; ++i)  // (W column-major: each penetrating row's column in memory order)
-      if (g_next[i] < -tol_)
-        for (Eigen::Index j = 0; j < W.rows(); ++j)
-          if (W(j, i) != 0.0) involved[j] = 1;
+      if (g_next[i] < -tol_) nonzero_rows(W, wi, i, [&](Eigen::Index j) { involved[j] = 1; });
     for (Eigen::Index j = 0; j < W.rows() && resting; ++j)
       if (involved[j]) resting = std::abs(u_next[j]) <= eps;
     Solved res;
@@ -3404,8 +3415,7 @@ class Stepper {
       bool still = true;
       for (Eigen::Index i = 0; i < m && still; ++i) {
         bool row = false;
-        for (Eigen::Index j = 0; j < W.rows(); ++j)
-          if (involved[j] && W(j, i) != 0.0) row = true;
+        nonzero_rows(W, wi, i, [&](Eigen::Index j) { row = row || involved[j]; });
         if (!row) continue;
         rows.push_back(i);
         still = std::abs(gamma_minus[i]) <= eps && std::abs(gamma_plus[i]) <= eps;
@@ -3414,9 +3424,7 @@ class Stepper {
         std::vector<Eigen::Index> pen;
         for (Eigen::Index i = 0; i < m; ++i)
           if (g_next[i] < -tol_) pen.push_back(i);
-        MatrixXd Wp(W.rows(), (Eigen::Index)pen.size());
-        for (size_t c = 0; c < pen.size(); ++c) Wp.col((Eigen::Index)c) = W.col(pen[c]);
-        const std::vector<bool> S = trees(Wp);
+        const std::vector<bool> S = trees(W, wi, &pen);  // the trees of the penetrating rows
         VectorXd u1 = VectorXd::Zero(u.size()), u0 = VectorXd::Zero(u.size()), du = VectorXd::Zero(u.size());
         for (Eigen::Index j = 0; j < u.size(); ++j)
           if (S[j]) u1[j] = u_next[j], u0[j] = u[j], du[j] = u_free[j] - u[j];
@@ -3468,7 +3476,7 @@ class Stepper {
       if (persistent) {  // the full lift, paid in full with the kinetic energy of the bodies in contact: T + V ends
         // where the law's step ended, E_1 (§2.5). stepper._scaled(q_c, u_next, the rows' trees, E_1 - V_c, T_c):
         // u_R + alpha u_S (stepper._split, _alpha with floor 0), u_next itself where T(q_c, u_S) is not positive
-        const Split sp = split(W, q_c, u_next);
+        const Split sp = split(W, q_c, u_next, wi);
         if (sp.a > 0.0) {
           u_c = sp.u_R + alpha_of(sp.a, (T_c - sp.a) - sp.T_R, sp.T_R - (E1 - V_c), 0.0) * sp.u_S;
           scaled = true;
