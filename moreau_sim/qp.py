@@ -558,7 +558,7 @@ def solve(M: np.ndarray, W: np.ndarray, v0: np.ndarray, *, b: np.ndarray | None 
         return _solve_sparse(M, W, v0, b, Minv, form, eps, max_iter, screen)
     if cold or warm:  # above SPARSE_ROWS warm-started from `start` (its moves grow with the rows that change)
         act = None if not (warm or start_any) or start is None or not np.any(start) else np.asarray(start, bool)
-        p = _polish(W, v0, b, Minv, act)
+        p = schur.retried(_polish, W, v0, b, Minv, act)
         if p is not None:
             return QPResult("ACTIVE_SET", True, p[2], True, p[0], p[1], M, W, v0, b, p[3])
     if warm:  # the active set failed (its move limit, a singular or rejected solve): piqp + SuperLU, as before

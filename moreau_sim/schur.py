@@ -23,15 +23,34 @@ _held = threading.local()  # the base of this thread: (G, its rows B ascending, 
 
 
 def applies(G: nonzeros.Contact, k: int) -> bool:
-    """Whether a solve of k rows of G goes here (G: qp._by_nonzeros's, above qp.NONZERO_ROWS rows)."""
+    """Whether a solve of k rows of G goes here (G: qp._by_nonzeros's, above qp.NONZERO_ROWS rows; not in retried's
+    second try)."""
     m = G.shape[0]
-    return k > SCHUR_MIN_ROWS and m > SCHUR_G_ROWS and G.rows.val.size <= WIDE_ROW * m
+    wide = G.rows.val.size > WIDE_ROW * m
+    return k > SCHUR_MIN_ROWS and m > SCHUR_G_ROWS and not wide and not getattr(_held, "off", False)
+
+
+def retried(polish, *args):
+    """polish(*args) (qp._polish: None where it has no answer), and where it has none after solves here, once more
+    with direct factors alone: the complement's moves carry the base's conditioning, and on near-dependent rows
+    (a settled pile's face corners) they can end on a set that the final solve rejects, where the direct moves
+    find the answer (src/step.cpp project: the same retry)."""
+    _held.used = False
+    p = polish(*args)
+    if p is None and _held.used:
+        _held.off = True
+        try:
+            p = polish(*args)
+        finally:
+            _held.off = False
+    return p
 
 
 def solve(G: nonzeros.Contact, idx: np.ndarray, rhs: np.ndarray, dense_solve, fresh: bool = False) -> np.ndarray | None:
     """x = G_AA^-1 rhs (A = idx, ascending), or None where a factor or the complement is singular or x not finite.
     dense_solve: qp._lu_solve (the complement's solve); fresh: A becomes the base (the final solve of a projection:
     its multipliers on A's own factor, as accurate as G_AA allows, where the complement's carry G_BB's conditioning)."""
+    _held.used = True
     base = getattr(_held, "base", None)
     if base is not None and (fresh or base[0] is not G):
         base = None

@@ -1135,7 +1135,19 @@ struct SchurCache {
   std::map<std::pair<Eigen::Index, bool>, VectorXd> cols;  // z = G_BB^-1 G_Bp (row p added) or G_BB^-1 e_d (dropped)
 };
 
-bool schur_applies(const GInfo &gi, Eigen::Index m, Eigen::Index k) { return gi.sparse && m > kWideRows && k > kSchurMinRows; }
+// schur.py's _held flags of this thread: used (a solve went through schur_solve since project's polish began), off
+// (its second try: direct factors alone)
+struct SchurFlags {
+  bool used = false, off = false;
+};
+SchurFlags &schur_state() {
+  thread_local SchurFlags f;
+  return f;
+}
+
+bool schur_applies(const GInfo &gi, Eigen::Index m, Eigen::Index k) {
+  return gi.sparse && m > kWideRows && k > kSchurMinRows && !schur_state().off;
+}
 
 // schur.solve: x = G_AA^-1 rhs (A = sel, ascending), false where schur.solve returns None
 bool schur_solve(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Index> &sel, const VectorXd &rhs,
@@ -1145,6 +1157,7 @@ bool schur_solve(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::In
   thread_local std::vector<I> P, D;
   thread_local std::vector<char> kept;
   const I m = G.rows(), k = (I)sel.size();
+  schur_state().used = true;
   bool have = sc.valid && sc.gen == gi.gen && !fresh;
   if (have) {
     P.clear(), D.clear();
@@ -1746,67 +1759,86 @@ Solved project(const Constants &C, const MatrixXd &W, const VectorXd &v0, const 
   thread_local GInfo gi;  // G's nonzeros (contact_space)
   contact_space(Minv, W, wi, MiW, G, mi, gi, blocks);
   const VectorXd r = b - Wv0;
-  std::vector<char> act;
-  VectorXd lam;
-  if (!active_set(C, G, gi, r, C.screen * scale, act, lam, start)) throw Fallback{"active set did not settle"};
-  std::vector<Eigen::Index> idx;
-  for (Eigen::Index i = 0; i < m; ++i)
-    if (act[i]) idx.push_back(i);
-  const Eigen::Index k = (Eigen::Index)idx.size();
-  VectorXd lp = VectorXd::Zero(m), vp;
-  VectorXd Wvp;  // W'vp for the last check
-  if (!k) {
-    vp = v0;
-    Wvp = Wv0;
-  } else {
-    VectorXd rA(k), lamA;
-    for (Eigen::Index i = 0; i < k; ++i) rA[i] = r[idx[i]];
-    if (!solve_sub(G, gi, idx, rA, lamA, true) || lamA.minCoeff() < -C.accept * std::max(1.0, lamA.maxCoeff()))
-      throw Fallback{"active set's final solve rejected"};
-    for (Eigen::Index i = 0; i < k; ++i) lamA[i] = std::max(lamA[i], 0.0);
-    vp = v0 + otimes_cols(MiW, mi, idx, lamA);
-    // qp._polish's refinement step: the residual of W_P'v = b_P solved for on the rows that push
-    std::vector<Eigen::Index> pi, iP;
-    for (Eigen::Index i = 0; i < k; ++i)
-      if (lamA[i] > 0.0) pi.push_back(i), iP.push_back(idx[i]);
-    const Eigen::Index kp = (Eigen::Index)iP.size();
-    if (kp) {
-      const VectorXd WPv = otimes_t_cols(W, wi, iP, vp);
-      VectorXd rP(kp), dP;
-      for (Eigen::Index i = 0; i < kp; ++i) rP[i] = b[iP[i]] - WPv[i];
-      if (solve_sub(G, gi, iP, rP, dP) && dP.cwiseAbs().maxCoeff() <= C.refine * (1.0 + lamA.maxCoeff())) {
-        for (Eigen::Index i = 0; i < kp; ++i) lamA[pi[i]] = std::max(lamA[pi[i]] + dP[i], 0.0);
-        vp = vp + otimes_cols(MiW, mi, iP, dP);
+  // qp._polish, from the active set on (schur.retried: where it has no answer after solves by the complement, once
+  // more with direct factors alone)
+  auto polish = [&]() -> Solved {
+    std::vector<char> act;
+    VectorXd lam;
+    if (!active_set(C, G, gi, r, C.screen * scale, act, lam, start)) throw Fallback{"active set did not settle"};
+    std::vector<Eigen::Index> idx;
+    for (Eigen::Index i = 0; i < m; ++i)
+      if (act[i]) idx.push_back(i);
+    const Eigen::Index k = (Eigen::Index)idx.size();
+    VectorXd lp = VectorXd::Zero(m), vp;
+    VectorXd Wvp;  // W'vp for the last check
+    if (!k) {
+      vp = v0;
+      Wvp = Wv0;
+    } else {
+      VectorXd rA(k), lamA;
+      for (Eigen::Index i = 0; i < k; ++i) rA[i] = r[idx[i]];
+      if (!solve_sub(G, gi, idx, rA, lamA, true) || lamA.minCoeff() < -C.accept * std::max(1.0, lamA.maxCoeff()))
+        throw Fallback{"active set's final solve rejected"};
+      for (Eigen::Index i = 0; i < k; ++i) lamA[i] = std::max(lamA[i], 0.0);
+      vp = v0 + otimes_cols(MiW, mi, idx, lamA);
+      // qp._polish's refinement step: the residual of W_P'v = b_P solved for on the rows that push
+      std::vector<Eigen::Index> pi, iP;
+      for (Eigen::Index i = 0; i < k; ++i)
+        if (lamA[i] > 0.0) pi.push_back(i), iP.push_back(idx[i]);
+      const Eigen::Index kp = (Eigen::Index)iP.size();
+      if (kp) {
+        const VectorXd WPv = otimes_t_cols(W, wi, iP, vp);
+        VectorXd rP(kp), dP;
+        for (Eigen::Index i = 0; i < kp; ++i) rP[i] = b[iP[i]] - WPv[i];
+        if (solve_sub(G, gi, iP, rP, dP) && dP.cwiseAbs().maxCoeff() <= C.refine * (1.0 + lamA.maxCoeff())) {
+          for (Eigen::Index i = 0; i < kp; ++i) lamA[pi[i]] = std::max(lamA[pi[i]] + dP[i], 0.0);
+          vp = vp + otimes_cols(MiW, mi, iP, dP);
+        }
       }
-    }
-    for (Eigen::Index i = 0; i < k; ++i) lp[idx[i]] = lamA[i];
-    // qp._polish's second pass: the active set on the answer's own residual
-    otimes_t_nz(W, wi, vp, Wvp);
-    const VectorXd r2 = b - Wvp;
-    const double tol2 = C.second_pass * (b.cwiseAbs().maxCoeff() + wi.abs_max(W) * vp.cwiseAbs().maxCoeff());
-    std::vector<char> act2;
-    VectorXd dl;
-    if (active_set(C, G, gi, r2, tol2, act2, dl)) {
-      std::vector<Eigen::Index> i2;
-      for (Eigen::Index i = 0; i < m; ++i)
-        if (act2[i]) i2.push_back(i);
-      const Eigen::Index k2 = (Eigen::Index)i2.size();
-      if (k2) {
-        VectorXd d2(k2);
-        for (Eigen::Index i = 0; i < k2; ++i) d2[i] = dl[i2[i]];
-        const VectorXd v2 = vp + otimes_cols(MiW, mi, i2, d2);
-        VectorXd Wv2;
-        otimes_t_nz(W, wi, v2, Wv2);
-        if ((Wv2 - b).minCoeff() >= -r2.maxCoeff()) {
-          vp = v2;
-          Wvp = std::move(Wv2);
-          for (Eigen::Index i = 0; i < k2; ++i) lp[i2[i]] = lp[i2[i]] + d2[i];
+      for (Eigen::Index i = 0; i < k; ++i) lp[idx[i]] = lamA[i];
+      // qp._polish's second pass: the active set on the answer's own residual
+      otimes_t_nz(W, wi, vp, Wvp);
+      const VectorXd r2 = b - Wvp;
+      const double tol2 = C.second_pass * (b.cwiseAbs().maxCoeff() + wi.abs_max(W) * vp.cwiseAbs().maxCoeff());
+      std::vector<char> act2;
+      VectorXd dl;
+      if (active_set(C, G, gi, r2, tol2, act2, dl)) {
+        std::vector<Eigen::Index> i2;
+        for (Eigen::Index i = 0; i < m; ++i)
+          if (act2[i]) i2.push_back(i);
+        const Eigen::Index k2 = (Eigen::Index)i2.size();
+        if (k2) {
+          VectorXd d2(k2);
+          for (Eigen::Index i = 0; i < k2; ++i) d2[i] = dl[i2[i]];
+          const VectorXd v2 = vp + otimes_cols(MiW, mi, i2, d2);
+          VectorXd Wv2;
+          otimes_t_nz(W, wi, v2, Wv2);
+          if ((Wv2 - b).minCoeff() >= -r2.maxCoeff()) {
+            vp = v2;
+            Wvp = std::move(Wv2);
+            for (Eigen::Index i = 0; i < k2; ++i) lp[i2[i]] = lp[i2[i]] + d2[i];
+          }
         }
       }
     }
+    if ((Wvp - b).minCoeff() < -C.accept * scale) throw Fallback{"active set's answer rejected"};
+    return {vp, lp, Projection::ACTIVE_SET, std::move(act)};
+  };
+  schur_state().used = false;
+  try {
+    return polish();
+  } catch (const Fallback &) {
+    if (!schur_state().used) throw;
+    schur_state().off = true;
+    try {
+      Solved s = polish();
+      schur_state().off = false;
+      return s;
+    } catch (...) {
+      schur_state().off = false;
+      throw;
+    }
   }
-  if ((Wvp - b).minCoeff() < -C.accept * scale) throw Fallback{"active set's answer rejected"};
-  return {vp, lp, Projection::ACTIVE_SET, std::move(act)};
 }
 
 }  // namespace

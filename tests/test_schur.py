@@ -101,3 +101,26 @@ def test_the_compiled_projection_through_the_complement_is_qp_solve_bit_for_bit(
         assert lam.view(np.int64).tolist() == ref.lam.view(np.int64).tolist(), seed
         assert ref.residual <= 1e-10 * (1.0 + np.abs(v0).max()) * max(1.0, np.abs(ref.lam).max())
     assert calls["complement"] > 10 * calls["base"] > 0, calls
+
+
+def test_a_polish_without_an_answer_after_the_complement_is_tried_once_more_with_direct_factors(monkeypatch):
+    """schur.retried: where the moves through the complement end without an answer (here every complement's solve
+    made to fail), the projection is the one by direct factors alone, bit for bit; with an answer, one try only."""
+    M, W, v0, b, Minv = pile_projection(0, 120, 480)
+    with monkeypatch.context() as mp:
+        mp.setattr(schur, "SCHUR_MIN_ROWS", 10**9)
+        direct = qp.solve(M, W, v0, b=b, Minv=Minv)
+    tries = []
+    polish = qp._polish
+    monkeypatch.setattr(qp, "_polish", lambda *a: tries.append(1) or polish(*a))
+    qp.solve(M, W, v0, b=b, Minv=Minv)
+    assert len(tries) == 1
+    solve = schur.solve
+    monkeypatch.setattr(schur, "solve", lambda G, idx, rhs, dense, fresh=False: None if fresh else solve(
+        G, idx, rhs, dense, fresh))
+    tries.clear()
+    got = qp.solve(M, W, v0, b=b, Minv=Minv)
+    assert len(tries) == 2 and got.status == direct.status == "ACTIVE_SET"
+    assert got.v.view(np.int64).tolist() == direct.v.view(np.int64).tolist()
+    assert got.lam.view(np.int64).tolist() == direct.lam.view(np.int64).tolist()
+    assert not getattr(schur._held, "off", False)
