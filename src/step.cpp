@@ -242,7 +242,10 @@ struct Spare {
   std::vector<MatrixXd> W;
   std::vector<RowMatrixXd> M;
   // a stored matrix of r*c entries, else a new one; `zeroed`: the new one +0.0 everywhere, as the W store's are
-  // (~StepOut and the step clear what they wrote)
+  // (~StepOut and the step clear what they wrote). A zeroed column-major one of another number of columns is a
+  // stored one of r rows resized in place (realloc: the pages it had are kept; only the columns it grows by are
+  // new, cleared): W's columns change with the contacts at every step, and a fresh (nv, m) matrix had the kernel
+  // clear every page of it (a third of a step in the 1000-cube pile)
   template <class Mat>
   static Mat take(std::mutex &mu, std::vector<Mat> &v, Eigen::Index r, Eigen::Index c, bool zeroed = false) {
     {
@@ -254,6 +257,16 @@ struct Spare {
           x.resize(r, c);  // the same number of entries: no reallocation
           return x;
         }
+      if (zeroed && !Mat::IsRowMajor && c > 0)
+        for (size_t k = 0; k < v.size(); ++k)
+          if (v[k].rows() == r && v[k].cols() > 0) {
+            Mat x = std::move(v[k]);
+            v.erase(v.begin() + (std::ptrdiff_t)k);
+            const Eigen::Index c0 = x.cols();
+            x.conservativeResize(r, c);  // the first min(c0, c) columns kept (+0.0)
+            if (c > c0) x.rightCols(c - c0).setZero();
+            return x;
+          }
     }
     return zeroed ? Mat(Mat::Zero(r, c)) : Mat(r, c);
   }
