@@ -52,8 +52,8 @@ def solve(G: nonzeros.Contact, idx: np.ndarray, rhs: np.ndarray, dense_solve, fr
     its multipliers on A's own factor, as accurate as G_AA allows, where the complement's carry G_BB's conditioning)."""
     _held.used = True
     base = getattr(_held, "base", None)
-    if base is not None and (fresh or base[0] is not G):
-        base = None
+    if base is not None and (base[0] is not G or (fresh and not np.array_equal(base[1], idx))):
+        base = None  # (fresh: A's own factor; the base's where A is it)
     if base is not None:
         pos = base[2]
         inB = pos[idx] >= 0

@@ -826,6 +826,20 @@ struct GInfo {
   std::vector<Eigen::Index> cptr, cidx, rptr, ridx, fill;
   std::vector<double> rval;
   uint64_t gen = 0;  // which G this is: a number no other set() gives (band_lu_solve's factor cache is G's while it holds)
+  // odot(G[p], x) over row p's nonzero terms (G and x finite: the others add +-0, settled by the + 0.0; nonzeros.Rows
+  // .row_dot), x indexed through `at` (-1: outside x; null: x by G's columns)
+  double row_dot(Eigen::Index p, const double *x, const Eigen::Index *at) const {
+    double sum = 0.0;
+    bool first = true;
+    for (Eigen::Index t = rptr[(size_t)p]; t < rptr[(size_t)p + 1]; ++t) {
+      const Eigen::Index c = at ? at[ridx[(size_t)t]] : ridx[(size_t)t];
+      if (c < 0) continue;
+      const double term = rval[(size_t)t] * x[c];
+      sum = first ? term : sum + term;
+      first = false;
+    }
+    return sum + 0.0;
+  }
   static uint64_t next_gen() {
     static std::atomic<uint64_t> made{0};
     return ++made;
@@ -1085,6 +1099,16 @@ struct SparseCache {
   int last = 0;
 };
 
+// w.a set to G_AA's nonzero entries from G's rows (A = sel; pos: a row's place in sel, -1 outside it), by rows,
+// columns ascending (nonzeros.Rows.sub)
+void fill_sub(SparseLU &w, const GInfo &gi, const std::vector<Eigen::Index> &sel, const Eigen::Index *pos) {
+  const Eigen::Index k = (Eigen::Index)sel.size();
+  w.set_size(k);
+  for (Eigen::Index i = 0; i < k; ++i)
+    for (Eigen::Index t = gi.rptr[(size_t)sel[(size_t)i]]; t < gi.rptr[(size_t)sel[(size_t)i] + 1]; ++t)
+      if (pos[gi.ridx[(size_t)t]] >= 0) w.a[(size_t)i].emplace_back(pos[gi.ridx[(size_t)t]], gi.rval[(size_t)t]);
+}
+
 // nonzeros.one_apart: (c, +1) where the ascending rows idx are old with one added at place c, (c, -1) where one was
 // dropped from old's place c, else (0, 0)
 std::pair<Eigen::Index, int> one_apart(const std::vector<Eigen::Index> &old, const std::vector<Eigen::Index> &idx) {
@@ -1114,12 +1138,7 @@ bool sub_lu_solve(SparseCache &cache, const GInfo &gi, const std::vector<Eigen::
     return sparse_lu_apply(last, rhs, x);
   }
   SparseLU &w = cache.f[1 - cache.last];
-  auto fill = [&] {
-    w.set_size(k);
-    for (I i = 0; i < k; ++i)
-      for (I t = gi.rptr[(size_t)sel[(size_t)i]]; t < gi.rptr[(size_t)sel[(size_t)i] + 1]; ++t)
-        if (pos[gi.ridx[(size_t)t]] >= 0) w.a[(size_t)i].emplace_back(pos[gi.ridx[(size_t)t]], gi.rval[(size_t)t]);
-  };
+  auto fill = [&] { fill_sub(w, gi, sel, pos); };
   fill();
   const auto [c, change] = same_g ? one_apart(last.idx, sel) : std::pair<I, int>{0, 0};
   const bool ok = sparse_lu_factor(w, same_g && change && c ? &last : nullptr, c, change, fill);
@@ -1171,7 +1190,7 @@ bool schur_solve(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::In
   thread_local std::vector<char> kept;
   const I m = G.rows(), k = (I)sel.size();
   schur_state().used = true;
-  bool have = sc.valid && sc.gen == gi.gen && !fresh;
+  bool have = sc.valid && sc.gen == gi.gen && (!fresh || sc.B == sel);  // (fresh: A's own factor; the base's if A is it)
   if (have) {
     P.clear(), D.clear();
     kept.assign((size_t)m, 0);
@@ -1189,11 +1208,7 @@ bool schur_solve(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::In
     sc.B = sel;
     sc.pos.assign((size_t)m, -1);
     for (I i = 0; i < k; ++i) sc.pos[(size_t)sel[(size_t)i]] = i;
-    sc.f.set_size(k);
-    for (I i = 0; i < k; ++i)
-      for (I t = gi.rptr[(size_t)sel[(size_t)i]]; t < gi.rptr[(size_t)sel[(size_t)i] + 1]; ++t)
-        if (sc.pos[(size_t)gi.ridx[(size_t)t]] >= 0)
-          sc.f.a[(size_t)i].emplace_back(sc.pos[(size_t)gi.ridx[(size_t)t]], gi.rval[(size_t)t]);
+    fill_sub(sc.f, gi, sel, sc.pos.data());
     if (!sparse_lu_factor(sc.f)) return false;
     sc.valid = true, sc.gen = gi.gen;
     return sparse_lu_apply(sc.f, rhs, x);
@@ -1223,18 +1238,7 @@ bool schur_solve(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::In
     }
     Z[(size_t)j] = &it->second;
   }
-  auto row_dot = [&](I a, const VectorXd &z) {  // nonzeros.Rows.row_dot(a, z, pos)
-    double sum = 0.0;
-    bool first = true;
-    for (I t = gi.rptr[(size_t)a]; t < gi.rptr[(size_t)a + 1]; ++t) {
-      const I c = pos[(size_t)gi.ridx[(size_t)t]];
-      if (c < 0) continue;
-      const double term = gi.rval[(size_t)t] * z[c];
-      sum = first ? term : sum + term;
-      first = false;
-    }
-    return sum + 0.0;
-  };
+  auto row_dot = [&](I a, const VectorXd &z) { return gi.row_dot(a, z.data(), pos.data()); };
   MatrixXd S(n, n);
   VectorXd t(n), s;
   for (I i = 0; i < n; ++i) {
@@ -1304,27 +1308,13 @@ bool active_set(const Constants &C, const MatrixXd &G, const GInfo &gi, const Ve
   idx.clear();
   s.resize(m);
   const bool finite = gi.finite, is_clean = gi.is_clean;  // lu_solve on G's submatrices: finite, no -0.0
-  const auto &cptr = gi.cptr, &cidx = gi.cidx, &rptr = gi.rptr, &ridx = gi.ridx;
-  const auto &rval = gi.rval;
+  const auto &cptr = gi.cptr, &cidx = gi.cidx;
   const bool sparse = gi.sparse;  // G_AA's solves on its nonzeros
   BandLU &band = band_cache();  // G_AA row-major, for band_lu_solve (G clean)
   thread_local std::vector<Eigen::Index> posA;  // a row's place in idx, -1 outside A (reset where idx was set)
   posA.assign(finite ? (size_t)m : 0, -1);
   bool lam_finite = lam.allFinite();
-  // odot(G[p], x) over row p's nonzero terms (G and x finite: the others add +-0, settled by the + 0.0), x indexed
-  // through `at` (-1: outside x)
-  auto row_dot = [&](Eigen::Index p, const double *x, const Eigen::Index *at) {
-    double sum = 0.0;
-    bool first = true;
-    for (Eigen::Index t = rptr[(size_t)p]; t < rptr[(size_t)p + 1]; ++t) {
-      const Eigen::Index c = at ? at[ridx[(size_t)t]] : ridx[(size_t)t];
-      if (c < 0) continue;
-      const double term = rval[(size_t)t] * x[c];
-      sum = first ? term : sum + term;
-      first = false;
-    }
-    return sum + 0.0;
-  };
+  auto row_dot = [&](Eigen::Index p, const double *x, const Eigen::Index *at) { return gi.row_dot(p, x, at); };
   while (true) {
     if (finite && lam_finite) {  // G @ lam - r: the terms with lam_k = +-0 or G_ik = 0 add +-0 (a zero's sign settled by the + 0.0)
       s.setZero();
@@ -1645,10 +1635,10 @@ bool solve_sub(const MatrixXd &G, const GInfo &gi, const std::vector<Eigen::Inde
                VectorXd &x, bool fresh) {
   const Eigen::Index k = (Eigen::Index)sel.size();
   if (gi.is_clean) {
+    if (schur_applies(gi, G.rows(), k)) return schur_solve(G, gi, sel, rhs, x, fresh);
     thread_local std::vector<Eigen::Index> pos;
     pos.assign((size_t)G.rows(), -1);
     for (Eigen::Index i = 0; i < k; ++i) pos[(size_t)sel[(size_t)i]] = i;
-    if (schur_applies(gi, G.rows(), k)) return schur_solve(G, gi, sel, rhs, x, fresh);
     if (gi.sparse && k > kSparseLU) return sub_lu_solve(gi, sel, pos.data(), rhs, x);
     return band_lu_solve(band_cache(), gi, sel, pos.data(), rhs, x);
   }

@@ -26,7 +26,8 @@ def _base():
 def test_a_solve_on_the_base_and_its_complement_is_the_direct_solve(seed):
     """From a base B of 120 rows: sets with 1 to SCHUR_ROWS rows added and dropped solve G_AA x = y to 1e-10 of the
     direct solve (numpy's, relative to max|x|), B kept; one row more makes that set the base; a fresh solve (a
-    projection's final one) makes its set the base and gives the dense elimination's bits (qp._lu_solve)."""
+    projection's final one) makes its set the base and gives the dense elimination's bits (qp._lu_solve), on the base's
+    own factor where its set is the base."""
     rng = np.random.default_rng(seed)
     G = _contact(seed)
     Gd = G.rows.dense()
@@ -52,6 +53,9 @@ def test_a_solve_on_the_base_and_its_complement_is_the_direct_solve(seed):
     x = schur.solve(G, A, y, qp._lu_solve, fresh=True)
     assert np.array_equal(_base(), A)
     assert x.view(np.int64).tolist() == qp._lu_solve(Gd[np.ix_(A, A)], y).view(np.int64).tolist()  # its bits
+    held = schur._held.base
+    x2 = schur.solve(G, A, y, qp._lu_solve, fresh=True)  # A is the base: its factor, not made again
+    assert schur._held.base is held and x2.view(np.int64).tolist() == x.view(np.int64).tolist()
     schur._held.base = None
 
 
